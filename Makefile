@@ -1,0 +1,26 @@
+# make demo   set everything up (.venv, Debian EGL packages when root) and run the main job
+# make test   set everything up and run the tests
+# make bench  set everything up and run the benchmarks (results/*.json, docs/RESULTS.md)
+VENV ?= .venv
+STAMP := $(VENV)/.binpick-installed
+export MUJOCO_GL ?= egl
+
+.PHONY: demo test bench setup clean
+
+demo: $(STAMP)
+	$(VENV)/bin/binpick demo
+
+test: $(STAMP)
+	$(VENV)/bin/python -m pytest -q
+
+bench: $(STAMP)
+	$(VENV)/bin/python benchmarks/env_speed.py
+	$(VENV)/bin/python benchmarks/random_policy.py
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml scripts/setup.sh
+	bash scripts/setup.sh $(VENV)
+
+clean:
+	rm -rf $(VENV) runs .pytest_cache

@@ -1,0 +1,39 @@
+#!/usr/bin/env bash
+# Create the virtual environment and install binpick into it; safe to run again (it skips what is there).
+#   scripts/setup.sh [VENV]      (default .venv; PYTHON=python3.11 chooses the interpreter)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+VENV=${1:-.venv}
+PYTHON=${PYTHON:-$(command -v python3.11 || command -v python3)}
+
+# Headless MuJoCo rendering needs EGL from Mesa (MUJOCO_GL=egl). Install it when we can (root + apt).
+if command -v dpkg >/dev/null 2>&1; then
+  missing=()
+  for pkg in libegl1 libegl-mesa0 libgl1-mesa-dri; do
+    dpkg -s "$pkg" >/dev/null 2>&1 || missing+=("$pkg")
+  done
+  if [ ${#missing[@]} -gt 0 ]; then
+    if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+      echo "== installing Debian packages for headless rendering: ${missing[*]}"
+      apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${missing[@]}" >/dev/null
+    else
+      echo "warning: rendering needs the Debian packages ${missing[*]}: run 'sudo apt-get install ${missing[*]}'" >&2
+    fi
+  fi
+fi
+
+pip_quiet() {  # this machine's pip config names local index folders that may not exist: hide that noise
+  "$VENV/bin/python" -m pip install -q "$@" 2>&1 | { grep -v "^WARNING: Location 'file:" || true; }
+  return "${PIPESTATUS[0]}"
+}
+
+if [ ! -x "$VENV/bin/python" ]; then
+  echo "== creating $VENV with $PYTHON"
+  "$PYTHON" -m venv "$VENV"
+fi
+echo "== installing binpick and its pinned dependencies into $VENV"
+# torch first, pinned: the local CPU build. Anything unpinned would pull GBs of CUDA wheels.
+pip_quiet torch==2.13.0
+pip_quiet -e ".[test]"
+touch "$VENV/.binpick-installed"
+echo "== ready: $VENV/bin/binpick"

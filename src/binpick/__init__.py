@@ -1,0 +1,18 @@
+"""binpick: learned bin picking for warehouse order fulfilment.
+
+Importing the package registers its Gymnasium envs (``binpick/Arm2D-v0``, ...). MuJoCo needs an
+OpenGL platform for images; on a headless machine binpick defaults ``MUJOCO_GL`` to ``egl`` (set it
+yourself to override, e.g. ``osmesa``).
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("MUJOCO_GL", "egl")  # must happen before mujoco is first imported
+os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
+
+from binpick.envs import ENV_IDS, make  # noqa: E402  (registers the envs)
+
+__version__ = "0.1.0"
+__all__ = ["ENV_IDS", "make", "__version__"]

@@ -1,0 +1,185 @@
+"""The ``binpick`` command: one sub-command group per job (``binpick envs list``, ...).
+
+User mistakes end in one line on stderr and exit code 2, never a traceback.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Annotated
+
+import typer
+import yaml
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from rich.table import Table
+
+from binpick.errors import BinpickError, ConfigError
+
+app = typer.Typer(help="Learned bin picking: simulated worlds, RL, APRiL and repeated object detection.",
+                  no_args_is_help=True, pretty_exceptions_enable=False, add_completion=False)
+envs_app = typer.Typer(help="The simulated worlds of the thesis (Gymnasium ids binpick/...).", no_args_is_help=True)
+app.add_typer(envs_app, name="envs")
+
+console = Console()
+SetOption = Annotated[list[str] | None, typer.Option("--set", help="Env parameter KEY=VALUE (repeatable), e.g. --set goal_area=0.5")]
+POLICIES = ("random",)
+
+
+def parse_settings(pairs: list[str] | None) -> dict:
+    """``["goal_area=0.5", "image=grey"]`` -> ``{"goal_area": 0.5, "image": "grey"}`` (YAML scalars)."""
+    settings = {}
+    for pair in pairs or []:
+        key, sep, value = pair.partition("=")
+        if not sep or not key.strip():
+            raise ConfigError(f"--set expects KEY=VALUE, got {pair!r}")
+        settings[key.strip()] = yaml.safe_load(value) if value.strip() else None
+    return settings
+
+
+def progress_bar() -> Progress:
+    return Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                    TimeElapsedColumn(), TimeRemainingColumn(), console=console, transient=False)
+
+
+@envs_app.command("list")
+def envs_list() -> None:
+    """List the registered envs with their episode limit T and thesis section."""
+    from binpick.envs import ENVS
+
+    table = Table(title="binpick environments")
+    for column in ("id", "T", "thesis", "what it is"):
+        table.add_column(column)
+    for spec in ENVS.values():
+        table.add_row(spec.env_id, str(spec.max_episode_steps), spec.thesis, spec.summary)
+    console.print(table)
+
+
+@envs_app.command("show")
+def envs_show(
+    env_id: Annotated[str, typer.Argument(help="Env id, e.g. binpick/FetchReach-v0 or FetchReach")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="PNG file to write")] = Path("frame.png"),
+    seed: Annotated[int, typer.Option(help="Reset seed")] = 0,
+    size: Annotated[int, typer.Option(help="Frame side in pixels")] = 480,
+    settings: SetOption = None,
+) -> None:
+    """Reset an env and save what a person sees (and the policy's image observation, if any)."""
+    from PIL import Image
+
+    from binpick.envs import make, resolve_env_id
+
+    env_id = resolve_env_id(env_id)
+    kwargs = parse_settings(settings)
+    kwargs.update({"render_size": size} if env_id.endswith("Arm2D-v0") else {"width": size, "height": size})
+    env = make(env_id, render_mode="rgb_array", **kwargs)
+    try:
+        observation, _ = env.reset(seed=seed)
+        frame = env.render()
+    finally:
+        env.close()
+    _save_png(frame, out)
+    console.print(f"wrote {out} ({frame.shape[1]}x{frame.shape[0]})")
+    image = observation.get("image") if isinstance(observation, dict) else observation
+    if image is not None:
+        obs_path = out.with_name(out.stem + "_obs" + out.suffix)
+        _save_png(image[..., 0] if image.shape[-1] == 1 else image, obs_path)
+        console.print(f"wrote {obs_path} (image observation {image.shape[1]}x{image.shape[0]}x{image.shape[2]})")
+
+
+@envs_app.command("rollout")
+def envs_rollout(
+    env_id: Annotated[str, typer.Argument(help="Env id, e.g. binpick/Arm2D-v0 or Arm2D")],
+    policy: Annotated[str, typer.Option(help=f"Policy to run: {', '.join(POLICIES)}")] = "random",
+    episodes: Annotated[int, typer.Option(help="Number of seeded episodes")] = 20,
+    seed: Annotated[int, typer.Option(help="Seed of the first episode (episode i uses seed+i)")] = 0,
+    json_out: Annotated[Path | None, typer.Option("--json", help="Also write the result as JSON here")] = None,
+    settings: SetOption = None,
+) -> None:
+    """Run a policy and print the thesis's metric: average episode length ± std and success rate."""
+    from binpick.config import check_choice, check_range
+    from binpick.envs import make
+    from binpick.rl.evaluate import evaluate_policy, random_policy
+
+    check_choice("policy", policy, POLICIES)
+    check_range("episodes", episodes, 1, None, integer=True)
+    env = make(env_id, **parse_settings(settings))
+    try:
+        with progress_bar() as progress:
+            task = progress.add_task(f"{env.spec.id} · {policy}", total=episodes)
+            result = evaluate_policy(env, random_policy(env, seed), episodes=episodes, seed=seed,
+                                     on_episode=lambda *_: progress.advance(task))
+    finally:
+        env.close()
+    console.print(result.summary())
+    if json_out is not None:
+        json_out.parent.mkdir(parents=True, exist_ok=True)
+        json_out.write_text(json.dumps({**result.to_dict(), "policy": policy, "seed": seed}, indent=2))
+        console.print(f"wrote {json_out}")
+
+
+@app.command("demo")
+def demo(
+    out: Annotated[Path, typer.Option(help="Folder for the frames and summary")] = Path("runs/demo"),
+    episodes: Annotated[int, typer.Option(help="Random-policy episodes per env")] = 10,
+) -> None:
+    """What exists so far, end to end: render every env and roll a random policy in each."""
+    from binpick.envs import ENV_IDS, make
+    from binpick.rl.evaluate import evaluate_policy, random_policy
+
+    run_dir = out / time.strftime("%Y%m%d-%H%M%S")
+    run_dir.mkdir(parents=True, exist_ok=True)
+    table = Table(title=f"random policy, {episodes} seeded episodes per env")
+    for column in ("env", "T", "avg actions ± std", "success", "frame"):
+        table.add_column(column)
+    summary = []
+    started = time.perf_counter()
+    with progress_bar() as progress:
+        overall = progress.add_task("all envs", total=len(ENV_IDS) * episodes)
+        for env_id in ENV_IDS:
+            name = env_id.split("/")[1]
+            env = make(env_id, render_mode="rgb_array")
+            try:
+                env.reset(seed=0)
+                frame_path = run_dir / f"{name}.png"
+                _save_png(env.render(), frame_path)
+                task = progress.add_task(name, total=episodes)
+
+                def advance(*_: object, task: int = task) -> None:
+                    progress.advance(task)
+                    progress.advance(overall)
+
+                result = evaluate_policy(env, random_policy(env, 0), episodes=episodes, seed=0, on_episode=advance)
+            finally:
+                env.close()
+            summary.append(result.to_dict())
+            table.add_row(env_id, str(result.max_episode_steps), f"{result.mean_length:.1f} ± {result.std_length:.1f}",
+                          f"{100 * result.success_rate:.0f}%", str(frame_path))
+    console.print(table)
+    (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+    console.print(f"frames and summary.json in {run_dir} ({time.perf_counter() - started:.1f} s)")
+
+
+def _save_png(array, path: Path) -> None:
+    from PIL import Image
+
+    path = Path(path)
+    if path.suffix.lower() != ".png":
+        raise ConfigError(f"--out must end in .png, got {str(path)!r}")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(array).save(path)
+
+
+def main() -> None:
+    """Console-script entry point: run the app, turning binpick errors into one line."""
+    try:
+        app()
+    except BinpickError as error:
+        Console(stderr=True).print(f"[bold red]error:[/] {error}", highlight=False, soft_wrap=True)
+        sys.exit(2)
+
+
+if __name__ == "__main__":
+    main()

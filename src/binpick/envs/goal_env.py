@@ -1,0 +1,54 @@
+"""What every binpick goal-conditioned MuJoCo env shares: an optional camera image observation and
+the thesis's episode end at success (§3.1: an episode ends when the goal is reached or after T)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+
+from binpick.config import check_choice
+from binpick.envs.images import IMAGE_MODES, CameraPose, MujocoCamera, check_image_size
+
+
+class ImageObservationMixin:
+    """Adds an ``image`` entry to a dict observation, rendered by a dedicated off-screen camera,
+    and draws ``render()`` frames (``render_mode="rgb_array"``) with a second, larger camera."""
+
+    _camera: MujocoCamera | None = None
+    _view: MujocoCamera | None = None
+    view_pose: CameraPose  # set by each env class: where a person looks from
+
+    def render(self):
+        if self.render_mode != "rgb_array":
+            return None
+        if self._view is None:
+            self._view = MujocoCamera(self.model, (self.width, self.height), "rgb", self.view_pose)
+        self._prepare_frame()
+        return self._view.render(self.data)
+
+    def _prepare_frame(self) -> None:
+        """Hook: bring visual-only state (e.g. a goal marker) up to date before drawing."""
+
+    def _init_image_observation(self, model, image: str | None, image_size: int, pose: CameraPose) -> None:
+        self.image_mode = check_choice("image", image, [None, *IMAGE_MODES])
+        self.image_size = check_image_size("image_size", image_size)
+        self._camera = None
+        if self.image_mode is None:
+            return
+        self._camera = MujocoCamera(model, self.image_size, self.image_mode, pose)
+        channels = 3 if self.image_mode == "rgb" else 1
+        image_space = spaces.Box(0, 255, (self.image_size, self.image_size, channels), np.uint8)
+        self.observation_space = spaces.Dict({**self.observation_space.spaces, "image": image_space})
+
+    def _with_image(self, observation: dict[str, Any], data) -> dict[str, Any]:
+        if self._camera is not None:
+            observation["image"] = self._camera.render(data)
+        return observation
+
+    def _close_camera(self) -> None:
+        for camera in (self._camera, self._view):
+            if camera is not None:
+                camera.close()
+        self._camera = self._view = None

@@ -1,0 +1,26 @@
+"""Errors meant for people: each carries one line that says what is wrong and how to fix it.
+
+The CLI prints ``str(error)`` of any :class:`BinpickError` without a traceback, so the message
+must stand on its own (name the bad parameter, file or id, and what would be accepted).
+"""
+
+from __future__ import annotations
+
+
+class BinpickError(Exception):
+    """Base class of every error caused by user input or the machine's set-up."""
+
+
+class ConfigError(BinpickError, ValueError):
+    """A parameter or config value is outside what is allowed."""
+
+
+class UnknownEnvError(BinpickError, KeyError):
+    """An environment id that binpick does not provide."""
+
+    def __str__(self) -> str:  # KeyError would wrap the message in quotes
+        return str(self.args[0]) if self.args else ""
+
+
+class RenderingUnavailableError(BinpickError, RuntimeError):
+    """MuJoCo could not open an OpenGL context (headless machine without EGL/OSMesa)."""

@@ -1,0 +1,116 @@
+"""The thesis's headline metric: average episode length (actions until success, capped at T) ± std,
+beside the success rate, over N seeded episodes.
+
+A policy is any callable ``obs -> action`` or an object with an SB3-style
+``predict(obs, deterministic=True) -> (action, state)``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import gymnasium as gym
+import numpy as np
+
+from binpick.config import check_range
+
+
+class SupportsPredict(Protocol):
+    def predict(self, observation: Any, deterministic: bool = True) -> tuple[Any, Any]: ...
+
+
+Policy = Callable[[Any], Any] | SupportsPredict
+EpisodeCallback = Callable[[int, int, bool], None]
+
+
+@dataclass
+class EvalResult:
+    """Per-episode lengths and successes, with the summary numbers the thesis reports."""
+
+    env_id: str
+    lengths: list[int] = field(default_factory=list)
+    successes: list[bool] = field(default_factory=list)
+    max_episode_steps: int | None = None
+
+    @property
+    def episodes(self) -> int:
+        return len(self.lengths)
+
+    @property
+    def mean_length(self) -> float:
+        return float(np.mean(self.lengths)) if self.lengths else float("nan")
+
+    @property
+    def std_length(self) -> float:
+        return float(np.std(self.lengths)) if self.lengths else float("nan")
+
+    @property
+    def success_rate(self) -> float:
+        return float(np.mean(self.successes)) if self.successes else float("nan")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "env_id": self.env_id,
+            "episodes": self.episodes,
+            "max_episode_steps": self.max_episode_steps,
+            "mean_length": self.mean_length,
+            "std_length": self.std_length,
+            "success_rate": self.success_rate,
+        }
+
+    def summary(self) -> str:
+        return (
+            f"{self.env_id}: {self.mean_length:.2f} ± {self.std_length:.2f} actions per episode, "
+            f"success {100 * self.success_rate:.1f}% over {self.episodes} episodes"
+        )
+
+
+def random_policy(env: gym.Env, seed: int = 0) -> Callable[[Any], Any]:
+    """Uniformly random actions from the env's action space, seeded for repeatable baselines."""
+    space = env.action_space
+    space.seed(seed)
+    return lambda _observation: space.sample()
+
+
+def evaluate_policy(
+    env: gym.Env,
+    policy: Policy,
+    episodes: int = 100,
+    seed: int = 0,
+    on_episode: EpisodeCallback | None = None,
+) -> EvalResult:
+    """Run ``episodes`` episodes (episode i reset with ``seed + i``) and measure their lengths.
+
+    An episode ends at the first step whose ``info["is_success"]`` is true (its length is the number
+    of actions taken), or when the env terminates or truncates (length T if never successful).
+    """
+    check_range("episodes", episodes, 1, None, integer=True)
+    act = _as_callable(policy)
+    spec = env.spec
+    result = EvalResult(env_id=spec.id if spec else type(env.unwrapped).__name__,
+                        max_episode_steps=spec.max_episode_steps if spec else None)
+    for episode in range(episodes):
+        observation, info = env.reset(seed=seed + episode)
+        steps, success = 0, bool(info.get("is_success", False))
+        while not success:
+            observation, _, terminated, truncated, info = env.step(act(observation))
+            steps += 1
+            success = bool(info.get("is_success", False))
+            if terminated or truncated:
+                break
+        result.lengths.append(steps)
+        result.successes.append(success)
+        if on_episode is not None:
+            on_episode(episode, steps, success)
+    return result
+
+
+def _as_callable(policy: Policy) -> Callable[[Any], Any]:
+    predict = getattr(policy, "predict", None)
+    if callable(predict):
+        return lambda observation: predict(observation, deterministic=True)[0]
+    if callable(policy):
+        return policy
+    raise TypeError(f"policy must be callable or have a predict() method, got {type(policy).__name__}")

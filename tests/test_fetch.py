@@ -1,0 +1,88 @@
+"""Fetch worlds (thesis §4.5.2-4.5.3): the obstacle is solid, random and never covers the goal."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def _drive_gripper_to(env, point: np.ndarray, steps: int) -> list[np.ndarray]:
+    positions = []
+    for _ in range(steps):
+        gripper = env.unwrapped._get_obs()["achieved_goal"]
+        action = np.zeros(4, dtype=np.float32)
+        action[:3] = np.clip(10 * (point - gripper), -1, 1)
+        env.unwrapped.step(action)
+        positions.append(env.unwrapped._get_obs()["achieved_goal"])
+    return positions
+
+
+def test_obstacle_is_placed_at_random_and_never_covers_the_goal(make_env):
+    env = make_env("binpick/FetchReachObstacle-v0")
+    unwrapped = env.unwrapped
+    positions = []
+    for seed in range(15):
+        observation, _ = env.reset(seed=seed)
+        position = unwrapped.obstacle_position
+        positions.append(position)
+        assert np.max(np.abs(position - observation["desired_goal"])) > unwrapped.obstacle_half_size
+        assert unwrapped.obstacle_contacts() == 0, "the box must not start inside the robot"
+    positions = np.array(positions)
+    assert positions.std(axis=0).min() > 0.03
+    assert positions[:, 2].min() > 0.42, "the box floats in the workspace above the table"
+
+
+def test_arm_collides_with_the_obstacle(make_env):
+    env = make_env("binpick/FetchReachObstacle-v0")
+    env.reset(seed=1)
+    unwrapped = env.unwrapped
+    centre = unwrapped.obstacle_position
+    half = unwrapped.obstacle_half_size
+    contacts = 0
+    closest = np.inf
+    for position in _drive_gripper_to(env, centre, 40):
+        contacts = max(contacts, unwrapped.obstacle_contacts())
+        closest = min(closest, np.max(np.abs(position - centre)))
+    assert contacts > 0, "driving into the box must touch it"
+    assert closest > 0.5 * half, f"the gripper passed into the box (inf-norm distance {closest:.3f})"
+
+
+def test_without_obstacle_the_same_drive_reaches_the_point(make_env):
+    env = make_env("binpick/FetchReach-v0")
+    observation, _ = env.reset(seed=1)
+    point = observation["achieved_goal"] + np.array([0.1, 0.05, -0.05])
+    final = _drive_gripper_to(env, point, 40)[-1]
+    assert np.linalg.norm(final - point) < 0.02
+
+
+def test_obstacle_can_hide_the_goal_from_the_camera(make_env):
+    env = make_env("binpick/FetchReachObstacle-v0", image="rgb", image_size=64)
+    observation, _ = env.reset(seed=0)
+    unwrapped = env.unwrapped
+
+    def red_pixels(image):
+        return int(np.sum((image[..., 0] > 150) & (image[..., 1] < 60) & (image[..., 2] < 60)))
+
+    visible = red_pixels(observation["image"])
+    assert visible > 0, "the goal is visible when nothing is in the way"
+    # put the box between the camera and the goal: on the line from the goal towards the camera
+    camera = unwrapped._camera._camera
+    azimuth, elevation = np.radians(camera.azimuth), np.radians(camera.elevation)
+    towards_camera = -np.array([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth), np.sin(elevation)])
+    unwrapped.model.body_pos[unwrapped._obstacle_body] = unwrapped.goal + 0.2 * towards_camera
+    hidden = red_pixels(unwrapped._get_obs()["image"])
+    assert hidden < visible
+
+
+def test_pick_and_place_actions_are_delta_z_and_gripper(make_env):
+    env = make_env("binpick/FetchPickAndPlace-v0")
+    observation, _ = env.reset(seed=0)
+    assert env.action_space.shape == (4,)
+    assert env.spec.max_episode_steps == 100
+    data = env.unwrapped.data
+    fingers = lambda: data.qpos[env.unwrapped.model.joint("robot0:l_gripper_finger_joint").qposadr[0]]  # noqa: E731
+    for _ in range(5):
+        env.step(np.array([0, 0, 0, 1.0], dtype=np.float32))
+    opened = fingers()
+    for _ in range(5):
+        env.step(np.array([0, 0, 0, -1.0], dtype=np.float32))
+    assert fingers() < opened - 0.01, "a_g = -1 closes the gripper"
