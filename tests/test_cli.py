@@ -1,0 +1,105 @@
+"""The ``binpick`` command as a person uses it: outputs, files written, and one-line errors."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+from PIL import Image
+from typer.testing import CliRunner
+
+import binpick
+from binpick.cli import app
+
+runner = CliRunner()
+
+
+def run_cli(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
+    """The real console entry point in a fresh process, as a shell user would run it."""
+    return subprocess.run(
+        [sys.executable, "-c", "from binpick.cli import main; main()", *args],
+        capture_output=True, text=True, timeout=120, env={**os.environ, **(env or {})},
+    )
+
+
+def test_envs_list_shows_every_id():
+    result = runner.invoke(app, ["envs", "list"], env={"COLUMNS": "200"})
+    assert result.exit_code == 0, result.output
+    for env_id in binpick.ENV_IDS:
+        assert env_id in result.output
+
+
+def test_envs_show_writes_frame_and_observation(tmp_path):
+    out = tmp_path / "arm.png"
+    result = runner.invoke(app, ["envs", "show", "Arm2D", "--out", str(out), "--size", "128"])
+    assert result.exit_code == 0, result.output
+    assert Image.open(out).size == (128, 128)
+    assert Image.open(tmp_path / "arm_obs.png").size == (64, 64)
+
+
+def test_envs_show_fetch_with_grey_image_observation(tmp_path):
+    out = tmp_path / "fetch.png"
+    result = runner.invoke(app, ["envs", "show", "binpick/FetchReach-v0", "--out", str(out), "--size", "96",
+                                 "--set", "image=grey", "--set", "image_size=48"])
+    assert result.exit_code == 0, result.output
+    assert Image.open(out).size == (96, 96)
+    observation = Image.open(tmp_path / "fetch_obs.png")
+    assert observation.size == (48, 48) and observation.mode == "L"
+
+
+def test_envs_rollout_prints_length_and_success_and_writes_json(tmp_path):
+    out = tmp_path / "r.json"
+    result = runner.invoke(app, ["envs", "rollout", "Reacher", "--episodes", "4", "--json", str(out)],
+                           env={"COLUMNS": "200"})
+    assert result.exit_code == 0, result.output
+    assert "actions per episode" in result.output and "success" in result.output
+    summary = json.loads(out.read_text())
+    assert summary["episodes"] == 4 and summary["max_episode_steps"] == 50
+    assert 0 < summary["mean_length"] <= 50 and 0 <= summary["success_rate"] <= 1
+
+
+def test_demo_renders_every_env_and_summarises(tmp_path):
+    result = runner.invoke(app, ["demo", "--out", str(tmp_path), "--episodes", "1"], env={"COLUMNS": "200"})
+    assert result.exit_code == 0, result.output
+    (run_dir,) = list(tmp_path.iterdir())
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert [row["env_id"] for row in summary] == list(binpick.ENV_IDS)
+    assert len(list(run_dir.glob("*.png"))) == len(binpick.ENV_IDS)
+
+
+@pytest.mark.parametrize(
+    "args,expected",
+    [
+        (["envs", "rollout", "nope"], ["unknown env id 'nope'", *binpick.ENV_IDS]),
+        (["envs", "rollout", "Arm2D", "--set", "goal_area=2"], ["goal_area", "[0.0, 1.0]", "2"]),
+        (["envs", "rollout", "Arm2D", "--set", "tolerance=0"], ["tolerance", "(0.0, 0.5]"]),
+        (["envs", "show", "FetchReach", "--set", "image_size=8"], ["image_size", "[16, 1024]", "8"]),
+        (["envs", "show", "Reacher", "--set", "image=colour"], ["image", "'rgb'", "'grey'", "'colour'"]),
+        (["envs", "show", "Reacher", "--size", "5000"], ["width", "[16, 1024]"]),
+        (["envs", "show", "Reacher", "--set", "speed=3"], ["no parameter speed", "tolerance"]),
+        (["envs", "show", "Reacher", "--out", "frame.jpg"], ["--out must end in .png"]),
+        (["envs", "rollout", "Arm2D", "--episodes", "0"], ["episodes", ">= 1"]),
+        (["envs", "rollout", "Arm2D", "--set", "noequals"], ["KEY=VALUE"]),
+    ],
+)
+def test_bad_input_gives_one_line_and_exit_code_2(args, expected, tmp_path):
+    result = run_cli(*args)
+    assert result.returncode == 2, result.stderr
+    assert "Traceback" not in result.stderr + result.stdout
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1, result.stderr
+    for fragment in expected:
+        assert fragment in lines[0]
+
+
+def test_missing_opengl_platform_names_the_fix():
+    result = run_cli("envs", "show", "FetchReach", "--out", "unused.png", env={"MUJOCO_GL": "bogus"})
+    assert result.returncode == 2
+    assert "Traceback" not in result.stderr
+    message = result.stderr.strip()
+    assert len(message.splitlines()) == 1
+    for fragment in ("MUJOCO_GL=bogus", "libegl1 libegl-mesa0 libgl1-mesa-dri", "MUJOCO_GL=egl", "libosmesa6"):
+        assert fragment in message

@@ -1,0 +1,72 @@
+"""The evaluation helper counts actions until success, capped at T, over seeded episodes."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium import spaces
+
+import binpick
+from binpick.rl.evaluate import evaluate_policy, random_policy
+
+
+class Countdown(gym.Env):
+    """Succeeds after exactly ``seed % 7 + 1`` actions of 1; action 0 never succeeds."""
+
+    observation_space = spaces.Discrete(100)
+    action_space = spaces.Discrete(2)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.remaining = seed % 7 + 1
+        return 0, {"is_success": False}
+
+    def step(self, action):
+        self.remaining -= int(action)
+        success = self.remaining <= 0
+        return 0, float(success), success, False, {"is_success": success}
+
+
+def test_lengths_are_actions_until_success():
+    env = gym.wrappers.TimeLimit(Countdown(), max_episode_steps=20)
+    result = evaluate_policy(env, lambda _obs: 1, episodes=10, seed=0)
+    expected = [s % 7 + 1 for s in range(10)]
+    assert result.lengths == expected
+    assert result.mean_length == pytest.approx(np.mean(expected))
+    assert result.std_length == pytest.approx(np.std(expected))
+    assert result.success_rate == 1.0
+
+
+def test_failures_count_as_T():
+    env = gym.wrappers.TimeLimit(Countdown(), max_episode_steps=20)
+    result = evaluate_policy(env, lambda _obs: 0, episodes=3)
+    assert result.lengths == [20, 20, 20] and result.success_rate == 0.0
+
+
+def test_stops_at_first_success_even_when_env_does_not_terminate(make_env):
+    env = make_env("binpick/FetchReach-v0", terminate_on_success=False)
+
+    class Controller:  # SB3-style predict(): a P-controller towards the goal
+        def predict(self, observation, deterministic=True):
+            action = np.zeros(4, dtype=np.float32)
+            action[:3] = np.clip(10 * (observation["desired_goal"] - observation["achieved_goal"]), -1, 1)
+            return action, None
+
+    result = evaluate_policy(env, Controller(), episodes=5)
+    assert result.success_rate == 1.0
+    assert 1 <= result.mean_length <= 10, result.lengths
+
+
+def test_random_policy_is_repeatable_and_worse_than_the_controller(make_env):
+    first = evaluate_policy(env := make_env("binpick/FetchReach-v0"), random_policy(env, 3), episodes=5)
+    second = evaluate_policy(env, random_policy(env, 3), episodes=5)
+    assert first.lengths == second.lengths
+    assert first.mean_length > 10
+    assert set(first.to_dict()) >= {"mean_length", "std_length", "success_rate", "episodes", "env_id"}
+
+
+def test_episodes_must_be_positive():
+    env = binpick.make("binpick/Arm2D-v0")
+    with pytest.raises(binpick.errors.ConfigError, match="episodes"):
+        evaluate_policy(env, random_policy(env), episodes=0)
