@@ -32,6 +32,7 @@ def test_short_names_resolve():
         ({"fixed_goal": (2.0, 0.0)}, "fixed_goal[0] must be in [-1.0, 1.0]"),
         ({"image": "colour"}, "image must be one of 'rgb', 'grey'"),
         ({"link_lengths": (0.4, 0.3)}, "link_lengths must have 3 entries"),
+        ({"image": None}, "image must be one of 'rgb', 'grey', got None"),
     ],
 )
 def test_arm2d_rejects_bad_parameters(kwargs, fragment):

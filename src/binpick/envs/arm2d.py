@@ -4,7 +4,7 @@ The arm's base sits at the centre of a square play area. Each of the six discret
 joint by ±π/8. The observation is an RGB picture of the arm and the goal (default 64×64); the
 semantic state (joint angles, end point, goal) is returned beside it in ``info`` and, with
 ``goal_conditioned=True``, as a Gymnasium-Robotics style dict (``observation``, ``achieved_goal``,
-``desired_goal``) so HER and GP models can use it.
+``desired_goal``, plus ``image`` unless ``image=None``) so HER and GP models can use it.
 
 The goal is either fixed (``goal_area=0``) or drawn uniformly from a rectangle that grows from the
 fixed goal to the whole play area: ``goal_area`` is the fraction of the play area it covers, and can
@@ -43,7 +43,7 @@ class Arm2DEnv(gym.Env):
     def __init__(
         self,
         image_size: int = 64,
-        image: str = "rgb",
+        image: str | None = "rgb",
         goal_conditioned: bool = False,
         goal_area: float = 0.0,
         fixed_goal: tuple[float, float] = (-0.45, 0.45),
@@ -53,10 +53,11 @@ class Arm2DEnv(gym.Env):
         render_mode: str | None = None,
     ) -> None:
         self.image_size = check_image_size("image_size", image_size)
-        self.image_mode = check_choice("image", image, IMAGE_MODES)
+        self.goal_conditioned = bool(goal_conditioned)
+        # a state-only Arm2D (image=None) exists for state-based RL; the pixel task needs a picture
+        self.image_mode = check_choice("image", image, [None, *IMAGE_MODES] if self.goal_conditioned else IMAGE_MODES)
         self.render_size = check_image_size("render_size", render_size)
         self.render_mode = check_choice("render_mode", render_mode, [None, *self.metadata["render_modes"]])
-        self.goal_conditioned = bool(goal_conditioned)
         if len(link_lengths) != 3:
             from binpick.errors import ConfigError
 
@@ -87,7 +88,7 @@ class Arm2DEnv(gym.Env):
                     "observation": spaces.Box(-np.inf, np.inf, (8,), np.float64),
                     "achieved_goal": spaces.Box(-np.inf, np.inf, (2,), np.float64),
                     "desired_goal": spaces.Box(-np.inf, np.inf, (2,), np.float64),
-                    "image": image_space,
+                    **({"image": image_space} if self.image_mode else {}),
                 }
             )
         else:
@@ -175,16 +176,16 @@ class Arm2DEnv(gym.Env):
         return {"is_success": distance <= self.tolerance, "distance": distance, "state": self.state}
 
     def _observation(self):
-        picture = self._draw(self.image_size, self.image_mode)
         if not self.goal_conditioned:
-            return picture
-        features = np.concatenate([np.cos(self.angles), np.sin(self.angles), self.end_point])
-        return {
-            "observation": features,
+            return self._draw(self.image_size, self.image_mode)
+        observation = {
+            "observation": np.concatenate([np.cos(self.angles), np.sin(self.angles), self.end_point]),
             "achieved_goal": self.end_point.copy(),
             "desired_goal": self.goal.copy(),
-            "image": picture,
         }
+        if self.image_mode is not None:
+            observation["image"] = self._draw(self.image_size, self.image_mode)
+        return observation
 
     def _draw(self, size: int, mode: str) -> np.ndarray:
         """Draw at 4x and downsample, so thin links stay visible and edges are anti-aliased."""

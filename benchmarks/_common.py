@@ -1,0 +1,63 @@
+"""Shared by the benchmarks: machine facts, peak memory, results JSON and docs/RESULTS.md sections.
+
+Each benchmark owns one section of docs/RESULTS.md between ``<!-- NAME:start -->`` and
+``<!-- NAME:end -->`` and rewrites only that, so benchmarks can be re-run one at a time.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import resource
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "results"
+RESULTS_MD = ROOT / "docs" / "RESULTS.md"
+
+
+def peak_rss_mib() -> float:
+    """Peak resident memory of this process so far, MiB (Linux reports KiB)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def machine() -> dict:
+    import mujoco
+    import numpy
+
+    return {
+        "cpu_count": os.cpu_count(),
+        "processor": platform.processor() or platform.machine(),
+        "python": sys.version.split()[0],
+        "mujoco": mujoco.__version__,
+        "numpy": numpy.__version__,
+        "mujoco_gl": os.environ.get("MUJOCO_GL"),
+        "date": time.strftime("%Y-%m-%d"),
+    }
+
+
+def write_result(name: str, payload: dict) -> Path:
+    RESULTS.mkdir(exist_ok=True)
+    path = RESULTS / f"{name}.json"
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps({"benchmark": name, "machine": machine(), **payload}, indent=2) + "\n")
+    tmp.replace(path)
+    return path
+
+
+def write_section(name: str, markdown: str) -> None:
+    """Replace (or append) this benchmark's section of docs/RESULTS.md."""
+    start, end = f"<!-- {name}:start -->", f"<!-- {name}:end -->"
+    block = f"{start}\n{markdown.strip()}\n{end}"
+    text = RESULTS_MD.read_text() if RESULTS_MD.exists() else "# Results\n"
+    if start in text and end in text:
+        before, rest = text.split(start, 1)
+        _, after = rest.split(end, 1)
+        text = before + block + after
+    else:
+        text = text.rstrip() + "\n\n" + block + "\n"
+    RESULTS_MD.parent.mkdir(exist_ok=True)
+    RESULTS_MD.write_text(text)
