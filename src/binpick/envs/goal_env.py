@@ -37,7 +37,8 @@ class ImageObservationMixin:
         self._camera = None
         if self.image_mode is None:
             return
-        self._camera = MujocoCamera(model, self.image_size, self.image_mode, pose)
+        # observations skip multisampling: twice the speed, and a policy does not need smooth edges
+        self._camera = MujocoCamera(model, self.image_size, self.image_mode, pose, multisample=False)
         channels = 3 if self.image_mode == "rgb" else 1
         image_space = spaces.Box(0, 255, (self.image_size, self.image_size, channels), np.uint8)
         self.observation_space = spaces.Dict({**self.observation_space.spaces, "image": image_space})

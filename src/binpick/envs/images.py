@@ -57,12 +57,19 @@ class MujocoCamera:
     (image observations, ``render()``) coexist in one process; gymnasium's own viewer did not.
     """
 
-    def __init__(self, model, size: int | tuple[int, int], mode: str, pose: CameraPose) -> None:
+    def __init__(
+        self, model, size: int | tuple[int, int], mode: str, pose: CameraPose, multisample: bool = True
+    ) -> None:
         mujoco = import_mujoco()
         width, height = (size, size) if isinstance(size, int) else size
         self.mode = mode
         visual = model.vis.global_
         visual.offwidth, visual.offheight = max(visual.offwidth, width), max(visual.offheight, height)
+        # The GL context reads the MSAA sample count once, when it is made. Without MSAA a small
+        # frame renders ~2.3x faster under Mesa llvmpipe (9.1 -> 4.0 ms for Fetch at 84 px).
+        samples = model.vis.quality.offsamples
+        if not multisample:
+            model.vis.quality.offsamples = 0
         failure = None
         hook, sys.unraisablehook = sys.unraisablehook, lambda _: None
         try:  # mujoco's half-built GL context prints a traceback when freed: free it here, quietly
@@ -73,6 +80,7 @@ class MujocoCamera:
             gc.collect()
         finally:
             sys.unraisablehook = hook
+            model.vis.quality.offsamples = samples
         if failure is not None:
             raise failure
         self._camera = mujoco.MjvCamera()
