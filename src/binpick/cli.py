@@ -132,7 +132,7 @@ def demo(
     run_dir = out / time.strftime("%Y%m%d-%H%M%S")
     run_dir.mkdir(parents=True, exist_ok=True)
     table = Table(title=f"random policy, {episodes} seeded episodes per env")
-    for column in ("env", "T", "avg actions ± std", "success", "frame"):
+    for column in ("env", "T", "avg actions ± std", "success"):
         table.add_column(column)
     summary = []
     started = time.perf_counter()
@@ -155,8 +155,8 @@ def demo(
             finally:
                 env.close()
             summary.append(result.to_dict())
-            table.add_row(env_id, str(result.max_episode_steps), f"{result.mean_length:.1f} ± {result.std_length:.1f}",
-                          f"{100 * result.success_rate:.0f}%", str(frame_path))
+            table.add_row(name, str(result.max_episode_steps), f"{result.mean_length:.1f} ± {result.std_length:.1f}",
+                          f"{100 * result.success_rate:.0f}%")
     console.print(table)
     (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
     console.print(f"frames and summary.json in {run_dir} ({time.perf_counter() - started:.1f} s)")

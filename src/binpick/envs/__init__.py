@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import gymnasium as gym
 from gymnasium.envs.registration import register, registry
 
+from binpick.config import check_range
 from binpick.errors import ConfigError, UnknownEnvError
 
 
@@ -73,8 +74,6 @@ def make(env_id: str, **kwargs) -> gym.Env:
             f"{env_id} has no parameter {', '.join(unknown)}; its parameters are: {', '.join(sorted(allowed))}"
         )
     if "max_episode_steps" in kwargs:
-        from binpick.config import check_range
-
         check_range("max_episode_steps", kwargs["max_episode_steps"], 1, 100_000, integer=True)
     return gym.make(env_id, **kwargs)
 

@@ -22,7 +22,9 @@ from gymnasium import spaces
 from PIL import Image, ImageDraw
 
 from binpick.config import check_choice, check_range
+from binpick.envs.goal_env import sparse_goal_reward
 from binpick.envs.images import IMAGE_MODES, check_image_size, to_mode
+from binpick.errors import ConfigError
 
 PLAY_HALF_WIDTH = 1.0  # the play area is [-1, 1]^2 in world units
 VIEW_HALF_WIDTH = 1.1  # the picture shows a small margin around it
@@ -59,8 +61,6 @@ class Arm2DEnv(gym.Env):
         self.render_size = check_image_size("render_size", render_size)
         self.render_mode = check_choice("render_mode", render_mode, [None, *self.metadata["render_modes"]])
         if len(link_lengths) != 3:
-            from binpick.errors import ConfigError
-
             raise ConfigError(f"link_lengths must have 3 entries, got {len(link_lengths)}")
         self.link_lengths = np.array(
             [check_range(f"link_lengths[{i}]", float(v), 0.0, 1.0, low_inclusive=False) for i, v in enumerate(link_lengths)]
@@ -71,8 +71,6 @@ class Arm2DEnv(gym.Env):
             [check_range(f"fixed_goal[{i}]", float(v), -PLAY_HALF_WIDTH, PLAY_HALF_WIDTH) for i, v in enumerate(fixed_goal)]
         )
         if np.linalg.norm(self.fixed_goal) > 0.95 * self.reach:
-            from binpick.errors import ConfigError
-
             raise ConfigError(
                 f"fixed_goal {tuple(self.fixed_goal)} is out of the arm's reach (|goal| must be <= {0.95 * self.reach:.3f})"
             )
@@ -130,10 +128,9 @@ class Arm2DEnv(gym.Env):
         """Semantic state: joint angles (3), end point (2), goal (2)."""
         return np.concatenate([self.angles, self.end_point, self.goal])
 
-    def compute_reward(self, achieved_goal: Any, desired_goal: Any, info: Any = None) -> np.ndarray | float:
-        """Sparse reward, vectorised over leading axes: 0 when within tolerance, -1 otherwise."""
-        distance = np.linalg.norm(np.asarray(achieved_goal) - np.asarray(desired_goal), axis=-1)
-        return -(distance > self.tolerance).astype(np.float64)
+    def compute_reward(self, achieved_goal: Any, desired_goal: Any, info: Any = None) -> np.ndarray:
+        """Sparse reward for HER, vectorised over leading axes: 0 within tolerance, -1 otherwise."""
+        return sparse_goal_reward(achieved_goal, desired_goal, self.tolerance)
 
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict | None = None):

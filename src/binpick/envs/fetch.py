@@ -33,16 +33,33 @@ OBSTACLE_NAME = "obstacle"
 
 
 class _BinpickFetchMixin(ImageObservationMixin):
-    """Image observations, end at success and ``is_success`` in reset info for Fetch envs."""
+    """Image observations, end at success and ``is_success`` in reset info for Fetch envs.
+
+    Mixed in before a Gymnasium-Robotics Fetch class, whose ``__init__`` builds the simulation.
+    """
 
     # Headless machines have no window: only off-screen frames are offered.
     metadata = {"render_modes": ["rgb_array"], "render_fps": 25}
+    view_pose = CameraPose(lookat=(1.25, 0.75, 0.5), distance=1.6, azimuth=150.0, elevation=-25.0)
 
-    def _init_binpick(self, image: str | None, image_size: int, terminate_on_success: bool) -> None:
+    def __init__(
+        self,
+        image: str | None = None,
+        image_size: int = 84,
+        terminate_on_success: bool = True,
+        render_mode: str | None = None,
+        width: int = 480,
+        height: int = 480,
+    ) -> None:
+        check_image_size("width", width)
+        check_image_size("height", height)
+        super().__init__(render_mode=render_mode, width=width, height=height)
+        EzPickle.__init__(
+            self, image=image, image_size=image_size, terminate_on_success=terminate_on_success,
+            render_mode=render_mode, width=width, height=height,
+        )
         self.terminate_on_success = bool(terminate_on_success)
         self._init_image_observation(self.model, image, image_size, WORKSPACE_VIEW)
-
-    view_pose = CameraPose(lookat=(1.25, 0.75, 0.5), distance=1.6, azimuth=150.0, elevation=-25.0)
 
     def _prepare_frame(self) -> None:
         self._render_callback()  # moves the target site to the current goal
@@ -66,32 +83,8 @@ class _BinpickFetchMixin(ImageObservationMixin):
         super().close()
 
 
-def _check_render_size(width: int, height: int) -> None:
-    check_image_size("width", width)
-    check_image_size("height", height)
-
-
 class FetchReachEnv(_BinpickFetchMixin, MujocoFetchReachEnv):
     """Gymnasium-Robotics FetchReach-v4 with optional image observation and end at success."""
-
-    def __init__(
-        self,
-        image: str | None = None,
-        image_size: int = 84,
-        terminate_on_success: bool = True,
-        render_mode: str | None = None,
-        width: int = 480,
-        height: int = 480,
-    ) -> None:
-        _check_render_size(width, height)
-        MujocoFetchReachEnv.__init__(
-            self, render_mode=render_mode, width=width, height=height
-        )
-        EzPickle.__init__(
-            self, image=image, image_size=image_size, terminate_on_success=terminate_on_success,
-            render_mode=render_mode, width=width, height=height,
-        )
-        self._init_binpick(image, image_size, terminate_on_success)
 
 
 class FetchReachObstacleEnv(FetchReachEnv):
@@ -165,22 +158,3 @@ class FetchReachObstacleEnv(FetchReachEnv):
 
 class FetchPickAndPlaceEnv(_BinpickFetchMixin, MujocoFetchPickAndPlaceEnv):
     """Gymnasium-Robotics FetchPickAndPlace-v4 (actions Δz and gripper a_g) with optional images."""
-
-    def __init__(
-        self,
-        image: str | None = None,
-        image_size: int = 84,
-        terminate_on_success: bool = True,
-        render_mode: str | None = None,
-        width: int = 480,
-        height: int = 480,
-    ) -> None:
-        _check_render_size(width, height)
-        MujocoFetchPickAndPlaceEnv.__init__(
-            self, render_mode=render_mode, width=width, height=height
-        )
-        EzPickle.__init__(
-            self, image=image, image_size=image_size, terminate_on_success=terminate_on_success,
-            render_mode=render_mode, width=width, height=height,
-        )
-        self._init_binpick(image, image_size, terminate_on_success)

@@ -12,6 +12,15 @@ from binpick.config import check_choice
 from binpick.envs.images import IMAGE_MODES, CameraPose, MujocoCamera, check_image_size
 
 
+def sparse_goal_reward(achieved_goal: Any, desired_goal: Any, tolerance: float) -> np.ndarray:
+    """The thesis's sparse reward, vectorised over leading axes: 0 within tolerance, -1 otherwise.
+
+    The same rule the env applies at every step, so HER can recompute rewards for relabelled goals.
+    """
+    distance = np.linalg.norm(np.asarray(achieved_goal) - np.asarray(desired_goal), axis=-1)
+    return -(distance > tolerance).astype(np.float64)
+
+
 class ImageObservationMixin:
     """Adds an ``image`` entry to a dict observation, rendered by a dedicated off-screen camera,
     and draws ``render()`` frames (``render_mode="rgb_array"``) with a second, larger camera."""

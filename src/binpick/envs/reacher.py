@@ -15,7 +15,7 @@ from gymnasium import spaces
 from gymnasium.utils import EzPickle
 
 from binpick.config import check_range
-from binpick.envs.goal_env import ImageObservationMixin
+from binpick.envs.goal_env import ImageObservationMixin, sparse_goal_reward
 from binpick.envs.images import CameraPose, check_image_size, import_mujoco
 
 import_mujoco()  # a missing OpenGL platform becomes one clear error, not an import traceback
@@ -62,10 +62,9 @@ class GoalReacherEnv(ImageObservationMixin, ReacherEnv):
         )
         self._init_image_observation(self.model, image, image_size, TOP_DOWN)
 
-    def compute_reward(self, achieved_goal: Any, desired_goal: Any, info: Any = None) -> np.ndarray | float:
-        """Sparse reward, vectorised over leading axes: 0 within tolerance, -1 otherwise."""
-        distance = np.linalg.norm(np.asarray(achieved_goal) - np.asarray(desired_goal), axis=-1)
-        return -(distance > self.tolerance).astype(np.float64)
+    def compute_reward(self, achieved_goal: Any, desired_goal: Any, info: Any = None) -> np.ndarray:
+        """Sparse reward for HER, vectorised over leading axes: 0 within tolerance, -1 otherwise."""
+        return sparse_goal_reward(achieved_goal, desired_goal, self.tolerance)
 
     def step(self, action):
         delta = np.clip(np.asarray(action, dtype=np.float64), -MAX_DELTA, MAX_DELTA)
@@ -79,7 +78,7 @@ class GoalReacherEnv(ImageObservationMixin, ReacherEnv):
         return observation, reward, bool(info["is_success"]), False, info
 
     def reset_model(self):
-        observation = super().reset_model()  # Reacher-v5's start pose and target sampling
+        super().reset_model()  # Reacher-v5's start pose and target sampling
         self.set_state(self.data.qpos.copy(), np.zeros_like(self.data.qvel))
         for _ in range(100):  # an episode that starts solved says nothing: draw another target
             if np.linalg.norm(self._fingertip() - self.goal) > self.tolerance:
@@ -87,8 +86,7 @@ class GoalReacherEnv(ImageObservationMixin, ReacherEnv):
             qpos = self.data.qpos.copy()
             qpos[-2:] = self.goal = self._sample_target()
             self.set_state(qpos, np.zeros_like(self.data.qvel))
-        observation = self._get_obs()
-        return observation
+        return self._get_obs()
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         observation, _ = super().reset(seed=seed, options=options)
