@@ -44,12 +44,15 @@ def main() -> None:
         for env_id, kwargs, thesis_mean, thesis_std, where, share in CASES:
             episodes = max(10, int(args.episodes * share))
             env = binpick.make(env_id, **kwargs)
+            unwrapped = env.unwrapped
+            tolerance = getattr(unwrapped, "tolerance", getattr(unwrapped, "distance_threshold", None))
             task = progress.add_task(env_id, total=episodes)
             started = time.perf_counter()
             result = evaluate_policy(env, random_policy(env, args.seed), episodes=episodes, seed=args.seed,
                                      on_episode=lambda *_: progress.advance(task))
             env.close()
-            rows.append({**result.to_dict(), "env_kwargs": kwargs, "thesis_mean_length": thesis_mean,
+            rows.append({**result.to_dict(), "env_kwargs": kwargs, "success_tolerance": tolerance,
+                         "thesis_mean_length": thesis_mean,
                          "thesis_std_length": thesis_std, "thesis_source": where,
                          "seconds": round(time.perf_counter() - started, 1),
                          "peak_rss_mib": round(_common.peak_rss_mib(), 1)})
