@@ -23,6 +23,8 @@ app = typer.Typer(help="Learned bin picking: simulated worlds, RL, APRiL and rep
                   no_args_is_help=True, pretty_exceptions_enable=False, add_completion=False)
 envs_app = typer.Typer(help="The simulated worlds of the thesis (Gymnasium ids binpick/...).", no_args_is_help=True)
 app.add_typer(envs_app, name="envs")
+rl_app = typer.Typer(help="Reinforcement learning (thesis ch. 3): train and evaluate runs.", no_args_is_help=True)
+app.add_typer(rl_app, name="rl")
 
 console = Console()
 SetOption = Annotated[list[str] | None, typer.Option("--set", help="Env parameter KEY=VALUE (repeatable), e.g. --set goal_area=0.5")]
@@ -118,6 +120,65 @@ def envs_rollout(
         json_out.parent.mkdir(parents=True, exist_ok=True)
         json_out.write_text(json.dumps({**result.to_dict(), "policy": policy, "seed": seed}, indent=2))
         console.print(f"wrote {json_out}")
+
+
+@rl_app.command("train")
+def rl_train(
+    config: Annotated[Path | None, typer.Argument(help="YAML config (see configs/rl_*.yaml)")] = None,
+    resume: Annotated[Path | None, typer.Option(help="Run folder to continue from its latest checkpoint")] = None,
+    runs: Annotated[Path, typer.Option(help="Where new run folders go")] = Path("runs"),
+    steps: Annotated[int | None, typer.Option(help="Override total_timesteps (simulator steps)")] = None,
+    seed: Annotated[int | None, typer.Option(help="Override the seed")] = None,
+) -> None:
+    """Train a run: checkpoints, TensorBoard, metrics.json and curves.png in runs/<name>/<time>/."""
+    from binpick.rl.config import load_config
+    from binpick.rl.train import Trainer
+
+    if (config is None) == (resume is None):
+        raise ConfigError("give either a CONFIG file to start a run or --resume RUN_DIR to continue one")
+    if resume is not None:
+        if not (resume / "config.yaml").is_file():
+            raise ConfigError(f"{str(resume)!r} is not a run folder (no config.yaml)")
+        trainer = Trainer.resume(resume)
+        console.print(f"resuming {resume} at {trainer.model.num_timesteps} simulator steps")
+    else:
+        settings = load_config(config)
+        if steps is not None:
+            settings.total_timesteps = steps
+        if seed is not None:
+            settings.seed = seed
+        trainer = Trainer.new(settings, runs)
+        console.print(f"run folder: {trainer.run_dir}")
+    metrics = trainer.run()
+    console.print(
+        f"final success {metrics['final_success']:.0%}, average actions {metrics['final_avg_actions']:.2f} "
+        f"± {metrics['final_std_actions']:.2f}; simulator steps to {metrics['success_threshold']:.0%}: "
+        f"{metrics['sim_steps_to_threshold']}; wrote {trainer.run_dir / 'metrics.json'}"
+    )
+
+
+@rl_app.command("eval")
+def rl_eval(
+    run: Annotated[Path, typer.Argument(help="Run folder (runs/<name>/<time>)")],
+    episodes: Annotated[int, typer.Option(help="Seeded evaluation episodes")] = 100,
+    seed: Annotated[int, typer.Option(help="Seed of the first episode")] = 10_000,
+    env_id: Annotated[str | None, typer.Option("--env", help="Must match the env the run was trained on")] = None,
+) -> None:
+    """Evaluate a run's latest checkpoint: average actions ± std and success rate."""
+    from binpick.config import check_range
+    from binpick.rl.evaluate import evaluate_policy
+    from binpick.rl.train import load_policy, make_env
+
+    check_range("episodes", episodes, 1, None, integer=True)
+    model, config = load_policy(run, env_id)
+    env = make_env(config)
+    try:
+        with progress_bar() as progress:
+            task = progress.add_task(f"{config.name} · {config.env}", total=episodes)
+            result = evaluate_policy(env, model, episodes=episodes, seed=seed, on_episode=lambda *_: progress.advance(task))
+    finally:
+        env.close()
+    console.print(result.summary())
 
 
 @app.command("demo")

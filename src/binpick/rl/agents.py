@@ -1,0 +1,105 @@
+"""Goal-conditioned SAC on binpick's episode replay, with GP imagination (thesis §3.3).
+
+:class:`GoalSAC` is Stable-Baselines3's SAC whose replay is :class:`EpisodeReplayBuffer` (episode
+HER) and whose gradient steps wait until the buffer is 10% full, as in the thesis. The
+:class:`GPImagination` callback fits the GP dynamics model on real episodes and adds imagined
+episodes from the current policy to the same buffer.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from stable_baselines3 import SAC
+from stable_baselines3.common.callbacks import BaseCallback
+
+from binpick.config import check_range
+from binpick.rl.dynamics import GPDynamics
+from binpick.rl.imagination import imagine_episodes
+from binpick.rl.replay import Episode, EpisodeReplayBuffer
+
+
+class GoalSAC(SAC):
+    """SAC that trains only once its :class:`EpisodeReplayBuffer` is ``start_fraction`` full."""
+
+    def train(self, gradient_steps: int, batch_size: int = 64) -> None:
+        buffer = self.replay_buffer
+        if isinstance(buffer, EpisodeReplayBuffer) and not buffer.ready:
+            return
+        self.gradient_steps_done = getattr(self, "gradient_steps_done", 0) + gradient_steps
+        super().train(gradient_steps, batch_size)
+
+    def batch_policy(self, observation: dict[str, np.ndarray]) -> np.ndarray:
+        """Exploring actions for a batch, in the [-1, 1] units the replay stores."""
+        actions, _ = self.predict(observation, deterministic=False)
+        return self.policy.scale_action(actions)
+
+
+class GPImagination(BaseCallback):
+    """Fit the GP after ``warmup_episodes`` real episodes (refit every ``refit_every``) and add
+    ``imagined_per_real`` imagined episodes for each real episode, generated in batches."""
+
+    def __init__(self, warmup_episodes: int = 15, refit_every: int = 25, imagined_per_real: float = 20.0,
+                 batch_episodes: int = 500, dynamics: GPDynamics | None = None, seed: int = 0, verbose: int = 0) -> None:
+        super().__init__(verbose)
+        self.warmup_episodes = check_range("gp.warmup_episodes", warmup_episodes, 2, None, integer=True)
+        self.refit_every = check_range("gp.refit_every", refit_every, 1, None, integer=True)
+        self.imagined_per_real = check_range("gp.imagined_per_real", imagined_per_real, 0.0, 10_000.0)
+        self.batch_episodes = check_range("gp.batch_episodes", batch_episodes, 1, 100_000, integer=True)
+        self.dynamics = dynamics or GPDynamics(seed=seed)
+        self.rng = np.random.default_rng(seed)
+        self.fits = 0
+        self.imagined_steps = 0
+        self._real_at_fit = 0
+        self._debt = 0.0
+
+    @property
+    def buffer(self) -> EpisodeReplayBuffer:
+        return self.model.replay_buffer  # type: ignore[return-value]
+
+    def _on_step(self) -> bool:
+        real = self.buffer.added["real"]
+        if real < self.warmup_episodes:
+            return True
+        if not self.dynamics.fitted or real - self._real_at_fit >= self.refit_every:
+            self._fit(real)
+        self._debt += self.imagined_per_real * (real - getattr(self, "_real_seen", real))
+        self._real_seen = real
+        while self._debt >= self.batch_episodes or (self._debt >= 1 and not self.buffer.ready):
+            count = int(min(self._debt, self.batch_episodes))
+            self.imagine(count)
+            self._debt -= count
+        return True
+
+    def _fit(self, real: int) -> None:
+        episodes = self.buffer.stored_episodes("real")
+        states = np.concatenate([e.achieved_goal[:-1] for e in episodes])
+        actions = np.concatenate([e.actions for e in episodes])
+        next_states = np.concatenate([e.achieved_goal[1:] for e in episodes])
+        report = self.dynamics.fit(states, actions, next_states)
+        self.fits += 1
+        self._real_at_fit = real
+        self._real_seen = getattr(self, "_real_seen", real)
+        if self._debt == 0 and self.fits == 1:
+            self._debt = self.imagined_per_real * real  # catch up on the warm-up episodes
+        self.logger.record("gp/fit_seconds", report.seconds)
+        self.logger.record("gp/negative_mll", report.negative_mll)
+        self.logger.record("gp/points", report.points)
+
+    def imagine(self, count: int) -> list[Episode]:
+        """Add ``count`` imagined episodes from real start states and goals (re-paired at random)."""
+        real = self.buffer.stored_episodes("real")
+        starts = np.stack([real[i].achieved_goal[0] for i in self.rng.integers(0, len(real), count)])
+        goals = np.stack([real[i].desired_goal for i in self.rng.integers(0, len(real), count)])
+        episodes = imagine_episodes(self.dynamics, self.model.batch_policy, starts.astype(np.float64),
+                                    goals.astype(np.float64), self.buffer.compute_reward, self.buffer.T, self.rng)
+        for episode in episodes:
+            self.buffer.add_episode(episode, origin="imagined")
+            self.imagined_steps += episode.length
+        self.logger.record("gp/imagined_episodes", self.buffer.added["imagined"])
+        return episodes
+
+    def state(self) -> dict[str, Any]:
+        return {"fits": self.fits, "imagined_steps": self.imagined_steps, "real_at_fit": self._real_at_fit,
+                "debt": self._debt, "real_seen": getattr(self, "_real_seen", 0)}

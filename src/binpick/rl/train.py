@@ -1,0 +1,291 @@
+"""Train one RL run from an :class:`RLConfig`, top to bottom, resumable after a crash.
+
+Run folder ``runs/<name>/<timestamp>/``: ``config.yaml``, ``tb/`` (TensorBoard), ``checkpoints/``
+(``ckpt-<steps>/`` written whole, then named in ``checkpoints/latest`` with an atomic rename, so a
+``kill -9`` leaves the previous checkpoint intact), ``metrics.json`` and ``curves.png``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import pickle
+import shutil
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import torch
+import yaml
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from stable_baselines3 import SAC, HerReplayBuffer
+from stable_baselines3.common.callbacks import BaseCallback, CallbackList
+
+from binpick.config import from_dict, load_yaml, to_dict
+from binpick.envs import make
+from binpick.errors import ConfigError
+from binpick.rl.agents import GoalSAC, GPImagination
+from binpick.rl.config import RLConfig
+from binpick.rl.dynamics import GPDynamics
+from binpick.rl.evaluate import evaluate_policy
+from binpick.rl.replay import EpisodeReplayBuffer
+from binpick.rl.wrappers import MinActionScale, SemanticState
+
+
+def next_multiple(steps: int, every: int) -> int:
+    """The first multiple of ``every`` after ``steps``: when a periodic job next runs."""
+    return (int(steps) // every + 1) * every
+
+
+def make_env(config: RLConfig) -> gym.Env:
+    """The env exactly as the run trains on it (semantic state, minimum action scale)."""
+    env = make(config.env, **config.env_kwargs)
+    if config.semantic_state:
+        env = SemanticState(env)
+    if config.min_action_scale:
+        env = MinActionScale(env, config.min_action_scale)
+    return env
+
+
+def build_model(config: RLConfig, env: gym.Env, tensorboard: str | None) -> SAC:
+    sac = config.sac
+    common = dict(learning_rate=sac.learning_rate, batch_size=sac.batch_size, gamma=sac.gamma, tau=sac.tau,
+                  gradient_steps=sac.gradient_steps, learning_starts=sac.learning_starts, seed=config.seed,
+                  policy_kwargs={"net_arch": list(sac.net_arch)}, tensorboard_log=tensorboard, device="cpu")
+    if config.algorithm == "sb3_sac_her":
+        return SAC("MultiInputPolicy", env, replay_buffer_class=HerReplayBuffer,
+                   replay_buffer_kwargs={"n_sampled_goal": config.replay.future_k, "goal_selection_strategy": "future"},
+                   **common)
+    replay = dict(compute_reward=env.unwrapped.compute_reward, max_episode_steps=env.spec.max_episode_steps,
+                  capacity_episodes=config.replay.capacity_episodes, her_additions=config.replay.her_additions,
+                  start_fraction=config.replay.start_fraction, seed=config.seed)
+    if config.gp.enabled:
+        common["learning_starts"] = config.gp.warmup_episodes * env.spec.max_episode_steps
+    return GoalSAC("MultiInputPolicy", env, replay_buffer_class=EpisodeReplayBuffer, replay_buffer_kwargs=replay, **common)
+
+
+@dataclass
+class Metrics:
+    """What a run reports: evaluations over simulator steps and the thesis's counts."""
+
+    evaluations: list[dict[str, float]] = field(default_factory=list)
+    sim_steps_to_threshold: int | None = None
+    wall_seconds: float = 0.0
+
+    def to_dict(self, config: RLConfig, model: SAC, gp: GPImagination | None) -> dict[str, Any]:
+        buffer = model.replay_buffer
+        last = self.evaluations[-1] if self.evaluations else {}
+        data = {"name": config.name, "env": config.env, "algorithm": config.algorithm, "seed": config.seed,
+                "sim_steps": int(model.num_timesteps), "sim_steps_to_threshold": self.sim_steps_to_threshold,
+                "success_threshold": config.eval.success_threshold, "final_success": last.get("success_rate"),
+                "final_avg_actions": last.get("mean_length"), "final_std_actions": last.get("std_length"),
+                "gradient_steps": int(model._n_updates), "wall_seconds": round(self.wall_seconds, 1),
+                "evaluations": self.evaluations}
+        if isinstance(buffer, EpisodeReplayBuffer):
+            data.update(sim_episodes=buffer.added["real"], her_episodes=buffer.added["her"],
+                        imagined_episodes=buffer.added["imagined"])
+        if gp is not None:
+            data.update(gp_fits=gp.fits, gp_steps=gp.imagined_steps)
+        return data
+
+
+class Evaluate(BaseCallback):
+    """Every ``config.eval.every`` simulator steps: seeded evaluation episodes, logged and kept."""
+
+    def __init__(self, config: RLConfig, metrics: Metrics) -> None:
+        super().__init__()
+        self.config, self.metrics = config, metrics
+        self.env = make_env(config)
+        self._next = config.eval.every
+
+    def _on_training_start(self) -> None:
+        self._next = next_multiple(self.model.num_timesteps, self.config.eval.every)  # right after a resume too
+
+    def _on_step(self) -> bool:
+        if self.num_timesteps >= self._next:
+            self._next += self.config.eval.every
+            self.evaluate()
+        return True
+
+    def evaluate(self) -> dict[str, float]:
+        steps = int(self.model.num_timesteps)
+        result = evaluate_policy(self.env, self.model, episodes=self.config.eval.episodes, seed=self.config.eval.seed)
+        row = {"sim_steps": steps, "success_rate": result.success_rate,
+               "mean_length": result.mean_length, "std_length": result.std_length}
+        self.metrics.evaluations.append(row)
+        if self.metrics.sim_steps_to_threshold is None and result.success_rate >= self.config.eval.success_threshold:
+            self.metrics.sim_steps_to_threshold = steps
+        self.logger.record("eval/success_rate", result.success_rate)
+        self.logger.record("eval/avg_actions", result.mean_length)
+        self.logger.dump(steps)
+        return row
+
+
+class Checkpoint(BaseCallback):
+    def __init__(self, trainer: Trainer) -> None:
+        super().__init__()
+        self.trainer = trainer
+        self._next = trainer.config.checkpoint_every
+
+    def _on_training_start(self) -> None:
+        self._next = next_multiple(self.model.num_timesteps, self.trainer.config.checkpoint_every)
+
+    def _on_step(self) -> bool:
+        if self.num_timesteps >= self._next:
+            self._next += self.trainer.config.checkpoint_every
+            self.trainer.save_checkpoint()
+        return True
+
+
+class RichProgress(BaseCallback):
+    def __init__(self, total: int, start: int, label: str) -> None:
+        super().__init__()
+        self.progress = Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                                 TimeElapsedColumn(), TimeRemainingColumn())
+        self.task = self.progress.add_task(label, total=total, completed=start)
+
+    def _on_training_start(self) -> None:
+        self.progress.start()
+
+    def _on_step(self) -> bool:
+        self.progress.update(self.task, completed=self.num_timesteps)
+        return True
+
+    def _on_training_end(self) -> None:
+        self.progress.stop()
+
+
+class Trainer:
+    """Owns a run folder; ``run()`` trains to ``total_timesteps``, resuming from the latest checkpoint."""
+
+    def __init__(self, config: RLConfig, run_dir: Path) -> None:
+        self.config, self.run_dir = config, Path(run_dir)
+        self.ckpt_dir = self.run_dir / "checkpoints"
+        self.metrics = Metrics()
+        self.env = make_env(config)
+        self.model = build_model(config, self.env, str(self.run_dir / "tb"))
+        self.gp = None
+        if config.gp.enabled:
+            dynamics = GPDynamics(config.gp.max_points, config.gp.iterations, seed=config.seed)
+            self.gp = GPImagination(config.gp.warmup_episodes, config.gp.refit_every, config.gp.imagined_per_real,
+                                    config.gp.batch_episodes, dynamics, seed=config.seed)
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def new(cls, config: RLConfig, runs_root: Path = Path("runs")) -> Trainer:
+        run_dir = runs_root / config.name / time.strftime("%Y%m%d-%H%M%S")
+        run_dir.mkdir(parents=True, exist_ok=False)
+        (run_dir / "config.yaml").write_text(yaml.safe_dump(to_dict(config), sort_keys=False))
+        return cls(config, run_dir)
+
+    @classmethod
+    def resume(cls, run_dir: Path) -> Trainer:
+        run_dir = Path(run_dir)
+        config = from_dict(RLConfig, load_yaml(run_dir / "config.yaml"), where=str(run_dir / "config.yaml"))
+        trainer = cls(config, run_dir)
+        trainer.load_checkpoint()
+        return trainer
+
+    # ------------------------------------------------------------------ checkpoints
+    def save_checkpoint(self) -> Path:
+        steps = int(self.model.num_timesteps)
+        final = self.ckpt_dir / f"ckpt-{steps:09d}"
+        partial = self.ckpt_dir / f".partial-{steps:09d}"
+        shutil.rmtree(partial, ignore_errors=True)
+        partial.mkdir(parents=True)
+        self.model.save(partial / "model.zip", exclude=["replay_buffer"])
+        with open(partial / "replay.pkl", "wb") as handle:
+            pickle.dump(self.model.replay_buffer, handle, protocol=pickle.HIGHEST_PROTOCOL)
+        state = {"metrics": self.metrics.__dict__, "env": self.config.env, "num_timesteps": steps,
+                 "gp": self.gp.state() if self.gp else None}
+        (partial / "state.json").write_text(json.dumps(state))
+        if self.gp is not None and self.gp.dynamics.fitted:
+            self.gp.dynamics.save(partial / "gp.pt")
+        shutil.rmtree(final, ignore_errors=True)
+        os.replace(partial, final)
+        pointer = self.ckpt_dir / "latest.tmp"
+        pointer.write_text(final.name)
+        os.replace(pointer, self.ckpt_dir / "latest")  # the switch to the new checkpoint is atomic
+        for old in self.ckpt_dir.glob("ckpt-*"):
+            if old != final:
+                shutil.rmtree(old, ignore_errors=True)
+        return final
+
+    def latest_checkpoint(self) -> Path | None:
+        pointer = self.ckpt_dir / "latest"
+        return self.ckpt_dir / pointer.read_text().strip() if pointer.exists() else None
+
+    def load_checkpoint(self) -> None:
+        checkpoint = self.latest_checkpoint()
+        if checkpoint is None:
+            return  # crashed before the first checkpoint: start again from zero
+        state = json.loads((checkpoint / "state.json").read_text())
+        model_class = GoalSAC if self.config.algorithm == "sac" else SAC
+        self.model = model_class.load(checkpoint / "model.zip", env=self.env, device="cpu",
+                                      tensorboard_log=str(self.run_dir / "tb"))
+        with open(checkpoint / "replay.pkl", "rb") as handle:
+            self.model.replay_buffer = pickle.load(handle)
+        if self.config.algorithm == "sb3_sac_her":
+            self.model.replay_buffer.set_env(self.model.get_env())
+        self.metrics = Metrics(**state["metrics"])
+        if self.gp is not None and state["gp"] is not None:
+            if (checkpoint / "gp.pt").exists():
+                self.gp.dynamics = GPDynamics.load(checkpoint / "gp.pt")
+            self.gp.fits, self.gp.imagined_steps = state["gp"]["fits"], state["gp"]["imagined_steps"]
+            self.gp._real_at_fit, self.gp._debt = state["gp"]["real_at_fit"], state["gp"]["debt"]
+            self.gp._real_seen = state["gp"]["real_seen"]
+
+    # ------------------------------------------------------------------ training
+    def run(self, show_progress: bool = True) -> dict[str, Any]:
+        torch.set_num_threads(1)  # small networks: threads cost more than they give on 2 cores
+        remaining = self.config.total_timesteps - int(self.model.num_timesteps)
+        started = time.perf_counter() - self.metrics.wall_seconds
+        evaluator = Evaluate(self.config, self.metrics)
+        callbacks: list[BaseCallback] = [evaluator, Checkpoint(self)]
+        if self.gp is not None:
+            callbacks.insert(0, self.gp)
+        if show_progress:
+            callbacks.append(RichProgress(self.config.total_timesteps, int(self.model.num_timesteps), self.config.name))
+        if remaining > 0:
+            self.model.learn(remaining, callback=CallbackList(callbacks), reset_num_timesteps=False,
+                             tb_log_name="sac", log_interval=10)
+        evaluated = [e["sim_steps"] for e in self.metrics.evaluations]
+        if not evaluated or evaluated[-1] != self.model.num_timesteps:  # the final policy is always measured
+            evaluator.init_callback(self.model)
+            evaluator.evaluate()
+        self.metrics.wall_seconds = time.perf_counter() - started
+        self.save_checkpoint()
+        return self.write_outputs()
+
+    def write_outputs(self) -> dict[str, Any]:
+        data = self.metrics.to_dict(self.config, self.model, self.gp)
+        tmp = self.run_dir / "metrics.json.tmp"
+        tmp.write_text(json.dumps(data, indent=2))
+        os.replace(tmp, self.run_dir / "metrics.json")
+        from binpick.viz.plots import plot_learning_curve
+
+        plot_learning_curve(self.metrics.evaluations, self.run_dir / "curves.png", title=self.config.name,
+                            threshold=self.config.eval.success_threshold)
+        return data
+
+
+def load_policy(run_dir: Path, env_id: str | None = None) -> tuple[SAC, RLConfig]:
+    """The latest checkpoint of a run; asking for another env than it was trained on is an error."""
+    run_dir = Path(run_dir)
+    if not (run_dir / "config.yaml").is_file():
+        raise ConfigError(f"{str(run_dir)!r} is not a run folder (no config.yaml)")
+    config = from_dict(RLConfig, load_yaml(run_dir / "config.yaml"), where=str(run_dir / "config.yaml"))
+    if env_id is not None:
+        from binpick.envs import resolve_env_id
+
+        if resolve_env_id(env_id) != config.env:
+            raise ConfigError(f"checkpoint {run_dir} was trained on {config.env}, not {resolve_env_id(env_id)}")
+    pointer = run_dir / "checkpoints" / "latest"
+    if not pointer.exists():
+        raise ConfigError(f"run {run_dir} has no checkpoint yet")
+    model_class = GoalSAC if config.algorithm == "sac" else SAC
+    model = model_class.load(run_dir / "checkpoints" / pointer.read_text().strip() / "model.zip", device="cpu")
+    return model, config
+

@@ -1,0 +1,1 @@
+"""Plots people look at rather than read (matplotlib, written as PNG)."""

@@ -1,0 +1,116 @@
+"""RL runs end to end on tiny settings: run folder, kill -9 and resume, eval, one-line errors."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from binpick.config import from_dict
+from binpick.errors import ConfigError
+from binpick.rl.config import RLConfig
+
+TINY = """
+name: tiny
+env: FetchReach
+total_timesteps: {steps}
+min_action_scale: 0.4
+checkpoint_every: 100
+replay: {{capacity_episodes: 300, her_additions: 1, start_fraction: 0.01}}
+gp: {{enabled: true, warmup_episodes: 3, refit_every: 3, imagined_per_real: 2, batch_episodes: 8, iterations: 5, max_points: 200}}
+sac: {{batch_size: 32, net_arch: [16, 16]}}
+eval: {{every: 200, episodes: 2}}
+"""
+
+
+def cli(*args: str, **kwargs) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-c", "from binpick.cli import main; main()", *args],
+                          capture_output=True, text=True, timeout=300, **kwargs)
+
+
+def test_train_writes_a_complete_run_folder_and_eval_reads_it(tmp_path):
+    config = tmp_path / "tiny.yaml"
+    config.write_text(TINY.format(steps=300))
+    result = cli("rl", "train", str(config), "--runs", str(tmp_path / "runs"))
+    assert result.returncode == 0, result.stderr
+    (run,) = (tmp_path / "runs" / "tiny").iterdir()
+    for name in ("config.yaml", "metrics.json", "curves.png", "tb"):
+        assert (run / name).exists(), name
+    checkpoint = run / "checkpoints" / (run / "checkpoints" / "latest").read_text()
+    assert {p.name for p in checkpoint.iterdir()} >= {"model.zip", "replay.pkl", "state.json", "gp.pt"}
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["sim_steps"] == 300 and [e["sim_steps"] for e in metrics["evaluations"]] == [200, 300]
+    assert metrics["imagined_episodes"] > 0 and metrics["her_episodes"] > 0 and metrics["gp_fits"] >= 1
+    evaluation = cli("rl", "eval", str(run), "--episodes", "2")
+    assert evaluation.returncode == 0 and "actions per episode" in evaluation.stdout
+    wrong_env = cli("rl", "eval", str(run), "--env", "Reacher")
+    assert wrong_env.returncode == 2 and "trained on binpick/FetchReach-v0, not binpick/Reacher-v0" in wrong_env.stderr
+
+
+def test_killed_run_resumes_from_its_last_checkpoint(tmp_path):
+    config = tmp_path / "tiny.yaml"
+    config.write_text(TINY.format(steps=900))
+    process = subprocess.Popen([sys.executable, "-c", "from binpick.cli import main; main()", "rl", "train",
+                                str(config), "--runs", str(tmp_path / "runs")],
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 240
+    pointer = None
+    while time.time() < deadline and process.poll() is None:
+        found = list((tmp_path / "runs").glob("tiny/*/checkpoints/latest"))
+        if found and found[0].read_text() >= "ckpt-000000300":
+            pointer = found[0]
+            break
+        time.sleep(0.2)
+    os.kill(process.pid, signal.SIGKILL)
+    process.wait()
+    assert pointer is not None, "no checkpoint appeared before the deadline"
+    run = pointer.parents[1]
+    killed_at = int(pointer.read_text().split("-")[1])
+    assert killed_at < 900
+    result = cli("rl", "train", "--resume", str(run))
+    assert result.returncode == 0, result.stderr
+    assert f"resuming {run} at {killed_at} simulator steps" in result.stdout.replace("\n", "")
+    metrics = json.loads((run / "metrics.json").read_text())
+    steps = [e["sim_steps"] for e in metrics["evaluations"]]
+    assert metrics["sim_steps"] == 900 and steps == sorted(set(steps)) and steps[-1] == 900
+    assert all(s % 200 == 0 or s == 900 for s in steps), steps
+
+
+@pytest.mark.parametrize(
+    "data,fragment",
+    [
+        ({"algo": "sac"}, "has no key 'algo'"),
+        ({"algorithm": "ppo"}, "algorithm must be one of 'sac', 'sb3_sac_her'"),
+        ({"replay": {"her_additions": -1}}, "alpha_HER"),
+        ({"replay": {"capacity_episodes": 10}, "sac": {"batch_size": 64}}, "(M=10) must be >= sac.batch_size (64)"),
+        ({"gp": {"iterations": "many"}}, "gp.iterations must be an integer"),
+        ({"env": "Nope"}, "unknown env id 'Nope'"),
+    ],
+)
+def test_bad_configs_name_the_key(data, fragment):
+    with pytest.raises(Exception) as error:
+        from_dict(RLConfig, data, "cfg.yaml")
+    assert isinstance(error.value, (ConfigError, KeyError)) and fragment in str(error.value)
+
+
+def test_cli_config_errors_are_one_line(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("name: [x\n")
+    result = cli("rl", "train", str(bad))
+    assert result.returncode == 2 and "invalid YAML at line 2" in result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1
+    assert "does not exist" in cli("rl", "train", str(tmp_path / "none.yaml")).stderr
+    assert "not a run folder" in cli("rl", "eval", str(tmp_path)).stderr
+
+
+def test_shipped_configs_load():
+    from binpick.rl.config import load_config
+
+    for path in Path(__file__).parents[1].glob("configs/rl_*.yaml"):
+        load_config(path)
