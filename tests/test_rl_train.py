@@ -23,7 +23,7 @@ total_timesteps: {steps}
 min_action_scale: 0.4
 checkpoint_every: 100
 replay: {{capacity_episodes: 300, her_additions: 1, start_fraction: 0.01}}
-gp: {{enabled: true, warmup_episodes: 3, refit_every: 3, imagined_per_real: 2, batch_episodes: 8, iterations: 5, max_points: 200}}
+gp: {{enabled: true, warmup_episodes: 3, refit_every: 100, imagined_per_real: 2, batch_episodes: 8, iterations: 5, max_points: 200}}
 sac: {{batch_size: 32, net_arch: [16, 16]}}
 eval: {{every: 200, episodes: 2}}
 """

@@ -37,10 +37,11 @@ class GoalSAC(SAC):
 
 
 class GPImagination(BaseCallback):
-    """Fit the GP after ``warmup_episodes`` real episodes (refit every ``refit_every``) and add
-    ``imagined_per_real`` imagined episodes for each real episode, generated in batches."""
+    """Fit the GP after ``warmup_episodes`` real episodes, refit after every ``refit_every`` new real
+    transitions (counted in steps: a good policy's episodes are short), and add ``imagined_per_real``
+    imagined episodes for each real episode, generated in batches."""
 
-    def __init__(self, warmup_episodes: int = 15, refit_every: int = 25, imagined_per_real: float = 20.0,
+    def __init__(self, warmup_episodes: int = 15, refit_every: int = 500, imagined_per_real: float = 20.0,
                  batch_episodes: int = 500, dynamics: GPDynamics | None = None, seed: int = 0, verbose: int = 0) -> None:
         super().__init__(verbose)
         self.warmup_episodes = check_range("gp.warmup_episodes", warmup_episodes, 2, None, integer=True)
@@ -51,8 +52,9 @@ class GPImagination(BaseCallback):
         self.rng = np.random.default_rng(seed)
         self.fits = 0
         self.imagined_steps = 0
-        self._real_at_fit = 0
-        self._debt = 0.0
+        self._fitted_at = 0  # real transitions when the GP was last fitted
+        self._real_seen = 0  # real episodes already paid for with imagined ones
+        self._debt = 0.0  # imagined episodes owed, generated once a batch is due
 
     @property
     def buffer(self) -> EpisodeReplayBuffer:
@@ -62,27 +64,25 @@ class GPImagination(BaseCallback):
         real = self.buffer.added["real"]
         if real < self.warmup_episodes:
             return True
-        if not self.dynamics.fitted or real - self._real_at_fit >= self.refit_every:
-            self._fit(real)
-        self._debt += self.imagined_per_real * (real - getattr(self, "_real_seen", real))
+        if not self.dynamics.fitted or self.buffer.real_transitions - self._fitted_at >= self.refit_every:
+            self._fit()
+        self._debt += self.imagined_per_real * (real - self._real_seen)  # the first time: all warm-up episodes
         self._real_seen = real
+        # whole batches keep GP queries efficient; before training starts, fill the buffer right away
         while self._debt >= self.batch_episodes or (self._debt >= 1 and not self.buffer.ready):
             count = int(min(self._debt, self.batch_episodes))
             self.imagine(count)
             self._debt -= count
         return True
 
-    def _fit(self, real: int) -> None:
+    def _fit(self) -> None:
         episodes = self.buffer.stored_episodes("real")
         states = np.concatenate([e.achieved_goal[:-1] for e in episodes])
         actions = np.concatenate([e.actions for e in episodes])
         next_states = np.concatenate([e.achieved_goal[1:] for e in episodes])
         report = self.dynamics.fit(states, actions, next_states)
         self.fits += 1
-        self._real_at_fit = real
-        self._real_seen = getattr(self, "_real_seen", real)
-        if self._debt == 0 and self.fits == 1:
-            self._debt = self.imagined_per_real * real  # catch up on the warm-up episodes
+        self._fitted_at = self.buffer.real_transitions
         self.logger.record("gp/fit_seconds", report.seconds)
         self.logger.record("gp/negative_mll", report.negative_mll)
         self.logger.record("gp/points", report.points)
@@ -101,5 +101,10 @@ class GPImagination(BaseCallback):
         return episodes
 
     def state(self) -> dict[str, Any]:
-        return {"fits": self.fits, "imagined_steps": self.imagined_steps, "real_at_fit": self._real_at_fit,
-                "debt": self._debt, "real_seen": getattr(self, "_real_seen", 0)}
+        """What a checkpoint keeps so a resumed run continues the same schedule."""
+        return {"fits": self.fits, "imagined_steps": self.imagined_steps, "fitted_at": self._fitted_at,
+                "real_seen": self._real_seen, "debt": self._debt}
+
+    def restore(self, state: dict[str, Any]) -> None:
+        self.fits, self.imagined_steps = state["fits"], state["imagined_steps"]
+        self._fitted_at, self._real_seen, self._debt = state["fitted_at"], state["real_seen"], state["debt"]

@@ -38,7 +38,7 @@ class GPConfig:
 
     enabled: bool = False
     warmup_episodes: int = 15  # random-policy episodes before the first fit (thesis: 15)
-    refit_every: int = 25  # real episodes between fits
+    refit_every: int = 500  # new real transitions (simulator steps) between fits
     imagined_per_real: float = 20.0  # ratio of imagined to real episodes
     batch_episodes: int = 500  # imagined episodes rolled together
     max_points: int = 1000

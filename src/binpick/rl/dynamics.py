@@ -4,10 +4,10 @@ One exact GP per output dimension (a GPyTorch batch), each with an ARD RBF kerne
 Gaussian noise ε (Eq 3.14); hyper-parameters maximise the marginal likelihood (Eq 3.9). Inputs and
 outputs are standardised so one set of optimiser settings works for any robot's units.
 
-Prediction uses the closed form of Eq 3.12-3.13 with K⁻¹ and α cached once after fitting, so a batch
-of B imagined steps costs one (B × n) @ (n × n) product per output. Measured on FetchReach data:
-mean within 1e-4 and total variance within 5% of a float64 solve; GPyTorch's own float32 predictive
-path was ~5x slower at B = 1000 and less accurate (tests/test_dynamics.py checks against float64).
+Prediction uses the closed form of Eq 3.12-3.13 with α = K⁻¹y and the leading eigen-directions of
+K cached once after fitting (see ``_cache_posterior``), so a batch of B imagined steps costs two
+small products per output. tests/test_dynamics.py checks mean and variance against a float64 solve;
+GPyTorch's own float32 predictive path was several times slower at B = 1000 and less accurate.
 """
 
 from __future__ import annotations
@@ -103,13 +103,22 @@ class GPDynamics:
             noise = (self.likelihood.noise + self.likelihood.task_noises).double()  # (t,)
             train_x = self.model.train_inputs[0].double() / lengthscale  # (t, n, d)
             train_y = self.model.train_targets.double().T  # (t, n)
-            gram = outputscale[:, None, None] * torch.exp(-0.5 * torch.cdist(train_x, train_x).square())
-            gram = gram + noise[:, None, None] * torch.eye(train_x.shape[1], dtype=torch.float64)
+            signal = outputscale[:, None, None] * torch.exp(-0.5 * torch.cdist(train_x, train_x).square())
+            gram = signal + noise[:, None, None] * torch.eye(train_x.shape[1], dtype=torch.float64)
             cholesky = torch.linalg.cholesky(gram)
-            inverse = torch.cholesky_inverse(cholesky)
+            # k*ᵀK⁻¹k* through K_f = U Λ Uᵀ: K⁻¹ = U (Λ + σ²)⁻¹ Uᵀ. A kernel row's weight on eigenvector j
+            # is ~λ_j, so component j adds at most λ_j²/σ² to k*ᵀK⁻¹k*. Dropping all λ_j < σ·sqrt(1e-4·s²)
+            # (s² = outputscale) changes a variance by < 1e-4·s², far below the noise σ²; the remaining
+            # r << n columns make the variance an (B × n) @ (n × r) product instead of (n × n).
+            eigenvalues, eigenvectors = torch.linalg.eigh(signal)
+            cutoff = torch.sqrt(noise * 1e-4 * outputscale)
+            keep = eigenvalues >= cutoff[:, None]
+            rank = max(int(keep.sum(-1).max()), 1)
+            top_values, top_vectors = eigenvalues[:, -rank:], eigenvectors[:, :, -rank:]
+            projection = top_vectors / torch.sqrt(top_values.clamp_min(0) + noise[:, None])[:, None, :]
             self._post = {
                 "scaled_x": train_x.float(), "lengthscale": lengthscale.float(), "outputscale": outputscale.float(),
-                "noise": noise.float(), "inverse": inverse.float(),
+                "noise": noise.float(), "projection": projection.float(), "rank": rank,
                 "alpha": torch.cholesky_solve(train_y[..., None], cholesky)[..., 0].float(),
             }
 
@@ -123,7 +132,7 @@ class GPDynamics:
             query = x[None] / post["lengthscale"]  # (t, B, d)
             cross = post["outputscale"][:, None, None] * torch.exp(-0.5 * torch.cdist(query, post["scaled_x"]).square())
             mean = torch.einsum("tbn,tn->tb", cross, post["alpha"])
-            explained = ((cross @ post["inverse"]) * cross).sum(-1)
+            explained = (cross @ post["projection"]).square().sum(-1)
             variance = (post["outputscale"][:, None] - explained).clamp_min(1e-10) + post["noise"][:, None]
         return mean.T.numpy() * self._y_std + self._y_mean, variance.T.numpy() * self._y_std**2
 

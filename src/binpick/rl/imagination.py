@@ -32,24 +32,24 @@ def imagine_episodes(
     batch = len(starts)
     states = np.zeros((max_steps + 1, batch, starts.shape[1]), np.float64)
     states[0] = starts
-    actions: list[np.ndarray] = []
+    actions: np.ndarray | None = None
     lengths = np.full(batch, max_steps)
-    active = np.ones(batch, bool)
+    active = np.arange(batch)  # only unfinished episodes are queried: stragglers stay cheap
     for t in range(max_steps):
-        observation = {"observation": states[t], "achieved_goal": states[t], "desired_goal": goals}
+        observation = {"observation": states[t, active], "achieved_goal": states[t, active], "desired_goal": goals[active]}
         action = np.asarray(policy(observation), np.float64)
-        actions.append(action)
-        states[t + 1] = dynamics.sample_next(states[t], action, rng, stochastic=stochastic)
-        reached = np.asarray(compute_reward(states[t + 1], goals, None)) >= 0
-        finished = active & reached
-        lengths[finished] = t + 1
-        active &= ~reached
-        if not active.any():
+        if actions is None:
+            actions = np.zeros((batch, max_steps, action.shape[1]), np.float64)
+        actions[active, t] = action
+        states[t + 1, active] = dynamics.sample_next(states[t, active], action, rng, stochastic=stochastic)
+        reached = np.asarray(compute_reward(states[t + 1, active], goals[active], None)) >= 0
+        lengths[active[reached]] = t + 1
+        active = active[~reached]
+        if len(active) == 0:
             break
-    actions_array = np.stack(actions, axis=1)  # (B, steps, act_dim)
     episodes = []
     for i in range(batch):
         length = int(lengths[i])
         path = states[: length + 1, i].astype(np.float32)
-        episodes.append(Episode(path, path.copy(), goals[i].astype(np.float32), actions_array[i, :length].astype(np.float32)))
+        episodes.append(Episode(path, path.copy(), goals[i].astype(np.float32), actions[i, :length].astype(np.float32)))
     return episodes

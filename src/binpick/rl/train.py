@@ -233,9 +233,7 @@ class Trainer:
         if self.gp is not None and state["gp"] is not None:
             if (checkpoint / "gp.pt").exists():
                 self.gp.dynamics = GPDynamics.load(checkpoint / "gp.pt")
-            self.gp.fits, self.gp.imagined_steps = state["gp"]["fits"], state["gp"]["imagined_steps"]
-            self.gp._real_at_fit, self.gp._debt = state["gp"]["real_at_fit"], state["gp"]["debt"]
-            self.gp._real_seen = state["gp"]["real_seen"]
+            self.gp.restore(state["gp"])
 
     # ------------------------------------------------------------------ training
     def run(self, show_progress: bool = True) -> dict[str, Any]:

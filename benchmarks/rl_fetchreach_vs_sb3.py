@@ -1,0 +1,107 @@
+"""Side by side on FetchReach with random goals: SB3 SAC+HER ('future', k=4) vs binpick (GP + episode HER).
+
+    python benchmarks/rl_fetchreach_vs_sb3.py [--seeds 0 1 2] [--sb3-steps 20000] [--binpick-steps 6000]
+
+Both run through binpick's trainer from configs/rl_fetchreach_sb3_sac_her.yaml and
+configs/rl_fetchreach_gp_her.yaml, evaluating 50 seeded episodes every 1,000 (SB3) / 500 (binpick)
+simulator steps. Reported: simulator steps until eval success >= 95%, final success and average
+actions. Target (issue 3): binpick needs <= 1/4 of SB3's simulator steps at the same final success.
+Writes results/rl_fetchreach_vs_sb3.json and a section of docs/RESULTS.md; run folders go to runs/bench/.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+sys.path.insert(0, os.path.dirname(__file__))
+
+import _common  # noqa: E402
+import numpy as np  # noqa: E402
+
+from binpick.rl.config import load_config  # noqa: E402
+from binpick.rl.train import Trainer  # noqa: E402
+
+CONFIGS = {"sb3_sac_her": "configs/rl_fetchreach_sb3_sac_her.yaml", "binpick": "configs/rl_fetchreach_gp_her.yaml"}
+
+
+def summarise(runs: list[dict]) -> dict:
+    reached = [r["sim_steps_to_threshold"] for r in runs]
+    return {
+        "sim_steps_to_95": reached,
+        "final_success": float(np.mean([r["final_success"] for r in runs])),
+        "final_avg_actions": float(np.mean([r["final_avg_actions"] for r in runs])),
+        "final_std_actions": float(np.mean([r["final_std_actions"] for r in runs])),
+        "sim_steps": [r["sim_steps"] for r in runs],
+        "gradient_steps": [r["gradient_steps"] for r in runs],
+        "imagined_episodes": [r.get("imagined_episodes") for r in runs],
+        "wall_seconds": [r["wall_seconds"] for r in runs],
+        "run_dirs": [r["run_dir"] for r in runs],
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    parser.add_argument("--sb3-steps", type=int, default=20_000)
+    parser.add_argument("--binpick-steps", type=int, default=6_000)
+    parser.add_argument("--only", choices=list(CONFIGS), help="run one side (results merge into the JSON)")
+    args = parser.parse_args()
+    path = _common.RESULTS / "rl_fetchreach_vs_sb3.json"
+    previous = __import__("json").loads(path.read_text()) if path.exists() else {}
+    results = {k: previous[k] for k in CONFIGS if k in previous}
+    for label, config_path in CONFIGS.items():
+        if args.only and label != args.only:
+            continue
+        runs = []
+        for seed in args.seeds:
+            config = load_config(_common.ROOT / config_path)
+            config.seed = seed
+            config.total_timesteps = args.sb3_steps if label == "sb3_sac_her" else args.binpick_steps
+            trainer = Trainer.new(config, _common.ROOT / "runs" / "bench")
+            metrics = trainer.run(show_progress=True)
+            metrics["run_dir"] = str(trainer.run_dir.relative_to(_common.ROOT))
+            runs.append(metrics)
+            print(f"{label} seed {seed}: 95% at {metrics['sim_steps_to_threshold']} sim steps, final success "
+                  f"{metrics['final_success']:.2f}, {metrics['final_avg_actions']:.2f} actions", flush=True)
+        results[label] = summarise(runs) | {"seeds": args.seeds, "config": config_path}
+    ratio = None
+    if "sb3_sac_her" in results and "binpick" in results:
+        ours, theirs = results["binpick"]["sim_steps_to_95"], results["sb3_sac_her"]["sim_steps_to_95"]
+        if None not in ours and None not in theirs:
+            ratio = float(np.mean(ours) / np.mean(theirs))
+    payload = {**results, "binpick_over_sb3_sim_steps": ratio, "target_ratio": 0.25,
+               "met": ratio is not None and ratio <= 0.25, "peak_rss_mib": round(_common.peak_rss_mib(), 1)}
+    _common.write_result("rl_fetchreach_vs_sb3", payload)
+
+    def row(label: str, name: str) -> str:
+        r = results.get(label)
+        if r is None:
+            return f"| {name} | not run | | |"
+        steps = ", ".join("—" if s is None else f"{s:,}" for s in r["sim_steps_to_95"])
+        return f"| {name} | {steps} | {r['final_success']:.0%} | {r['final_avg_actions']:.2f} ± {r['final_std_actions']:.2f} |"
+
+    _common.write_section("rl_fetchreach_vs_sb3", "\n".join([
+        "## FetchReach, random goals: SB3 SAC+HER vs binpick GP + episode HER (issue 3)",
+        "",
+        "Simulator steps until eval success ≥ 95% (50 seeded episodes per evaluation), per seed; final "
+        "success and average actions of the last evaluation, mean over seeds. `python "
+        "benchmarks/rl_fetchreach_vs_sb3.py` → `results/rl_fetchreach_vs_sb3.json`. Thesis (Table 3.4, "
+        "α=1, M=10⁴): 12,700 training iterations to < 5 actions; final 3.10 actions (Table 4.3).",
+        "",
+        "| method | sim steps to 95% (per seed) | final success | final avg actions |",
+        "|---|---|---:|---:|",
+        row("sb3_sac_her", "SB3 SAC + HER (future, k=4)"),
+        row("binpick", "binpick: GP imagination + episode HER"),
+        "",
+        f"binpick / SB3 simulator steps: {'—' if ratio is None else f'{ratio:.2f}'} (target ≤ 0.25: "
+        f"{'met' if payload['met'] else 'not met'}).",
+    ]))
+    print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main()
