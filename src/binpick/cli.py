@@ -132,29 +132,29 @@ def rl_train(
 ) -> None:
     """Train a run: checkpoints, TensorBoard, metrics.json and curves.png in runs/<name>/<time>/."""
     from binpick.rl.config import load_config
-    from binpick.rl.train import Trainer
+    from binpick.rl.train import trainer_for
 
     if (config is None) == (resume is None):
         raise ConfigError("give either a CONFIG file to start a run or --resume RUN_DIR to continue one")
     if resume is not None:
         if not (resume / "config.yaml").is_file():
             raise ConfigError(f"{str(resume)!r} is not a run folder (no config.yaml)")
-        trainer = Trainer.resume(resume)
-        console.print(f"resuming {resume} at {trainer.model.num_timesteps} simulator steps")
+        trainer = trainer_for(resume=resume)
+        console.print(f"resuming {resume} at {trainer.steps_done} simulator steps")
     else:
         settings = load_config(config)
         if steps is not None:
             settings.total_timesteps = steps
         if seed is not None:
             settings.seed = seed
-        trainer = Trainer.new(settings, runs)
+        trainer = trainer_for(settings, runs)
         console.print(f"run folder: {trainer.run_dir}")
     metrics = trainer.run()
-    console.print(
-        f"final success {metrics['final_success']:.0%}, average actions {metrics['final_avg_actions']:.2f} "
-        f"± {metrics['final_std_actions']:.2f}; simulator steps to {metrics['success_threshold']:.0%}: "
-        f"{metrics['sim_steps_to_threshold']}; wrote {trainer.run_dir / 'metrics.json'}"
-    )
+    summary = (f"final success {metrics['final_success']:.0%}, average actions {metrics['final_avg_actions']:.2f} "
+               f"± {metrics['final_std_actions']:.2f}")
+    if metrics.get("sim_steps_to_threshold", "absent") != "absent":
+        summary += f"; simulator steps to {metrics['success_threshold']:.0%}: {metrics['sim_steps_to_threshold']}"
+    console.print(f"{summary}; wrote {trainer.run_dir / 'metrics.json'}")
 
 
 @rl_app.command("eval")

@@ -13,7 +13,7 @@ from typing import Any, Literal
 from binpick.config import check_range, from_dict, load_yaml
 from binpick.errors import ConfigError
 
-ALGORITHMS = ("sac", "sb3_sac_her")
+ALGORITHMS = ("sac", "sb3_sac_her", "a3c", "dqn")
 
 
 @dataclass
@@ -75,6 +75,98 @@ class SACConfig:
 
 
 @dataclass
+class A3CConfig:
+    """Asynchronous advantage actor-critic (§3.1.2)."""
+
+    workers: int = 2  # n; the thesis used two
+    n_steps: int = 20  # actions per update (n-step returns, Eq 3.7)
+    gamma: float = 0.99
+    learning_rate: float = 1e-4
+    entropy_beta: float = 0.01  # β of Eq 3.6
+    value_coef: float = 0.5
+    max_grad_norm: float = 40.0
+    reward_scale: float = 0.01  # keeps value targets in [-1, 0] for the -1-per-step reward
+
+    def __post_init__(self) -> None:
+        check_range("a3c.reward_scale", self.reward_scale, 0.0, 1e6, low_inclusive=False)
+        check_range("a3c.workers", self.workers, 1, 256, integer=True)
+        check_range("a3c.n_steps", self.n_steps, 1, 10_000, integer=True)
+        check_range("a3c.gamma", self.gamma, 0.0, 1.0, high_inclusive=False)
+        check_range("a3c.learning_rate", self.learning_rate, 0.0, 1.0, low_inclusive=False)
+        check_range("a3c.entropy_beta", self.entropy_beta, 0.0, 10.0)
+        check_range("a3c.value_coef", self.value_coef, 0.0, 100.0)
+        check_range("a3c.max_grad_norm", self.max_grad_norm, 0.0, 1e6, low_inclusive=False)
+
+
+@dataclass
+class DQNConfig:
+    """SB3's DQN (§3.1.1): replay of capacity M transitions, target network refreshed every C steps."""
+
+    buffer_size: int = 50_000  # M
+    target_update_interval: int = 1000  # C
+    learning_rate: float = 1e-4
+    batch_size: int = 32
+    gamma: float = 0.99
+    learning_starts: int = 5000
+    train_freq: int = 4
+    exploration_fraction: float = 0.2
+    exploration_final_eps: float = 0.05
+
+    def __post_init__(self) -> None:
+        check_range("dqn.buffer_size (M)", self.buffer_size, 1, 10_000_000, integer=True)
+        check_range("dqn.target_update_interval (C)", self.target_update_interval, 1, None, integer=True)
+        check_range("dqn.learning_rate", self.learning_rate, 0.0, 1.0, low_inclusive=False)
+        check_range("dqn.batch_size", self.batch_size, 1, 100_000, integer=True)
+        check_range("dqn.gamma", self.gamma, 0.0, 1.0, high_inclusive=False)
+        check_range("dqn.learning_starts", self.learning_starts, 0, None, integer=True)
+        check_range("dqn.train_freq", self.train_freq, 1, None, integer=True)
+        check_range("dqn.exploration_fraction", self.exploration_fraction, 0.0, 1.0)
+        check_range("dqn.exploration_final_eps", self.exploration_final_eps, 0.0, 1.0)
+        if self.buffer_size < self.batch_size:
+            raise ConfigError(f"dqn.buffer_size (M={self.buffer_size}) must be >= dqn.batch_size ({self.batch_size})")
+
+
+@dataclass
+class CurriculumStage:
+    """Widen the goal area to ``area`` over ``ramp_steps``, then hold it ``hold_steps`` to re-converge."""
+
+    area: float
+    ramp_steps: int = 0
+    hold_steps: int = 0
+
+    def __post_init__(self) -> None:
+        check_range("curriculum.stages[].area", self.area, 0.0, 1.0)
+        check_range("curriculum.stages[].ramp_steps", self.ramp_steps, 0, None, integer=True)
+        check_range("curriculum.stages[].hold_steps", self.hold_steps, 0, None, integer=True)
+
+
+@dataclass
+class CurriculumConfig:
+    """Goal-area curriculum of §3.2 (Fig 3.4); empty = the env's own goal area throughout."""
+
+    stages: list[CurriculumStage] = field(default_factory=list)
+
+    def goal_area(self, step: int) -> float | None:
+        """The goal area at a simulator step: piecewise linear ramps with holds, then the last area."""
+        if not self.stages:
+            return None
+        area, start = 0.0, 0
+        for stage in self.stages:
+            if step < start + stage.ramp_steps:
+                return area + (stage.area - area) * (step - start) / stage.ramp_steps
+            start += stage.ramp_steps
+            area = stage.area
+            if step < start + stage.hold_steps:
+                return area
+            start += stage.hold_steps
+        return area
+
+    @property
+    def total_steps(self) -> int:
+        return sum(s.ramp_steps + s.hold_steps for s in self.stages)
+
+
+@dataclass
 class EvalConfig:
     every: int = 1000  # simulator steps between evaluations
     episodes: int = 50
@@ -94,15 +186,18 @@ class RLConfig:
     name: str = "run"
     env: str = "binpick/FetchReach-v0"
     env_kwargs: dict[str, Any] = field(default_factory=dict)
-    algorithm: Literal["sac", "sb3_sac_her"] = "sac"
+    algorithm: Literal["sac", "sb3_sac_her", "a3c", "dqn"] = "sac"
     total_timesteps: int = 20_000  # simulator steps
     seed: int = 0
-    semantic_state: bool = True  # policy input (z, g), thesis §3.3.1
+    semantic_state: bool = True  # policy input (z, g), thesis §3.3.1 (continuous-control envs only)
     min_action_scale: float | None = None  # thesis: 0.4 for Fetch
     checkpoint_every: int = 2000
     replay: ReplayConfig = field(default_factory=ReplayConfig)
     gp: GPConfig = field(default_factory=GPConfig)
     sac: SACConfig = field(default_factory=SACConfig)
+    a3c: A3CConfig = field(default_factory=A3CConfig)
+    dqn: DQNConfig = field(default_factory=DQNConfig)
+    curriculum: CurriculumConfig = field(default_factory=CurriculumConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)
 
     def __post_init__(self) -> None:
@@ -120,6 +215,13 @@ class RLConfig:
             )
         if self.gp.enabled and (self.algorithm != "sac" or not self.semantic_state):
             raise ConfigError("gp.enabled needs algorithm: sac and semantic_state: true (the GP models z -> z')")
+        discrete = self.env.endswith("Arm2D-v0") and not self.env_kwargs.get("goal_conditioned", False)
+        if self.algorithm in ("a3c", "dqn") and not discrete:
+            raise ConfigError(f"algorithm {self.algorithm} learns from images with discrete actions: use env binpick/Arm2D-v0")
+        if self.algorithm in ("sac", "sb3_sac_her") and self.env.endswith("Arm2D-v0"):
+            raise ConfigError(f"algorithm {self.algorithm} needs continuous actions; Arm2D takes a3c or dqn")
+        if self.curriculum.stages and not self.env.endswith("Arm2D-v0"):
+            raise ConfigError("curriculum widens Arm2D's goal area: use env binpick/Arm2D-v0")
 
 
 def load_config(path: str | Path) -> RLConfig:

@@ -20,7 +20,8 @@ import gymnasium as gym
 import torch
 import yaml
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
-from stable_baselines3 import SAC, HerReplayBuffer
+from stable_baselines3 import DQN, SAC, HerReplayBuffer
+from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 
 from binpick.config import from_dict, load_yaml, to_dict
@@ -42,14 +43,21 @@ def next_multiple(steps: int, every: int) -> int:
 def make_env(config: RLConfig) -> gym.Env:
     """The env exactly as the run trains on it (semantic state, minimum action scale)."""
     env = make(config.env, **config.env_kwargs)
-    if config.semantic_state:
+    if config.semantic_state and config.algorithm in ("sac", "sb3_sac_her"):
         env = SemanticState(env)
     if config.min_action_scale:
         env = MinActionScale(env, config.min_action_scale)
     return env
 
 
-def build_model(config: RLConfig, env: gym.Env, tensorboard: str | None) -> SAC:
+def build_model(config: RLConfig, env: gym.Env, tensorboard: str | None) -> BaseAlgorithm:
+    if config.algorithm == "dqn":
+        dqn = config.dqn
+        return DQN("CnnPolicy", env, buffer_size=dqn.buffer_size, target_update_interval=dqn.target_update_interval,
+                   learning_rate=dqn.learning_rate, batch_size=dqn.batch_size, gamma=dqn.gamma,
+                   learning_starts=dqn.learning_starts, train_freq=dqn.train_freq,
+                   exploration_fraction=dqn.exploration_fraction, exploration_final_eps=dqn.exploration_final_eps,
+                   optimize_memory_usage=False, seed=config.seed, tensorboard_log=tensorboard, device="cpu")
     sac = config.sac
     common = dict(learning_rate=sac.learning_rate, batch_size=sac.batch_size, gamma=sac.gamma, tau=sac.tau,
                   gradient_steps=sac.gradient_steps, learning_starts=sac.learning_starts, seed=config.seed,
@@ -172,6 +180,10 @@ class Trainer:
             self.gp = GPImagination(config.gp.warmup_episodes, config.gp.refit_every, config.gp.imagined_per_real,
                                     config.gp.batch_episodes, dynamics, seed=config.seed)
 
+    @property
+    def steps_done(self) -> int:
+        return int(self.model.num_timesteps)
+
     # ------------------------------------------------------------------ construction
     @classmethod
     def new(cls, config: RLConfig, runs_root: Path = Path("runs")) -> Trainer:
@@ -196,8 +208,9 @@ class Trainer:
         shutil.rmtree(partial, ignore_errors=True)
         partial.mkdir(parents=True)
         self.model.save(partial / "model.zip", exclude=["replay_buffer"])
-        with open(partial / "replay.pkl", "wb") as handle:
-            pickle.dump(self.model.replay_buffer, handle, protocol=pickle.HIGHEST_PROTOCOL)
+        if self.config.algorithm != "dqn":  # an image replay is GBs: a resumed DQN refills its replay
+            with open(partial / "replay.pkl", "wb") as handle:
+                pickle.dump(self.model.replay_buffer, handle, protocol=pickle.HIGHEST_PROTOCOL)
         state = {"metrics": self.metrics.__dict__, "env": self.config.env, "num_timesteps": steps,
                  "gp": self.gp.state() if self.gp else None}
         (partial / "state.json").write_text(json.dumps(state))
@@ -222,11 +235,12 @@ class Trainer:
         if checkpoint is None:
             return  # crashed before the first checkpoint: start again from zero
         state = json.loads((checkpoint / "state.json").read_text())
-        model_class = GoalSAC if self.config.algorithm == "sac" else SAC
+        model_class = MODEL_CLASSES[self.config.algorithm]
         self.model = model_class.load(checkpoint / "model.zip", env=self.env, device="cpu",
                                       tensorboard_log=str(self.run_dir / "tb"))
-        with open(checkpoint / "replay.pkl", "rb") as handle:
-            self.model.replay_buffer = pickle.load(handle)
+        if (checkpoint / "replay.pkl").exists():
+            with open(checkpoint / "replay.pkl", "rb") as handle:
+                self.model.replay_buffer = pickle.load(handle)
         if self.config.algorithm == "sb3_sac_her":
             self.model.replay_buffer.set_env(self.model.get_env())
         self.metrics = Metrics(**state["metrics"])
@@ -248,7 +262,7 @@ class Trainer:
             callbacks.append(RichProgress(self.config.total_timesteps, int(self.model.num_timesteps), self.config.name))
         if remaining > 0:
             self.model.learn(remaining, callback=CallbackList(callbacks), reset_num_timesteps=False,
-                             tb_log_name="sac", log_interval=10)
+                             tb_log_name=self.config.algorithm, log_interval=10)
         evaluated = [e["sim_steps"] for e in self.metrics.evaluations]
         if not evaluated or evaluated[-1] != self.model.num_timesteps:  # the final policy is always measured
             evaluator.init_callback(self.model)
@@ -269,7 +283,25 @@ class Trainer:
         return data
 
 
-def load_policy(run_dir: Path, env_id: str | None = None) -> tuple[SAC, RLConfig]:
+MODEL_CLASSES = {"sac": GoalSAC, "sb3_sac_her": SAC, "dqn": DQN}
+
+
+def trainer_for(config: RLConfig | None = None, runs_root: Path = Path("runs"), resume: Path | None = None):
+    """A new trainer for ``config``, or the one that continues run folder ``resume``."""
+    if resume is not None:
+        config = from_dict(RLConfig, load_yaml(Path(resume) / "config.yaml"), where=str(Path(resume) / "config.yaml"))
+    if config.algorithm == "a3c":
+        from binpick.rl.a3c_train import A3CTrainer
+
+        if resume is None:
+            return A3CTrainer.new(config, runs_root)
+        trainer = A3CTrainer(config, Path(resume))
+        trainer.load_checkpoint()
+        return trainer
+    return Trainer.new(config, runs_root) if resume is None else Trainer.resume(Path(resume))
+
+
+def load_policy(run_dir: Path, env_id: str | None = None):
     """The latest checkpoint of a run; asking for another env than it was trained on is an error."""
     run_dir = Path(run_dir)
     if not (run_dir / "config.yaml").is_file():
@@ -283,7 +315,10 @@ def load_policy(run_dir: Path, env_id: str | None = None) -> tuple[SAC, RLConfig
     pointer = run_dir / "checkpoints" / "latest"
     if not pointer.exists():
         raise ConfigError(f"run {run_dir} has no checkpoint yet")
-    model_class = GoalSAC if config.algorithm == "sac" else SAC
-    model = model_class.load(run_dir / "checkpoints" / pointer.read_text().strip() / "model.zip", device="cpu")
+    if config.algorithm == "a3c":
+        from binpick.rl.a3c_train import load_a3c_policy
+
+        return load_a3c_policy(run_dir / "checkpoints" / pointer.read_text().strip()), config
+    model = MODEL_CLASSES[config.algorithm].load(run_dir / "checkpoints" / pointer.read_text().strip() / "model.zip", device="cpu")
     return model, config
 

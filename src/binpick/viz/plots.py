@@ -11,8 +11,9 @@ import matplotlib.pyplot as plt  # noqa: E402
 
 
 def plot_learning_curve(evaluations: list[dict[str, float]], path: Path, title: str = "",
-                        threshold: float | None = None) -> Path | None:
-    """Two panels over simulator steps: success rate, and average actions ± std."""
+                        threshold: float | None = None, goal_areas: list[float] | None = None) -> Path | None:
+    """Two panels over simulator steps: success rate, and average actions ± std; with ``goal_areas``
+    the curriculum's goal area is drawn on a second axis (thesis Fig 3.5)."""
     if not evaluations:
         return None
     steps = [e["sim_steps"] for e in evaluations]
@@ -30,6 +31,11 @@ def plot_learning_curve(evaluations: list[dict[str, float]], path: Path, title: 
                         color="tab:blue", alpha=0.2)
     bottom.set_ylabel("average actions per episode")
     bottom.set_xlabel("simulator steps")
+    if goal_areas is not None and any(a != goal_areas[0] for a in goal_areas):
+        area_axis = bottom.twinx()
+        area_axis.step(steps, goal_areas, where="post", color="tab:orange", linewidth=1.5)
+        area_axis.set_ylabel("goal area (fraction of play area)", color="tab:orange")
+        area_axis.set_ylim(-0.02, 1.02)
     figure.suptitle(title)
     figure.tight_layout()
     figure.savefig(path, dpi=110)

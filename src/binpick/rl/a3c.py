@@ -1,0 +1,156 @@
+"""Asynchronous advantage actor-critic (thesis §3.1.2, Eq 3.4-3.7) for pixel observations.
+
+n worker processes each own an env and a local copy of the network. A worker repeatedly copies the
+global weights, plays up to ``n_steps`` actions, and computes gradients of
+
+    L = L_π + c_v L_V,   L_V = (R_t - V(s_t))²,   L_π = -log π(a_t|s_t) A_t - β H(π(·|s_t))   (3.5, 3.6)
+
+with n-step returns R_t = r_t + γ R_{t+1}, bootstrapped from V(s_{t+n}) unless the episode ended
+(Eq 3.7), and A_t = R_t - V(s_t) (Eq 3.4). The gradients are applied to the shared global network
+by a shared Adam, without locks (as A3C does). :class:`A3CWorker` only turns weights into
+gradients, so the same class can run in a Ray actor on another machine.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import gymnasium as gym
+import numpy as np
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+
+
+class ActorCritic(nn.Module):
+    """Shared convolutional trunk with a policy head (logits) and a value head (thesis §3.1.2)."""
+
+    def __init__(self, observation_shape: tuple[int, int, int], actions: int) -> None:
+        super().__init__()
+        height, width, channels = observation_shape
+        self.trunk = nn.Sequential(
+            nn.Conv2d(channels, 16, 5, stride=2, padding=2), nn.ReLU(),
+            nn.Conv2d(16, 32, 5, stride=2, padding=2), nn.ReLU(),
+            nn.Conv2d(32, 32, 3, stride=2, padding=1), nn.ReLU(),
+            nn.Flatten(),
+        )
+        with torch.no_grad():
+            features = self.trunk(torch.zeros(1, channels, height, width)).shape[1]
+        self.hidden = nn.Sequential(nn.Linear(features, 256), nn.ReLU())
+        self.policy = nn.Linear(256, actions)
+        self.value = nn.Linear(256, 1)
+
+    def forward(self, images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """uint8 (B, H, W, C) images -> (logits (B, A), values (B,))."""
+        x = images.permute(0, 3, 1, 2).float() / 255.0
+        hidden = self.hidden(self.trunk(x))
+        return self.policy(hidden), self.value(hidden).squeeze(-1)
+
+    @torch.no_grad()
+    def act(self, image: np.ndarray, deterministic: bool = False) -> int:
+        logits, _ = self(torch.from_numpy(np.array(image[None])))
+        if deterministic:
+            return int(logits.argmax(-1))
+        return int(torch.distributions.Categorical(logits=logits).sample())
+
+
+class SharedAdam(torch.optim.Adam):
+    """Adam whose moment estimates live in shared memory, so every worker process updates them."""
+
+    def __init__(self, params, lr: float = 1e-4, betas=(0.9, 0.999), eps: float = 1e-8) -> None:
+        super().__init__(params, lr=lr, betas=betas, eps=eps)
+        for group in self.param_groups:
+            for p in group["params"]:
+                state = self.state[p]
+                state["step"] = torch.zeros(1)
+                state["exp_avg"] = torch.zeros_like(p.data)
+                state["exp_avg_sq"] = torch.zeros_like(p.data)
+                state["step"].share_memory_()
+                state["exp_avg"].share_memory_()
+                state["exp_avg_sq"].share_memory_()
+
+
+@dataclass
+class RolloutStats:
+    steps: int = 0
+    finished_lengths: list[int] = field(default_factory=list)
+    finished_successes: list[bool] = field(default_factory=list)
+    policy_loss: float = 0.0
+    value_loss: float = 0.0
+    entropy: float = 0.0
+
+
+class A3CWorker:
+    """One environment and a local network; turns global weights into gradients from one rollout."""
+
+    def __init__(self, make_env: Callable[[], gym.Env], observation_shape, actions: int, seed: int,
+                 n_steps: int = 20, gamma: float = 0.99, entropy_beta: float = 0.01, value_coef: float = 0.5,
+                 max_grad_norm: float = 40.0, reward_scale: float = 0.01) -> None:
+        self.env = make_env()
+        self.model = ActorCritic(observation_shape, actions)
+        self.n_steps, self.gamma = n_steps, gamma
+        self.entropy_beta, self.value_coef, self.max_grad_norm = entropy_beta, value_coef, max_grad_norm
+        # binpick's -1-per-step reward gives returns near -1/(1-γ); scaling by (1-γ) keeps the critic's
+        # targets in [-1, 0] so the value loss cannot swamp the policy gradient (same optimal policy).
+        self.reward_scale = reward_scale
+        self.seed = seed
+        self._episode = 0
+        self._episode_steps = 0
+        self.observation, _ = self.env.reset(seed=seed)
+        torch.manual_seed(seed)
+
+    def reset_env(self) -> None:
+        self._episode += 1
+        self._episode_steps = 0
+        self.observation, _ = self.env.reset(seed=self.seed + 100_003 * self._episode)
+
+    def compute_gradients(self, weights: dict[str, torch.Tensor]) -> tuple[list[torch.Tensor], RolloutStats]:
+        """Play up to n_steps with ``weights`` and return the A3C gradients (Eq 3.5-3.7)."""
+        self.model.load_state_dict(weights)
+        stats = RolloutStats()
+        images, actions, rewards = [], [], []
+        done = False
+        for _ in range(self.n_steps):
+            images.append(self.observation)
+            action = self.model.act(self.observation)
+            self.observation, reward, terminated, truncated, info = self.env.step(action)
+            actions.append(action)
+            rewards.append(reward * self.reward_scale)
+            self._episode_steps += 1
+            stats.steps += 1
+            if terminated or truncated:
+                stats.finished_lengths.append(self._episode_steps)
+                stats.finished_successes.append(bool(info.get("is_success", terminated)))
+                done = terminated  # a time limit is not the end of the task: bootstrap through it
+                bootstrap_image = self.observation
+                self.reset_env()
+                break
+        else:
+            bootstrap_image = self.observation
+        logits, values = self.model(torch.from_numpy(np.stack(images)))
+        with torch.no_grad():
+            running = 0.0 if done else float(self.model(torch.from_numpy(np.array(bootstrap_image[None])))[1])
+        returns = torch.zeros(len(rewards))
+        for t in reversed(range(len(rewards))):
+            running = rewards[t] + self.gamma * running
+            returns[t] = running
+        distribution = torch.distributions.Categorical(logits=logits)
+        advantages = returns - values
+        value_loss = advantages.pow(2).mean()
+        entropy = distribution.entropy().mean()
+        policy_loss = -(distribution.log_prob(torch.as_tensor(actions)) * advantages.detach()).mean() - self.entropy_beta * entropy
+        self.model.zero_grad()
+        (policy_loss + self.value_coef * value_loss).backward()
+        nn.utils.clip_grad_norm_(self.model.parameters(), self.max_grad_norm)
+        stats.policy_loss, stats.value_loss = float(policy_loss.detach()), float(value_loss.detach())
+        stats.entropy = float(entropy.detach())
+        return [p.grad.detach().clone() for p in self.model.parameters()], stats
+
+
+def apply_gradients(global_model: nn.Module, optimizer: torch.optim.Optimizer, gradients: list[torch.Tensor]) -> None:
+    """Hogwild update of the shared network with one worker's gradients."""
+    for parameter, gradient in zip(global_model.parameters(), gradients):
+        parameter.grad = gradient
+    optimizer.step()
+

@@ -1,0 +1,233 @@
+"""Run A3C (thesis §3.1.2) with real worker processes, the goal-area curriculum (§3.2) and the same
+run folder, checkpoints and outputs as :mod:`binpick.rl.train`.
+
+The main process owns the global network (in shared memory), the shared Adam, a shared step
+counter and the current goal area; it drains finished-episode statistics from a queue, evaluates,
+checkpoints atomically and plots. Workers run :class:`~binpick.rl.a3c.A3CWorker` in a loop.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import queue
+import shutil
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import torch.multiprocessing as mp
+import yaml
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from torch.utils.tensorboard import SummaryWriter
+
+from binpick.config import to_dict
+from binpick.rl.a3c import A3CWorker, ActorCritic, SharedAdam, apply_gradients
+from binpick.rl.config import RLConfig
+from binpick.rl.evaluate import evaluate_policy
+
+
+class _SampledPolicy:
+    """The actor as a policy for :func:`evaluate_policy`; A3C acts by sampling its distribution."""
+
+    def __init__(self, model: ActorCritic, deterministic: bool = False) -> None:
+        self.model, self.deterministic = model, deterministic
+
+    def __call__(self, observation: np.ndarray) -> int:
+        return self.model.act(observation, deterministic=self.deterministic)
+
+
+def _make_env(config: RLConfig):
+    from binpick.envs import make
+
+    return make(config.env, **config.env_kwargs)
+
+
+def _worker(rank: int, config: RLConfig, model: ActorCritic, optimizer: SharedAdam, counter, goal_area,
+            stats_queue, stop) -> None:
+    torch.set_num_threads(1)
+    a3c = config.a3c
+    env_shape = _make_env(config).observation_space.shape
+    worker = A3CWorker(lambda: _make_env(config), env_shape, 6, seed=config.seed * 1000 + rank * 7919 + counter.value,
+                       n_steps=a3c.n_steps, gamma=a3c.gamma, entropy_beta=a3c.entropy_beta,
+                       value_coef=a3c.value_coef, max_grad_norm=a3c.max_grad_norm, reward_scale=a3c.reward_scale)
+    area = -1.0
+    while not stop.is_set() and counter.value < config.total_timesteps:
+        if goal_area.value != area and worker._episode_steps == 0:  # change the area between episodes only
+            area = goal_area.value
+            worker.env.unwrapped.set_goal_area(area)
+            worker.reset_env()
+        gradients, stats = worker.compute_gradients(model.state_dict())
+        apply_gradients(model, optimizer, gradients)
+        with counter.get_lock():
+            counter.value += stats.steps
+        stats_queue.put((rank, stats.finished_lengths, stats.finished_successes, stats.policy_loss,
+                         stats.value_loss, stats.entropy, area))
+
+
+class A3CTrainer:
+    """Owns a run folder for an A3C run; ``run()`` trains to ``total_timesteps`` and can resume."""
+
+    def __init__(self, config: RLConfig, run_dir: Path) -> None:
+        self.config, self.run_dir = config, Path(run_dir)
+        self.ckpt_dir = self.run_dir / "checkpoints"
+        env = _make_env(config)
+        self.observation_shape = env.observation_space.shape
+        self.base_area = float(env.unwrapped.goal_area)
+        env.close()
+        torch.manual_seed(config.seed)
+        self.model = ActorCritic(self.observation_shape, 6)
+        self.model.share_memory()
+        self.optimizer = SharedAdam(self.model.parameters(), lr=config.a3c.learning_rate)
+        self.steps = 0
+        self.metrics: dict[str, Any] = {"evaluations": [], "episodes": 0, "wall_seconds": 0.0, "stage_results": []}
+
+    @classmethod
+    def new(cls, config: RLConfig, runs_root: Path = Path("runs")) -> A3CTrainer:
+        run_dir = runs_root / config.name / time.strftime("%Y%m%d-%H%M%S")
+        run_dir.mkdir(parents=True, exist_ok=False)
+        (run_dir / "config.yaml").write_text(yaml.safe_dump(to_dict(config), sort_keys=False))
+        return cls(config, run_dir)
+
+    @property
+    def steps_done(self) -> int:
+        return self.steps
+
+    def goal_area(self, step: int) -> float:
+        scheduled = self.config.curriculum.goal_area(step)
+        return self.base_area if scheduled is None else scheduled
+
+    # ------------------------------------------------------------------ checkpoints
+    def save_checkpoint(self) -> Path:
+        final = self.ckpt_dir / f"ckpt-{self.steps:09d}"
+        partial = self.ckpt_dir / f".partial-{self.steps:09d}"
+        shutil.rmtree(partial, ignore_errors=True)
+        partial.mkdir(parents=True)
+        torch.save({"model": self.model.state_dict(), "optimizer": self.optimizer.state_dict(),
+                    "observation_shape": self.observation_shape, "env": self.config.env}, partial / "a3c.pt")
+        (partial / "state.json").write_text(json.dumps({"steps": self.steps, "metrics": self.metrics,
+                                                        "env": self.config.env}))
+        shutil.rmtree(final, ignore_errors=True)
+        os.replace(partial, final)
+        (self.ckpt_dir / "latest.tmp").write_text(final.name)
+        os.replace(self.ckpt_dir / "latest.tmp", self.ckpt_dir / "latest")
+        for old in self.ckpt_dir.glob("ckpt-*"):
+            if old != final:
+                shutil.rmtree(old, ignore_errors=True)
+        return final
+
+    def load_checkpoint(self) -> None:
+        pointer = self.ckpt_dir / "latest"
+        if not pointer.exists():
+            return
+        checkpoint = self.ckpt_dir / pointer.read_text().strip()
+        data = torch.load(checkpoint / "a3c.pt", weights_only=False)
+        self.model.load_state_dict(data["model"])
+        self.optimizer.load_state_dict(data["optimizer"])
+        for state in self.optimizer.state.values():  # load_state_dict replaces tensors: share them again
+            for value in state.values():
+                if torch.is_tensor(value):
+                    value.share_memory_()
+        state = json.loads((checkpoint / "state.json").read_text())
+        self.steps, self.metrics = state["steps"], state["metrics"]
+
+    # ------------------------------------------------------------------ evaluation
+    def evaluate(self, area: float) -> dict[str, float]:
+        env = _make_env(self.config)
+        env.unwrapped.set_goal_area(area)
+        result = evaluate_policy(env, _SampledPolicy(self.model), episodes=self.config.eval.episodes,
+                                 seed=self.config.eval.seed)
+        env.close()
+        return {"sim_steps": self.steps, "goal_area": area, "success_rate": result.success_rate,
+                "mean_length": result.mean_length, "std_length": result.std_length}
+
+    # ------------------------------------------------------------------ training
+    def run(self, show_progress: bool = True) -> dict[str, Any]:
+        context = mp.get_context("spawn")
+        counter = context.Value("l", self.steps)
+        goal_area = context.Value("d", self.goal_area(self.steps))
+        stats_queue = context.Queue()
+        stop = context.Event()
+        workers = [context.Process(target=_worker, args=(rank, self.config, self.model, self.optimizer, counter,
+                                                         goal_area, stats_queue, stop), daemon=True)
+                   for rank in range(self.config.a3c.workers)]
+        writer = SummaryWriter(str(self.run_dir / "tb"))
+        started = time.perf_counter() - self.metrics["wall_seconds"]
+        every, save_every = self.config.eval.every, self.config.checkpoint_every
+        next_eval = (self.steps // every + 1) * every
+        next_save = (self.steps // save_every + 1) * save_every
+        lengths: list[int] = []
+        progress = Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                            TextColumn("{task.fields[status]}"), TimeElapsedColumn(), TimeRemainingColumn(),
+                            disable=not show_progress)
+        task = progress.add_task(self.config.name, total=self.config.total_timesteps, completed=self.steps, status="")
+        for worker in workers:
+            worker.start()
+        try:
+            with progress:
+                while any(w.is_alive() for w in workers) and self.steps < self.config.total_timesteps:
+                    try:
+                        rank, finished, successes, policy_loss, value_loss, entropy, area = stats_queue.get(timeout=1.0)
+                    except queue.Empty:
+                        continue
+                    self.steps = counter.value
+                    goal_area.value = self.goal_area(self.steps)
+                    for length in finished:
+                        lengths.append(length)
+                        self.metrics["episodes"] += 1
+                        writer.add_scalar("episode/length", length, self.steps)
+                    writer.add_scalar("loss/policy", policy_loss, self.steps)
+                    writer.add_scalar("loss/value", value_loss, self.steps)
+                    writer.add_scalar("loss/entropy", entropy, self.steps)
+                    writer.add_scalar("curriculum/goal_area", goal_area.value, self.steps)
+                    recent = f"last 100 episodes {np.mean(lengths[-100:]):.1f} actions" if lengths else ""
+                    progress.update(task, completed=self.steps, status=f"area {goal_area.value:.2f} · {recent}")
+                    if self.steps >= next_eval:
+                        next_eval += every
+                        row = self.evaluate(goal_area.value)
+                        self.metrics["evaluations"].append(row)
+                        writer.add_scalar("eval/avg_actions", row["mean_length"], self.steps)
+                        writer.add_scalar("eval/success_rate", row["success_rate"], self.steps)
+                    if self.steps >= next_save:
+                        next_save += save_every
+                        self.metrics["wall_seconds"] = time.perf_counter() - started
+                        self.save_checkpoint()
+        finally:
+            stop.set()
+            for worker in workers:
+                worker.join(timeout=10)
+                if worker.is_alive():
+                    worker.terminate()
+            writer.close()
+        self.steps = counter.value
+        self.metrics["wall_seconds"] = time.perf_counter() - started
+        final = self.evaluate(self.goal_area(self.steps))
+        self.metrics["evaluations"].append(final)
+        self.save_checkpoint()
+        return self.write_outputs()
+
+    def write_outputs(self) -> dict[str, Any]:
+        from binpick.viz.plots import plot_learning_curve
+
+        last = self.metrics["evaluations"][-1]
+        data = {"name": self.config.name, "env": self.config.env, "algorithm": "a3c", "seed": self.config.seed,
+                "sim_steps": self.steps, "episodes": self.metrics["episodes"], "final_goal_area": last["goal_area"],
+                "final_success": last["success_rate"], "final_avg_actions": last["mean_length"],
+                "final_std_actions": last["std_length"], "wall_seconds": round(self.metrics["wall_seconds"], 1),
+                "evaluations": self.metrics["evaluations"]}
+        (self.run_dir / "metrics.json.tmp").write_text(json.dumps(data, indent=2))
+        os.replace(self.run_dir / "metrics.json.tmp", self.run_dir / "metrics.json")
+        plot_learning_curve(self.metrics["evaluations"], self.run_dir / "curves.png", title=self.config.name,
+                            goal_areas=[e["goal_area"] for e in self.metrics["evaluations"]])
+        return data
+
+
+def load_a3c_policy(checkpoint: Path) -> _SampledPolicy:
+    """A trained A3C actor as a policy (samples its action distribution, as it acted in training)."""
+    data = torch.load(Path(checkpoint) / "a3c.pt", weights_only=False)
+    model = ActorCritic(tuple(data["observation_shape"]), 6)
+    model.load_state_dict(data["model"])
+    model.eval()
+    return _SampledPolicy(model)

@@ -1,0 +1,96 @@
+"""A3C (thesis §3.1.2) and the goal-area curriculum (§3.2)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import gymnasium as gym
+import numpy as np
+import torch
+from gymnasium import spaces
+
+from binpick.rl.a3c import A3CWorker, ActorCritic, SharedAdam, apply_gradients
+from binpick.rl.config import CurriculumConfig, CurriculumStage
+
+
+class OneRightAction(gym.Env):
+    """Blank 16x16 image; action 0 reaches the goal (reward 0, terminal), others cost -1."""
+
+    observation_space = spaces.Box(0, 255, (16, 16, 3), np.uint8)
+    action_space = spaces.Discrete(6)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        return np.zeros((16, 16, 3), np.uint8), {"is_success": False}
+
+    def step(self, action):
+        success = int(action) == 0
+        return np.zeros((16, 16, 3), np.uint8), 0.0 if success else -1.0, success, False, {"is_success": success}
+
+
+def test_worker_gradients_teach_the_global_network_the_rewarded_action():
+    torch.manual_seed(0)
+    model = ActorCritic((16, 16, 3), 6)
+    model.share_memory()
+    optimizer = SharedAdam(model.parameters(), lr=3e-3)
+    worker = A3CWorker(lambda: gym.wrappers.TimeLimit(OneRightAction(), 20), (16, 16, 3), 6, seed=0, reward_scale=0.1)
+    blank = torch.zeros(1, 16, 16, 3, dtype=torch.uint8)
+    before = torch.softmax(model(blank)[0], -1)[0, 0].item()
+    for _ in range(150):
+        gradients, stats = worker.compute_gradients(model.state_dict())
+        assert all(torch.isfinite(g).all() for g in gradients)
+        apply_gradients(model, optimizer, gradients)
+    after = torch.softmax(model(blank)[0], -1)[0, 0].item()
+    assert before < 0.3 and after > 0.9, (before, after)
+
+
+def test_rollouts_stop_at_episode_end_and_report_lengths():
+    worker = A3CWorker(lambda: gym.wrappers.TimeLimit(OneRightAction(), 5), (16, 16, 3), 6, seed=1, n_steps=50)
+    _, stats = worker.compute_gradients(ActorCritic((16, 16, 3), 6).state_dict())
+    assert stats.steps <= 5 and stats.finished_lengths == [stats.steps]
+
+
+def test_curriculum_ramps_and_holds():
+    schedule = CurriculumConfig([CurriculumStage(0.0, 0, 100), CurriculumStage(0.5, 100, 50), CurriculumStage(1.0, 100)])
+    areas = [schedule.goal_area(step) for step in (0, 99, 150, 200, 249, 300, 350, 10_000)]
+    assert areas == [0.0, 0.0, 0.25, 0.5, 0.5, 0.75, 1.0, 1.0]
+    assert schedule.total_steps == 350 and CurriculumConfig().goal_area(5) is None
+
+
+A3C_RUN = """
+name: tiny_a3c
+env: Arm2D
+env_kwargs: {{image_size: 32, tolerance: 0.2}}
+algorithm: a3c
+total_timesteps: {steps}
+checkpoint_every: 200
+a3c: {{workers: 2, n_steps: 10}}
+curriculum: {{stages: [{{area: 0.0, hold_steps: 200}}, {{area: 1.0, ramp_steps: 200}}]}}
+eval: {{every: 200, episodes: 2}}
+"""
+
+
+def test_a3c_run_with_curriculum_resumes_and_evaluates(tmp_path):
+    config = tmp_path / "a3c.yaml"
+    config.write_text(A3C_RUN.format(steps=400))
+    cli = [sys.executable, "-c", "from binpick.cli import main; main()"]
+    result = subprocess.run([*cli, "rl", "train", str(config), "--runs", str(tmp_path / "runs")],
+                            capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    (run,) = (tmp_path / "runs" / "tiny_a3c").iterdir()
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["sim_steps"] >= 400 and metrics["algorithm"] == "a3c"
+    areas = [e["goal_area"] for e in metrics["evaluations"]]
+    assert areas[0] < 0.5 and areas[-1] == 1.0, areas
+    assert (run / "curves.png").exists()
+    # continue the finished run for longer: the step count carries on from the checkpoint
+    saved = (run / "config.yaml").read_text().replace("total_timesteps: 400", "total_timesteps: 600")
+    (run / "config.yaml").write_text(saved)
+    resumed = subprocess.run([*cli, "rl", "train", "--resume", str(run)], capture_output=True, text=True, timeout=300)
+    assert resumed.returncode == 0, resumed.stderr
+    assert f"at {metrics['sim_steps']} simulator steps" in resumed.stdout.replace("\n", "")
+    assert json.loads((run / "metrics.json").read_text())["sim_steps"] >= 600
+    evaluation = subprocess.run([*cli, "rl", "eval", str(run), "--episodes", "2"], capture_output=True, text=True, timeout=120)
+    assert evaluation.returncode == 0 and "actions per episode" in evaluation.stdout, evaluation.stderr
