@@ -86,3 +86,16 @@ def test_pick_and_place_actions_are_delta_z_and_gripper(make_env):
     for _ in range(5):
         env.step(np.array([0, 0, 0, -1.0], dtype=np.float32))
     assert fingers() < opened - 0.01, "a_g = -1 closes the gripper"
+
+
+def test_fixed_goal_and_noisy_start_for_table_3_3(make_env):
+    fixed = make_env("binpick/FetchReach-v0", goal_offset=(0.1, 0.0, 0.05))
+    noisy = make_env("binpick/FetchReach-v0", goal_offset=(0.1, 0.0, 0.05), start_noise=0.1)
+    plain_starts = {tuple(np.round(fixed.reset(seed=s)[0]["achieved_goal"], 4)) for s in range(4)}
+    observations = [noisy.reset(seed=s)[0] for s in range(8)]
+    starts = np.array([o["achieved_goal"] for o in observations])
+    goals = np.array([o["desired_goal"] for o in observations])
+    assert len(plain_starts) == 1, "without noise the start is fixed"
+    assert np.ptp(goals, axis=0).max() < 1e-9, "the goal is the same every episode"
+    assert starts.std(axis=0).min() > 0.02, "noisy starts spread over the workspace"
+    np.testing.assert_allclose(goals[0] - np.array(next(iter(plain_starts))), [0.1, 0.0, 0.05], atol=0.01)

@@ -107,3 +107,24 @@ def test_sb3_add_interface_builds_episodes_per_env():
 def test_bad_settings_name_the_parameter(kwargs, fragment):
     with pytest.raises(ConfigError, match=fragment.replace("(", r"\(").replace(")", r"\)")):
         make_buffer(**kwargs)
+
+
+def test_pickle_keeps_only_used_slots_and_round_trips():
+    import pickle
+
+    buffer = make_buffer(capacity_episodes=100_000, her_additions=1)
+    for length in (3, 5, 7):
+        buffer.add_episode(line_episode(length))
+    data = pickle.dumps(buffer)
+    assert len(data) < 200_000, "an almost empty M=1e5 buffer must not pickle its unused slots"
+    restored = pickle.loads(data)
+    assert restored.episodes == buffer.episodes and restored.added == buffer.added
+    assert [e.length for e in restored.stored_episodes()] == [e.length for e in buffer.stored_episodes()]
+    restored.add_episode(line_episode(2))
+    assert restored.episodes == buffer.episodes + 2
+
+
+def test_counts_when_training_could_start_are_recorded():
+    buffer = make_buffer(capacity_episodes=20, her_additions=1)
+    buffer.add_episode(line_episode(4))
+    assert buffer.added_when_ready is not None and buffer.added_when_ready == {"real": 1, "her": 1, "imagined": 0}

@@ -19,6 +19,7 @@ import numpy as np
 from gymnasium.utils import EzPickle
 
 from binpick.config import check_range
+from binpick.errors import ConfigError
 from binpick.envs.goal_env import ImageObservationMixin
 from binpick.envs.images import CameraPose, check_image_size, import_mujoco
 
@@ -84,7 +85,38 @@ class _BinpickFetchMixin(ImageObservationMixin):
 
 
 class FetchReachEnv(_BinpickFetchMixin, MujocoFetchReachEnv):
-    """Gymnasium-Robotics FetchReach-v4 with optional image observation and end at success."""
+    """Gymnasium-Robotics FetchReach-v4 with optional image observation and end at success.
+
+    Thesis Table 3.3 set-ups: ``goal_offset`` fixes the goal (metres from the gripper's start);
+    ``start_noise`` moves the gripper's start uniformly by up to that many metres per axis ("noisy s_0").
+    """
+
+    def __init__(self, goal_offset: tuple[float, float, float] | None = None, start_noise: float = 0.0,
+                 **kwargs: Any) -> None:
+        self.start_noise = check_range("start_noise", float(start_noise), 0.0, 0.15)
+        self.goal_offset = None
+        if goal_offset is not None:
+            if len(goal_offset) != 3:
+                raise ConfigError(f"goal_offset must have 3 entries (x, y, z metres), got {len(goal_offset)}")
+            self.goal_offset = np.array([check_range(f"goal_offset[{i}]", float(v), -0.15, 0.15)
+                                         for i, v in enumerate(goal_offset)])
+        super().__init__(**kwargs)
+        EzPickle.__init__(self, goal_offset=goal_offset, start_noise=start_noise, **kwargs)
+
+    def _sample_goal(self):
+        if self.goal_offset is None:
+            return super()._sample_goal()
+        return self.initial_gripper_xpos[:3] + self.goal_offset
+
+    def _reset_sim(self):
+        done = super()._reset_sim()
+        if self.start_noise > 0:  # drive the mocap to a jittered start, as _env_setup does at start-up
+            self._utils.reset_mocap2body_xpos(self.model, self.data)
+            self.data.mocap_pos[0] += self.np_random.uniform(-self.start_noise, self.start_noise, 3)
+            for _ in range(10):
+                self._mujoco_step(None)
+            self._step_callback()
+        return done
 
 
 class FetchReachObstacleEnv(FetchReachEnv):

@@ -42,13 +42,15 @@ class GPImagination(BaseCallback):
     imagined episodes for each real episode, generated in batches."""
 
     def __init__(self, warmup_episodes: int = 15, refit_every: int = 500, imagined_per_real: float = 20.0,
-                 batch_episodes: int = 500, dynamics: GPDynamics | None = None, seed: int = 0, verbose: int = 0) -> None:
+                 batch_episodes: int = 500, dynamics: GPDynamics | None = None, seed: int = 0,
+                 fill_until_ready: bool = True, verbose: int = 0) -> None:
         super().__init__(verbose)
         self.warmup_episodes = check_range("gp.warmup_episodes", warmup_episodes, 2, None, integer=True)
         self.refit_every = check_range("gp.refit_every", refit_every, 1, None, integer=True)
         self.imagined_per_real = check_range("gp.imagined_per_real", imagined_per_real, 0.0, 10_000.0)
         self.batch_episodes = check_range("gp.batch_episodes", batch_episodes, 1, 100_000, integer=True)
         self.dynamics = dynamics or GPDynamics(seed=seed)
+        self.fill_until_ready = fill_until_ready
         self.rng = np.random.default_rng(seed)
         self.fits = 0
         self.imagined_steps = 0
@@ -68,11 +70,15 @@ class GPImagination(BaseCallback):
             self._fit()
         self._debt += self.imagined_per_real * (real - self._real_seen)  # the first time: all warm-up episodes
         self._real_seen = real
-        # whole batches keep GP queries efficient; before training starts, fill the buffer right away
+        # whole batches keep GP queries efficient
         while self._debt >= self.batch_episodes or (self._debt >= 1 and not self.buffer.ready):
             count = int(min(self._debt, self.batch_episodes))
             self.imagine(count)
             self._debt -= count
+        # thesis §3.3.2: training starts once Ω is 10% full of simulator, GP or HER episodes, so the
+        # GP fills what the simulator has not
+        while self.fill_until_ready and not self.buffer.ready:
+            self.imagine(self.batch_episodes)
         return True
 
     def _fit(self) -> None:

@@ -41,6 +41,7 @@ class GPConfig:
     refit_every: int = 500  # new real transitions (simulator steps) between fits
     imagined_per_real: float = 20.0  # ratio of imagined to real episodes
     batch_episodes: int = 500  # imagined episodes rolled together
+    fill_until_ready: bool = True  # imagine episodes until Ω is start_fraction full (thesis §3.3.2)
     max_points: int = 1000
     iterations: int = 60
 

@@ -91,6 +91,7 @@ class EpisodeReplayBuffer(DictReplayBuffer):
         self._stored = 0
         self._cumulative: np.ndarray | None = None
         self.added = dict.fromkeys(self.ORIGINS, 0)  # episodes ever added, by origin
+        self.added_when_ready: dict[str, int] | None = None  # the same counts when training could start
         self.real_transitions = 0
         self._open: list[dict[str, list]] = [self._empty_episode() for _ in range(n_envs)]
 
@@ -188,6 +189,8 @@ class EpisodeReplayBuffer(DictReplayBuffer):
         self._stored = min(self._stored + 1, self.M)
         self._cumulative = None
         self.added[origin] += 1
+        if self.added_when_ready is None and self.ready:
+            self.added_when_ready = dict(self.added)
 
     # ------------------------------------------------------------------ sampling
     def sample_arrays(self, batch_size: int) -> dict[str, np.ndarray]:
@@ -221,6 +224,24 @@ class EpisodeReplayBuffer(DictReplayBuffer):
             dones=self.to_torch(batch["dones"]).reshape(-1, 1),
             rewards=self.to_torch(self._normalize_reward(batch["rewards"].reshape(-1, 1), env)),
         )
+
+    def __getstate__(self) -> dict[str, Any]:
+        """Pickle only the slots in use: an M = 10^6 buffer is GBs when full but small at first."""
+        state = self.__dict__.copy()
+        used = self._stored
+        for key in ("_obs", "_ag", "_dg", "_actions", "_lengths", "_origin"):
+            state[key] = state[key][:used].copy()
+        state["_cumulative"] = None
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        used = state["_stored"]
+        for key in ("_obs", "_ag", "_dg", "_actions", "_lengths", "_origin"):
+            stored = state[key]
+            full = np.zeros((state["M"], *stored.shape[1:]), stored.dtype)
+            full[:used] = stored
+            state[key] = full
+        self.__dict__.update(state)
 
     @staticmethod
     def _empty_episode() -> dict[str, list]:

@@ -80,6 +80,7 @@ class Metrics:
 
     evaluations: list[dict[str, float]] = field(default_factory=list)
     sim_steps_to_threshold: int | None = None
+    gradient_steps_to_5_actions: int | None = None  # thesis Table 3.4: iterations until < 5 actions
     wall_seconds: float = 0.0
 
     def to_dict(self, config: RLConfig, model: SAC, gp: GPImagination | None) -> dict[str, Any]:
@@ -91,9 +92,10 @@ class Metrics:
                 "final_avg_actions": last.get("mean_length"), "final_std_actions": last.get("std_length"),
                 "gradient_steps": int(model._n_updates), "wall_seconds": round(self.wall_seconds, 1),
                 "evaluations": self.evaluations}
+        data["gradient_steps_to_5_actions"] = self.gradient_steps_to_5_actions
         if isinstance(buffer, EpisodeReplayBuffer):
             data.update(sim_episodes=buffer.added["real"], her_episodes=buffer.added["her"],
-                        imagined_episodes=buffer.added["imagined"])
+                        imagined_episodes=buffer.added["imagined"], episodes_when_training_started=buffer.added_when_ready)
         if gp is not None:
             data.update(gp_fits=gp.fits, gp_steps=gp.imagined_steps)
         return data
@@ -120,11 +122,13 @@ class Evaluate(BaseCallback):
     def evaluate(self) -> dict[str, float]:
         steps = int(self.model.num_timesteps)
         result = evaluate_policy(self.env, self.model, episodes=self.config.eval.episodes, seed=self.config.eval.seed)
-        row = {"sim_steps": steps, "success_rate": result.success_rate,
+        row = {"sim_steps": steps, "gradient_steps": int(self.model._n_updates), "success_rate": result.success_rate,
                "mean_length": result.mean_length, "std_length": result.std_length}
         self.metrics.evaluations.append(row)
         if self.metrics.sim_steps_to_threshold is None and result.success_rate >= self.config.eval.success_threshold:
             self.metrics.sim_steps_to_threshold = steps
+        if self.metrics.gradient_steps_to_5_actions is None and result.mean_length < 5:
+            self.metrics.gradient_steps_to_5_actions = int(self.model._n_updates)
         self.logger.record("eval/success_rate", result.success_rate)
         self.logger.record("eval/avg_actions", result.mean_length)
         self.logger.dump(steps)
@@ -178,7 +182,8 @@ class Trainer:
         if config.gp.enabled:
             dynamics = GPDynamics(config.gp.max_points, config.gp.iterations, seed=config.seed)
             self.gp = GPImagination(config.gp.warmup_episodes, config.gp.refit_every, config.gp.imagined_per_real,
-                                    config.gp.batch_episodes, dynamics, seed=config.seed)
+                                    config.gp.batch_episodes, dynamics, seed=config.seed,
+                                    fill_until_ready=config.gp.fill_until_ready)
 
     @property
     def steps_done(self) -> int:
