@@ -114,3 +114,30 @@ def test_shipped_configs_load():
 
     for path in Path(__file__).parents[1].glob("configs/rl_*.yaml"):
         load_config(path)
+
+
+def test_dqn_on_arm2d_images_trains_and_evaluates(tmp_path):
+    config = tmp_path / "dqn.yaml"
+    config.write_text("""
+name: tiny_dqn
+env: Arm2D
+env_kwargs: {max_episode_steps: 60}
+algorithm: dqn
+total_timesteps: 300
+checkpoint_every: 200
+dqn: {buffer_size: 500, learning_starts: 100, target_update_interval: 50, batch_size: 16}
+eval: {every: 300, episodes: 2}
+""")
+    result = cli("rl", "train", str(config), "--runs", str(tmp_path / "runs"))
+    assert result.returncode == 0, result.stderr
+    (run,) = (tmp_path / "runs" / "tiny_dqn").iterdir()
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["sim_steps"] == 300 and metrics["gradient_steps"] > 0
+    assert cli("rl", "eval", str(run), "--episodes", "1").returncode == 0
+
+
+def test_algorithm_and_env_must_fit_together():
+    with pytest.raises(ConfigError, match="a3c learns from images with discrete actions"):
+        from_dict(RLConfig, {"algorithm": "a3c", "env": "FetchReach"})
+    with pytest.raises(ConfigError, match="Arm2D takes a3c or dqn"):
+        from_dict(RLConfig, {"algorithm": "sac", "env": "Arm2D"})

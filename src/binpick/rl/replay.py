@@ -112,11 +112,11 @@ class EpisodeReplayBuffer(DictReplayBuffer):
 
     def stored_episodes(self, origin: str | None = None) -> list[Episode]:
         """Copies of the stored episodes, optionally of one origin (for models fitted on real data)."""
-        wanted = None if origin is None else self.ORIGINS.index(origin)
+        slots = np.arange(self._stored)
+        if origin is not None:
+            slots = slots[self._origin[: self._stored] == self.ORIGINS.index(origin)]
         result = []
-        for slot in range(self._stored):
-            if wanted is not None and self._origin[slot] != wanted:
-                continue
+        for slot in slots:
             length = int(self._lengths[slot])
             result.append(Episode(self._obs[slot, : length + 1].copy(), self._ag[slot, : length + 1].copy(),
                                   self._dg[slot].copy(), self._actions[slot, :length].copy()))

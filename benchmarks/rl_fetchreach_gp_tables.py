@@ -1,0 +1,106 @@
+"""Thesis Tables 3.3 and 3.4 on FetchReach with binpick's GP imagination and episode HER.
+
+    python benchmarks/rl_fetchreach_gp_tables.py --table 3.3
+    python benchmarks/rl_fetchreach_gp_tables.py --table 3.4 [--alphas 1 10 50] [--capacities 10000 1000000]
+
+Table 3.3: a single goal, with a fixed start and with a noisy start (±10 cm): simulator episodes,
+GP episodes and the final average actions (thesis: 2.00 with 4 sim / 1,500 GP episodes; 6.69 with 79
+sim / 400,000 GP episodes). Table 3.4: random goals, α_HER x M: episodes in Ω when training starts
+(10% full) and training iterations (gradient steps) until average actions < 5 (thesis best: α=1,
+M=10^4, 12,700 iterations). Runs start from configs/rl_fetchreach_gp_her.yaml. Writes
+results/rl_fetchreach_gp_tables.json and sections of docs/RESULTS.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+sys.path.insert(0, os.path.dirname(__file__))
+
+import _common  # noqa: E402
+
+from binpick.rl.config import load_config  # noqa: E402
+from binpick.rl.train import Trainer  # noqa: E402
+
+BASE = "configs/rl_fetchreach_gp_her.yaml"
+GOAL = (0.1, 0.05, 0.05)  # the single goal of Table 3.3, metres from the gripper's start
+
+
+def run(name: str, steps: int, seed: int, **changes) -> dict:
+    config = load_config(_common.ROOT / BASE)
+    config.name, config.total_timesteps, config.seed = name, steps, seed
+    for key, value in changes.items():
+        section, _, field = key.partition("__")
+        setattr(getattr(config, section) if field else config, field or section, value)
+    trainer = Trainer.new(config, _common.ROOT / "runs" / "bench")
+    metrics = trainer.run(show_progress=True)
+    metrics["run_dir"] = str(trainer.run_dir.relative_to(_common.ROOT))
+    metrics.pop("evaluations", None)
+    return metrics
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--table", choices=["3.3", "3.4"], required=True)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--steps", type=int, default=6000, help="simulator steps per run")
+    parser.add_argument("--alphas", type=int, nargs="+", default=[1, 10, 50])
+    parser.add_argument("--capacities", type=int, nargs="+", default=[10_000, 1_000_000])
+    args = parser.parse_args()
+    path = _common.RESULTS / "rl_fetchreach_gp_tables.json"
+    results = json.loads(path.read_text()) if path.exists() else {}
+    if args.table == "3.3":
+        rows = {}
+        for label, noise in (("fixed_start", 0.0), ("noisy_start", 0.1)):
+            m = run(f"table33_{label}", args.steps, args.seed, env_kwargs={"goal_offset": list(GOAL), "start_noise": noise})
+            rows[label] = {k: m[k] for k in ("sim_episodes", "imagined_episodes", "her_episodes", "sim_steps",
+                                             "final_avg_actions", "final_std_actions", "final_success", "run_dir")}
+            print(label, rows[label], flush=True)
+        results["table_3_3"] = rows
+        lines = ["## Table 3.3: FetchReach, single goal, GP imagination (issue 3)", "",
+                 "`python benchmarks/rl_fetchreach_gp_tables.py --table 3.3` → `results/rl_fetchreach_gp_tables.json`. "
+                 f"Goal fixed at {GOAL} m from the gripper's start; noisy start = ±10 cm per axis; "
+                 f"{args.steps} simulator steps, seed {args.seed}.", "",
+                 "| set-up | simulator episodes | GP episodes | final avg actions (ours) | thesis |", "|---|---:|---:|---:|---:|"]
+        thesis = {"fixed_start": "2.00 (4 sim, 1,500 GP)", "noisy_start": "6.69 (79 sim, 400,000 GP)"}
+        for label, row in rows.items():
+            lines.append(f"| {label.replace('_', ' ')} | {row['sim_episodes']} | {row['imagined_episodes']:,} | "
+                         f"{row['final_avg_actions']:.2f} ± {row['final_std_actions']:.2f} | {thesis[label]} |")
+        _common.write_section("table_3_3", "\n".join(lines))
+    else:
+        rows = {}
+        for alpha in args.alphas:
+            for capacity in args.capacities:
+                m = run(f"table34_a{alpha}_m{capacity}", args.steps, args.seed,
+                        replay__her_additions=alpha, replay__capacity_episodes=capacity)
+                started = m["episodes_when_training_started"] or {}
+                rows[f"alpha{alpha}_M{capacity}"] = {
+                    "alpha_her": alpha, "M": capacity, "episodes_until_training": sum(started.values()),
+                    "episodes_until_training_by_origin": started,
+                    "iterations_to_5_actions": m["gradient_steps_to_5_actions"], "final_avg_actions": m["final_avg_actions"],
+                    "sim_steps": m["sim_steps"], "run_dir": m["run_dir"]}
+                print(alpha, capacity, rows[f"alpha{alpha}_M{capacity}"], flush=True)
+        results["table_3_4"] = rows
+        thesis = {(1, 10_000): (550, 12_700), (10, 10_000): (100, 22_700), (50, 10_000): (300, 114_100),
+                  (1, 1_000_000): (50_150, 13_100), (10, 1_000_000): (9_450, 21_900), (50, 1_000_000): (21_600, 66_200)}
+        lines = ["## Table 3.4: FetchReach, random goals, α_HER × M (issue 3)", "",
+                 "`python benchmarks/rl_fetchreach_gp_tables.py --table 3.4` → `results/rl_fetchreach_gp_tables.json`. "
+                 "Episodes in Ω (simulator + GP + HER) when it is 10% full and training starts; gradient steps until "
+                 f"the evaluated average is below 5 actions ('—' = not within {args.steps} simulator steps).", "",
+                 "| α_HER | M | episodes until training (ours / thesis) | iterations to < 5 actions (ours / thesis) |",
+                 "|---:|---:|---:|---:|"]
+        for row in rows.values():
+            t = thesis.get((row["alpha_her"], row["M"]), ("—", "—"))
+            its = "—" if row["iterations_to_5_actions"] is None else f"{row['iterations_to_5_actions']:,}"
+            lines.append(f"| {row['alpha_her']} | {row['M']:,} | {row['episodes_until_training']:,} / {t[0]:,} | {its} / {t[1]:,} |")
+        _common.write_section("table_3_4", "\n".join(lines))
+    results["peak_rss_mib"] = round(_common.peak_rss_mib(), 1)
+    _common.write_result("rl_fetchreach_gp_tables", results)
+
+
+if __name__ == "__main__":
+    main()
