@@ -11,7 +11,6 @@ from __future__ import annotations
 import json
 import os
 import queue
-import shutil
 import time
 from pathlib import Path
 from typing import Any
@@ -25,6 +24,7 @@ from torch.utils.tensorboard import SummaryWriter
 
 from binpick.config import to_dict
 from binpick.rl.a3c import A3CWorker, ActorCritic, SharedAdam, apply_gradients
+from binpick.rl.checkpoints import commit_checkpoint, latest_checkpoint, new_run_dir
 from binpick.rl.config import RLConfig
 from binpick.rl.evaluate import evaluate_policy
 
@@ -82,14 +82,11 @@ class A3CTrainer:
         self.model.share_memory()
         self.optimizer = SharedAdam(self.model.parameters(), lr=config.a3c.learning_rate)
         self.steps = 0
-        self.metrics: dict[str, Any] = {"evaluations": [], "episodes": 0, "wall_seconds": 0.0, "stage_results": []}
+        self.metrics: dict[str, Any] = {"evaluations": [], "episodes": 0, "wall_seconds": 0.0}
 
     @classmethod
     def new(cls, config: RLConfig, runs_root: Path = Path("runs")) -> A3CTrainer:
-        run_dir = runs_root / config.name / time.strftime("%Y%m%d-%H%M%S")
-        run_dir.mkdir(parents=True, exist_ok=False)
-        (run_dir / "config.yaml").write_text(yaml.safe_dump(to_dict(config), sort_keys=False))
-        return cls(config, run_dir)
+        return cls(config, new_run_dir(runs_root, config.name, yaml.safe_dump(to_dict(config), sort_keys=False)))
 
     @property
     def steps_done(self) -> int:
@@ -101,28 +98,18 @@ class A3CTrainer:
 
     # ------------------------------------------------------------------ checkpoints
     def save_checkpoint(self) -> Path:
-        final = self.ckpt_dir / f"ckpt-{self.steps:09d}"
-        partial = self.ckpt_dir / f".partial-{self.steps:09d}"
-        shutil.rmtree(partial, ignore_errors=True)
-        partial.mkdir(parents=True)
-        torch.save({"model": self.model.state_dict(), "optimizer": self.optimizer.state_dict(),
-                    "observation_shape": self.observation_shape, "env": self.config.env}, partial / "a3c.pt")
-        (partial / "state.json").write_text(json.dumps({"steps": self.steps, "metrics": self.metrics,
-                                                        "env": self.config.env}))
-        shutil.rmtree(final, ignore_errors=True)
-        os.replace(partial, final)
-        (self.ckpt_dir / "latest.tmp").write_text(final.name)
-        os.replace(self.ckpt_dir / "latest.tmp", self.ckpt_dir / "latest")
-        for old in self.ckpt_dir.glob("ckpt-*"):
-            if old != final:
-                shutil.rmtree(old, ignore_errors=True)
-        return final
+        def write(folder: Path) -> None:
+            torch.save({"model": self.model.state_dict(), "optimizer": self.optimizer.state_dict(),
+                        "observation_shape": self.observation_shape, "env": self.config.env}, folder / "a3c.pt")
+            (folder / "state.json").write_text(json.dumps({"steps": self.steps, "metrics": self.metrics,
+                                                           "env": self.config.env}))
+
+        return commit_checkpoint(self.ckpt_dir, self.steps, write)
 
     def load_checkpoint(self) -> None:
-        pointer = self.ckpt_dir / "latest"
-        if not pointer.exists():
+        checkpoint = latest_checkpoint(self.ckpt_dir)
+        if checkpoint is None:
             return
-        checkpoint = self.ckpt_dir / pointer.read_text().strip()
         data = torch.load(checkpoint / "a3c.pt", weights_only=False)
         self.model.load_state_dict(data["model"])
         self.optimizer.load_state_dict(data["optimizer"])

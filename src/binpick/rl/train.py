@@ -10,7 +10,6 @@ from __future__ import annotations
 import json
 import os
 import pickle
-import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,6 +27,7 @@ from binpick.config import from_dict, load_yaml, to_dict
 from binpick.envs import make
 from binpick.errors import ConfigError
 from binpick.rl.agents import GoalSAC, GPImagination
+from binpick.rl.checkpoints import commit_checkpoint, latest_checkpoint, new_run_dir
 from binpick.rl.config import RLConfig
 from binpick.rl.dynamics import GPDynamics
 from binpick.rl.evaluate import evaluate_policy
@@ -192,10 +192,7 @@ class Trainer:
     # ------------------------------------------------------------------ construction
     @classmethod
     def new(cls, config: RLConfig, runs_root: Path = Path("runs")) -> Trainer:
-        run_dir = runs_root / config.name / time.strftime("%Y%m%d-%H%M%S")
-        run_dir.mkdir(parents=True, exist_ok=False)
-        (run_dir / "config.yaml").write_text(yaml.safe_dump(to_dict(config), sort_keys=False))
-        return cls(config, run_dir)
+        return cls(config, new_run_dir(runs_root, config.name, yaml.safe_dump(to_dict(config), sort_keys=False)))
 
     @classmethod
     def resume(cls, run_dir: Path) -> Trainer:
@@ -207,36 +204,21 @@ class Trainer:
 
     # ------------------------------------------------------------------ checkpoints
     def save_checkpoint(self) -> Path:
-        steps = int(self.model.num_timesteps)
-        final = self.ckpt_dir / f"ckpt-{steps:09d}"
-        partial = self.ckpt_dir / f".partial-{steps:09d}"
-        shutil.rmtree(partial, ignore_errors=True)
-        partial.mkdir(parents=True)
-        self.model.save(partial / "model.zip", exclude=["replay_buffer"])
-        if self.config.algorithm != "dqn":  # an image replay is GBs: a resumed DQN refills its replay
-            with open(partial / "replay.pkl", "wb") as handle:
-                pickle.dump(self.model.replay_buffer, handle, protocol=pickle.HIGHEST_PROTOCOL)
-        state = {"metrics": self.metrics.__dict__, "env": self.config.env, "num_timesteps": steps,
-                 "gp": self.gp.state() if self.gp else None}
-        (partial / "state.json").write_text(json.dumps(state))
-        if self.gp is not None and self.gp.dynamics.fitted:
-            self.gp.dynamics.save(partial / "gp.pt")
-        shutil.rmtree(final, ignore_errors=True)
-        os.replace(partial, final)
-        pointer = self.ckpt_dir / "latest.tmp"
-        pointer.write_text(final.name)
-        os.replace(pointer, self.ckpt_dir / "latest")  # the switch to the new checkpoint is atomic
-        for old in self.ckpt_dir.glob("ckpt-*"):
-            if old != final:
-                shutil.rmtree(old, ignore_errors=True)
-        return final
+        def write(folder: Path) -> None:
+            self.model.save(folder / "model.zip", exclude=["replay_buffer"])
+            if self.config.algorithm != "dqn":  # an image replay is GBs: a resumed DQN refills its replay
+                with open(folder / "replay.pkl", "wb") as handle:
+                    pickle.dump(self.model.replay_buffer, handle, protocol=pickle.HIGHEST_PROTOCOL)
+            state = {"metrics": self.metrics.__dict__, "env": self.config.env,
+                     "num_timesteps": int(self.model.num_timesteps), "gp": self.gp.state() if self.gp else None}
+            (folder / "state.json").write_text(json.dumps(state))
+            if self.gp is not None and self.gp.dynamics.fitted:
+                self.gp.dynamics.save(folder / "gp.pt")
 
-    def latest_checkpoint(self) -> Path | None:
-        pointer = self.ckpt_dir / "latest"
-        return self.ckpt_dir / pointer.read_text().strip() if pointer.exists() else None
+        return commit_checkpoint(self.ckpt_dir, int(self.model.num_timesteps), write)
 
     def load_checkpoint(self) -> None:
-        checkpoint = self.latest_checkpoint()
+        checkpoint = latest_checkpoint(self.ckpt_dir)
         if checkpoint is None:
             return  # crashed before the first checkpoint: start again from zero
         state = json.loads((checkpoint / "state.json").read_text())
@@ -317,13 +299,13 @@ def load_policy(run_dir: Path, env_id: str | None = None):
 
         if resolve_env_id(env_id) != config.env:
             raise ConfigError(f"checkpoint {run_dir} was trained on {config.env}, not {resolve_env_id(env_id)}")
-    pointer = run_dir / "checkpoints" / "latest"
-    if not pointer.exists():
+    checkpoint = latest_checkpoint(run_dir / "checkpoints")
+    if checkpoint is None:
         raise ConfigError(f"run {run_dir} has no checkpoint yet")
     if config.algorithm == "a3c":
         from binpick.rl.a3c_train import load_a3c_policy
 
-        return load_a3c_policy(run_dir / "checkpoints" / pointer.read_text().strip()), config
-    model = MODEL_CLASSES[config.algorithm].load(run_dir / "checkpoints" / pointer.read_text().strip() / "model.zip", device="cpu")
+        return load_a3c_policy(checkpoint), config
+    model = MODEL_CLASSES[config.algorithm].load(checkpoint / "model.zip", device="cpu")
     return model, config
 
