@@ -141,3 +141,15 @@ def test_algorithm_and_env_must_fit_together():
         from_dict(RLConfig, {"algorithm": "a3c", "env": "FetchReach"})
     with pytest.raises(ConfigError, match="Arm2D takes a3c or dqn"):
         from_dict(RLConfig, {"algorithm": "sac", "env": "Arm2D"})
+
+
+def test_run_stops_after_enough_successful_evaluations(tmp_path):
+    config = tmp_path / "stop.yaml"
+    text = TINY.format(steps=900).replace("eval: {every: 200, episodes: 2}",
+                                          "eval: {every: 200, episodes: 2, success_threshold: 0.0, stop_after_successes: 2}")
+    config.write_text(text)
+    result = cli("rl", "train", str(config), "--runs", str(tmp_path / "runs"))
+    assert result.returncode == 0, result.stderr
+    (run,) = (tmp_path / "runs" / "tiny").iterdir()
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["sim_steps"] == 400 and [e["sim_steps"] for e in metrics["evaluations"]] == [200, 400]

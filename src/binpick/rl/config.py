@@ -172,12 +172,14 @@ class EvalConfig:
     every: int = 1000  # simulator steps between evaluations
     episodes: int = 50
     success_threshold: float = 0.95
+    stop_after_successes: int = 0  # end the run after this many evaluations in a row at the threshold (0: never)
     seed: int = 10_000  # evaluation episodes never share seeds with training
 
     def __post_init__(self) -> None:
         check_range("eval.every", self.every, 1, None, integer=True)
         check_range("eval.episodes", self.episodes, 1, 100_000, integer=True)
         check_range("eval.success_threshold", self.success_threshold, 0.0, 1.0)
+        check_range("eval.stop_after_successes", self.stop_after_successes, 0, None, integer=True)
 
 
 @dataclass

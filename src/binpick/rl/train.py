@@ -109,6 +109,7 @@ class Evaluate(BaseCallback):
         self.config, self.metrics = config, metrics
         self.env = make_env(config)
         self._next = config.eval.every
+        self._in_a_row = 0
 
     def _on_training_start(self) -> None:
         self._next = next_multiple(self.model.num_timesteps, self.config.eval.every)  # right after a resume too
@@ -116,7 +117,12 @@ class Evaluate(BaseCallback):
     def _on_step(self) -> bool:
         if self.num_timesteps >= self._next:
             self._next += self.config.eval.every
-            self.evaluate()
+            row = self.evaluate()
+            passed = row["success_rate"] >= self.config.eval.success_threshold
+            self._in_a_row = self._in_a_row + 1 if passed else 0
+            wanted = self.config.eval.stop_after_successes
+            if wanted and self._in_a_row >= wanted:
+                return False  # SB3 ends learn() when a callback returns False
         return True
 
     def evaluate(self) -> dict[str, float]:
