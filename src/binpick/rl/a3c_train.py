@@ -132,6 +132,7 @@ class A3CTrainer:
 
     # ------------------------------------------------------------------ training
     def run(self, show_progress: bool = True) -> dict[str, Any]:
+        torch.set_num_threads(1)  # the workers need the cores; evaluation is one small forward pass a step
         context = mp.get_context("spawn")
         counter = context.Value("l", self.steps)
         goal_area = context.Value("d", self.goal_area(self.steps))
