@@ -130,6 +130,10 @@ class Evaluate(BaseCallback):
         result = evaluate_policy(self.env, self.model, episodes=self.config.eval.episodes, seed=self.config.eval.seed)
         row = {"sim_steps": steps, "gradient_steps": int(self.model._n_updates), "success_rate": result.success_rate,
                "mean_length": result.mean_length, "std_length": result.std_length}
+        buffer = self.model.replay_buffer
+        if isinstance(buffer, EpisodeReplayBuffer):  # what it took so far (thesis Tables 3.3-3.4)
+            row.update(sim_episodes=buffer.added["real"], imagined_episodes=buffer.added["imagined"],
+                       her_episodes=buffer.added["her"])
         self.metrics.evaluations.append(row)
         if self.metrics.sim_steps_to_threshold is None and result.success_rate >= self.config.eval.success_threshold:
             self.metrics.sim_steps_to_threshold = steps
