@@ -45,6 +45,23 @@ def run(name: str, steps: int, seed: int, **changes) -> dict:
     return metrics
 
 
+def write_table_3_4(rows: dict, steps: int) -> None:
+    thesis = {(1, 10_000): (550, 12_700), (10, 10_000): (100, 22_700), (50, 10_000): (300, 114_100),
+              (1, 1_000_000): (50_150, 13_100), (10, 1_000_000): (9_450, 21_900), (50, 1_000_000): (21_600, 66_200)}
+    lines = ["## Table 3.4: FetchReach, random goals, α_HER × M (issue 3)", "",
+             "`python benchmarks/rl_fetchreach_gp_tables.py --table 3.4` → `results/rl_fetchreach_gp_tables.json`. "
+             "Episodes in Ω (simulator + GP + HER) when it is 10% full and training starts; gradient steps until "
+             f"the evaluated average is below 5 actions ('—' = not within {steps} simulator steps).", "",
+             "| α_HER | M | episodes until training (ours / thesis) | iterations to < 5 actions (ours / thesis) | final avg actions |",
+             "|---:|---:|---:|---:|---:|"]
+    for row in rows.values():
+        t = thesis.get((row["alpha_her"], row["M"]), ("—", "—"))
+        its = "—" if row["iterations_to_5_actions"] is None else f"{row['iterations_to_5_actions']:,}"
+        lines.append(f"| {row['alpha_her']} | {row['M']:,} | {row['episodes_until_training']:,} / {t[0]:,} | "
+                     f"{its} / {t[1]:,} | {row['final_avg_actions']:.2f} |")
+    _common.write_section("table_3_4", "\n".join(lines))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--table", choices=["3.3", "3.4"], required=True)
@@ -84,7 +101,7 @@ def main() -> None:
                          f"{row['final_avg_actions']:.2f} ± {row['final_std_actions']:.2f} | {thesis[label]} |")
         _common.write_section("table_3_3", "\n".join(lines))
     else:
-        rows = {}
+        rows = results.get("table_3_4", {})
         for alpha in args.alphas:
             for capacity in args.capacities:
                 m = run(f"table34_a{alpha}_m{capacity}", args.steps, args.seed,
@@ -96,20 +113,9 @@ def main() -> None:
                     "iterations_to_5_actions": m["gradient_steps_to_5_actions"], "final_avg_actions": m["final_avg_actions"],
                     "sim_steps": m["sim_steps"], "run_dir": m["run_dir"]}
                 print(alpha, capacity, rows[f"alpha{alpha}_M{capacity}"], flush=True)
-        results["table_3_4"] = rows
-        thesis = {(1, 10_000): (550, 12_700), (10, 10_000): (100, 22_700), (50, 10_000): (300, 114_100),
-                  (1, 1_000_000): (50_150, 13_100), (10, 1_000_000): (9_450, 21_900), (50, 1_000_000): (21_600, 66_200)}
-        lines = ["## Table 3.4: FetchReach, random goals, α_HER × M (issue 3)", "",
-                 "`python benchmarks/rl_fetchreach_gp_tables.py --table 3.4` → `results/rl_fetchreach_gp_tables.json`. "
-                 "Episodes in Ω (simulator + GP + HER) when it is 10% full and training starts; gradient steps until "
-                 f"the evaluated average is below 5 actions ('—' = not within {args.steps} simulator steps).", "",
-                 "| α_HER | M | episodes until training (ours / thesis) | iterations to < 5 actions (ours / thesis) |",
-                 "|---:|---:|---:|---:|"]
-        for row in rows.values():
-            t = thesis.get((row["alpha_her"], row["M"]), ("—", "—"))
-            its = "—" if row["iterations_to_5_actions"] is None else f"{row['iterations_to_5_actions']:,}"
-            lines.append(f"| {row['alpha_her']} | {row['M']:,} | {row['episodes_until_training']:,} / {t[0]:,} | {its} / {t[1]:,} |")
-        _common.write_section("table_3_4", "\n".join(lines))
+                results["table_3_4"] = rows
+                write_table_3_4(rows, args.steps)  # after every run: a long grid keeps what it has
+                _common.write_result("rl_fetchreach_gp_tables", results)
     results["peak_rss_mib"] = round(_common.peak_rss_mib(), 1)
     _common.write_result("rl_fetchreach_gp_tables", results)
 
