@@ -94,3 +94,24 @@ def test_a3c_run_with_curriculum_resumes_and_evaluates(tmp_path):
     assert json.loads((run / "metrics.json").read_text())["sim_steps"] >= 600
     evaluation = subprocess.run([*cli, "rl", "eval", str(run), "--episodes", "2"], capture_output=True, text=True, timeout=120)
     assert evaluation.returncode == 0 and "actions per episode" in evaluation.stdout, evaluation.stderr
+
+
+def test_sb3_curriculum_callback_widens_the_training_envs_goal_area(tmp_path):
+    from binpick.config import from_dict
+    from binpick.rl.config import RLConfig
+    from binpick.rl.train import trainer_for
+
+    config = from_dict(RLConfig, {
+        "name": "curriculum_dqn", "env": "Arm2D", "env_kwargs": {"image_size": 40, "max_episode_steps": 30},
+        "algorithm": "dqn", "total_timesteps": 300, "checkpoint_every": 1000,
+        "dqn": {"buffer_size": 300, "learning_starts": 100, "batch_size": 8, "target_update_interval": 50},
+        "curriculum": {"stages": [{"area": 0.0, "hold_steps": 100}, {"area": 1.0, "ramp_steps": 100}]},
+        "eval": {"every": 1000, "episodes": 1},
+    })
+    trainer = trainer_for(config, tmp_path)
+    seen = []
+    original = trainer.env.unwrapped.set_goal_area
+    trainer.env.unwrapped.set_goal_area = lambda area: (seen.append(area), original(area))
+    trainer.run(show_progress=False)
+    assert seen[0] == 0.0 and seen[-1] == 1.0 and seen == sorted(seen)
+    assert trainer.env.unwrapped.goal_area == 1.0

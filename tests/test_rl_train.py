@@ -153,3 +153,8 @@ def test_run_stops_after_enough_successful_evaluations(tmp_path):
     (run,) = (tmp_path / "runs" / "tiny").iterdir()
     metrics = json.loads((run / "metrics.json").read_text())
     assert metrics["sim_steps"] == 400 and [e["sim_steps"] for e in metrics["evaluations"]] == [200, 400]
+
+
+def test_dqn_rejects_images_too_small_for_its_cnn():
+    with pytest.raises(ConfigError, match="image_size >= 36"):
+        from_dict(RLConfig, {"algorithm": "dqn", "env": "Arm2D", "env_kwargs": {"image_size": 32}})

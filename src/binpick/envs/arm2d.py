@@ -208,4 +208,4 @@ class Arm2DEnv(gym.Env):
         for x, y in points[:-1]:
             draw.ellipse([x - joint_radius, y - joint_radius, x + joint_radius, y + joint_radius], fill=(235, 235, 235))
         picture = picture.resize((size, size), Image.Resampling.BOX)
-        return to_mode(np.asarray(picture, dtype=np.uint8), mode)
+        return to_mode(np.array(picture, dtype=np.uint8), mode)  # writable: learners may wrap it in-place

@@ -223,6 +223,8 @@ class RLConfig:
             raise ConfigError(f"algorithm {self.algorithm} learns from images with discrete actions: use env binpick/Arm2D-v0")
         if self.algorithm in ("sac", "sb3_sac_her") and self.env.endswith("Arm2D-v0"):
             raise ConfigError(f"algorithm {self.algorithm} needs continuous actions; Arm2D takes a3c or dqn")
+        if self.algorithm == "dqn" and self.env_kwargs.get("image_size", 64) < 36:
+            raise ConfigError("algorithm dqn uses SB3's NatureCNN, which needs env_kwargs.image_size >= 36")
         if self.curriculum.stages and not self.env.endswith("Arm2D-v0"):
             raise ConfigError("curriculum widens Arm2D's goal area: use env binpick/Arm2D-v0")
 

@@ -255,6 +255,10 @@ class Trainer:
         callbacks: list[BaseCallback] = [evaluator, Checkpoint(self)]
         if self.gp is not None:
             callbacks.insert(0, self.gp)
+        if self.config.curriculum.stages:
+            from binpick.rl.curriculum import GoalAreaCurriculum
+
+            callbacks.insert(0, GoalAreaCurriculum(self.config.curriculum))
         if show_progress:
             callbacks.append(RichProgress(self.config.total_timesteps, int(self.model.num_timesteps), self.config.name))
         if remaining > 0:
