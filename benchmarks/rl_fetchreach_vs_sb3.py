@@ -43,18 +43,43 @@ def summarise(runs: list[dict]) -> dict:
     }
 
 
+def plot_comparison(results: dict, path) -> None:
+    """Eval success over simulator steps, every seed of both methods (read from the run folders)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figure, axis = plt.subplots(figsize=(7, 4))
+    for label, colour, name in (("sb3_sac_her", "tab:grey", "SB3 SAC+HER"), ("binpick", "tab:green", "binpick GP + episode HER")):
+        for i, run_dir in enumerate(results.get(label, {}).get("run_dirs", [])):
+            metrics = __import__("json").loads((_common.ROOT / run_dir / "metrics.json").read_text())
+            evaluations = metrics["evaluations"]
+            axis.plot([e["sim_steps"] for e in evaluations], [e["success_rate"] for e in evaluations], color=colour,
+                      marker="o", markersize=3, alpha=0.8, label=name if i == 0 else None)
+    axis.axhline(0.95, linestyle="--", color="black", linewidth=0.8)
+    axis.set_xlabel("simulator steps")
+    axis.set_ylabel("eval success rate (50 episodes)")
+    axis.set_title("FetchReach, random goals: 3 seeds each")
+    axis.legend(loc="lower right")
+    figure.tight_layout()
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--sb3-steps", type=int, default=20_000)
     parser.add_argument("--binpick-steps", type=int, default=6_000)
     parser.add_argument("--only", choices=list(CONFIGS), help="run one side (results merge into the JSON)")
+    parser.add_argument("--report-only", action="store_true", help="rewrite the plot and docs table, run nothing")
     args = parser.parse_args()
     path = _common.RESULTS / "rl_fetchreach_vs_sb3.json"
     previous = __import__("json").loads(path.read_text()) if path.exists() else {}
     results = {k: previous[k] for k in CONFIGS if k in previous}
     for label, config_path in CONFIGS.items():
-        if args.only and label != args.only:
+        if args.only and label != args.only or args.report_only:
             continue
         runs = []
         for seed in args.seeds:
@@ -74,8 +99,11 @@ def main() -> None:
         if None not in ours and None not in theirs:
             ratio = float(np.mean(ours) / np.mean(theirs))
     payload = {**results, "binpick_over_sb3_sim_steps": ratio, "target_ratio": 0.25,
-               "met": ratio is not None and ratio <= 0.25, "peak_rss_mib": round(_common.peak_rss_mib(), 1)}
-    _common.write_result("rl_fetchreach_vs_sb3", payload)
+               "met": ratio is not None and ratio <= 0.25,
+               "peak_rss_mib": previous.get("peak_rss_mib") if args.report_only else round(_common.peak_rss_mib(), 1)}
+    if not args.report_only:
+        _common.write_result("rl_fetchreach_vs_sb3", payload)
+    plot_comparison(results, _common.ROOT / "docs" / "img" / "fetchreach_vs_sb3.png")
 
     def row(label: str, name: str) -> str:
         r = results.get(label)
@@ -99,8 +127,10 @@ def main() -> None:
         "",
         f"binpick / SB3 simulator steps: {'—' if ratio is None else f'{ratio:.2f}'} (target ≤ 0.25: "
         f"{'met' if payload['met'] else 'not met'}).",
+        "",
+        "![FetchReach: SB3 vs binpick](img/fetchreach_vs_sb3.png)",
     ]))
-    print(f"wrote {path}")
+    print("rewrote docs/RESULTS.md and docs/img/fetchreach_vs_sb3.png" if args.report_only else f"wrote {path}")
 
 
 if __name__ == "__main__":
