@@ -50,10 +50,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--only", nargs="+", default=["random", "a3c", "dqn", "curriculum", "no_curriculum"])
     parser.add_argument("--steps-scale", type=float, default=1.0, help="scale every config's total_timesteps")
+    parser.add_argument("--report-only", action="store_true", help="rewrite the docs table from the JSON, run nothing")
     args = parser.parse_args()
     path = _common.RESULTS / "rl_arm2d.json"
     results = json.loads(path.read_text()) if path.exists() else {}
-    for item in args.only:
+    for item in [] if args.report_only else args.only:
         key = ALIASES.get(item, item)
         if key == "random":
             env = make("binpick/Arm2D-v0")
@@ -75,12 +76,16 @@ def main() -> None:
             if key == "curriculum_whole_area":
                 results["curriculum_stages"] = [e for e in metrics["evaluations"]]
         print(key, results[key], flush=True)
-    results["peak_rss_mib"] = round(_common.peak_rss_mib(), 1)
-    _common.write_result("rl_arm2d", results)
+    if not args.report_only:
+        results["peak_rss_mib"] = round(_common.peak_rss_mib(), 1)
+        _common.write_result("rl_arm2d", results)
 
     def cell(key: str) -> str:
         row = results.get(key)
-        return "not run yet" if row is None else f"{row['mean']:.1f} ± {row['std']:.1f} ({row['success_rate']:.0%} reach)"
+        if row is None:
+            return "not run yet"
+        budget = f", after {row['sim_steps']:,} steps" if "sim_steps" in row else ""
+        return f"{row['mean']:.1f} ± {row['std']:.1f} ({row['success_rate']:.0%} reach{budget})"
 
     _common.write_section("rl_arm2d", "\n".join([
         "## Arm2D from images: Tables 3.1 and 3.2 (issue 3)",
