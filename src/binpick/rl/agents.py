@@ -27,7 +27,6 @@ class GoalSAC(SAC):
         buffer = self.replay_buffer
         if isinstance(buffer, EpisodeReplayBuffer) and not buffer.ready:
             return
-        self.gradient_steps_done = getattr(self, "gradient_steps_done", 0) + gradient_steps
         super().train(gradient_steps, batch_size)
 
     def batch_policy(self, observation: dict[str, np.ndarray]) -> np.ndarray:
