@@ -69,7 +69,6 @@ def envs_show(
     settings: SetOption = None,
 ) -> None:
     """Reset an env and save what a person sees (and the policy's image observation, if any)."""
-    from PIL import Image
 
     from binpick.envs import make, resolve_env_id
 
