@@ -31,7 +31,7 @@ from binpick.rl.train import load_policy, trainer_for  # noqa: E402
 RUNS = {
     "a3c": ("configs/rl_arm2d_a3c.yaml", 0.0),
     "dqn": ("configs/rl_arm2d_dqn.yaml", 0.0),
-    "curriculum_whole_area": ("configs/rl_arm2d_curriculum.yaml", 1.0),
+    "curriculum_whole_area": ("configs/rl_arm2d_curriculum.yaml", 1.0),  # init_from the "a3c" run
     "no_curriculum_whole_area": ("configs/rl_arm2d_no_curriculum.yaml", 1.0),
 }
 ALIASES = {"curriculum": "curriculum_whole_area", "no_curriculum": "no_curriculum_whole_area"}
@@ -67,6 +67,11 @@ def main() -> None:
             for stage in config.curriculum.stages:
                 stage.ramp_steps = int(stage.ramp_steps * args.steps_scale)
                 stage.hold_steps = int(stage.hold_steps * args.steps_scale)
+            if key == "curriculum_whole_area":  # thesis §3.2: start from the single-goal A3C network
+                single_goal = _common.ROOT / results.get("a3c", {}).get("run_dir", "missing")
+                if not (single_goal / "config.yaml").is_file():
+                    sys.exit("the curriculum starts from the single-goal A3C run: run --only a3c first")
+                config.init_from = str(single_goal)
             trainer = trainer_for(config, _common.ROOT / "runs" / "bench")
             metrics = trainer.run(show_progress=True)
             policy, _ = load_policy(trainer.run_dir)

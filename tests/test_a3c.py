@@ -94,6 +94,33 @@ def test_a3c_run_with_curriculum_resumes_and_evaluates(tmp_path):
     assert json.loads((run / "metrics.json").read_text())["sim_steps"] >= 600
     evaluation = subprocess.run([*cli, "rl", "eval", str(run), "--episodes", "2"], capture_output=True, text=True, timeout=120)
     assert evaluation.returncode == 0 and "actions per episode" in evaluation.stdout, evaluation.stderr
+    _check_init_from(run, tmp_path)
+
+
+def _check_init_from(source, tmp_path):
+    """A curriculum run that starts from a trained run (thesis §3.2) carries weights and steps over."""
+    import pytest
+    import yaml
+
+    from binpick.config import from_dict
+    from binpick.errors import ConfigError
+    from binpick.rl.checkpoints import latest_checkpoint
+    from binpick.rl.config import RLConfig
+    from binpick.rl.train import trainer_for
+
+    settings = yaml.safe_load(A3C_RUN.format(steps=800)) | {"init_from": str(source)}
+    trainer = trainer_for(from_dict(RLConfig, settings), tmp_path / "continued")
+    saved = torch.load(latest_checkpoint(source / "checkpoints") / "a3c.pt", weights_only=False)
+    assert trainer.steps_done >= 600 and trainer.steps_done == json.loads((source / "metrics.json").read_text())["sim_steps"]
+    assert all(torch.equal(trainer.model.state_dict()[k], v) for k, v in saved["model"].items())
+    assert trainer.goal_area(trainer.steps_done) == 1.0  # the schedule counts the source run's steps
+    other_size = settings | {"env_kwargs": {"image_size": 48, "tolerance": 0.2}}
+    with pytest.raises(ConfigError, match="shape"):
+        trainer_for(from_dict(RLConfig, other_size), tmp_path / "bad")
+    with pytest.raises(ConfigError, match="not a run folder"):
+        trainer_for(from_dict(RLConfig, settings | {"init_from": str(tmp_path)}), tmp_path / "bad")
+    with pytest.raises(ConfigError, match="init_from continues an A3C run"):
+        from_dict(RLConfig, settings | {"algorithm": "dqn"})
 
 
 def test_sb3_curriculum_callback_widens_the_training_envs_goal_area(tmp_path):

@@ -128,6 +128,7 @@ def rl_train(
     runs: Annotated[Path, typer.Option(help="Where new run folders go")] = Path("runs"),
     steps: Annotated[int | None, typer.Option(help="Override total_timesteps (simulator steps)")] = None,
     seed: Annotated[int | None, typer.Option(help="Override the seed")] = None,
+    init_from: Annotated[Path | None, typer.Option(help="A3C: start from this run's latest checkpoint")] = None,
 ) -> None:
     """Train a run: checkpoints, TensorBoard, metrics.json and curves.png in runs/<name>/<time>/."""
     from binpick.rl.config import load_config
@@ -146,6 +147,9 @@ def rl_train(
             settings.total_timesteps = steps
         if seed is not None:
             settings.seed = seed
+        if init_from is not None:
+            settings.init_from = str(init_from)
+            settings.__post_init__()
         trainer = trainer_for(settings, runs)
         console.print(f"run folder: {trainer.run_dir}")
     metrics = trainer.run()

@@ -23,6 +23,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from torch.utils.tensorboard import SummaryWriter
 
 from binpick.config import to_dict
+from binpick.errors import ConfigError
 from binpick.rl.a3c import A3CWorker, ActorCritic, SharedAdam, apply_gradients
 from binpick.rl.checkpoints import commit_checkpoint, latest_checkpoint, new_run_dir
 from binpick.rl.config import RLConfig
@@ -67,6 +68,21 @@ def _worker(rank: int, config: RLConfig, model: ActorCritic, optimizer: SharedAd
                          stats.value_loss, stats.entropy, area))
 
 
+def _source_checkpoint(config: RLConfig) -> Path:
+    """The checkpoint named by ``config.init_from``, checked to be an A3C run on the same env."""
+    source = Path(config.init_from)
+    if not (source / "config.yaml").is_file():
+        raise ConfigError(f"init_from: {str(source)!r} is not a run folder (no config.yaml)")
+    settings = yaml.safe_load((source / "config.yaml").read_text()) or {}
+    if settings.get("algorithm") != "a3c" or settings.get("env") != config.env:
+        raise ConfigError(f"init_from: run {source} is {settings.get('algorithm')} on {settings.get('env')}, "
+                          f"this run is a3c on {config.env}")
+    checkpoint = latest_checkpoint(source / "checkpoints")
+    if checkpoint is None:
+        raise ConfigError(f"init_from: run {source} has no checkpoint yet")
+    return checkpoint
+
+
 class A3CTrainer:
     """Owns a run folder for an A3C run; ``run()`` trains to ``total_timesteps`` and can resume."""
 
@@ -86,7 +102,17 @@ class A3CTrainer:
 
     @classmethod
     def new(cls, config: RLConfig, runs_root: Path = Path("runs")) -> A3CTrainer:
-        return cls(config, new_run_dir(runs_root, config.name, yaml.safe_dump(to_dict(config), sort_keys=False)))
+        """A fresh run; with ``init_from`` it starts where that run's latest checkpoint ended.
+
+        The thesis's curriculum (§3.2) starts from the network trained on the single goal (§3.1.3):
+        weights, optimiser state, the step count and the evaluation history carry over, so the
+        curriculum schedule and the budget count the single-goal steps too.
+        """
+        source = None if config.init_from is None else _source_checkpoint(config)
+        trainer = cls(config, new_run_dir(runs_root, config.name, yaml.safe_dump(to_dict(config), sort_keys=False)))
+        if source is not None:
+            trainer.load_checkpoint(source)
+        return trainer
 
     @property
     def steps_done(self) -> int:
@@ -106,11 +132,14 @@ class A3CTrainer:
 
         return commit_checkpoint(self.ckpt_dir, self.steps, write)
 
-    def load_checkpoint(self) -> None:
-        checkpoint = latest_checkpoint(self.ckpt_dir)
+    def load_checkpoint(self, checkpoint: Path | None = None) -> None:
+        checkpoint = latest_checkpoint(self.ckpt_dir) if checkpoint is None else checkpoint
         if checkpoint is None:
             return
         data = torch.load(checkpoint / "a3c.pt", weights_only=False)
+        if tuple(data["observation_shape"]) != tuple(self.observation_shape):
+            raise ConfigError(f"checkpoint {checkpoint} sees observations of shape {tuple(data['observation_shape'])}, "
+                              f"this run's env gives {tuple(self.observation_shape)}")
         self.model.load_state_dict(data["model"])
         self.optimizer.load_state_dict(data["optimizer"])
         for state in self.optimizer.state.values():  # load_state_dict replaces tensors: share them again

@@ -195,6 +195,7 @@ class RLConfig:
     semantic_state: bool = True  # policy input (z, g), thesis §3.3.1 (continuous-control envs only)
     min_action_scale: float | None = None  # thesis: 0.4 for Fetch
     checkpoint_every: int = 2000
+    init_from: str | None = None  # a3c: an earlier run folder whose latest checkpoint this run continues
     replay: ReplayConfig = field(default_factory=ReplayConfig)
     gp: GPConfig = field(default_factory=GPConfig)
     sac: SACConfig = field(default_factory=SACConfig)
@@ -211,6 +212,8 @@ class RLConfig:
         check_range("checkpoint_every", self.checkpoint_every, 1, None, integer=True)
         if self.min_action_scale is not None:
             check_range("min_action_scale", self.min_action_scale, 0.0, 1.0)
+        if self.init_from is not None and self.algorithm != "a3c":
+            raise ConfigError(f"init_from continues an A3C run; algorithm {self.algorithm} cannot use it")
         if self.algorithm == "sac" and self.replay.capacity_episodes < self.sac.batch_size:
             raise ConfigError(
                 f"replay.capacity_episodes (M={self.replay.capacity_episodes}) must be >= sac.batch_size "
