@@ -25,6 +25,8 @@ envs_app = typer.Typer(help="The simulated worlds of the thesis (Gymnasium ids b
 app.add_typer(envs_app, name="envs")
 rl_app = typer.Typer(help="Reinforcement learning (thesis ch. 3): train and evaluate runs.", no_args_is_help=True)
 app.add_typer(rl_app, name="rl")
+april_app = typer.Typer(help="APRiL (thesis ch. 4): train the policy on state, deploy it on pixels.", no_args_is_help=True)
+app.add_typer(april_app, name="april")
 
 console = Console()
 SetOption = Annotated[list[str] | None, typer.Option("--set", help="Env parameter KEY=VALUE (repeatable), e.g. --set goal_area=0.5")]
@@ -179,6 +181,58 @@ def rl_eval(
         with progress_bar() as progress:
             task = progress.add_task(f"{config.name} · {config.env}", total=episodes)
             result = evaluate_policy(env, model, episodes=episodes, seed=seed, on_episode=lambda *_: progress.advance(task))
+    finally:
+        env.close()
+    console.print(result.summary())
+
+
+@april_app.command("run")
+def april_run(
+    config: Annotated[Path | None, typer.Argument(help="YAML config (see configs/april_*.yaml)")] = None,
+    resume: Annotated[Path | None, typer.Option(help="APRiL run folder to continue after a crash")] = None,
+    runs: Annotated[Path, typer.Option(help="Where new run folders go")] = Path("runs"),
+) -> None:
+    """The whole pipeline: collect -> perception -> policy -> evaluate (resumable per stage)."""
+    from binpick.april import AprilRun, load_april_config
+
+    if (config is None) == (resume is None):
+        raise ConfigError("give either a CONFIG file to start an APRiL run or --resume RUN_DIR to continue one")
+    run = AprilRun.resume(resume) if resume is not None else AprilRun.new(load_april_config(config), runs)
+    console.print(f"run folder: {run.run_dir}" + (f" (done: {', '.join(run.stages) or 'nothing yet'})" if resume else ""))
+    result = run.run()
+    table = Table(title=f"{run.config.name}: average actions per episode")
+    for column in ("row", "avg actions ± std", "success", "simulator episodes"):
+        table.add_column(column)
+    for name, row in result["rows"].items():
+        table.add_row(name, f"{row['avg_actions']:.2f} ± {row['std']:.2f}", f"{row['success']:.0%}", f"{row['sim_episodes']:,}")
+    console.print(table)
+
+
+@april_app.command("eval")
+def april_eval(
+    run: Annotated[Path, typer.Argument(help="APRiL run folder")],
+    runtime_input: Annotated[str, typer.Option("--input", help="pixels, or state (ground truth; semantic policies)")] = "pixels",
+    episodes: Annotated[int, typer.Option(help="Seeded evaluation episodes")] = 100,
+    seed: Annotated[int, typer.Option(help="Seed of the first episode")] = 30_000,
+) -> None:
+    """Evaluate a trained APRiL run from pixels or from the ground-truth state."""
+    from binpick.april import AprilRun
+    from binpick.april.evaluate import deployment_env
+    from binpick.config import check_choice, check_range
+    from binpick.rl.evaluate import evaluate_policy
+
+    check_range("episodes", episodes, 1, None, integer=True)
+    check_choice("--input", runtime_input, ["pixels", "state"])
+    april = AprilRun.resume(run)
+    if "policy" not in april.stages:
+        raise ConfigError(f"APRiL run {run} has no trained policy yet: binpick april run --resume {run}")
+    if runtime_input == "state" and april.config.policy.mode != "semantic":
+        raise ConfigError(f"--input state needs a policy trained on the semantic state; this run's is {april.config.policy.mode}")
+    env, policy, _ = deployment_env(april, runtime_input)
+    try:
+        with progress_bar() as progress:
+            task = progress.add_task(f"{april.config.name} from {runtime_input}", total=episodes)
+            result = evaluate_policy(env, policy, episodes=episodes, seed=seed, on_episode=lambda *_: progress.advance(task))
     finally:
         env.close()
     console.print(result.summary())

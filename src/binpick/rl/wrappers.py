@@ -44,9 +44,14 @@ class MinActionScale(gym.ActionWrapper):
         self._high = np.asarray(env.action_space.high, np.float64)
 
     def action(self, action):
-        action = np.asarray(action, np.float64)
-        relative = np.abs(action[:3] / self._high[:3]).max()  # position part; a gripper stays as it is
-        if 0 < relative < self.scale:
-            action = action.copy()
-            action[:3] *= self.scale / relative
-        return action.astype(self.env.action_space.dtype)
+        return scale_up_small_action(action, self._high, self.scale).astype(self.env.action_space.dtype)
+
+
+def scale_up_small_action(action, high, scale: float) -> np.ndarray:
+    """Stretch the position part of ``action`` so its largest component is at least ``scale`` of ``high``."""
+    action = np.asarray(action, np.float64)
+    relative = np.abs(action[:3] / np.asarray(high, np.float64)[:3]).max()  # a gripper component stays as it is
+    if 0 < relative < scale:
+        action = action.copy()
+        action[:3] *= scale / relative
+    return action

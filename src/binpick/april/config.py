@@ -1,0 +1,109 @@
+"""APRiL run configuration (``configs/april_*.yaml``): env and camera, data collection, perception
+network, how the policy is trained and what it sees at deployment, evaluation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from binpick.config import check_choice, check_range, from_dict, load_yaml
+from binpick.errors import ConfigError
+from binpick.perception.autoencoder import PerceptionConfig
+
+ENVS = ("binpick/Reacher-v0", "binpick/FetchReach-v0", "binpick/FetchReachObstacle-v0")
+POLICY_MODES = ("semantic", "latent", "state_plus_latent")
+
+
+@dataclass
+class CollectConfig:
+    """Random-policy episodes with images and semantic state (thesis §4.2)."""
+
+    episodes: int = 200
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        check_range("collect.episodes", self.episodes, 2, 1_000_000, integer=True)
+
+
+@dataclass
+class PerceptionTraining:
+    epochs: int = 20
+    batch_size: int = 64
+    learning_rate: float = 1e-3
+
+    def __post_init__(self) -> None:
+        check_range("perception_training.epochs", self.epochs, 1, 10_000, integer=True)
+        check_range("perception_training.batch_size", self.batch_size, 1, 65_536, integer=True)
+        check_range("perception_training.learning_rate", self.learning_rate, 0.0, 1.0, low_inclusive=False)
+
+
+@dataclass
+class PolicyConfig:
+    """How the policy learns and what it sees.
+
+    - ``semantic`` (m = n, Eq 4.8): trained on the ground-truth s̄ with GP + HER (``rl_config``),
+      deployed on φ_enc(I).
+    - ``latent`` (Eq 4.9): SAC on φ_enc(I) in the simulator. With ``pretrain: true`` (m < n) it
+      first trains on s̄ like ``semantic``, then widens the first layers for the n − m free features
+      and fine-tunes; without, it learns from scratch (the unconditioned baseline when ω = 0).
+    - ``state_plus_latent``: ground-truth s̄ plus the free latent (like Finn et al.).
+    """
+
+    mode: str = "semantic"
+    rl_config: str = "configs/rl_fetchreach_gp_her.yaml"  # the semantic-state run (GP + HER)
+    pretrain: bool = True
+    finetune_steps: int = 20_000  # simulator steps with images for latent / state_plus_latent
+    learning_starts: int = 1000
+
+    def __post_init__(self) -> None:
+        check_choice("policy.mode", self.mode, POLICY_MODES)
+        check_range("policy.finetune_steps", self.finetune_steps, 0, 100_000_000, integer=True)
+        check_range("policy.learning_starts", self.learning_starts, 0, 100_000_000, integer=True)
+
+
+@dataclass
+class AprilEval:
+    episodes: int = 100
+    seed: int = 20_000
+
+    def __post_init__(self) -> None:
+        check_range("eval.episodes", self.episodes, 1, 100_000, integer=True)
+
+
+@dataclass
+class AprilConfig:
+    name: str = "april"
+    env: str = "binpick/FetchReach-v0"
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+    image: str = "grey"  # the thesis used grey-scale for Fetch Reach, RGB for pick and place
+    image_size: int = 64
+    seed: int = 0
+    collect: CollectConfig = field(default_factory=CollectConfig)
+    perception: PerceptionConfig = field(default_factory=PerceptionConfig)
+    perception_training: PerceptionTraining = field(default_factory=PerceptionTraining)
+    policy: PolicyConfig = field(default_factory=PolicyConfig)
+    eval: AprilEval = field(default_factory=AprilEval)
+
+    def __post_init__(self) -> None:
+        from binpick.envs import resolve_env_id
+
+        self.env = check_choice("env", resolve_env_id(self.env), ENVS)
+        check_choice("image", self.image, ["rgb", "grey"])
+        check_range("image_size", self.image_size, 64, 512, integer=True)
+        if self.image_size % 64:
+            raise ConfigError(f"image_size must be a multiple of 64 (6 stride-2 layers), got {self.image_size}")
+        m, n = self.perception.conditioned, self.perception.latent
+        if self.policy.mode == "semantic" and (m != n or self.perception.omega == 0):
+            raise ConfigError(f"policy.mode semantic deploys on the conditioned latent alone: it needs "
+                              f"perception.conditioned == perception.latent (m={m}, n={n}) and omega > 0")
+        if self.policy.mode == "state_plus_latent" and m == n:
+            raise ConfigError("policy.mode state_plus_latent needs free latent features: perception.conditioned < latent")
+        if self.policy.mode != "latent" or self.policy.pretrain:
+            if not Path(self.policy.rl_config).is_file():
+                raise ConfigError(f"policy.rl_config: no such file {self.policy.rl_config!r}")
+
+
+def load_april_config(path: str | Path) -> AprilConfig:
+    return from_dict(AprilConfig, load_yaml(path), where=Path(path).name)

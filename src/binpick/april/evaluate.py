@@ -1,0 +1,76 @@
+"""Evaluate an APRiL run: one row per runtime input (ground-truth s̄, pixels), with Fig 4.7 heat maps."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from binpick.april.observations import EncodedObservation, GoalRecorder, PixelsAsSemantic
+from binpick.rl.evaluate import evaluate_policy
+
+if TYPE_CHECKING:
+    from binpick.april.pipeline import AprilRun
+
+
+def deployment_env(run: AprilRun, runtime_input: str):
+    """The env and policy exactly as deployed: ``state`` (ground truth, semantic modes) or ``pixels``."""
+    from stable_baselines3 import SAC
+
+    from binpick.april.finetune import with_action_scale
+    from binpick.perception import load_perception
+    from binpick.rl.config import load_config
+    from binpick.rl.train import load_policy
+    from binpick.rl.wrappers import SemanticState
+
+    mode = run.config.policy.mode
+    scale = load_config(run.config.policy.rl_config).min_action_scale
+    if mode == "semantic":
+        policy, _ = load_policy(Path(run.stages["policy"]["semantic_run"]))
+        if runtime_input == "state":
+            base = GoalRecorder(run.make_env(image=False))
+            return with_action_scale(SemanticState(base), scale), policy, base
+        base = GoalRecorder(run.make_env())
+        return with_action_scale(PixelsAsSemantic(base, load_perception(run.run_dir / "perception.pt").encode), scale), policy, base
+    perception = load_perception(run.run_dir / "perception.pt")
+    base = GoalRecorder(run.make_env())
+    env = EncodedObservation(base, perception.encode, perception.config.latent, perception.config.conditioned,
+                             with_state=mode == "state_plus_latent")
+    return with_action_scale(env, scale), SAC.load(run.run_dir / "policy_latent.zip", device="cpu"), base
+
+
+def row_names(run: AprilRun) -> dict[str, str]:
+    """Runtime input -> the results row name (what the row is, e.g. pixels_ae_n6_m6_w1.0)."""
+    p = run.config.perception
+    pixels = f"pixels_{p.kind}_n{p.latent}_m{p.conditioned}_w{p.omega:g}"
+    if run.config.policy.mode == "semantic":
+        return {"state": "ground_truth", "pixels": pixels}
+    if run.config.policy.mode == "state_plus_latent":
+        return {"pixels": f"ground_truth_plus_latent_{p.kind}_n{p.latent}_m{p.conditioned}"}
+    return {"pixels": pixels}
+
+
+def evaluate_rows(run: AprilRun, show_progress: bool = True) -> dict[str, Any]:
+    from binpick.april.pipeline import _progress
+    from binpick.viz.april import plot_goal_heatmap
+
+    episodes, seed = run.config.eval.episodes, run.config.eval.seed
+    collected = run.stages["collect"]["sim_episodes"]
+    policy_episodes = run.stages["policy"]["sim_episodes"]
+    rows = {}
+    with _progress("evaluate", show_progress) as progress:
+        for runtime_input, name in row_names(run).items():
+            env, policy, recorder = deployment_env(run, runtime_input)
+            task = progress.add_task(name, total=episodes, status=name)
+            result = evaluate_policy(env, policy, episodes=episodes, seed=seed,
+                                     on_episode=lambda *_: progress.advance(task))
+            env.close()
+            goals = np.stack(recorder.goals[:episodes])
+            plot_goal_heatmap(goals, np.asarray(result.lengths), run.run_dir / f"heatmap_{name}.png",
+                              title=f"{run.config.name}: {name}")
+            # simulator episodes the row needed: the state row never used the image episodes
+            used = policy_episodes + (0 if runtime_input == "state" else collected)
+            rows[name] = {"avg_actions": result.mean_length, "std": result.std_length, "success": result.success_rate,
+                          "sim_episodes": int(used), "episodes": episodes}
+    return rows

@@ -1,0 +1,119 @@
+"""Latent policies (thesis Eq 4.9): SAC on φ_enc(I), optionally widened from a policy trained on s̄.
+
+"These networks may then be adapted to take input from the additional non-semantic encoded state by
+increasing the size of the input layer and loading the learnt weights to the appropriate slice of the
+first fully connected layer" (§4.4). :func:`widen_from_semantic` does exactly that for SB3's SAC:
+the semantic policy reads the dict (achieved_goal = z, desired_goal = g, observation = z); the latent
+policy reads the flat vector (z, g, free...). Columns for z are the sum of the two z columns, the
+free features start at zero, so before fine-tuning the widened policy acts exactly as the old one.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import torch
+from stable_baselines3 import SAC
+from stable_baselines3.common.callbacks import BaseCallback
+
+from binpick.april.observations import EncodedObservation
+from binpick.rl.wrappers import MinActionScale
+
+
+def with_action_scale(env, scale: float | None):
+    """The semantic run's minimum action scale (thesis: 0.4 for Fetch) applies at deployment too."""
+    return MinActionScale(env, scale) if scale else env
+
+if TYPE_CHECKING:
+    from binpick.april.pipeline import AprilRun
+
+
+def _semantic_columns(model: SAC, goal_dim: int) -> list[np.ndarray]:
+    """For each feature column of the dict policy, the index in (z, g) it carries."""
+    sources = {"achieved_goal": 0, "observation": 0, "desired_goal": goal_dim}
+    columns = []
+    for key, space in model.observation_space.spaces.items():
+        if key not in sources:
+            raise ValueError(f"cannot widen a policy that reads {key!r}")
+        columns.append(sources[key] + np.arange(space.shape[0]))
+    return columns
+
+
+def _widen_linear(old: torch.nn.Linear, new: torch.nn.Linear, columns: list[np.ndarray], tail: int) -> None:
+    """Copy ``old`` into ``new``: old feature columns summed into their (z, g) slot; ``tail`` trailing
+    columns (the action, for critics) copied to the end; the free-feature columns are zero."""
+    with torch.no_grad():
+        new.weight.zero_()
+        new.bias.copy_(old.bias)
+        offset = 0
+        for index in columns:
+            block = old.weight[:, offset:offset + len(index)]
+            new.weight[:, torch.as_tensor(index)] += block
+            offset += len(index)
+        if tail:
+            new.weight[:, -tail:] = old.weight[:, -tail:]
+
+
+def widen_from_semantic(semantic: SAC, latent: SAC, goal_dim: int) -> None:
+    """Load a semantic-state SAC's weights into a latent SAC with a wider input (see module doc)."""
+    columns = _semantic_columns(semantic, goal_dim)
+    action_dim = semantic.action_space.shape[0]
+    old_actor, new_actor = semantic.policy.actor, latent.policy.actor
+    _widen_linear(old_actor.latent_pi[0], new_actor.latent_pi[0], columns, 0)
+    for name, parameter in old_actor.state_dict().items():
+        if not name.startswith("latent_pi.0."):
+            new_actor.state_dict()[name].copy_(parameter)
+    for old_q, new_q in zip(semantic.policy.critic.q_networks, latent.policy.critic.q_networks):
+        _widen_linear(old_q[0], new_q[0], columns, action_dim)
+        for name, parameter in old_q.state_dict().items():
+            if not name.startswith("0."):
+                new_q.state_dict()[name].copy_(parameter)
+    latent.policy.critic_target.load_state_dict(latent.policy.critic.state_dict())
+    with torch.no_grad():
+        latent.log_ent_coef.copy_(semantic.log_ent_coef)
+
+
+class _Progress(BaseCallback):
+    def __init__(self, progress, task) -> None:
+        super().__init__()
+        self.progress, self.task, self.episodes = progress, task, 0
+
+    def _on_step(self) -> bool:
+        self.episodes += int(np.sum(self.locals["dones"]))
+        self.progress.update(self.task, completed=self.num_timesteps, status=f"{self.episodes} episodes")
+        return True
+
+
+def finetune_latent_policy(run: AprilRun, semantic_run: str | None, show_progress: bool) -> dict[str, Any]:
+    """Train (or fine-tune) SAC on encoded images; saves ``policy_latent.zip`` in the run folder."""
+    from binpick.april.pipeline import _progress
+    from binpick.perception import load_perception
+    from binpick.rl.config import load_config
+    from binpick.rl.train import load_policy
+
+    config, policy = run.config, run.config.policy
+    perception = load_perception(run.run_dir / "perception.pt")
+    rl_settings = load_config(policy.rl_config)
+    env = with_action_scale(EncodedObservation(run.make_env(), perception.encode, perception.config.latent,
+                                               perception.config.conditioned, with_state=policy.mode == "state_plus_latent"),
+                            rl_settings.min_action_scale)
+    settings = rl_settings.sac
+    model = SAC("MlpPolicy", env, learning_rate=settings.learning_rate, batch_size=settings.batch_size,
+                gamma=settings.gamma, tau=settings.tau, learning_starts=policy.learning_starts,
+                policy_kwargs={"net_arch": list(settings.net_arch)}, seed=config.seed, device="cpu",
+                tensorboard_log=str(run.run_dir / "tb"))
+    if semantic_run is not None:
+        semantic, _ = load_policy(Path(semantic_run))
+        widen_from_semantic(semantic, model, env.unwrapped.observation_space["achieved_goal"].shape[0])
+    with _progress("fine-tune on φ_enc(I)", show_progress) as progress:
+        task = progress.add_task("finetune", total=policy.finetune_steps, status="")
+        callback = _Progress(progress, task)
+        if policy.finetune_steps:
+            model.learn(policy.finetune_steps, callback=callback, tb_log_name="latent")
+    model.save(run.run_dir / "policy_latent.tmp.zip")
+    os.replace(run.run_dir / "policy_latent.tmp.zip", run.run_dir / "policy_latent.zip")
+    env.close()
+    return {"sim_episodes": callback.episodes, "sim_steps": int(model.num_timesteps), "widened": semantic_run is not None}

@@ -1,0 +1,176 @@
+"""The APRiL pipeline (thesis §4.2, Fig 4.2), one resumable stage at a time.
+
+    collect     random-policy episodes: images and the semantic state s̄ (data/random.npz)
+    perception  the AE / VAE trained on them (perception.pt, reconstructions.png)
+    policy      the policy: on s̄ with GP + HER (an ordinary binpick RL run under rl/), and for latent
+                modes SAC fine-tuning on φ_enc(I) in the simulator (policy_latent.zip)
+    evaluate    average actions, success and simulator episodes per row; Fig 4.7 heat maps
+
+Each finished stage is recorded in ``stages.json`` (replaced atomically); after a crash ``run``
+skips the finished stages and redoes the interrupted one (the RL run inside ``policy`` resumes
+from its own latest checkpoint).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+from binpick.april.config import AprilConfig
+from binpick.april.observations import semantic_state
+from binpick.config import from_dict, load_yaml, to_dict
+from binpick.errors import ConfigError
+from binpick.rl.checkpoints import new_run_dir
+
+STAGES = ("collect", "perception", "policy", "evaluate")
+console = Console(stderr=True)
+
+
+def _write_json(path: Path, data: Any) -> None:
+    temporary = path.with_suffix(".tmp")
+    temporary.write_text(json.dumps(data, indent=2))
+    os.replace(temporary, path)
+
+
+def _progress(label: str, show: bool) -> Progress:
+    return Progress(TextColumn(f"[bold]{label}"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[status]}"),
+                    TimeElapsedColumn(), disable=not show)
+
+
+class AprilRun:
+    """A run folder holding ``config.yaml``, ``stages.json`` and every stage's outputs."""
+
+    def __init__(self, config: AprilConfig, run_dir: Path) -> None:
+        self.config, self.run_dir = config, Path(run_dir)
+        self.stages_path = self.run_dir / "stages.json"
+        self.stages: dict[str, Any] = json.loads(self.stages_path.read_text()) if self.stages_path.exists() else {}
+
+    @classmethod
+    def new(cls, config: AprilConfig, runs_root: Path = Path("runs")) -> AprilRun:
+        return cls(config, new_run_dir(runs_root, config.name, yaml.safe_dump(to_dict(config), sort_keys=False)))
+
+    @classmethod
+    def resume(cls, run_dir: Path) -> AprilRun:
+        run_dir = Path(run_dir)
+        if not (run_dir / "config.yaml").is_file():
+            raise ConfigError(f"{str(run_dir)!r} is not an APRiL run folder (no config.yaml)")
+        return cls(from_dict(AprilConfig, load_yaml(run_dir / "config.yaml"), where=str(run_dir / "config.yaml")), run_dir)
+
+    def _done(self, stage: str, result: dict[str, Any]) -> None:
+        self.stages[stage] = result
+        _write_json(self.stages_path, self.stages)
+
+    def make_env(self, image: bool = True):
+        from binpick.envs import make
+
+        kwargs = dict(self.config.env_kwargs)
+        if image:
+            kwargs.update(image=self.config.image, image_size=self.config.image_size)
+        return make(self.config.env, **kwargs)
+
+    # ------------------------------------------------------------------ the whole pipeline
+    def run(self, show_progress: bool = True) -> dict[str, Any]:
+        for stage in STAGES:
+            if stage in self.stages:
+                continue
+            console.print(f"[bold]APRiL stage {stage}[/bold] ({self.run_dir})")
+            started = time.perf_counter()
+            result = getattr(self, f"stage_{stage}")(show_progress)
+            self._done(stage, result | {"wall_seconds": round(time.perf_counter() - started, 1)})
+        return self.stages["evaluate"]
+
+    # ------------------------------------------------------------------ stages
+    def stage_collect(self, show_progress: bool) -> dict[str, Any]:
+        """Random-policy episodes; every observation's image and s̄ (the reset one included)."""
+        env = self.make_env()
+        env.action_space.seed(self.config.collect.seed)
+        images, states, steps = [], [], 0
+        with _progress("collect", show_progress) as progress:
+            task = progress.add_task("collect", total=self.config.collect.episodes, status="random policy")
+            for episode in range(self.config.collect.episodes):
+                observation, _ = env.reset(seed=self.config.collect.seed + episode)
+                images.append(observation["image"])
+                states.append(semantic_state(observation))
+                done = False
+                while not done:
+                    observation, _, terminated, truncated, _ = env.step(env.action_space.sample())
+                    images.append(observation["image"])
+                    states.append(semantic_state(observation))
+                    steps += 1
+                    done = terminated or truncated
+                progress.update(task, advance=1, status=f"{len(images):,} images")
+        env.close()
+        path = self.run_dir / "data" / "random.npz"
+        path.parent.mkdir(exist_ok=True)
+        temporary = path.with_name("random.tmp.npz")
+        np.savez(temporary, images=np.stack(images), states=np.stack(states))
+        os.replace(temporary, path)
+        return {"sim_episodes": self.config.collect.episodes, "sim_steps": steps, "images": len(images)}
+
+    def stage_perception(self, show_progress: bool) -> dict[str, Any]:
+        from binpick.perception import save_perception, train_perception
+        from binpick.viz.april import plot_reconstructions
+
+        data = np.load(self.run_dir / "data" / "random.npz")
+        images, states = data["images"], data["states"]
+        training = self.config.perception_training
+        model, history = train_perception(self.config.perception, images, states, epochs=training.epochs,
+                                          batch_size=training.batch_size, learning_rate=training.learning_rate,
+                                          seed=self.config.seed, show_progress=show_progress)
+        save_perception(model, self.run_dir / "perception.pt")
+        _write_json(self.run_dir / "perception_history.json", history)
+        rng = np.random.default_rng(self.config.seed)
+        sample = images[rng.choice(len(images), size=min(8, len(images)), replace=False)]
+        plot_reconstructions(sample, model.reconstruct(sample), self.run_dir / "reconstructions.png",
+                             title=f"{self.config.name}: input (top) / reconstruction (bottom)")
+        last = history["epochs"][-1]
+        return {"recon": last["recon"], "state_mae": last["state_mae"], "epochs": len(history["epochs"])}
+
+    def stage_policy(self, show_progress: bool) -> dict[str, Any]:
+        policy = self.config.policy
+        result: dict[str, Any] = {"sim_episodes": 0, "sim_steps": 0}
+        if policy.mode != "latent" or policy.pretrain:
+            result.update(self._semantic_policy(show_progress))
+        if policy.mode != "semantic":
+            latent = self._latent_policy(show_progress, result.get("semantic_run"))
+            result["sim_episodes"] += latent["sim_episodes"]
+            result["sim_steps"] += latent["sim_steps"]
+            result["finetune"] = latent
+        return result
+
+    def _semantic_policy(self, show_progress: bool) -> dict[str, Any]:
+        """Eq 4.8: the policy learns on ground-truth s̄ with the cheap tools of chapter 3 (GP + HER)."""
+        from binpick.rl.config import load_config
+        from binpick.rl.train import trainer_for
+
+        settings = load_config(self.config.policy.rl_config)
+        if settings.env != self.config.env:
+            raise ConfigError(f"policy.rl_config trains on {settings.env}, this APRiL run is on {self.config.env}")
+        root = self.run_dir / "rl"
+        existing = sorted(root.glob(f"{settings.name}/*/config.yaml"))
+        trainer = trainer_for(resume=existing[-1].parent) if existing else trainer_for(settings, root)
+        metrics = trainer.run(show_progress=show_progress)
+        return {"semantic_run": str(trainer.run_dir), "sim_episodes": int(metrics.get("sim_episodes") or 0),
+                "sim_steps": int(metrics["sim_steps"]), "semantic_final_avg_actions": metrics["final_avg_actions"],
+                "semantic_final_success": metrics["final_success"]}
+
+    def _latent_policy(self, show_progress: bool, semantic_run: str | None) -> dict[str, Any]:
+        """Eq 4.9: SAC on φ_enc(I) in the simulator; first layers widened from the s̄ policy if there is one."""
+        from binpick.april.finetune import finetune_latent_policy
+
+        return finetune_latent_policy(self, semantic_run, show_progress)
+
+    def stage_evaluate(self, show_progress: bool) -> dict[str, Any]:
+        from binpick.april.evaluate import evaluate_rows
+
+        rows = evaluate_rows(self, show_progress)
+        _write_json(self.run_dir / "results.json", rows)
+        return {"rows": rows}

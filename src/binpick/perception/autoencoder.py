@@ -1,0 +1,167 @@
+"""Auto-perception networks (thesis §4.3): an AE or VAE whose latent is partly tied to the semantic state.
+
+The encoder is 6 stride-2 convolutions and one fully connected layer to an n-dimensional latent;
+the decoder is one fully connected layer and 6 transposed convolutions (§4.3.1). The first m latent
+dimensions are conditioned on the semantic state s̄ with an L1 loss (Eq 4.2), weighted by ω (Eq 4.3).
+The VAE (§4.3.2, Fig 4.4) predicts μ for all n dimensions but σ only for the n − m free ones: the
+conditioned part is μ^{1:m} itself, and the KL term (weight β) covers only the free part (Eq 4.6).
+
+The semantic state is standardised inside the network (mean/std of the training data are buffers),
+so one ω suits positions in metres and in pixels alike; :meth:`AutoPerception.encode` returns the
+conditioned part in the semantic state's own units, ready for a policy trained on s̄.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+from binpick.config import check_choice, check_range
+from binpick.errors import ConfigError
+
+LAYERS = 6  # stride-2 convolutions in the encoder, transposed ones in the decoder (thesis §4.3.1)
+
+
+@dataclass
+class PerceptionConfig:
+    """The network and its loss: kind, latent size n, conditioned size m, ω and β."""
+
+    kind: str = "ae"  # "ae" or "vae"
+    latent: int = 6  # n
+    conditioned: int = 6  # m: the first m latent dimensions are tied to the semantic state (0 = none)
+    omega: float = 1.0  # ω: weight of the conditioning (and, for the VAE, KL) loss
+    beta: float = 1e-3  # β: weight of the KL term on the free dimensions (VAE only)
+    channels: int = 32  # width of the first convolution; doubles every other layer
+
+    def __post_init__(self) -> None:
+        check_choice("perception.kind", self.kind, ["ae", "vae"])
+        check_range("perception.latent (n)", self.latent, 1, 1024, integer=True)
+        check_range("perception.conditioned (m)", self.conditioned, 0, None, integer=True)
+        if self.conditioned > self.latent:
+            raise ConfigError(f"perception.conditioned (m={self.conditioned}) must be <= perception.latent "
+                              f"(n={self.latent}): the conditioned part is a slice of the latent")
+        check_range("perception.omega", self.omega, 0.0, 1e6)
+        check_range("perception.beta", self.beta, 0.0, 1e6)
+        check_range("perception.channels", self.channels, 1, 512, integer=True)
+
+    @property
+    def free(self) -> int:
+        return self.latent - self.conditioned
+
+
+def _widths(base: int) -> list[int]:
+    return [base * 2 ** (i // 2) for i in range(LAYERS)]  # e.g. 32 32 64 64 128 128
+
+
+class AutoPerception(nn.Module):
+    """φ_enc: image -> latent s (n), φ_dec: s -> image; images are uint8 (B, H, W, C) in, float out."""
+
+    def __init__(self, config: PerceptionConfig, image_shape: tuple[int, int, int], state_dim: int) -> None:
+        super().__init__()
+        height, width, channels = image_shape
+        if height != width or height % 2 ** LAYERS:
+            raise ConfigError(f"perception needs square images whose side is a multiple of {2 ** LAYERS}, "
+                              f"got {height}x{width}")
+        if config.conditioned > state_dim:
+            raise ConfigError(f"perception.conditioned (m={config.conditioned}) exceeds the semantic state's "
+                              f"{state_dim} dimensions")
+        self.config, self.image_shape, self.state_dim = config, tuple(image_shape), state_dim
+        widths = _widths(config.channels)
+        encoder, previous = [], channels
+        for width_out in widths:
+            encoder += [nn.Conv2d(previous, width_out, 4, stride=2, padding=1), nn.ReLU()]
+            previous = width_out
+        self.encoder = nn.Sequential(*encoder, nn.Flatten())
+        self.side = height // 2 ** LAYERS
+        flat = widths[-1] * self.side * self.side
+        n, free = config.latent, config.free
+        self.to_latent = nn.Linear(flat, n + (free if config.kind == "vae" else 0))  # μ (n) and log σ (n − m)
+        self.from_latent = nn.Linear(n, flat)
+        decoder = []
+        for width_in, width_out in zip(widths[::-1], [*widths[::-1][1:], channels]):
+            decoder += [nn.ConvTranspose2d(width_in, width_out, 4, stride=2, padding=1), nn.ReLU()]
+        decoder[-1] = nn.Sigmoid()
+        self.decoder = nn.Sequential(*decoder)
+        self.register_buffer("state_mean", torch.zeros(config.conditioned))
+        self.register_buffer("state_std", torch.ones(config.conditioned))
+
+    # ------------------------------------------------------------------ data
+    def set_state_statistics(self, states: np.ndarray) -> None:
+        """Standardise s̄^{1:m} with the training data's statistics (kept with the weights)."""
+        m = self.config.conditioned
+        if m:
+            part = torch.as_tensor(np.asarray(states)[:, :m], dtype=torch.float32)
+            self.state_mean.copy_(part.mean(0))
+            self.state_std.copy_(part.std(0).clamp_min(1e-3))
+
+    def _pixels(self, images: torch.Tensor | np.ndarray) -> torch.Tensor:
+        images = torch.as_tensor(np.asarray(images) if not torch.is_tensor(images) else images)
+        if images.dim() == 3:
+            images = images[None]
+        if tuple(images.shape[1:]) != self.image_shape:
+            raise ConfigError(f"perception expects images of shape {self.image_shape} (H, W, C), "
+                              f"got {tuple(images.shape[1:])}")
+        return images.permute(0, 3, 1, 2).float() / 255.0
+
+    # ------------------------------------------------------------------ network
+    def forward(self, images, sample: bool = True) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(latent s used by the decoder, μ, log σ of the free part) for a batch of uint8 images."""
+        output = self.to_latent(self.encoder(self._pixels(images)))
+        n, m = self.config.latent, self.config.conditioned
+        mu = output[:, :n]
+        if self.config.kind == "ae":
+            return mu, mu, output[:, n:]
+        log_sigma = output[:, n:].clamp(-10, 4)
+        latent = mu
+        if sample and self.training:
+            noise = torch.randn_like(log_sigma) * log_sigma.exp()
+            latent = torch.cat([mu[:, :m], mu[:, m:] + noise], dim=1)  # σ only on the free part (Fig 4.4)
+        return latent, mu, log_sigma
+
+    def decode(self, latent: torch.Tensor) -> torch.Tensor:
+        features = self.from_latent(latent).view(len(latent), -1, self.side, self.side)
+        return self.decoder(F.relu(features))
+
+    def loss(self, images, states: torch.Tensor | None) -> dict[str, torch.Tensor]:
+        """L_VP = L_recon + ω (L_cond + β KL_free) (Eq 4.1–4.7); per-element means, so sizes do not matter."""
+        latent, mu, log_sigma = self(images)
+        target = self._pixels(images)
+        recon = (self.decode(latent) - target).abs().mean()
+        m = self.config.conditioned
+        cond = torch.zeros(())
+        if m and states is not None:
+            normalised = (torch.as_tensor(states, dtype=torch.float32)[:, :m] - self.state_mean) / self.state_std
+            cond = (mu[:, :m] - normalised).abs().mean()
+        kl = torch.zeros(())
+        if self.config.kind == "vae" and self.config.free:
+            free_mu = mu[:, m:]
+            kl = 0.5 * (torch.exp(2 * log_sigma) + free_mu ** 2 - 2 * log_sigma - 1).sum(1).mean()
+        extra = cond + self.config.beta * kl if self.config.kind == "vae" else cond
+        total = recon + self.config.omega * extra
+        return {"total": total, "recon": recon, "cond": cond, "kl": kl}
+
+    # ------------------------------------------------------------------ deployment
+    @torch.no_grad()
+    def encode(self, images) -> np.ndarray:
+        """φ_enc(I): (B, n) with the conditioned part in the semantic state's units (the VAE gives μ)."""
+        was_training = self.training
+        self.eval()
+        _, mu, _ = self(images, sample=False)
+        self.train(was_training)
+        m = self.config.conditioned
+        semantic = mu[:, :m] * self.state_std + self.state_mean
+        return torch.cat([semantic, mu[:, m:]], dim=1).numpy()
+
+    @torch.no_grad()
+    def reconstruct(self, images) -> np.ndarray:
+        """φ_dec(φ_enc(I)) as uint8 images (B, H, W, C), for reconstruction grids."""
+        was_training = self.training
+        self.eval()
+        latent, _, _ = self(images, sample=False)
+        self.train(was_training)
+        pixels = self.decode(latent).permute(0, 2, 3, 1).clamp(0, 1) * 255
+        return pixels.round().to(torch.uint8).numpy()

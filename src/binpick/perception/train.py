@@ -1,0 +1,95 @@
+"""Train an auto-perception network on collected (image, semantic state) pairs, save and load it.
+
+Training is plain minibatch Adam on L_VP; the data are the random-policy episodes APRiL collects
+(thesis §4.2: "the perception network is trained independently on data collected with an initial
+random walk policy"). A held-out tenth reports how well the latent predicts s̄ on unseen images.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+from binpick.errors import ConfigError
+from binpick.perception.autoencoder import AutoPerception, PerceptionConfig
+
+
+def train_perception(
+    config: PerceptionConfig,
+    images: np.ndarray,
+    states: np.ndarray,
+    epochs: int = 20,
+    batch_size: int = 64,
+    learning_rate: float = 1e-3,
+    seed: int = 0,
+    show_progress: bool = True,
+) -> tuple[AutoPerception, dict[str, Any]]:
+    """A network trained on ``images`` (N, H, W, C) uint8 and ``states`` (N, d); returns it and its history."""
+    if len(images) != len(states) or len(images) < 2:
+        raise ConfigError(f"perception training needs matching images and states, got {len(images)} and {len(states)}")
+    torch.manual_seed(seed)
+    rng = np.random.default_rng(seed)
+    order = rng.permutation(len(images))
+    held_out = order[: max(1, len(images) // 10)]
+    train = order[len(held_out):]
+    model = AutoPerception(config, images.shape[1:], states.shape[1])
+    model.set_state_statistics(states[train])
+    optimizer = torch.optim.Adam(model.parameters(), lr=learning_rate)
+    history: dict[str, Any] = {"epochs": [], "train_images": len(train), "held_out_images": len(held_out)}
+    steps_per_epoch = max(1, len(train) // batch_size)
+    progress = Progress(TextColumn("[bold]perception"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[status]}"),
+                        TimeElapsedColumn(), TimeRemainingColumn(), disable=not show_progress)
+    with progress:
+        task = progress.add_task("perception", total=epochs, status="")
+        for epoch in range(epochs):
+            model.train()
+            shuffled = rng.permutation(train)
+            sums = {"total": 0.0, "recon": 0.0, "cond": 0.0, "kl": 0.0}
+            for step in range(steps_per_epoch):
+                batch = shuffled[step * batch_size:(step + 1) * batch_size]
+                losses = model.loss(images[batch], states[batch])
+                optimizer.zero_grad()
+                losses["total"].backward()
+                optimizer.step()
+                for key in sums:
+                    sums[key] += float(losses[key].detach()) / steps_per_epoch
+            row = {"epoch": epoch + 1, **sums, **held_out_error(model, images[held_out], states[held_out])}
+            history["epochs"].append(row)
+            progress.update(task, advance=1, status=f"L_recon {sums['recon']:.4f} · s̄ error {row['state_mae']:.4f}")
+    return model, history
+
+
+def held_out_error(model: AutoPerception, images: np.ndarray, states: np.ndarray) -> dict[str, float]:
+    """Mean absolute error of φ_enc(I)^{1:m} against s̄ on images the network did not train on."""
+    m = model.config.conditioned
+    if not m:
+        return {"state_mae": float("nan")}
+    predicted = np.concatenate([model.encode(images[i:i + 256]) for i in range(0, len(images), 256)])
+    return {"state_mae": float(np.abs(predicted[:, :m] - states[:, :m]).mean())}
+
+
+def save_perception(model: AutoPerception, path: Path) -> None:
+    """Write atomically: a crash leaves the previous file or the new one."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    temporary = path.with_suffix(path.suffix + ".tmp")
+    torch.save({"config": asdict(model.config), "image_shape": model.image_shape, "state_dim": model.state_dim,
+                "weights": model.state_dict()}, temporary)
+    os.replace(temporary, path)
+
+
+def load_perception(path: Path) -> AutoPerception:
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"no perception checkpoint at {path}")
+    data = torch.load(path, weights_only=False)
+    model = AutoPerception(PerceptionConfig(**data["config"]), tuple(data["image_shape"]), data["state_dim"])
+    model.load_state_dict(data["weights"])
+    model.eval()
+    return model

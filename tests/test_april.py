@@ -1,0 +1,137 @@
+"""APRiL (thesis ch. 4): widening a state policy for extra latent features, the whole pipeline on a
+tiny config, resuming it, the deployed Policy object and bad input."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import torch
+from gymnasium import spaces
+from stable_baselines3 import SAC
+
+from binpick.april.finetune import widen_from_semantic
+from binpick.envs import make
+from binpick.errors import ConfigError
+from binpick.rl.wrappers import SemanticState
+
+CLI = [sys.executable, "-c", "from binpick.cli import main; main()"]
+
+RL = """
+name: tiny_rl
+env: FetchReach
+algorithm: sac
+min_action_scale: 0.4
+total_timesteps: 200
+checkpoint_every: 100
+replay: {capacity_episodes: 200, her_additions: 1}
+gp: {enabled: true, warmup_episodes: 2, refit_every: 100, imagined_per_real: 1, batch_episodes: 10, iterations: 3, max_points: 60}
+sac: {batch_size: 16, net_arch: [8, 8]}
+eval: {every: 100, episodes: 1}
+"""
+
+APRIL = """
+name: tiny_april
+env: FetchReach
+image: grey
+collect: {{episodes: 2}}
+perception: {{kind: {kind}, latent: {n}, conditioned: {m}, omega: 1.0, channels: 4}}
+perception_training: {{epochs: 1, batch_size: 16}}
+policy: {{mode: {mode}, rl_config: {rl}, finetune_steps: 60, learning_starts: 30}}
+eval: {{episodes: 2}}
+"""
+
+
+def test_widened_policy_acts_like_the_state_policy_before_fine_tuning():
+    env = SemanticState(make("FetchReach"))
+    semantic = SAC("MultiInputPolicy", env, policy_kwargs={"net_arch": [16, 16]}, device="cpu", seed=0)
+    for parameter in semantic.policy.parameters():  # make every weight matter
+        torch.nn.init.normal_(parameter, std=0.3)
+    import gymnasium as gym
+
+    flat = gym.make("Pendulum-v1")  # any env; SAC only needs the spaces
+    flat.observation_space = spaces.Box(-np.inf, np.inf, (6 + 2,), np.float32)
+    flat.action_space = env.action_space
+    latent = SAC("MlpPolicy", flat, policy_kwargs={"net_arch": [16, 16]}, device="cpu", seed=1)
+    widen_from_semantic(semantic, latent, goal_dim=3)
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        z, g, free = rng.normal(size=3), rng.normal(size=3), rng.normal(size=2) * 5
+        observation = {"observation": z, "achieved_goal": z, "desired_goal": g}
+        expected, _ = semantic.predict(observation, deterministic=True)
+        got, _ = latent.predict(np.concatenate([z, g, free]).astype(np.float32), deterministic=True)
+        np.testing.assert_allclose(got, expected, atol=1e-5)
+        action = torch.as_tensor(expected[None], dtype=torch.float32)
+        q_old = semantic.policy.critic(semantic.policy.obs_to_tensor(observation)[0], action)
+        q_new = latent.policy.critic(torch.as_tensor(np.concatenate([z, g, free])[None], dtype=torch.float32), action)
+        for old, new in zip(q_old, q_new):
+            assert torch.allclose(old, new, atol=1e-5)
+
+
+def test_april_pipeline_runs_resumes_and_deploys_from_pixels(tmp_path):
+    from binpick.april import Policy
+
+    (tmp_path / "rl.yaml").write_text(RL)
+    config = tmp_path / "april.yaml"
+    config.write_text(APRIL.format(kind="ae", n=6, m=6, mode="semantic", rl=tmp_path / "rl.yaml"))
+    result = subprocess.run([*CLI, "april", "run", str(config), "--runs", str(tmp_path / "runs")],
+                            capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr
+    (run,) = (tmp_path / "runs" / "tiny_april").iterdir()
+    rows = json.loads((run / "results.json").read_text())
+    assert set(rows) == {"ground_truth", "pixels_ae_n6_m6_w1"}
+    assert all(0 < row["avg_actions"] <= 50 and row["sim_episodes"] >= 2 for row in rows.values())
+    assert rows["pixels_ae_n6_m6_w1"]["sim_episodes"] == rows["ground_truth"]["sim_episodes"] + 2
+    for picture in ("reconstructions.png", "heatmap_ground_truth.png", "heatmap_pixels_ae_n6_m6_w1.png"):
+        assert (run / picture).stat().st_size > 1000
+    # a crash during evaluation: the finished stages are not redone
+    stages = json.loads((run / "stages.json").read_text())
+    del stages["evaluate"]
+    (run / "stages.json").write_text(json.dumps(stages))
+    data_time = (run / "data" / "random.npz").stat().st_mtime_ns
+    resumed = subprocess.run([*CLI, "april", "run", "--resume", str(run)], capture_output=True, text=True, timeout=600)
+    assert resumed.returncode == 0, resumed.stderr
+    assert "stage evaluate" in resumed.stderr and "stage collect" not in resumed.stderr
+    assert (run / "data" / "random.npz").stat().st_mtime_ns == data_time
+    # the deployed policy: one call to load, an image in, an action out
+    policy = Policy.load(run)
+    env = make("FetchReach", image="grey", image_size=64)
+    observation, _ = env.reset(seed=0)
+    action = policy.predict(observation["image"])
+    assert action.shape == (4,) and np.abs(action[:3]).max() >= 0.4 - 1e-6  # min action scale applies
+    with pytest.raises(ConfigError, match="images of shape"):
+        policy.predict(np.zeros((64, 64, 3), np.uint8))
+    evaluation = subprocess.run([*CLI, "april", "eval", str(run), "--input", "pixels", "--episodes", "1"],
+                                capture_output=True, text=True, timeout=300)
+    assert evaluation.returncode == 0 and "actions per episode" in evaluation.stdout, evaluation.stderr
+
+
+def test_latent_policy_with_free_features_is_widened_and_fine_tuned(tmp_path):
+    from binpick.april import AprilRun, Policy, load_april_config
+
+    (tmp_path / "rl.yaml").write_text(RL)
+    config = tmp_path / "april.yaml"
+    config.write_text(APRIL.format(kind="vae", n=8, m=6, mode="latent", rl=tmp_path / "rl.yaml"))
+    run = AprilRun.new(load_april_config(config), tmp_path / "runs")
+    rows = run.run(show_progress=False)["rows"]
+    assert list(rows) == ["pixels_vae_n8_m6_w1"]
+    assert run.stages["policy"]["finetune"]["widened"] and run.stages["policy"]["finetune"]["sim_steps"] == 60
+    policy = Policy.load(run.run_dir)
+    assert policy.model.observation_space.shape == (8,)
+
+
+def test_bad_april_input_is_one_clear_line(tmp_path):
+    (tmp_path / "rl.yaml").write_text(RL)
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(APRIL.format(kind="ae", n=6, m=8, mode="semantic", rl=tmp_path / "rl.yaml"))
+    result = subprocess.run([*CLI, "april", "run", str(bad)], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2 and "conditioned (m=8) must be <= perception.latent (n=6)" in result.stderr
+    assert "Traceback" not in result.stderr
+    bad.write_text(APRIL.format(kind="ae", n=8, m=6, mode="semantic", rl=tmp_path / "rl.yaml"))
+    result = subprocess.run([*CLI, "april", "run", str(bad)], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2 and "policy.mode semantic" in result.stderr
+    result = subprocess.run([*CLI, "april", "eval", str(tmp_path)], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2 and "not an APRiL run folder" in result.stderr

@@ -1,0 +1,65 @@
+"""Auto-perception networks (thesis §4.3): shapes, the conditioning loss at work, bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from binpick.errors import ConfigError
+from binpick.perception import AutoPerception, PerceptionConfig, load_perception, save_perception, train_perception
+
+
+def dot_images(count: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """64x64 grey images of a bright 6x6 square; the semantic state is its centre (x, y) in [0, 1]."""
+    rng = np.random.default_rng(seed)
+    states = rng.uniform(0.1, 0.9, size=(count, 2)).astype(np.float32)
+    images = np.zeros((count, 64, 64, 1), np.uint8)
+    for image, (x, y) in zip(images, states):
+        column, row = int(x * 64), int(y * 64)
+        image[max(row - 3, 0):row + 3, max(column - 3, 0):column + 3] = 255
+    return images, states
+
+
+def test_encoder_decoder_shapes_and_vae_sigma_only_on_free_dims():
+    model = AutoPerception(PerceptionConfig(kind="vae", latent=8, conditioned=6, channels=4), (64, 64, 3), 6)
+    images = np.zeros((5, 64, 64, 3), np.uint8)
+    latent, mu, log_sigma = model(images)
+    assert latent.shape == (5, 8) and mu.shape == (5, 8) and log_sigma.shape == (5, 2)
+    model.train()
+    sampled, mu, _ = model(images)
+    assert torch.equal(sampled[:, :6], mu[:, :6]) and not torch.equal(sampled[:, 6:], mu[:, 6:])
+    assert model.reconstruct(images).shape == (5, 64, 64, 3)
+    losses = model.loss(images, np.zeros((5, 6), np.float32))
+    assert losses["kl"] > 0 and losses["cond"] >= 0
+    encoder_convs = [m for m in model.encoder if isinstance(m, torch.nn.Conv2d)]
+    decoder_convs = [m for m in model.decoder if isinstance(m, torch.nn.ConvTranspose2d)]
+    assert len(encoder_convs) == 6 and len(decoder_convs) == 6 and all(c.stride == (2, 2) for c in encoder_convs)
+
+
+def test_conditioning_makes_the_latent_predict_the_semantic_state(tmp_path):
+    images, states = dot_images(600)
+    conditioned, history = train_perception(PerceptionConfig(latent=2, conditioned=2, omega=1.0, channels=8),
+                                            images, states, epochs=12, batch_size=32, show_progress=False)
+    errors = [row["state_mae"] for row in history["epochs"]]
+    baseline = float(np.abs(states - states.mean(0)).mean())  # predicting the mean position
+    assert errors[-1] < 0.4 * baseline, (errors, baseline)
+    test_images, test_states = dot_images(50, seed=1)
+    assert np.abs(conditioned.encode(test_images) - test_states).mean() < 0.4 * baseline
+    save_perception(conditioned, tmp_path / "p.pt")
+    np.testing.assert_allclose(load_perception(tmp_path / "p.pt").encode(test_images), conditioned.encode(test_images),
+                               atol=1e-6)
+
+
+def test_bad_perception_input_is_one_clear_error():
+    with pytest.raises(ConfigError, match=r"conditioned \(m=9\) must be <= perception.latent \(n=8\)"):
+        PerceptionConfig(latent=8, conditioned=9)
+    with pytest.raises(ConfigError, match="perception.kind"):
+        PerceptionConfig(kind="gan")
+    model = AutoPerception(PerceptionConfig(latent=4, conditioned=4, channels=4), (64, 64, 1), 4)
+    with pytest.raises(ConfigError, match=r"images of shape \(64, 64, 1\).*got \(64, 64, 3\)"):
+        model.encode(np.zeros((64, 64, 3), np.uint8))
+    with pytest.raises(ConfigError, match="multiple of 64"):
+        AutoPerception(PerceptionConfig(channels=4), (48, 48, 1), 6)
+    with pytest.raises(ConfigError, match="no perception checkpoint"):
+        load_perception("/nonexistent/perception.pt")
