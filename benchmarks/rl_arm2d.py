@@ -105,7 +105,27 @@ def main() -> None:
         f"| A3C, 2 workers | fixed | {cell('a3c')} | 15 ± 3 |",
         f"| A3C + curriculum | whole area | {cell('curriculum_whole_area')} | 25 ± 6 |",
         f"| A3C, same budget, no curriculum | whole area | {cell('no_curriculum_whole_area')} | did not converge |",
+        "",
+        "Table 3.2 by stage: the curriculum run's last periodic evaluation (20 episodes) at each goal area; "
+        "it starts from the single-goal A3C run above (`init_from`), so steps count from there.",
+        "",
+        "| goal area | ours | after steps | thesis |",
+        "|---|---:|---:|---:|",
+        *stage_rows(results.get("curriculum_stages", [])),
     ]))
+
+
+def stage_rows(evaluations: list[dict]) -> list[str]:
+    thesis = {0.0: "15 ± 3", 0.25: "42 ± 12", 0.5: "13 ± 2", 1.0: "25 ± 6"}
+    names = {0.0: "single goal", 0.25: "1/4 of the area", 0.5: "1/2", 1.0: "whole area"}
+    rows = []
+    for area, label in names.items():
+        at_area = [e for e in evaluations if abs(e["goal_area"] - area) < 1e-3]
+        if at_area:
+            last = at_area[-1]
+            rows.append(f"| {label} | {last['mean_length']:.1f} ± {last['std_length']:.1f} ({last['success_rate']:.0%} reach) | "
+                        f"{last['sim_steps']:,} | {thesis[area]} |")
+    return rows or ["| not run yet | | | |"]
 
 
 if __name__ == "__main__":

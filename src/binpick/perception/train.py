@@ -61,7 +61,10 @@ def train_perception(
                     sums[key] += float(losses[key].detach()) / steps_per_epoch
             row = {"epoch": epoch + 1, **sums, **held_out_error(model, images[held_out], states[held_out])}
             history["epochs"].append(row)
-            progress.update(task, advance=1, status=f"L_recon {sums['recon']:.4f} · s̄ error {row['state_mae']:.4f}")
+            status = f"L_recon {sums['recon']:.4f} · held-out s̄ error {row['state_mae']:.4f}"
+            progress.update(task, advance=1, status=status)
+            if show_progress:
+                progress.console.print(f"perception epoch {epoch + 1}/{epochs}: {status}")
     return model, history
 
 
