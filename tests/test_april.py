@@ -135,3 +135,11 @@ def test_bad_april_input_is_one_clear_line(tmp_path):
     assert result.returncode == 2 and "policy.mode semantic" in result.stderr
     result = subprocess.run([*CLI, "april", "eval", str(tmp_path)], capture_output=True, text=True, timeout=120)
     assert result.returncode == 2 and "not an APRiL run folder" in result.stderr
+
+
+def test_scripted_pick_and_place_heuristic_completes_the_task():
+    from binpick.april.heuristic import PickAndPlaceHeuristic
+    from binpick.rl.evaluate import evaluate_policy
+
+    result = evaluate_policy(make("FetchPickAndPlace"), PickAndPlaceHeuristic(), episodes=6, seed=0)
+    assert result.success_rate >= 0.8 and result.mean_length < 60, (result.success_rate, result.mean_length)

@@ -128,3 +128,13 @@ def test_counts_when_training_could_start_are_recorded():
     buffer = make_buffer(capacity_episodes=20, her_additions=1)
     buffer.add_episode(line_episode(4))
     assert buffer.added_when_ready is not None and buffer.added_when_ready == {"real": 1, "her": 1, "imagined": 0}
+
+
+def test_her_copies_only_when_the_object_moved():
+    """Thesis §4.5.3: in pick and place, relabel only episodes in which the object moved."""
+    buffer = make_buffer(her_additions=2, her_min_motion=0.3)
+    still = Episode(np.zeros((6, 2), np.float32), np.zeros((6, 2), np.float32), np.array([5.0, 5.0], np.float32),
+                    np.zeros((5, 2), np.float32))
+    assert buffer.add_episode(still) == 1  # object never moved: no hindsight copies
+    assert buffer.add_episode(line_episode(2)) == 1  # moved 0.2 < 0.3
+    assert buffer.add_episode(line_episode(8)) == 3  # moved 0.8

@@ -24,12 +24,14 @@ class ReplayConfig:
     her_additions: int = 1  # α_HER
     start_fraction: float = 0.1  # train once Ω is this full
     future_k: int = 4  # SB3 HER: relabelled goals per transition ('future' strategy)
+    her_min_motion: float = 0.0  # HER copies only if the achieved goal moved this far (thesis §4.5.3, metres)
 
     def __post_init__(self) -> None:
         check_range("replay.capacity_episodes (M)", self.capacity_episodes, 1, 10_000_000, integer=True)
         check_range("replay.her_additions (alpha_HER)", self.her_additions, 0, 100_000, integer=True)
         check_range("replay.start_fraction", self.start_fraction, 0.0, 1.0)
         check_range("replay.future_k", self.future_k, 1, 64, integer=True)
+        check_range("replay.her_min_motion", self.her_min_motion, 0.0, None)
 
 
 @dataclass

@@ -64,6 +64,7 @@ class EpisodeReplayBuffer(DictReplayBuffer):
         capacity_episodes: int = 10_000,
         her_additions: int = 1,
         start_fraction: float = 0.1,
+        her_min_motion: float = 0.0,
         seed: int | None = None,
     ) -> None:
         # Deliberately not DictReplayBuffer.__init__: it would allocate per-transition arrays.
@@ -76,6 +77,8 @@ class EpisodeReplayBuffer(DictReplayBuffer):
         self.M = check_range("capacity_episodes (M)", capacity_episodes, 1, 10_000_000, integer=True)
         self.her_additions = check_range("her_additions (alpha_HER)", her_additions, 0, 100_000, integer=True)
         self.start_fraction = check_range("start_fraction", start_fraction, 0.0, 1.0)
+        # thesis §4.5.3: HER copies only for episodes in which the achieved goal (the object) moved
+        self.her_min_motion = check_range("her_min_motion", her_min_motion, 0.0, None)
         self.rng = np.random.default_rng(seed)
         obs_dim = observation_space["observation"].shape[0]
         goal_dim = observation_space["achieved_goal"].shape[0]
@@ -150,11 +153,18 @@ class EpisodeReplayBuffer(DictReplayBuffer):
         """
         self._store(episode, origin)
         stored = 1
-        if relabel and self.her_additions > 0 and not self.succeeded(episode):
+        if relabel and self.her_additions > 0 and not self.succeeded(episode) and self.moved(episode):
             for copy in self.relabel(episode):
                 self._store(copy, "her")
                 stored += 1
         return stored
+
+    def moved(self, episode: Episode) -> bool:
+        """Did the achieved goal move more than ``her_min_motion`` from where the episode began?"""
+        if self.her_min_motion <= 0:
+            return True
+        travel = np.linalg.norm(episode.achieved_goal - episode.achieved_goal[0], axis=-1)
+        return bool(travel.max() > self.her_min_motion)
 
     def succeeded(self, episode: Episode) -> bool:
         rewards = self.compute_reward(episode.achieved_goal[1:], np.broadcast_to(episode.desired_goal, episode.achieved_goal[1:].shape), None)
@@ -235,6 +245,7 @@ class EpisodeReplayBuffer(DictReplayBuffer):
         return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
+        state.setdefault("her_min_motion", 0.0)  # buffers pickled before the option existed
         used = state["_stored"]
         for key in ("_obs", "_ag", "_dg", "_actions", "_lengths", "_origin"):
             stored = state[key]

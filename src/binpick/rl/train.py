@@ -68,7 +68,8 @@ def build_model(config: RLConfig, env: gym.Env, tensorboard: str | None) -> Base
                    **common)
     replay = dict(compute_reward=env.unwrapped.compute_reward, max_episode_steps=env.spec.max_episode_steps,
                   capacity_episodes=config.replay.capacity_episodes, her_additions=config.replay.her_additions,
-                  start_fraction=config.replay.start_fraction, seed=config.seed)
+                  start_fraction=config.replay.start_fraction, her_min_motion=config.replay.her_min_motion,
+                  seed=config.seed)
     if config.gp.enabled:
         common["learning_starts"] = config.gp.warmup_episodes * env.spec.max_episode_steps
     return GoalSAC("MultiInputPolicy", env, replay_buffer_class=EpisodeReplayBuffer, replay_buffer_kwargs=replay, **common)
