@@ -25,14 +25,29 @@ from binpick.april import AprilRun, load_april_config  # noqa: E402
 
 CONFIGS = {
     "FetchReach": ["april_fetchreach_w1.0", "april_fetchreach_w0.5", "april_fetchreach_w0.0"],
-    "Reacher": ["april_reacher_n4_m4", "april_reacher_n8_unconditioned"],
+    "Reacher": ["reacher_random", "april_reacher_n4_m4", "april_reacher_n8_unconditioned"],
+    "FetchReachObstacle": ["april_obstacle_n6_m6", "april_obstacle_n8_m6", "april_obstacle_unconditioned",
+                           "april_obstacle_gt_plus_latent"],
 }
 THESIS = {  # (table, {row: thesis average actions})
     "Reacher": ("4.2", {"random": 49.46, "ground_truth": 31.02, "pixels_ae_n8_m0_w0": 44.30, "pixels_ae_n4_m4_w1": 35.02}),
     "FetchReach": ("4.3", {"ground_truth": 3.10, "pixels_ae_n6_m6_w1": 12.42, "pixels_ae_n6_m6_w0.5": 17.06,
                            "pixels_ae_n6_m0_w0": 30.94}),
+    "FetchReachObstacle": ("4.4", {"ground_truth": 8.45, "pixels_ae_n6_m6_w1": 28.55, "pixels_ae_n8_m6_w1": 20.83,
+                                   "pixels_ae_n8_m0_w0": 37.04, "ground_truth_plus_latent_ae_n8_m6": 5.44}),
 }
 IMAGES = _common.ROOT / "docs" / "img" / "april"
+
+
+def merge(env: str, rows: dict) -> dict:
+    """Add rows to results/april.json as soon as a config finishes (re-read first: runs may overlap)."""
+    path = _common.RESULTS / "april.json"
+    results = json.loads(path.read_text()) if path.exists() else {}
+    results = {key: value for key, value in results.items() if key not in ("benchmark", "machine")}
+    results.setdefault(env, {}).update(rows)
+    results["peak_rss_mib"] = max(results.get("peak_rss_mib", 0.0), round(_common.peak_rss_mib(), 1))
+    _common.write_result("april", results)
+    return results
 
 
 def main() -> None:
@@ -46,6 +61,15 @@ def main() -> None:
     path = _common.RESULTS / "april.json"
     results = json.loads(path.read_text()) if path.exists() else {}
     for name in [] if args.report_only else args.only:
+        if name == "reacher_random":  # Table 4.2's first row: the random policy, no learning at all
+            from binpick.envs import make
+            from binpick.rl.evaluate import evaluate_policy, random_policy
+
+            env = make("binpick/Reacher-v0")
+            result = evaluate_policy(env, random_policy(env, 0), episodes=100, seed=20_000)
+            results = merge("Reacher", {"random": {"avg_actions": result.mean_length, "std": result.std_length,
+                                                   "success": result.success_rate, "sim_episodes": 0}})
+            continue
         config = load_april_config(_common.ROOT / "configs" / f"{name}.yaml")
         env = config.env.split("/")[1].removesuffix("-v0")
         existing = sorted((_common.ROOT / args.runs / config.name).glob("*/stages.json"))
@@ -55,20 +79,15 @@ def main() -> None:
         else:
             run = AprilRun.new(config, _common.ROOT / args.runs)
         rows = run.run(show_progress=True)["rows"]
-        for row, values in rows.items():
-            kept = results.setdefault(env, {}).get(row, {})
-            results[env][row] = values | {"config": f"configs/{name}.yaml",
-                                          "run_dir": str(run.run_dir.relative_to(_common.ROOT))}
-            if row == "ground_truth" and kept and kept.get("config") != f"configs/{name}.yaml":
-                results[env][row] = kept  # the first config's ground-truth row stays; the others share its policy
+        if "ground_truth" in rows and name != CONFIGS[env][0 if env != "Reacher" else 1]:
+            rows.pop("ground_truth")  # the table's ground-truth row comes from the env's first config
+        results = merge(env, {row: values | {"config": f"configs/{name}.yaml",
+                                             "run_dir": str(run.run_dir.relative_to(_common.ROOT))}
+                              for row, values in rows.items()})
         IMAGES.mkdir(parents=True, exist_ok=True)
         for picture in run.run_dir.glob("*.png"):
             shutil.copy(picture, IMAGES / f"{name}_{picture.name}")
         print(name, json.dumps(rows), flush=True)
-    if not args.report_only:
-        results["peak_rss_mib"] = round(_common.peak_rss_mib(), 1)
-        payload = {key: value for key, value in results.items() if key not in ("benchmark", "machine")}
-        _common.write_result("april", payload)
     lines = ["## APRiL: train on state, deploy on pixels (issue 4, Tables 4.2-4.5)", "",
              "Average actions per episode (T = 50) over seeded evaluation episodes; simulator episodes = "
              "training episodes the row needed (random-policy image episodes for perception + RL episodes; "

@@ -89,6 +89,10 @@ class MujocoCamera:
         self._camera.distance = pose.distance
         self._camera.azimuth = pose.azimuth
         self._camera.elevation = pose.elevation
+        global _EXIT_HOOK_REGISTERED
+        if not _EXIT_HOOK_REGISTERED:  # after MuJoCo's own GL exit hook exists, so ours runs before it
+            atexit.register(_close_live_cameras)
+            _EXIT_HOOK_REGISTERED = True
         _LIVE_CAMERAS.add(self)
 
     def render(self, data) -> np.ndarray:
@@ -102,9 +106,9 @@ class MujocoCamera:
 
 
 _LIVE_CAMERAS: weakref.WeakSet[MujocoCamera] = weakref.WeakSet()
+_EXIT_HOOK_REGISTERED = False
 
 
-@atexit.register
 def _close_live_cameras() -> None:
     """Free GL contexts before interpreter teardown, when freeing them raises noisy EGL errors."""
     for camera in list(_LIVE_CAMERAS):
