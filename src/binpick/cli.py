@@ -171,16 +171,21 @@ def rl_eval(
 ) -> None:
     """Evaluate a run's latest checkpoint: average actions ± std and success rate."""
     from binpick.config import check_range
-    from binpick.rl.evaluate import evaluate_policy
     from binpick.rl.train import load_policy, make_env
 
     check_range("episodes", episodes, 1, None, integer=True)
     model, config = load_policy(run, env_id)
-    env = make_env(config)
+    _evaluate_with_progress(make_env(config), model, f"{config.name} · {config.env}", episodes, seed)
+
+
+def _evaluate_with_progress(env, policy, label: str, episodes: int, seed: int) -> None:
+    """Seeded evaluation episodes with a progress bar; prints the summary and closes the env."""
+    from binpick.rl.evaluate import evaluate_policy
+
     try:
         with progress_bar() as progress:
-            task = progress.add_task(f"{config.name} · {config.env}", total=episodes)
-            result = evaluate_policy(env, model, episodes=episodes, seed=seed, on_episode=lambda *_: progress.advance(task))
+            task = progress.add_task(label, total=episodes)
+            result = evaluate_policy(env, policy, episodes=episodes, seed=seed, on_episode=lambda *_: progress.advance(task))
     finally:
         env.close()
     console.print(result.summary())
@@ -219,7 +224,6 @@ def april_eval(
     from binpick.april import AprilRun
     from binpick.april.evaluate import deployment_env
     from binpick.config import check_choice, check_range
-    from binpick.rl.evaluate import evaluate_policy
 
     check_range("episodes", episodes, 1, None, integer=True)
     check_choice("--input", runtime_input, ["pixels", "state"])
@@ -229,13 +233,7 @@ def april_eval(
     if runtime_input == "state" and april.config.policy.mode != "semantic":
         raise ConfigError(f"--input state needs a policy trained on the semantic state; this run's is {april.config.policy.mode}")
     env, policy, _ = deployment_env(april, runtime_input)
-    try:
-        with progress_bar() as progress:
-            task = progress.add_task(f"{april.config.name} from {runtime_input}", total=episodes)
-            result = evaluate_policy(env, policy, episodes=episodes, seed=seed, on_episode=lambda *_: progress.advance(task))
-    finally:
-        env.close()
-    console.print(result.summary())
+    _evaluate_with_progress(env, policy, f"{april.config.name} from {runtime_input}", episodes, seed)
 
 
 @app.command("demo")
