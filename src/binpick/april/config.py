@@ -12,7 +12,7 @@ from binpick.config import check_choice, check_range, from_dict, load_yaml
 from binpick.errors import ConfigError
 from binpick.perception.autoencoder import PerceptionConfig
 
-ENVS = ("binpick/Reacher-v0", "binpick/FetchReach-v0", "binpick/FetchReachObstacle-v0")
+ENVS = ("binpick/Reacher-v0", "binpick/FetchReach-v0", "binpick/FetchReachObstacle-v0", "binpick/FetchPickAndPlace-v0")
 POLICY_MODES = ("semantic", "latent", "state_plus_latent")
 
 

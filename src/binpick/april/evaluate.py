@@ -30,13 +30,13 @@ def deployment_env(run: AprilRun, runtime_input: str):
         policy, _ = load_policy(Path(run.stages["policy"]["semantic_run"]))
         if runtime_input == "state":
             base = GoalRecorder(run.make_env(image=False))
-            return with_action_scale(SemanticState(base), scale), policy, base
+            return with_action_scale(SemanticState(base, run.gripper), scale), policy, base
         base = GoalRecorder(run.make_env())
-        return with_action_scale(PixelsAsSemantic(base, load_perception(run.run_dir / "perception.pt").encode), scale), policy, base
+        return with_action_scale(PixelsAsSemantic(base, load_perception(run.run_dir / "perception.pt").encode, run.gripper), scale), policy, base
     perception = load_perception(run.run_dir / "perception.pt")
     base = GoalRecorder(run.make_env())
     env = EncodedObservation(base, perception.encode, perception.config.latent, perception.config.conditioned,
-                             with_state=mode == "state_plus_latent")
+                             with_state=mode == "state_plus_latent", gripper=run.gripper)
     return with_action_scale(env, scale), SAC.load(run.run_dir / "policy_latent.zip", device="cpu"), base
 
 

@@ -32,8 +32,9 @@ if TYPE_CHECKING:
 
 
 def _semantic_columns(model: SAC, goal_dim: int) -> list[np.ndarray]:
-    """For each feature column of the dict policy, the index in (z, g) it carries."""
-    sources = {"achieved_goal": 0, "observation": 0, "desired_goal": goal_dim}
+    """For each feature column of the dict policy, the index in s̄ = (observation, g) it carries."""
+    width = model.observation_space["observation"].shape[0]
+    sources = {"observation": 0, "achieved_goal": width - goal_dim, "desired_goal": width}
     columns = []
     for key, space in model.observation_space.spaces.items():
         if key not in sources:
@@ -98,7 +99,8 @@ def finetune_latent_policy(run: AprilRun, semantic_run: str | None, show_progres
     perception = load_perception(run.run_dir / "perception.pt")
     rl_settings = load_config(policy.rl_config)
     env = with_action_scale(EncodedObservation(run.make_env(), perception.encode, perception.config.latent,
-                                               perception.config.conditioned, with_state=policy.mode == "state_plus_latent"),
+                                               perception.config.conditioned, with_state=policy.mode == "state_plus_latent",
+                                               gripper=run.gripper),
                             rl_settings.min_action_scale)
     settings = rl_settings.sac
     model = SAC("MlpPolicy", env, learning_rate=settings.learning_rate, batch_size=settings.batch_size,

@@ -14,27 +14,33 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from binpick.rl.wrappers import semantic_part
 
-def semantic_state(observation: dict) -> np.ndarray:
-    """s̄ = (z, g) for the reach envs."""
-    return np.concatenate([observation["achieved_goal"], observation["desired_goal"]]).astype(np.float32)
+
+def semantic_state(observation: dict, gripper: bool = False) -> np.ndarray:
+    """s̄ = (z, g) for the reach envs; (gripper, object, goal) for pick and place (``gripper``)."""
+    return np.concatenate([semantic_part(observation, gripper), observation["desired_goal"]]).astype(np.float32)
 
 
 def semantic_observation(state: np.ndarray, goal_dim: int) -> dict[str, np.ndarray]:
-    """s̄ as the dict a ``SemanticState``-trained policy takes: observation = achieved_goal = z."""
-    z, g = state[:goal_dim].astype(np.float64), state[goal_dim:2 * goal_dim].astype(np.float64)
-    return {"observation": z.copy(), "achieved_goal": z, "desired_goal": g}
+    """s̄ as the dict a ``SemanticState``-trained policy takes: the goal is last, the achieved goal
+    (z, or the object) just before it, and ``observation`` is everything before the goal."""
+    state = np.asarray(state, np.float64)
+    observation, goal = state[:-goal_dim], state[-goal_dim:]
+    return {"observation": observation.copy(), "achieved_goal": observation[-goal_dim:].copy(), "desired_goal": goal.copy()}
 
 
 class PixelsAsSemantic(gym.ObservationWrapper):
     """Deployment for m = n (Eq 4.8): the policy gets φ_enc(I) where it was trained on s̄."""
 
-    def __init__(self, env: gym.Env, encode: Callable[[np.ndarray], np.ndarray]) -> None:
+    def __init__(self, env: gym.Env, encode: Callable[[np.ndarray], np.ndarray], gripper: bool = False) -> None:
         super().__init__(env)
         goal_space = env.observation_space["achieved_goal"]
         self.goal_dim = goal_space.shape[0]
         self.encode = encode
-        self.observation_space = spaces.Dict({"observation": goal_space, "achieved_goal": goal_space,
+        size = self.goal_dim + (3 if gripper else 0)
+        self.observation_space = spaces.Dict({"observation": spaces.Box(-np.inf, np.inf, (size,), np.float64),
+                                              "achieved_goal": goal_space,
                                               "desired_goal": env.observation_space["desired_goal"]})
 
     def observation(self, observation):
@@ -49,17 +55,17 @@ class EncodedObservation(gym.ObservationWrapper):
     """
 
     def __init__(self, env: gym.Env, encode: Callable[[np.ndarray], np.ndarray], latent: int, conditioned: int,
-                 with_state: bool = False) -> None:
+                 with_state: bool = False, gripper: bool = False) -> None:
         super().__init__(env)
-        self.encode, self.conditioned, self.with_state = encode, conditioned, with_state
-        state_dim = 2 * env.observation_space["achieved_goal"].shape[0]
+        self.encode, self.conditioned, self.with_state, self.gripper = encode, conditioned, with_state, gripper
+        state_dim = 2 * env.observation_space["achieved_goal"].shape[0] + (3 if gripper else 0)
         size = state_dim + latent - conditioned if with_state else latent
         self.observation_space = spaces.Box(-np.inf, np.inf, (size,), np.float32)
 
     def observation(self, observation):
         latent = self.encode(observation["image"])[0].astype(np.float32)
         if self.with_state:
-            return np.concatenate([semantic_state(observation), latent[self.conditioned:]])
+            return np.concatenate([semantic_state(observation, self.gripper), latent[self.conditioned:]])
         return latent
 
 

@@ -64,6 +64,13 @@ class AprilRun:
             raise ConfigError(f"{str(run_dir)!r} is not an APRiL run folder (no config.yaml)")
         return cls(from_dict(AprilConfig, load_yaml(run_dir / "config.yaml"), where=str(run_dir / "config.yaml")), run_dir)
 
+    @property
+    def gripper(self) -> bool:
+        """Pick and place: s̄ also holds the gripper position (thesis Table 4.5: m = 9)."""
+        from binpick.rl.wrappers import needs_gripper
+
+        return needs_gripper(self.config.env)
+
     def _done(self, stage: str, result: dict[str, Any]) -> None:
         self.stages[stage] = result
         _write_json(self.stages_path, self.stages)
@@ -98,12 +105,12 @@ class AprilRun:
             for episode in range(self.config.collect.episodes):
                 observation, _ = env.reset(seed=self.config.collect.seed + episode)
                 images.append(observation["image"])
-                states.append(semantic_state(observation))
+                states.append(semantic_state(observation, self.gripper))
                 done = False
                 while not done:
                     observation, _, terminated, truncated, _ = env.step(env.action_space.sample())
                     images.append(observation["image"])
-                    states.append(semantic_state(observation))
+                    states.append(semantic_state(observation, self.gripper))
                     steps += 1
                     done = terminated or truncated
                 progress.update(task, advance=1, status=f"{len(images):,} images")

@@ -32,9 +32,11 @@ class Policy:
             from binpick.rl.train import load_policy
 
             self.model, _ = load_policy(Path(run.stages["policy"]["semantic_run"]))
-            if self.perception.config.latent != 2 * self.model.observation_space["achieved_goal"].shape[0]:
+            spaces = self.model.observation_space
+            state_dim = spaces["observation"].shape[0] + spaces["desired_goal"].shape[0]
+            if self.perception.config.latent != state_dim:
                 raise ConfigError(f"perception latent n={self.perception.config.latent} does not match the policy's "
-                                  f"semantic state of {2 * self.model.observation_space['achieved_goal'].shape[0]}")
+                                  f"semantic state of {state_dim}")
         else:
             from stable_baselines3 import SAC
 
@@ -64,7 +66,7 @@ class Policy:
 
         latent = self.encode(image)
         if self.mode == "semantic":
-            observation = semantic_observation(latent, len(latent) // 2)
+            observation = semantic_observation(latent, self.model.observation_space["achieved_goal"].shape[0])
         elif self.mode == "state_plus_latent":
             if state is None:
                 raise ConfigError("this policy also needs the ground-truth semantic state: predict(image, state=...)")

@@ -223,6 +223,9 @@ class RLConfig:
             )
         if self.gp.enabled and (self.algorithm != "sac" or not self.semantic_state):
             raise ConfigError("gp.enabled needs algorithm: sac and semantic_state: true (the GP models z -> z')")
+        if self.gp.enabled and self.env.endswith("PickAndPlace-v0"):
+            raise ConfigError("gp.enabled: the GP models the gripper alone; pick and place moves an object by contact - "
+                              "set gp.enabled: false")
         discrete = self.env.endswith("Arm2D-v0") and not self.env_kwargs.get("goal_conditioned", False)
         if self.algorithm in ("a3c", "dqn") and not discrete:
             raise ConfigError(f"algorithm {self.algorithm} learns from images with discrete actions: use env binpick/Arm2D-v0")

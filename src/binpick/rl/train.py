@@ -32,7 +32,7 @@ from binpick.rl.config import RLConfig
 from binpick.rl.dynamics import GPDynamics
 from binpick.rl.evaluate import evaluate_policy
 from binpick.rl.replay import EpisodeReplayBuffer
-from binpick.rl.wrappers import MinActionScale, SemanticState
+from binpick.rl.wrappers import MinActionScale, SemanticState, needs_gripper
 
 
 def next_multiple(steps: int, every: int) -> int:
@@ -44,7 +44,7 @@ def make_env(config: RLConfig) -> gym.Env:
     """The env exactly as the run trains on it (semantic state, minimum action scale)."""
     env = make(config.env, **config.env_kwargs)
     if config.semantic_state and config.algorithm in ("sac", "sb3_sac_her"):
-        env = SemanticState(env)
+        env = SemanticState(env, gripper=needs_gripper(config.env))
     if config.min_action_scale:
         env = MinActionScale(env, config.min_action_scale)
     return env

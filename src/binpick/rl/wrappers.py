@@ -14,21 +14,38 @@ class SemanticState(gym.ObservationWrapper):
 
     Thesis §3.3.1: "the RL input state is the position of the arm z and the goal position g". With it,
     a GP on (z, a) -> Δz predicts everything the policy needs, so imagined episodes are complete.
+    With ``gripper`` (pick and place, §4.5.3) the observation is (gripper position, object position):
+    the object is the achieved goal, and the policy must also know where its hand is.
     """
 
-    def __init__(self, env: gym.Env) -> None:
+    def __init__(self, env: gym.Env, gripper: bool = False) -> None:
         super().__init__(env)
+        self.gripper = gripper
         goal_space = env.observation_space["achieved_goal"]
-        self.observation_space = spaces.Dict(
-            {"observation": goal_space, "achieved_goal": goal_space, "desired_goal": env.observation_space["desired_goal"]}
-        )
+        size = goal_space.shape[0] + (3 if gripper else 0)
+        self.observation_space = spaces.Dict({
+            "observation": spaces.Box(-np.inf, np.inf, (size,), np.float64),
+            "achieved_goal": goal_space, "desired_goal": env.observation_space["desired_goal"]})
 
     def observation(self, observation):
-        return {"observation": observation["achieved_goal"].copy(), "achieved_goal": observation["achieved_goal"],
+        return {"observation": semantic_part(observation, self.gripper), "achieved_goal": observation["achieved_goal"],
                 "desired_goal": observation["desired_goal"]}
 
     def compute_reward(self, achieved_goal, desired_goal, info):
         return self.env.unwrapped.compute_reward(achieved_goal, desired_goal, info)
+
+
+def semantic_part(observation: dict, gripper: bool = False) -> np.ndarray:
+    """What :class:`SemanticState` puts in ``observation``: z, or (gripper position, object position)."""
+    achieved = np.asarray(observation["achieved_goal"], np.float64)
+    if gripper:
+        return np.concatenate([np.asarray(observation["observation"], np.float64)[:3], achieved])
+    return achieved.copy()
+
+
+def needs_gripper(env_id: str) -> bool:
+    """Envs whose achieved goal is an object, so the semantic state also holds the gripper."""
+    return env_id.endswith("PickAndPlace-v0")
 
 
 class MinActionScale(gym.ActionWrapper):
