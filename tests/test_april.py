@@ -143,3 +143,46 @@ def test_scripted_pick_and_place_heuristic_completes_the_task():
 
     result = evaluate_policy(make("FetchPickAndPlace"), PickAndPlaceHeuristic(), episodes=6, seed=0)
     assert result.success_rate >= 0.8 and result.mean_length < 60, (result.success_rate, result.mean_length)
+
+
+def test_demonstrations_fill_the_replay_and_behaviour_cloning_imitates_the_heuristic(tmp_path):
+    """Thesis §4.5.3: heuristic episodes in the replay and an actor pretrained to imitate them."""
+    import yaml
+
+    from binpick.config import from_dict
+    from binpick.rl.config import RLConfig
+    from binpick.rl.train import trainer_for
+
+    config = from_dict(RLConfig, yaml.safe_load("""
+name: tiny_pnp
+env: FetchPickAndPlace
+algorithm: sac
+total_timesteps: 50
+checkpoint_every: 1000
+replay: {capacity_episodes: 100, her_additions: 2, her_min_motion: 0.01}
+sac: {batch_size: 64, net_arch: [64, 64]}
+demonstrations: {episodes: 4, bc_steps: 1000, noise: 0.0}
+eval: {every: 1000, episodes: 1}
+"""))
+    from binpick.april.heuristic import PickAndPlaceHeuristic
+    from binpick.rl.demonstrations import collect_demonstrations
+
+    trainer = trainer_for(config, tmp_path)
+    episodes, _ = collect_demonstrations(trainer.env, PickAndPlaceHeuristic(), 4, seed=config.seed + 500_000)
+    def imitation_error() -> float:  # the actor's deterministic actions against the heuristic's
+        errors = []
+        for episode in episodes:
+            for t in range(episode.length):
+                observation = {"observation": episode.observation[t], "achieved_goal": episode.achieved_goal[t],
+                               "desired_goal": episode.desired_goal}
+                errors.append(np.mean((trainer.model.predict(observation, deterministic=True)[0] - episode.actions[t]) ** 2))
+        return float(np.mean(errors))
+
+    before = imitation_error()
+    trainer.learn_from_demonstrations()
+    assert trainer.metrics.demo_episodes == 4 and trainer.model.replay_buffer.added["real"] == 4
+    assert imitation_error() < 0.7 * before, (before, imitation_error())
+    metrics = trainer.run(show_progress=False)
+    assert metrics["demo_episodes"] == 4 and metrics["sim_episodes"] >= 4
+    with pytest.raises(ConfigError, match="GP models the gripper alone"):
+        from_dict(RLConfig, {"env": "FetchPickAndPlace", "gp": {"enabled": True}})

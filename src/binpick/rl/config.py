@@ -102,6 +102,20 @@ class A3CConfig:
 
 
 @dataclass
+class DemonstrationConfig:
+    """Scripted demonstrations before RL (thesis §4.5.3): replay episodes and behaviour cloning."""
+
+    episodes: int = 0  # heuristic episodes (0: none)
+    bc_steps: int = 2000  # actor gradient steps on their actions
+    noise: float = 0.1  # Gaussian noise on the heuristic's moves, for varied demonstrations
+
+    def __post_init__(self) -> None:
+        check_range("demonstrations.episodes", self.episodes, 0, 1_000_000, integer=True)
+        check_range("demonstrations.bc_steps", self.bc_steps, 0, 10_000_000, integer=True)
+        check_range("demonstrations.noise", self.noise, 0.0, 1.0)
+
+
+@dataclass
 class DQNConfig:
     """SB3's DQN (§3.1.1): replay of capacity M transitions, target network refreshed every C steps."""
 
@@ -204,6 +218,7 @@ class RLConfig:
     a3c: A3CConfig = field(default_factory=A3CConfig)
     dqn: DQNConfig = field(default_factory=DQNConfig)
     curriculum: CurriculumConfig = field(default_factory=CurriculumConfig)
+    demonstrations: DemonstrationConfig = field(default_factory=DemonstrationConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)
 
     def __post_init__(self) -> None:
@@ -226,6 +241,9 @@ class RLConfig:
         if self.gp.enabled and self.env.endswith("PickAndPlace-v0"):
             raise ConfigError("gp.enabled: the GP models the gripper alone; pick and place moves an object by contact - "
                               "set gp.enabled: false")
+        if self.demonstrations.episodes and (self.algorithm != "sac" or not self.env.endswith("PickAndPlace-v0")):
+            raise ConfigError("demonstrations come from the scripted pick-and-place heuristic: algorithm sac on "
+                              "binpick/FetchPickAndPlace-v0 only")
         discrete = self.env.endswith("Arm2D-v0") and not self.env_kwargs.get("goal_conditioned", False)
         if self.algorithm in ("a3c", "dqn") and not discrete:
             raise ConfigError(f"algorithm {self.algorithm} learns from images with discrete actions: use env binpick/Arm2D-v0")

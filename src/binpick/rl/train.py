@@ -82,6 +82,9 @@ class Metrics:
     evaluations: list[dict[str, float]] = field(default_factory=list)
     sim_steps_to_threshold: int | None = None
     gradient_steps_to_5_actions: int | None = None  # thesis Table 3.4: iterations until < 5 actions
+    demo_episodes: int = 0  # scripted demonstrations (simulator episodes outside SB3's step count)
+    demo_steps: int = 0
+    bc_final_loss: float | None = None
     wall_seconds: float = 0.0
 
     def to_dict(self, config: RLConfig, model: SAC, gp: GPImagination | None) -> dict[str, Any]:
@@ -94,6 +97,7 @@ class Metrics:
                 "gradient_steps": int(model._n_updates), "wall_seconds": round(self.wall_seconds, 1),
                 "evaluations": self.evaluations}
         data["gradient_steps_to_5_actions"] = self.gradient_steps_to_5_actions
+        data.update(demo_episodes=self.demo_episodes, demo_steps=self.demo_steps, bc_final_loss=self.bc_final_loss)
         if isinstance(buffer, EpisodeReplayBuffer):
             data.update(sim_episodes=buffer.added["real"], her_episodes=buffer.added["her"],
                         imagined_episodes=buffer.added["imagined"], episodes_when_training_started=buffer.added_when_ready)
@@ -248,6 +252,19 @@ class Trainer:
             self.gp.restore(state["gp"])
 
     # ------------------------------------------------------------------ training
+    def learn_from_demonstrations(self) -> None:
+        """Thesis §4.5.3: heuristic episodes into the replay, then behaviour cloning of the actor."""
+        from binpick.april.heuristic import PickAndPlaceHeuristic
+        from binpick.rl.demonstrations import add_demonstrations, behaviour_clone, collect_demonstrations
+
+        demos = self.config.demonstrations
+        expert = PickAndPlaceHeuristic(noise=demos.noise, seed=self.config.seed)
+        episodes, steps = collect_demonstrations(self.env, expert, demos.episodes, seed=self.config.seed + 500_000)
+        add_demonstrations(self.model.replay_buffer, episodes)
+        losses = behaviour_clone(self.model, episodes, demos.bc_steps, self.config.sac.batch_size, self.config.seed)
+        self.metrics.demo_episodes, self.metrics.demo_steps = len(episodes), steps
+        self.metrics.bc_final_loss = losses[-1] if losses else None
+
     def run(self, show_progress: bool = True) -> dict[str, Any]:
         torch.set_num_threads(1)  # small networks: threads cost more than they give on 2 cores
         remaining = self.config.total_timesteps - int(self.model.num_timesteps)
@@ -262,6 +279,8 @@ class Trainer:
             callbacks.insert(0, GoalAreaCurriculum(self.config.curriculum))
         if show_progress:
             callbacks.append(RichProgress(self.config.total_timesteps, int(self.model.num_timesteps), self.config.name))
+        if self.config.demonstrations.episodes and not self.metrics.demo_episodes and not self.model.num_timesteps:
+            self.learn_from_demonstrations()
         if remaining > 0:
             self.model.learn(remaining, callback=CallbackList(callbacks), reset_num_timesteps=False,
                              tb_log_name=self.config.algorithm, log_interval=10)
