@@ -57,6 +57,19 @@ def merge(env: str, rows: dict) -> dict:
     return results
 
 
+def shared_state_run(results: dict, env: str, name: str, config) -> str | None:
+    """The ground-truth row's state policy, when this config would train the same one again."""
+    source = results.get(env, {}).get("ground_truth")
+    needs_state_policy = config.policy.mode != "latent" or config.policy.pretrain
+    if source is None or name == GROUND_TRUTH_FROM.get(env) or not needs_state_policy or config.policy.state_run:
+        return None
+    stages = json.loads((_common.ROOT / source["run_dir"] / "stages.json").read_text())
+    source_config = load_april_config(_common.ROOT / source["config"])
+    if source_config.policy.rl_config != config.policy.rl_config or "policy" not in stages:
+        return None
+    return stages["policy"]["semantic_run"]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--only", nargs="+", default=[name for names in CONFIGS.values() for name in names])
@@ -64,6 +77,8 @@ def main() -> None:
     parser.add_argument("--runs", default="runs/bench/april",
                         help="run folders; the latest run of a config there is resumed (or reused when finished)")
     parser.add_argument("--fresh", action="store_true", help="always start new run folders")
+    parser.add_argument("--no-share", action="store_true",
+                        help="train the state policy again in every config instead of reusing the ground-truth row's")
     args = parser.parse_args()
     path = _common.RESULTS / "april.json"
     results = json.loads(path.read_text()) if path.exists() else {}
@@ -93,6 +108,10 @@ def main() -> None:
             run = AprilRun.resume(existing[-1].parent)
             print(f"{name}: continuing {run.run_dir} (done: {', '.join(run.stages) or 'nothing'})", flush=True)
         else:
+            shared = None if args.no_share else shared_state_run(results, env, name, config)
+            if shared is not None:
+                config.policy.state_run = shared
+                print(f"{name}: state policy shared with the ground-truth row ({shared})", flush=True)
             run = AprilRun.new(config, _common.ROOT / args.runs)
         rows = run.run(show_progress=True)["rows"]
         if "ground_truth" in rows and name != GROUND_TRUTH_FROM.get(env):

@@ -107,20 +107,23 @@ def test_april_pipeline_runs_resumes_and_deploys_from_pixels(tmp_path):
     evaluation = subprocess.run([*CLI, "april", "eval", str(run), "--input", "pixels", "--episodes", "1"],
                                 capture_output=True, text=True, timeout=300)
     assert evaluation.returncode == 0 and "actions per episode" in evaluation.stdout, evaluation.stderr
+    _latent_policy_widened_from_the_shared_state_policy(run, tmp_path)
 
 
-def test_latent_policy_with_free_features_is_widened_and_fine_tuned(tmp_path):
+def _latent_policy_widened_from_the_shared_state_policy(first_run, tmp_path):
+    """m < n (Eq 4.9): the state policy of an earlier run, widened for the free latents and fine-tuned."""
     from binpick.april import AprilRun, Policy, load_april_config
 
-    (tmp_path / "rl.yaml").write_text(RL)
-    config = tmp_path / "april.yaml"
-    config.write_text(APRIL.format(kind="vae", n=8, m=6, mode="latent", rl=tmp_path / "rl.yaml"))
+    state_run = json.loads((first_run / "stages.json").read_text())["policy"]["semantic_run"]
+    config = tmp_path / "latent.yaml"
+    config.write_text(APRIL.format(kind="vae", n=8, m=6, mode="latent", rl=tmp_path / "rl.yaml")
+                      .replace("finetune_steps", f"state_run: {state_run}, finetune_steps"))
     run = AprilRun.new(load_april_config(config), tmp_path / "runs")
     rows = run.run(show_progress=False)["rows"]
-    assert list(rows) == ["pixels_vae_n8_m6_w1"]
+    assert list(rows) == ["pixels_vae_n8_m6_w1"] and not (run.run_dir / "rl").exists()
+    assert run.stages["policy"]["semantic_run"] == state_run
     assert run.stages["policy"]["finetune"]["widened"] and run.stages["policy"]["finetune"]["sim_steps"] == 60
-    policy = Policy.load(run.run_dir)
-    assert policy.model.observation_space.shape == (8,)
+    assert Policy.load(run.run_dir).model.observation_space.shape == (8,)
 
 
 def test_bad_april_input_is_one_clear_line(tmp_path):

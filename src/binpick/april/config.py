@@ -53,6 +53,7 @@ class PolicyConfig:
 
     mode: str = "semantic"
     rl_config: str = "configs/rl_fetchreach_gp_her.yaml"  # the semantic-state run (GP + HER)
+    state_run: str | None = None  # a finished `binpick rl` run to use as the state policy instead of training one
     pretrain: bool = True
     finetune_steps: int = 20_000  # simulator steps with images for latent / state_plus_latent
     learning_starts: int = 1000

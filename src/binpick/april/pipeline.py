@@ -158,14 +158,23 @@ class AprilRun:
         from binpick.rl.config import load_config
         from binpick.rl.train import trainer_for
 
-        settings = load_config(self.config.policy.rl_config)
-        if settings.env != self.config.env:
-            raise ConfigError(f"policy.rl_config trains on {settings.env}, this APRiL run is on {self.config.env}")
-        root = self.run_dir / "rl"
-        existing = sorted(root.glob(f"{settings.name}/*/config.yaml"))
-        trainer = trainer_for(resume=existing[-1].parent) if existing else trainer_for(settings, root)
-        metrics = trainer.run(show_progress=show_progress)
-        return {"semantic_run": str(trainer.run_dir), "sim_episodes": int(metrics.get("sim_episodes") or 0),
+        if self.config.policy.state_run is not None:  # perception variants can share one state policy
+            run_dir = Path(self.config.policy.state_run)
+            if not (run_dir / "metrics.json").is_file():
+                raise ConfigError(f"policy.state_run: {str(run_dir)!r} is not a finished binpick rl run (no metrics.json)")
+            metrics = json.loads((run_dir / "metrics.json").read_text())
+            if metrics["env"] != self.config.env:
+                raise ConfigError(f"policy.state_run was trained on {metrics['env']}, this APRiL run is on {self.config.env}")
+        else:
+            settings = load_config(self.config.policy.rl_config)
+            if settings.env != self.config.env:
+                raise ConfigError(f"policy.rl_config trains on {settings.env}, this APRiL run is on {self.config.env}")
+            root = self.run_dir / "rl"
+            existing = sorted(root.glob(f"{settings.name}/*/config.yaml"))
+            trainer = trainer_for(resume=existing[-1].parent) if existing else trainer_for(settings, root)
+            metrics = trainer.run(show_progress=show_progress)
+            run_dir = trainer.run_dir
+        return {"semantic_run": str(run_dir), "sim_episodes": int(metrics.get("sim_episodes") or 0),
                 "sim_steps": int(metrics["sim_steps"]), "semantic_final_avg_actions": metrics["final_avg_actions"],
                 "semantic_final_success": metrics["final_success"]}
 
