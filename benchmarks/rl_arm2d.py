@@ -59,6 +59,7 @@ def main() -> None:
         if key == "random":
             env = make("binpick/Arm2D-v0")
             results["random"] = evaluate(random_policy(env, 0), 0.0)
+            results["random_whole_area"] = evaluate(random_policy(env, 0), 1.0)  # Table 3.2's reference
             env.close()
         else:
             config_path, area = RUNS[key]
@@ -103,6 +104,7 @@ def main() -> None:
         f"| random | fixed | {cell('random')} | 369 ± 341 |",
         f"| DQN (SB3) | fixed | {cell('dqn')} | 134 ± 99 |",
         f"| A3C, 2 workers | fixed | {cell('a3c')} | 15 ± 3 |",
+        f"| random | whole area | {cell('random_whole_area')} | – |",
         f"| A3C + curriculum | whole area | {cell('curriculum_whole_area')} | 25 ± 6 |",
         f"| A3C, same budget, no curriculum | whole area | {cell('no_curriculum_whole_area')} | did not converge |",
         "",
