@@ -65,6 +65,22 @@ class PolicyConfig:
 
 
 @dataclass
+class RefineConfig:
+    """Perception trained further on the state policy's own episodes (thesis §4.5.2: "the data from the
+    random policy and any episodes collected using the simulator are used to train the perception
+    network"): random walks rarely show the poses a good policy visits."""
+
+    episodes: int = 0  # 0: no refinement
+    epochs: int = 10
+    action_noise: float = 0.2  # Gaussian noise on the policy's actions, for varied views
+
+    def __post_init__(self) -> None:
+        check_range("refine.episodes", self.episodes, 0, 1_000_000, integer=True)
+        check_range("refine.epochs", self.epochs, 1, 10_000, integer=True)
+        check_range("refine.action_noise", self.action_noise, 0.0, 2.0)
+
+
+@dataclass
 class AprilEval:
     episodes: int = 100
     seed: int = 20_000
@@ -85,6 +101,7 @@ class AprilConfig:
     perception: PerceptionConfig = field(default_factory=PerceptionConfig)
     perception_training: PerceptionTraining = field(default_factory=PerceptionTraining)
     policy: PolicyConfig = field(default_factory=PolicyConfig)
+    refine: RefineConfig = field(default_factory=RefineConfig)
     eval: AprilEval = field(default_factory=AprilEval)
 
     def __post_init__(self) -> None:
@@ -101,6 +118,8 @@ class AprilConfig:
                               f"perception.conditioned == perception.latent (m={m}, n={n}) and omega > 0")
         if self.policy.mode == "state_plus_latent" and m == n:
             raise ConfigError("policy.mode state_plus_latent needs free latent features: perception.conditioned < latent")
+        if self.refine.episodes and self.policy.mode == "latent" and not self.policy.pretrain:
+            raise ConfigError("refine rolls the state policy: it needs policy.mode semantic, state_plus_latent, or pretrain: true")
         if self.policy.mode != "latent" or self.policy.pretrain:
             if not Path(self.policy.rl_config).is_file():
                 raise ConfigError(f"policy.rl_config: no such file {self.policy.rl_config!r}")

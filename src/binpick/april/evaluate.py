@@ -56,8 +56,7 @@ def evaluate_rows(run: AprilRun, show_progress: bool = True) -> dict[str, Any]:
     from binpick.viz.april import plot_goal_heatmap
 
     episodes, seed = run.config.eval.episodes, run.config.eval.seed
-    collected = run.stages["collect"]["sim_episodes"]
-    policy_episodes = run.stages["policy"]["sim_episodes"]
+    used = run.sim_episodes
     rows = {}
     with _progress("evaluate", show_progress) as progress:
         for runtime_input, name in row_names(run).items():
@@ -70,7 +69,7 @@ def evaluate_rows(run: AprilRun, show_progress: bool = True) -> dict[str, Any]:
             plot_goal_heatmap(goals, np.asarray(result.lengths), run.run_dir / f"heatmap_{name}.png",
                               title=f"{run.config.name}: {name}")
             # simulator episodes the row needed: the state row never used the image episodes
-            used = policy_episodes + (0 if runtime_input == "state" else collected)
+            needed = used["state_policy"] + (0 if runtime_input == "state" else used["images"] + used["latent_policy"])
             rows[name] = {"avg_actions": result.mean_length, "std": result.std_length, "success": result.success_rate,
-                          "sim_episodes": int(used), "episodes": episodes}
+                          "sim_episodes": int(needed), "episodes": episodes}
     return rows

@@ -2,8 +2,10 @@
 
     collect     random-policy episodes: images and the semantic state s̄ (data/random.npz)
     perception  the AE / VAE trained on them (perception.pt, reconstructions.png)
-    policy      the policy: on s̄ with GP + HER (an ordinary binpick RL run under rl/), and for latent
-                modes SAC fine-tuning on φ_enc(I) in the simulator (policy_latent.zip)
+    policy      the state policy: on s̄ with GP + HER (an ordinary binpick RL run under rl/)
+    refine      optional: perception trained further on the state policy's episodes (data/policy.npz)
+    finetune    latent modes: SAC on φ_enc(I) in the simulator, widened from the state policy
+                (policy_latent.zip)
     evaluate    average actions, success and simulator episodes per row; Fig 4.7 heat maps
 
 Each finished stage is recorded in ``stages.json`` (replaced atomically); after a crash ``run``
@@ -30,7 +32,7 @@ from binpick.config import from_dict, load_yaml, to_dict
 from binpick.errors import ConfigError
 from binpick.rl.checkpoints import new_run_dir
 
-STAGES = ("collect", "perception", "policy", "evaluate")
+STAGES = ("collect", "perception", "policy", "refine", "finetune", "evaluate")
 console = Console(stderr=True)
 
 
@@ -143,15 +145,23 @@ class AprilRun:
 
     def stage_policy(self, show_progress: bool) -> dict[str, Any]:
         policy = self.config.policy
-        result: dict[str, Any] = {"sim_episodes": 0, "sim_steps": 0}
         if policy.mode != "latent" or policy.pretrain:
-            result.update(self._semantic_policy(show_progress))
-        if policy.mode != "semantic":
-            latent = self._latent_policy(show_progress, result.get("semantic_run"))
-            result["sim_episodes"] += latent["sim_episodes"]
-            result["sim_steps"] += latent["sim_steps"]
-            result["finetune"] = latent
-        return result
+            return self._semantic_policy(show_progress)
+        return {"sim_episodes": 0, "sim_steps": 0}
+
+    def stage_finetune(self, show_progress: bool) -> dict[str, Any]:
+        if "finetune" in self.stages["policy"]:  # runs made before this was a stage of its own
+            return self.stages["policy"]["finetune"]
+        if self.config.policy.mode == "semantic":
+            return {"sim_episodes": 0, "sim_steps": 0}
+        return self._latent_policy(show_progress, self.stages["policy"].get("semantic_run"))
+
+    @property
+    def sim_episodes(self) -> dict[str, int]:
+        """Simulator episodes by use: images for perception, the state policy, the latent policy."""
+        return {"images": self.stages["collect"]["sim_episodes"] + self.stages.get("refine", {}).get("sim_episodes", 0),
+                "state_policy": self.stages["policy"]["sim_episodes"] - self.stages["policy"].get("finetune", {}).get("sim_episodes", 0),
+                "latent_policy": self.stages.get("finetune", {}).get("sim_episodes", 0)}
 
     def _semantic_policy(self, show_progress: bool) -> dict[str, Any]:
         """Eq 4.8: the policy learns on ground-truth s̄ with the cheap tools of chapter 3 (GP + HER)."""
@@ -183,6 +193,54 @@ class AprilRun:
         from binpick.april.finetune import finetune_latent_policy
 
         return finetune_latent_policy(self, semantic_run, show_progress)
+
+    def stage_refine(self, show_progress: bool) -> dict[str, Any]:
+        """Episodes of the state policy (noisy actions, true state in, images recorded), then more
+        perception epochs on random + policy images. Runs before any latent fine-tuning reads φ_enc."""
+        from binpick.april.finetune import with_action_scale
+        from binpick.perception import load_perception, save_perception, train_perception
+        from binpick.rl.config import load_config
+        from binpick.rl.train import load_policy
+        from binpick.rl.wrappers import semantic_part
+
+        refine = self.config.refine
+        if not refine.episodes:
+            return {"sim_episodes": 0}
+        policy, _ = load_policy(Path(self.stages["policy"]["semantic_run"]))
+        env = with_action_scale(self.make_env(), load_config(self.config.policy.rl_config).min_action_scale)
+        rng = np.random.default_rng(self.config.seed + 7)
+        images, states = [], []
+        with _progress("refine: policy episodes", show_progress) as progress:
+            task = progress.add_task("refine", total=refine.episodes, status="")
+            for episode in range(refine.episodes):
+                raw, _ = env.reset(seed=self.config.collect.seed + 100_000 + episode)
+                done = False
+                while not done:
+                    images.append(raw["image"])
+                    states.append(semantic_state(raw, self.gripper))
+                    inputs = {"observation": semantic_part(raw, self.gripper), "achieved_goal": raw["achieved_goal"],
+                              "desired_goal": raw["desired_goal"]}
+                    action = policy.predict(inputs, deterministic=True)[0]
+                    action = np.clip(action + rng.normal(0, refine.action_noise, action.shape), -1, 1)
+                    raw, _, terminated, truncated, _ = env.step(action)
+                    done = terminated or truncated
+                images.append(raw["image"])
+                states.append(semantic_state(raw, self.gripper))
+                progress.update(task, advance=1, status=f"{len(images):,} images")
+        env.close()
+        np.savez(self.run_dir / "data" / "policy.tmp.npz", images=np.stack(images), states=np.stack(states))
+        os.replace(self.run_dir / "data" / "policy.tmp.npz", self.run_dir / "data" / "policy.npz")
+        random = np.load(self.run_dir / "data" / "random.npz")
+        all_images = np.concatenate([random["images"], np.stack(images)])
+        all_states = np.concatenate([random["states"], np.stack(states)])
+        training = self.config.perception_training
+        model, history = train_perception(self.config.perception, all_images, all_states, epochs=refine.epochs,
+                                          batch_size=training.batch_size, learning_rate=training.learning_rate,
+                                          seed=self.config.seed + 1, show_progress=show_progress,
+                                          initial=load_perception(self.run_dir / "perception.pt"))
+        save_perception(model, self.run_dir / "perception.pt")
+        _write_json(self.run_dir / "refine_history.json", history)
+        return {"sim_episodes": refine.episodes, "images": len(images), "state_mae": history["epochs"][-1]["state_mae"]}
 
     def stage_evaluate(self, show_progress: bool) -> dict[str, Any]:
         from binpick.april.evaluate import evaluate_rows

@@ -29,8 +29,12 @@ def train_perception(
     learning_rate: float = 1e-3,
     seed: int = 0,
     show_progress: bool = True,
+    initial: AutoPerception | None = None,
 ) -> tuple[AutoPerception, dict[str, Any]]:
-    """A network trained on ``images`` (N, H, W, C) uint8 and ``states`` (N, d); returns it and its history."""
+    """A network trained on ``images`` (N, H, W, C) uint8 and ``states`` (N, d); returns it and its history.
+
+    With ``initial`` training continues from that network (and keeps its state statistics).
+    """
     if len(images) != len(states) or len(images) < 2:
         raise ConfigError(f"perception training needs matching images and states, got {len(images)} and {len(states)}")
     torch.manual_seed(seed)
@@ -38,8 +42,11 @@ def train_perception(
     order = rng.permutation(len(images))
     held_out = order[: max(1, len(images) // 10)]
     train = order[len(held_out):]
-    model = AutoPerception(config, images.shape[1:], states.shape[1])
-    model.set_state_statistics(states[train])
+    if initial is None:
+        model = AutoPerception(config, images.shape[1:], states.shape[1])
+        model.set_state_statistics(states[train])
+    else:
+        model = initial
     optimizer = torch.optim.Adam(model.parameters(), lr=learning_rate)
     history: dict[str, Any] = {"epochs": [], "train_images": len(train), "held_out_images": len(held_out)}
     steps_per_epoch = max(1, len(train) // batch_size)
