@@ -43,7 +43,7 @@ def deployment_env(run: AprilRun, runtime_input: str):
 def row_names(run: AprilRun) -> dict[str, str]:
     """Runtime input -> the results row name (what the row is, e.g. pixels_ae_n6_m6_w1.0)."""
     p = run.config.perception
-    pixels = f"pixels_{p.kind}_n{p.latent}_m{p.conditioned}_w{p.omega:g}"
+    pixels = f"pixels_{p.kind}_n{p.latent}_m{p.conditioned}_w{p.omega:g}" + ("_refined" if run.config.refine.episodes else "")
     if run.config.policy.mode == "semantic":
         return {"state": "ground_truth", "pixels": pixels}
     if run.config.policy.mode == "state_plus_latent":
