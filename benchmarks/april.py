@@ -26,7 +26,7 @@ from binpick.april import AprilRun, load_april_config  # noqa: E402
 CONFIGS = {
     "FetchReach": ["april_fetchreach_w1.0", "april_fetchreach_w1.0_refined", "april_fetchreach_w0.5",
                    "april_fetchreach_w0.0"],
-    "Reacher": ["reacher_random", "april_reacher_n4_m4", "april_reacher_n8_unconditioned"],
+    "Reacher": ["reacher_random", "april_reacher_n4_m4", "april_reacher_n4_m4_refined", "april_reacher_n8_unconditioned"],
     "FetchPickAndPlace": ["pickandplace_heuristic"],
     "FetchReachObstacle": ["april_obstacle_n6_m6", "april_obstacle_n8_m6", "april_obstacle_unconditioned",
                            "april_obstacle_gt_plus_latent"],
