@@ -122,6 +122,8 @@ def main() -> None:
                               for row, values in rows.items()})
         IMAGES.mkdir(parents=True, exist_ok=True)
         for picture in run.run_dir.glob("*.png"):
+            if picture.name == "heatmap_ground_truth.png" and name != GROUND_TRUTH_FROM.get(env):
+                continue  # the shared state policy's heat map is the ground-truth config's
             shutil.copy(picture, IMAGES / f"{name}_{picture.name}")
         print(name, json.dumps(rows), flush=True)
     lines = ["## APRiL: train on state, deploy on pixels (issue 4, Tables 4.2-4.5)", "",
