@@ -121,12 +121,12 @@ def _latent_policy_widened_from_the_shared_state_policy(first_run, tmp_path):
                       .replace("eval:", "refine: {episodes: 2, epochs: 1}\neval:"))
     run = AprilRun.new(load_april_config(config), tmp_path / "runs")
     rows = run.run(show_progress=False)["rows"]
-    assert list(rows) == ["pixels_vae_n8_m6_w1"] and not (run.run_dir / "rl").exists()
+    assert list(rows) == ["pixels_vae_n8_m6_w1_refined"] and not (run.run_dir / "rl").exists()
     assert run.stages["policy"]["semantic_run"] == state_run
     assert run.stages["finetune"]["widened"] and run.stages["finetune"]["sim_steps"] == 60
     # refine: perception trained further on the state policy's episodes, counted in the row
     assert run.stages["refine"]["sim_episodes"] == 2 and (run.run_dir / "data" / "policy.npz").is_file()
-    assert rows["pixels_vae_n8_m6_w1"]["sim_episodes"] == 2 + 2 + run.sim_episodes["state_policy"] + run.stages["finetune"]["sim_episodes"]
+    assert rows["pixels_vae_n8_m6_w1_refined"]["sim_episodes"] == 2 + 2 + run.sim_episodes["state_policy"] + run.stages["finetune"]["sim_episodes"]
     assert Policy.load(run.run_dir).model.observation_space.shape == (8,)
 
 
