@@ -129,7 +129,9 @@ def main() -> None:
     lines = ["## APRiL: train on state, deploy on pixels (issue 4, Tables 4.2-4.5)", "",
              "Average actions per episode (T = 50; pick and place T = 100) over seeded evaluation episodes; simulator episodes = "
              "training episodes the row needed (random-policy image episodes for perception + RL episodes; "
-             "evaluation episodes not counted). `python benchmarks/april.py` → `results/april.json`.", ""]
+             "evaluation episodes not counted). Rows ending `_refined` had perception trained further on 100 noisy "
+             "episodes of the state policy (`refine:`). `python benchmarks/april.py` → `results/april.json`; "
+             "reconstructions and heat maps in `docs/img/april/`.", ""]
     for env, (table, thesis) in THESIS.items():
         rows = results.get(env, {})
         lines += [f"### {env} (thesis Table {table})", "", "| runtime input | ours | success | simulator episodes | thesis |",
