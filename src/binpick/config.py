@@ -155,3 +155,9 @@ def _convert(hint: Any, value: Any, where: str) -> Any:
             raise ConfigError(f"{where} must be a mapping, got {value!r}")
         return dict(value)
     return value
+
+
+def load_run_config(cls: type[T], run_dir: str | Path) -> T:
+    """The validated config a run folder was started with (``run_dir/config.yaml``)."""
+    path = Path(run_dir) / "config.yaml"
+    return from_dict(cls, load_yaml(path), where=str(path))

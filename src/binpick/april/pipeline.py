@@ -28,7 +28,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from binpick.april.config import AprilConfig
 from binpick.april.observations import semantic_state
-from binpick.config import from_dict, load_yaml, to_dict
+from binpick.config import load_run_config, to_dict
 from binpick.errors import ConfigError
 from binpick.rl.checkpoints import new_run_dir
 
@@ -64,7 +64,7 @@ class AprilRun:
         run_dir = Path(run_dir)
         if not (run_dir / "config.yaml").is_file():
             raise ConfigError(f"{str(run_dir)!r} is not an APRiL run folder (no config.yaml)")
-        return cls(from_dict(AprilConfig, load_yaml(run_dir / "config.yaml"), where=str(run_dir / "config.yaml")), run_dir)
+        return cls(load_run_config(AprilConfig, run_dir), run_dir)
 
     @property
     def gripper(self) -> bool:

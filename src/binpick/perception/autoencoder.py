@@ -148,10 +148,7 @@ class AutoPerception(nn.Module):
     @torch.no_grad()
     def encode(self, images) -> np.ndarray:
         """φ_enc(I): (B, n) with the conditioned part in the semantic state's units (the VAE gives μ)."""
-        was_training = self.training
-        self.eval()
         _, mu, _ = self(images, sample=False)
-        self.train(was_training)
         m = self.config.conditioned
         semantic = mu[:, :m] * self.state_std + self.state_mean
         return torch.cat([semantic, mu[:, m:]], dim=1).numpy()
@@ -159,9 +156,6 @@ class AutoPerception(nn.Module):
     @torch.no_grad()
     def reconstruct(self, images) -> np.ndarray:
         """φ_dec(φ_enc(I)) as uint8 images (B, H, W, C), for reconstruction grids."""
-        was_training = self.training
-        self.eval()
-        latent, _, _ = self(images, sample=False)
-        self.train(was_training)
+        latent, _, _ = self(images, sample=False)  # no dropout or batch norm: sample=False is deterministic
         pixels = self.decode(latent).permute(0, 2, 3, 1).clamp(0, 1) * 255
         return pixels.round().to(torch.uint8).numpy()

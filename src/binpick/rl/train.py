@@ -23,7 +23,7 @@ from stable_baselines3 import DQN, SAC, HerReplayBuffer
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 
-from binpick.config import from_dict, load_yaml, to_dict
+from binpick.config import load_run_config, to_dict
 from binpick.envs import make
 from binpick.errors import ConfigError
 from binpick.rl.agents import GoalSAC, GPImagination
@@ -212,7 +212,7 @@ class Trainer:
     @classmethod
     def resume(cls, run_dir: Path) -> Trainer:
         run_dir = Path(run_dir)
-        config = from_dict(RLConfig, load_yaml(run_dir / "config.yaml"), where=str(run_dir / "config.yaml"))
+        config = load_run_config(RLConfig, run_dir)
         trainer = cls(config, run_dir)
         trainer.load_checkpoint()
         return trainer
@@ -310,7 +310,7 @@ MODEL_CLASSES = {"sac": GoalSAC, "sb3_sac_her": SAC, "dqn": DQN}
 def trainer_for(config: RLConfig | None = None, runs_root: Path = Path("runs"), resume: Path | None = None):
     """A new trainer for ``config``, or the one that continues run folder ``resume``."""
     if resume is not None:
-        config = from_dict(RLConfig, load_yaml(Path(resume) / "config.yaml"), where=str(Path(resume) / "config.yaml"))
+        config = load_run_config(RLConfig, resume)
     if config.algorithm == "a3c":
         from binpick.rl.a3c_train import A3CTrainer
 
@@ -327,7 +327,7 @@ def load_policy(run_dir: Path, env_id: str | None = None):
     run_dir = Path(run_dir)
     if not (run_dir / "config.yaml").is_file():
         raise ConfigError(f"{str(run_dir)!r} is not a run folder (no config.yaml)")
-    config = from_dict(RLConfig, load_yaml(run_dir / "config.yaml"), where=str(run_dir / "config.yaml"))
+    config = load_run_config(RLConfig, run_dir)
     if env_id is not None:
         from binpick.envs import resolve_env_id
 
