@@ -27,13 +27,15 @@ CONFIGS = {
     "FetchReach": ["april_fetchreach_w1.0", "april_fetchreach_w1.0_refined", "april_fetchreach_w0.5",
                    "april_fetchreach_w0.0"],
     "Reacher": ["reacher_random", "april_reacher_n4_m4", "april_reacher_n4_m4_refined", "april_reacher_n8_unconditioned"],
-    "FetchPickAndPlace": ["pickandplace_heuristic"],
+    "FetchPickAndPlace": ["pickandplace_heuristic", "april_pickandplace_ae_n9_m9", "april_pickandplace_ae_n16_m9",
+                          "april_pickandplace_vae_n16_m9", "april_pickandplace_gt_plus_latent_ae",
+                          "april_pickandplace_gt_plus_latent_vae"],
     "FetchReachObstacle": ["april_obstacle_n6_m6", "april_obstacle_n8_m6", "april_obstacle_unconditioned",
                            "april_obstacle_gt_plus_latent"],
 }
 # each table's ground-truth row comes from one config; the others train the same state policy again
 GROUND_TRUTH_FROM = {"FetchReach": "april_fetchreach_w1.0", "Reacher": "april_reacher_n4_m4",
-                     "FetchReachObstacle": "april_obstacle_n6_m6"}
+                     "FetchReachObstacle": "april_obstacle_n6_m6", "FetchPickAndPlace": "april_pickandplace_ae_n9_m9"}
 THESIS = {  # (table, {row: thesis average actions})
     "Reacher": ("4.2", {"random": 49.46, "ground_truth": 31.02, "pixels_ae_n8_m0_w0": 44.30, "pixels_ae_n4_m4_w1": 35.02}),
     "FetchReach": ("4.3", {"ground_truth": 3.10, "pixels_ae_n6_m6_w1": 12.42, "pixels_ae_n6_m6_w0.5": 17.06,

@@ -193,3 +193,89 @@ eval: {every: 1000, episodes: 1}
     assert metrics["demo_episodes"] == 4 and metrics["sim_episodes"] >= 4
     with pytest.raises(ConfigError, match="GP models the gripper alone"):
         from_dict(RLConfig, {"env": "FetchPickAndPlace", "gp": {"enabled": True}})
+
+
+def test_cloning_goes_on_during_rl_q_filtered_and_survives_a_resume(tmp_path):
+    """Pick and place: σ fitted to the demonstrations, Q-filtered cloning in every SAC update, kept
+    in the checkpoint so a resumed run still clones."""
+    import torch
+    import yaml
+
+    from binpick.config import from_dict
+    from binpick.rl.config import RLConfig
+    from binpick.rl.demonstrations import cloning_loss
+    from binpick.rl.train import Trainer, trainer_for
+
+    config = from_dict(RLConfig, yaml.safe_load("""
+name: tiny_pnp_bc
+env: FetchPickAndPlace
+algorithm: sac
+total_timesteps: 60
+checkpoint_every: 30
+replay: {capacity_episodes: 100, her_additions: 1, start_fraction: 0.01}
+sac: {batch_size: 32, net_arch: [32, 32], learning_starts: 0, ent_coef: auto_0.01}
+demonstrations: {episodes: 3, bc_steps: 1500, noise: 0.1, likelihood_weight: 0.1, bc_alpha: 2.5, critic_steps: 20, q_filter: true}
+eval: {every: 1000, episodes: 1}
+"""))
+    trainer = trainer_for(config, tmp_path)
+    demo_states = None
+
+    def spread() -> float:  # the actor's exploration σ on the demonstrated states
+        tensor, _ = trainer.model.policy.obs_to_tensor(demo_states)
+        return float(trainer.model.actor.get_action_dist_params(tensor)[1].exp()[:, :3].mean())  # the moves
+
+    trainer.learn_from_demonstrations()
+    demonstrations = trainer.model.demonstrations
+    assert demonstrations is not None and len(demonstrations) == trainer.metrics.demo_steps
+    demo_states, demo_actions = demonstrations.sample(np.random.default_rng(0), 64)
+    assert np.all(np.abs(demo_actions) <= 1.0)
+    assert spread() < 0.6, spread()  # an untouched actor explores with σ ≈ 1
+
+    class Critic:  # rates the demonstrated action above anything else, or below
+        def __init__(self, prefer_demo: bool) -> None:
+            self.prefer_demo = prefer_demo
+
+        def __call__(self, observation, action):
+            distance = ((action - torch.as_tensor(demo_actions)) ** 2).sum(dim=1, keepdim=True)
+            return (-distance if self.prefer_demo else distance,)
+
+    fake = type("Fake", (), {"policy": trainer.model.policy, "actor": trainer.model.actor})()
+    fake.critic = Critic(prefer_demo=True)
+    kept, mse = cloning_loss(fake, demo_states, demo_actions, q_filter=True)
+    fake.critic = Critic(prefer_demo=False)
+    dropped, _ = cloning_loss(fake, demo_states, demo_actions, q_filter=True)
+    assert float(kept) == pytest.approx(float(mse)) and float(mse) > 0 and float(dropped) == 0.0
+
+    metrics = trainer.run(show_progress=False)
+    assert metrics["sim_steps"] == 60 and trainer.model._n_updates > 0
+    resumed = Trainer.resume(trainer.run_dir)
+    assert resumed.model.bc_alpha == 2.5 and resumed.model.bc_q_filter and resumed.model.bc_likelihood_weight == 0.1
+    assert len(resumed.model.demonstrations) == len(demonstrations)
+
+
+def test_pick_and_place_images_come_from_the_heuristic_so_the_object_moves(tmp_path):
+    """A random arm almost never moves the object; perception must also see it lifted (§4.5.3)."""
+    import yaml
+
+    from binpick.april import AprilRun
+    from binpick.april.config import AprilConfig
+    from binpick.config import from_dict
+
+    config = from_dict(AprilConfig, yaml.safe_load("""
+name: tiny_pnp_collect
+env: FetchPickAndPlace
+image: rgb
+collect: {episodes: 2, policy: heuristic, noise: 0.0}
+perception: {kind: ae, latent: 9, conditioned: 9, channels: 4}
+policy: {mode: latent, pretrain: false}
+"""))
+    run = AprilRun.new(config, tmp_path)
+    result = run.stage_collect(show_progress=False)
+    assert result["policy"] == "heuristic" and result["sim_episodes"] == 2
+    states = np.load(run.run_dir / "data" / "random.npz")["states"]
+    assert states.shape[1] == 9  # gripper, object, goal
+    lift = states[:, 5].max() - states[0, 5]  # the object's height over its start
+    assert lift > 0.03, lift
+    with pytest.raises(ConfigError, match="collect.policy heuristic is the pick-and-place script"):
+        from_dict(AprilConfig, {"env": "FetchReach", "collect": {"policy": "heuristic"}, "policy": {"mode": "latent", "pretrain": False},
+                                "perception": {"latent": 6, "conditioned": 0, "omega": 0.0}})

@@ -91,6 +91,8 @@ def test_killed_run_resumes_from_its_last_checkpoint(tmp_path):
         ({"replay": {"capacity_episodes": 10}, "sac": {"batch_size": 64}}, "(M=10) must be >= sac.batch_size (64)"),
         ({"gp": {"iterations": "many"}}, "gp.iterations must be an integer"),
         ({"env": "Nope"}, "unknown env id 'Nope'"),
+        ({"sac": {"ent_coef": "autox"}}, "sac.ent_coef must be a number, 'auto' or 'auto_<value>'"),
+        ({"demonstrations": {"bc_alpha": -1}}, "demonstrations.bc_alpha"),
     ],
 )
 def test_bad_configs_name_the_key(data, fragment):

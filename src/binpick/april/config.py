@@ -18,13 +18,18 @@ POLICY_MODES = ("semantic", "latent", "state_plus_latent")
 
 @dataclass
 class CollectConfig:
-    """Random-policy episodes with images and semantic state (thesis §4.2)."""
+    """Episodes with images and semantic state for perception (thesis §4.2): a random policy, or for
+    pick and place the scripted heuristic (§4.5.3), since random arms almost never move the object."""
 
     episodes: int = 200
     seed: int = 0
+    policy: str = "random"  # random | heuristic (pick and place only)
+    noise: float = 0.2  # heuristic: Gaussian noise on its moves, so the images cover more states
 
     def __post_init__(self) -> None:
         check_range("collect.episodes", self.episodes, 2, 1_000_000, integer=True)
+        check_choice("collect.policy", self.policy, ["random", "heuristic"])
+        check_range("collect.noise", self.noise, 0.0, 1.0)
 
 
 @dataclass
@@ -109,6 +114,8 @@ class AprilConfig:
 
         self.env = check_choice("env", resolve_env_id(self.env), ENVS)
         check_choice("image", self.image, ["rgb", "grey"])
+        if self.collect.policy == "heuristic" and self.env != "binpick/FetchPickAndPlace-v0":
+            raise ConfigError(f"collect.policy heuristic is the pick-and-place script; {self.env} collects with random")
         check_range("image_size", self.image_size, 64, 512, integer=True)
         if self.image_size % 64:
             raise ConfigError(f"image_size must be a multiple of 64 (6 stride-2 layers), got {self.image_size}")

@@ -73,8 +73,9 @@ def widen_from_semantic(semantic: SAC, latent: SAC, goal_dim: int) -> None:
             if not name.startswith("0."):
                 new_q.state_dict()[name].copy_(parameter)
     latent.policy.critic_target.load_state_dict(latent.policy.critic.state_dict())
-    with torch.no_grad():
-        latent.log_ent_coef.copy_(semantic.log_ent_coef)
+    if getattr(semantic, "log_ent_coef", None) is not None and getattr(latent, "log_ent_coef", None) is not None:
+        with torch.no_grad():  # a learnt entropy weight carries over; a fixed one is set by the config
+            latent.log_ent_coef.copy_(semantic.log_ent_coef)
 
 
 class _Progress(BaseCallback):
@@ -104,7 +105,7 @@ def finetune_latent_policy(run: AprilRun, semantic_run: str | None, show_progres
                             rl_settings.min_action_scale)
     settings = rl_settings.sac
     model = SAC("MlpPolicy", env, learning_rate=settings.learning_rate, batch_size=settings.batch_size,
-                gamma=settings.gamma, tau=settings.tau, learning_starts=policy.learning_starts,
+                gamma=settings.gamma, tau=settings.tau, learning_starts=policy.learning_starts, ent_coef=settings.ent_coef,
                 policy_kwargs={"net_arch": list(settings.net_arch)}, seed=config.seed, device="cpu",
                 tensorboard_log=str(run.run_dir / "tb"))
     if semantic_run is not None:

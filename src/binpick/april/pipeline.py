@@ -1,6 +1,6 @@
 """The APRiL pipeline (thesis §4.2, Fig 4.2), one resumable stage at a time.
 
-    collect     random-policy episodes: images and the semantic state s̄ (data/random.npz)
+    collect     random-policy (or heuristic) episodes: images and the semantic state s̄ (data/random.npz)
     perception  the AE / VAE trained on them (perception.pt, reconstructions.png)
     policy      the state policy: on s̄ with GP + HER (an ordinary binpick RL run under rl/)
     refine      optional: perception trained further on the state policy's episodes (data/policy.npz)
@@ -98,19 +98,27 @@ class AprilRun:
 
     # ------------------------------------------------------------------ stages
     def stage_collect(self, show_progress: bool) -> dict[str, Any]:
-        """Random-policy episodes; every observation's image and s̄ (the reset one included)."""
+        """Random-policy (or heuristic) episodes; every observation's image and s̄ (the reset one included)."""
+        collect = self.config.collect
         env = self.make_env()
-        env.action_space.seed(self.config.collect.seed)
+        env.action_space.seed(collect.seed)
+        if collect.policy == "heuristic":
+            from binpick.april.heuristic import PickAndPlaceHeuristic
+
+            heuristic = PickAndPlaceHeuristic(noise=collect.noise, seed=collect.seed)
+            act = lambda: heuristic(env.unwrapped._get_obs())  # noqa: E731
+        else:
+            act = env.action_space.sample
         images, states, steps = [], [], 0
         with _progress("collect", show_progress) as progress:
-            task = progress.add_task("collect", total=self.config.collect.episodes, status="random policy")
-            for episode in range(self.config.collect.episodes):
-                observation, _ = env.reset(seed=self.config.collect.seed + episode)
+            task = progress.add_task("collect", total=collect.episodes, status=f"{collect.policy} policy")
+            for episode in range(collect.episodes):
+                observation, _ = env.reset(seed=collect.seed + episode)
                 images.append(observation["image"])
                 states.append(semantic_state(observation, self.gripper))
                 done = False
                 while not done:
-                    observation, _, terminated, truncated, _ = env.step(env.action_space.sample())
+                    observation, _, terminated, truncated, _ = env.step(act())
                     images.append(observation["image"])
                     states.append(semantic_state(observation, self.gripper))
                     steps += 1
@@ -122,7 +130,7 @@ class AprilRun:
         temporary = path.with_name("random.tmp.npz")
         np.savez(temporary, images=np.stack(images), states=np.stack(states))
         os.replace(temporary, path)
-        return {"sim_episodes": self.config.collect.episodes, "sim_steps": steps, "images": len(images)}
+        return {"sim_episodes": collect.episodes, "sim_steps": steps, "images": len(images), "policy": collect.policy}
 
     def stage_perception(self, show_progress: bool) -> dict[str, Any]:
         from binpick.perception import save_perception, train_perception

@@ -68,18 +68,21 @@ def train_perception(
                     sums[key] += float(losses[key].detach()) / steps_per_epoch
             row = {"epoch": epoch + 1, **sums, **held_out_error(model, images[held_out], states[held_out])}
             history["epochs"].append(row)
-            status = f"L_recon {sums['recon']:.4f} · held-out s̄ error {row['state_mae']:.4f}"
+            status = f"L_recon {sums['recon']:.4f}"
+            if row["state_mae"] is not None:
+                status += f" · held-out s̄ error {row['state_mae']:.4f}"
             progress.update(task, advance=1, status=status)
             if show_progress:
                 progress.console.print(f"perception epoch {epoch + 1}/{epochs}: {status}")
     return model, history
 
 
-def held_out_error(model: AutoPerception, images: np.ndarray, states: np.ndarray) -> dict[str, float]:
-    """Mean absolute error of φ_enc(I)^{1:m} against s̄ on images the network did not train on."""
+def held_out_error(model: AutoPerception, images: np.ndarray, states: np.ndarray) -> dict[str, float | None]:
+    """Mean absolute error of φ_enc(I)^{1:m} against s̄ on images the network did not train on
+    (None when nothing is conditioned, m = 0: JSON has no NaN)."""
     m = model.config.conditioned
     if not m:
-        return {"state_mae": float("nan")}
+        return {"state_mae": None}
     predicted = np.concatenate([model.encode(images[i:i + 256]) for i in range(0, len(images), 256)])
     return {"state_mae": float(np.abs(predicted[:, :m] - states[:, :m]).mean())}
 

@@ -11,23 +11,106 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+import torch
+import torch.nn.functional as F
 from stable_baselines3 import SAC
+from stable_baselines3.common.utils import polyak_update
 from stable_baselines3.common.callbacks import BaseCallback
 
 from binpick.config import check_range
 from binpick.rl.dynamics import GPDynamics
 from binpick.rl.imagination import imagine_episodes
+from binpick.rl.demonstrations import DemonstrationSet, cloning_loss
 from binpick.rl.replay import Episode, EpisodeReplayBuffer
 
 
 class GoalSAC(SAC):
-    """SAC that trains only once its :class:`EpisodeReplayBuffer` is ``start_fraction`` full."""
+    """SAC that trains only once its :class:`EpisodeReplayBuffer` is ``start_fraction`` full.
+
+    With ``demonstrations`` and ``bc_alpha`` > 0 (pick and place, thesis §4.5.3) the actor keeps a
+    Q-filtered behaviour-cloning term while it learns: plain SAC forgets a cloned policy within a few
+    thousand steps, because its first actor updates follow a critic that knows nothing yet.
+    """
+
+    demonstrations: DemonstrationSet | None = None
+    bc_alpha: float = 0.0  # weight of the RL term against the cloning term (TD3+BC's α)
+    bc_likelihood_weight: float = 0.0  # keep fitting σ to the demonstrations (see behaviour_clone)
+    bc_q_filter: bool = False  # clone only where the critic prefers the demonstrated action
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
         buffer = self.replay_buffer
         if isinstance(buffer, EpisodeReplayBuffer) and not buffer.ready:
             return
-        super().train(gradient_steps, batch_size)
+        if self.demonstrations is None or not self.bc_alpha:
+            super().train(gradient_steps, batch_size)
+            return
+        self._train_with_demonstrations(gradient_steps, batch_size)
+
+    def pretrain_critic(self, gradient_steps: int, batch_size: int) -> None:
+        """Critic updates alone, the cloned actor held fixed: the first actor updates of RL then follow
+        a critic that already values the demonstrated behaviour instead of a random one."""
+        self._train_with_demonstrations(gradient_steps, batch_size, update_actor=False)
+
+    def _train_with_demonstrations(self, gradient_steps: int, batch_size: int, update_actor: bool = True) -> None:
+        """SB3's SAC update (critic, entropy weight, actor) with the actor loss of TD3+BC:
+        α · (ent · log π − Q) / mean|Q| + Q-filtered cloning, so the two terms keep comparable scales
+        (|Q| is at least 1: rewards are −1 per step, a smaller mean only means an untrained critic)."""
+        self.policy.set_training_mode(True)
+        optimizers = [self.actor.optimizer, self.critic.optimizer]
+        if self.ent_coef_optimizer is not None:
+            optimizers.append(self.ent_coef_optimizer)
+        if update_actor:  # before learn() there is no logger, and the learning rate is the initial one
+            self._update_learning_rate(optimizers)
+        rng = getattr(self, "_demo_rng", None) or np.random.default_rng(self._n_updates)
+        self._demo_rng = rng
+        logs: dict[str, list[float]] = {"actor_loss": [], "critic_loss": [], "ent_coef": [], "bc_loss": []}
+        for _ in range(gradient_steps):
+            data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)
+            actions_pi, log_prob = self.actor.action_log_prob(data.observations)
+            log_prob = log_prob.reshape(-1, 1)
+            if self.ent_coef_optimizer is not None and self.log_ent_coef is not None and update_actor:
+                ent_coef = torch.exp(self.log_ent_coef.detach())
+                ent_coef_loss = -(self.log_ent_coef * (log_prob + self.target_entropy).detach()).mean()
+                self.ent_coef_optimizer.zero_grad()
+                ent_coef_loss.backward()
+                self.ent_coef_optimizer.step()
+            elif self.log_ent_coef is not None:
+                ent_coef = torch.exp(self.log_ent_coef.detach())
+            else:
+                ent_coef = self.ent_coef_tensor
+            with torch.no_grad():
+                next_actions, next_log_prob = self.actor.action_log_prob(data.next_observations)
+                next_q = torch.min(torch.cat(self.critic_target(data.next_observations, next_actions), dim=1),
+                                   dim=1, keepdim=True).values
+                next_q = next_q - ent_coef * next_log_prob.reshape(-1, 1)
+                target_q = data.rewards + (1 - data.dones) * self.gamma * next_q
+            critic_loss = 0.5 * sum(F.mse_loss(q, target_q) for q in self.critic(data.observations, data.actions))
+            self.critic.optimizer.zero_grad()
+            critic_loss.backward()
+            self.critic.optimizer.step()
+            polyak_update(self.critic.parameters(), self.critic_target.parameters(), self.tau)
+            logs["critic_loss"].append(critic_loss.item())
+            if not update_actor:
+                continue
+            q_pi = torch.min(torch.cat(self.critic(data.observations, actions_pi), dim=1), dim=1, keepdim=True).values
+            rl_loss = (ent_coef * log_prob - q_pi).mean() / q_pi.abs().mean().detach().clamp(min=1.0)
+            bc_loss, _ = cloning_loss(self, *self.demonstrations.sample(rng, batch_size), self.bc_likelihood_weight,
+                                      self.bc_q_filter)
+            actor_loss = self.bc_alpha * rl_loss + bc_loss
+            self.actor.optimizer.zero_grad()
+            actor_loss.backward()
+            self.actor.optimizer.step()
+            for key, value in (("actor_loss", actor_loss), ("ent_coef", ent_coef), ("bc_loss", bc_loss)):
+                logs[key].append(value.item())
+        if not update_actor:
+            return
+        self._n_updates += gradient_steps
+        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
+        for key, values in logs.items():
+            self.logger.record(f"train/{key}", float(np.mean(values)))
+
+    def _excluded_save_params(self) -> list[str]:
+        return [*super()._excluded_save_params(), "_demo_rng"]
 
     def batch_policy(self, observation: dict[str, np.ndarray]) -> np.ndarray:
         """Exploring actions for a batch, in the [-1, 1] units the replay stores."""

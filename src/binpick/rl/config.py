@@ -65,9 +65,20 @@ class SACConfig:
     net_arch: list[int] = field(default_factory=lambda: [64, 64])
     gradient_steps: int = 1  # per simulator step
     learning_starts: int = 1000  # random-action simulator steps before learning
+    ent_coef: str | float = "auto"  # SB3's entropy weight: a number, "auto" or "auto_<initial value>"
 
     def __post_init__(self) -> None:
         check_range("sac.learning_rate", self.learning_rate, 0.0, 1.0, low_inclusive=False)
+        if isinstance(self.ent_coef, str):
+            try:
+                valid = self.ent_coef == "auto" or (self.ent_coef.startswith("auto_")
+                                                    and float(self.ent_coef[len("auto_"):]) > 0)
+            except ValueError:
+                valid = False
+            if not valid:
+                raise ConfigError(f"sac.ent_coef must be a number, 'auto' or 'auto_<value>', got {self.ent_coef!r}")
+        else:
+            check_range("sac.ent_coef", self.ent_coef, 0.0, 100.0)
         check_range("sac.batch_size", self.batch_size, 1, 1_000_000, integer=True)
         check_range("sac.gamma", self.gamma, 0.0, 1.0, high_inclusive=False)
         check_range("sac.tau", self.tau, 0.0, 1.0, low_inclusive=False)
@@ -108,11 +119,18 @@ class DemonstrationConfig:
     episodes: int = 0  # heuristic episodes (0: none)
     bc_steps: int = 2000  # actor gradient steps on their actions
     noise: float = 0.1  # Gaussian noise on the heuristic's moves, for varied demonstrations
+    likelihood_weight: float = 0.0  # > 0: also fit the actor's exploration σ to the demonstrations
+    bc_alpha: float = 0.0  # > 0: keep Q-filtered cloning during RL; weight of the RL term (TD3+BC's α)
+    critic_steps: int = 0  # with bc_alpha: critic-only updates on the demonstrations before RL starts
+    q_filter: bool = False  # with bc_alpha: clone only where the critic prefers the demonstrated action
 
     def __post_init__(self) -> None:
         check_range("demonstrations.episodes", self.episodes, 0, 1_000_000, integer=True)
         check_range("demonstrations.bc_steps", self.bc_steps, 0, 10_000_000, integer=True)
         check_range("demonstrations.noise", self.noise, 0.0, 1.0)
+        check_range("demonstrations.likelihood_weight", self.likelihood_weight, 0.0, 100.0)
+        check_range("demonstrations.bc_alpha", self.bc_alpha, 0.0, 1000.0)
+        check_range("demonstrations.critic_steps", self.critic_steps, 0, 10_000_000, integer=True)
 
 
 @dataclass

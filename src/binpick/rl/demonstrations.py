@@ -41,27 +41,68 @@ def collect_demonstrations(env: gym.Env, expert: Callable[[dict], np.ndarray], e
     return recorded, steps
 
 
-def behaviour_clone(model: SAC, episodes: list[Episode], steps: int, batch_size: int = 256, seed: int = 0) -> list[float]:
-    """Fit the SAC actor's deterministic action to the demonstrated ones (MSE); returns the losses."""
-    observation = np.concatenate([e.observation[:-1] for e in episodes])
-    achieved = np.concatenate([e.achieved_goal[:-1] for e in episodes])
-    desired = np.concatenate([np.repeat(e.desired_goal[None], e.length, 0) for e in episodes])
-    actions = torch.as_tensor(np.concatenate([e.actions for e in episodes]), dtype=torch.float32)
-    low, high = model.action_space.low, model.action_space.high
-    targets = 2.0 * (actions - torch.as_tensor(low)) / torch.as_tensor(high - low) - 1.0  # SAC acts in [-1, 1]
+MIN_LOG_STD = -3.0  # exploration noise learnt by behaviour cloning stays ≥ e^-3 ≈ 0.05 (pre-squash)
+
+
+class DemonstrationSet:
+    """The demonstrated (observation, action) pairs as arrays, actions in SAC's [-1, 1] units.
+
+    Kept on the model (saved with it) so that SAC can keep cloning them while it learns."""
+
+    def __init__(self, episodes: list[Episode], low: np.ndarray, high: np.ndarray) -> None:
+        self.observation = np.concatenate([e.observation[:-1] for e in episodes])
+        self.achieved_goal = np.concatenate([e.achieved_goal[:-1] for e in episodes])
+        self.desired_goal = np.concatenate([np.repeat(e.desired_goal[None], e.length, 0) for e in episodes])
+        actions = np.concatenate([e.actions for e in episodes])
+        self.actions = (2.0 * (actions - low) / (high - low) - 1.0).astype(np.float32)
+
+    def __len__(self) -> int:
+        return len(self.actions)
+
+    def sample(self, rng: np.random.Generator, batch_size: int) -> tuple[dict[str, np.ndarray], np.ndarray]:
+        batch = rng.integers(0, len(self), size=min(batch_size, len(self)))
+        return ({"observation": self.observation[batch], "achieved_goal": self.achieved_goal[batch],
+                 "desired_goal": self.desired_goal[batch]}, self.actions[batch])
+
+
+def behaviour_clone(model: SAC, demonstrations: DemonstrationSet, steps: int, batch_size: int = 256, seed: int = 0,
+                    likelihood_weight: float = 0.0) -> list[float]:
+    """Fit the SAC actor's deterministic action to the demonstrated ones (MSE) and, with
+    ``likelihood_weight`` > 0, its Gaussian's spread by maximum likelihood: an untouched actor explores
+    with σ ≈ 1, i.e. almost at random, and would throw the cloned behaviour away. Returns the MSE per step."""
     rng = np.random.default_rng(seed)
     losses = []
     for _ in range(steps):
-        batch = rng.integers(0, len(actions), size=min(batch_size, len(actions)))
-        inputs: dict[str, Any] = {"observation": observation[batch], "achieved_goal": achieved[batch],
-                                  "desired_goal": desired[batch]}
-        tensor, _ = model.policy.obs_to_tensor(inputs)
-        loss = torch.nn.functional.mse_loss(model.actor(tensor, deterministic=True), targets[batch])
+        inputs, targets = demonstrations.sample(rng, batch_size)
+        loss, mse = cloning_loss(model, inputs, targets, likelihood_weight)
         model.actor.optimizer.zero_grad()
         loss.backward()
         model.actor.optimizer.step()
-        losses.append(float(loss.detach()))
+        losses.append(float(mse.detach()))
     return losses
+
+
+def cloning_loss(model: SAC, inputs: dict[str, np.ndarray], targets: np.ndarray, likelihood_weight: float = 0.0,
+                 q_filter: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+    """Behaviour cloning of demonstrated actions: MSE of the deterministic action plus, weighted, the
+    Gaussian negative log-likelihood before the squash (which fits σ too). With ``q_filter`` (Nair et
+    al., 2018) a sample counts only where the critic rates the demonstrated action above the actor's
+    own, so the policy may outgrow the heuristic. Returns (loss, mean squared error)."""
+    tensor, _ = model.policy.obs_to_tensor(inputs)
+    target = torch.as_tensor(targets)
+    mean, log_std, _ = model.actor.get_action_dist_params(tensor)
+    squared = ((torch.tanh(mean) - target) ** 2).mean(dim=1)
+    per_sample = squared
+    if likelihood_weight:
+        log_std = log_std.clamp(min=MIN_LOG_STD)
+        gaussian = torch.atanh(target.clamp(-0.97, 0.97))
+        per_sample = per_sample + likelihood_weight * (0.5 * ((gaussian - mean) / log_std.exp()) ** 2 + log_std).mean(dim=1)
+    if q_filter:
+        with torch.no_grad():
+            q_demo = torch.min(torch.cat(model.critic(tensor, target), dim=1), dim=1).values
+            q_actor = torch.min(torch.cat(model.critic(tensor, torch.tanh(mean)), dim=1), dim=1).values
+            per_sample = per_sample * (q_demo > q_actor).float()
+    return per_sample.mean(), squared.mean()
 
 
 def add_demonstrations(buffer: EpisodeReplayBuffer, episodes: list[Episode]) -> None:

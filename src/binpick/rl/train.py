@@ -60,7 +60,8 @@ def build_model(config: RLConfig, env: gym.Env, tensorboard: str | None) -> Base
                    optimize_memory_usage=False, seed=config.seed, tensorboard_log=tensorboard, device="cpu")
     sac = config.sac
     common = dict(learning_rate=sac.learning_rate, batch_size=sac.batch_size, gamma=sac.gamma, tau=sac.tau,
-                  gradient_steps=sac.gradient_steps, learning_starts=sac.learning_starts, seed=config.seed,
+                  gradient_steps=sac.gradient_steps, learning_starts=sac.learning_starts, ent_coef=sac.ent_coef,
+                  seed=config.seed,
                   policy_kwargs={"net_arch": list(sac.net_arch)}, tensorboard_log=tensorboard, device="cpu")
     if config.algorithm == "sb3_sac_her":
         return SAC("MultiInputPolicy", env, replay_buffer_class=HerReplayBuffer,
@@ -255,13 +256,21 @@ class Trainer:
     def learn_from_demonstrations(self) -> None:
         """Thesis §4.5.3: heuristic episodes into the replay, then behaviour cloning of the actor."""
         from binpick.april.heuristic import PickAndPlaceHeuristic
-        from binpick.rl.demonstrations import add_demonstrations, behaviour_clone, collect_demonstrations
+        from binpick.rl.demonstrations import (DemonstrationSet, add_demonstrations, behaviour_clone,
+                                               collect_demonstrations)
 
         demos = self.config.demonstrations
         expert = PickAndPlaceHeuristic(noise=demos.noise, seed=self.config.seed)
         episodes, steps = collect_demonstrations(self.env, expert, demos.episodes, seed=self.config.seed + 500_000)
         add_demonstrations(self.model.replay_buffer, episodes)
-        losses = behaviour_clone(self.model, episodes, demos.bc_steps, self.config.sac.batch_size, self.config.seed)
+        demonstrations = DemonstrationSet(episodes, self.model.action_space.low, self.model.action_space.high)
+        losses = behaviour_clone(self.model, demonstrations, demos.bc_steps, self.config.sac.batch_size,
+                                 self.config.seed, demos.likelihood_weight)
+        if demos.bc_alpha:  # keep cloning (Q-filtered) while SAC learns
+            self.model.demonstrations, self.model.bc_alpha = demonstrations, demos.bc_alpha
+            self.model.bc_likelihood_weight, self.model.bc_q_filter = demos.likelihood_weight, demos.q_filter
+            if demos.critic_steps and self.model.replay_buffer.ready:
+                self.model.pretrain_critic(demos.critic_steps, self.config.sac.batch_size)
         self.metrics.demo_episodes, self.metrics.demo_steps = len(episodes), steps
         self.metrics.bc_final_loss = losses[-1] if losses else None
 
