@@ -27,6 +27,9 @@ rl_app = typer.Typer(help="Reinforcement learning (thesis ch. 3): train and eval
 app.add_typer(rl_app, name="rl")
 april_app = typer.Typer(help="APRiL (thesis ch. 4): train the policy on state, deploy it on pixels.", no_args_is_help=True)
 app.add_typer(april_app, name="april")
+data_app = typer.Typer(help="Warehouse bin data sets with pickability from trial grasps (thesis §5.4.4, §6.3).",
+                       no_args_is_help=True)
+app.add_typer(data_app, name="data")
 
 console = Console()
 SetOption = Annotated[list[str] | None, typer.Option("--set", help="Env parameter KEY=VALUE (repeatable), e.g. --set goal_area=0.5")]
@@ -234,6 +237,80 @@ def april_eval(
         raise ConfigError(f"--input state needs a policy trained on the semantic state; this run's is {april.config.policy.mode}")
     env, policy, _ = deployment_env(april, runtime_input)
     _evaluate_with_progress(env, policy, f"{april.config.name} from {runtime_input}", episodes, seed)
+
+
+def _pair(text: str, name: str) -> tuple[int, int]:
+    try:
+        low, high = (int(v) for v in text.split(","))
+    except ValueError:
+        raise ConfigError(f"--{name} must be LOW,HIGH (two integers), got {text!r}") from None
+    return low, high
+
+
+@data_app.command("generate")
+def data_generate(
+    out: Annotated[Path, typer.Option(help="Data-set folder (new, or one to resume)")],
+    scenes: Annotated[int, typer.Option(help="Number of bin scenes")] = 100,
+    policies: Annotated[str, typer.Option(help="Grasp policies that label pickability, comma-separated (x,y); '' for none")] = "x,y",
+    workers: Annotated[int, typer.Option(help="Parallel processes")] = 2,
+    products: Annotated[Path | None, typer.Option(help="YAML of your own products (meshes, textures)")] = None,
+    only_products: Annotated[bool, typer.Option(help="Use only the products in --products")] = False,
+    size: Annotated[int, typer.Option(help="Image size in pixels")] = 416,
+    copies: Annotated[str, typer.Option(help="Instances of the target product per bin, LOW,HIGH")] = "2,8",
+    distractors: Annotated[str, typer.Option(help="Other products per bin, LOW,HIGH")] = "0,3",
+    held_out: Annotated[str, typer.Option(help="Product categories for the zero-shot test split, comma-separated")] = "",
+    randomise: Annotated[bool, typer.Option(help="Randomise lighting and colours per world")] = False,
+    seed: Annotated[int, typer.Option(help="Seed")] = 0,
+) -> None:
+    """Generate bin scenes (resumes after a kill), shop photos, COCO files and a data-set card."""
+    from binpick.warehouse.dataset import GenerateConfig, generate
+
+    config = GenerateConfig(out=str(out), scenes=scenes, policies=[p for p in policies.split(",") if p], workers=workers,
+                            image_size=size, copies=_pair(copies, "copies"), distractors=_pair(distractors, "distractors"),
+                            held_out_categories=[c for c in held_out.split(",") if c], randomise=randomise,
+                            products=str(products) if products else None, only_products=only_products, seed=seed)
+    stats = generate(config)
+    _print_stats(stats, out)
+
+
+@data_app.command("show")
+def data_show(
+    data: Annotated[Path, typer.Argument(help="Data-set folder")],
+    index: Annotated[int, typer.Option(help="Scene index")] = 0,
+    out: Annotated[Path, typer.Option(help="PNG to write")] = Path("scene.png"),
+    policy: Annotated[str | None, typer.Option(help="Colour pickability by this policy (default: the first)")] = None,
+) -> None:
+    """Draw a scene's boxes: green pickable, red unpickable, blue the query, grey other products."""
+    from binpick.viz.bins import labelled_scene
+    from binpick.warehouse.dataset import read_scene
+
+    record, policies = read_scene(data, index)
+    if policy is not None and policy not in policies:
+        raise ConfigError(f"--policy {policy!r}: this data set was labelled by {', '.join(policies) or 'no policy'}")
+    _save_png(labelled_scene(data, record, policy or (policies[0] if policies else None)), out)
+    console.print(f"scene {index} ({record['target']}, {len(record['annotations'])} instances) -> {out}")
+
+
+@data_app.command("stats")
+def data_stats(data: Annotated[Path, typer.Argument(help="Data-set folder")]) -> None:
+    """Counts: instances per image, pickable fraction per policy and category, policy disagreement."""
+    from binpick.warehouse.dataset import finalise, open_dataset
+
+    open_dataset(data)
+    _print_stats(finalise(data), data)
+
+
+def _print_stats(stats: dict, where: Path) -> None:
+    table = Table(title=f"{where}: {stats['scenes']} scenes")
+    table.add_column("")
+    table.add_column("value")
+    table.add_row("instances per image", f"{stats['instances_per_image']:.2f} ({stats['target_instances_per_image']:.2f} of the target)")
+    for policy, fraction in stats["pickable_fraction"].items():
+        table.add_row(f"pickable by policy {policy}", f"{fraction:.1%}")
+    if stats["pickability_differs_fraction"] is not None:
+        table.add_row("pickability differs between policies", f"{stats['pickability_differs_fraction']:.1%}")
+    table.add_row("splits", ", ".join(f"{k} {v}" for k, v in sorted(stats["splits"].items())))
+    console.print(table)
 
 
 @app.command("demo")

@@ -96,6 +96,7 @@ def finetune_latent_policy(run: AprilRun, semantic_run: str | None, show_progres
     from binpick.rl.config import load_config
     from binpick.rl.train import load_policy
 
+    torch.set_num_threads(1)  # small networks, one env: a second thread only competes with other jobs
     config, policy = run.config, run.config.policy
     perception = load_perception(run.run_dir / "perception.pt")
     rl_settings = load_config(policy.rl_config)

@@ -89,11 +89,7 @@ class MujocoCamera:
         self._camera.distance = pose.distance
         self._camera.azimuth = pose.azimuth
         self._camera.elevation = pose.elevation
-        global _EXIT_HOOK_REGISTERED
-        if not _EXIT_HOOK_REGISTERED:  # after MuJoCo's own GL exit hook exists, so ours runs before it
-            atexit.register(_close_live_cameras)
-            _EXIT_HOOK_REGISTERED = True
-        _LIVE_CAMERAS.add(self)
+        close_at_exit(self)
 
     def render(self, data) -> np.ndarray:
         self._renderer.update_scene(data, camera=self._camera)
@@ -105,8 +101,18 @@ class MujocoCamera:
             renderer.close()
 
 
-_LIVE_CAMERAS: weakref.WeakSet[MujocoCamera] = weakref.WeakSet()
+_LIVE_CAMERAS: weakref.WeakSet = weakref.WeakSet()
 _EXIT_HOOK_REGISTERED = False
+
+
+def close_at_exit(owner) -> None:
+    """Close ``owner`` (anything holding MuJoCo renderers, with a ``close()``) before MuJoCo's own GL
+    exit hook runs, unless it was closed already. Call it after creating the first renderer."""
+    global _EXIT_HOOK_REGISTERED
+    if not _EXIT_HOOK_REGISTERED:  # registered after MuJoCo's hook exists, so ours runs before it
+        atexit.register(_close_live_cameras)
+        _EXIT_HOOK_REGISTERED = True
+    _LIVE_CAMERAS.add(owner)
 
 
 def _close_live_cameras() -> None:

@@ -1,0 +1,104 @@
+"""Warehouse data generation speed on this machine: bin scenes per second without labels (one
+process, 416 px, written to disk as a data set) and trial grasps per second with labels.
+
+    python benchmarks/data_speed.py [--scenes 40] [--trial-scenes 6]
+
+Writes results/data_speed.json ({scenes_per_s, grasp_trials_per_s, image_size, ...}) and the
+data-speed section of docs/RESULTS.md. Target (issue 5): >= 3 scenes/s per core at 416 px.
+The load average is recorded: other jobs on the machine slow both figures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+sys.path.insert(0, os.path.dirname(__file__))
+
+import _common  # noqa: E402
+
+from binpick.warehouse.dataset import GenerateConfig, build_library, generate_world, prepare_output, world_plan  # noqa: E402
+
+
+def scenes_per_second(scenes: int, size: int) -> tuple[float, int]:
+    """One process making a data set without labels: compiles, settles, renders, annotates, writes."""
+    folder = Path(tempfile.mkdtemp(prefix="binpick_speed_"))
+    try:
+        config = GenerateConfig(out=str(folder / "data"), scenes=scenes, policies=[], workers=1, image_size=size, seed=1)
+        library = build_library(config)
+        out = prepare_output(config, library)
+        started = time.perf_counter()
+        made = 0
+        for world in range(-(-scenes // config.scenes_per_world)):
+            made += len(generate_world(config, world, out))
+        return made / (time.perf_counter() - started), made
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+def trials_per_second(scenes: int, size: int) -> tuple[float, int, float]:
+    """Trial grasps (both policies, every target instance) in freshly settled scenes."""
+    import numpy as np
+
+    from binpick.sim.bin_scene import BinWorld
+    from binpick.sim.gripper import make_policies
+    from binpick.sim.mjcf import CameraSpec
+
+    config = GenerateConfig(out="unused", scenes=scenes, image_size=size, seed=2)
+    library = build_library(config)
+    policies = make_policies(["x", "y"])
+    trials, picked, seconds = 0, 0, 0.0
+    for index in range(scenes):
+        target, distractors, _ = world_plan(config, library, index)
+        world = BinWorld(library[target], [library[d] for d in distractors], camera=CameraSpec(size=size), gripper=True)
+        try:
+            scene = world.scene(5, 2, seed=index)
+            started = time.perf_counter()
+            for policy in policies:
+                for instance in scene.instances:
+                    if instance.is_target:
+                        world.restore(scene.state)
+                        picked += policy.attempt(world, instance.slot)
+                        trials += 1
+            seconds += time.perf_counter() - started
+        finally:
+            world.close()
+    return trials / seconds, trials, picked / max(trials, 1)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scenes", type=int, default=40)
+    parser.add_argument("--trial-scenes", type=int, default=6)
+    parser.add_argument("--size", type=int, default=416)
+    args = parser.parse_args()
+    load_before = os.getloadavg()[0]
+    rate, made = scenes_per_second(args.scenes, args.size)
+    print(f"scenes/s without labels at {args.size} px, one process: {rate:.2f} ({made} scenes)")
+    trial_rate, trials, picked = trials_per_second(args.trial_scenes, args.size)
+    print(f"trial grasps/s: {trial_rate:.2f} ({trials} trials, {picked:.0%} picked)")
+    load = max(load_before, os.getloadavg()[0])
+    result = {"scenes_per_s": round(rate, 3), "grasp_trials_per_s": round(trial_rate, 3), "image_size": args.size,
+              "scenes": made, "trials": trials, "trial_pick_rate": round(picked, 3), "processes": 1,
+              "target_scenes_per_s_per_core": 3.0, "met": rate >= 3.0, "load_average_1min": round(load, 2),
+              "peak_rss_mib": round(_common.peak_rss_mib(), 1)}
+    path = _common.write_result("data_speed", result)
+    _common.write_section("data_speed", "\n".join([
+        "## Warehouse data generation speed (issue 5)", "",
+        f"`python benchmarks/data_speed.py` → `{path.relative_to(_common.ROOT)}`. One process; scenes are settled, rendered "
+        f"(RGB, depth, segmentation, per-instance masks for the visible fraction), annotated and written as PNG + JSON.", "",
+        "| | ours | target |", "|---|---|---|",
+        f"| scenes/s without labels, {args.size} px, one core | {rate:.2f} | ≥ 3 ({'met' if rate >= 3 else 'missed'}) |",
+        f"| trial grasps/s (scripted top-down, both policies) | {trial_rate:.2f} | — |", "",
+        f"Load average while measuring: {load:.2f} on {os.cpu_count()} cores; peak RSS {result['peak_rss_mib']:.0f} MiB.",
+    ]))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,6 @@
+"""Warehouse simulation: a product library, bin scenes with an overhead RGB-D camera, shop photos and
+a parallel-jaw gripper that labels which instances can be picked (thesis §5.4.4, §6.3)."""
+
+from binpick.sim.products import Product, ProductLibrary, default_library, load_products
+
+__all__ = ["Product", "ProductLibrary", "default_library", "load_products"]

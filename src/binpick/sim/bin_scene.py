@@ -1,0 +1,220 @@
+"""Bin scenes: K copies of one product plus distractors dropped into a tote and settled, seen by an
+overhead RGB-D camera, with every instance's 2D box and visible fraction (thesis §5.4.4, Fig 5.13).
+
+A :class:`BinWorld` compiles one MuJoCo model for a target product (up to ``max_copies`` slots) and
+a few distractor products, then makes many scenes from it: unused slots are parked on the table far
+outside the camera's view. Reusing the model and renderers is what makes generation fast (compiling
+and creating a renderer cost more than a whole scene). Everything is deterministic under a seed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+
+from binpick.sim.mjcf import BIN_HALF, FLOOR_TOP, CameraSpec, product_assets, product_body, scene_xml
+from binpick.sim.products import Product
+
+PARK_X = 3.0  # unused slots wait here, on the table, out of view
+SETTLE_SECONDS = 1.2
+AMODAL_SIZE = 80  # resolution of the per-instance masks that give the visible fraction
+
+
+@dataclass
+class Instance:
+    """One object in a scene: which product, where it is, what the camera sees of it."""
+
+    slot: int
+    product_id: str
+    category: str
+    is_target: bool
+    bbox: tuple[float, float, float, float]  # x, y, w, h in pixels (COCO)
+    area: float  # visible pixels
+    visible_fraction: float
+    position: tuple[float, float, float]
+    quaternion: tuple[float, float, float, float]
+
+
+@dataclass
+class Scene:
+    rgb: np.ndarray  # (H, W, 3) uint8
+    depth: np.ndarray  # (H, W) float32 metres from the camera
+    segmentation: np.ndarray  # (H, W) int16: slot index, -1 for background
+    instances: list[Instance]
+    target_id: str
+    seed: int
+    state: np.ndarray = field(repr=False, default=None)  # qpos after settling (for grasp trials)
+
+
+class BinWorld:
+    """One compiled model: ``target`` × ``max_copies`` slots + one slot per distractor product."""
+
+    def __init__(self, target: Product, distractors: list[Product], max_copies: int = 8,
+                 camera: CameraSpec = CameraSpec(), extra_worldbody: str = "", extra: str = "",
+                 randomise_lighting: bool = False, gripper: bool = False, seed: int = 0) -> None:
+        self.target, self.distractors, self.camera = target, list(distractors), camera
+        self.max_copies = max_copies
+        self.slots: list[Product] = [target] * max_copies + self.distractors
+        rng = np.random.default_rng(seed)
+        products = {target.id: target, **{d.id: d for d in self.distractors}}
+        prefixes = {pid: f"p{i}" for i, pid in enumerate(products)}
+        assets = "".join(product_assets(p, prefixes[p.id]) for p in products.values())
+        bodies = "".join(product_body(p, f"slot{i}", self._parked(i), (1, 0, 0, 0), prefixes[p.id])
+                         for i, p in enumerate(self.slots))
+        lighting = {}
+        if randomise_lighting:
+            direction = np.array([rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5), -1.0])
+            lighting = dict(light_dir=direction, light_diffuse=[rng.uniform(0.4, 0.9)] * 3,
+                            table_rgba=(*rng.uniform(0.3, 0.8, 3), 1.0), bin_rgba=(*rng.uniform(0.1, 0.7, 3), 1.0))
+        if gripper:
+            from binpick.sim.gripper import GRIPPER_BODY, GRIPPER_EXTRA
+
+            extra_worldbody, extra = extra_worldbody + GRIPPER_BODY, extra + GRIPPER_EXTRA
+        self.xml = scene_xml(assets, bodies, camera, extra_worldbody, extra, **lighting)
+        self.model = mujoco.MjModel.from_xml_string(self.xml)
+        self.data = mujoco.MjData(self.model)
+        self.body_ids = [self.model.body(f"slot{i}").id for i in range(len(self.slots))]
+        self.qpos_adr = [self.model.jnt_qposadr[self.model.body_jntadr[b]] for b in self.body_ids]
+        self.dof_adr = [self.model.jnt_dofadr[self.model.body_jntadr[b]] for b in self.body_ids]
+        # geom id -> slot (or -1): segmentation gives geom ids
+        self.geom_slot = np.full(self.model.ngeom + 1, -1, dtype=np.int16)
+        for slot, body in enumerate(self.body_ids):
+            self.geom_slot[np.flatnonzero(self.model.geom_bodyid == body)] = slot
+        self.camera_id = self.model.camera("overhead").id
+        self.gripper = None
+        if gripper:
+            from binpick.sim.gripper import Gripper
+
+            self.gripper = Gripper(self.model)
+        self.renderer = mujoco.Renderer(self.model, camera.size, camera.size)
+        self.small = mujoco.Renderer(self.model, min(AMODAL_SIZE, camera.size), min(AMODAL_SIZE, camera.size))
+        from binpick.envs.images import close_at_exit
+
+        close_at_exit(self)
+        self._alpha = self.model.geom_rgba[:, 3].copy()
+        self._matid = self.model.geom_matid.copy()
+
+    def close(self) -> None:
+        for name in ("renderer", "small"):
+            renderer = getattr(self, name, None)
+            if renderer is not None:
+                renderer.close()
+                setattr(self, name, None)
+
+    def _parked(self, slot: int) -> tuple[float, float, float]:
+        return (PARK_X + 0.25 * (slot % 6), 0.25 * (slot // 6), 0.1)
+
+    # ------------------------------------------------------------------ scenes
+    def scene(self, copies: int, distractors: int, seed: int) -> Scene:
+        """Drop ``copies`` target instances and ``distractors`` distractor products, settle, render."""
+        if not 1 <= copies <= self.max_copies:
+            raise ValueError(f"copies must be in 1..{self.max_copies}, got {copies}")
+        rng = np.random.default_rng(seed)
+        used = list(range(copies)) + [self.max_copies + int(i) for i in
+                                      rng.choice(len(self.distractors), size=min(distractors, len(self.distractors)), replace=False)]
+        for attempt in range(3):
+            if self._drop_and_settle(used, rng):
+                break
+        rgb, depth, segmentation = self.render()
+        instances = self._annotate(used, segmentation)
+        return Scene(rgb, depth, segmentation, instances, self.target.id, int(seed), self.data.qpos.copy())
+
+    def _drop_and_settle(self, used: list[int], rng: np.random.Generator) -> bool:
+        mujoco.mj_resetData(self.model, self.data)
+        for slot in range(len(self.slots)):
+            self._place(slot, self._parked(slot), (1, 0, 0, 0))
+        order = rng.permutation(used)
+        hx, hy = BIN_HALF
+        for level, slot in enumerate(order):
+            position = (rng.uniform(-hx + 0.05, hx - 0.05), rng.uniform(-hy + 0.05, hy - 0.05), FLOOR_TOP + 0.07 + 0.06 * level)
+            quaternion = rng.normal(size=4)
+            self._place(slot, position, quaternion / np.linalg.norm(quaternion))
+        mujoco.mj_forward(self.model, self.data)
+        steps = int(SETTLE_SECONDS / self.model.opt.timestep)
+        for step in range(steps):
+            mujoco.mj_step(self.model, self.data)
+            if step % 100 == 99:
+                if not np.all(np.isfinite(self.data.qvel)):
+                    return False
+                if step * self.model.opt.timestep > 0.4 and np.abs(self.data.qvel).max() < 0.05:
+                    break
+        return bool(np.all(np.isfinite(self.data.qpos)))
+
+    def _place(self, slot: int, position, quaternion) -> None:
+        adr = self.qpos_adr[slot]
+        self.data.qpos[adr:adr + 3] = position
+        self.data.qpos[adr + 3:adr + 7] = quaternion
+        self.data.qvel[self.dof_adr[slot]:self.dof_adr[slot] + 6] = 0.0
+
+    def restore(self, qpos: np.ndarray) -> None:
+        """Back to a settled scene (grasp trials start every attempt from the same state)."""
+        mujoco.mj_resetData(self.model, self.data)
+        self.data.qpos[:] = qpos
+        mujoco.mj_forward(self.model, self.data)
+
+    def instance_centre_and_top(self, slot: int) -> tuple[np.ndarray, float]:
+        """The instance's centre and the height of its top (world axis-aligned box of its geoms)."""
+        geoms = np.flatnonzero(self.model.geom_bodyid == self.body_ids[slot])
+        tops, centres = [], []
+        for g in geoms:
+            rotation = self.data.geom_xmat[g].reshape(3, 3)
+            centre = self.data.geom_xpos[g] + rotation @ self.model.geom_aabb[g, :3]
+            half = np.abs(rotation) @ self.model.geom_aabb[g, 3:]
+            centres.append(centre)
+            tops.append(centre[2] + half[2])
+        return np.mean(centres, axis=0), float(max(tops))
+
+    # ------------------------------------------------------------------ rendering
+    def render(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        renderer = self.renderer
+        renderer.update_scene(self.data, camera=self.camera_id)
+        rgb = renderer.render().copy()
+        renderer.enable_depth_rendering()
+        renderer.update_scene(self.data, camera=self.camera_id)
+        depth = renderer.render().astype(np.float32)
+        renderer.disable_depth_rendering()
+        segmentation = self._segment(renderer)
+        return rgb, depth, segmentation
+
+    def _segment(self, renderer: mujoco.Renderer) -> np.ndarray:
+        renderer.enable_segmentation_rendering()
+        renderer.update_scene(self.data, camera=self.camera_id)
+        ids = renderer.render()
+        renderer.disable_segmentation_rendering()
+        geom = np.where(ids[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM), ids[..., 0], -1)
+        return self.geom_slot[geom]  # index -1 maps to the extra trailing -1 entry
+
+    def _annotate(self, used: list[int], segmentation: np.ndarray) -> list[Instance]:
+        small_visible = self._segment(self.small)
+        instances = []
+        for slot in sorted(used):
+            mask = segmentation == slot
+            if not mask.any():
+                continue  # fully hidden, or bounced out of view
+            position = self.data.qpos[self.qpos_adr[slot]:self.qpos_adr[slot] + 3]
+            if position[2] < FLOOR_TOP - 0.01 or abs(position[0]) > BIN_HALF[0] + 0.03 or abs(position[1]) > BIN_HALF[1] + 0.03:
+                continue  # fell out of the tote
+            ys, xs = np.nonzero(mask)
+            full = self._amodal_pixels(slot)
+            visible = float(np.count_nonzero(small_visible == slot))
+            product = self.slots[slot]
+            instances.append(Instance(slot, product.id, product.category, slot < self.max_copies,
+                                      (float(xs.min()), float(ys.min()), float(xs.max() - xs.min() + 1), float(ys.max() - ys.min() + 1)),
+                                      float(mask.sum()), float(min(1.0, visible / full)) if full else 0.0,
+                                      tuple(np.round(position, 5).tolist()),
+                                      tuple(np.round(self.data.qpos[self.qpos_adr[slot] + 3:self.qpos_adr[slot] + 7], 5).tolist())))
+        return instances
+
+    def _amodal_pixels(self, slot: int) -> int:
+        """Pixels the instance would cover alone (others hidden): the visible fraction's denominator."""
+        hidden = self.model.geom_bodyid != self.body_ids[slot]
+        hidden &= self.geom_slot[:-1] >= 0
+        self.model.geom_rgba[hidden, 3] = 0.0
+        self.model.geom_matid[hidden] = -1
+        try:
+            return int(np.count_nonzero(self._segment(self.small) == slot))
+        finally:
+            self.model.geom_rgba[:, 3] = self._alpha
+            self.model.geom_matid[:] = self._matid

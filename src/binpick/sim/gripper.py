@@ -1,0 +1,127 @@
+"""A parallel-jaw gripper and the trial grasps that label pickability (thesis §5.4.4, §6.3.1).
+
+The gripper floats free and follows a mocap body through a weld, as the Fetch end effector does in
+Gymnasium-Robotics; two slide-jointed fingers are position-controlled. :class:`TopDownGrasp` is
+the scripted policy: above the instance's centre, down, close, lift 15 cm, hold 1 s. With jaws
+closing along the robot's x-axis it is the thesis's Policy 2, along the y-axis its Policy 1; the
+same object can be pickable by one and not the other, which is what ROD learns to prefer.
+
+Any policy that implements :class:`GraspPolicy` (``name`` and ``attempt(world, slot)``), such as a
+learnt APRiL policy driving the mocap target, can label data the same way.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import mujoco
+import numpy as np
+
+from binpick.sim.mjcf import FLOOR_TOP
+
+PARK = (-3.0, 0.0, 0.5)  # the gripper waits out of the camera's view
+OPENING = 0.11  # jaw opening when open (m)
+LIFT_SUCCESS = 0.10  # the object must rise this much ...
+HOLD_SECONDS = 1.0  # ... and stay held this long
+
+GRIPPER_BODY = f"""
+<body name="gripper_target" mocap="true" pos="{PARK[0]} {PARK[1]} {PARK[2]}"/>
+<body name="gripper" pos="{PARK[0]} {PARK[1]} {PARK[2]}">
+  <freejoint name="gripper_free"/>
+  <geom name="palm" type="box" size="{OPENING / 2 + 0.012} 0.014 0.012" pos="0 0 0.05" rgba="0.25 0.25 0.28 1" mass="0.4"/>
+  <body name="finger_a" pos="{OPENING / 2 + 0.006} 0 0">
+    <joint name="finger_a" type="slide" axis="-1 0 0" range="0 {OPENING / 2}" damping="2"/>
+    <geom type="box" size="0.006 0.014 0.04" pos="0 0 0" rgba="0.6 0.6 0.62 1" mass="0.04" friction="2 0.02 0.001" condim="6" priority="1" solref="0.004 1" solimp="0.95 0.99 0.001"/>
+  </body>
+  <body name="finger_b" pos="{-OPENING / 2 - 0.006} 0 0">
+    <joint name="finger_b" type="slide" axis="1 0 0" range="0 {OPENING / 2}" damping="2"/>
+    <geom type="box" size="0.006 0.014 0.04" pos="0 0 0" rgba="0.6 0.6 0.62 1" mass="0.04" friction="2 0.02 0.001" condim="6" priority="1" solref="0.004 1" solimp="0.95 0.99 0.001"/>
+  </body>
+</body>"""
+GRIPPER_EXTRA = f"""
+<equality><weld body1="gripper_target" body2="gripper" solref="0.02 1"/></equality>
+<actuator>
+  <position name="finger_a" joint="finger_a" kp="200" ctrlrange="0 {OPENING / 2}" forcerange="-12 12"/>
+  <position name="finger_b" joint="finger_b" kp="200" ctrlrange="0 {OPENING / 2}" forcerange="-12 12"/>
+</actuator>"""
+
+
+class GraspPolicy(Protocol):
+    name: str
+
+    def attempt(self, world, slot: int) -> bool:
+        """From the world's current (restored) state, try to pick instance ``slot``; True if held."""
+
+
+class Gripper:
+    """Handles to the gripper inside a :class:`~binpick.sim.bin_scene.BinWorld` model."""
+
+    def __init__(self, model: mujoco.MjModel) -> None:
+        self.model = model
+        self.mocap = model.body_mocapid[model.body("gripper_target").id]
+        joint = model.joint("gripper_free")
+        self.qpos, self.dof = model.jnt_qposadr[joint.id], model.jnt_dofadr[joint.id]
+        self.fingers = [model.actuator("finger_a").id, model.actuator("finger_b").id]
+
+    def teleport(self, data: mujoco.MjData, position, yaw: float) -> None:
+        quaternion = np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
+        data.mocap_pos[self.mocap] = position
+        data.mocap_quat[self.mocap] = quaternion
+        data.qpos[self.qpos:self.qpos + 3] = position
+        data.qpos[self.qpos + 3:self.qpos + 7] = quaternion
+        data.qvel[self.dof:self.dof + 6] = 0.0
+
+    def move(self, data: mujoco.MjData, target, seconds: float, close: float | None = None) -> None:
+        """Move the mocap target in a straight line over ``seconds`` (fingers to ``close`` if given)."""
+        start = data.mocap_pos[self.mocap].copy()
+        steps = max(1, int(seconds / self.model.opt.timestep))
+        for step in range(steps):
+            data.mocap_pos[self.mocap] = start + (np.asarray(target) - start) * (step + 1) / steps
+            if close is not None:
+                data.ctrl[self.fingers] = close
+            mujoco.mj_step(self.model, data)
+
+
+class TopDownGrasp:
+    """Scripted top-down grasp with the jaws closing along the robot's ``axis`` ("x" or "y")."""
+
+    def __init__(self, axis: str = "x") -> None:
+        if axis not in ("x", "y"):
+            raise ValueError(f"grasp axis must be 'x' or 'y', got {axis!r}")
+        self.axis, self.name = axis, axis
+
+    def attempt(self, world, slot: int) -> bool:
+        model, data, gripper = world.model, world.data, world.gripper
+        body = world.body_ids[slot]
+        centre, top = world.instance_centre_and_top(slot)
+        start_height = data.xpos[body][2]
+        yaw = 0.0 if self.axis == "x" else np.pi / 2
+        above = np.array([centre[0], centre[1], top + 0.12])
+        gripper.teleport(data, above, yaw)
+        data.ctrl[gripper.fingers] = 0.0
+        mujoco.mj_forward(model, data)
+        # fingertips a little below the centre (but above the floor), so the jaws close across it;
+        # the gripper's origin is the fingers' centre, 4 cm above the tips
+        tips = max(FLOOR_TOP + 0.006, min(centre[2] - 0.01, top - 0.02))
+        grasp = [centre[0], centre[1], tips + 0.04]
+        gripper.move(data, grasp, 0.3, close=0.0)
+        gripper.move(data, grasp, 0.3, close=OPENING / 2)
+        lifted_to = [centre[0], centre[1], tips + 0.04 + 0.15]
+        gripper.move(data, lifted_to, 0.5, close=OPENING / 2)
+        if not data.xpos[body][2] - start_height >= LIFT_SUCCESS / 2:
+            return False  # not even half-way up: no need to simulate the hold
+        gripper.move(data, lifted_to, HOLD_SECONDS, close=OPENING / 2)
+        lifted = data.xpos[body][2] - start_height
+        return bool(np.isfinite(lifted) and lifted >= LIFT_SUCCESS)
+
+
+POLICIES = {"x": lambda: TopDownGrasp("x"), "y": lambda: TopDownGrasp("y")}
+
+
+def make_policies(names: list[str]) -> list[GraspPolicy]:
+    from binpick.errors import ConfigError
+
+    unknown = [n for n in names if n not in POLICIES]
+    if unknown:
+        raise ConfigError(f"unknown grasp policy {unknown[0]!r}; choose from {', '.join(POLICIES)}")
+    return [POLICIES[n]() for n in names]

@@ -1,0 +1,134 @@
+"""MJCF snippets for products, the tote and the overhead camera (one place that knows MuJoCo's XML).
+
+Stability settings found on this machine (FACTS): thick bin floor and walls, ``inertia="convex"``
+meshes, ``condim=6`` with rolling friction, the ``implicitfast`` integrator and light damping. Only
+the meshes a scene uses are declared: an unused convex-inertia mesh crashed MuJoCo 3.11 at compile.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+from pathlib import Path
+
+from binpick.sim.products import Product
+
+# tote: inner half-sizes (x, y), wall height and thickness, floor thickness (metres)
+BIN_HALF = (0.21, 0.16)
+BIN_WALL_HEIGHT = 0.14
+BIN_WALL = 0.02
+BIN_FLOOR = 0.03
+FLOOR_TOP = BIN_FLOOR  # the bin floor's top surface (table at z = 0)
+
+
+@dataclass(frozen=True)
+class CameraSpec:
+    """An overhead pinhole camera looking straight down at the bin centre."""
+
+    height: float = 0.85
+    fovy: float = 42.0  # degrees, vertical
+    size: int = 416
+
+    def intrinsics(self) -> tuple[float, float, float, float]:
+        """(fx, fy, cx, cy) in pixels for a square image of ``size``."""
+        import math
+
+        f = 0.5 * self.size / math.tan(math.radians(self.fovy) / 2)
+        return f, f, (self.size - 1) / 2, (self.size - 1) / 2
+
+
+def _fmt(values) -> str:
+    return " ".join(f"{float(v):.6g}" for v in values)
+
+
+@functools.lru_cache(maxsize=256)
+def merged_obj(path: Path) -> tuple[str, str] | None:
+    """Vertices and triangles of an OBJ made of several objects (``o`` groups), as MJCF attributes.
+
+    MuJoCo's OBJ reader renders only the first group of such files (pybullet's random shapes are
+    convex decompositions of 4-8 parts), so these meshes are passed inline instead. None for a
+    single-group file, which MuJoCo reads itself (keeping its texture coordinates)."""
+    text = Path(path).read_text(errors="replace")
+    if sum(line.startswith(("o ", "g ")) for line in text.splitlines()) <= 1:
+        return None
+    vertices, faces = [], []
+    for line in text.splitlines():
+        if line.startswith("v "):
+            vertices.append(line.split()[1:4])
+        elif line.startswith("f "):
+            corners = [int(token.split("/")[0]) for token in line.split()[1:]]
+            corners = [c - 1 if c > 0 else len(vertices) + c for c in corners]
+            faces += [(corners[0], corners[i], corners[i + 1]) for i in range(1, len(corners) - 1)]
+    return " ".join(" ".join(v) for v in vertices), " ".join(f"{a} {b} {c}" for a, b, c in faces)
+
+
+def product_assets(product: Product, prefix: str) -> str:
+    """Mesh, texture and material of one product (declared once, used by all its copies)."""
+    parts = []
+    if product.mesh is not None:
+        inline = merged_obj(product.mesh) if product.mesh.suffix.lower() == ".obj" else None
+        source = f'vertex="{inline[0]}" face="{inline[1]}"' if inline else f'file="{product.mesh}"'
+        parts.append(f'<mesh name="{prefix}_mesh" {source} scale="{_fmt([product.scale] * 3)}" inertia="convex"/>')
+    if product.texture is not None:
+        parts.append(f'<texture name="{prefix}_tex" type="2d" file="{product.texture}"/>')
+        uniform = "true" if product.texuniform else "false"
+        parts.append(f'<material name="{prefix}_mat" texture="{prefix}_tex" texrepeat="{_fmt(product.texrepeat)}" '
+                     f'texuniform="{uniform}" rgba="1 1 1 1"/>')
+    elif product.shape is not None:  # procedural: a printed check pattern in the product's colour
+        r, g, b, _ = product.rgba
+        parts.append(f'<texture name="{prefix}_tex" type="cube" builtin="checker" rgb1="{_fmt((r, g, b))}" '
+                     f'rgb2="{_fmt((min(1, r + .35), min(1, g + .35), min(1, b + .35)))}" width="64" height="64"/>')
+        parts.append(f'<material name="{prefix}_mat" texture="{prefix}_tex" texrepeat="2 2" rgba="1 1 1 1"/>')
+    return "".join(parts)
+
+
+def product_geom(product: Product, prefix: str) -> str:
+    material = f'material="{prefix}_mat"' if (product.texture is not None or product.shape is not None) else f'rgba="{_fmt(product.rgba)}"'
+    common = f'mass="{product.mass:.4g}" friction="{product.friction:.3g} 0.005 0.0001" condim="6" {material}'
+    if product.mesh is not None:
+        return f'<geom type="mesh" mesh="{prefix}_mesh" {common}/>'
+    return f'<geom type="{product.shape}" size="{_fmt(product.size)}" {common}/>'
+
+
+def product_body(product: Product, name: str, pos, quat, prefix: str | None = None) -> str:
+    return (f'<body name="{name}" pos="{_fmt(pos)}" quat="{_fmt(quat)}"><freejoint name="{name}_joint"/>'
+            f'{product_geom(product, prefix or name)}</body>')
+
+
+def tote() -> str:
+    """A tote on the table: a thick floor and four walls (static geoms)."""
+    hx, hy = BIN_HALF
+    h, t = BIN_WALL_HEIGHT, BIN_WALL
+    z = FLOOR_TOP + h / 2
+    walls = [((hx + t / 2, 0, z), (t / 2, hy + t, h / 2)), ((-hx - t / 2, 0, z), (t / 2, hy + t, h / 2)),
+             ((0, hy + t / 2, z), (hx, t / 2, h / 2)), ((0, -hy - t / 2, z), (hx, t / 2, h / 2))]
+    geoms = [f'<geom name="bin_floor" type="box" pos="0 0 {BIN_FLOOR / 2}" size="{hx + t} {hy + t} {BIN_FLOOR / 2}" material="bin"/>']
+    geoms += [f'<geom name="bin_wall{i}" type="box" pos="{_fmt(p)}" size="{_fmt(s)}" material="bin"/>' for i, (p, s) in enumerate(walls)]
+    return "".join(geoms)
+
+
+def scene_xml(assets: str, bodies: str, camera: CameraSpec, extra_worldbody: str = "", extra: str = "",
+              light_dir=(0.0, 0.0, -1.0), light_diffuse=(0.7, 0.7, 0.7), table_rgba=(0.55, 0.45, 0.35, 1.0),
+              bin_rgba=(0.2, 0.35, 0.6, 1.0)) -> str:
+    return f"""<mujoco model="bin_scene">
+  <compiler angle="radian" autolimits="true"/>
+  <option timestep="0.002" integrator="implicitfast"/>
+  <visual><global offwidth="{camera.size}" offheight="{camera.size}"/><quality shadowsize="1024"/>
+    <headlight ambient="0.35 0.35 0.35" diffuse="0.3 0.3 0.3"/></visual>
+  <default><joint damping="0.002"/></default>
+  <asset>
+    <texture name="table_tex" type="2d" builtin="flat" rgb1="{_fmt(table_rgba[:3])}" width="16" height="16"/>
+    <material name="table" texture="table_tex" rgba="1 1 1 1"/>
+    <material name="bin" rgba="{_fmt(bin_rgba)}"/>
+    {assets}
+  </asset>
+  <worldbody>
+    <light name="key" pos="0.3 -0.2 1.6" dir="{_fmt(light_dir)}" diffuse="{_fmt(light_diffuse)}" castshadow="true"/>
+    <geom name="table" type="plane" size="0 0 0.05" material="table"/>
+    {tote()}
+    <camera name="overhead" pos="0 0 {camera.height}" xyaxes="1 0 0 0 1 0" fovy="{camera.fovy}"/>
+    {extra_worldbody}
+    {bodies}
+  </worldbody>
+  {extra}
+</mujoco>"""

@@ -1,0 +1,231 @@
+"""Products a bin can hold: meshes and textures that PyPI packages ship, procedural primitives, and
+users' own products from a folder described by a YAML file.
+
+Sources (nothing is downloaded):
+- ``robosuite`` (installed ``--no-deps``; only its asset files are read, the package is never
+  imported): bottle, bread, can, cereal, lemon, milk, with their textures;
+- ``pybullet_data``: duck, mug, lego, teddy, and 1000 random shapes (``random_urdfs``) used as a pool
+  of blob-like products with random colours;
+- procedural boxes, cylinders and spheres with random colours and a printed stripe texture.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from binpick.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class Product:
+    """One stock-keeping unit. Sizes are metres; ``mesh`` is None for a primitive ``shape``."""
+
+    id: str
+    category: str
+    mesh: Path | None = None
+    shape: str | None = None  # box | cylinder | sphere (procedural products)
+    size: tuple[float, ...] = ()  # primitive half-sizes (MuJoCo convention)
+    scale: float = 1.0  # mesh scale
+    texture: Path | None = None
+    texrepeat: tuple[float, float] = (1.0, 1.0)
+    texuniform: bool = False
+    rgba: tuple[float, float, float, float] = (0.8, 0.8, 0.8, 1.0)
+    mass: float = 0.15
+    friction: float = 1.0
+    photo: Path | None = None  # the shop's own photo, if the user has one
+
+    @property
+    def name(self) -> str:
+        return self.id.replace("/", "_")
+
+
+@dataclass
+class ProductLibrary:
+    products: dict[str, Product] = field(default_factory=dict)
+
+    def __getitem__(self, product_id: str) -> Product:
+        if product_id not in self.products:
+            raise ConfigError(f"unknown product {product_id!r}; known: {', '.join(sorted(self.products)[:12])}, ...")
+        return self.products[product_id]
+
+    def __len__(self) -> int:
+        return len(self.products)
+
+    def __iter__(self):
+        return iter(self.products.values())
+
+    @property
+    def categories(self) -> list[str]:
+        return sorted({p.category for p in self.products.values()})
+
+    def in_categories(self, categories: list[str]) -> list[Product]:
+        unknown = sorted(set(categories) - set(self.categories))
+        if unknown:
+            raise ConfigError(f"unknown product category {unknown[0]!r}; known: {', '.join(self.categories)}")
+        return [p for p in self.products.values() if p.category in categories]
+
+    def add(self, product: Product) -> None:
+        self.products[product.id] = product
+
+
+def package_dir(name: str) -> Path | None:
+    """Where an installed package's files are, without importing it (robosuite's import needs its deps)."""
+    spec = importlib.util.find_spec(name)
+    return Path(spec.submodule_search_locations[0]) if spec and spec.submodule_search_locations else None
+
+
+# robosuite objects: (category, texture, texrepeat, texuniform, mass kg)
+ROBOSUITE = {
+    "bottle": ("bottle", "glass.png", (5, 5), True, 0.30),
+    "bread": ("bakery", "bread.png", (15, 15), True, 0.10),
+    "can": ("can", "soda.png", (5, 5), True, 0.35),
+    "cereal": ("box", "cereal.png", (1, 1), False, 0.40),
+    "lemon": ("fruit", "lemon.png", (60, 50), True, 0.10),
+    "milk": ("carton", "ceramic.png", (1, 1), True, 0.40),
+}
+PYBULLET = {  # name: (category, mesh, texture, target longest side m)
+    "duck": ("toy", "duck.obj", "duckCM.png", 0.08),
+    "mug": ("mug", "objects/mug.obj", None, 0.10),
+    "lego": ("toy", "lego/lego.obj", None, 0.06),
+    "teddy": ("toy", "teddy2_VHACD_CHs.obj", None, 0.10),
+}
+
+
+def mesh_extent(path: Path) -> np.ndarray:
+    """Axis-aligned size of a mesh as MuJoCo loads it (its OBJ reader may keep fewer vertices than
+    the file holds), so that ``scale`` normalises what is really simulated and rendered."""
+    import mujoco
+
+    path = Path(path)
+    if path.suffix.lower() not in (".obj", ".stl"):
+        raise ConfigError(f"mesh {str(path)!r}: only .obj and .stl meshes are supported")
+    from binpick.sim.mjcf import merged_obj
+
+    inline = merged_obj(path) if path.suffix.lower() == ".obj" and path.is_file() else None
+    source = f'vertex="{inline[0]}" face="{inline[1]}"' if inline else f'file="{path}"'
+    xml = f'<mujoco><asset><mesh name="m" {source}/></asset><worldbody><geom type="mesh" mesh="m"/></worldbody></mujoco>'
+    try:
+        model = mujoco.MjModel.from_xml_string(xml)
+    except Exception as error:  # noqa: BLE001 - MuJoCo raises ValueError with a long message
+        raise ConfigError(f"mesh {str(path)!r} cannot be loaded: {str(error).splitlines()[0]}") from None
+    vertices = model.mesh_vert[model.mesh_vertadr[0]:model.mesh_vertadr[0] + model.mesh_vertnum[0]]
+    if len(vertices) < 4:
+        raise ConfigError(f"mesh {str(path)!r} has no usable vertices")
+    return vertices.max(0) - vertices.min(0)
+
+
+def _random_colour(rng: np.random.Generator) -> tuple[float, float, float, float]:
+    hue = rng.uniform()
+    colour = np.clip(np.abs(np.array([hue * 6 - 3, 2 - abs(hue * 6 - 2), 2 - abs(hue * 6 - 4)])) - [1, 0, 0], 0, 1)
+    colour = 0.25 + 0.7 * colour * rng.uniform(0.6, 1.0)
+    return (*np.round(colour, 3).tolist(), 1.0)
+
+
+def default_library(procedural: int = 12, random_shapes: int = 12, seed: int = 0) -> ProductLibrary:
+    """Every product that ships with the installed packages, plus ``procedural`` primitives and
+    ``random_shapes`` of pybullet's random objects (deterministic under ``seed``)."""
+    rng = np.random.default_rng(seed)
+    library = ProductLibrary()
+    robosuite = package_dir("robosuite")
+    if robosuite is not None:
+        objects, textures = robosuite / "models" / "assets" / "objects", robosuite / "models" / "assets" / "textures"
+        for name, (category, texture, repeat, uniform, mass) in ROBOSUITE.items():
+            library.add(Product(f"robosuite/{name}", category, mesh=objects / "meshes" / f"{name}.obj",
+                                texture=textures / texture, texrepeat=repeat, texuniform=uniform, mass=mass))
+    data = package_dir("pybullet_data")
+    if data is not None:
+        for name, (category, mesh, texture, longest) in PYBULLET.items():
+            path = data / mesh
+            library.add(Product(f"pybullet/{name}", category, mesh=path, scale=float(longest / mesh_extent(path).max()),
+                                texture=data / texture if texture else None, rgba=_random_colour(rng), mass=0.12))
+        pool = sorted((data / "random_urdfs").glob("*/*.obj"))
+        for path in [pool[i] for i in sorted(rng.choice(len(pool), size=min(random_shapes, len(pool)), replace=False))]:
+            longest = rng.uniform(0.05, 0.09)
+            library.add(Product(f"pybullet/random_{path.stem}", "blob", mesh=path,
+                                scale=float(longest / mesh_extent(path).max()), rgba=_random_colour(rng), mass=0.1))
+    shapes = ["box", "cylinder", "sphere"]
+    for i in range(procedural):
+        shape = shapes[i % 3]
+        if shape == "box":
+            size = tuple(np.round(np.sort(rng.uniform(0.015, 0.05, 3))[::-1], 3).tolist())
+        elif shape == "cylinder":
+            size = tuple(np.round([rng.uniform(0.018, 0.035), rng.uniform(0.02, 0.05)], 3).tolist())
+        else:
+            size = (round(float(rng.uniform(0.02, 0.035)), 3),)
+        library.add(Product(f"procedural/{shape}_{i:02d}", f"procedural_{shape}", shape=shape, size=size,
+                            rgba=_random_colour(rng), mass=0.1))
+    return library
+
+
+def load_products(path: str | Path, library: ProductLibrary | None = None) -> ProductLibrary:
+    """Users' products: a YAML list next to their meshes, e.g.
+
+        products:
+          - {id: acme/soap, category: soap, mesh: soap.obj, texture: soap.png, longest_side: 0.09,
+             mass: 0.2, friction: 1.0, photo: soap_photo.png}
+
+    Paths are relative to the YAML file. Each mesh is checked by compiling it in MuJoCo, so a bad one
+    is reported with its file name here rather than in the middle of data generation."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"products file {str(path)!r} does not exist")
+    try:
+        data = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError as error:
+        raise ConfigError(f"{path}: not valid YAML ({str(error).splitlines()[0]})") from None
+    entries = data.get("products") if isinstance(data, dict) else None
+    if not isinstance(entries, list) or not entries:
+        raise ConfigError(f"{path}: expected a 'products:' list")
+    library = library or ProductLibrary()
+    allowed = {"id", "category", "mesh", "texture", "longest_side", "scale", "mass", "friction", "photo", "rgba"}
+    for index, entry in enumerate(entries):
+        where = f"{path.name}: products[{index}]"
+        if not isinstance(entry, dict) or "id" not in entry or "category" not in entry or "mesh" not in entry:
+            raise ConfigError(f"{where} needs id, category and mesh")
+        extra = sorted(set(entry) - allowed)
+        if extra:
+            raise ConfigError(f"{where} has no key {extra[0]!r} (allowed: {', '.join(sorted(allowed))})")
+        mesh = (path.parent / entry["mesh"]).resolve()
+        if not mesh.is_file():
+            raise ConfigError(f"{where}: mesh file {str(mesh)!r} does not exist")
+        scale = float(entry.get("scale", 1.0))
+        if "longest_side" in entry:
+            scale = float(entry["longest_side"]) / float(mesh_extent(mesh).max())
+        optional = {key: (path.parent / entry[key]).resolve() for key in ("texture", "photo") if entry.get(key)}
+        for key, file in optional.items():
+            if not file.is_file():
+                raise ConfigError(f"{where}: {key} file {str(file)!r} does not exist")
+        product = Product(str(entry["id"]), str(entry["category"]), mesh=mesh, scale=scale,
+                          mass=float(entry.get("mass", 0.15)), friction=float(entry.get("friction", 1.0)),
+                          rgba=tuple(entry.get("rgba", (0.8, 0.8, 0.8, 1.0))), **optional)
+        check_product_compiles(product)
+        library.add(product)
+    return library
+
+
+def check_product_compiles(product: Product) -> None:
+    """Compile the product alone in MuJoCo: a bad mesh names its file in one line."""
+    import mujoco
+
+    from binpick.sim.mjcf import product_assets, product_body
+
+    xml = (f"<mujoco><asset>{product_assets(product, 'p')}</asset><worldbody>"
+           f"{product_body(product, 'p', (0, 0, 0.1), (1, 0, 0, 0))}</worldbody></mujoco>")
+    try:
+        model = mujoco.MjModel.from_xml_string(xml)
+    except Exception as error:  # noqa: BLE001 - MuJoCo raises ValueError with a long message
+        raise ConfigError(f"mesh {str(product.mesh)!r} cannot be used: {str(error).splitlines()[0]}") from None
+    extent = mesh_extent(product.mesh) * product.scale if product.mesh else None
+    if extent is not None and not 0.005 < extent.max() < 0.5:
+        raise ConfigError(f"mesh {str(product.mesh)!r} is {extent.max():.3f} m across after scaling; "
+                          "set longest_side (metres) for it")
+    del model
+
+
+def with_overrides(product: Product, **changes) -> Product:
+    return replace(product, **changes)

@@ -1,0 +1,61 @@
+"""Bin scenes labelled as thesis Fig 5.13: green = pickable, red = unpickable (by the chosen grasp
+policy), blue = the query instance, grey = other products."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+COLOURS = {"pickable": (40, 200, 60), "unpickable": (230, 40, 40), "query": (40, 90, 255), "other": (150, 150, 150)}
+
+
+def draw_boxes(image: np.ndarray, boxes: list[tuple[tuple[float, float, float, float], str]], width: int = 3) -> np.ndarray:
+    """Boxes (x, y, w, h) in the named colours, drawn on a copy of ``image``."""
+    from PIL import Image, ImageDraw
+
+    picture = Image.fromarray(image)
+    draw = ImageDraw.Draw(picture)
+    for (x, y, w, h), kind in boxes:
+        draw.rectangle([x, y, x + w - 1, y + h - 1], outline=COLOURS[kind], width=width)
+    return np.asarray(picture)
+
+
+def labelled_scene(data_dir: Path, record: dict, policy: str | None) -> np.ndarray:
+    from PIL import Image
+
+    image = np.asarray(Image.open(Path(data_dir) / record["file_name"]).convert("RGB"))
+    boxes = []
+    for a in sorted(record["annotations"], key=lambda a: a["is_query"]):  # the query on top
+        if a["is_query"]:
+            kind = "query"
+        elif not a["is_target"]:
+            kind = "other"
+        elif policy is None or policy not in a["pickable"]:
+            kind = "pickable"
+        else:
+            kind = "pickable" if a["pickable"][policy] else "unpickable"
+        boxes.append((a["bbox"], kind))
+    return draw_boxes(image, boxes)
+
+
+def plot_policies_side_by_side(data_dir: Path, record: dict, policies: list[str], path: Path) -> None:
+    """One panel per grasp policy (Fig 5.13 style) and a legend."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Patch
+
+    fig, axes = plt.subplots(1, len(policies), figsize=(4.2 * len(policies), 4.6))
+    for axis, policy in zip(np.atleast_1d(axes), policies):
+        axis.imshow(labelled_scene(data_dir, record, policy))
+        axis.set_title(f"policy {policy}: jaws along the robot's {policy}-axis")
+        axis.axis("off")
+    legend = [Patch(edgecolor=np.array(c) / 255, facecolor="none", label=k) for k, c in COLOURS.items()]
+    fig.legend(handles=legend, loc="lower center", ncol=4, frameon=False)
+    fig.suptitle(f"scene {record['index']}: {record['target']} (pickability by trial grasps)")
+    fig.tight_layout(rect=(0, 0.05, 1, 1))
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

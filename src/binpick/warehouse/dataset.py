@@ -1,0 +1,405 @@
+"""Generate warehouse bin data sets: COCO-format annotations of every instance, which ones each
+grasp policy can pick (trial grasps from the saved scene state), shop photos and query crops.
+
+Layout of a data set folder::
+
+    dataset.json            what was asked for (validated on resume) and the product list
+    images/000123.png       overhead RGB;  depth/000123.png  depth in millimetres (uint16)
+    scenes/000123.json      one scene's annotations: written last, atomically, so a scene exists
+                            exactly when its shard does and a killed run resumes without losing or
+                            duplicating scenes
+    photos/<product>.png    shop photos (external conditioning, §6.3)
+    queries/000123.png      crop of the query instance (the in-image query of §5.3)
+    annotations.json, annotations_<split>.json    COCO files, merged from the shards at the end
+    CARD.md                 the data-set card with counts
+
+COCO categories are products (a category is what "repeated" means); their ``supercategory`` is the
+product category used for zero-shot splits. Each annotation carries ``visible_fraction``,
+``is_target``, ``is_query`` and ``pickable`` {policy: true/false} for the target product's instances.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections import Counter, defaultdict
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from binpick.errors import ConfigError
+from binpick.sim.products import ProductLibrary, default_library, load_products
+
+FORMAT = "binpick-bins-1"
+
+
+@dataclass
+class GenerateConfig:
+    out: str
+    scenes: int = 100
+    policies: list[str] = field(default_factory=lambda: ["x", "y"])  # empty: no labels
+    workers: int = 2
+    image_size: int = 416
+    copies: tuple[int, int] = (2, 8)  # K instances of the target product
+    distractors: tuple[int, int] = (0, 3)  # other products in the bin
+    held_out_categories: list[str] = field(default_factory=list)  # zero-shot test split
+    val_fraction: float = 0.1
+    scenes_per_world: int = 8  # scenes made from one compiled model (compiling + renderers ≈ 1 s)
+    randomise: bool = False  # lighting, table and tote colours per world
+    products: str | None = None  # a user's products YAML (added to the built-in library)
+    only_products: bool = False  # use only the user's products
+    photo_size: int = 256
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        from binpick.config import check_range
+
+        check_range("scenes", self.scenes, 1, 10_000_000, integer=True)
+        check_range("workers", self.workers, 1, 256, integer=True)
+        check_range("image_size", self.image_size, 32, 2048, integer=True)
+        check_range("scenes_per_world", self.scenes_per_world, 1, 1000, integer=True)
+        check_range("val_fraction", self.val_fraction, 0.0, 1.0)
+        self.copies, self.distractors = tuple(self.copies), tuple(self.distractors)
+        if not 1 <= self.copies[0] <= self.copies[1] <= 16:
+            raise ConfigError(f"copies must be a range within 1..16, got {self.copies}")
+        if not 0 <= self.distractors[0] <= self.distractors[1] <= 8:
+            raise ConfigError(f"distractors must be a range within 0..8, got {self.distractors}")
+        from binpick.sim.gripper import POLICIES
+
+        unknown = [p for p in self.policies if p not in POLICIES]
+        if unknown:
+            raise ConfigError(f"unknown grasp policy {unknown[0]!r}; choose from {', '.join(POLICIES)}")
+
+    def comparable(self) -> dict[str, Any]:
+        """What must match for a resume to add to the same data set (not scenes or workers)."""
+        data = asdict(self)
+        for key in ("out", "scenes", "workers"):
+            data.pop(key)
+        data["copies"], data["distractors"] = list(self.copies), list(self.distractors)
+        return data
+
+
+_LIBRARIES: dict[str, ProductLibrary] = {}
+
+
+def build_library(config: GenerateConfig) -> ProductLibrary:
+    """The products of a data set (cached per process: workers build it once, not once per world)."""
+    key = json.dumps([config.seed, config.products, config.only_products, sorted(config.held_out_categories)])
+    if key not in _LIBRARIES:
+        _LIBRARIES[key] = _build_library(config)
+    return _LIBRARIES[key]
+
+
+def _build_library(config: GenerateConfig) -> ProductLibrary:
+    library = ProductLibrary() if config.only_products else default_library(seed=config.seed)
+    if config.products:
+        library = load_products(config.products, library)
+    if config.only_products and not config.products:
+        raise ConfigError("only_products needs --products YAML")
+    config_categories = set(config.held_out_categories)
+    unknown = sorted(config_categories - set(library.categories))
+    if unknown:
+        raise ConfigError(f"unknown product category {unknown[0]!r}; known: {', '.join(library.categories)}")
+    return library
+
+
+# ---------------------------------------------------------------------- the output folder
+def prepare_output(config: GenerateConfig, library: ProductLibrary) -> Path:
+    """Create the folder, or check that an existing one is this same data set (then it resumes)."""
+    out = Path(config.out)
+    manifest = out / "dataset.json"
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"output {str(out)!r} is a file, not a folder")
+    if out.is_dir() and any(out.iterdir()):
+        if not manifest.is_file():
+            raise ConfigError(f"output folder {str(out)!r} is not empty and is not a binpick data set; choose another")
+        try:
+            existing = json.loads(manifest.read_text())
+        except (OSError, json.JSONDecodeError):
+            raise ConfigError(f"{manifest} is corrupt (not JSON): remove the folder or choose another") from None
+        if existing.get("format") != FORMAT or existing.get("config") != config.comparable():
+            raise ConfigError(f"{str(out)!r} holds a data set made with other settings; choose another folder")
+        return out
+    try:
+        for sub in ("images", "depth", "scenes", "photos", "queries"):
+            (out / sub).mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise ConfigError(f"cannot write to {str(out)!r}: {error.strerror}") from None
+    products = [{"id": p.id, "category": p.category} for p in library]
+    _write_json(manifest, {"format": FORMAT, "config": config.comparable(), "products": products})
+    return out
+
+
+def _write_json(path: Path, data: Any) -> None:
+    temporary = path.with_name(path.name + ".tmp")
+    temporary.write_text(json.dumps(data))
+    os.replace(temporary, path)
+
+
+def _write_png(path: Path, array: np.ndarray) -> None:
+    from PIL import Image
+
+    temporary = path.with_name(path.stem + ".tmp.png")
+    Image.fromarray(array).save(temporary, compress_level=1)  # fast; PNG stays lossless
+    os.replace(temporary, path)
+
+
+# ---------------------------------------------------------------------- what each world holds
+def world_plan(config: GenerateConfig, library: ProductLibrary, world: int) -> tuple[str, list[str], str]:
+    """The target product, distractor products and split of world ``world`` (deterministic)."""
+    rng = np.random.default_rng([config.seed, world])
+    products = sorted(library.products)
+    target = products[rng.integers(len(products))]
+    others = [p for p in products if p != target]
+    count = min(config.distractors[1], len(others))
+    distractors = [others[i] for i in rng.choice(len(others), size=count, replace=False)] if count else []
+    category = library[target].category
+    if category in config.held_out_categories:
+        split = "test"
+    else:
+        split = "val" if rng.uniform() < config.val_fraction else "train"
+    return target, distractors, split
+
+
+def generate_world(config: GenerateConfig, world: int, out: Path) -> list[dict[str, Any]]:
+    """Make the missing scenes of one world; returns their shard records (for progress)."""
+    from binpick.sim.bin_scene import BinWorld
+    from binpick.sim.gripper import make_policies
+    from binpick.sim.mjcf import CameraSpec
+
+    library = build_library(config)
+    first = world * config.scenes_per_world
+    indices = [i for i in range(first, min(first + config.scenes_per_world, config.scenes))
+               if not (out / "scenes" / f"{i:06d}.json").is_file()]
+    if not indices:
+        return []
+    target, distractors, split = world_plan(config, library, world)
+    sim = BinWorld(library[target], [library[d] for d in distractors], max_copies=config.copies[1],
+                   camera=CameraSpec(size=config.image_size), randomise_lighting=config.randomise,
+                   gripper=bool(config.policies), seed=config.seed * 1_000_003 + world)
+    policies = make_policies(config.policies)
+    records = []
+    try:
+        for index in indices:
+            rng = np.random.default_rng([config.seed, world, index])
+            copies = int(rng.integers(config.copies[0], config.copies[1] + 1))
+            extra = int(rng.integers(config.distractors[0], config.distractors[1] + 1))
+            scene = sim.scene(copies, extra, seed=int(rng.integers(2**31)))
+            record = scene_record(scene, index, split, config)
+            label_pickability(sim, scene, record, policies, rng)
+            _write_png(out / "images" / f"{index:06d}.png", scene.rgb)
+            depth_mm = np.clip(scene.depth * 1000.0, 0, 65535).astype(np.uint16)
+            _write_png(out / "depth" / f"{index:06d}.png", depth_mm)
+            query = next((a for a in record["annotations"] if a["is_query"]), None)
+            if query is not None:
+                x, y, w, h = (int(round(v)) for v in query["bbox"])
+                _write_png(out / "queries" / f"{index:06d}.png", scene.rgb[y:y + h, x:x + w])
+            _write_json(out / "scenes" / f"{index:06d}.json", record)  # last: the scene now exists
+            records.append(record)
+    finally:
+        sim.close()
+    return records
+
+
+def scene_record(scene, index: int, split: str, config: GenerateConfig) -> dict[str, Any]:
+    annotations = [{"slot": i.slot, "product": i.product_id, "category": i.category, "is_target": i.is_target,
+                    "bbox": list(i.bbox), "area": i.area, "visible_fraction": round(i.visible_fraction, 4),
+                    "position": list(i.position), "pickable": {}, "is_query": False} for i in scene.instances]
+    return {"index": index, "file_name": f"images/{index:06d}.png", "depth_file": f"depth/{index:06d}.png",
+            "width": config.image_size, "height": config.image_size, "split": split, "target": scene.target_id,
+            "seed": scene.seed, "annotations": annotations, "picked_by": None}
+
+
+def label_pickability(sim, scene, record: dict[str, Any], policies, rng: np.random.Generator) -> None:
+    """Thesis §5.4.4: try target instances in random order until one is picked (the query); then,
+    from the saved scene state, attempt every remaining instance — with each policy."""
+    targets = [a for a in record["annotations"] if a["is_target"]]
+    if not targets:
+        return
+    order = [targets[i] for i in rng.permutation(len(targets))]
+    for policy in policies:
+        for annotation in order:
+            sim.restore(scene.state)
+            annotation["pickable"][policy.name] = policy.attempt(sim, annotation["slot"])
+    first_policy = policies[0].name if policies else None
+    picked = next((a for a in order if first_policy and a["pickable"][first_policy]), None)
+    query = picked or order[0]
+    query["is_query"] = True
+    record["picked_by"] = first_policy if picked is not None else None
+
+
+# ---------------------------------------------------------------------- the whole run
+def generate(config: GenerateConfig, show_progress: bool = True) -> dict[str, Any]:
+    """Generate (or finish) a data set: worlds in parallel processes, then COCO files and the card."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+    library = build_library(config)
+    out = prepare_output(config, library)
+    done = len(list((out / "scenes").glob("*.json")))
+    worlds = range(-(-config.scenes // config.scenes_per_world))
+    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                  TimeRemainingColumn(), disable=not show_progress) as progress:
+        task = progress.add_task("scenes", total=config.scenes, completed=min(done, config.scenes))
+        if config.workers == 1:
+            for world in worlds:
+                progress.advance(task, len(generate_world(config, world, out)))
+        else:
+            import multiprocessing
+
+            context = multiprocessing.get_context("spawn")  # MuJoCo/EGL contexts do not survive fork
+            with context.Pool(config.workers) as pool:
+                for records in pool.imap_unordered(_generate_world_job, [(config, w, out) for w in worlds]):
+                    progress.advance(task, len(records))
+        photos = write_photos(config, library, out, progress)
+    return finalise(out, config, library) | {"photos": photos}
+
+
+def _generate_world_job(arguments) -> list[dict[str, Any]]:
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    return generate_world(*arguments)
+
+
+def write_photos(config: GenerateConfig, library: ProductLibrary, out: Path, progress=None) -> int:
+    from binpick.sim.photos import shop_photo
+
+    missing = [p for p in library if not (out / "photos" / f"{p.name}.png").is_file()]
+    task = progress.add_task("shop photos", total=len(missing)) if progress is not None and missing else None
+    for product in missing:
+        if product.photo is not None:
+            from PIL import Image
+
+            image = np.asarray(Image.open(product.photo).convert("RGB"))
+        else:
+            image = shop_photo(product, config.photo_size)
+        _write_png(out / "photos" / f"{product.name}.png", image)
+        if task is not None:
+            progress.advance(task)
+    return len(library)
+
+
+def open_dataset(data: Path) -> dict[str, Any]:
+    """The manifest of a data-set folder, or one clear line saying why it is not one."""
+    manifest = Path(data) / "dataset.json"
+    if not manifest.is_file():
+        raise ConfigError(f"{str(data)!r} is not a binpick data set (no dataset.json)")
+    try:
+        content = json.loads(manifest.read_text())
+    except json.JSONDecodeError:
+        raise ConfigError(f"{manifest} is corrupt (not JSON)") from None
+    if content.get("format") != FORMAT:
+        raise ConfigError(f"{manifest} is not a {FORMAT} data set")
+    return content
+
+
+def read_scene(data: Path, index: int) -> tuple[dict[str, Any], list[str]]:
+    manifest = open_dataset(data)
+    path = Path(data) / "scenes" / f"{index:06d}.json"
+    if not path.is_file():
+        raise ConfigError(f"scene {index} is not in {data} (scenes 0..{manifest['config'].get('scenes', '?')} may still be generating)")
+    try:
+        return json.loads(path.read_text()), manifest["config"]["policies"]
+    except json.JSONDecodeError:
+        raise ConfigError(f"{path} is corrupt (not JSON)") from None
+
+
+# ---------------------------------------------------------------------- COCO files and the card
+def load_records(out: Path) -> list[dict[str, Any]]:
+    records = []
+    for path in sorted((Path(out) / "scenes").glob("*.json")):
+        try:
+            records.append(json.loads(path.read_text()))
+        except json.JSONDecodeError:
+            raise ConfigError(f"{path} is corrupt (not JSON): delete it and run generate again to redo that scene") from None
+    return records
+
+
+def to_coco(records: list[dict[str, Any]], library_products: list[dict[str, str]]) -> dict[str, Any]:
+    category_ids = {p["id"]: i + 1 for i, p in enumerate(library_products)}
+    coco = {"info": {"description": "binpick warehouse bins", "format": FORMAT},
+            "categories": [{"id": category_ids[p["id"]], "name": p["id"], "supercategory": p["category"]} for p in library_products],
+            "images": [], "annotations": []}
+    next_id = 1
+    for record in records:
+        image_id = record["index"] + 1
+        query_id = None
+        for a in record["annotations"]:
+            x, y, w, h = a["bbox"]
+            coco["annotations"].append({
+                "id": next_id, "image_id": image_id, "category_id": category_ids[a["product"]], "bbox": [x, y, w, h],
+                "area": a["area"], "iscrowd": 0, "instance_id": a["slot"], "visible_fraction": a["visible_fraction"],
+                "is_target": a["is_target"], "is_query": a["is_query"], "pickable": a["pickable"]})
+            if a["is_query"]:
+                query_id = next_id
+            next_id += 1
+        coco["images"].append({"id": image_id, "file_name": record["file_name"], "depth_file": record["depth_file"],
+                               "width": record["width"], "height": record["height"], "split": record["split"],
+                               "target_product": record["target"], "query_annotation_id": query_id,
+                               "picked_by": record["picked_by"], "seed": record["seed"]})
+    return coco
+
+
+def finalise(out: Path, config: GenerateConfig | None = None, library: ProductLibrary | None = None) -> dict[str, Any]:
+    """Merge the scene shards into COCO files (all, and one per split) and write the card."""
+    out = Path(out)
+    manifest = json.loads((out / "dataset.json").read_text())
+    records = load_records(out)
+    coco = to_coco(records, manifest["products"])
+    _write_json(out / "annotations.json", coco)
+    for split in ("train", "val", "test"):
+        ids = {image["id"] for image in coco["images"] if image["split"] == split}
+        _write_json(out / f"annotations_{split}.json", coco | {
+            "images": [i for i in coco["images"] if i["id"] in ids],
+            "annotations": [a for a in coco["annotations"] if a["image_id"] in ids]})
+    stats = dataset_stats(records, manifest["config"]["policies"])
+    (out / "CARD.md").write_text(card(stats, manifest))
+    return stats
+
+
+def dataset_stats(records: list[dict[str, Any]], policies: list[str]) -> dict[str, Any]:
+    """Instances per image, pickable fraction per policy and category, and how often the policies disagree."""
+    instances = [len(r["annotations"]) for r in records]
+    targets = [a | {"category": a["category"]} for r in records for a in r["annotations"] if a["is_target"]]
+    labelled = [a for a in targets if all(p in a["pickable"] for p in policies)] if policies else []
+    by_category: dict[str, dict[str, float]] = defaultdict(dict)
+    for policy in policies:
+        groups: dict[str, list[bool]] = defaultdict(list)
+        for a in labelled:
+            groups[a["category"]].append(a["pickable"][policy])
+        for category, values in groups.items():
+            by_category[category][policy] = round(float(np.mean(values)), 4)
+    differs = [len({a["pickable"][p] for p in policies}) > 1 for a in labelled] if len(policies) > 1 else []
+    splits = Counter(r["split"] for r in records)
+    return {"scenes": len(records), "instances": int(sum(instances)),
+            "instances_per_image": round(float(np.mean(instances)), 3) if records else 0.0,
+            "target_instances_per_image": round(len(targets) / max(1, len(records)), 3),
+            "labelled_instances": len(labelled),
+            "pickable_fraction": {p: round(float(np.mean([a["pickable"][p] for a in labelled])), 4) for p in policies} if labelled else {},
+            "pickable_fraction_by_category": dict(sorted(by_category.items())),
+            "pickability_differs_fraction": round(float(np.mean(differs)), 4) if differs else None,
+            "scenes_with_a_pick": sum(r["picked_by"] is not None for r in records),
+            "splits": dict(splits), "categories": dict(Counter(a["category"] for a in targets))}
+
+
+def card(stats: dict[str, Any], manifest: dict[str, Any]) -> str:
+    config = manifest["config"]
+    lines = ["# binpick warehouse bins — data-set card", "",
+             f"Generated by `binpick data generate` ({FORMAT}); seed {config['seed']}, {config['image_size']} px overhead RGB-D,",
+             f"{config['copies'][0]}–{config['copies'][1]} copies of one product plus {config['distractors'][0]}–{config['distractors'][1]} "
+             f"distractor products per bin; grasp policies: {', '.join(config['policies']) or 'none'}.", "",
+             "| | |", "|---|---|",
+             f"| scenes | {stats['scenes']} (splits: {', '.join(f'{k} {v}' for k, v in sorted(stats['splits'].items()))}) |",
+             f"| instances | {stats['instances']} ({stats['instances_per_image']} per image, {stats['target_instances_per_image']} of the target) |",
+             f"| labelled target instances | {stats['labelled_instances']} |"]
+    for policy, fraction in stats["pickable_fraction"].items():
+        lines.append(f"| pickable by policy {policy} | {fraction:.1%} |")
+    if stats["pickability_differs_fraction"] is not None:
+        lines.append(f"| pickability differs between policies | {stats['pickability_differs_fraction']:.1%} |")
+    if stats["pickable_fraction_by_category"]:
+        policies = config["policies"]
+        lines += ["", "Pickable fraction by product category:", "", "| category | " + " | ".join(policies) + " |",
+                  "|---|" + "---|" * len(policies)]
+        for category, fractions in stats["pickable_fraction_by_category"].items():
+            lines.append(f"| {category} | " + " | ".join(f"{fractions.get(p, float('nan')):.0%}" for p in policies) + " |")
+    return "\n".join(lines) + "\n"
