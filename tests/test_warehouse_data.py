@@ -26,10 +26,10 @@ f 1 3 2\nf 1 4 3\nf 5 6 7\nf 5 7 8\nf 1 2 6\nf 1 6 5\nf 2 3 7\nf 2 7 6\nf 3 4 8\
 
 
 def test_library_has_the_shipped_products_and_users_add_their_own(tmp_path):
-    library = default_library(procedural=3, random_shapes=2)
+    library = default_library(procedural=3)
     ids = set(library.products)
     assert {"robosuite/cereal", "robosuite/milk", "pybullet/duck", "pybullet/mug"} <= ids
-    assert sum(i.startswith("procedural/") for i in ids) == 3 and sum(i.startswith("pybullet/random_") for i in ids) == 2
+    assert sum(i.startswith("procedural/") for i in ids) == 3
     (tmp_path / "soap.obj").write_text(CUBE)
     (tmp_path / "products.yaml").write_text("products:\n  - {id: acme/soap, category: soap, mesh: soap.obj, longest_side: 0.08}\n")
     library = load_products(tmp_path / "products.yaml", library)
@@ -46,7 +46,7 @@ def test_library_has_the_shipped_products_and_users_add_their_own(tmp_path):
 
 
 def test_scenes_are_deterministic_with_boxes_that_fit_the_segmentation():
-    library = default_library(procedural=3, random_shapes=0)
+    library = default_library(procedural=3)
     world = BinWorld(library["robosuite/can"], [library["pybullet/duck"]], max_copies=4, camera=CameraSpec(size=128))
     try:
         first = world.scene(4, 1, seed=7)
@@ -94,7 +94,7 @@ def test_generation_resumes_without_losing_or_duplicating_scenes(tmp_path, monke
     import binpick.warehouse.dataset as dataset
 
     monkeypatch.setattr(dataset, "_LIBRARIES", {})
-    monkeypatch.setattr(dataset, "default_library", lambda seed=0: default_library(procedural=3, random_shapes=0, seed=seed))
+    monkeypatch.setattr(dataset, "default_library", lambda seed=0: default_library(procedural=3, seed=seed))
     clean = generate(_tiny(tmp_path / "clean"), show_progress=False)
     assert clean["scenes"] == 4 and clean["instances_per_image"] >= 2
     partial = tmp_path / "partial"
@@ -122,7 +122,7 @@ def test_generation_resumes_without_losing_or_duplicating_scenes(tmp_path, monke
 def test_labels_and_zero_shot_split(tmp_path, monkeypatch):
     import binpick.warehouse.dataset as dataset
 
-    library = default_library(procedural=3, random_shapes=0)
+    library = default_library(procedural=3)
     monkeypatch.setattr(dataset, "_LIBRARIES", {})
     monkeypatch.setattr(dataset, "default_library", lambda seed=0: library)
     config = _tiny(tmp_path / "labelled", scenes=2, scenes_per_world=1, policies=["x", "y"], copies=(2, 2),

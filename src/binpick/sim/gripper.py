@@ -23,6 +23,7 @@ PARK = (-3.0, 0.0, 0.5)  # the gripper waits out of the camera's view
 OPENING = 0.11  # jaw opening when open (m)
 LIFT_SUCCESS = 0.10  # the object must rise this much ...
 HOLD_SECONDS = 1.0  # ... and stay held this long
+TRIAL_TIMESTEP = 0.004  # trials step at 4 ms (scenes settle at 2 ms): same pick rates, half the cost
 
 GRIPPER_BODY = f"""
 <body name="gripper_target" mocap="true" pos="{PARK[0]} {PARK[1]} {PARK[2]}"/>
@@ -91,6 +92,14 @@ class TopDownGrasp:
         self.axis, self.name = axis, axis
 
     def attempt(self, world, slot: int) -> bool:
+        settle_timestep = world.model.opt.timestep
+        world.model.opt.timestep = TRIAL_TIMESTEP
+        try:
+            return self._attempt(world, slot)
+        finally:
+            world.model.opt.timestep = settle_timestep
+
+    def _attempt(self, world, slot: int) -> bool:
         model, data, gripper = world.model, world.data, world.gripper
         body = world.body_ids[slot]
         centre, top = world.instance_centre_and_top(slot)

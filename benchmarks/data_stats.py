@@ -1,0 +1,84 @@
+"""Statistics of a generated warehouse data set (issue 5), and its pictures for the docs.
+
+    binpick data generate --out runs/data/bins_2000 --scenes 2000 --workers 2 --held-out can,toy
+    python benchmarks/data_stats.py [--data runs/data/bins_2000]
+
+Writes results/data_stats.json ({scenes, instances_per_image, pickable_fraction {policy},
+pickability_differs_fraction, ...}), the data-stats section of docs/RESULTS.md,
+docs/img/bins_labelled.png (one bin, one panel per grasp policy, Fig 5.13 style) and
+docs/img/shop_photos.png (every product's shop photo).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+sys.path.insert(0, os.path.dirname(__file__))
+
+import _common  # noqa: E402
+import numpy as np  # noqa: E402
+
+from binpick.warehouse.dataset import dataset_stats, load_records, open_dataset  # noqa: E402
+
+IMAGES = _common.ROOT / "docs" / "img"
+
+
+def pick_example(records: list[dict], policies: list[str]) -> dict:
+    """A scene where the policies disagree on several instances (what Fig 5.13 shows)."""
+    def disagreements(record: dict) -> int:
+        return sum(len({a["pickable"].get(p) for p in policies}) > 1 for a in record["annotations"] if a["is_target"])
+
+    return max(records, key=lambda r: (disagreements(r), len(r["annotations"])))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", type=Path, default=_common.ROOT / "runs" / "data" / "bins_2000")
+    args = parser.parse_args()
+    manifest = open_dataset(args.data)
+    policies = manifest["config"]["policies"]
+    records = load_records(args.data)
+    stats = dataset_stats(records, policies)
+    result = {"data": str(args.data), "requested_scenes": manifest["config"].get("scenes"), **stats,
+              "target_differs_fraction": 0.10,
+              "met": stats["pickability_differs_fraction"] is not None and stats["pickability_differs_fraction"] > 0.10}
+    path = _common.write_result("data_stats", result)
+
+    from PIL import Image
+
+    from binpick.sim.photos import contact_sheet
+    from binpick.viz.bins import plot_policies_side_by_side
+
+    IMAGES.mkdir(parents=True, exist_ok=True)
+    if policies:
+        plot_policies_side_by_side(args.data, pick_example(records, policies), policies, IMAGES / "bins_labelled.png")
+    photos = {p.stem: np.asarray(Image.open(p).convert("RGB").resize((128, 128))) for p in sorted((args.data / "photos").glob("*.png"))}
+    if photos:
+        Image.fromarray(contact_sheet(photos, columns=9)).save(IMAGES / "shop_photos.png")
+
+    rows = ["## Warehouse bin data set (issue 5, thesis §5.4.4, §6.3)", "",
+            f"`python benchmarks/data_stats.py --data {args.data.relative_to(_common.ROOT) if args.data.is_relative_to(_common.ROOT) else args.data}` → "
+            f"`{path.relative_to(_common.ROOT)}`; pictures: `docs/img/bins_labelled.png`, `docs/img/shop_photos.png`.", "",
+            "| | ours | target / thesis |", "|---|---|---|",
+            f"| scenes | {stats['scenes']:,} | 2,000 |",
+            f"| instances per image | {stats['instances_per_image']:.2f} ({stats['target_instances_per_image']:.2f} of the ordered product) | — |"]
+    for policy, fraction in stats["pickable_fraction"].items():
+        rows.append(f"| pickable by policy {policy} (jaws along the robot's {policy}-axis) | {fraction:.1%} | — |")
+    if stats["pickability_differs_fraction"] is not None:
+        verdict = "met" if result["met"] else "missed"
+        rows.append(f"| instances whose pickability differs between the policies | {stats['pickability_differs_fraction']:.1%} | > 10% ({verdict}) |")
+    if stats["pickable_fraction_by_category"]:
+        rows += ["", "Pickable fraction by product category (trial grasps from the saved scene state):", "",
+                 "| category | instances | " + " | ".join(f"policy {p}" for p in policies) + " |", "|---|---|" + "---|" * len(policies)]
+        for category, fractions in stats["pickable_fraction_by_category"].items():
+            rows.append(f"| {category} | {stats['categories'].get(category, 0)} | " + " | ".join(f"{fractions.get(p, 0):.0%}" for p in policies) + " |")
+    _common.write_section("data_stats", "\n".join(rows))
+    print("\n".join(rows))
+
+
+if __name__ == "__main__":
+    main()
