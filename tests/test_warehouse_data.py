@@ -125,7 +125,7 @@ def test_labels_and_zero_shot_split(tmp_path, monkeypatch):
     library = default_library(procedural=3)
     monkeypatch.setattr(dataset, "_LIBRARIES", {})
     monkeypatch.setattr(dataset, "default_library", lambda seed=0: library)
-    config = _tiny(tmp_path / "labelled", scenes=2, scenes_per_world=1, policies=["x", "y"], copies=(2, 2),
+    config = _tiny(tmp_path / "labelled", scenes=2, scenes_per_world=1, policies=["x", "y"], copies=(2, 2), targets=["can", "toy"],
                    distractors=(0, 0), held_out_categories=["can", "bottle", "box", "carton", "bakery", "fruit", "toy", "mug",
                                                             "procedural_box", "procedural_cylinder", "procedural_sphere"])
     stats = generate(config, show_progress=False)
@@ -137,6 +137,7 @@ def test_labels_and_zero_shot_split(tmp_path, monkeypatch):
         query = next(a for a in coco["annotations"] if a["id"] == image["query_annotation_id"])
         assert query["is_target"] and (image["picked_by"] is None or query["pickable"]["x"])
     assert {c["supercategory"] for c in coco["categories"]} >= {"can", "toy"}
+    assert {i["target_product"] for i in coco["images"]} <= {"robosuite/can", "pybullet/duck", "pybullet/lego"}
 
 
 def test_data_cli_generates_shows_and_reports_bad_input_in_one_line(tmp_path):
@@ -150,6 +151,7 @@ def test_data_cli_generates_shows_and_reports_bad_input_in_one_line(tmp_path):
     assert run("stats", str(out)).returncode == 0
     for args, message in [(("generate", "--out", str(tmp_path / "x"), "--policies", "z"), "unknown grasp policy 'z'"),
                           (("generate", "--out", str(tmp_path / "x"), "--held-out", "furniture"), "unknown product category 'furniture'"),
+                          (("generate", "--out", str(tmp_path / "x"), "--targets", "acme/nothing"), "unknown product or category 'acme/nothing'"),
                           (("show", str(tmp_path)), "not a binpick data set"),
                           (("show", str(out), "--index", "9"), "scene 9 is not in")]:
         result = run(*args)

@@ -259,6 +259,7 @@ def data_generate(
     copies: Annotated[str, typer.Option(help="Instances of the target product per bin, LOW,HIGH")] = "2,8",
     distractors: Annotated[str, typer.Option(help="Other products per bin, LOW,HIGH")] = "0,3",
     held_out: Annotated[str, typer.Option(help="Product categories for the zero-shot test split, comma-separated")] = "",
+    targets: Annotated[str, typer.Option(help="Products or categories to fill bins with, comma-separated (default: all)")] = "",
     randomise: Annotated[bool, typer.Option(help="Randomise lighting and colours per world")] = False,
     seed: Annotated[int, typer.Option(help="Seed")] = 0,
 ) -> None:
@@ -268,6 +269,7 @@ def data_generate(
     config = GenerateConfig(out=str(out), scenes=scenes, policies=[p for p in policies.split(",") if p], workers=workers,
                             image_size=size, copies=_pair(copies, "copies"), distractors=_pair(distractors, "distractors"),
                             held_out_categories=[c for c in held_out.split(",") if c], randomise=randomise,
+                            targets=[t for t in targets.split(",") if t],
                             products=str(products) if products else None, only_products=only_products, seed=seed)
     stats = generate(config)
     _print_stats(stats, out)

@@ -45,6 +45,7 @@ class GenerateConfig:
     copies: tuple[int, int] = (2, 8)  # K instances of the target product
     distractors: tuple[int, int] = (0, 3)  # other products in the bin
     held_out_categories: list[str] = field(default_factory=list)  # zero-shot test split
+    targets: list[str] = field(default_factory=list)  # product ids or categories to order (default: all)
     val_fraction: float = 0.1
     scenes_per_world: int = 8  # scenes made from one compiled model (compiling + renderers ≈ 1 s)
     randomise: bool = False  # lighting, table and tote colours per world
@@ -102,7 +103,17 @@ def _build_library(config: GenerateConfig) -> ProductLibrary:
     unknown = sorted(config_categories - set(library.categories))
     if unknown:
         raise ConfigError(f"unknown product category {unknown[0]!r}; known: {', '.join(library.categories)}")
+    for name in config.targets:
+        if name not in library.products and name not in library.categories:
+            raise ConfigError(f"unknown product or category {name!r} in targets; categories: {', '.join(library.categories)}")
     return library
+
+
+def target_products(config: GenerateConfig, library: ProductLibrary) -> list[str]:
+    """Products that can be the ordered (repeated) one: all, or those named in ``targets``."""
+    if not config.targets:
+        return sorted(library.products)
+    return sorted(p.id for p in library if p.id in config.targets or p.category in config.targets)
 
 
 # ---------------------------------------------------------------------- the output folder
@@ -119,7 +130,8 @@ def prepare_output(config: GenerateConfig, library: ProductLibrary) -> Path:
             existing = json.loads(manifest.read_text())
         except (OSError, json.JSONDecodeError):
             raise ConfigError(f"{manifest} is corrupt (not JSON): remove the folder or choose another") from None
-        if existing.get("format") != FORMAT or existing.get("config") != config.comparable():
+        stored = {**GenerateConfig(out="").comparable(), **existing.get("config", {})}  # settings added later: defaults
+        if existing.get("format") != FORMAT or stored != config.comparable():
             raise ConfigError(f"{str(out)!r} holds a data set made with other settings; choose another folder")
         return out
     try:
@@ -150,9 +162,9 @@ def _write_png(path: Path, array: np.ndarray) -> None:
 def world_plan(config: GenerateConfig, library: ProductLibrary, world: int) -> tuple[str, list[str], str]:
     """The target product, distractor products and split of world ``world`` (deterministic)."""
     rng = np.random.default_rng([config.seed, world])
-    products = sorted(library.products)
-    target = products[rng.integers(len(products))]
-    others = [p for p in products if p != target]
+    candidates = target_products(config, library)
+    target = candidates[rng.integers(len(candidates))]
+    others = [p for p in sorted(library.products) if p != target]
     count = min(config.distractors[1], len(others))
     distractors = [others[i] for i in rng.choice(len(others), size=count, replace=False)] if count else []
     category = library[target].category
