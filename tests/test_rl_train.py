@@ -155,6 +155,9 @@ def test_run_stops_after_enough_successful_evaluations(tmp_path):
     (run,) = (tmp_path / "runs" / "tiny").iterdir()
     metrics = json.loads((run / "metrics.json").read_text())
     assert metrics["sim_steps"] == 400 and [e["sim_steps"] for e in metrics["evaluations"]] == [200, 400]
+    result = cli("rl", "train", "--resume", str(run))  # finished early: resuming must not train on to 900
+    assert result.returncode == 0, result.stderr
+    assert json.loads((run / "metrics.json").read_text())["sim_steps"] == 400
 
 
 def test_dqn_rejects_images_too_small_for_its_cnn():

@@ -274,9 +274,16 @@ class Trainer:
         self.metrics.demo_episodes, self.metrics.demo_steps = len(episodes), steps
         self.metrics.bc_final_loss = losses[-1] if losses else None
 
+    def stopped_early(self) -> bool:
+        """True when the last ``stop_after_successes`` evaluations all passed: the run ended there, and
+        resuming it must not train on to ``total_timesteps``."""
+        wanted, threshold = self.config.eval.stop_after_successes, self.config.eval.success_threshold
+        last = self.metrics.evaluations[-wanted:] if wanted else []
+        return bool(wanted) and len(last) == wanted and all(e["success_rate"] >= threshold for e in last)
+
     def run(self, show_progress: bool = True) -> dict[str, Any]:
         torch.set_num_threads(1)  # small networks: threads cost more than they give on 2 cores
-        remaining = self.config.total_timesteps - int(self.model.num_timesteps)
+        remaining = 0 if self.stopped_early() else self.config.total_timesteps - int(self.model.num_timesteps)
         started = time.perf_counter() - self.metrics.wall_seconds
         evaluator = Evaluate(self.config, self.metrics)
         callbacks: list[BaseCallback] = [evaluator, Checkpoint(self)]
