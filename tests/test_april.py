@@ -195,7 +195,7 @@ eval: {every: 1000, episodes: 1}
         from_dict(RLConfig, {"env": "FetchPickAndPlace", "gp": {"enabled": True}})
 
 
-def test_cloning_goes_on_during_rl_q_filtered_and_survives_a_resume(tmp_path):
+def test_cloning_fits_sigma_goes_on_during_rl_and_survives_a_resume(tmp_path):
     """Pick and place: σ fitted to the demonstrations, Q-filtered cloning in every SAC update, kept
     in the checkpoint so a resumed run still clones."""
     import torch
@@ -222,7 +222,7 @@ eval: {every: 1000, episodes: 1}
 
     def spread() -> float:  # the actor's exploration σ on the demonstrated states
         tensor, _ = trainer.model.policy.obs_to_tensor(demo_states)
-        return float(trainer.model.actor.get_action_dist_params(tensor)[1].exp()[:, :3].mean())  # the moves
+        return float(trainer.model.actor.get_action_dist_params(tensor)[1].detach().exp()[:, :3].mean())  # the moves
 
     trainer.learn_from_demonstrations()
     demonstrations = trainer.model.demonstrations
