@@ -28,8 +28,8 @@ class GoalSAC(SAC):
     """SAC that trains only once its :class:`EpisodeReplayBuffer` is ``start_fraction`` full.
 
     With ``demonstrations`` and ``bc_alpha`` > 0 (pick and place, thesis §4.5.3) the actor keeps a
-    Q-filtered behaviour-cloning term while it learns: plain SAC forgets a cloned policy within a few
-    thousand steps, because its first actor updates follow a critic that knows nothing yet.
+    behaviour-cloning term (optionally Q-filtered) while it learns: plain SAC forgets a cloned policy
+    within a few thousand steps, because its first actor updates follow a critic that knows nothing yet.
     """
 
     demonstrations: DemonstrationSet | None = None
@@ -53,7 +53,7 @@ class GoalSAC(SAC):
 
     def _train_with_demonstrations(self, gradient_steps: int, batch_size: int, update_actor: bool = True) -> None:
         """SB3's SAC update (critic, entropy weight, actor) with the actor loss of TD3+BC:
-        α · (ent · log π − Q) / mean|Q| + Q-filtered cloning, so the two terms keep comparable scales
+        α · (ent · log π − Q) / mean|Q| + cloning, so the two terms keep comparable scales
         (|Q| is at least 1: rewards are −1 per step, a smaller mean only means an untrained critic)."""
         self.policy.set_training_mode(True)
         optimizers = [self.actor.optimizer, self.critic.optimizer]
@@ -66,8 +66,9 @@ class GoalSAC(SAC):
         logs: dict[str, list[float]] = {"actor_loss": [], "critic_loss": [], "ent_coef": [], "bc_loss": []}
         for _ in range(gradient_steps):
             data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)
-            actions_pi, log_prob = self.actor.action_log_prob(data.observations)
-            log_prob = log_prob.reshape(-1, 1)
+            if update_actor:  # the critic-only warm-up needs no actions of the actor's own here
+                actions_pi, log_prob = self.actor.action_log_prob(data.observations)
+                log_prob = log_prob.reshape(-1, 1)
             if self.ent_coef_optimizer is not None and self.log_ent_coef is not None and update_actor:
                 ent_coef = torch.exp(self.log_ent_coef.detach())
                 ent_coef_loss = -(self.log_ent_coef * (log_prob + self.target_entropy).detach()).mean()

@@ -120,7 +120,7 @@ class DemonstrationConfig:
     bc_steps: int = 2000  # actor gradient steps on their actions
     noise: float = 0.1  # Gaussian noise on the heuristic's moves, for varied demonstrations
     likelihood_weight: float = 0.0  # > 0: also fit the actor's exploration σ to the demonstrations
-    bc_alpha: float = 0.0  # > 0: keep Q-filtered cloning during RL; weight of the RL term (TD3+BC's α)
+    bc_alpha: float = 0.0  # > 0: keep cloning during RL; weight of the RL term (TD3+BC's α)
     critic_steps: int = 0  # with bc_alpha: critic-only updates on the demonstrations before RL starts
     q_filter: bool = False  # with bc_alpha: clone only where the critic prefers the demonstrated action
 

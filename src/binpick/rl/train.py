@@ -107,6 +107,14 @@ class Metrics:
         return data
 
 
+def stopped_early(config: RLConfig, metrics: Metrics) -> bool:
+    """True when the last ``stop_after_successes`` evaluations all passed: training ends there, and a
+    resumed run that ended so must not train on to ``total_timesteps``."""
+    wanted, threshold = config.eval.stop_after_successes, config.eval.success_threshold
+    last = metrics.evaluations[-wanted:] if wanted else []
+    return bool(wanted) and len(last) == wanted and all(e["success_rate"] >= threshold for e in last)
+
+
 class Evaluate(BaseCallback):
     """Every ``config.eval.every`` simulator steps: seeded evaluation episodes, logged and kept."""
 
@@ -115,7 +123,6 @@ class Evaluate(BaseCallback):
         self.config, self.metrics = config, metrics
         self.env = make_env(config)
         self._next = config.eval.every
-        self._in_a_row = 0
 
     def _on_training_start(self) -> None:
         self._next = next_multiple(self.model.num_timesteps, self.config.eval.every)  # right after a resume too
@@ -123,11 +130,8 @@ class Evaluate(BaseCallback):
     def _on_step(self) -> bool:
         if self.num_timesteps >= self._next:
             self._next += self.config.eval.every
-            row = self.evaluate()
-            passed = row["success_rate"] >= self.config.eval.success_threshold
-            self._in_a_row = self._in_a_row + 1 if passed else 0
-            wanted = self.config.eval.stop_after_successes
-            if wanted and self._in_a_row >= wanted:
+            self.evaluate()
+            if stopped_early(self.config, self.metrics):
                 return False  # SB3 ends learn() when a callback returns False
         return True
 
@@ -266,7 +270,7 @@ class Trainer:
         demonstrations = DemonstrationSet(episodes, self.model.action_space.low, self.model.action_space.high)
         losses = behaviour_clone(self.model, demonstrations, demos.bc_steps, self.config.sac.batch_size,
                                  self.config.seed, demos.likelihood_weight)
-        if demos.bc_alpha:  # keep cloning (Q-filtered) while SAC learns
+        if demos.bc_alpha:  # keep cloning while SAC learns
             self.model.demonstrations, self.model.bc_alpha = demonstrations, demos.bc_alpha
             self.model.bc_likelihood_weight, self.model.bc_q_filter = demos.likelihood_weight, demos.q_filter
             if demos.critic_steps and self.model.replay_buffer.ready:
@@ -274,16 +278,9 @@ class Trainer:
         self.metrics.demo_episodes, self.metrics.demo_steps = len(episodes), steps
         self.metrics.bc_final_loss = losses[-1] if losses else None
 
-    def stopped_early(self) -> bool:
-        """True when the last ``stop_after_successes`` evaluations all passed: the run ended there, and
-        resuming it must not train on to ``total_timesteps``."""
-        wanted, threshold = self.config.eval.stop_after_successes, self.config.eval.success_threshold
-        last = self.metrics.evaluations[-wanted:] if wanted else []
-        return bool(wanted) and len(last) == wanted and all(e["success_rate"] >= threshold for e in last)
-
     def run(self, show_progress: bool = True) -> dict[str, Any]:
         torch.set_num_threads(1)  # small networks: threads cost more than they give on 2 cores
-        remaining = 0 if self.stopped_early() else self.config.total_timesteps - int(self.model.num_timesteps)
+        remaining = 0 if stopped_early(self.config, self.metrics) else self.config.total_timesteps - int(self.model.num_timesteps)
         started = time.perf_counter() - self.metrics.wall_seconds
         evaluator = Evaluate(self.config, self.metrics)
         callbacks: list[BaseCallback] = [evaluator, Checkpoint(self)]

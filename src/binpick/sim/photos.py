@@ -6,7 +6,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from binpick.sim.mjcf import _fmt, product_assets, product_geom
+from binpick.sim.mjcf import product_assets, product_geom
 from binpick.sim.products import Product
 
 
@@ -55,5 +55,3 @@ def contact_sheet(photos: dict[str, np.ndarray], columns: int = 8) -> np.ndarray
         sheet[(i // columns) * h:(i // columns + 1) * h, (i % columns) * w:(i % columns + 1) * w] = image
     return sheet
 
-
-__all__ = ["shop_photo", "contact_sheet", "_fmt"]

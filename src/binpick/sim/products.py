@@ -13,7 +13,7 @@ Sources (nothing is downloaded):
 from __future__ import annotations
 
 import importlib.util
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -211,15 +211,11 @@ def check_product_compiles(product: Product) -> None:
     xml = (f"<mujoco><asset>{product_assets(product, 'p')}</asset><worldbody>"
            f"{product_body(product, 'p', (0, 0, 0.1), (1, 0, 0, 0))}</worldbody></mujoco>")
     try:
-        model = mujoco.MjModel.from_xml_string(xml)
+        mujoco.MjModel.from_xml_string(xml)
     except Exception as error:  # noqa: BLE001 - MuJoCo raises ValueError with a long message
         raise ConfigError(f"mesh {str(product.mesh)!r} cannot be used: {str(error).splitlines()[0]}") from None
     extent = mesh_extent(product.mesh) * product.scale if product.mesh else None
     if extent is not None and not 0.005 < extent.max() < 0.5:
         raise ConfigError(f"mesh {str(product.mesh)!r} is {extent.max():.3f} m across after scaling; "
                           "set longest_side (metres) for it")
-    del model
 
-
-def with_overrides(product: Product, **changes) -> Product:
-    return replace(product, **changes)

@@ -99,10 +99,7 @@ def _build_library(config: GenerateConfig) -> ProductLibrary:
         library = load_products(config.products, library)
     if config.only_products and not config.products:
         raise ConfigError("only_products needs --products YAML")
-    config_categories = set(config.held_out_categories)
-    unknown = sorted(config_categories - set(library.categories))
-    if unknown:
-        raise ConfigError(f"unknown product category {unknown[0]!r}; known: {', '.join(library.categories)}")
+    library.in_categories(config.held_out_categories)  # names an unknown category in one line
     for name in config.targets:
         if name not in library.products and name not in library.categories:
             raise ConfigError(f"unknown product or category {name!r} in targets; categories: {', '.join(library.categories)}")
@@ -265,7 +262,7 @@ def generate(config: GenerateConfig, show_progress: bool = True) -> dict[str, An
                 for records in pool.imap_unordered(_generate_world_job, [(config, w, out) for w in worlds]):
                     progress.advance(task, len(records))
         photos = write_photos(config, library, out, progress)
-    return finalise(out, config, library) | {"photos": photos}
+    return finalise(out) | {"photos": photos}
 
 
 def _generate_world_job(arguments) -> list[dict[str, Any]]:
@@ -352,7 +349,7 @@ def to_coco(records: list[dict[str, Any]], library_products: list[dict[str, str]
     return coco
 
 
-def finalise(out: Path, config: GenerateConfig | None = None, library: ProductLibrary | None = None) -> dict[str, Any]:
+def finalise(out: Path) -> dict[str, Any]:
     """Merge the scene shards into COCO files (all, and one per split) and write the card."""
     out = Path(out)
     manifest = json.loads((out / "dataset.json").read_text())
@@ -372,7 +369,7 @@ def finalise(out: Path, config: GenerateConfig | None = None, library: ProductLi
 def dataset_stats(records: list[dict[str, Any]], policies: list[str]) -> dict[str, Any]:
     """Instances per image, pickable fraction per policy and category, and how often the policies disagree."""
     instances = [len(r["annotations"]) for r in records]
-    targets = [a | {"category": a["category"]} for r in records for a in r["annotations"] if a["is_target"]]
+    targets = [a for r in records for a in r["annotations"] if a["is_target"]]
     labelled = [a for a in targets if all(p in a["pickable"] for p in policies)] if policies else []
     by_category: dict[str, dict[str, float]] = defaultdict(dict)
     for policy in policies:
