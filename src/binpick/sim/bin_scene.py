@@ -78,6 +78,11 @@ class BinWorld:
         self.body_ids = [self.model.body(f"slot{i}").id for i in range(len(self.slots))]
         self.qpos_adr = [self.model.jnt_qposadr[self.model.body_jntadr[b]] for b in self.body_ids]
         self.dof_adr = [self.model.jnt_dofadr[self.model.body_jntadr[b]] for b in self.body_ids]
+        # each product's bounding sphere: its geom's centre (a mesh may sit far off the body origin,
+        # like pybullet's teddy) and radius; drops are placed by it
+        geoms = [int(np.flatnonzero(self.model.geom_bodyid == b)[0]) for b in self.body_ids]
+        self.offset = [self.model.geom_pos[g].copy() for g in geoms]
+        self.radius = [float(self.model.geom_rbound[g]) for g in geoms]
         # geom id -> slot (or -1): segmentation gives geom ids
         self.geom_slot = np.full(self.model.ngeom + 1, -1, dtype=np.int16)
         for slot, body in enumerate(self.body_ids):
@@ -125,12 +130,26 @@ class BinWorld:
         mujoco.mj_resetData(self.model, self.data)
         for slot in range(len(self.slots)):
             self._place(slot, self._parked(slot), (1, 0, 0, 0))
-        order = rng.permutation(used)
         hx, hy = BIN_HALF
-        for level, slot in enumerate(order):
-            position = (rng.uniform(-hx + 0.05, hx - 0.05), rng.uniform(-hy + 0.05, hy - 0.05), FLOOR_TOP + 0.07 + 0.06 * level)
+        placed: list[tuple[np.ndarray, float]] = []  # (centre, radius) of the bounding spheres so far
+        for slot in rng.permutation(used):
+            radius = self.radius[slot]
+            room = np.maximum([hx - radius - 0.005, hy - radius - 0.005], 0.0)  # clear of the walls
+            xy = rng.uniform(-room, room)
+            # lowest start that overlaps nothing dropped before: overlaps start products flying
+            z = FLOOR_TOP + radius + 0.01
+            for centre, other in placed:
+                reach = radius + other + 0.005
+                gap = float(np.linalg.norm(xy - centre[:2]))
+                if gap < reach:
+                    z = max(z, centre[2] + float(np.sqrt(reach ** 2 - gap ** 2)))
             quaternion = rng.normal(size=4)
-            self._place(slot, position, quaternion / np.linalg.norm(quaternion))
+            quaternion /= np.linalg.norm(quaternion)
+            rotation = np.zeros(9)
+            mujoco.mju_quat2Mat(rotation, quaternion)
+            centre = np.array([*xy, z])
+            self._place(slot, centre - rotation.reshape(3, 3) @ self.offset[slot], quaternion)
+            placed.append((centre, radius))
         mujoco.mj_forward(self.model, self.data)
         steps = int(SETTLE_SECONDS / self.model.opt.timestep)
         for step in range(steps):
@@ -194,7 +213,8 @@ class BinWorld:
             if not mask.any():
                 continue  # fully hidden, or bounced out of view
             position = self.data.qpos[self.qpos_adr[slot]:self.qpos_adr[slot] + 3]
-            if position[2] < FLOOR_TOP - 0.01 or abs(position[0]) > BIN_HALF[0] + 0.03 or abs(position[1]) > BIN_HALF[1] + 0.03:
+            centre, _ = self.instance_centre_and_top(slot)  # not the body origin: meshes may sit off it
+            if centre[2] < FLOOR_TOP - 0.01 or abs(centre[0]) > BIN_HALF[0] + 0.03 or abs(centre[1]) > BIN_HALF[1] + 0.03:
                 continue  # fell out of the tote
             ys, xs = np.nonzero(mask)
             full = self._amodal_pixels(slot)

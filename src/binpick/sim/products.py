@@ -4,9 +4,11 @@ users' own products from a folder described by a YAML file.
 Sources (nothing is downloaded):
 - ``robosuite`` (installed ``--no-deps``; only its asset files are read, the package is never
   imported): bottle, bread, can, cereal, lemon, milk, with their textures;
-- ``pybullet_data``: duck, mug, lego. (Its teddy and its 1000 ``random_urdfs`` shapes are left out:
-  dropped in a tote, 9-14 of 16 copies of most random shapes ended below the tote floor; the teddy
-  lost 4 of 16. Users can still add any mesh that settles with ``--products``.);
+- ``pybullet_data``: duck, mug, lego, teddy, and a seeded draw from its 1000 ``random_urdfs``
+  shapes (convex decompositions, merged into one mesh). Shapes thinner than 0.35 of their length
+  are skipped: dropped eight at a time into a tote, thin sticks ended below the tote floor
+  (22 of 32 copies of shape 966), while stubby ones lost 1 of 832 (with the stiffer product
+  contacts of :mod:`binpick.sim.mjcf`);
 - procedural boxes, cylinders and spheres with random colours and a printed check pattern.
 """
 
@@ -94,7 +96,9 @@ PYBULLET = {  # name: (category, mesh, texture, target longest side m)
     "duck": ("toy", "duck.obj", "duckCM.png", 0.08),
     "mug": ("mug", "objects/mug.obj", None, 0.10),
     "lego": ("toy", "lego/lego.obj", None, 0.06),
+    "teddy": ("plush", "teddy2_VHACD_CHs.obj", None, 0.12),
 }
+MIN_ASPECT = 0.35  # random shapes: shortest / longest side
 
 
 def mesh_extent(path: Path) -> np.ndarray:
@@ -125,9 +129,27 @@ def _random_colour(rng: np.random.Generator) -> tuple[float, float, float, float
     return (*np.round(colour, 3).tolist(), 1.0)
 
 
-def default_library(procedural: int = 18, seed: int = 0) -> ProductLibrary:
-    """Every product that ships with the installed packages, plus ``procedural`` primitives
-    (deterministic under ``seed``)."""
+def random_shapes(data: Path, count: int, rng: np.random.Generator) -> list[Product]:
+    """``count`` stubby shapes from pybullet's random pool, 5-9 cm long, in random colours."""
+    products = []
+    for index in rng.permutation(1000):
+        if len(products) == count:
+            break
+        path = data / "random_urdfs" / f"{index:03d}" / f"{index:03d}.obj"
+        try:
+            extent = mesh_extent(path)
+        except ConfigError:  # a few files hold non-finite vertices
+            continue
+        if extent.min() / extent.max() < MIN_ASPECT:
+            continue
+        products.append(Product(f"pybullet/shape_{index:03d}", "random_shape", mesh=path,
+                                scale=float(rng.uniform(0.05, 0.09) / extent.max()), rgba=_random_colour(rng), mass=0.1))
+    return products
+
+
+def default_library(procedural: int = 18, shapes: int = 12, seed: int = 0) -> ProductLibrary:
+    """Every product that ships with the installed packages, ``shapes`` of pybullet's random shapes
+    and ``procedural`` primitives (deterministic under ``seed``)."""
     rng = np.random.default_rng(seed)
     library = ProductLibrary()
     robosuite = package_dir("robosuite")
@@ -142,6 +164,8 @@ def default_library(procedural: int = 18, seed: int = 0) -> ProductLibrary:
             path = data / mesh
             library.add(Product(f"pybullet/{name}", category, mesh=path, scale=float(longest / mesh_extent(path).max()),
                                 texture=data / texture if texture else None, rgba=_random_colour(rng), mass=0.12))
+        for product in random_shapes(data, shapes, rng):
+            library.add(product)
     shapes = ["box", "cylinder", "sphere"]
     for i in range(procedural):
         shape = shapes[i % 3]
