@@ -1,6 +1,6 @@
 """Statistics of a generated warehouse data set (issue 5), and its pictures for the docs.
 
-    binpick data generate --out runs/data/bins_2000 --scenes 2000 --workers 2 --held-out can,toy
+    binpick data generate --out runs/data/bins_2000 --scenes 2000 --workers 2 --held-out can,mug,toy
     python benchmarks/data_stats.py [--data runs/data/bins_2000]
 
 Writes results/data_stats.json ({scenes, instances_per_image, pickable_fraction {policy},
