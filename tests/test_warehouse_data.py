@@ -155,6 +155,15 @@ def test_labels_and_zero_shot_split(tmp_path, monkeypatch):
         assert query["is_target"] and (image["picked_by"] is None or query["pickable"]["x"])
     assert {c["supercategory"] for c in coco["categories"]} >= {"can", "toy"}
     assert {i["target_product"] for i in coco["images"]} <= {"robosuite/can", "pybullet/duck", "pybullet/lego"}
+    # the detector reads the warehouse COCO file like any other, with shop photos found beside it
+    from binpick.detection.data import RepeatedInstances, TaskDataset
+
+    tasks = RepeatedInstances(tmp_path / "labelled" / "annotations_test.json")
+    assert 1 <= len(tasks) <= 2 and all(len(t.annotations) >= 2 for t in tasks.tasks)
+    assert TaskDataset(tasks, 64, query_mode="photo")[0]["query_image"].shape == (3, 96, 96)
+    if any(image["picked_by"] for image in coco["images"]):
+        picking = RepeatedInstances(tmp_path / "labelled" / "annotations_test.json", targets="pickable:x")
+        assert all(task.query["is_query"] for task in picking.tasks)
 
 
 def test_data_cli_generates_shows_and_reports_bad_input_in_one_line(tmp_path):

@@ -30,6 +30,8 @@ app.add_typer(april_app, name="april")
 data_app = typer.Typer(help="Warehouse bin data sets with pickability from trial grasps (thesis §5.4.4, §6.3).",
                        no_args_is_help=True)
 app.add_typer(data_app, name="data")
+detect_app = typer.Typer(help="Repeated object detection (thesis ch. 5, §6.3): ROD and TDID.", no_args_is_help=True)
+app.add_typer(detect_app, name="detect")
 
 console = Console()
 SetOption = Annotated[list[str] | None, typer.Option("--set", help="Env parameter KEY=VALUE (repeatable), e.g. --set goal_area=0.5")]
@@ -313,6 +315,118 @@ def _print_stats(stats: dict, where: Path) -> None:
         table.add_row("pickability differs between policies", f"{stats['pickability_differs_fraction']:.1%}")
     table.add_row("splits", ", ".join(f"{k} {v}" for k, v in sorted(stats["splits"].items())))
     console.print(table)
+
+
+@detect_app.command("train")
+def detect_train(
+    config: Annotated[Path | None, typer.Argument(help="YAML config (see configs/rod_*.yaml)")] = None,
+    resume: Annotated[Path | None, typer.Option(help="Run folder to continue from its latest checkpoint")] = None,
+    runs: Annotated[Path, typer.Option(help="Where new run folders go")] = Path("runs"),
+    settings: Annotated[list[str] | None, typer.Option("--set", help="Config override KEY=VALUE, e.g. --set train.epochs=2")] = None,
+) -> None:
+    """Train a detector: checkpoints each epoch, TensorBoard, metrics.json and model.pt in runs/<name>/<time>/."""
+    from binpick.detection.config import load_detect_config
+    from binpick.detection.train import DetectorTrainer
+
+    if (config is None) == (resume is None):
+        raise ConfigError("give either a CONFIG file to start a run or --resume RUN_DIR to continue one")
+    with progress_bar() as progress:
+        task = progress.add_task("training", total=None)
+
+        def on_step(step: int, total: int) -> None:
+            progress.update(task, completed=step, total=total)
+
+        if resume is not None:
+            if not (resume / "config.yaml").is_file():
+                raise ConfigError(f"{str(resume)!r} is not a run folder (no config.yaml)")
+            trainer = DetectorTrainer(resume=resume, on_step=on_step)
+        else:
+            trainer = DetectorTrainer(load_detect_config(config, parse_settings(settings)), runs, on_step=on_step)
+        progress.console.print(f"run folder: {trainer.run_dir} ({len(trainer.train_set)} training tasks, epoch {trainer.epoch})")
+        metrics = trainer.run()
+    final = metrics["final"]
+    console.print(f"val AP50 {_fmt(final.get('ap50'))}, mAP {_fmt(final.get('map'))}; wrote {trainer.run_dir / 'model.pt'}")
+
+
+def _fmt(value) -> str:
+    return "n/a" if value is None else f"{value:.3f}"
+
+
+@detect_app.command("eval")
+def detect_eval(
+    run: Annotated[Path, typer.Argument(help="Run folder or model.pt")],
+    data: Annotated[Path, typer.Option(help="COCO annotations file (e.g. runs/data/bins_2000/annotations_test.json)")],
+    targets: Annotated[str | None, typer.Option(help="all | pickable:<policy> (default: as trained)")] = None,
+    out: Annotated[Path | None, typer.Option(help="Write the metrics JSON and a PR-curve PNG here (a folder)")] = None,
+) -> None:
+    """AP50 and mAP@[.5:.95] (pycocotools) against the targets, all instances and unpickable ones."""
+    from binpick.detection.data import RepeatedInstances, TaskDataset
+    from binpick.detection.train import evaluate_model, load_detector
+
+    model = load_detector(run)
+    targets = targets or model.trained_config.get("data", {}).get("targets", "all")
+    dataset = TaskDataset(RepeatedInstances(data, targets=targets), model.image_size, model.spec.query, model.query_size)
+    with progress_bar() as progress:
+        task = progress.add_task("evaluating", total=len(dataset))
+        metrics = evaluate_model(model, dataset, progress=lambda n: progress.advance(task, n))
+    table = Table(title=f"{run} on {data} ({len(dataset)} tasks, targets {targets})")
+    for column in ("ground truth", "AP50", "mAP"):
+        table.add_column(column)
+    table.add_row("targets", _fmt(metrics["ap50"]), _fmt(metrics["map"]))
+    table.add_row("all instances", _fmt(metrics["ap50_all"]), _fmt(metrics["map_all"]))
+    table.add_row("unpickable (lower is better)", _fmt(metrics["ap50_unpickable"]), _fmt(metrics["map_unpickable"]))
+    console.print(table)
+    if out is not None:
+        from binpick.viz.detection import plot_pr_curves
+
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
+        plot_pr_curves({str(run.name): {**metrics["pr"], "ap50": metrics["ap50"] or 0.0}}, out / "pr_curve.png", f"{data.name}")
+        console.print(f"wrote {out / 'metrics.json'} and {out / 'pr_curve.png'}")
+
+
+@detect_app.command("predict")
+def detect_predict(
+    image: Annotated[Path, typer.Argument(help="Scene image (PNG/JPEG)")],
+    weights: Annotated[Path | None, typer.Option(help="Run folder or model.pt (default: the shipped small model)")] = None,
+    query_box: Annotated[str | None, typer.Option(help="Known instance x,y,w,h in pixels")] = None,
+    query_image: Annotated[Path | None, typer.Option(help="Product photo to look for (photo-conditioned models)")] = None,
+    out: Annotated[Path | None, typer.Option(help="Overlay PNG: query blue, detections orange")] = None,
+    heatmap: Annotated[Path | None, typer.Option(help="PNG of the max heatmaps (ROD levels)")] = None,
+    min_score: Annotated[float, typer.Option(help="Detections below this score are not printed or drawn")] = 0.3,
+) -> None:
+    """Find the other instances of the query; prints JSON boxes (x, y, w, h) and scores."""
+    from binpick.detection.predict import parse_box, predict
+    from binpick.detection.train import load_detector
+
+    model = load_detector(weights or _shipped_weights())
+    box = parse_box(query_box) if query_box is not None else None
+    prediction = predict(model, image, box, query_image, score_threshold=min_score)
+    print(json.dumps(prediction.to_json()))
+    if out is not None:
+        from binpick.detection.data import read_image
+        from binpick.viz.detection import overlay
+
+        photo = read_image(query_image) if query_image is not None else None
+        _save_png(overlay(prediction.image, prediction.boxes, prediction.scores, prediction.query_box, photo, min_score), out)
+    if heatmap is not None:
+        from binpick.viz.detection import heatmap_image
+
+        if not prediction.heatmaps:
+            raise ConfigError("this detector has no ROD heatmaps (TDID or skip-only layout)")
+        import numpy as np
+
+        side = prediction.image.shape[0]
+        _save_png(np.concatenate([heatmap_image(h, side) for h in prediction.heatmaps], 1), heatmap)
+
+
+def _shipped_weights() -> Path:
+    from importlib.resources import files
+
+    path = Path(str(files("binpick.detection") / "weights" / "rod_tiny_256.pt"))
+    if not path.is_file():
+        raise ConfigError("no shipped detector weights in this install; give --weights RUN")
+    return path
 
 
 @app.command("demo")

@@ -1,0 +1,267 @@
+"""Repeated object detection on the warehouse bins (issue 6, thesis ch. 5 and §6.3).
+
+    python benchmarks/rod.py train [--runs runs/rod]    # trains every config below (resumes)
+    python benchmarks/rod.py report [--runs runs/rod]   # evaluates, writes results and pictures
+
+Same data (runs/data/bins_2000, held-out categories can, mug and toy in its test split), backbone
+(the small one at 256 px), budget and seed for every row. Writes results/rod.json ({seen, zero_shot,
+policy_pickability, latency_ms, scale_ablation}), the ROD section of docs/RESULTS.md and pictures in
+docs/img/rod/.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+
+sys.path.insert(0, os.path.dirname(__file__))
+
+import _common  # noqa: E402
+
+CONFIGS = ["rod_warehouse", "tdid_warehouse", "rod_warehouse_no_lh", "rod_warehouse_p2",
+           "rod_warehouse_ssr", "rod_warehouse_rss", "rod_warehouse_sss", "rod_warehouse_photo"]
+
+
+def run_folder(runs: Path, name: str) -> Path | None:
+    """The newest run of ``name`` (finished or not), or None."""
+    folders = sorted(p for p in (runs / name).glob("*") if (p / "config.yaml").is_file()) if (runs / name).is_dir() else []
+    return folders[-1] if folders else None
+
+
+def train(runs: Path, only: list[str] | None) -> None:
+    from binpick.detection.config import load_detect_config
+    from binpick.detection.train import DetectorTrainer
+
+    for name in only or CONFIGS:
+        folder = run_folder(runs, name)
+        if folder is not None and (folder / "model.pt").is_file():
+            print(f"{name}: finished in {folder}", flush=True)
+            continue
+        if folder is not None:
+            trainer = DetectorTrainer(resume=folder)
+        else:
+            trainer = DetectorTrainer(load_detect_config(_common.ROOT / "configs" / f"{name}.yaml"), runs)
+        print(f"{name}: training in {trainer.run_dir} from epoch {trainer.epoch}", flush=True)
+        metrics = trainer.run()
+        print(f"{name}: {metrics['final']}", flush=True)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("phase", choices=["train", "report"])
+    parser.add_argument("--runs", type=Path, default=_common.ROOT / "runs" / "rod")
+    parser.add_argument("--only", nargs="*")
+    args = parser.parse_args()
+    os.chdir(_common.ROOT)  # configs name the data relative to the repository
+    if args.phase == "train":
+        train(args.runs, args.only)
+    else:
+        report(args.runs)
+
+
+DATA = _common.ROOT / "runs" / "data" / "bins_2000"
+HELD_OUT = ["can", "mug", "toy"]
+IMAGES = _common.ROOT / "docs" / "img" / "rod"
+P1, P2 = "pickable:y", "pickable:x"  # Policy 1: jaws along the robot's y-axis; Policy 2: along x
+
+
+def evaluate(detect, split: str, targets: str, size: int, only: list[str] | None = None, query: str = "crop") -> dict:
+    from binpick.detection.data import RepeatedInstances, TaskDataset
+    from binpick.detection.evaluate import collect, summarise
+    from binpick.detection.train import loader
+
+    dataset = TaskDataset(RepeatedInstances(DATA / f"annotations_{split}.json", targets=targets, only_categories=only), size, query)
+    return summarise(collect(detect, loader(dataset, 8, False, 0, 0)), size)
+
+
+def keep(metrics: dict) -> dict:
+    return {k: None if metrics[k] is None else round(metrics[k], 4)
+            for k in ("ap50", "map", "ap50_all", "map_all", "ap50_unpickable", "map_unpickable")} | {"tasks": metrics["tasks"]}
+
+
+def latency_ms(model, image, query_box, repeats: int = 20) -> float:
+    import time
+
+    import numpy as np
+
+    from binpick.detection.predict import predict
+
+    for _ in range(3):
+        predict(model, image, query_box)
+    times = []
+    for _ in range(repeats):
+        started = time.perf_counter()
+        predict(model, image, query_box)
+        times.append(1000 * (time.perf_counter() - started))
+    return round(float(np.median(times)), 1)
+
+
+def report(runs: Path) -> None:
+    import json
+
+    import numpy as np
+    import torch
+
+    from binpick.detection.baselines import template_detect
+    from binpick.detection.data import read_image
+    from binpick.detection.model import Detector, ModelSpec
+    from binpick.detection.train import detector_detect, load_detector
+    from binpick.viz.detection import plot_ap_by_scale, plot_pr_curves
+
+    torch.set_num_threads(2)
+    models = {}
+    for name in CONFIGS:
+        folder = run_folder(runs, name)
+        if folder is not None and (folder / "model.pt").is_file():
+            models[name] = load_detector(folder)
+        else:
+            print(f"{name}: not trained yet (python benchmarks/rod.py train)", flush=True)
+    size = 256
+    rows = {"rod": "rod_warehouse", "rod_no_lh": "rod_warehouse_no_lh", "tdid": "tdid_warehouse", "rod_photo": "rod_warehouse_photo"}
+    result: dict = {"data": str(DATA.relative_to(_common.ROOT)), "image_size": size, "backbone": "tiny",
+                    "targets": "pickable by Policy 1 (jaws along y)", "seen": {}, "zero_shot": {}, "policy_pickability": {},
+                    "scale_ablation": {}, "latency_ms": {}}
+    curves = {}
+    for row, name in [*rows.items(), ("template_matching", None)]:
+        if name is not None and name not in models:
+            continue
+        detect = template_detect if name is None else detector_detect(models[name])
+        query = "crop" if name is None else models[name].spec.query
+        metrics = evaluate(detect, "val", P1, size, query=query)
+        result["seen"][row] = keep(metrics)
+        curves[row] = {**metrics["pr"], "ap50": metrics["ap50"] or 0.0}
+        print(row, "seen", result["seen"][row], flush=True)
+        if row in ("rod", "tdid", "rod_no_lh", "rod_photo", "template_matching"):
+            for category in HELD_OUT:
+                metrics = evaluate(detect, "test", P1, size, only=[category], query=query)
+                result["zero_shot"].setdefault(category, {})[row] = keep(metrics)
+                print(row, "zero-shot", category, result["zero_shot"][category][row], flush=True)
+    if "rod_warehouse" in models and "rod_warehouse_p2" in models:
+        for train_name, train_policy in (("rod_warehouse", "p1"), ("rod_warehouse_p2", "p2")):
+            for test_targets, test_policy in ((P1, "p1"), (P2, "p2")):
+                metrics = evaluate(detector_detect(models[train_name]), "val", test_targets, size)
+                result["policy_pickability"][f"train_{train_policy}_test_{test_policy}"] = round(metrics["ap50"], 4)
+                result["policy_pickability"][f"train_{train_policy}_test_{test_policy}_map"] = round(metrics["map"], 4)
+    layouts = {"RRR": "rod_warehouse", "SSR": "rod_warehouse_ssr", "RSS": "rod_warehouse_rss", "SSS": "rod_warehouse_sss"}
+    for layout, name in layouts.items():
+        if name in models:
+            metrics = evaluate(detector_detect(models[name]), "val", P1, size)
+            result["scale_ablation"][layout] = {"ap50": round(metrics["ap50"], 4), "ap50_by_scale": metrics["ap50_by_scale"],
+                                                "gt_by_scale": metrics["gt_by_scale"]}
+    # latency: one image, one query, batch 1, 2 threads, fp32 (weights do not change the time)
+    first = json.loads((DATA / "annotations_val.json").read_text())
+    image = read_image(DATA / first["images"][0]["file_name"])
+    query = next(a for a in first["annotations"] if a["image_id"] == first["images"][0]["id"])
+    box = np.array(query["bbox"], dtype=np.float32)
+    for key, backbone, side in (("small_256", "tiny", 256), ("small_416", "tiny", 416), ("darknet53_416", "darknet53", 416)):
+        model = models.get("rod_warehouse") if key == "small_256" and "rod_warehouse" in models else Detector(ModelSpec(backbone=backbone), side).eval()
+        result["latency_ms"][key] = latency_ms(model, image, box)
+        print("latency", key, result["latency_ms"][key], flush=True)
+    result["latency_target_ms_small_256"] = 100
+    result["peak_rss_mib"] = _common.peak_rss_mib()
+    IMAGES.mkdir(parents=True, exist_ok=True)
+    if curves:
+        plot_pr_curves(curves, IMAGES / "pr_seen.png", "seen products, pickable by Policy 1 (val split)")
+    if result["scale_ablation"]:
+        plot_ap_by_scale({k: v["ap50_by_scale"] for k, v in result["scale_ablation"].items()}, IMAGES / "scales.png",
+                         "AP50 by object scale (Fig 5.12 analogue)")
+    if "rod_warehouse" in models:
+        examples(models, IMAGES / "examples.png")
+    path = _common.write_result("rod", result)
+    write_markdown(result, path)
+
+
+def examples(models: dict, path: Path) -> None:
+    """Val scenes: the query (blue) and detections (orange) of ROD and TDID, and ROD's max heatmap."""
+    import json
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from binpick.detection.data import read_image
+    from binpick.detection.predict import predict
+    from binpick.viz.detection import heatmap_image, overlay
+
+    coco = json.loads((DATA / "annotations_val.json").read_text())
+    by_id = {a["id"]: a for a in coco["annotations"]}
+    chosen = [i for i in coco["images"] if i.get("query_annotation_id")][:: max(1, len(coco["images"]) // 4)][:4]
+    names = [n for n in ("rod_warehouse", "tdid_warehouse") if n in models]
+    fig, axes = plt.subplots(len(names) + 1, len(chosen), figsize=(3.2 * len(chosen), 3.3 * (len(names) + 1)))
+    for column, info in enumerate(chosen):
+        image = read_image(DATA / info["file_name"])
+        box = np.array(by_id[info["query_annotation_id"]]["bbox"], dtype=np.float32)
+        for row, name in enumerate(names):
+            prediction = predict(models[name], image, box, score_threshold=0.3)
+            axes[row, column].imshow(overlay(image, prediction.boxes, prediction.scores, box))
+            axes[row, column].set_title(f"{name.split('_')[0].upper()}: {info['target_product'].split('/')[-1]}", fontsize=9)
+            if name == "rod_warehouse" and prediction.heatmaps:
+                axes[-1, column].imshow(heatmap_image(prediction.heatmaps[0], image.shape[0]))
+                axes[-1, column].set_title("ROD max heatmap (stride 8)", fontsize=9)
+    for axis in axes.ravel():
+        axis.axis("off")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def _cell(value) -> str:
+    return "—" if value is None else f"{value:.3f}"
+
+
+def write_markdown(result: dict, path: Path) -> None:
+    seen = result["seen"]
+    lines = ["## Repeated object detection (issue 6, thesis ch. 5, §6.3)", "",
+             f"`python benchmarks/rod.py train && python benchmarks/rod.py report` → `{path.relative_to(_common.ROOT)}`; "
+             "pictures in `docs/img/rod/`. Every model: the small backbone at 256 px, the same data "
+             f"(`{result['data']}`), 12 epochs, batch 8, seed 0. Targets: instances pickable by Policy 1 "
+             "(jaws along the robot's y-axis); the query is the instance the robot picked.", "",
+             "Seen products (val split; thesis Table 5.4 'None' row, Table 5.5, Table 5.6):", "",
+             "| model | AP50 | mAP | AP50 all instances | AP50 unpickable (lower is better) |", "|---|---|---|---|---|"]
+    thesis = {"rod": "0.9056 / 0.8479", "tdid": "0.8543 / 0.6196"}
+    for row, metrics in seen.items():
+        lines.append(f"| {row} | {_cell(metrics['ap50'])} | {_cell(metrics['map'])} | {_cell(metrics['ap50_all'])} | "
+                     f"{_cell(metrics['ap50_unpickable'])} |")
+    lines += ["", f"Thesis (MuJoCo Fetch bins, Darknet-53, Table 5.4): ROD {thesis['rod']}, TDID {thesis['tdid']} (AP50 / mAP). "
+              "Target: ROD AP50 ≥ 0.85 on seen products.", ""]
+    if result["zero_shot"]:
+        lines += ["Zero-shot: categories held out of training (test split; Tables 5.3/5.4 style). Target: ROD AP50 ≥ TDID AP50 + 0.05.", "",
+                  "| held-out category | tasks | ROD AP50 / mAP | TDID AP50 / mAP | ROD w/o L_h AP50 | template matching AP50 |", "|---|---|---|---|---|---|"]
+        for category, rows in result["zero_shot"].items():
+            rod, tdid = rows.get("rod", {}), rows.get("tdid", {})
+            lines.append(f"| {category} | {rod.get('tasks', '—')} | {_cell(rod.get('ap50'))} / {_cell(rod.get('map'))} | "
+                         f"{_cell(tdid.get('ap50'))} / {_cell(tdid.get('map'))} | {_cell(rows.get('rod_no_lh', {}).get('ap50'))} | "
+                         f"{_cell(rows.get('template_matching', {}).get('ap50'))} |")
+        lines.append("")
+    if result["policy_pickability"]:
+        pp = result["policy_pickability"]
+        lines += ["Policy-dependent pickability (Table 6.3; AP50 / mAP on val):", "",
+                  "| trained on | tested on Policy 1 | tested on Policy 2 |", "|---|---|---|",
+                  f"| Policy 1 (y) | {pp['train_p1_test_p1']:.3f} / {pp['train_p1_test_p1_map']:.3f} | {pp['train_p1_test_p2']:.3f} / {pp['train_p1_test_p2_map']:.3f} |",
+                  f"| Policy 2 (x) | {pp['train_p2_test_p1']:.3f} / {pp['train_p2_test_p1_map']:.3f} | {pp['train_p2_test_p2']:.3f} / {pp['train_p2_test_p2_map']:.3f} |",
+                  "", "Thesis: 0.5896 / 0.4840 (trained on Policy 1), 0.3040 / 0.5014 (Policy 2), AP50.", ""]
+    if result["scale_ablation"]:
+        labels = list(next(iter(result["scale_ablation"].values()))["ap50_by_scale"])
+        lines += ["Multi-scale ablation (Fig 5.12; layout = module at strides 8, 16, 32; AP50 per scale bin, scale = sqrt(area) / image side):", "",
+                  "| layout | AP50 | " + " | ".join(labels) + " |", "|---|---|" + "---|" * len(labels)]
+        for layout, values in result["scale_ablation"].items():
+            lines.append(f"| {layout} | {values['ap50']:.3f} | " + " | ".join(_cell(values["ap50_by_scale"][k]) for k in labels) + " |")
+        counts = next(iter(result["scale_ablation"].values()))["gt_by_scale"]
+        lines += ["", "Boxes per bin: " + ", ".join(f"{k}: {v}" for k, v in counts.items()) + ".", "", "![AP by scale](img/rod/scales.png)", ""]
+    lat = result["latency_ms"]
+    lines += ["`predict` latency, one image and one query, batch 1, 2 CPU cores, fp32 (median of 20):", "",
+              "| model | ms | target |", "|---|---|---|",
+              f"| small backbone, 256 px | {lat.get('small_256')} | ≤ 100 ({'met' if lat.get('small_256', 1e9) <= 100 else 'missed'}) |",
+              f"| small backbone, 416 px | {lat.get('small_416')} | — |", f"| Darknet-53, 416 px | {lat.get('darknet53_416')} | — |",
+              "", f"Peak RSS {result['peak_rss_mib']:.0f} MiB. No GPU was lent to this task, so there is no GPU images/s figure.", "",
+              "![PR curves](img/rod/pr_seen.png)", "![Examples](img/rod/examples.png)"]
+    _common.write_section("rod", "\n".join(lines))
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()

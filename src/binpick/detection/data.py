@@ -1,0 +1,232 @@
+"""Repeated-instance samples from any COCO-format data set (thesis §5.4, §5.4.4, §6.3).
+
+A *task* is one image, one known instance of a category (the query) and the boxes to find: the
+other instances of that category, or only those a given grasp policy could pick. Images qualify when
+they hold at least two instances of a category (or, in the pickable setting, a picked instance).
+For plain COCO files a random instance is the query, drawn anew each epoch (§5.4); for binpick's
+warehouse data the instance the robot really picked is the query when targets are the pickable ones
+(§5.4.4). With ``query: photo`` the query is the product's shop photo instead (§6.3).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from PIL import Image
+
+from binpick.errors import ConfigError
+
+
+@dataclass
+class Task:
+    image_id: int
+    file: Path
+    category_id: int
+    query: dict[str, Any] | None  # the annotation known; None: draw one at random each epoch
+    annotations: list[dict[str, Any]]  # every instance of the category in the image
+    photo: Path | None = None
+
+
+def read_image(path: Path) -> np.ndarray:
+    """RGB uint8 (H, W, 3); an unreadable or empty file is one clear line."""
+    try:
+        with Image.open(path) as image:
+            array = np.asarray(image.convert("RGB"))
+    except (OSError, ValueError) as error:
+        raise ConfigError(f"cannot read image {str(path)!r}: {str(error).splitlines()[0] if str(error) else type(error).__name__}") from None
+    if array.size == 0 or min(array.shape[:2]) < 8:
+        raise ConfigError(f"image {str(path)!r} is empty or smaller than 8 pixels")
+    return array
+
+
+def pickable_by(annotation: dict[str, Any], policy: str) -> bool | None:
+    value = (annotation.get("pickable") or {}).get(policy)
+    return None if value is None else bool(value)
+
+
+class RepeatedInstances:
+    """Tasks of a COCO file. ``targets``: ``all`` or ``pickable:<policy>``."""
+
+    def __init__(self, annotations: str | Path, images: str | Path | None = None, targets: str = "all",
+                 exclude_categories: list[str] | None = None, only_categories: list[str] | None = None,
+                 photos: str | Path | None = None) -> None:
+        path = Path(annotations)
+        if not path.is_file():
+            raise ConfigError(f"annotations file {str(path)!r} does not exist")
+        try:
+            coco = json.loads(path.read_text())
+        except json.JSONDecodeError as error:
+            raise ConfigError(f"{path}: not valid JSON ({error.msg} at line {error.lineno})") from None
+        if not isinstance(coco, dict) or not {"images", "annotations", "categories"} <= set(coco):
+            raise ConfigError(f"{path}: not a COCO detection file (needs images, annotations and categories)")
+        self.root = Path(images) if images else path.parent
+        self.photos = Path(photos) if photos else path.parent / "photos"
+        self.targets = targets
+        self.policy = targets.split(":", 1)[1] if targets.startswith("pickable:") else None
+        if targets != "all" and not self.policy:
+            raise ConfigError(f"targets must be 'all' or 'pickable:<policy>', got {targets!r}")
+        self.categories = {c["id"]: c for c in coco["categories"]}
+        excluded = self._category_ids(exclude_categories or [])
+        only = self._category_ids(only_categories) if only_categories else None
+        by_image: dict[int, dict[int, list[dict]]] = {}
+        for a in coco["annotations"]:
+            if a.get("iscrowd", 0):
+                continue
+            by_image.setdefault(a["image_id"], {}).setdefault(a["category_id"], []).append(a)
+        self.tasks: list[Task] = []
+        for image in coco["images"]:
+            for category, annotations in sorted(by_image.get(image["id"], {}).items()):
+                if category in excluded or (only is not None and category not in only):
+                    continue
+                task = self._task(image, category, annotations)
+                if task is not None:
+                    self.tasks.append(task)
+        if not self.tasks:
+            raise ConfigError(f"{path}: no image holds two or more instances of a category"
+                              f"{' with a picked query' if self.policy else ''} (after exclusions)")
+
+    def _category_ids(self, names: list[str]) -> set[int]:
+        """Category ids named by COCO name or supercategory (a product id or its category)."""
+        ids = {i for i, c in self.categories.items() if c["name"] in names or c.get("supercategory") in names}
+        known = {c["name"] for c in self.categories.values()} | {c.get("supercategory") for c in self.categories.values()}
+        unknown = [n for n in names if n not in known]
+        if unknown:
+            raise ConfigError(f"unknown category {unknown[0]!r}; known: {', '.join(sorted(k for k in known if k)[:20])}")
+        return ids
+
+    def _task(self, image: dict, category: int, annotations: list[dict]) -> Task | None:
+        file = self.root / image["file_name"]
+        name = self.categories[category]["name"].replace("/", "_")
+        photo = self.photos / f"{name}.png"
+        photo = photo if photo.is_file() else None
+        if self.policy:
+            query = next((a for a in annotations if a.get("is_query")), None)
+            if query is None or all(pickable_by(a, self.policy) is None for a in annotations if a is not query):
+                return None  # nothing picked here, or no labels for this policy
+            return Task(image["id"], file, category, query, annotations, photo)
+        if len(annotations) < 2:
+            return None
+        return Task(image["id"], file, category, None, annotations, photo)
+
+    def __len__(self) -> int:
+        return len(self.tasks)
+
+    def boxes(self, task: Task, query: dict) -> dict[str, np.ndarray]:
+        """Ground truth of a task, xyxy pixels: ``targets`` to find, ``all`` other instances and
+        ``unpickable`` ones (for Tables 5.5/5.6)."""
+        others = [a for a in task.annotations if a is not query]
+
+        def xyxy(items):
+            return np.array([[a["bbox"][0], a["bbox"][1], a["bbox"][0] + a["bbox"][2], a["bbox"][1] + a["bbox"][3]]
+                             for a in items], dtype=np.float32).reshape(-1, 4)
+
+        if self.policy:
+            targets = [a for a in others if pickable_by(a, self.policy)]
+            unpickable = [a for a in others if pickable_by(a, self.policy) is False]
+        else:
+            targets, unpickable = others, []
+        return {"targets": xyxy(targets), "all": xyxy(others), "unpickable": xyxy(unpickable)}
+
+
+class TaskDataset(torch.utils.data.Dataset):
+    """Tensors for training and evaluation: the image resized to ``size``, the query (box in that
+    image, its crop, or the shop photo) and the boxes to find. ``augment`` applies box-safe flips,
+    zoom and colour jitter."""
+
+    def __init__(self, source: RepeatedInstances, size: int, query_mode: str = "crop", query_size: int = 96,
+                 augment: bool = False, seed: int = 0) -> None:
+        if query_mode not in ("crop", "photo"):
+            raise ConfigError(f"query must be 'crop' or 'photo', got {query_mode!r}")
+        self.source, self.size, self.query_mode, self.query_size = source, size, query_mode, query_size
+        self.augment, self.seed, self.epoch = augment, seed, 0
+        if query_mode == "photo":
+            missing = [t for t in source.tasks if t.photo is None]
+            if missing:
+                raise ConfigError(f"no shop photo for category {source.categories[missing[0].category_id]['name']!r} "
+                                  f"in {str(source.photos)!r}")
+
+    def set_epoch(self, epoch: int) -> None:
+        """A new epoch draws new random queries and augmentations (deterministically)."""
+        self.epoch = epoch
+
+    def __len__(self) -> int:
+        return len(self.source)
+
+    def __getitem__(self, index: int) -> dict[str, Any]:
+        rng = np.random.default_rng([self.seed, self.epoch, index])
+        task = self.source.tasks[index]
+        query = task.query if task.query is not None else task.annotations[rng.integers(len(task.annotations))]
+        image = read_image(task.file)
+        boxes = self.source.boxes(task, query)
+        qx, qy, qw, qh = query["bbox"]
+        query_box = np.array([qx, qy, qx + qw, qy + qh], dtype=np.float32)
+        image, query_box, boxes = self._resize(image, query_box, boxes)
+        if self.augment:
+            image, query_box, boxes = augment(image, query_box, boxes, rng)
+        if self.query_mode == "photo":
+            query_image = np.asarray(Image.fromarray(read_image(task.photo)).resize((self.query_size, self.query_size), Image.BILINEAR))
+        else:
+            query_image = crop_resize(image, query_box, self.query_size)
+        return {"image": to_tensor(image), "query_box": torch.from_numpy(query_box), "query_image": to_tensor(query_image),
+                "targets": torch.from_numpy(boxes["targets"]), "all": torch.from_numpy(boxes["all"]),
+                "unpickable": torch.from_numpy(boxes["unpickable"]), "image_id": task.image_id,
+                "category_id": task.category_id, "index": index, "query_id": int(query.get("id", -1))}
+
+    def _resize(self, image: np.ndarray, query_box: np.ndarray, boxes: dict[str, np.ndarray]):
+        height, width = image.shape[:2]
+        scale = np.array([self.size / width, self.size / height] * 2, dtype=np.float32)
+        image = np.asarray(Image.fromarray(image).resize((self.size, self.size), Image.BILINEAR))
+        return image, query_box * scale, {k: v * scale for k, v in boxes.items()}
+
+
+def to_tensor(image: np.ndarray) -> torch.Tensor:
+    return torch.from_numpy(np.array(image, dtype=np.uint8)).permute(2, 0, 1).float().div(255.0)
+
+
+def crop_resize(image: np.ndarray, box: np.ndarray, size: int) -> np.ndarray:
+    """The pixels inside ``box`` (at least 2 px), resized to ``size`` × ``size``."""
+    height, width = image.shape[:2]
+    x1, y1 = int(np.clip(np.floor(box[0]), 0, width - 2)), int(np.clip(np.floor(box[1]), 0, height - 2))
+    x2, y2 = int(np.clip(np.ceil(box[2]), x1 + 2, width)), int(np.clip(np.ceil(box[3]), y1 + 2, height))
+    return np.asarray(Image.fromarray(image[y1:y2, x1:x2]).resize((size, size), Image.BILINEAR))
+
+
+def augment(image: np.ndarray, query_box: np.ndarray, boxes: dict[str, np.ndarray], rng: np.random.Generator):
+    """Box-safe augmentation: flips (which keep the robot's x and y axes, so pickability labels stay
+    true), a zoom out by up to 25% onto a grey canvas, and brightness/contrast/saturation jitter."""
+    size = image.shape[0]
+    image = image.astype(np.float32)
+    every = {"query": query_box[None], **boxes}
+    if rng.uniform() < 0.5:
+        image = image[:, ::-1]
+        every = {k: np.stack([size - v[:, 2], v[:, 1], size - v[:, 0], v[:, 3]], 1) for k, v in every.items()}
+    if rng.uniform() < 0.5:
+        image = image[::-1]
+        every = {k: np.stack([v[:, 0], size - v[:, 3], v[:, 2], size - v[:, 1]], 1) for k, v in every.items()}
+    if rng.uniform() < 0.5:
+        zoom = rng.uniform(0.75, 1.0)
+        inner = int(round(size * zoom))
+        ox, oy = rng.integers(0, size - inner + 1, size=2)
+        small = np.asarray(Image.fromarray(image.astype(np.uint8)).resize((inner, inner), Image.BILINEAR), dtype=np.float32)
+        canvas = np.full_like(image, 114.0)
+        canvas[oy:oy + inner, ox:ox + inner] = small
+        image = canvas
+        every = {k: v * (inner / size) + np.array([ox, oy, ox, oy], dtype=np.float32) for k, v in every.items()}
+    grey = image.mean(axis=2, keepdims=True)
+    image = grey + (image - grey) * rng.uniform(0.7, 1.3)  # saturation
+    image = (image - image.mean()) * rng.uniform(0.8, 1.2) + image.mean() * rng.uniform(0.8, 1.2)  # contrast, brightness
+    image = np.clip(image, 0, 255).astype(np.uint8)
+    query_box = every.pop("query")[0].astype(np.float32)
+    return np.ascontiguousarray(image), query_box, {k: v.astype(np.float32) for k, v in every.items()}
+
+
+def collate(samples: list[dict[str, Any]]) -> dict[str, Any]:
+    batch = {key: torch.stack([s[key] for s in samples]) for key in ("image", "query_box", "query_image")}
+    for key in ("targets", "all", "unpickable", "image_id", "category_id", "index", "query_id"):
+        batch[key] = [s[key] for s in samples]
+    return batch

@@ -1,0 +1,147 @@
+"""The detector: backbone -> a query module per feature level (ROD, skip or TDID) -> a YOLOv3-style
+top-down neck -> class-free heads (thesis Fig 5.8-5.9, §5.3.4).
+
+Each head predicts, per grid cell and anchor, ``(t_x, t_y, t_w, t_h, t_o)``; decoding follows
+Eq 5.16-5.19: centre ``(σ(t_x) + c_x, σ(t_y) + c_y)`` cells, size ``p·exp(t)`` for anchor prior ``p``.
+The layout string names the module at each level from the finest (stride 8, small objects) to the
+coarsest (stride 32), as in the thesis's RRR / SSR / RSS labels.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from binpick.detection.backbone import BACKBONES, build_backbone, conv_bn
+from binpick.detection.ops import cxcywh_to_xyxy, nms
+from binpick.detection.rod import RODModule, SkipModule, TDIDModule, crop_features
+
+STRIDES = (8, 16, 32)
+ANCHORS_PER_LEVEL = 3
+PRE_NMS = 300  # best-scoring boxes per image that go into NMS
+MEAN = torch.tensor([0.485, 0.456, 0.406]).view(1, 3, 1, 1)
+STD = torch.tensor([0.229, 0.224, 0.225]).view(1, 3, 1, 1)
+# anchor priors (w, h) as fractions of the image side, finest level first; training replaces them
+# with k-means clusters of its own boxes
+DEFAULT_ANCHORS = ((0.05, 0.05), (0.08, 0.06), (0.06, 0.09), (0.11, 0.11), (0.16, 0.09), (0.09, 0.17),
+                   (0.2, 0.2), (0.3, 0.18), (0.18, 0.3))
+
+
+@dataclass(frozen=True)
+class ModelSpec:
+    backbone: str = "tiny"  # tiny | darknet53
+    method: str = "rod"  # rod | tdid
+    layout: str = "RRR"  # per level (stride 8, 16, 32): R = ROD module, S = skip (rod only)
+    scales: tuple[float, ...] = (0.5, 1.0, 2.0)  # D crop scales of the ROD module
+    query: str = "crop"  # crop: the known box in the image (§5.3); photo: a shop photo (§6.3)
+
+    def check(self) -> None:
+        from binpick.errors import ConfigError
+
+        if self.backbone not in BACKBONES:
+            raise ConfigError(f"model.backbone must be one of {', '.join(BACKBONES)}, got {self.backbone!r}")
+        if self.method not in ("rod", "tdid"):
+            raise ConfigError(f"model.method must be 'rod' or 'tdid', got {self.method!r}")
+        if len(self.layout) != 3 or set(self.layout) - {"R", "S"}:
+            raise ConfigError(f"model.layout must be three letters of R (ROD) and S (skip), e.g. RRR or SSR, got {self.layout!r}")
+        if self.query not in ("crop", "photo"):
+            raise ConfigError(f"model.query must be 'crop' or 'photo', got {self.query!r}")
+        if not self.scales or any(s <= 0 for s in self.scales):
+            raise ConfigError(f"model.scales must be positive numbers, got {list(self.scales)}")
+
+
+class Detector(nn.Module):
+    def __init__(self, spec: ModelSpec, image_size: int, query_size: int = 96) -> None:
+        super().__init__()
+        spec.check()
+        self.spec, self.image_size, self.query_size = spec, image_size, query_size
+        self.trained_config: dict = {}  # the run's config, when loaded from a checkpoint
+        self.backbone = build_backbone(spec.backbone)
+        channels = BACKBONES[spec.backbone].channels
+        modules = []
+        for letter, c in zip(spec.layout, channels):
+            if spec.method == "tdid":
+                modules.append(TDIDModule(c))
+            else:
+                modules.append(RODModule(c, spec.scales) if letter == "R" else SkipModule(c))
+        self.modules_per_level = nn.ModuleList(modules)
+        c1, c2, c3 = channels
+        self.top = nn.Sequential(conv_bn(c3, c3 // 2, 1), conv_bn(c3 // 2, c3, 3), conv_bn(c3, c3 // 2, 1))
+        self.lateral3 = conv_bn(c3 // 2, c2 // 2, 1)
+        self.middle = nn.Sequential(conv_bn(c2 + c2 // 2, c2 // 2, 1), conv_bn(c2 // 2, c2, 3), conv_bn(c2, c2 // 2, 1))
+        self.lateral2 = conv_bn(c2 // 2, c1 // 2, 1)
+        self.bottom = nn.Sequential(conv_bn(c1 + c1 // 2, c1 // 2, 1), conv_bn(c1 // 2, c1, 3), conv_bn(c1, c1 // 2, 1))
+        self.heads = nn.ModuleList([nn.Sequential(conv_bn(c // 2, c, 3), nn.Conv2d(c, ANCHORS_PER_LEVEL * 5, 1))
+                                    for c in channels])
+        for head in self.heads:  # start with low objectness everywhere (few cells hold objects)
+            nn.init.constant_(head[-1].bias, 0.0)
+            head[-1].bias.data[4::5] = -4.0
+        self.register_buffer("anchors", torch.tensor(DEFAULT_ANCHORS, dtype=torch.float32).view(3, ANCHORS_PER_LEVEL, 2) * image_size)
+
+    # ------------------------------------------------------------------ forward
+    def features(self, images: torch.Tensor) -> list[torch.Tensor]:
+        return self.backbone((images - MEAN.to(images)) / STD.to(images))
+
+    def query_features(self, scene: list[torch.Tensor], query_boxes: torch.Tensor | None,
+                       query_images: torch.Tensor | None) -> list[list[torch.Tensor]]:
+        """Per level, per sample: the query's features. ROD with a box crops the scene's own features
+        (Eq 5.11); TDID and photo queries run the query image through the same backbone."""
+        if self.spec.method == "rod" and self.spec.query == "crop":
+            return [[crop_features(level[b], query_boxes[b], stride) for b in range(level.shape[0])]
+                    for level, stride in zip(scene, STRIDES)]
+        query = self.features(query_images)
+        return [[level[b] for b in range(level.shape[0])] for level in query]
+
+    def forward(self, images: torch.Tensor, query_boxes: torch.Tensor | None = None,
+                query_images: torch.Tensor | None = None) -> dict[str, list]:
+        scene = self.features(images)
+        queries = self.query_features(scene, query_boxes, query_images)
+        fused, heatmaps = [], []
+        for module, level, query in zip(self.modules_per_level, scene, queries):
+            out, heatmap = module(level, query)
+            fused.append(out)
+            heatmaps.append(heatmap)
+        p3 = self.top(fused[2])
+        p2 = self.middle(torch.cat([fused[1], F.interpolate(self.lateral3(p3), scale_factor=2.0)], 1))
+        p1 = self.bottom(torch.cat([fused[0], F.interpolate(self.lateral2(p2), scale_factor=2.0)], 1))
+        raw = [head(p) for head, p in zip(self.heads, (p1, p2, p3))]
+        return {"raw": [r.view(r.shape[0], ANCHORS_PER_LEVEL, 5, r.shape[2], r.shape[3]) for r in raw],
+                "heatmaps": heatmaps}
+
+    # ------------------------------------------------------------------ decoding
+    def decode(self, raw: list[torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+        """Eq 5.16-5.19 for every cell and anchor of every level: boxes (B, N, 4) xyxy pixels and
+        objectness (B, N)."""
+        boxes, scores = [], []
+        for level, (r, stride) in enumerate(zip(raw, STRIDES)):
+            b, a, _, h, w = r.shape
+            ys, xs = torch.meshgrid(torch.arange(h, device=r.device), torch.arange(w, device=r.device), indexing="ij")
+            cx = (torch.sigmoid(r[:, :, 0]) + xs) * stride
+            cy = (torch.sigmoid(r[:, :, 1]) + ys) * stride
+            anchors = self.anchors[level].view(1, a, 2, 1, 1)
+            bw = anchors[:, :, 0] * torch.exp(r[:, :, 2].clamp(max=6.0))
+            bh = anchors[:, :, 1] * torch.exp(r[:, :, 3].clamp(max=6.0))
+            boxes.append(cxcywh_to_xyxy(torch.stack([cx, cy, bw, bh], -1)).reshape(b, -1, 4))
+            scores.append(torch.sigmoid(r[:, :, 4]).reshape(b, -1))
+        return torch.cat(boxes, 1), torch.cat(scores, 1)
+
+    @torch.no_grad()
+    def detect(self, images: torch.Tensor, query_boxes: torch.Tensor | None = None, query_images: torch.Tensor | None = None,
+               score_threshold: float = 0.01, iou_threshold: float = 0.45, max_detections: int = 100
+               ) -> tuple[list[dict[str, torch.Tensor]], list]:
+        """Boxes and scores after NMS, per image, plus the heatmaps (for pictures like Fig 6.11)."""
+        out = self.forward(images, query_boxes, query_images)
+        boxes, scores = self.decode(out["raw"])
+        results = []
+        for b in range(images.shape[0]):
+            keep = scores[b] > score_threshold
+            kept_boxes = boxes[b][keep].clamp(0, self.image_size)
+            kept_scores = scores[b][keep]
+            best = kept_scores.argsort(descending=True)[:PRE_NMS]  # NMS is quadratic
+            kept_boxes, kept_scores = kept_boxes[best], kept_scores[best]
+            order = nms(kept_boxes, kept_scores, iou_threshold)[:max_detections]
+            results.append({"boxes": kept_boxes[order], "scores": kept_scores[order]})
+        return results, out["heatmaps"]

@@ -1,0 +1,81 @@
+"""Detections for one image and one query (a box in that image, or a product photo)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from PIL import Image
+
+from binpick.detection.data import crop_resize, read_image, to_tensor
+from binpick.detection.model import Detector
+from binpick.errors import ConfigError
+
+
+@dataclass
+class Prediction:
+    boxes: np.ndarray  # (N, 4) x, y, w, h in the input image's pixels, best first
+    scores: np.ndarray  # (N,)
+    heatmaps: list[np.ndarray]  # per ROD level (H_l, W_l), empty for TDID / skip levels
+    image: np.ndarray  # the input image (RGB uint8)
+    query_box: np.ndarray | None  # x, y, w, h, when the query was a box
+
+    def to_json(self) -> list[dict]:
+        return [{"bbox": [round(float(v), 1) for v in box], "score": round(float(score), 4)}
+                for box, score in zip(self.boxes, self.scores)]
+
+
+def parse_box(text: str) -> np.ndarray:
+    """``"x,y,w,h"`` -> array; anything else is one clear line."""
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) != 4:
+        raise ConfigError(f"--query-box must be x,y,w,h in pixels, got {text!r}")
+    return np.array(values, dtype=np.float32)
+
+
+def check_query_box(box: np.ndarray, width: int, height: int) -> None:
+    x, y, w, h = box
+    if w <= 0 or h <= 0:
+        raise ConfigError(f"query box {box.tolist()} has zero area")
+    if x < 0 or y < 0 or x + w > width + 0.5 or y + h > height + 0.5:
+        raise ConfigError(f"query box {box.tolist()} lies outside the {width}x{height} image")
+
+
+def predict(model: Detector, image: np.ndarray | str | Path, query_box: np.ndarray | None = None,
+            query_image: np.ndarray | str | Path | None = None, score_threshold: float = 0.1) -> Prediction:
+    """Run the detector on one image. Give ``query_box`` (x, y, w, h) for a crop query, or
+    ``query_image`` for a shop photo (models trained with ``query: photo``, or TDID)."""
+    if isinstance(image, (str, Path)):
+        image = read_image(Path(image))
+    if (query_box is None) == (query_image is None):
+        raise ConfigError("give exactly one of a query box or a query image")
+    height, width = image.shape[:2]
+    size = model.image_size
+    scale = np.array([size / width, size / height] * 2, dtype=np.float32)
+    resized = np.asarray(Image.fromarray(image).resize((size, size), Image.BILINEAR))
+    box_xyxy = None
+    if query_box is not None:
+        query_box = np.asarray(query_box, dtype=np.float32)
+        check_query_box(query_box, width, height)
+        if model.spec.query == "photo":
+            raise ConfigError("this detector was trained on shop photos: give --query-image")
+        box_xyxy = np.array([query_box[0], query_box[1], query_box[0] + query_box[2], query_box[1] + query_box[3]]) * scale
+        query_pixels = crop_resize(resized, box_xyxy, model.query_size)
+    else:
+        if model.spec.method == "rod" and model.spec.query == "crop":
+            raise ConfigError("this detector finds copies of a box in the image: give --query-box")
+        query_pixels = read_image(Path(query_image)) if isinstance(query_image, (str, Path)) else query_image
+        query_pixels = np.asarray(Image.fromarray(query_pixels).resize((model.query_size,) * 2, Image.BILINEAR))
+    boxes_input = torch.tensor(box_xyxy, dtype=torch.float32)[None] if box_xyxy is not None else None
+    model.eval()
+    results, heatmaps = model.detect(to_tensor(resized)[None], boxes_input, to_tensor(query_pixels)[None],
+                                     score_threshold=score_threshold)
+    boxes = results[0]["boxes"].numpy() / scale
+    xywh = np.c_[boxes[:, :2], boxes[:, 2:] - boxes[:, :2]] if len(boxes) else np.zeros((0, 4), np.float32)
+    return Prediction(xywh, results[0]["scores"].numpy(), [h[0, 0].numpy() for h in heatmaps if h is not None],
+                      image, query_box)

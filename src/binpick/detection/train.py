@@ -1,0 +1,226 @@
+"""Training a repeated-object detector, top to bottom (CleanRL style): data, anchors, model, loop,
+evaluation, checkpoints.
+
+A run folder ``runs/<name>/<time>/`` holds ``config.yaml``, TensorBoard events (``tb/``), atomic
+checkpoints (``checkpoints/``, one per epoch: a kill loses at most the epoch in progress),
+``metrics.json`` and the final ``model.pt`` that ``binpick detect eval/predict`` read.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import torch
+import yaml
+
+from binpick.config import from_dict, load_yaml, to_dict
+from binpick.detection.config import DetectConfig
+from binpick.detection.data import RepeatedInstances, TaskDataset, collate
+from binpick.detection.evaluate import collect, summarise
+from binpick.detection.losses import rod_loss
+from binpick.detection.model import ANCHORS_PER_LEVEL, Detector, ModelSpec
+from binpick.detection.ops import box_iou
+from binpick.errors import ConfigError
+from binpick.rl.checkpoints import commit_checkpoint, latest_checkpoint, new_run_dir
+
+
+# ---------------------------------------------------------------------- weights on disk
+def save_detector(model: Detector, path: Path, extra: dict[str, Any] | None = None) -> None:
+    """Write atomically: a crash leaves the previous file or the new one."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    temporary = path.with_suffix(path.suffix + ".tmp")
+    torch.save({"format": "binpick-detector-1", "spec": asdict(model.spec), "image_size": model.image_size,
+                "query_size": model.query_size, "weights": model.state_dict(), **(extra or {})}, temporary)
+    os.replace(temporary, path)
+
+
+def load_detector(path: str | Path) -> Detector:
+    """A detector saved by :func:`save_detector` (or a run folder holding ``model.pt``)."""
+    path = Path(path)
+    if path.is_dir():
+        path = path / "model.pt"
+    if not path.is_file():
+        raise ConfigError(f"no detector weights at {str(path)!r}")
+    try:
+        data = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as error:  # noqa: BLE001 - torch raises many kinds for a foreign file
+        raise ConfigError(f"{str(path)!r} is not a binpick detector checkpoint ({type(error).__name__})") from None
+    if not isinstance(data, dict) or data.get("format") != "binpick-detector-1":
+        raise ConfigError(f"{str(path)!r} is not a binpick detector checkpoint")
+    spec = ModelSpec(**{**data["spec"], "scales": tuple(data["spec"]["scales"])})
+    model = Detector(spec, int(data["image_size"]), int(data.get("query_size", 96)))
+    try:
+        missing, unexpected = model.load_state_dict(data["weights"], strict=False)
+    except RuntimeError:  # tensors of other shapes
+        missing, unexpected = ["(shapes differ)"], []
+    if missing or unexpected:
+        raise ConfigError(f"{str(path)!r} holds weights of another architecture "
+                          f"({len(missing)} missing, {len(unexpected)} unexpected tensors)")
+    model.trained_config = data.get("config") or {}
+    model.eval()
+    return model
+
+
+# ---------------------------------------------------------------------- anchors
+def kmeans_anchors(sizes: np.ndarray, clusters: int = 3 * ANCHORS_PER_LEVEL, iterations: int = 50, seed: int = 0) -> np.ndarray:
+    """YOLOv3's anchor priors: k-means of box sizes (w, h) under the 1 - IoU distance, smallest first."""
+    rng = np.random.default_rng(seed)
+    sizes = np.asarray(sizes, dtype=np.float64)
+    if len(sizes) < clusters:
+        raise ConfigError(f"need at least {clusters} boxes to fit anchors, got {len(sizes)}")
+    centres = sizes[rng.choice(len(sizes), clusters, replace=False)]
+    for _ in range(iterations):
+        boxes = torch.tensor(np.c_[np.zeros((len(sizes), 2)), sizes])
+        anchors = torch.tensor(np.c_[np.zeros((clusters, 2)), centres])
+        nearest = box_iou(boxes, anchors).argmax(1).numpy()
+        updated = np.array([np.median(sizes[nearest == k], axis=0) if np.any(nearest == k) else centres[k] for k in range(clusters)])
+        if np.allclose(updated, centres):
+            break
+        centres = updated
+    return centres[np.argsort(centres.prod(1))]
+
+
+def fit_anchors(dataset: TaskDataset) -> torch.Tensor:
+    """Anchors from the training boxes, in the pixels of the resized images the model sees."""
+    from PIL import Image
+
+    with Image.open(dataset.source.tasks[0].file) as image:
+        scale = dataset.size / float(max(image.size))  # a data set's images share one size
+    sizes = [a["bbox"][2:4] for task in dataset.source.tasks for a in task.annotations]
+    return torch.tensor(kmeans_anchors(np.array(sizes) * scale), dtype=torch.float32).view(3, ANCHORS_PER_LEVEL, 2)
+
+
+# ---------------------------------------------------------------------- the run
+def make_datasets(config: DetectConfig) -> tuple[TaskDataset, TaskDataset]:
+    data = config.data
+    train_source = RepeatedInstances(data.train, data.images, data.targets, exclude_categories=data.exclude_categories)
+    val_source = RepeatedInstances(data.val, data.images, data.targets)
+    query_mode = config.model.query
+    train = TaskDataset(train_source, data.image_size, query_mode, data.query_size, augment=data.augment, seed=config.train.seed)
+    val = TaskDataset(val_source, data.image_size, query_mode, data.query_size, augment=False, seed=config.train.seed + 1)
+    return train, val
+
+
+def loader(dataset: TaskDataset, batch_size: int, shuffle: bool, workers: int, seed: int) -> torch.utils.data.DataLoader:
+    generator = torch.Generator().manual_seed(seed)
+    return torch.utils.data.DataLoader(dataset, batch_size=batch_size, shuffle=shuffle, num_workers=workers,
+                                       collate_fn=collate, generator=generator, persistent_workers=False)
+
+
+def detector_detect(model: Detector) -> Callable[[dict], list[dict[str, torch.Tensor]]]:
+    def detect(batch: dict) -> list[dict[str, torch.Tensor]]:
+        results, _ = model.detect(batch["image"], batch["query_box"], batch["query_image"])
+        return results
+    return detect
+
+
+def evaluate_model(model: Detector, dataset: TaskDataset, batch_size: int = 8, progress=None) -> dict[str, Any]:
+    model.eval()
+    batches = loader(dataset, batch_size, shuffle=False, workers=0, seed=0)
+    return summarise(collect(detector_detect(model), batches, progress), dataset.size)
+
+
+class DetectorTrainer:
+    """``DetectorTrainer(config, runs).run()`` trains a new run; ``DetectorTrainer(resume=RUN)``
+    continues one from its latest checkpoint."""
+
+    def __init__(self, config: DetectConfig | None = None, runs: Path = Path("runs"), resume: Path | None = None,
+                 on_step: Callable[[int, int], None] | None = None) -> None:
+        if resume is not None:
+            resume = Path(resume)
+            config = from_dict(DetectConfig, load_yaml(resume / "config.yaml"), where=str(resume / "config.yaml"))
+            self.run_dir = resume
+        else:
+            self.run_dir = new_run_dir(Path(runs), config.name, yaml.safe_dump(to_dict(config), sort_keys=False))
+        self.config, self.on_step = config, on_step
+        torch.manual_seed(config.train.seed)
+        torch.set_num_threads(config.train.threads)
+        self.train_set, self.val_set = make_datasets(config)
+        self.model = Detector(config.model.spec(), config.data.image_size, config.data.query_size)
+        self.optimizer = torch.optim.AdamW(self.model.parameters(), lr=config.train.lr, weight_decay=config.train.weight_decay)
+        self.steps_per_epoch = -(-len(self.train_set) // config.train.batch_size)
+        self.total_steps = self.steps_per_epoch * config.train.epochs
+        self.epoch, self.step, self.history = 0, 0, []
+        checkpoint = latest_checkpoint(self.run_dir / "checkpoints")
+        if checkpoint is not None:
+            state = torch.load(checkpoint / "state.pt", map_location="cpu", weights_only=False)
+            self.model.load_state_dict(state["model"])
+            self.optimizer.load_state_dict(state["optimizer"])
+            self.epoch, self.step, self.history = state["epoch"], state["step"], state["history"]
+        else:
+            self.model.anchors.copy_(fit_anchors(self.train_set))
+        if config.train.fast_cpu:
+            self.model.to(memory_format=torch.channels_last)
+
+    def forward(self, batch: dict) -> dict:
+        """The model's outputs in float32; with ``fast_cpu`` computed in bfloat16, channels-last."""
+        fast = self.config.train.fast_cpu
+        images = batch["image"].contiguous(memory_format=torch.channels_last) if fast else batch["image"]
+        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=fast):
+            out = self.model(images, batch["query_box"], batch["query_image"])
+        return {"raw": [r.float() for r in out["raw"]], "heatmaps": [None if h is None else h.float() for h in out["heatmaps"]]}
+
+    def learning_rate(self) -> float:
+        """Linear warm-up, then cosine decay to 5% of ``lr``."""
+        train = self.config.train
+        if self.step < train.warmup_steps:
+            return train.lr * (self.step + 1) / train.warmup_steps
+        progress = min(1.0, (self.step - train.warmup_steps) / max(1, self.total_steps - train.warmup_steps))
+        return train.lr * (0.05 + 0.95 * 0.5 * (1 + np.cos(np.pi * progress)))
+
+    def run(self) -> dict[str, Any]:
+        from torch.utils.tensorboard import SummaryWriter
+
+        config, weights = self.config, self.config.loss.weights()
+        writer = SummaryWriter(str(self.run_dir / "tb"))
+        try:
+            while self.epoch < config.train.epochs:
+                self.train_set.set_epoch(self.epoch)
+                self.model.train()
+                sums = {}
+                for batch in loader(self.train_set, config.train.batch_size, True, config.train.workers, config.train.seed + self.epoch):
+                    for group in self.optimizer.param_groups:
+                        group["lr"] = self.learning_rate()
+                    out = self.forward(batch)
+                    losses = rod_loss(self.model, out, batch["targets"], weights)
+                    self.optimizer.zero_grad(set_to_none=True)
+                    losses["total"].backward()
+                    torch.nn.utils.clip_grad_norm_(self.model.parameters(), 10.0)
+                    self.optimizer.step()
+                    self.step += 1
+                    for key, value in losses.items():
+                        sums[key] = sums.get(key, 0.0) + float(value.detach())
+                        writer.add_scalar(f"loss/{key}", float(value.detach()), self.step)
+                    if self.on_step:
+                        self.on_step(self.step, self.total_steps)
+                self.epoch += 1
+                record = {"epoch": self.epoch, "step": self.step,
+                          **{f"loss_{k}": v / self.steps_per_epoch for k, v in sums.items()}}
+                if self.epoch % config.train.eval_every == 0 or self.epoch == config.train.epochs:
+                    metrics = evaluate_model(self.model, self.val_set, config.train.batch_size)
+                    record |= {k: metrics[k] for k in ("ap50", "map", "ap50_all", "ap50_unpickable")}
+                    for key in ("ap50", "map", "ap50_all", "ap50_unpickable"):
+                        if metrics[key] is not None:
+                            writer.add_scalar(f"val/{key}", metrics[key], self.epoch)
+                self.history.append(record)
+                self._checkpoint()
+        finally:
+            writer.close()
+        save_detector(self.model, self.run_dir / "model.pt", {"config": to_dict(config)})
+        final = self.history[-1] if self.history else {}
+        metrics = {"name": config.name, "epochs": self.epoch, "steps": self.step, "final": final, "history": self.history}
+        (self.run_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
+        return metrics
+
+    def _checkpoint(self) -> None:
+        def write(folder: Path) -> None:
+            torch.save({"model": self.model.state_dict(), "optimizer": self.optimizer.state_dict(), "epoch": self.epoch,
+                        "step": self.step, "history": self.history}, folder / "state.pt")
+
+        commit_checkpoint(self.run_dir / "checkpoints", self.epoch, write)

@@ -1,0 +1,233 @@
+"""Repeated object detection (thesis ch. 5): box ops against brute force, the ROD heatmap, the
+losses, the COCO reader, pycocotools evaluation, training/resume, prediction and bad input."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import torch
+
+from binpick.detection.backbone import build_backbone
+from binpick.detection.baselines import template_matches
+from binpick.detection.config import load_detect_config
+from binpick.detection.data import RepeatedInstances, TaskDataset, collate
+from binpick.detection.evaluate import coco_ap
+from binpick.detection.losses import LossWeights, assign, gaussian_targets, rod_loss
+from binpick.detection.model import Detector, ModelSpec
+from binpick.detection.ops import box_iou, generalized_box_iou, nms
+from binpick.detection.rod import RODModule
+from binpick.detection.train import DetectorTrainer, evaluate_model, kmeans_anchors, load_detector, save_detector
+from binpick.errors import ConfigError
+from synthetic_coco import make_coco
+
+CLI = [sys.executable, "-c", "from binpick.cli import main; main()"]
+
+
+def _random_boxes(rng, n):
+    xy = rng.uniform(0, 50, (n, 2))
+    return torch.tensor(np.c_[xy, xy + rng.uniform(1, 30, (n, 2))], dtype=torch.float32)
+
+
+def test_iou_giou_and_nms_match_brute_force():
+    rng = np.random.default_rng(0)
+    a, b = _random_boxes(rng, 7), _random_boxes(rng, 5)
+    for i, j in itertools.product(range(7), range(5)):
+        (ax1, ay1, ax2, ay2), (bx1, by1, bx2, by2) = a[i].tolist(), b[j].tolist()
+        inter = max(0, min(ax2, bx2) - max(ax1, bx1)) * max(0, min(ay2, by2) - max(ay1, by1))
+        union = (ax2 - ax1) * (ay2 - ay1) + (bx2 - bx1) * (by2 - by1) - inter
+        hull = (max(ax2, bx2) - min(ax1, bx1)) * (max(ay2, by2) - min(ay1, by1))
+        assert box_iou(a, b)[i, j] == pytest.approx(inter / union, abs=1e-5)
+        assert generalized_box_iou(a, b)[i, j] == pytest.approx(inter / union - (hull - union) / hull, abs=1e-5)
+    boxes, scores = _random_boxes(rng, 40), torch.tensor(rng.uniform(size=40), dtype=torch.float32)
+    kept = nms(boxes, scores, 0.4).tolist()
+    expected = []  # greedy by score, brute force
+    for i in sorted(range(40), key=lambda k: -scores[k]):
+        if all(box_iou(boxes[i:i + 1], boxes[k:k + 1])[0, 0] <= 0.4 for k in expected):
+            expected.append(i)
+    assert kept == expected
+
+
+def test_backbones_give_three_feature_levels():
+    for name, channels in (("tiny", (64, 128, 256)), ("darknet53", (256, 512, 1024))):
+        features = build_backbone(name).eval()(torch.zeros(1, 3, 64, 64))
+        assert [tuple(f.shape) for f in features] == [(1, c, 64 // s, 64 // s) for c, s in zip(channels, (8, 16, 32))]
+
+
+def test_rod_heatmap_peaks_where_the_query_repeats_at_another_scale():
+    torch.manual_seed(0)
+    features = torch.randn(1, 16, 24, 24) * 0.3
+    pattern = torch.randn(16, 4, 4)
+    features[0, :, 2:6, 2:6] = pattern  # the known instance
+    features[0, :, 12:20, 12:20] = torch.nn.functional.interpolate(pattern[None], size=(8, 8), mode="bilinear")[0]
+    module = RODModule(16, scales=(1.0, 2.0))
+    heatmap = module.heatmaps(features, [features[0, :, 2:6, 2:6]])[0, 0]
+    peak = np.unravel_index(int(heatmap.argmax()), heatmap.shape)
+    assert abs(peak[0] - 16) <= 1 and abs(peak[1] - 16) <= 1 or abs(peak[0] - 4) <= 1  # the copy, or the query itself
+    copy_score, background = float(heatmap[15:18, 15:18].max()), float(heatmap[20:, :8].mean())
+    assert copy_score > 0.6 and background < 0.2
+    single = RODModule(16, scales=(1.0,)).heatmaps(features, [features[0, :, 2:6, 2:6]])[0, 0]
+    assert float(single[15:18, 15:18].max()) < copy_score  # the second scale is what finds the big copy
+
+
+def test_assignment_picks_the_cell_holding_the_centre_and_the_loss_falls():
+    torch.manual_seed(0)
+    model = Detector(ModelSpec(), 64)
+    images, boxes = torch.rand(1, 3, 64, 64), torch.tensor([[4.0, 4.0, 20.0, 20.0]])
+    target = [torch.tensor([[30.0, 34.0, 50.0, 60.0]])]
+    out = model(images, boxes)
+    decoded, _ = model.decode(out["raw"])
+    (index, level, anchor, row, col), = assign(model, out["raw"], decoded[0], target[0])
+    stride = (8, 16, 32)[level]
+    assert (row, col) == (int(47 // stride), int(40 // stride))
+    goal = gaussian_targets(target[0], 8, 8, 8, 1.0)
+    assert float(goal[5, 5]) == pytest.approx(float(goal.max())) and float(goal.max()) > 0.8
+    optimiser = torch.optim.Adam(model.parameters(), lr=2e-3)
+    losses = []
+    for _ in range(30):
+        loss = rod_loss(model, model(images, boxes), target, LossWeights())
+        optimiser.zero_grad()
+        loss["total"].backward()
+        optimiser.step()
+        losses.append(float(loss["total"].detach()))
+    assert losses[-1] < 0.6 * losses[0]
+    no_lh = rod_loss(model, model(images, boxes), target, LossWeights(heatmap=0.0))
+    assert float(no_lh["total"].detach()) == pytest.approx(float(no_lh["bbox"] + no_lh["obj"]), rel=1e-4)
+
+
+def test_coco_reader_tasks_exclusions_pickable_targets_and_bad_files(tmp_path):
+    path = make_coco(tmp_path / "plain", images=6)
+    source = RepeatedInstances(path)
+    assert len(source) == 6 and all(len(t.annotations) >= 2 for t in source.tasks)
+    fewer = RepeatedInstances(path, exclude_categories=["red_square"])
+    assert all(source.categories[t.category_id]["name"] != "red_square" for t in fewer.tasks)
+    dataset = TaskDataset(source, 64, augment=True)
+    sample = dataset[0]
+    assert sample["image"].shape == (3, 64, 64) and sample["query_image"].shape == (3, 96, 96)
+    assert len(sample["targets"]) == len(source.tasks[0].annotations) - 1
+    batch = collate([dataset[0], dataset[1]])
+    assert batch["image"].shape == (2, 3, 64, 64) and len(batch["targets"]) == 2
+    picking = RepeatedInstances(make_coco(tmp_path / "pick", images=6, pickable=True), targets="pickable:y")
+    task = picking.tasks[0]
+    boxes = picking.boxes(task, task.query)
+    assert len(boxes["targets"]) + len(boxes["unpickable"]) == len(task.annotations) - 1
+    assert np.all(boxes["targets"][:, [0, 2]].mean(1) < 64)  # pickable = left half in this toy labelling
+    (tmp_path / "bad.json").write_text("{not json")
+    with pytest.raises(ConfigError, match="not valid JSON"):
+        RepeatedInstances(tmp_path / "bad.json")
+    with pytest.raises(ConfigError, match="unknown category 'sofa'"):
+        RepeatedInstances(path, exclude_categories=["sofa"])
+    with pytest.raises(ConfigError, match="does not exist"):
+        RepeatedInstances(tmp_path / "missing.json")
+
+
+def test_coco_ap_is_one_for_perfect_boxes_and_falls_with_errors():
+    truth = np.array([[10, 10, 40, 40], [60, 60, 90, 100]], dtype=np.float32)
+    task = {"targets": truth, "all": truth, "unpickable": np.zeros((0, 4), np.float32)}
+    perfect = coco_ap([task | {"boxes": truth, "scores": np.array([0.9, 0.8])}], "targets", 128, by_scale=True)
+    assert perfect["ap50"] == pytest.approx(1.0) and perfect["map"] == pytest.approx(1.0)
+    shifted = coco_ap([task | {"boxes": truth + 3, "scores": np.array([0.9, 0.8])}], "targets", 128)
+    assert shifted["ap50"] == pytest.approx(1.0) and shifted["map"] < 0.8
+    wrong = coco_ap([task | {"boxes": truth[::-1] + [0, 30, 0, 30], "scores": np.array([0.9, 0.8])}], "targets", 128)
+    assert wrong["ap50"] < 0.5
+    assert coco_ap([task | {"boxes": truth, "scores": np.array([0.9, 0.8])}], "unpickable", 128)["ap50"] is None
+
+
+def test_template_matching_finds_an_exact_copy():
+    rng = np.random.default_rng(0)
+    image = rng.integers(90, 140, (96, 96, 3)).astype(np.uint8)
+    patch = rng.integers(0, 255, (14, 14, 3)).astype(np.uint8)
+    image[10:24, 10:24] = patch
+    image[60:74, 50:64] = patch
+    found = template_matches(image, np.array([10, 10, 24, 24], dtype=np.float32))
+    assert found["boxes"].shape[0] >= 1
+    assert torch.allclose(found["boxes"][0], torch.tensor([50.0, 60.0, 64.0, 74.0]), atol=1.5)
+
+
+def test_kmeans_anchors_recover_two_box_sizes():
+    sizes = np.r_[np.tile([[10, 20]], (30, 1)), np.tile([[40, 40]], (30, 1))] + np.random.default_rng(0).normal(0, 0.5, (60, 2))
+    anchors = kmeans_anchors(sizes, clusters=2)
+    assert np.allclose(anchors, [[10, 20], [40, 40]], atol=1.5)
+
+
+@pytest.mark.slow
+def test_training_learns_the_toy_set_resumes_and_predicts(tmp_path):
+    path = make_coco(tmp_path / "toy", images=16, seed=1)
+    config = tmp_path / "rod.yaml"
+    config.write_text(f"""name: toy
+data: {{train: {path}, val: {path}, targets: all, image_size: 128, augment: false}}
+train: {{epochs: 2, batch_size: 4, lr: 0.002, warmup_steps: 4, eval_every: 2, workers: 0, threads: 2}}
+""")
+    trainer = DetectorTrainer(load_detect_config(config), tmp_path / "runs")
+    trainer.run()
+    assert (trainer.run_dir / "model.pt").is_file() and trainer.epoch == 2
+    # resume: same run folder, more epochs, continues from epoch 2's checkpoint
+    text = (trainer.run_dir / "config.yaml").read_text().replace("epochs: 2", "epochs: 25")
+    (trainer.run_dir / "config.yaml").write_text(text)
+    resumed = DetectorTrainer(resume=trainer.run_dir)
+    assert resumed.epoch == 2 and resumed.step == trainer.step
+    metrics = resumed.run()
+    assert metrics["epochs"] == 25
+    model = load_detector(trainer.run_dir)
+    result = evaluate_model(model, TaskDataset(RepeatedInstances(path), 128))
+    assert result["ap50"] > 0.2, result["ap50"]  # learnt from 16 images in 25 short epochs (0.30 measured)
+    assert result["ap50"] > metrics["history"][0]["ap50"]
+
+
+def test_cli_predict_and_bad_input_are_one_line(tmp_path):
+    path = make_coco(tmp_path / "toy", images=2)
+    model = Detector(ModelSpec(), 64)
+    save_detector(model, tmp_path / "model.pt")
+    image = str(tmp_path / "toy" / "images" / "0000.png")
+    ok = subprocess.run(CLI + ["detect", "predict", image, "--weights", str(tmp_path / "model.pt"), "--query-box", "10,10,20,20",
+                               "--min-score", "0", "--out", str(tmp_path / "overlay.png"), "--heatmap", str(tmp_path / "h.png")],
+                        capture_output=True, text=True)
+    assert ok.returncode == 0, ok.stderr
+    detections = json.loads(ok.stdout.strip().splitlines()[-1])
+    assert detections and set(detections[0]) == {"bbox", "score"}
+    assert (tmp_path / "overlay.png").is_file() and (tmp_path / "h.png").is_file()
+    (tmp_path / "empty.png").write_bytes(b"")
+    other = Detector(ModelSpec(backbone="darknet53"), 64)
+    torch.save({"format": "binpick-detector-1", "spec": {**ModelSpec().__dict__, "scales": [0.5, 1.0, 2.0]}, "image_size": 64,
+                "weights": other.state_dict()}, tmp_path / "other.pt")
+    cases = {
+        ("--query-box", "10,10,0,20"): "zero area",
+        ("--query-box", "100,100,90,20"): "outside",
+        ("--query-box", "1,2,3"): "x,y,w,h",
+    }
+    for args, message in cases.items():
+        bad = subprocess.run(CLI + ["detect", "predict", image, "--weights", str(tmp_path / "model.pt"), *args],
+                             capture_output=True, text=True)
+        assert bad.returncode == 2 and message in bad.stderr and "Traceback" not in bad.stderr, bad.stderr
+    empty = subprocess.run(CLI + ["detect", "predict", str(tmp_path / "empty.png"), "--weights", str(tmp_path / "model.pt"),
+                                  "--query-box", "1,1,5,5"], capture_output=True, text=True)
+    assert empty.returncode == 2 and "cannot read image" in empty.stderr
+    foreign = subprocess.run(CLI + ["detect", "predict", image, "--weights", str(tmp_path / "other.pt"), "--query-box", "1,1,5,5"],
+                             capture_output=True, text=True)
+    assert foreign.returncode == 2 and "another architecture" in foreign.stderr and "Traceback" not in foreign.stderr
+
+
+def test_cli_train_and_eval_on_a_coco_file(tmp_path):
+    path = make_coco(tmp_path / "toy", images=4)
+    config = tmp_path / "rod.yaml"
+    config.write_text(f"""name: toy
+data: {{train: {path}, val: {path}, targets: all, image_size: 64, augment: false}}
+train: {{epochs: 3, batch_size: 4, warmup_steps: 1, eval_every: 5, workers: 0}}
+""")
+    trained = subprocess.run(CLI + ["detect", "train", str(config), "--runs", str(tmp_path / "runs"), "--set", "train.epochs=1"],
+                             capture_output=True, text=True)
+    assert trained.returncode == 0, trained.stderr
+    run = next((tmp_path / "runs" / "toy").glob("*"))
+    assert json.loads((run / "metrics.json").read_text())["epochs"] == 1  # --set overrode the YAML
+    evaluated = subprocess.run(CLI + ["detect", "eval", str(run), "--data", str(path), "--out", str(tmp_path / "eval")],
+                               capture_output=True, text=True)
+    assert evaluated.returncode == 0, evaluated.stderr
+    metrics = json.loads((tmp_path / "eval" / "metrics.json").read_text())
+    assert metrics["tasks"] == 4 and 0.0 <= metrics["ap50"] <= 1.0 and (tmp_path / "eval" / "pr_curve.png").is_file()
+    bad = subprocess.run(CLI + ["detect", "train", str(config), "--runs", str(tmp_path / "runs"), "--set", "model.layout=RXR"],
+                         capture_output=True, text=True)
+    assert bad.returncode == 2 and "model.layout" in bad.stderr and "Traceback" not in bad.stderr
