@@ -104,7 +104,7 @@ def report(runs: Path) -> None:
     import numpy as np
     import torch
 
-    from binpick.detection.baselines import template_detect
+    from binpick.detection.baselines import histogram_detect, template_detect
     from binpick.detection.data import read_image
     from binpick.detection.model import Detector, ModelSpec
     from binpick.detection.train import detector_detect, load_detector
@@ -124,20 +124,20 @@ def report(runs: Path) -> None:
                     "targets": "pickable by Policy 1 (jaws along y)", "seen": {}, "zero_shot": {}, "policy_pickability": {},
                     "scale_ablation": {}, "latency_ms": {}}
     curves = {}
-    for row, name in [*rows.items(), ("template_matching", None)]:
+    classical = {"template_matching": template_detect, "colour_histogram": histogram_detect}
+    for row, name in [*rows.items(), *((row, None) for row in classical)]:
         if name is not None and name not in models:
             continue
-        detect = template_detect if name is None else detector_detect(models[name])
+        detect = classical[row] if name is None else detector_detect(models[name])
         query = "crop" if name is None else models[name].spec.query
         metrics = evaluate(detect, "val", P1, size, query=query)
         result["seen"][row] = keep(metrics)
         curves[row] = {**metrics["pr"], "ap50": metrics["ap50"] or 0.0}
         print(row, "seen", result["seen"][row], flush=True)
-        if row in ("rod", "tdid", "rod_no_lh", "rod_photo", "template_matching"):
-            for category in HELD_OUT:
-                metrics = evaluate(detect, "test", P1, size, only=[category], query=query)
-                result["zero_shot"].setdefault(category, {})[row] = keep(metrics)
-                print(row, "zero-shot", category, result["zero_shot"][category][row], flush=True)
+        for category in HELD_OUT:
+            metrics = evaluate(detect, "test", P1, size, only=[category], query=query)
+            result["zero_shot"].setdefault(category, {})[row] = keep(metrics)
+            print(row, "zero-shot", category, result["zero_shot"][category][row], flush=True)
     if "rod_warehouse" in models and "rod_warehouse_p2" in models:
         for train_name, train_policy in (("rod_warehouse", "p1"), ("rod_warehouse_p2", "p2")):
             for test_targets, test_policy in ((P1, "p1"), (P2, "p2")):
@@ -230,12 +230,13 @@ def write_markdown(result: dict, path: Path) -> None:
               "Target: ROD AP50 ≥ 0.85 on seen products.", ""]
     if result["zero_shot"]:
         lines += ["Zero-shot: categories held out of training (test split; Tables 5.3/5.4 style). Target: ROD AP50 ≥ TDID AP50 + 0.05.", "",
-                  "| held-out category | tasks | ROD AP50 / mAP | TDID AP50 / mAP | ROD w/o L_h AP50 | template matching AP50 |", "|---|---|---|---|---|---|"]
+                  "| held-out category | tasks | ROD AP50 / mAP | TDID AP50 / mAP | ROD w/o L_h AP50 | ROD, photo query AP50 | template matching AP50 | colour histogram AP50 |", "|---|---|---|---|---|---|---|---|"]
         for category, rows in result["zero_shot"].items():
             rod, tdid = rows.get("rod", {}), rows.get("tdid", {})
             lines.append(f"| {category} | {rod.get('tasks', '—')} | {_cell(rod.get('ap50'))} / {_cell(rod.get('map'))} | "
                          f"{_cell(tdid.get('ap50'))} / {_cell(tdid.get('map'))} | {_cell(rows.get('rod_no_lh', {}).get('ap50'))} | "
-                         f"{_cell(rows.get('template_matching', {}).get('ap50'))} |")
+                         f"{_cell(rows.get('rod_photo', {}).get('ap50'))} | "
+                         f"{_cell(rows.get('template_matching', {}).get('ap50'))} | {_cell(rows.get('colour_histogram', {}).get('ap50'))} |")
         lines.append("")
     if result["policy_pickability"]:
         pp = result["policy_pickability"]

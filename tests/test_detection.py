@@ -13,7 +13,7 @@ import pytest
 import torch
 
 from binpick.detection.backbone import build_backbone
-from binpick.detection.baselines import template_matches
+from binpick.detection.baselines import histogram_matches, template_matches
 from binpick.detection.config import load_detect_config
 from binpick.detection.data import RepeatedInstances, TaskDataset, collate
 from binpick.detection.evaluate import coco_ap
@@ -135,6 +135,17 @@ def test_coco_ap_is_one_for_perfect_boxes_and_falls_with_errors():
     wrong = coco_ap([task | {"boxes": truth[::-1] + [0, 30, 0, 30], "scores": np.array([0.9, 0.8])}], "targets", 128)
     assert wrong["ap50"] < 0.5
     assert coco_ap([task | {"boxes": truth, "scores": np.array([0.9, 0.8])}], "unpickable", 128)["ap50"] is None
+
+
+def test_colour_histogram_finds_a_copy_of_the_same_colour():
+    rng = np.random.default_rng(0)
+    image = rng.integers(100, 130, (96, 96, 3)).astype(np.uint8)
+    image[10:26, 10:26] = (200, 30, 30)
+    image[60:76, 50:66] = (200, 30, 30)
+    image[60:76, 10:26] = (30, 30, 200)  # another colour
+    found = histogram_matches(image, np.array([10, 10, 26, 26], dtype=np.float32))
+    assert found["boxes"].shape[0] >= 1
+    assert box_iou(found["boxes"][:1], torch.tensor([[50.0, 60.0, 66.0, 76.0]]))[0, 0] > 0.5
 
 
 def test_template_matching_finds_an_exact_copy():
