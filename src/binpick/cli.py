@@ -32,6 +32,9 @@ data_app = typer.Typer(help="Warehouse bin data sets with pickability from trial
 app.add_typer(data_app, name="data")
 detect_app = typer.Typer(help="Repeated object detection (thesis ch. 5, §6.3): ROD and TDID.", no_args_is_help=True)
 app.add_typer(detect_app, name="detect")
+ros_app = typer.Typer(help="ROS 1 bridge (thesis §6.1.1): serve a binpick env as an action server, drive it over ROS.",
+                      no_args_is_help=True)
+app.add_typer(ros_app, name="ros")
 
 console = Console()
 SetOption = Annotated[list[str] | None, typer.Option("--set", help="Env parameter KEY=VALUE (repeatable), e.g. --set goal_area=0.5")]
@@ -427,6 +430,85 @@ def _shipped_weights() -> Path:
     if not path.is_file():
         raise ConfigError("no shipped detector weights in this install; give --weights RUN")
     return path
+
+
+MasterOption = Annotated[str | None, typer.Option("--master", help="ROS master URI (default: $ROS_MASTER_URI)")]
+
+
+def _ros_environment(master: str | None) -> None:
+    """Point this process's ROS node at ``master`` on 127.0.0.1 (before rospy is imported)."""
+    import os
+
+    from binpick.ros import local_ros_environment, require_ros
+
+    require_ros()
+    uri = master or os.environ.get("ROS_MASTER_URI")
+    if not uri:
+        raise ConfigError("no ROS master: give --master http://127.0.0.1:PORT/ or set ROS_MASTER_URI")
+    os.environ.update({k: v for k, v in local_ros_environment(uri).items() if k not in os.environ or k == "ROS_MASTER_URI"})
+
+
+@ros_app.command("master")
+def ros_master(port: Annotated[int, typer.Option(help="Port on 127.0.0.1")] = 11311) -> None:
+    """Run a ROS master on 127.0.0.1 until Ctrl-C."""
+    from binpick.ros.master import RosMaster
+
+    with RosMaster(port) as master:
+        console.print(f"ROS master at {master.uri} (Ctrl-C to stop)")
+        try:
+            master.process.wait()
+        except KeyboardInterrupt:
+            pass
+
+
+@ros_app.command("serve")
+def ros_serve(
+    env_id: Annotated[str, typer.Argument(help="binpick env id, e.g. binpick/FetchReach-v0")],
+    namespace: Annotated[str, typer.Option(help="Action namespace clients connect to")] = "/binpick/env",
+    master: MasterOption = None,
+) -> None:
+    """Serve an env as an actionlib server: goals reset or step it, results carry observation and reward."""
+    from binpick.envs import resolve_env_id
+
+    env_id = resolve_env_id(env_id)
+    _ros_environment(master)
+    from binpick.ros.server import serve
+
+    serve(env_id, namespace)
+
+
+@ros_app.command("bench")
+def ros_bench(
+    namespace: Annotated[str, typer.Option(help="Action namespace of a served Fetch env")] = "/binpick/env",
+    episodes: Annotated[int, typer.Option(help="Episodes of the scripted reach policy")] = 10,
+    master: MasterOption = None,
+    json_out: Annotated[Path | None, typer.Option("--json", help="Also write the summary here")] = None,
+    timeout: Annotated[float, typer.Option(help="Seconds to wait for the server and for each result")] = 10.0,
+) -> None:
+    """Drive a served Fetch env over ROS with the scripted reach policy: success and round-trip latency."""
+    from binpick.config import check_range
+
+    check_range("episodes", episodes, 1, 100_000, integer=True)
+    _ros_environment(master)
+    import gymnasium as gym
+    import numpy as np
+
+    from binpick.rl.evaluate import evaluate_policy
+
+    env = gym.make("binpick/Ros-v0", namespace=namespace, timeout=timeout)
+
+    def reach(observation):  # a P-controller to the goal, gripper still (FACTS: 100% on Fetch Reach)
+        action = np.zeros(env.action_space.shape, dtype=np.float32)
+        action[:3] = np.clip(10 * (observation["desired_goal"] - observation["achieved_goal"]), -1, 1)
+        return action
+
+    result = evaluate_policy(env, reach, episodes=episodes, seed=0)
+    trips = np.array(env.unwrapped.round_trips_ms)
+    summary = {**result.to_dict(), "round_trips": int(trips.size), "median_ms": round(float(np.median(trips)), 3),
+               "p95_ms": round(float(np.percentile(trips, 95)), 3), "namespace": namespace}
+    print(json.dumps(summary))
+    if json_out is not None:
+        json_out.write_text(json.dumps(summary, indent=2))
 
 
 @app.command("demo")

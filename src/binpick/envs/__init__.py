@@ -47,6 +47,10 @@ ENV_IDS: tuple[str, ...] = tuple(ENVS)
 for _spec in ENVS.values():
     if _spec.env_id not in registry:
         register(id=_spec.env_id, entry_point=_spec.entry_point, max_episode_steps=_spec.max_episode_steps)
+# The client side of the ROS bridge: any served binpick env, driven over ROS (binpick.ros.client).
+# Not among ENV_IDS: it needs a running server, and the served env keeps its own time limit.
+if "binpick/Ros-v0" not in registry:
+    register(id="binpick/Ros-v0", entry_point="binpick.ros.client:RosEnv")
 
 
 def resolve_env_id(name: str) -> str:

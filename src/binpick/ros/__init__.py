@@ -1,0 +1,47 @@
+"""A ROS 1 bridge (thesis §6.1.1): a binpick env served as a ROS action server, and a Gymnasium env
+(``binpick/Ros-v0``) that drives it from anywhere on the ROS graph, so any binpick policy or trainer
+can run a robot over ROS.
+
+ROS comes from Debian (``python3-rospy python3-actionlib ...``), made visible to the venv by a
+``.pth`` file that *appends* ``/usr/lib/python3/dist-packages`` (``scripts/setup.sh`` writes it when
+it can install the packages).
+"""
+
+from __future__ import annotations
+
+import os
+
+from binpick.errors import BinpickError
+
+DEBIAN_PACKAGES = ("python3-rospy", "python3-actionlib", "python3-rosmaster", "python3-genpy", "python3-genmsg",
+                   "ros-std-msgs", "ros-actionlib-msgs", "python3-actionlib-msgs", "python3-std-msgs")
+
+
+class RosUnavailable(BinpickError):
+    """ROS 1's Python packages cannot be imported."""
+
+
+def ros_missing() -> str | None:
+    """Why the bridge cannot run here, or None when it can."""
+    try:
+        import actionlib  # noqa: F401
+        import genpy  # noqa: F401
+        import rospy  # noqa: F401
+    except ImportError as error:
+        return (f"ROS 1 is not importable ({error.name}): install the Debian packages {' '.join(DEBIAN_PACKAGES)} "
+                "and re-run scripts/setup.sh, which makes them visible to the venv")
+    return None
+
+
+def require_ros() -> None:
+    reason = ros_missing()
+    if reason:
+        raise RosUnavailable(reason)
+
+
+def local_ros_environment(master_uri: str, home: str | None = None) -> dict[str, str]:
+    """Environment variables that keep a node on 127.0.0.1 and its logs in ``home``."""
+    environment = {"ROS_MASTER_URI": master_uri, "ROS_IP": "127.0.0.1", "ROS_HOSTNAME": "127.0.0.1"}
+    if home:
+        environment |= {"ROS_HOME": home, "ROS_LOG_DIR": os.path.join(home, "log")}
+    return environment

@@ -1,0 +1,60 @@
+"""A ROS master on 127.0.0.1 (``rosmaster --core``), started and stopped from Python."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+import xmlrpc.client
+
+from binpick.errors import BinpickError
+from binpick.ros import local_ros_environment, require_ros
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+class RosMaster:
+    """``with RosMaster() as master:`` runs a master on a free port; ``master.uri`` names it."""
+
+    def __init__(self, port: int | None = None, timeout: float = 15.0) -> None:
+        require_ros()
+        self.port = port or free_port()
+        self.uri = f"http://127.0.0.1:{self.port}/"
+        self.home = tempfile.mkdtemp(prefix="binpick-ros-")
+        self.environment = {**os.environ, **local_ros_environment(self.uri, self.home)}
+        self.process = subprocess.Popen([sys.executable, "-c", "import rosmaster; rosmaster.rosmaster_main()", "--core",
+                                         "-p", str(self.port), "-w", "2"], env=self.environment,
+                                        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if self.process.poll() is not None:
+                raise BinpickError(f"rosmaster exited: {self.process.stderr.read().decode(errors='replace').strip()[-300:]}")
+            try:
+                xmlrpc.client.ServerProxy(self.uri).getPid("/binpick")
+                return
+            except OSError:
+                time.sleep(0.05)
+        self.stop()
+        raise BinpickError(f"rosmaster did not answer on {self.uri} within {timeout:.0f} s")
+
+    def stop(self) -> None:
+        if self.process.poll() is None:
+            self.process.send_signal(signal.SIGTERM)  # what rosmaster --core waits for
+            try:
+                self.process.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+
+    def __enter__(self) -> "RosMaster":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()

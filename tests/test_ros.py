@@ -1,0 +1,51 @@
+"""The ROS 1 bridge (thesis §6.1.1): a served Fetch env driven over ROS by the scripted reach policy,
+on a master at 127.0.0.1 on a free port. Skipped, with the reason, where ROS is not installed."""
+
+from __future__ import annotations
+
+import io
+import json
+import subprocess
+import sys
+
+import pytest
+
+from binpick.ros import ros_missing
+
+pytestmark = pytest.mark.skipif(ros_missing() is not None, reason=ros_missing() or "")
+CLI = [sys.executable, "-c", "from binpick.cli import main; main()"]
+
+
+def test_action_messages_round_trip():
+    from binpick.ros.messages import env_action_types
+
+    types = env_action_types()
+    assert {"EnvAction", "EnvActionGoal", "EnvActionResult", "EnvActionFeedback", "EnvGoal", "EnvResult", "EnvFeedback"} <= set(types)
+    goal = types["EnvGoal"](command="step", seed=-1, action=[0.5, -0.25, 0.0, 1.0])
+    buffer = io.BytesIO()
+    goal.serialize(buffer)
+    copy = types["EnvGoal"]().deserialize(buffer.getvalue())
+    assert copy.command == "step" and list(copy.action) == [0.5, -0.25, 0.0, 1.0]
+
+
+def test_fetch_reach_episodes_through_the_bridge_and_a_missing_server_is_one_line():
+    from binpick.ros.master import RosMaster
+
+    with RosMaster() as master:
+        server = subprocess.Popen(CLI + ["ros", "serve", "binpick/FetchReach-v0", "--namespace", "/test/reach", "--master", master.uri],
+                                  env=master.environment, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        try:
+            bench = subprocess.run(CLI + ["ros", "bench", "--namespace", "/test/reach", "--episodes", "3", "--master", master.uri,
+                                          "--timeout", "60"], env=master.environment, capture_output=True, text=True, timeout=240)
+            assert bench.returncode == 0, bench.stderr
+            summary = json.loads(bench.stdout.strip().splitlines()[-1])
+            assert summary["success_rate"] == 1.0 and summary["mean_length"] < 10  # the P-controller reaches every goal
+            assert summary["round_trips"] == 3 + round(3 * summary["mean_length"]) and summary["median_ms"] > 0  # resets + steps
+            assert "Got a transition callback" not in bench.stderr
+            missing = subprocess.run(CLI + ["ros", "bench", "--namespace", "/nobody/here", "--master", master.uri, "--timeout", "1"],
+                                     env=master.environment, capture_output=True, text=True, timeout=120)
+            assert missing.returncode == 2 and "no binpick env server at /nobody/here" in missing.stderr
+            assert "Traceback" not in missing.stderr
+        finally:
+            server.terminate()
+            server.wait(timeout=20)
