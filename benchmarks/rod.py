@@ -20,8 +20,8 @@ sys.path.insert(0, os.path.dirname(__file__))
 
 import _common  # noqa: E402
 
-CONFIGS = ["rod_warehouse", "tdid_warehouse", "rod_warehouse_no_lh", "rod_warehouse_p2",
-           "rod_warehouse_ssr", "rod_warehouse_rss", "rod_warehouse_sss", "rod_warehouse_photo"]
+CONFIGS = ["rod_warehouse", "tdid_warehouse", "rod_warehouse_no_lh", "rod_warehouse_p2", "rod_warehouse_photo",
+           "rod_warehouse_ssr", "rod_warehouse_rss", "rod_warehouse_sss"]
 
 
 def run_folder(runs: Path, name: str) -> Path | None:

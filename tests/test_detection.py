@@ -242,3 +242,20 @@ train: {{epochs: 3, batch_size: 4, warmup_steps: 1, eval_every: 5, workers: 0}}
     bad = subprocess.run(CLI + ["detect", "train", str(config), "--runs", str(tmp_path / "runs"), "--set", "model.layout=RXR"],
                          capture_output=True, text=True)
     assert bad.returncode == 2 and "model.layout" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_shipped_weights_load_as_float32_and_predict(tmp_path):
+    from importlib.resources import files
+
+    from PIL import Image
+
+    from binpick.detection.predict import predict
+
+    model = load_detector(str(files("binpick.detection") / "weights" / "rod_tiny_256.pt"))
+    assert model.spec == ModelSpec() and model.image_size == 256 and model.trained_config["data"]["targets"] == "pickable:y"
+    assert next(model.parameters()).dtype == torch.float32  # stored as float16, used as float32
+    # a synthetic scene: copies of one coloured shape; the prediction is well formed and in the image
+    image = np.asarray(Image.open(make_coco(tmp_path, images=1).parent / "images" / "0000.png"))
+    prediction = predict(model, image, np.array([5, 5, 20, 20], dtype=np.float32), score_threshold=0.0)
+    assert len(prediction.boxes) > 0 and np.all(prediction.boxes[:, 2:] > 0)
+    assert np.all(prediction.boxes[:, :2] >= -1) and np.all(prediction.boxes[:, 0] + prediction.boxes[:, 2] <= 129)

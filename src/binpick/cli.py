@@ -170,6 +170,29 @@ def rl_train(
     console.print(f"{summary}; wrote {trainer.run_dir / 'metrics.json'}")
 
 
+@rl_app.command("distributed")
+def rl_distributed(
+    env_id: Annotated[str, typer.Option("--env", help="Goal-conditioned binpick env")] = "binpick/FetchReach-v0",
+    workers: Annotated[int, typer.Option(help="Simulators, one Ray actor (process) each")] = 2,
+    steps: Annotated[int, typer.Option(help="Env steps the workers play")] = 5000,
+    address: Annotated[str | None, typer.Option(help="Ray cluster to join (HOST:6379, from `ray start --head`); default: a local one")] = None,
+    out: Annotated[Path, typer.Option(help="Folder for model.zip and metrics.json")] = Path("runs/distributed"),
+    seed: Annotated[int, typer.Option(help="Seed")] = 0,
+) -> None:
+    """SAC + HER learning from episodes streamed by Ray simulator workers (thesis §6.1); survives a worker's death."""
+    from binpick.distributed.learner import DistributedConfig, train_distributed
+    from binpick.envs import resolve_env_id
+
+    config = DistributedConfig(env=resolve_env_id(env_id), workers=workers, total_timesteps=steps, address=address, seed=seed)
+    run_dir = out / time.strftime("%Y%m%d-%H%M%S")
+    with progress_bar() as progress:
+        task = progress.add_task(f"{workers} workers", total=steps)
+        metrics = train_distributed(config, run_dir, on_episode=lambda _e, _r, model: progress.update(task, completed=model.num_timesteps))
+    console.print(f"{metrics['env_steps']} env steps from {metrics['episodes']} episodes in {metrics['wall_s']} s "
+                  f"({metrics['lost_episodes']} lost to dead workers); final success {metrics['final_success']:.0%}; "
+                  f"wrote {run_dir}")
+
+
 @rl_app.command("eval")
 def rl_eval(
     run: Annotated[Path, typer.Argument(help="Run folder (runs/<name>/<time>)")],

@@ -30,13 +30,17 @@ from binpick.rl.checkpoints import commit_checkpoint, latest_checkpoint, new_run
 
 
 # ---------------------------------------------------------------------- weights on disk
-def save_detector(model: Detector, path: Path, extra: dict[str, Any] | None = None) -> None:
-    """Write atomically: a crash leaves the previous file or the new one."""
+def save_detector(model: Detector, path: Path, extra: dict[str, Any] | None = None, half: bool = False) -> None:
+    """Write atomically: a crash leaves the previous file or the new one. ``half`` stores float16
+    weights (half the size; loading turns them back into float32)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     temporary = path.with_suffix(path.suffix + ".tmp")
+    weights = model.state_dict()
+    if half:
+        weights = {k: v.half() if v.is_floating_point() and k != "anchors" else v for k, v in weights.items()}
     torch.save({"format": "binpick-detector-1", "spec": asdict(model.spec), "image_size": model.image_size,
-                "query_size": model.query_size, "weights": model.state_dict(), **(extra or {})}, temporary)
+                "query_size": model.query_size, "weights": weights, **(extra or {})}, temporary)
     os.replace(temporary, path)
 
 

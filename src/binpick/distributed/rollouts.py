@@ -1,0 +1,190 @@
+"""Simulators spread over processes and machines with Ray (thesis §6.1, in place of ROS multimaster).
+
+Each :class:`SimulatorWorker` is a Ray actor that owns one simulator and plays whole episodes with
+the latest policy it was sent. :class:`DistributedRollouts` keeps one episode in flight per worker
+and hands finished episodes to the learner as they arrive, so a slow worker never blocks a fast one.
+A worker that dies (a crash, a killed process, a lost machine) is restarted by Ray; the episode it
+was playing is lost and counted, the fresh worker gets the current policy again, and the stream
+goes on.
+
+Locally ``ray.init()`` starts a private cluster on this machine; ``address="ray://..."`` or
+``"HOST:6379"`` joins a cluster started with ``ray start --head`` (see the README).
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+# With this set to 0, Ray treats the machine as a single-node setup and uses 127.0.0.1 for every
+# address, instead of the machine's network address (its name says Windows/macOS; it works on Linux).
+LOCAL_ONLY_ENV = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
+
+
+@dataclass
+class Episode:
+    """One episode played by one worker: everything a replay buffer needs, in step order."""
+
+    worker: int
+    pid: int
+    observations: list[Any]  # s_0 ... s_{T-1}
+    next_observations: list[Any]  # s_1 ... s_T
+    actions: np.ndarray
+    rewards: np.ndarray
+    terminated: np.ndarray
+    truncated: np.ndarray
+    success: bool
+    policy_version: int = -1
+
+    @property
+    def steps(self) -> int:
+        return len(self.actions)
+
+
+class SimulatorWorker:
+    """One simulator in its own process. Plain class: :class:`DistributedRollouts` makes it an actor."""
+
+    def __init__(self, env_id: str, env_kwargs: dict, seed: int, index: int) -> None:
+        os.environ.setdefault("MUJOCO_GL", "egl")
+        import torch
+
+        from binpick.envs import make
+
+        torch.set_num_threads(1)  # one core per simulator
+        self.env, self.index, self.seed = make(env_id, **env_kwargs), index, seed
+        self.policy, self.version, self.played = None, -1, 0
+
+    def set_policy(self, policy: Any, version: int) -> None:
+        """An SB3 policy (anything with ``predict``), or None for random actions."""
+        self.policy, self.version = policy, version
+
+    def pid(self) -> int:
+        return os.getpid()
+
+    def play(self, deterministic: bool = False) -> Episode:
+        observation, _ = self.env.reset(seed=self.seed * 1_000_003 + self.played)
+        self.played += 1
+        observations, next_observations, actions, rewards, terminated, truncated = [], [], [], [], [], []
+        success = False
+        while True:
+            if self.policy is None:
+                action = self.env.action_space.sample()
+            else:
+                action, _ = self.policy.predict(observation, deterministic=deterministic)
+            next_observation, reward, term, trunc, info = self.env.step(action)
+            observations.append(observation)
+            next_observations.append(next_observation)
+            actions.append(np.asarray(action))
+            rewards.append(float(reward))
+            terminated.append(bool(term))
+            truncated.append(bool(trunc))
+            success = bool(info.get("is_success", success))
+            observation = next_observation
+            if term or trunc:
+                break
+        return Episode(self.index, os.getpid(), observations, next_observations, np.array(actions), np.array(rewards),
+                       np.array(terminated), np.array(truncated), success, self.version)
+
+
+@dataclass
+class StreamStats:
+    episodes: int = 0
+    steps: int = 0
+    lost_episodes: int = 0  # in flight on a worker that died
+    restarts: int = 0  # worker processes that died and were restarted
+    per_worker_steps: dict[int, int] = field(default_factory=dict)
+
+
+class DistributedRollouts:
+    """``workers`` simulators of ``env_id``; iterate :meth:`stream` for episodes."""
+
+    def __init__(self, env_id: str, workers: int = 2, address: str | None = None, env_kwargs: dict | None = None,
+                 seed: int = 0) -> None:
+        if address is None:  # a private local cluster: keep every Ray socket on 127.0.0.1 (read at import)
+            os.environ.setdefault(LOCAL_ONLY_ENV, "0")
+        import ray
+
+        from binpick.errors import ConfigError
+
+        if workers < 1:
+            raise ConfigError(f"workers must be at least 1, got {workers}")
+        if not ray.is_initialized():
+            options = {"address": address} if address else {"num_cpus": max(workers, 1)}
+            ray.init(include_dashboard=False, log_to_driver=False, logging_level="ERROR",
+                     runtime_env={"env_vars": {"MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}}, **options)
+        remote = ray.remote(num_cpus=1, max_restarts=-1, max_task_retries=0)(SimulatorWorker)
+        self.actors = [remote.remote(env_id, env_kwargs or {}, seed + i, i) for i in range(workers)]
+        self.policy_ref, self.version = None, -1
+        self.stats = StreamStats()
+        self.in_flight: dict[Any, int] = {}
+        self.recovering: set[int] = set()  # workers whose process died and is being restarted
+
+    def set_policy(self, policy: Any) -> None:
+        """Send the learner's current policy to every worker (it applies before the worker's next episode)."""
+        import ray
+
+        self.version += 1
+        self.policy_ref = ray.put(policy)
+        for actor in self.actors:
+            actor.set_policy.remote(self.policy_ref, self.version)
+
+    def worker_pids(self, timeout: float = 60.0) -> list[int]:
+        """Process ids of the workers (waits for restarting ones)."""
+        import ray
+        from ray.exceptions import ActorUnavailableError, RayActorError
+
+        deadline = time.monotonic() + timeout
+        while True:
+            try:
+                return ray.get([actor.pid.remote() for actor in self.actors])
+            except (RayActorError, ActorUnavailableError):
+                if time.monotonic() > deadline:
+                    raise
+                time.sleep(0.2)
+
+    def _submit(self, index: int) -> None:
+        self.in_flight[self.actors[index].play.remote()] = index
+
+    def stream(self, max_episodes: int | None = None) -> Iterator[Episode]:
+        """Episodes as they finish, from whichever worker; a dead worker's episode is skipped."""
+        import ray
+        from ray.exceptions import ActorUnavailableError, RayActorError
+
+        for index in range(len(self.actors)):
+            if index not in self.in_flight.values():
+                self._submit(index)
+        delivered = 0
+        while max_episodes is None or delivered < max_episodes:
+            ready, _ = ray.wait(list(self.in_flight), num_returns=1)
+            index = self.in_flight.pop(ready[0])
+            try:
+                episode = ray.get(ready[0])
+            except (RayActorError, ActorUnavailableError):  # the worker died mid-episode: Ray restarts it
+                if index not in self.recovering:  # its episode is lost (later failures: still restarting)
+                    self.stats.lost_episodes += 1
+                    self.stats.restarts += 1
+                    self.recovering.add(index)
+                time.sleep(0.2)
+                if self.policy_ref is not None:  # the fresh process needs the current policy again
+                    self.actors[index].set_policy.remote(self.policy_ref, self.version)
+                self._submit(index)
+                continue
+            self.recovering.discard(index)
+            self._submit(index)
+            self.stats.episodes += 1
+            self.stats.steps += episode.steps
+            self.stats.per_worker_steps[index] = self.stats.per_worker_steps.get(index, 0) + episode.steps
+            delivered += 1
+            yield episode
+
+    def close(self) -> None:
+        import ray
+
+        for actor in self.actors:
+            ray.kill(actor, no_restart=True)
+        self.actors, self.in_flight = [], {}

@@ -1,0 +1,30 @@
+"""Ray simulator workers (thesis §6.1): episodes stream to the SAC + HER learner, and a worker killed
+mid-run is restarted while the run finishes, losing only its in-flight episode."""
+
+from __future__ import annotations
+
+import os
+import signal
+
+import pytest
+
+from binpick.distributed.learner import DistributedConfig, train_distributed
+
+
+@pytest.mark.slow
+def test_a_killed_worker_is_restarted_and_the_run_finishes(tmp_path):
+    killed = []
+
+    def on_episode(episode, rollouts, model):
+        assert episode.steps > 0 and len(episode.observations) == episode.steps
+        if not killed and model.num_timesteps >= 100:
+            pid = rollouts.worker_pids()[0]
+            os.kill(pid, signal.SIGKILL)
+            killed.append(pid)
+
+    config = DistributedConfig(workers=2, total_timesteps=300, learning_starts=100, batch_size=32, eval_episodes=2)
+    metrics = train_distributed(config, tmp_path / "run", on_episode=on_episode)
+    assert killed and metrics["env_steps"] >= 300
+    assert metrics["worker_restarts"] == 1 and metrics["lost_episodes"] == 1
+    assert metrics["episodes"] >= 6 and sum(metrics["steps_per_worker"].values()) == metrics["env_steps"]
+    assert (tmp_path / "run" / "model.zip").is_file()
