@@ -113,7 +113,8 @@ class DistributedRollouts:
 
         if workers < 1:
             raise ConfigError(f"workers must be at least 1, got {workers}")
-        if not ray.is_initialized():
+        self.owns_ray = not ray.is_initialized()
+        if self.owns_ray:
             options = {"address": address} if address else {"num_cpus": max(workers, 1)}
             ray.init(include_dashboard=False, log_to_driver=False, logging_level="ERROR",
                      runtime_env={"env_vars": {"MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}}, **options)
@@ -188,3 +189,5 @@ class DistributedRollouts:
         for actor in self.actors:
             ray.kill(actor, no_restart=True)
         self.actors, self.in_flight = [], {}
+        if self.owns_ray:  # we started the local cluster: stop it too
+            ray.shutdown()

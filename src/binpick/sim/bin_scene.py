@@ -101,6 +101,14 @@ class BinWorld:
         self._alpha = self.model.geom_rgba[:, 3].copy()
         self._matid = self.model.geom_matid.copy()
 
+    def set_guards(self, enabled: bool) -> None:
+        """Switch the invisible drop guards above the tote walls on or off. They keep products that
+        bounce off a pile in the tote while a scene settles, but would block a gripper carrying a
+        product out of the tote."""
+        guards = [g for g in range(self.model.ngeom) if (self.model.geom(g).name or "").startswith("bin_guard")]
+        self.model.geom_contype[guards] = int(enabled)
+        self.model.geom_conaffinity[guards] = int(enabled)
+
     def close(self) -> None:
         for name in ("renderer", "small"):
             renderer = getattr(self, name, None)
@@ -127,6 +135,7 @@ class BinWorld:
         return Scene(rgb, depth, segmentation, instances, self.target.id, int(seed), self.data.qpos.copy())
 
     def _drop_and_settle(self, used: list[int], rng: np.random.Generator) -> bool:
+        self.set_guards(True)
         mujoco.mj_resetData(self.model, self.data)
         for slot in range(len(self.slots)):
             self._place(slot, self._parked(slot), (1, 0, 0, 0))

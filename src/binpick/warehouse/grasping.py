@@ -1,0 +1,111 @@
+"""From a detection to a placed product: the 3D grasp point from depth and the camera's intrinsics,
+a top-down grasp there, the carry to the order tote and the check of what happened (thesis Fig 1.1).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from binpick.sim.gripper import LIFT_SUCCESS, OPENING, TRIAL_TIMESTEP
+from binpick.sim.mjcf import FLOOR_TOP, CameraSpec
+
+ORDER_TOTE = (0.0, 0.42)  # centre (x, y) of the customer's tote, beside the bin and out of the camera's view
+ORDER_HALF, ORDER_WALL, ORDER_HEIGHT = 0.09, 0.01, 0.08
+CARRY_HEIGHT = 0.42
+
+
+def order_tote_xml() -> str:
+    """The order tote (static geoms) and an overview camera that sees both totes, for the GIFs."""
+    x, y = ORDER_TOTE
+    h, t, z = ORDER_HALF, ORDER_WALL, ORDER_HEIGHT / 2
+    walls = [((x + h + t / 2, y), (t / 2, h + t)), ((x - h - t / 2, y), (t / 2, h + t)),
+             ((x, y + h + t / 2), (h, t / 2)), ((x, y - h - t / 2), (h, t / 2))]
+    geoms = [f'<geom name="order_floor" type="box" pos="{x} {y} 0.005" size="{h + t} {h + t} 0.005" rgba="0.85 0.55 0.2 1"/>']
+    geoms += [f'<geom name="order_wall{i}" type="box" pos="{px} {py} {z}" size="{sx} {sy} {z}" rgba="0.85 0.55 0.2 1"/>'
+              for i, ((px, py), (sx, sy)) in enumerate(walls)]
+    camera = '<camera name="overview" pos="0.9 0.21 1.0" xyaxes="0 1 0 -0.72 0 0.69" fovy="50"/>'
+    return "".join(geoms) + camera
+
+
+def pixel_to_world(u: float, v: float, depth: float, camera: CameraSpec) -> np.ndarray:
+    """A pixel (column u, row v) at ``depth`` metres along the overhead camera's axis -> world xyz.
+    The camera looks straight down from (0, 0, height) with image x along world x and image rows
+    running towards world -y."""
+    fx, fy, cx, cy = camera.intrinsics()
+    return np.array([(u - cx) * depth / fx, -(v - cy) * depth / fy, camera.height - depth])
+
+
+def grasp_point(box_xywh, depth_image: np.ndarray, camera: CameraSpec) -> np.ndarray:
+    """Where to grasp a detection: the box centre, at the height of the nearest surface in the
+    middle third of the box (the product's top, seen from above)."""
+    x, y, w, h = box_xywh
+    rows = slice(int(y + h / 3), max(int(y + h / 3) + 1, int(y + 2 * h / 3)))
+    cols = slice(int(x + w / 3), max(int(x + w / 3) + 1, int(x + 2 * w / 3)))
+    patch = depth_image[rows, cols]
+    depth = float(np.percentile(patch, 20)) if patch.size else float(depth_image[int(y + h / 2), int(x + w / 2)])
+    return pixel_to_world(x + w / 2, y + h / 2, depth, camera)
+
+
+@dataclass
+class PickOutcome:
+    lifted_slot: int | None  # the instance that came up with the gripper, if any
+    placed: bool  # it ended inside the order tote
+    reason: str  # "placed", "missed", "slipped", "dropped outside the order tote"
+
+
+def execute_pick(world, point: np.ndarray, axis: str, on_frame: Callable[[], None] | None = None,
+                 frame_every: float = 0.1) -> PickOutcome:
+    """Top-down grasp at ``point`` (jaws along the robot's ``axis``), lift, carry to the order tote,
+    release, and report what happened."""
+    model, data, gripper = world.model, world.data, world.gripper
+    settle_timestep = model.opt.timestep
+    model.opt.timestep = TRIAL_TIMESTEP
+    every = max(1, int(frame_every / TRIAL_TIMESTEP))
+
+    def move(target, seconds: float, close: float) -> None:
+        start = data.mocap_pos[gripper.mocap].copy()
+        steps = max(1, int(seconds / model.opt.timestep))
+        for step in range(steps):
+            data.mocap_pos[gripper.mocap] = start + (np.asarray(target) - start) * (step + 1) / steps
+            data.ctrl[gripper.fingers] = close
+            mujoco.mj_step(model, data)
+            if on_frame is not None and step % every == 0:
+                on_frame()
+
+    try:
+        heights = np.array([data.xpos[b][2] for b in world.body_ids])
+        yaw = 0.0 if axis == "x" else np.pi / 2
+        tips = max(FLOOR_TOP + 0.006, point[2] - 0.03)
+        grasp = np.array([point[0], point[1], tips + 0.04])
+        gripper.teleport(data, grasp + [0, 0, 0.15], yaw)
+        mujoco.mj_forward(model, data)
+        move(grasp, 0.4, 0.0)
+        move(grasp, 0.3, OPENING / 2)
+        move(grasp + [0, 0, 0.15], 0.5, OPENING / 2)
+        move(grasp + [0, 0, 0.15], 0.5, OPENING / 2)  # hold: does it stay in the jaws?
+        rise = np.array([data.xpos[b][2] for b in world.body_ids]) - heights
+        slot = int(np.argmax(rise))
+        if rise[slot] < LIFT_SUCCESS:
+            return PickOutcome(None, False, "missed" if rise.max() < 0.02 else "slipped")
+        carry = np.array([point[0], point[1], CARRY_HEIGHT])
+        move(carry, 0.5, OPENING / 2)
+        above_order = np.array([ORDER_TOTE[0], ORDER_TOTE[1], CARRY_HEIGHT])
+        move(above_order, 1.0, OPENING / 2)
+        lowered = above_order - [0, 0, 0.2]
+        move(lowered, 0.5, OPENING / 2)
+        if data.xpos[world.body_ids[slot]][2] < lowered[2] - 0.15:
+            return PickOutcome(slot, False, "slipped")  # fell on the way
+        move(lowered, 0.4, 0.0)  # open
+        move(above_order, 0.3, 0.0)
+        move(above_order, 0.6, 0.0)  # let it settle
+        x, y, z = data.xpos[world.body_ids[slot]]
+        inside = abs(x - ORDER_TOTE[0]) < ORDER_HALF and abs(y - ORDER_TOTE[1]) < ORDER_HALF and z < ORDER_HEIGHT + 0.1
+        return PickOutcome(slot, bool(inside), "placed" if inside else "dropped outside the order tote")
+    finally:
+        model.opt.timestep = settle_timestep
+        gripper.teleport(data, (-3.0, 0.0, 0.5), 0.0)  # park out of view
+        mujoco.mj_forward(model, data)

@@ -1,0 +1,154 @@
+"""The warehouse pick pipeline (thesis ch. 6, Fig 1.1): an order's shop photo -> ROD with external
+conditioning -> ranked detections of pickable instances -> the best one's 3D grasp point from depth
+-> a top-down grasp -> carried to the order tote -> verified. After a failed attempt the next
+detection is tried, up to ``max_attempts``.
+
+Each order is a new bin: K copies of the ordered product and some other products, settled from a
+seed. What happened is reported per order, with a reason when it failed.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from binpick.detection.model import Detector
+from binpick.errors import ConfigError
+from binpick.detection.predict import predict
+from binpick.sim.bin_scene import BinWorld
+from binpick.sim.mjcf import CameraSpec
+from binpick.sim.photos import shop_photo
+from binpick.sim.products import ProductLibrary
+from binpick.warehouse.grasping import execute_pick, grasp_point, order_tote_xml
+
+GIF_SIZE = 240
+
+
+@dataclass
+class Attempt:
+    box: list[float]
+    score: float
+    grasp_point: list[float]
+    outcome: str
+    lifted_product: str | None
+
+
+@dataclass
+class OrderResult:
+    order: int
+    product: str
+    seed: int
+    success: bool  # the ordered product ended in the order tote
+    right_product: bool | None  # what was lifted was the ordered product (None: nothing lifted)
+    reason: str  # placed | no detection | wrong product | missed | slipped | ...
+    attempts: list[Attempt] = field(default_factory=list)
+    detections: int = 0
+    seconds: float = 0.0
+    gif: str | None = None
+    overlay: str | None = None
+
+
+class PickPipeline:
+    """``PickPipeline(detector, library).run(product_id, orders=5)``."""
+
+    def __init__(self, detector: Detector, library: ProductLibrary, axis: str = "y", copies: tuple[int, int] = (3, 6),
+                 distractors: tuple[int, int] = (2, 3), max_attempts: int = 3, score_threshold: float = 0.2,
+                 camera: CameraSpec = CameraSpec(size=416)) -> None:
+        if detector.spec.query != "photo":
+            raise ConfigError("the pick pipeline conditions on shop photos: give a detector trained with query: photo")
+        self.detector, self.library, self.axis = detector, library, axis
+        self.copies, self.distractors, self.max_attempts = copies, distractors, max_attempts
+        self.score_threshold, self.camera = score_threshold, camera
+        self._photos: dict[str, np.ndarray] = {}
+
+    def photo(self, product_id: str) -> np.ndarray:
+        """The shop's photo of a product: the user's own, or rendered like the training data's."""
+        if product_id not in self._photos:
+            from binpick.detection.data import read_image
+
+            product = self.library[product_id]
+            self._photos[product_id] = shop_photo(product) if product.photo is None else read_image(product.photo)
+        return self._photos[product_id]
+
+    def run_order(self, product_id: str, order: int, seed: int, out: Path | None = None) -> OrderResult:
+        started = time.perf_counter()
+        rng = np.random.default_rng(seed)
+        target = self.library[product_id]
+        others = [p for p in sorted(self.library.products) if p != product_id]
+        chosen = [self.library[others[i]] for i in rng.choice(len(others), size=self.distractors[1], replace=False)]
+        world = BinWorld(target, chosen, max_copies=self.copies[1], camera=self.camera, extra_worldbody=order_tote_xml(),
+                         gripper=True, seed=seed)
+        frames: list[np.ndarray] = []
+        overview = None
+        try:
+            import mujoco
+
+            side = min(GIF_SIZE, self.camera.size)  # the model's framebuffer is the camera's size
+            overview = mujoco.Renderer(world.model, side, side)
+            camera_id = world.model.camera("overview").id
+
+            def frame() -> None:
+                overview.update_scene(world.data, camera=camera_id)
+                frames.append(overview.render().copy())
+
+            scene = world.scene(int(rng.integers(self.copies[0], self.copies[1] + 1)),
+                                int(rng.integers(self.distractors[0], self.distractors[1] + 1)), seed)
+            world.set_guards(False)  # the invisible drop guards would block the carry to the order tote
+            frame()
+            prediction = predict(self.detector, scene.rgb, query_image=self.photo(product_id), score_threshold=self.score_threshold)
+            result = OrderResult(order, product_id, seed, False, None, "no detection", detections=len(prediction.boxes))
+            for box, score in list(zip(prediction.boxes, prediction.scores))[:self.max_attempts]:
+                point = grasp_point(box, scene.depth, self.camera)
+                outcome = execute_pick(world, point, self.axis, on_frame=frame)
+                lifted = world.slots[outcome.lifted_slot].id if outcome.lifted_slot is not None else None
+                result.attempts.append(Attempt([float(v) for v in box], float(score), point.round(4).tolist(), outcome.reason, lifted))
+                if lifted is not None:
+                    result.right_product = lifted == product_id
+                if outcome.placed and lifted == product_id:
+                    result.success, result.reason = True, "placed"
+                    break
+                result.reason = "wrong product" if lifted not in (None, product_id) else outcome.reason
+            frame()
+            if out is not None:
+                result.gif, result.overlay = self._write_pictures(out, order, product_id, scene.rgb, prediction, frames)
+        finally:
+            if overview is not None:
+                overview.close()
+            world.close()
+        result.seconds = round(time.perf_counter() - started, 2)
+        return result
+
+    def _write_pictures(self, out: Path, order: int, product_id: str, rgb, prediction, frames) -> tuple[str, str]:
+        from PIL import Image
+
+        from binpick.viz.detection import overlay
+
+        out.mkdir(parents=True, exist_ok=True)
+        name = f"order_{order:03d}_{product_id.replace('/', '_')}"
+        picture = overlay(rgb, prediction.boxes, prediction.scores, None, self.photo(product_id), min_score=self.score_threshold)
+        Image.fromarray(picture).save(out / f"{name}.png")
+        images = [Image.fromarray(f) for f in frames[::2] or frames]
+        images[0].save(out / f"{name}.gif", save_all=True, append_images=images[1:], duration=80, loop=0)
+        return f"{name}.gif", f"{name}.png"
+
+
+def summarise(results: list[OrderResult], wall_seconds: float) -> dict[str, Any]:
+    """Pick success rate, right-product rate (of the picks that lifted something), picks per minute."""
+    lifted = [r for r in results if r.right_product is not None]
+    reasons: dict[str, int] = {}
+    for r in results:
+        reasons[r.reason] = reasons.get(r.reason, 0) + 1
+    return {"orders": len(results), "pick_success": round(sum(r.success for r in results) / max(1, len(results)), 4),
+            "right_product": round(sum(bool(r.right_product) for r in lifted) / len(lifted), 4) if lifted else None,
+            "picks_per_min": round(60 * sum(r.success for r in results) / max(wall_seconds, 1e-9), 2),
+            "orders_per_min": round(60 * len(results) / max(wall_seconds, 1e-9), 2),
+            "attempts_per_order": round(float(np.mean([len(r.attempts) for r in results])), 2) if results else 0.0,
+            "reasons": reasons, "wall_s": round(wall_seconds, 1)}
+
+
+def results_json(results: list[OrderResult]) -> list[dict[str, Any]]:
+    return [asdict(r) for r in results]
