@@ -279,3 +279,23 @@ policy: {mode: latent, pretrain: false}
     with pytest.raises(ConfigError, match="collect.policy heuristic is the pick-and-place script"):
         from_dict(AprilConfig, {"env": "FetchReach", "collect": {"policy": "heuristic"}, "policy": {"mode": "latent", "pretrain": False},
                                 "perception": {"latent": 6, "conditioned": 0, "omega": 0.0}})
+
+
+def test_shifted_domain_changes_the_images_but_not_the_physics():
+    from binpick.april.sim_to_real import ShiftedDomain
+    from binpick.envs import make
+
+    plain = make("binpick/FetchReach-v0", image="rgb", image_size=48)
+    shifted = ShiftedDomain(make("binpick/FetchReach-v0", image="rgb", image_size=48), seed=0)
+    try:
+        a, _ = plain.reset(seed=3)
+        b, _ = shifted.reset(seed=3)
+        action = np.array([0.5, -0.3, 0.2, 0.0], dtype=np.float32)
+        a, *_ = plain.step(action)
+        b, *_ = shifted.step(action)
+    finally:
+        plain.close()
+        shifted.close()
+    assert np.allclose(a["observation"], b["observation"]) and np.allclose(a["desired_goal"], b["desired_goal"])
+    difference = np.abs(a["image"].astype(float) - b["image"].astype(float)).mean()
+    assert difference > 10  # another camera pose, colours, light and noise: a clearly different picture

@@ -548,7 +548,7 @@ def pick(
     from binpick.config import check_choice, check_range
     from binpick.detection.train import load_detector
     from binpick.sim import default_library
-    from binpick.warehouse.pipeline import PickPipeline, results_json, summarise
+    from binpick.warehouse.pipeline import PickPipeline
 
     check_range("orders", orders, 1, 100_000, integer=True)
     check_choice("axis", axis, ("x", "y"))
@@ -569,8 +569,14 @@ def pick(
         read_image(photo)  # unreadable -> one line now, not mid-run
         library.add(replace(library[products[0]], photo=photo))
     model = load_detector(weights or _shipped_weights("rod_photo_tiny_256.pt"))
-    pipeline = PickPipeline(model, library, axis=axis)
-    run_dir = out / time.strftime("%Y%m%d-%H%M%S")
+    _fulfil(PickPipeline(model, library, axis=axis), products, orders, seed, out / time.strftime("%Y%m%d-%H%M%S"))
+
+
+def _fulfil(pipeline, products: list[str], orders: int, seed: int, run_dir: Path) -> dict:
+    """Run the orders with a progress bar; print the table and summary; write results.json and report.html."""
+    from binpick.warehouse.pipeline import results_json, summarise
+    from binpick.warehouse.report import write_report
+
     results, started = [], time.perf_counter()
     table = Table(title=f"{orders} orders")
     for column in ("order", "product", "result", "attempts", "detections", "s"):
@@ -587,8 +593,12 @@ def pick(
     console.print(table)
     console.print(f"pick success {summary['pick_success']:.0%}, right product "
                   f"{'n/a' if summary['right_product'] is None else format(summary['right_product'], '.0%')}, "
-                  f"{summary['picks_per_min']} picks/min; GIFs and results.json in {run_dir}")
+                  f"{summary['picks_per_min']} picks/min")
+    run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "results.json").write_text(json.dumps({"summary": summary, "orders": results_json(results)}, indent=2))
+    report = write_report(run_dir, summary, results_json(results))
+    console.print(f"GIFs, results.json and {report}")
+    return summary
 
 
 @app.command("demo")
