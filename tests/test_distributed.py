@@ -28,3 +28,17 @@ def test_a_killed_worker_is_restarted_and_the_run_finishes(tmp_path):
     assert metrics["worker_restarts"] == 1 and metrics["lost_episodes"] == 1
     assert metrics["episodes"] >= 6 and sum(metrics["steps_per_worker"].values()) == metrics["env_steps"]
     assert (tmp_path / "run" / "model.zip").is_file()
+
+
+@pytest.mark.slow
+def test_a3c_workers_as_ray_actors_send_gradients_to_the_learner(tmp_path):
+    import torch
+
+    from binpick.distributed.a3c import DistributedA3CConfig, train_a3c_distributed
+
+    seen = []
+    metrics = train_a3c_distributed(DistributedA3CConfig(workers=2, total_timesteps=120, n_steps=20, eval_episodes=1),
+                                    tmp_path / "a3c", on_update=lambda steps, pool: seen.append(steps))
+    assert metrics["env_steps"] >= 120 and metrics["updates"] == len(seen) >= 6 and seen == sorted(seen)
+    saved = torch.load(tmp_path / "a3c" / "model.pt", weights_only=False)
+    assert saved["config"]["workers"] == 2 and any(v.abs().sum() > 0 for v in saved["weights"].values())

@@ -172,25 +172,37 @@ def rl_train(
 
 @rl_app.command("distributed")
 def rl_distributed(
-    env_id: Annotated[str, typer.Option("--env", help="Goal-conditioned binpick env")] = "binpick/FetchReach-v0",
+    algorithm: Annotated[str, typer.Option(help="sac (SAC + HER learner fed whole episodes) or a3c (workers send gradients)")] = "sac",
+    env_id: Annotated[str | None, typer.Option("--env", help="Env (default: FetchReach for sac, Arm2D for a3c)")] = None,
     workers: Annotated[int, typer.Option(help="Simulators, one Ray actor (process) each")] = 2,
     steps: Annotated[int, typer.Option(help="Env steps the workers play")] = 5000,
     address: Annotated[str | None, typer.Option(help="Ray cluster to join (HOST:6379, from `ray start --head`); default: a local one")] = None,
-    out: Annotated[Path, typer.Option(help="Folder for model.zip and metrics.json")] = Path("runs/distributed"),
+    out: Annotated[Path, typer.Option(help="Folder for the model and metrics.json")] = Path("runs/distributed"),
     seed: Annotated[int, typer.Option(help="Seed")] = 0,
 ) -> None:
-    """SAC + HER learning from episodes streamed by Ray simulator workers (thesis §6.1); survives a worker's death."""
-    from binpick.distributed.learner import DistributedConfig, train_distributed
+    """Learning from Ray simulator workers (thesis §6.1); a worker that dies is restarted and the run goes on."""
+    from binpick.config import check_choice
     from binpick.envs import resolve_env_id
 
-    config = DistributedConfig(env=resolve_env_id(env_id), workers=workers, total_timesteps=steps, address=address, seed=seed)
+    check_choice("algorithm", algorithm, ("sac", "a3c"))
     run_dir = out / time.strftime("%Y%m%d-%H%M%S")
     with progress_bar() as progress:
-        task = progress.add_task(f"{workers} workers", total=steps)
-        metrics = train_distributed(config, run_dir, on_episode=lambda _e, _r, model: progress.update(task, completed=model.num_timesteps))
-    console.print(f"{metrics['env_steps']} env steps from {metrics['episodes']} episodes in {metrics['wall_s']} s "
-                  f"({metrics['lost_episodes']} lost to dead workers); final success {metrics['final_success']:.0%}; "
-                  f"wrote {run_dir}")
+        task = progress.add_task(f"{algorithm}, {workers} workers", total=steps)
+        if algorithm == "sac":
+            from binpick.distributed.learner import DistributedConfig, train_distributed
+
+            config = DistributedConfig(env=resolve_env_id(env_id or "FetchReach"), workers=workers, total_timesteps=steps,
+                                       address=address, seed=seed)
+            metrics = train_distributed(config, run_dir, on_episode=lambda _e, _r, model: progress.update(task, completed=model.num_timesteps))
+        else:
+            from binpick.distributed.a3c import DistributedA3CConfig, train_a3c_distributed
+
+            config = DistributedA3CConfig(env=resolve_env_id(env_id or "Arm2D"), workers=workers, total_timesteps=steps,
+                                          address=address, seed=seed)
+            metrics = train_a3c_distributed(config, run_dir, on_update=lambda done, _pool: progress.update(task, completed=done))
+    lost = metrics.get("lost_episodes", metrics.get("lost_rollouts"))
+    console.print(f"{metrics['env_steps']} env steps in {metrics['wall_s']} s ({lost} lost to dead workers); "
+                  f"final success {metrics['final_success']:.0%}, {metrics['final_avg_actions']:.1f} actions; wrote {run_dir}")
 
 
 @rl_app.command("eval")

@@ -100,41 +100,33 @@ class StreamStats:
     per_worker_steps: dict[int, int] = field(default_factory=dict)
 
 
-class DistributedRollouts:
-    """``workers`` simulators of ``env_id``; iterate :meth:`stream` for episodes."""
+class RestartingActors:
+    """Ray actors of one class that Ray restarts when their process dies, kept busy with one task
+    each. :meth:`results` yields ``(worker index, result)`` as tasks finish; a task lost with its
+    worker is counted once per death, and ``on_restart(index)`` runs before the worker's next task
+    (to resend state the fresh process lacks)."""
 
-    def __init__(self, env_id: str, workers: int = 2, address: str | None = None, env_kwargs: dict | None = None,
-                 seed: int = 0) -> None:
+    def __init__(self, actor_class: type, arguments: list[tuple], address: str | None = None) -> None:
         if address is None:  # a private local cluster: keep every Ray socket on 127.0.0.1 (read at import)
             os.environ.setdefault(LOCAL_ONLY_ENV, "0")
         import ray
 
         from binpick.errors import ConfigError
 
-        if workers < 1:
-            raise ConfigError(f"workers must be at least 1, got {workers}")
+        if not arguments:
+            raise ConfigError("workers must be at least 1, got 0")
         self.owns_ray = not ray.is_initialized()
         if self.owns_ray:
-            options = {"address": address} if address else {"num_cpus": max(workers, 1)}
+            options = {"address": address} if address else {"num_cpus": len(arguments)}
             ray.init(include_dashboard=False, log_to_driver=False, logging_level="ERROR",
                      runtime_env={"env_vars": {"MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}}, **options)
-        remote = ray.remote(num_cpus=1, max_restarts=-1, max_task_retries=0)(SimulatorWorker)
-        self.actors = [remote.remote(env_id, env_kwargs or {}, seed + i, i) for i in range(workers)]
-        self.policy_ref, self.version = None, -1
-        self.stats = StreamStats()
+        remote = ray.remote(num_cpus=1, max_restarts=-1, max_task_retries=0)(actor_class)
+        self.actors = [remote.remote(*args) for args in arguments]
         self.in_flight: dict[Any, int] = {}
         self.recovering: set[int] = set()  # workers whose process died and is being restarted
+        self.lost, self.restarts = 0, 0
 
-    def set_policy(self, policy: Any) -> None:
-        """Send the learner's current policy to every worker (it applies before the worker's next episode)."""
-        import ray
-
-        self.version += 1
-        self.policy_ref = ray.put(policy)
-        for actor in self.actors:
-            actor.set_policy.remote(self.policy_ref, self.version)
-
-    def worker_pids(self, timeout: float = 60.0) -> list[int]:
+    def pids(self, timeout: float = 60.0) -> list[int]:
         """Process ids of the workers (waits for restarting ones)."""
         import ray
         from ray.exceptions import ActorUnavailableError, RayActorError
@@ -148,40 +140,32 @@ class DistributedRollouts:
                     raise
                 time.sleep(0.2)
 
-    def _submit(self, index: int) -> None:
-        self.in_flight[self.actors[index].play.remote()] = index
-
-    def stream(self, max_episodes: int | None = None) -> Iterator[Episode]:
-        """Episodes as they finish, from whichever worker; a dead worker's episode is skipped."""
+    def results(self, submit, on_restart=None) -> Iterator[tuple[int, Any]]:
+        """``submit(actor)`` starts a task on an actor and returns its object ref."""
         import ray
         from ray.exceptions import ActorUnavailableError, RayActorError
 
-        for index in range(len(self.actors)):
+        for index, actor in enumerate(self.actors):
             if index not in self.in_flight.values():
-                self._submit(index)
-        delivered = 0
-        while max_episodes is None or delivered < max_episodes:
+                self.in_flight[submit(actor)] = index
+        while True:
             ready, _ = ray.wait(list(self.in_flight), num_returns=1)
             index = self.in_flight.pop(ready[0])
             try:
-                episode = ray.get(ready[0])
-            except (RayActorError, ActorUnavailableError):  # the worker died mid-episode: Ray restarts it
-                if index not in self.recovering:  # its episode is lost (later failures: still restarting)
-                    self.stats.lost_episodes += 1
-                    self.stats.restarts += 1
+                result = ray.get(ready[0])
+            except (RayActorError, ActorUnavailableError):  # the worker died mid-task: Ray restarts it
+                if index not in self.recovering:  # its task is lost (later failures: still restarting)
+                    self.lost += 1
+                    self.restarts += 1
                     self.recovering.add(index)
                 time.sleep(0.2)
-                if self.policy_ref is not None:  # the fresh process needs the current policy again
-                    self.actors[index].set_policy.remote(self.policy_ref, self.version)
-                self._submit(index)
+                if on_restart is not None:
+                    on_restart(index)
+                self.in_flight[submit(self.actors[index])] = index
                 continue
             self.recovering.discard(index)
-            self._submit(index)
-            self.stats.episodes += 1
-            self.stats.steps += episode.steps
-            self.stats.per_worker_steps[index] = self.stats.per_worker_steps.get(index, 0) + episode.steps
-            delivered += 1
-            yield episode
+            self.in_flight[submit(self.actors[index])] = index
+            yield index, result
 
     def close(self) -> None:
         import ray
@@ -191,3 +175,46 @@ class DistributedRollouts:
         self.actors, self.in_flight = [], {}
         if self.owns_ray:  # we started the local cluster: stop it too
             ray.shutdown()
+
+
+class DistributedRollouts:
+    """``workers`` simulators of ``env_id``; iterate :meth:`stream` for episodes."""
+
+    def __init__(self, env_id: str, workers: int = 2, address: str | None = None, env_kwargs: dict | None = None,
+                 seed: int = 0) -> None:
+        self.pool = RestartingActors(SimulatorWorker, [(env_id, env_kwargs or {}, seed + i, i) for i in range(workers)], address)
+        self.policy_ref, self.version = None, -1
+        self.stats = StreamStats()
+
+    def set_policy(self, policy: Any) -> None:
+        """Send the learner's current policy to every worker (it applies before the worker's next episode)."""
+        import ray
+
+        self.version += 1
+        self.policy_ref = ray.put(policy)
+        for actor in self.pool.actors:
+            actor.set_policy.remote(self.policy_ref, self.version)
+
+    def worker_pids(self) -> list[int]:
+        return self.pool.pids()
+
+    def _resend_policy(self, index: int) -> None:
+        if self.policy_ref is not None:  # the fresh process needs the current policy again
+            self.pool.actors[index].set_policy.remote(self.policy_ref, self.version)
+
+    def stream(self, max_episodes: int | None = None) -> Iterator[Episode]:
+        """Episodes as they finish, from whichever worker; a dead worker's episode is skipped."""
+        delivered = 0
+        for index, episode in self.pool.results(lambda actor: actor.play.remote(), self._resend_policy):
+            self.stats.episodes += 1
+            self.stats.steps += episode.steps
+            self.stats.per_worker_steps[index] = self.stats.per_worker_steps.get(index, 0) + episode.steps
+            self.stats.lost_episodes, self.stats.restarts = self.pool.lost, self.pool.restarts
+            delivered += 1
+            yield episode
+            if max_episodes is not None and delivered >= max_episodes:
+                return
+
+    def close(self) -> None:
+        self.stats.lost_episodes, self.stats.restarts = self.pool.lost, self.pool.restarts
+        self.pool.close()
