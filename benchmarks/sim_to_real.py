@@ -54,7 +54,7 @@ def main() -> None:
         row = rows[key]
         lines.append(f"| {agent} | {policy_input} | {row['simulator_episodes']} | {row['gp_episodes']} | {row.get('physical_episodes', 0)} | "
                      f"{row['avg_actions']:.2f} ± {row['std']:.2f} | {row['success']:.0%} | {thesis.get(key, '—')} |")
-    lines += ["", "Perception for the pixel rows also used the run's simulator image episodes "
+    lines += ["", "The two ground-truth rows are the same episodes: physics and evaluation seeds are unchanged, only the images differ, so control transfers exactly, as in the thesis.", "", "Perception for the pixel rows also used the run's simulator image episodes "
               f"({rows['simulated_encoded'].get('perception_sim_episodes')}); the thesis's 65 simulator episodes for Enc S count those."]
     _common.write_section("sim_to_real", "\n".join(lines))
     print("\n".join(lines))
