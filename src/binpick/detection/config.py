@@ -66,30 +66,15 @@ class ModelConfig:
 
 
 @dataclass
-class LossConfig:
-    bbox: float = 1.0
-    obj: float = 1.0
-    heatmap: float = 1.0
-    beta: float = 0.5
-    sigma: float = 1.0
-    ignore_iou: float = 0.5
-
-    def weights(self) -> LossWeights:
-        check_range("loss.sigma", self.sigma, 0, 100, low_inclusive=False)
-        return LossWeights(self.bbox, self.obj, self.heatmap, self.beta, self.sigma, self.ignore_iou)
-
-
-@dataclass
 class DetectConfig:
     name: str = "rod"
     data: DataConfig = field(default_factory=DataConfig)
     model: ModelConfig = field(default_factory=ModelConfig)
-    loss: LossConfig = field(default_factory=LossConfig)
+    loss: LossWeights = field(default_factory=LossWeights)
     train: TrainConfig = field(default_factory=TrainConfig)
 
     def __post_init__(self) -> None:
         self.model.spec()
-        self.loss.weights()
 
 
 def load_detect_config(path: str | Path, overrides: dict | None = None) -> DetectConfig:

@@ -27,12 +27,22 @@ from binpick.detection.ops import box_iou, generalized_box_iou, xyxy_to_cxcywh
 
 @dataclass(frozen=True)
 class LossWeights:
+    """The ``loss:`` section of a detector config."""
+
     bbox: float = 1.0
     obj: float = 1.0
     heatmap: float = 1.0  # 0: "ROD without L_h"
     beta: float = 0.5  # weight of the no-object term (Eq 5.23)
     sigma: float = 1.0  # Gaussian width in feature cells (Eq 5.14)
     ignore_iou: float = 0.5
+
+    def __post_init__(self) -> None:
+        from binpick.config import check_range
+
+        for name in ("bbox", "obj", "heatmap", "beta"):
+            check_range(f"loss.{name}", getattr(self, name), 0, 1000)
+        check_range("loss.sigma", self.sigma, 0, 100, low_inclusive=False)
+        check_range("loss.ignore_iou", self.ignore_iou, 0, 1)
 
 
 def assign(model: Detector, raw: list[torch.Tensor], boxes: torch.Tensor, targets: torch.Tensor

@@ -181,7 +181,7 @@ class DetectorTrainer:
     def run(self) -> dict[str, Any]:
         from torch.utils.tensorboard import SummaryWriter
 
-        config, weights = self.config, self.config.loss.weights()
+        config, weights = self.config, self.config.loss
         writer = SummaryWriter(str(self.run_dir / "tb"))
         try:
             while self.epoch < config.train.epochs:
