@@ -191,7 +191,7 @@ train: {{epochs: 2, batch_size: 4, lr: 0.002, warmup_steps: 4, eval_every: 2, wo
 
 
 def test_cli_predict_and_bad_input_are_one_line(tmp_path):
-    path = make_coco(tmp_path / "toy", images=2)
+    make_coco(tmp_path / "toy", images=2)
     model = Detector(ModelSpec(), 64)
     save_detector(model, tmp_path / "model.pt")
     image = str(tmp_path / "toy" / "images" / "0000.png")

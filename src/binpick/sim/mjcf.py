@@ -9,9 +9,7 @@ the meshes a scene uses are declared: an unused convex-inertia mesh crashed MuJo
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
-from pathlib import Path
 
 from binpick.sim.mjcf_mesh import merged_obj
 from binpick.sim.products import Product
