@@ -107,13 +107,13 @@ def histogram_matches(image: np.ndarray, query_box: np.ndarray, scales=SCALES, i
     return _finish(boxes, scores, query_box, iou_threshold, max_detections)
 
 
-def histogram_detect(batch: dict) -> list[dict[str, torch.Tensor]]:
-    """The evaluation interface for colour-histogram back-projection."""
-    images = (batch["image"].permute(0, 2, 3, 1).numpy() * 255).round().astype(np.uint8)
-    return [histogram_matches(image, box.numpy()) for image, box in zip(images, batch["query_box"])]
+def _per_image(match):
+    """The evaluation interface (:func:`binpick.detection.evaluate.collect`) for a per-image matcher."""
+    def detect(batch: dict) -> list[dict[str, torch.Tensor]]:
+        images = (batch["image"].permute(0, 2, 3, 1).numpy() * 255).round().astype(np.uint8)
+        return [match(image, box.numpy()) for image, box in zip(images, batch["query_box"])]
+    return detect
 
 
-def template_detect(batch: dict) -> list[dict[str, torch.Tensor]]:
-    """The evaluation interface (:func:`binpick.detection.evaluate.collect`) for template matching."""
-    images = (batch["image"].permute(0, 2, 3, 1).numpy() * 255).round().astype(np.uint8)
-    return [template_matches(image, box.numpy()) for image, box in zip(images, batch["query_box"])]
+histogram_detect = _per_image(histogram_matches)
+template_detect = _per_image(template_matches)

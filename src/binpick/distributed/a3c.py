@@ -89,13 +89,12 @@ def train_a3c_distributed(config: DistributedA3CConfig, out: Path | None = None,
                 break
         elapsed = time.perf_counter() - started
     finally:
-        lost, restarts = pool.lost, pool.restarts
         pool.close()
     evaluation = evaluate_policy(local, lambda observation: model.act(observation, deterministic=True),
                                  episodes=config.eval_episodes, seed=10_000)
     local.close()
     metrics = {"config": asdict(config), "env_steps": steps, "updates": updates, "episodes": len(lengths),
-               "lost_rollouts": lost, "worker_restarts": restarts, "wall_s": round(elapsed, 1),
+               "lost_rollouts": pool.deaths, "worker_restarts": pool.deaths, "wall_s": round(elapsed, 1),
                "env_steps_per_s_with_learning": round(steps / elapsed, 1),
                "training_success": round(sum(successes) / max(1, len(successes)), 3),
                "final_success": evaluation.success_rate, "final_avg_actions": evaluation.mean_length}

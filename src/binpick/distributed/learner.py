@@ -92,7 +92,7 @@ def train_distributed(config: DistributedConfig, out: Path | None = None,
         rollouts.close()
     evaluation = evaluate_policy(local, model, episodes=config.eval_episodes, seed=10_000)
     metrics = {"config": asdict(config), "env_steps": stats.steps, "episodes": stats.episodes,
-               "lost_episodes": stats.lost_episodes, "worker_restarts": stats.restarts,
+               "lost_episodes": rollouts.pool.deaths, "worker_restarts": rollouts.pool.deaths,
                "steps_per_worker": {str(k): v for k, v in sorted(stats.per_worker_steps.items())},
                "wall_s": round(elapsed, 1), "env_steps_per_s_with_learning": round(stats.steps / elapsed, 1),
                "final_success": evaluation.success_rate, "final_avg_actions": evaluation.mean_length}

@@ -95,8 +95,6 @@ class SimulatorWorker:
 class StreamStats:
     episodes: int = 0
     steps: int = 0
-    lost_episodes: int = 0  # in flight on a worker that died
-    restarts: int = 0  # worker processes that died and were restarted
     per_worker_steps: dict[int, int] = field(default_factory=dict)
 
 
@@ -124,7 +122,7 @@ class RestartingActors:
         self.actors = [remote.remote(*args) for args in arguments]
         self.in_flight: dict[Any, int] = {}
         self.recovering: set[int] = set()  # workers whose process died and is being restarted
-        self.lost, self.restarts = 0, 0
+        self.deaths = 0  # worker processes that died: each lost its task in flight and was restarted
 
     def pids(self, timeout: float = 60.0) -> list[int]:
         """Process ids of the workers (waits for restarting ones)."""
@@ -155,8 +153,7 @@ class RestartingActors:
                 result = ray.get(ready[0])
             except (RayActorError, ActorUnavailableError):  # the worker died mid-task: Ray restarts it
                 if index not in self.recovering:  # its task is lost (later failures: still restarting)
-                    self.lost += 1
-                    self.restarts += 1
+                    self.deaths += 1
                     self.recovering.add(index)
                 time.sleep(0.2)
                 if on_restart is not None:
@@ -209,12 +206,10 @@ class DistributedRollouts:
             self.stats.episodes += 1
             self.stats.steps += episode.steps
             self.stats.per_worker_steps[index] = self.stats.per_worker_steps.get(index, 0) + episode.steps
-            self.stats.lost_episodes, self.stats.restarts = self.pool.lost, self.pool.restarts
             delivered += 1
             yield episode
             if max_episodes is not None and delivered >= max_episodes:
                 return
 
     def close(self) -> None:
-        self.stats.lost_episodes, self.stats.restarts = self.pool.lost, self.pool.restarts
         self.pool.close()

@@ -88,6 +88,7 @@ class BinWorld:
         for slot, body in enumerate(self.body_ids):
             self.geom_slot[np.flatnonzero(self.model.geom_bodyid == body)] = slot
         self.camera_id = self.model.camera("overhead").id
+        self.guards = [g for g in range(self.model.ngeom) if (self.model.geom(g).name or "").startswith("bin_guard")]
         self.gripper = None
         if gripper:
             from binpick.sim.gripper import Gripper
@@ -105,9 +106,8 @@ class BinWorld:
         """Switch the invisible drop guards above the tote walls on or off. They keep products that
         bounce off a pile in the tote while a scene settles, but would block a gripper carrying a
         product out of the tote."""
-        guards = [g for g in range(self.model.ngeom) if (self.model.geom(g).name or "").startswith("bin_guard")]
-        self.model.geom_contype[guards] = int(enabled)
-        self.model.geom_conaffinity[guards] = int(enabled)
+        self.model.geom_contype[self.guards] = int(enabled)
+        self.model.geom_conaffinity[self.guards] = int(enabled)
 
     def close(self) -> None:
         for name in ("renderer", "small"):
