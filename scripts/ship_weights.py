@@ -1,17 +1,28 @@
-"""Copy a trained detector into the package as half-precision weights (what `binpick detect predict`
-and the demo use when no --weights is given).
+"""Copy a trained detector into the package as half-precision weights (what `binpick detect predict`,
+`binpick pick` and the demo use when no --weights is given). The file also lists the products its
+training set had boxes of, so the pick pipeline can say whether an order is zero-shot.
 
     python scripts/ship_weights.py runs/rod/rod_warehouse/<time> rod_tiny_256
+    python scripts/ship_weights.py runs/rod/rod_warehouse_photo/<time> rod_photo_tiny_256
 """
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 
 from binpick.detection.train import load_detector, save_detector
 
-WEIGHTS = Path(__file__).resolve().parents[1] / "src" / "binpick" / "detection" / "weights"
+ROOT = Path(__file__).resolve().parents[1]
+WEIGHTS = ROOT / "src" / "binpick" / "detection" / "weights"
+
+
+def trained_products(annotations: Path) -> list[str]:
+    """Names of the categories with at least one box in a COCO file."""
+    coco = json.loads(annotations.read_text())
+    used = {a["category_id"] for a in coco["annotations"]}
+    return sorted(c["name"] for c in coco["categories"] if c["id"] in used)
 
 
 def main() -> None:
@@ -19,9 +30,11 @@ def main() -> None:
         sys.exit(__doc__)
     run, name = Path(sys.argv[1]), sys.argv[2]
     model = load_detector(run)
+    train = Path(model.trained_config["data"]["train"])
+    products = trained_products(train if train.is_absolute() else ROOT / train)
     path = WEIGHTS / f"{name}.pt"
-    save_detector(model, path, {"config": model.trained_config, "source_run": str(run)}, half=True)
-    print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB)")
+    save_detector(model, path, {"config": model.trained_config, "source_run": str(run), "trained_products": products}, half=True)
+    print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB; trained on {len(products)} products)")
 
 
 if __name__ == "__main__":

@@ -131,6 +131,48 @@ def envs_rollout(
         console.print(f"wrote {json_out}")
 
 
+@envs_app.command("tour")
+def tour(
+    out: Annotated[Path, typer.Option(help="Folder for the frames and summary")] = Path("runs/tour"),
+    episodes: Annotated[int, typer.Option(help="Random-policy episodes per env")] = 10,
+) -> None:
+    """Render every env and roll a random policy in each: a quick check that simulation and rendering work."""
+    from binpick.envs import ENV_IDS, make
+    from binpick.rl.evaluate import evaluate_policy, random_policy
+
+    run_dir = out / time.strftime("%Y%m%d-%H%M%S")
+    run_dir.mkdir(parents=True, exist_ok=True)
+    table = Table(title=f"random policy, {episodes} seeded episodes per env")
+    for column in ("env", "T", "avg actions ± std", "success"):
+        table.add_column(column)
+    summary = []
+    started = time.perf_counter()
+    with progress_bar() as progress:
+        overall = progress.add_task("all envs", total=len(ENV_IDS) * episodes)
+        for env_id in ENV_IDS:
+            name = env_id.split("/")[1]
+            env = make(env_id, render_mode="rgb_array")
+            try:
+                env.reset(seed=0)
+                frame_path = run_dir / f"{name}.png"
+                _save_png(env.render(), frame_path)
+                task = progress.add_task(name, total=episodes)
+
+                def advance(*_: object, task: int = task) -> None:
+                    progress.advance(task)
+                    progress.advance(overall)
+
+                result = evaluate_policy(env, random_policy(env, 0), episodes=episodes, seed=0, on_episode=advance)
+            finally:
+                env.close()
+            summary.append(result.to_dict())
+            table.add_row(name, str(result.max_episode_steps), f"{result.mean_length:.1f} ± {result.std_length:.1f}",
+                          f"{100 * result.success_rate:.0f}%")
+    console.print(table)
+    (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+    console.print(f"frames and summary.json in {run_dir} ({time.perf_counter() - started:.1f} s)")
+
+
 @rl_app.command("train")
 def rl_train(
     config: Annotated[Path | None, typer.Argument(help="YAML config (see configs/rl_*.yaml)")] = None,
@@ -426,7 +468,7 @@ def detect_eval(
 @detect_app.command("predict")
 def detect_predict(
     image: Annotated[Path, typer.Argument(help="Scene image (PNG/JPEG)")],
-    weights: Annotated[Path | None, typer.Option(help="Run folder or model.pt (default: the shipped small model)")] = None,
+    weights: Annotated[Path | None, typer.Option(help="Run folder or model.pt (default: the shipped small model for the query kind)")] = None,
     query_box: Annotated[str | None, typer.Option(help="Known instance x,y,w,h in pixels")] = None,
     query_image: Annotated[Path | None, typer.Option(help="Product photo to look for (photo-conditioned models)")] = None,
     out: Annotated[Path | None, typer.Option(help="Overlay PNG: query blue, detections orange")] = None,
@@ -437,7 +479,7 @@ def detect_predict(
     from binpick.detection.predict import parse_box, predict
     from binpick.detection.train import load_detector
 
-    model = load_detector(weights or _shipped_weights())
+    model = load_detector(weights or _shipped_weights("rod_photo_tiny_256.pt" if query_image is not None else "rod_tiny_256.pt"))
     box = parse_box(query_box) if query_box is not None else None
     prediction = predict(model, image, box, query_image, score_threshold=min_score)
     print(json.dumps(prediction.to_json()))
@@ -458,7 +500,7 @@ def detect_predict(
         _save_png(np.concatenate([heatmap_image(h, side) for h in prediction.heatmaps], 1), heatmap)
 
 
-def _shipped_weights(name: str = "rod_tiny_256.pt") -> Path:
+def _shipped_weights(name: str) -> Path:
     from importlib.resources import files
 
     path = Path(str(files("binpick.detection") / "weights" / name))
@@ -585,74 +627,51 @@ def pick(
 
 
 def _fulfil(pipeline, products: list[str], orders: int, seed: int, run_dir: Path) -> dict:
-    """Run the orders with a progress bar; print the table and summary; write results.json and report.html."""
-    from binpick.warehouse.pipeline import results_json, summarise
-    from binpick.warehouse.report import write_report
+    """Run the orders with a progress bar, then print their table and the summary."""
+    from binpick.warehouse.pipeline import fulfil
 
-    results, started = [], time.perf_counter()
     table = Table(title=f"{orders} orders")
-    for column in ("order", "product", "result", "attempts", "detections", "s"):
+    for column in ("order", "product", "in training", "result", "attempts", "detections", "s"):
         table.add_column(column)
     with progress_bar() as progress:
         task = progress.add_task("orders", total=orders)
-        for order in range(orders):
-            result = pipeline.run_order(products[order % len(products)], order, seed + order, out=run_dir)
-            results.append(result)
-            table.add_row(str(order), result.product, "[green]placed" if result.success else f"[red]{result.reason}",
+
+        def row(result) -> None:
+            seen = "?" if result.seen is None else "seen" if result.seen else "held out"
+            table.add_row(str(result.order), result.product, seen, "[green]placed" if result.success else f"[red]{result.reason}",
                           str(len(result.attempts)), str(result.detections), f"{result.seconds:.1f}")
             progress.advance(task)
-    summary = summarise(results, time.perf_counter() - started)
+
+        summary, _ = fulfil(pipeline, products, orders, seed, run_dir, on_order=row)
     console.print(table)
-    console.print(f"pick success {summary['pick_success']:.0%}, right product "
-                  f"{'n/a' if summary['right_product'] is None else format(summary['right_product'], '.0%')}, "
-                  f"{summary['picks_per_min']} picks/min")
-    run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / "results.json").write_text(json.dumps({"summary": summary, "orders": results_json(results)}, indent=2))
-    report = write_report(run_dir, summary, results_json(results))
-    console.print(f"GIFs, results.json and {report}")
+    right = "n/a" if summary["right_product"] is None else format(summary["right_product"], ".0%")
+    console.print(f"pick success {summary['pick_success']:.0%}, right product {right}, {summary['picks_per_min']} picks/min, "
+                  f"{summary['orders']} orders in {summary['wall_s']} s")
+    console.print(f"report: {run_dir / 'report.html'} (GIFs and results.json beside it)")
     return summary
+
+
+# The demo's orders, in turn: products the shipped detector was trained on, then held-out ones (can, toy).
+DEMO_PRODUCTS = ("robosuite/milk", "robosuite/cereal", "pybullet/duck", "procedural/box_03", "robosuite/bottle", "robosuite/can")
 
 
 @app.command("demo")
 def demo(
-    out: Annotated[Path, typer.Option(help="Folder for the frames and summary")] = Path("runs/demo"),
-    episodes: Annotated[int, typer.Option(help="Random-policy episodes per env")] = 10,
+    orders: Annotated[int, typer.Option(help="Orders to fulfil (products cycle through the demo's list)")] = 6,
+    out: Annotated[Path, typer.Option(help="Folder for the report, GIFs and results.json")] = Path("runs/demo"),
+    seed: Annotated[int, typer.Option(help="Seed of the first order's bin")] = 0,
 ) -> None:
-    """What exists so far, end to end: render every env and roll a random policy in each."""
-    from binpick.envs import ENV_IDS, make
-    from binpick.rl.evaluate import evaluate_policy, random_policy
+    """The main job: fulfil a handful of orders end to end with the shipped detector, products seen in
+    its training and zero-shot ones, and write an HTML report with each order's detections and GIF."""
+    from binpick.config import check_range
+    from binpick.detection.train import load_detector
+    from binpick.sim import default_library
+    from binpick.warehouse.pipeline import PickPipeline
 
+    check_range("orders", orders, 1, 1000, integer=True)
+    model = load_detector(_shipped_weights("rod_photo_tiny_256.pt"))
     run_dir = out / time.strftime("%Y%m%d-%H%M%S")
-    run_dir.mkdir(parents=True, exist_ok=True)
-    table = Table(title=f"random policy, {episodes} seeded episodes per env")
-    for column in ("env", "T", "avg actions ± std", "success"):
-        table.add_column(column)
-    summary = []
-    started = time.perf_counter()
-    with progress_bar() as progress:
-        overall = progress.add_task("all envs", total=len(ENV_IDS) * episodes)
-        for env_id in ENV_IDS:
-            name = env_id.split("/")[1]
-            env = make(env_id, render_mode="rgb_array")
-            try:
-                env.reset(seed=0)
-                frame_path = run_dir / f"{name}.png"
-                _save_png(env.render(), frame_path)
-                task = progress.add_task(name, total=episodes)
-
-                def advance(*_: object, task: int = task) -> None:
-                    progress.advance(task)
-                    progress.advance(overall)
-
-                result = evaluate_policy(env, random_policy(env, 0), episodes=episodes, seed=0, on_episode=advance)
-            finally:
-                env.close()
-            summary.append(result.to_dict())
-            table.add_row(name, str(result.max_episode_steps), f"{result.mean_length:.1f} ± {result.std_length:.1f}",
-                          f"{100 * result.success_rate:.0f}%")
-    console.print(table)
-    (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
-    console.print(f"frames and summary.json in {run_dir} ({time.perf_counter() - started:.1f} s)")
+    _fulfil(PickPipeline(model, default_library()), list(DEMO_PRODUCTS), orders, seed, run_dir)
 
 
 def _save_png(array, path: Path) -> None:

@@ -30,6 +30,7 @@ from binpick.april.config import AprilConfig
 from binpick.april.observations import semantic_state
 from binpick.config import load_run_config, to_dict
 from binpick.errors import ConfigError
+from binpick.files import atomic_write_text
 from binpick.rl.checkpoints import new_run_dir
 
 STAGES = ("collect", "perception", "policy", "refine", "finetune", "evaluate")
@@ -37,9 +38,7 @@ console = Console(stderr=True)
 
 
 def _write_json(path: Path, data: Any) -> None:
-    temporary = path.with_suffix(".tmp")
-    temporary.write_text(json.dumps(data, indent=2))
-    os.replace(temporary, path)
+    atomic_write_text(path, json.dumps(data, indent=2))
 
 
 def _progress(label: str, show: bool) -> Progress:

@@ -67,6 +67,7 @@ def load_detector(path: str | Path) -> Detector:
         raise ConfigError(f"{str(path)!r} holds weights of another architecture "
                           f"({len(missing)} missing, {len(unexpected)} unexpected tensors)")
     model.trained_config = data.get("config") or {}
+    model.trained_products = data.get("trained_products")
     model.eval()
     return model
 

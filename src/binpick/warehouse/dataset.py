@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from binpick.errors import ConfigError
+from binpick.files import atomic_write_text
 from binpick.sim.products import ProductLibrary, default_library, load_products
 
 FORMAT = "binpick-bins-1"
@@ -142,9 +143,7 @@ def prepare_output(config: GenerateConfig, library: ProductLibrary) -> Path:
 
 
 def _write_json(path: Path, data: Any) -> None:
-    temporary = path.with_name(path.name + ".tmp")
-    temporary.write_text(json.dumps(data))
-    os.replace(temporary, path)
+    atomic_write_text(path, json.dumps(data))
 
 
 def _write_png(path: Path, array: np.ndarray) -> None:

@@ -9,7 +9,9 @@ seed. What happened is reported per order, with a reason when it failed.
 
 from __future__ import annotations
 
+import json
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -18,6 +20,7 @@ import numpy as np
 
 from binpick.detection.model import Detector
 from binpick.errors import ConfigError
+from binpick.files import atomic_write_text
 from binpick.detection.predict import predict
 from binpick.sim.bin_scene import BinWorld
 from binpick.sim.mjcf import CameraSpec
@@ -45,6 +48,7 @@ class OrderResult:
     success: bool  # the ordered product ended in the order tote
     right_product: bool | None  # what was lifted was the ordered product (None: nothing lifted)
     reason: str  # placed | no detection | wrong product | missed | slipped | ...
+    seen: bool | None = None  # the detector's training set had this product (None: unknown)
     attempts: list[Attempt] = field(default_factory=list)
     detections: int = 0
     seconds: float = 0.0
@@ -100,7 +104,9 @@ class PickPipeline:
             world.set_guards(False)  # the invisible drop guards would block the carry to the order tote
             frame()
             prediction = predict(self.detector, scene.rgb, query_image=self.photo(product_id), score_threshold=self.score_threshold)
-            result = OrderResult(order, product_id, seed, False, None, "no detection", detections=len(prediction.boxes))
+            trained = self.detector.trained_products
+            result = OrderResult(order, product_id, seed, False, None, "no detection",
+                                 seen=None if trained is None else product_id in trained, detections=len(prediction.boxes))
             for box, score in list(zip(prediction.boxes, prediction.scores))[:self.max_attempts]:
                 point = grasp_point(box, scene.depth, self.camera)
                 outcome = execute_pick(world, point, self.axis, on_frame=frame)
@@ -136,18 +142,48 @@ class PickPipeline:
         return f"{name}.gif", f"{name}.png"
 
 
+def fulfil(pipeline: PickPipeline, products: list[str], orders: int, seed: int, out: Path,
+           on_order: Callable[[OrderResult], None] | None = None, title: str = "binpick orders") -> tuple[dict[str, Any], list[OrderResult]]:
+    """Run ``orders`` orders, products taken in turn, order k in a bin seeded ``seed + k``. results.json
+    and report.html in ``out`` are rewritten after every order, so a crash loses only the order in
+    progress. Returns the summary (with placed/orders per product) and the per-order results."""
+    from binpick.warehouse.report import write_report
+
+    out.mkdir(parents=True, exist_ok=True)
+    results: list[OrderResult] = []
+    started = time.perf_counter()
+
+    def write() -> dict[str, Any]:
+        summary = summarise(results, time.perf_counter() - started)
+        atomic_write_text(out / "results.json", json.dumps({"summary": summary, "orders": results_json(results)}, indent=2))
+        write_report(out, summary, results_json(results), title=title)
+        return summary
+
+    for order in range(orders):
+        results.append(pipeline.run_order(products[order % len(products)], order, seed + order, out=out))
+        write()
+        if on_order is not None:
+            on_order(results[-1])
+    return write(), results
+
+
 def summarise(results: list[OrderResult], wall_seconds: float) -> dict[str, Any]:
     """Pick success rate, right-product rate (of the picks that lifted something), picks per minute."""
     lifted = [r for r in results if r.right_product is not None]
     reasons: dict[str, int] = {}
+    placed: dict[str, list[int]] = {}
     for r in results:
         reasons[r.reason] = reasons.get(r.reason, 0) + 1
+        placed.setdefault(r.product, [0, 0])
+        placed[r.product][0] += int(r.success)
+        placed[r.product][1] += 1
+    by_product = {product: f"{done}/{total}" for product, (done, total) in sorted(placed.items())}
     return {"orders": len(results), "pick_success": round(sum(r.success for r in results) / max(1, len(results)), 4),
             "right_product": round(sum(bool(r.right_product) for r in lifted) / len(lifted), 4) if lifted else None,
             "picks_per_min": round(60 * sum(r.success for r in results) / max(wall_seconds, 1e-9), 2),
             "orders_per_min": round(60 * len(results) / max(wall_seconds, 1e-9), 2),
             "attempts_per_order": round(float(np.mean([len(r.attempts) for r in results])), 2) if results else 0.0,
-            "reasons": reasons, "wall_s": round(wall_seconds, 1)}
+            "reasons": reasons, "by_product": by_product, "wall_s": round(wall_seconds, 1)}
 
 
 def results_json(results: list[OrderResult]) -> list[dict[str, Any]]:

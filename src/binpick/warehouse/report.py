@@ -7,6 +7,8 @@ import html
 from pathlib import Path
 from typing import Any
 
+from binpick.files import atomic_write_text
+
 
 def write_report(folder: Path, summary: dict[str, Any], orders: list[dict[str, Any]], title: str = "binpick orders") -> Path:
     rows = []
@@ -14,7 +16,8 @@ def write_report(folder: Path, summary: dict[str, Any], orders: list[dict[str, A
         outcome = "placed" if order["success"] else html.escape(order["reason"])
         colour = "#1a7f37" if order["success"] else "#cf222e"
         pictures = "".join(f'<img src="{html.escape(order[key])}" width="240">' for key in ("overlay", "gif") if order.get(key))
-        rows.append(f"<tr><td>{order['order']}</td><td>{html.escape(order['product'])}</td>"
+        seen = {True: "seen", False: "held out"}.get(order.get("seen"), "?")
+        rows.append(f"<tr><td>{order['order']}</td><td>{html.escape(order['product'])}</td><td>{seen}</td>"
                     f"<td style='color:{colour}'><b>{outcome}</b></td><td>{len(order['attempts'])}</td>"
                     f"<td>{order['detections']}</td><td>{order['seconds']:.1f}</td><td>{pictures}</td></tr>")
     right = "n/a" if summary.get("right_product") is None else f"{summary['right_product']:.0%}"
@@ -25,8 +28,6 @@ def write_report(folder: Path, summary: dict[str, Any], orders: list[dict[str, A
 {summary['orders']} orders in {summary['wall_s']} s</p>
 <p>Each order: a new bin; the shop photo (top right of the left picture) conditions the detector; orange boxes are its
 detections with scores; the GIF shows the grasp and the carry to the order tote.</p>
-<table><tr><th>order</th><th>product</th><th>result</th><th>attempts</th><th>detections</th><th>s</th><th>pictures</th></tr>
+<table><tr><th>order</th><th>product</th><th>in training</th><th>result</th><th>attempts</th><th>detections</th><th>s</th><th>pictures</th></tr>
 {''.join(rows)}</table></body></html>"""
-    path = Path(folder) / "report.html"
-    path.write_text(page)
-    return path
+    return atomic_write_text(Path(folder) / "report.html", page)
