@@ -66,3 +66,12 @@ def test_an_order_runs_end_to_end_and_the_cli_reports_it(tmp_path):
     assert written["summary"]["orders"] == 1 and written["orders"][0]["product"] == "robosuite/can"
     bad = subprocess.run(CLI + ["pick", "--product", "sofa", "--weights", str(tmp_path / "photo.pt")], capture_output=True, text=True)
     assert bad.returncode == 2 and "unknown product category 'sofa'" in bad.stderr
+
+
+def test_the_oracle_locates_the_ordered_product_from_the_simulator(tmp_path):
+    detector = Detector(ModelSpec(query="photo"), 128).eval()
+    pipeline = PickPipeline(detector, default_library(procedural=3, shapes=0), max_attempts=1, camera=CameraSpec(size=128),
+                            oracle=True)
+    result = pipeline.run_order("robosuite/can", 0, seed=3)
+    assert result.detections >= 1 and result.attempts[0].outcome in {"placed", "missed", "slipped", "dropped outside the order tote"}
+    assert result.attempts[0].lifted_product in (None, "robosuite/can")  # it aimed at a can, not at whatever the net said

@@ -22,7 +22,7 @@ from binpick.detection.model import Detector
 from binpick.errors import ConfigError
 from binpick.files import atomic_write_text
 from binpick.detection.predict import predict
-from binpick.sim.bin_scene import BinWorld
+from binpick.sim.bin_scene import BinWorld, Scene
 from binpick.sim.mjcf import CameraSpec
 from binpick.sim.photos import shop_photo
 from binpick.sim.products import ProductLibrary
@@ -57,16 +57,19 @@ class OrderResult:
 
 
 class PickPipeline:
-    """``PickPipeline(detector, library).run(product_id, orders=5)``."""
+    """``PickPipeline(detector, library).run_order(product_id, order, seed)``, or many with :func:`fulfil`.
+
+    ``oracle=True`` takes the ordered product's boxes from the simulator (most visible first) instead of
+    the detector: what the grasp alone achieves, to tell detection failures from grasp failures."""
 
     def __init__(self, detector: Detector, library: ProductLibrary, axis: str = "y", copies: tuple[int, int] = (3, 6),
                  distractors: tuple[int, int] = (2, 3), max_attempts: int = 3, score_threshold: float = 0.2,
-                 camera: CameraSpec = CameraSpec(size=416)) -> None:
+                 camera: CameraSpec = CameraSpec(size=416), oracle: bool = False) -> None:
         if detector.spec.query != "photo":
             raise ConfigError("the pick pipeline conditions on shop photos: give a detector trained with query: photo")
         self.detector, self.library, self.axis = detector, library, axis
         self.copies, self.distractors, self.max_attempts = copies, distractors, max_attempts
-        self.score_threshold, self.camera = score_threshold, camera
+        self.score_threshold, self.camera, self.oracle = score_threshold, camera, oracle
         self._photos: dict[str, np.ndarray] = {}
 
     def photo(self, product_id: str) -> np.ndarray:
@@ -103,11 +106,11 @@ class PickPipeline:
                                 int(rng.integers(self.distractors[0], self.distractors[1] + 1)), seed)
             world.set_guards(False)  # the invisible drop guards would block the carry to the order tote
             frame()
-            prediction = predict(self.detector, scene.rgb, query_image=self.photo(product_id), score_threshold=self.score_threshold)
+            boxes, scores = self.locate(scene, product_id)
             trained = self.detector.trained_products
             result = OrderResult(order, product_id, seed, False, None, "no detection",
-                                 seen=None if trained is None else product_id in trained, detections=len(prediction.boxes))
-            for box, score in list(zip(prediction.boxes, prediction.scores))[:self.max_attempts]:
+                                 seen=None if trained is None else product_id in trained, detections=len(boxes))
+            for box, score in list(zip(boxes, scores))[:self.max_attempts]:
                 point = grasp_point(box, scene.depth, self.camera)
                 outcome = execute_pick(world, point, self.axis, on_frame=frame)
                 lifted = world.slots[outcome.lifted_slot].id if outcome.lifted_slot is not None else None
@@ -120,7 +123,7 @@ class PickPipeline:
                 result.reason = "wrong product" if lifted not in (None, product_id) else outcome.reason
             frame()
             if out is not None:
-                result.gif, result.overlay = self._write_pictures(out, order, product_id, scene.rgb, prediction, frames)
+                result.gif, result.overlay = self._write_pictures(out, order, product_id, scene.rgb, boxes, scores, frames)
         finally:
             if overview is not None:
                 overview.close()
@@ -128,14 +131,23 @@ class PickPipeline:
         result.seconds = round(time.perf_counter() - started, 2)
         return result
 
-    def _write_pictures(self, out: Path, order: int, product_id: str, rgb, prediction, frames) -> tuple[str, str]:
+    def locate(self, scene: Scene, product_id: str) -> tuple[np.ndarray, np.ndarray]:
+        """Boxes (x, y, w, h) of the ordered product, best first, with scores."""
+        if self.oracle:
+            mine = sorted((i for i in scene.instances if i.product_id == product_id and i.visible_fraction >= 0.5),
+                          key=lambda i: -i.visible_fraction)
+            return np.array([i.bbox for i in mine], dtype=float).reshape(-1, 4), np.array([i.visible_fraction for i in mine])
+        prediction = predict(self.detector, scene.rgb, query_image=self.photo(product_id), score_threshold=self.score_threshold)
+        return prediction.boxes, prediction.scores
+
+    def _write_pictures(self, out: Path, order: int, product_id: str, rgb, boxes, scores, frames) -> tuple[str, str]:
         from PIL import Image
 
         from binpick.viz.detection import overlay
 
         out.mkdir(parents=True, exist_ok=True)
         name = f"order_{order:03d}_{product_id.replace('/', '_')}"
-        picture = overlay(rgb, prediction.boxes, prediction.scores, None, self.photo(product_id), min_score=self.score_threshold)
+        picture = overlay(rgb, boxes, scores, None, self.photo(product_id), min_score=self.score_threshold)
         Image.fromarray(picture).save(out / f"{name}.png")
         images = [Image.fromarray(f) for f in frames[::2] or frames]
         images[0].save(out / f"{name}.gif", save_all=True, append_images=images[1:], duration=80, loop=0)
