@@ -50,6 +50,17 @@ def grasp_point(box_xywh, depth_image: np.ndarray, camera: CameraSpec) -> np.nda
     return pixel_to_world(x + w / 2, y + h / 2, depth, camera)
 
 
+def half_height(box_xywh, point: np.ndarray, camera: CameraSpec) -> float:
+    """How far below the seen top the product's middle probably is: half its smaller side in metres,
+    from the box and the top's depth. Products lie on their broad faces, so their height is close to
+    their narrow width (a ball, a lying can or bottle); a lying box is flatter, and the jaws then
+    stop on the floor's clearance."""
+    fx, fy, _, _ = camera.intrinsics()
+    depth = camera.height - point[2]
+    narrow = min(box_xywh[2] * depth / fx, box_xywh[3] * depth / fy)
+    return float(np.clip(narrow / 2, 0.01, 0.06))
+
+
 @dataclass
 class PickOutcome:
     lifted_slot: int | None  # the instance that came up with the gripper, if any
@@ -58,9 +69,11 @@ class PickOutcome:
 
 
 def execute_pick(world, point: np.ndarray, axis: str, on_frame: Callable[[], None] | None = None,
-                 frame_every: float = 0.1) -> PickOutcome:
-    """Top-down grasp at ``point`` (jaws along the robot's ``axis``), lift, carry to the order tote,
-    release, and report what happened."""
+                 frame_every: float = 0.1, depth_below_top: float = 0.03) -> PickOutcome:
+    """Top-down grasp at ``point`` (the product's top; jaws along the robot's ``axis``), lift, carry to
+    the order tote, release, and report what happened. The fingertips go a centimetre below the
+    product's middle, ``depth_below_top`` under its top, as the labelling grasp does, so the jaws
+    close across its widest part."""
     model, data, gripper = world.model, world.data, world.gripper
     settle_timestep = model.opt.timestep
     model.opt.timestep = TRIAL_TIMESTEP
@@ -79,7 +92,7 @@ def execute_pick(world, point: np.ndarray, axis: str, on_frame: Callable[[], Non
     try:
         heights = np.array([data.xpos[b][2] for b in world.body_ids])
         yaw = 0.0 if axis == "x" else np.pi / 2
-        tips = max(FLOOR_TOP + 0.006, point[2] - 0.03)
+        tips = max(FLOOR_TOP + 0.006, min(point[2] - depth_below_top - 0.01, point[2] - 0.02))
         grasp = np.array([point[0], point[1], tips + 0.04])
         gripper.teleport(data, grasp + [0, 0, 0.15], yaw)
         mujoco.mj_forward(model, data)

@@ -26,7 +26,7 @@ from binpick.sim.bin_scene import BinWorld, Scene
 from binpick.sim.mjcf import CameraSpec
 from binpick.sim.photos import shop_photo
 from binpick.sim.products import ProductLibrary
-from binpick.warehouse.grasping import execute_pick, grasp_point, order_tote_xml
+from binpick.warehouse.grasping import execute_pick, grasp_point, half_height, order_tote_xml
 
 GIF_SIZE = 240
 
@@ -112,7 +112,8 @@ class PickPipeline:
                                  seen=None if trained is None else product_id in trained, detections=len(boxes))
             for box, score in list(zip(boxes, scores))[:self.max_attempts]:
                 point = grasp_point(box, scene.depth, self.camera)
-                outcome = execute_pick(world, point, self.axis, on_frame=frame)
+                outcome = execute_pick(world, point, self.axis, on_frame=frame,
+                                       depth_below_top=half_height(box, point, self.camera))
                 lifted = world.slots[outcome.lifted_slot].id if outcome.lifted_slot is not None else None
                 result.attempts.append(Attempt([float(v) for v in box], float(score), point.round(4).tolist(), outcome.reason, lifted))
                 if lifted is not None:
