@@ -1,6 +1,6 @@
 """Copy a trained detector into the package as half-precision weights (what `binpick detect predict`,
 `binpick pick` and the demo use when no --weights is given). The file also lists the products its
-training set had boxes of, so the pick pipeline can say whether an order is zero-shot.
+training set asked it to find, so the pick pipeline can say whether an order is zero-shot.
 
     python scripts/ship_weights.py runs/rod/rod_warehouse/<time> rod_tiny_256
     python scripts/ship_weights.py runs/rod/rod_warehouse_photo/<time> rod_photo_tiny_256
@@ -19,9 +19,12 @@ WEIGHTS = ROOT / "src" / "binpick" / "detection" / "weights"
 
 
 def trained_products(annotations: Path) -> list[str]:
-    """Names of the categories with at least one box in a COCO file."""
+    """Names of the categories the detector was asked to find in training: in binpick's bins, those
+    that were a scene's ordered product (held-out products can still appear there as distractors);
+    in other COCO files, every category with a box."""
     coco = json.loads(annotations.read_text())
-    used = {a["category_id"] for a in coco["annotations"]}
+    flagged = any("is_target" in a for a in coco["annotations"])
+    used = {a["category_id"] for a in coco["annotations"] if a.get("is_target") or not flagged}
     return sorted(c["name"] for c in coco["categories"] if c["id"] in used)
 
 

@@ -631,13 +631,13 @@ def _fulfil(pipeline, products: list[str], orders: int, seed: int, run_dir: Path
     from binpick.warehouse.pipeline import fulfil
 
     table = Table(title=f"{orders} orders")
-    for column in ("order", "product", "in training", "result", "attempts", "detections", "s"):
-        table.add_column(column)
+    for column in ("order", "product", "trained", "result", "tries", "found", "s"):
+        table.add_column(column, no_wrap=column in ("product", "result"))
     with progress_bar() as progress:
         task = progress.add_task("orders", total=orders)
 
         def row(result) -> None:
-            seen = "?" if result.seen is None else "seen" if result.seen else "held out"
+            seen = "?" if result.seen is None else "yes" if result.seen else "no"
             table.add_row(str(result.order), result.product, seen, "[green]placed" if result.success else f"[red]{result.reason}",
                           str(len(result.attempts)), str(result.detections), f"{result.seconds:.1f}")
             progress.advance(task)

@@ -59,7 +59,7 @@ class Detector(nn.Module):
         spec.check()
         self.spec, self.image_size, self.query_size = spec, image_size, query_size
         self.trained_config: dict = {}  # the run's config, when loaded from a checkpoint
-        self.trained_products: list[str] | None = None  # products with boxes in its training set, when known
+        self.trained_products: list[str] | None = None  # products its training set asked it to find, when known
         self.backbone = build_backbone(spec.backbone)
         channels = BACKBONES[spec.backbone].channels
         modules = []
