@@ -75,3 +75,13 @@ def test_the_oracle_locates_the_ordered_product_from_the_simulator(tmp_path):
     result = pipeline.run_order("robosuite/can", 0, seed=3)
     assert result.detections >= 1 and result.attempts[0].outcome in {"placed", "missed", "slipped", "dropped outside the order tote"}
     assert result.attempts[0].lifted_product in (None, "robosuite/can")  # it aimed at a can, not at whatever the net said
+
+
+def test_the_demo_fulfils_an_order_with_the_shipped_detector(tmp_path):
+    ran = subprocess.run(CLI + ["demo", "--orders", "1", "--out", str(tmp_path)], capture_output=True, text=True)
+    assert ran.returncode == 0, ran.stderr
+    (run_dir,) = list(tmp_path.iterdir())
+    written = json.loads((run_dir / "results.json").read_text())
+    (order,) = written["orders"]
+    assert order["product"] == "robosuite/milk" and order["seen"] is True  # the shipped weights know what they were trained on
+    assert (run_dir / order["gif"]).is_file() and "report.html" in ran.stdout + ran.stderr

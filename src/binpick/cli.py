@@ -630,7 +630,7 @@ def _fulfil(pipeline, products: list[str], orders: int, seed: int, run_dir: Path
     """Run the orders with a progress bar, then print their table and the summary."""
     from binpick.warehouse.pipeline import fulfil
 
-    table = Table(title=f"{orders} orders")
+    table = Table(title=f"{orders} order{'s' if orders > 1 else ''}")
     for column in ("order", "product", "trained", "result", "tries", "found", "s"):
         table.add_column(column, no_wrap=column in ("product", "result"))
     with progress_bar() as progress:
@@ -647,7 +647,7 @@ def _fulfil(pipeline, products: list[str], orders: int, seed: int, run_dir: Path
     right = "n/a" if summary["right_product"] is None else format(summary["right_product"], ".0%")
     console.print(f"pick success {summary['pick_success']:.0%}, right product {right}, {summary['picks_per_min']} picks/min, "
                   f"{summary['orders']} orders in {summary['wall_s']} s")
-    console.print(f"report: {run_dir / 'report.html'} (GIFs and results.json beside it)")
+    console.print(f"report: {run_dir / 'report.html'} (GIFs and results.json beside it)", soft_wrap=True)
     return summary
 
 
