@@ -85,3 +85,26 @@ def test_the_demo_fulfils_an_order_with_the_shipped_detector(tmp_path):
     (order,) = written["orders"]
     assert order["product"] == "robosuite/milk" and order["seen"] is True  # the shipped weights know what they were trained on
     assert (run_dir / order["gif"]).is_file() and "report.html" in ran.stdout + ran.stderr
+
+
+def test_the_colour_check_tells_the_ordered_product_from_another_colour():
+    from binpick.sim.photos import shop_photo
+    from binpick.warehouse.verify import colour_histogram, colour_similarity, photo_mask
+
+    library = default_library(procedural=0, shapes=0)
+    camera = CameraSpec(size=160)
+    world = BinWorld(library["robosuite/can"], [library["robosuite/lemon"]], max_copies=2, camera=camera)
+    try:
+        scene = world.scene(2, 1, seed=2)
+    finally:
+        world.close()
+    can_photo, can_mask = shop_photo(library["robosuite/can"], size=128, with_mask=True)
+    assert 0.01 < can_mask.mean() < 0.5
+    histogram = colour_histogram(can_photo, can_mask)
+    by_product: dict[str, list[float]] = {}
+    for instance in scene.instances:
+        by_product.setdefault(instance.product_id, []).append(colour_similarity(histogram, scene.rgb, scene.depth, instance.bbox, camera))
+    assert min(by_product["robosuite/can"]) > 0.3 > max(by_product["robosuite/lemon"])
+    user_photo = np.full((40, 40, 3), 235, np.uint8)
+    user_photo[10:20, 5:30] = (200, 30, 30)  # a red product on a light grey background
+    assert photo_mask(user_photo).sum() == 250 and photo_mask(user_photo)[15, 10]

@@ -10,8 +10,9 @@ from binpick.sim.mjcf import product_assets, product_geom
 from binpick.sim.products import Product
 
 
-def shop_photo(product: Product, size: int = 256) -> np.ndarray:
-    """(size, size, 3) uint8: the product resting upright on a white studio floor, seen from 45°."""
+def shop_photo(product: Product, size: int = 256, with_mask: bool = False):
+    """(size, size, 3) uint8: the product resting upright on a white studio floor, seen from 45°.
+    With ``with_mask``, also the (size, size) bool mask of the product's pixels."""
     xml = f"""<mujoco><visual><global offwidth="{size}" offheight="{size}"/><quality shadowsize="2048"/>
   <headlight ambient="0.5 0.5 0.5" diffuse="0.4 0.4 0.4"/></visual>
   <asset><material name="studio" rgba="0.97 0.97 0.97 1"/>{product_assets(product, 'p')}</asset>
@@ -40,7 +41,13 @@ def shop_photo(product: Product, size: int = 256) -> np.ndarray:
         camera.distance = 3.2 * extent + 0.05
         camera.azimuth, camera.elevation = 135.0, -35.0
         renderer.update_scene(data, camera=camera)
-        return renderer.render().copy()
+        rgb = renderer.render().copy()
+        if not with_mask:
+            return rgb
+        renderer.enable_segmentation_rendering()
+        segmentation = renderer.render()
+        mine = np.flatnonzero(model.geom_bodyid == body)
+        return rgb, np.isin(segmentation[..., 0], mine) & (segmentation[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM))
     finally:
         renderer.close()
 

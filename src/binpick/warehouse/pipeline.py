@@ -1,7 +1,7 @@
 """The warehouse pick pipeline (thesis ch. 6, Fig 1.1): an order's shop photo -> ROD with external
-conditioning -> ranked detections of pickable instances -> the best one's 3D grasp point from depth
--> a top-down grasp -> carried to the order tote -> verified. After a failed attempt the next
-detection is tried, up to ``max_attempts``.
+conditioning -> ranked detections of pickable instances -> a colour check against the photo -> the
+best one's 3D grasp point from depth -> a top-down grasp -> carried to the order tote -> verified.
+After a failed attempt the next detection is tried, up to ``max_attempts``.
 
 Each order is a new bin: K copies of the ordered product and some other products, settled from a
 seed. What happened is reported per order, with a reason when it failed.
@@ -27,6 +27,7 @@ from binpick.sim.mjcf import CameraSpec
 from binpick.sim.photos import shop_photo
 from binpick.sim.products import ProductLibrary
 from binpick.warehouse.grasping import execute_pick, grasp_point, half_height, order_tote_xml
+from binpick.warehouse.verify import colour_histogram, colour_similarity, photo_mask
 
 GIF_SIZE = 240
 
@@ -35,6 +36,7 @@ GIF_SIZE = 240
 class Attempt:
     box: list[float]
     score: float
+    colour_similarity: float | None
     grasp_point: list[float]
     outcome: str
     lifted_product: str | None
@@ -46,8 +48,7 @@ class OrderResult:
     product: str
     seed: int
     success: bool  # the ordered product ended in the order tote
-    right_product: bool | None  # what was lifted was the ordered product (None: nothing lifted)
-    reason: str  # placed | no detection | wrong product | missed | slipped | ...
+    reason: str  # placed | no detection | colour check rejected every detection | wrong product | missed | slipped | ...
     seen: bool | None = None  # the detector's training set had this product (None: unknown)
     attempts: list[Attempt] = field(default_factory=list)
     detections: int = 0
@@ -59,26 +60,40 @@ class OrderResult:
 class PickPipeline:
     """``PickPipeline(detector, library).run_order(product_id, order, seed)``, or many with :func:`fulfil`.
 
+    ``colour_check`` skips detections whose colours match the photo's product less than this
+    (histogram intersection, :mod:`binpick.warehouse.verify`; None: no check). On 36 orders of
+    tuning bins, 0.15 raised the share of the top three detections that were the ordered product
+    from 66% to 91% and left 36 of 36 orders with a candidate.
+
     ``oracle=True`` takes the ordered product's boxes from the simulator (most visible first) instead of
     the detector: what the grasp alone achieves, to tell detection failures from grasp failures."""
 
     def __init__(self, detector: Detector, library: ProductLibrary, axis: str = "y", copies: tuple[int, int] = (3, 6),
                  distractors: tuple[int, int] = (2, 3), max_attempts: int = 3, score_threshold: float = 0.2,
-                 camera: CameraSpec = CameraSpec(size=416), oracle: bool = False) -> None:
+                 camera: CameraSpec = CameraSpec(size=416), colour_check: float | None = 0.15, oracle: bool = False) -> None:
         if detector.spec.query != "photo":
             raise ConfigError("the pick pipeline conditions on shop photos: give a detector trained with query: photo")
         self.detector, self.library, self.axis = detector, library, axis
         self.copies, self.distractors, self.max_attempts = copies, distractors, max_attempts
         self.score_threshold, self.camera, self.oracle = score_threshold, camera, oracle
-        self._photos: dict[str, np.ndarray] = {}
+        self.colour_check = colour_check
+        self._photos: dict[str, tuple[np.ndarray, np.ndarray]] = {}
 
     def photo(self, product_id: str) -> np.ndarray:
         """The shop's photo of a product: the user's own, or rendered like the training data's."""
+        return self._photo_and_histogram(product_id)[0]
+
+    def _photo_and_histogram(self, product_id: str) -> tuple[np.ndarray, np.ndarray]:
         if product_id not in self._photos:
             from binpick.detection.data import read_image
 
             product = self.library[product_id]
-            self._photos[product_id] = shop_photo(product) if product.photo is None else read_image(product.photo)
+            if product.photo is None:
+                photo, mask = shop_photo(product, with_mask=True)
+            else:
+                photo = read_image(product.photo)
+                mask = photo_mask(photo)
+            self._photos[product_id] = photo, colour_histogram(photo, mask)
         return self._photos[product_id]
 
     def run_order(self, product_id: str, order: int, seed: int, out: Path | None = None) -> OrderResult:
@@ -108,16 +123,20 @@ class PickPipeline:
             frame()
             boxes, scores = self.locate(scene, product_id)
             trained = self.detector.trained_products
-            result = OrderResult(order, product_id, seed, False, None, "no detection",
+            result = OrderResult(order, product_id, seed, False, "no detection",
                                  seen=None if trained is None else product_id in trained, detections=len(boxes))
-            for box, score in list(zip(boxes, scores))[:self.max_attempts]:
+            candidates = list(zip(boxes, scores, self.colour_similarities(scene, product_id, boxes)))
+            if self.colour_check is not None and not self.oracle:
+                candidates = [c for c in candidates if c[2] >= self.colour_check]
+                if boxes.size and not candidates:
+                    result.reason = "colour check rejected every detection"
+            for box, score, similarity in candidates[:self.max_attempts]:
                 point = grasp_point(box, scene.depth, self.camera)
                 outcome = execute_pick(world, point, self.axis, on_frame=frame,
                                        depth_below_top=half_height(box, point, self.camera))
                 lifted = world.slots[outcome.lifted_slot].id if outcome.lifted_slot is not None else None
-                result.attempts.append(Attempt([float(v) for v in box], float(score), point.round(4).tolist(), outcome.reason, lifted))
-                if lifted is not None:
-                    result.right_product = lifted == product_id
+                result.attempts.append(Attempt([float(v) for v in box], float(score), None if similarity is None else round(similarity, 3),
+                                               point.round(4).tolist(), outcome.reason, lifted))
                 if outcome.placed and lifted == product_id:
                     result.success, result.reason = True, "placed"
                     break
@@ -140,6 +159,12 @@ class PickPipeline:
             return np.array([i.bbox for i in mine], dtype=float).reshape(-1, 4), np.array([i.visible_fraction for i in mine])
         prediction = predict(self.detector, scene.rgb, query_image=self.photo(product_id), score_threshold=self.score_threshold)
         return prediction.boxes, prediction.scores
+
+    def colour_similarities(self, scene: Scene, product_id: str, boxes: np.ndarray) -> list[float | None]:
+        if self.colour_check is None or self.oracle:
+            return [None] * len(boxes)
+        histogram = self._photo_and_histogram(product_id)[1]
+        return [colour_similarity(histogram, scene.rgb, scene.depth, box, self.camera) for box in boxes]
 
     def _write_pictures(self, out: Path, order: int, product_id: str, rgb, boxes, scores, frames) -> tuple[str, str]:
         from PIL import Image
@@ -181,8 +206,9 @@ def fulfil(pipeline: PickPipeline, products: list[str], orders: int, seed: int, 
 
 
 def summarise(results: list[OrderResult], wall_seconds: float) -> dict[str, Any]:
-    """Pick success rate, right-product rate (of the picks that lifted something), picks per minute."""
-    lifted = [r for r in results if r.right_product is not None]
+    """Pick success rate; right-product rate: of all grasps that lifted something, the share that
+    lifted the ordered product (a wrong one would go to the customer); picks per minute."""
+    lifted = [a.lifted_product == r.product for r in results for a in r.attempts if a.lifted_product is not None]
     reasons: dict[str, int] = {}
     placed: dict[str, list[int]] = {}
     for r in results:
@@ -192,7 +218,7 @@ def summarise(results: list[OrderResult], wall_seconds: float) -> dict[str, Any]
         placed[r.product][1] += 1
     by_product = {product: f"{done}/{total}" for product, (done, total) in sorted(placed.items())}
     return {"orders": len(results), "pick_success": round(sum(r.success for r in results) / max(1, len(results)), 4),
-            "right_product": round(sum(bool(r.right_product) for r in lifted) / len(lifted), 4) if lifted else None,
+            "right_product": round(sum(lifted) / len(lifted), 4) if lifted else None, "lifts": len(lifted),
             "picks_per_min": round(60 * sum(r.success for r in results) / max(wall_seconds, 1e-9), 2),
             "orders_per_min": round(60 * len(results) / max(wall_seconds, 1e-9), 2),
             "attempts_per_order": round(float(np.mean([len(r.attempts) for r in results])), 2) if results else 0.0,
