@@ -1,6 +1,8 @@
 """Before a grasp: does the detection look like the ordered product? A colour check between the
 shop photo's product pixels and the detection's product pixels (those standing above the bin floor
-in the depth image), by hue-saturation-value histogram intersection (Swain & Ballard 1991). The
+in the depth image), by hue-saturation histogram intersection (Swain & Ballard 1991). Brightness is
+left out: the studio and the bin are lit differently, and on tuning bins it cost held-out products
+(a white brick) their right detections. The
 detector ranks instances by shape and pickability; this catches the confident detections of a
 product of another colour, which would otherwise end up in the customer's tote.
 """
@@ -12,15 +14,15 @@ import numpy as np
 
 from binpick.sim.mjcf import FLOOR_TOP, CameraSpec
 
-BINS = [12, 4, 3]  # hue, saturation, value: coarse in value, as the studio and the bin are lit differently
-RANGES = [0, 180, 0, 256, 0, 256]
+BINS = [12, 4]  # hue, saturation
+RANGES = [0, 180, 0, 256]
 
 
 def colour_histogram(rgb: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
-    """L1-normalised HSV histogram of the masked pixels (all pixels without a mask)."""
+    """L1-normalised hue-saturation histogram of the masked pixels (all pixels without a mask)."""
     hsv = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2HSV)
     mask = None if mask is None else mask.astype(np.uint8)
-    hist = cv2.calcHist([hsv], [0, 1, 2], mask, BINS, RANGES).ravel()
+    hist = cv2.calcHist([hsv], [0, 1], mask, BINS, RANGES).ravel()
     return hist / max(float(hist.sum()), 1.0)
 
 
