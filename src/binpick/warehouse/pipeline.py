@@ -19,9 +19,9 @@ from typing import Any
 import numpy as np
 
 from binpick.detection.model import Detector
+from binpick.detection.predict import predict
 from binpick.errors import ConfigError
 from binpick.files import atomic_write_text
-from binpick.detection.predict import predict
 from binpick.sim.bin_scene import BinWorld, Scene
 from binpick.sim.mjcf import CameraSpec
 from binpick.sim.photos import shop_photo
@@ -127,10 +127,9 @@ class PickPipeline:
             result = OrderResult(order, product_id, seed, False, "no detection",
                                  seen=None if trained is None else product_id in trained, detections=len(boxes))
             candidates = list(zip(boxes, scores, self.colour_similarities(scene, product_id, boxes)))
-            if self.colour_check is not None and not self.oracle:
-                candidates = [c for c in candidates if c[2] >= self.colour_check]
-                if boxes.size and not candidates:
-                    result.reason = "colour check rejected every detection"
+            candidates = [c for c in candidates if c[2] is None or c[2] >= self.colour_check]  # None: not checked
+            if len(boxes) and not candidates:
+                result.reason = "colour check rejected every detection"
             for box, score, similarity in candidates[:self.max_attempts]:
                 point = grasp_point(box, scene.depth, self.camera)
                 outcome = execute_pick(world, point, self.axis, on_frame=frame,
