@@ -651,7 +651,7 @@ def _fulfil(pipeline, products: list[str], orders: int, seed: int, run_dir: Path
     return summary
 
 
-# The demo's orders, in turn: products the shipped detector was trained on, then held-out ones (can, toy).
+# The demo's orders, in turn: four products the shipped detector was trained on, two held out (duck, can).
 DEMO_PRODUCTS = ("robosuite/milk", "robosuite/cereal", "pybullet/duck", "procedural/box_03", "robosuite/bottle", "robosuite/can")
 
 
