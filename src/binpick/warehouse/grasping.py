@@ -40,23 +40,30 @@ def pixel_to_world(u: float, v: float, depth: float, camera: CameraSpec) -> np.n
 
 
 def grasp_point(box_xywh, depth_image: np.ndarray, camera: CameraSpec) -> np.ndarray:
-    """Where to grasp a detection: the box centre, at the height of the nearest surface in the
-    middle third of the box (the product's top, seen from above)."""
+    """Where to grasp a detection: above the box centre, at the height of the nearest surface in
+    the middle third of the box (the product's top, seen from above). The box centre is the
+    silhouette's, so it is taken back to the world at the product's estimated middle, not at its
+    top: off the camera's axis, the top's depth would pull the point several millimetres towards
+    the axis, enough for the jaws to squeeze a ball out sideways."""
     x, y, w, h = box_xywh
     rows = slice(int(y + h / 3), max(int(y + h / 3) + 1, int(y + 2 * h / 3)))
     cols = slice(int(x + w / 3), max(int(x + w / 3) + 1, int(x + 2 * w / 3)))
     patch = depth_image[rows, cols]
     depth = float(np.percentile(patch, 20)) if patch.size else float(depth_image[int(y + h / 2), int(x + w / 2)])
-    return pixel_to_world(x + w / 2, y + h / 2, depth, camera)
+    middle = pixel_to_world(x + w / 2, y + h / 2, depth + _half_height(box_xywh, depth, camera), camera)
+    return np.array([middle[0], middle[1], camera.height - depth])
 
 
 def half_height(box_xywh, point: np.ndarray, camera: CameraSpec) -> float:
-    """How far below the seen top the product's middle probably is: half its smaller side in metres,
-    from the box and the top's depth. Products lie on their broad faces, so their height is close to
-    their narrow width (a ball, a lying can or bottle); a lying box is flatter, and the jaws then
-    stop on the floor's clearance."""
+    """How far below the seen top (``point``, from :func:`grasp_point`) the product's middle
+    probably is: half its smaller side in metres. Products lie on their broad faces, so their height
+    is close to their narrow width (a ball, a lying can or bottle); a lying box is flatter, and the
+    jaws then stop on the floor's clearance."""
+    return _half_height(box_xywh, camera.height - point[2], camera)
+
+
+def _half_height(box_xywh, depth: float, camera: CameraSpec) -> float:
     fx, fy, _, _ = camera.intrinsics()
-    depth = camera.height - point[2]
     narrow = min(box_xywh[2] * depth / fx, box_xywh[3] * depth / fy)
     return float(np.clip(narrow / 2, 0.01, 0.06))
 
