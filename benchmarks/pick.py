@@ -73,7 +73,7 @@ def main() -> None:
               flush=True)
     result.update({"weights": str(args.weights.relative_to(_common.ROOT) if args.weights.is_absolute() else args.weights),
                    "grasp": "scripted top-down, jaws along y, up to 3 attempts down the ranked detections",
-                   "colour_check": 0.15,
+                   "colour_check": pipeline.colour_check,
                    "targets": {"pick_success": 0.8, "right_product": 0.95}, "peak_rss_mib": _common.peak_rss_mib(),
                    "load_average": round(os.getloadavg()[0], 2)})
     path = _common.write_result("pick", result)
