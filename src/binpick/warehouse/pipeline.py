@@ -48,7 +48,7 @@ class OrderResult:
     product: str
     seed: int
     success: bool  # the ordered product ended in the order tote
-    reason: str  # placed | no detection | colour check rejected every detection | wrong product | missed | slipped | ...
+    reason: str  # placed | no detection | colour mismatch (every detection failed the colour check) | wrong product | missed | slipped | ...
     seen: bool | None = None  # the detector's training set had this product (None: unknown)
     attempts: list[Attempt] = field(default_factory=list)
     detections: int = 0
@@ -129,7 +129,7 @@ class PickPipeline:
             candidates = list(zip(boxes, scores, self.colour_similarities(scene, product_id, boxes)))
             candidates = [c for c in candidates if c[2] is None or c[2] >= self.colour_check]  # None: not checked
             if len(boxes) and not candidates:
-                result.reason = "colour check rejected every detection"
+                result.reason = "colour mismatch"
             for box, score, similarity in candidates[:self.max_attempts]:
                 point = grasp_point(box, scene.depth, self.camera)
                 outcome = execute_pick(world, point, self.axis, on_frame=frame,
