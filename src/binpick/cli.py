@@ -632,7 +632,7 @@ def _fulfil(pipeline, products: list[str], orders: int, seed: int, run_dir: Path
 
     table = Table(title=f"{orders} order{'s' if orders > 1 else ''}")
     for column in ("order", "product", "trained", "result", "tries", "found", "s"):
-        table.add_column(column, no_wrap=column in ("product", "result"))
+        table.add_column(column, no_wrap=column != "result")  # long failure reasons wrap; the rest stays whole
     with progress_bar() as progress:
         task = progress.add_task("orders", total=orders)
 
