@@ -44,8 +44,6 @@ def scenes_per_second(scenes: int, size: int) -> tuple[float, int]:
 
 def trials_per_second(scenes: int, size: int) -> tuple[float, int, float]:
     """Trial grasps (both policies, every target instance) in freshly settled scenes."""
-    import numpy as np
-
     from binpick.sim.bin_scene import BinWorld
     from binpick.sim.gripper import make_policies
     from binpick.sim.mjcf import CameraSpec

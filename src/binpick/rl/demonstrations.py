@@ -9,7 +9,6 @@ first fitted to their actions by mean squared error.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
 
 import gymnasium as gym
 import numpy as np
