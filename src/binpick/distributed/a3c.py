@@ -18,6 +18,7 @@ from typing import Any
 
 from binpick.config import check_range
 from binpick.distributed.rollouts import RestartingActors
+from binpick.files import atomic_write_text
 
 
 class A3CActor:
@@ -100,6 +101,7 @@ def train_a3c_distributed(config: DistributedA3CConfig, out: Path | None = None,
                "final_success": evaluation.success_rate, "final_avg_actions": evaluation.mean_length}
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
-        torch.save({"weights": model.state_dict(), "config": asdict(config)}, out / "model.pt")
-        (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
+        torch.save({"weights": model.state_dict(), "config": asdict(config)}, out / "model.pt.tmp")
+        os.replace(out / "model.pt.tmp", out / "model.pt")
+        atomic_write_text(out / "metrics.json", json.dumps(metrics, indent=2))
     return metrics

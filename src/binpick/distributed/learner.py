@@ -20,6 +20,7 @@ import numpy as np
 
 from binpick.config import check_range
 from binpick.distributed.rollouts import DistributedRollouts, Episode
+from binpick.files import atomic_write_text
 
 
 @dataclass
@@ -99,6 +100,6 @@ def train_distributed(config: DistributedConfig, out: Path | None = None,
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
         model.save(out / "model.zip")
-        (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
+        atomic_write_text(out / "metrics.json", json.dumps(metrics, indent=2))
     local.close()
     return metrics
