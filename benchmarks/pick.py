@@ -2,7 +2,7 @@
 conditioning -> grasp point from depth -> top-down grasp (jaws along y, the policy the detector's
 pickability labels are for) -> order tote.
 
-    python benchmarks/pick.py [--orders 50] [--weights src/binpick/detection/weights/rod_photo_tiny_256.pt]
+    python benchmarks/pick.py [--orders 50] [--weights src/binpick/detection/weights/rod_photo_tiny_256.safetensors]
 
 Runs ``--orders`` orders of products the detector saw in training and as many of held-out products
 (zero-shot), each a new bin seeded from its order number; then the seen orders again with the
@@ -26,7 +26,7 @@ sys.path.insert(0, os.path.dirname(__file__))
 
 import _common  # noqa: E402
 
-WEIGHTS = _common.ROOT / "src" / "binpick" / "detection" / "weights" / "rod_photo_tiny_256.pt"
+WEIGHTS = _common.ROOT / "src" / "binpick" / "detection" / "weights" / "rod_photo_tiny_256.safetensors"
 SEEDS = {"seen": 10_000, "held_out": 20_000}  # away from the data set's scene seeds
 
 
@@ -94,7 +94,7 @@ def section(result: dict, path: Path, orders: int) -> None:
 
     lines = ["## Pick pipeline (issue 7, thesis ch. 6)", "",
              f"`python benchmarks/pick.py --orders {orders}` → `{path.relative_to(_common.ROOT)}`. Each order is a new bin "
-             "(3–6 copies of the product, 2–3 other products); the detector (`rod_photo_tiny_256.pt`, ROD conditioned on "
+             "(3–6 copies of the product, 2–3 other products); the detector (`rod_photo_tiny_256.safetensors`, ROD conditioned on "
              "the shop photo, trained on Policy 1 pickability) ranks the instances; detections whose colours do not match "
              "the photo's product are skipped (histogram intersection < 0.15); the best is grasped top-down at the "
              "depth image's point, carried to the order tote and checked; after a failure the next detection is tried "

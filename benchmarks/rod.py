@@ -30,13 +30,18 @@ def run_folder(runs: Path, name: str) -> Path | None:
     return folders[-1] if folders else None
 
 
+def finished(folder: Path | None) -> bool:
+    """A run that wrote its final weights (model.safetensors; model.pt before binpick 0.2)."""
+    return folder is not None and any((folder / name).is_file() for name in ("model.safetensors", "model.pt"))
+
+
 def train(runs: Path, only: list[str] | None) -> None:
     from binpick.detection.config import load_detect_config
     from binpick.detection.train import DetectorTrainer
 
     for name in only or CONFIGS:
         folder = run_folder(runs, name)
-        if folder is not None and (folder / "model.pt").is_file():
+        if finished(folder):
             print(f"{name}: finished in {folder}", flush=True)
             continue
         if folder is not None:
@@ -114,7 +119,7 @@ def report(runs: Path) -> None:
     models = {}
     for name in CONFIGS:
         folder = run_folder(runs, name)
-        if folder is not None and (folder / "model.pt").is_file():
+        if finished(folder):
             models[name] = load_detector(folder)
         else:
             print(f"{name}: not trained yet (python benchmarks/rod.py train)", flush=True)

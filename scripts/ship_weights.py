@@ -1,6 +1,6 @@
-"""Copy a trained detector into the package as half-precision weights (what `binpick detect predict`,
-`binpick pick` and the demo use when no --weights is given). The file also lists the products its
-training set asked it to find, so the pick pipeline can say whether an order is zero-shot.
+"""Copy a trained detector into the package as half-precision safetensors weights (what `binpick detect
+predict`, `binpick pick` and the demo use when no --weights is given). The file also lists the
+products its training set asked it to find, so the pick pipeline can say whether an order is zero-shot.
 
     python scripts/ship_weights.py runs/rod/rod_warehouse/<time> rod_tiny_256
     python scripts/ship_weights.py runs/rod/rod_warehouse_photo/<time> rod_photo_tiny_256
@@ -35,7 +35,7 @@ def main() -> None:
     model = load_detector(run)
     train = Path(model.trained_config["data"]["train"])
     products = trained_products(train if train.is_absolute() else ROOT / train)
-    path = WEIGHTS / f"{name}.pt"
+    path = WEIGHTS / f"{name}.safetensors"
     save_detector(model, path, {"config": model.trained_config, "source_run": str(run), "trained_products": products}, half=True)
     print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB; trained on {len(products)} products)")
 

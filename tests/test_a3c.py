@@ -104,13 +104,14 @@ def _check_init_from(source, tmp_path):
 
     from binpick.config import from_dict
     from binpick.errors import ConfigError
+    from binpick.rl.a3c_train import read_a3c_checkpoint
     from binpick.rl.checkpoints import latest_checkpoint
     from binpick.rl.config import RLConfig
     from binpick.rl.train import trainer_for
 
     settings = yaml.safe_load(A3C_RUN.format(steps=800)) | {"init_from": str(source)}
     trainer = trainer_for(from_dict(RLConfig, settings), tmp_path / "continued")
-    saved = torch.load(latest_checkpoint(source / "checkpoints") / "a3c.pt", weights_only=False)
+    saved, _ = read_a3c_checkpoint(latest_checkpoint(source / "checkpoints"))
     assert trainer.steps_done >= 600 and trainer.steps_done == json.loads((source / "metrics.json").read_text())["sim_steps"]
     assert all(torch.equal(trainer.model.state_dict()[k], v) for k, v in saved["model"].items())
     assert trainer.goal_area(trainer.steps_done) == 1.0  # the schedule counts the source run's steps

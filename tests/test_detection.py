@@ -22,7 +22,7 @@ from binpick.detection.model import Detector, ModelSpec
 from binpick.detection.ops import box_iou, generalized_box_iou, nms
 from binpick.detection.rod import RODModule
 from binpick.detection.train import DetectorTrainer, evaluate_model, kmeans_anchors, load_detector, save_detector
-from binpick.errors import ConfigError
+from binpick.errors import ConfigError, InputFileError
 from synthetic_coco import make_coco
 
 CLI = [sys.executable, "-c", "from binpick.cli import main; main()"]
@@ -117,7 +117,7 @@ def test_coco_reader_tasks_exclusions_pickable_targets_and_bad_files(tmp_path):
     assert len(boxes["targets"]) + len(boxes["unpickable"]) == len(task.annotations) - 1
     assert np.all(boxes["targets"][:, [0, 2]].mean(1) < 64)  # pickable = left half in this toy labelling
     (tmp_path / "bad.json").write_text("{not json")
-    with pytest.raises(ConfigError, match="not valid JSON"):
+    with pytest.raises(InputFileError, match="not valid JSON"):
         RepeatedInstances(tmp_path / "bad.json")
     with pytest.raises(ConfigError, match="unknown category 'sofa'"):
         RepeatedInstances(path, exclude_categories=["sofa"])
@@ -175,7 +175,7 @@ train: {{epochs: 2, batch_size: 4, lr: 0.002, warmup_steps: 4, eval_every: 2, wo
 """)
     trainer = DetectorTrainer(load_detect_config(config), tmp_path / "runs")
     trainer.run()
-    assert (trainer.run_dir / "model.pt").is_file() and trainer.epoch == 2
+    assert (trainer.run_dir / "model.safetensors").is_file() and trainer.epoch == 2
     # resume: same run folder, more epochs, continues from epoch 2's checkpoint
     text = (trainer.run_dir / "config.yaml").read_text().replace("epochs: 2", "epochs: 25")
     (trainer.run_dir / "config.yaml").write_text(text)
@@ -193,9 +193,9 @@ train: {{epochs: 2, batch_size: 4, lr: 0.002, warmup_steps: 4, eval_every: 2, wo
 def test_cli_predict_and_bad_input_are_one_line(tmp_path):
     make_coco(tmp_path / "toy", images=2)
     model = Detector(ModelSpec(), 64)
-    save_detector(model, tmp_path / "model.pt")
+    save_detector(model, tmp_path / "model.safetensors")
     image = str(tmp_path / "toy" / "images" / "0000.png")
-    ok = subprocess.run(CLI + ["detect", "predict", image, "--weights", str(tmp_path / "model.pt"), "--query-box", "10,10,20,20",
+    ok = subprocess.run(CLI + ["detect", "predict", image, "--weights", str(tmp_path / "model.safetensors"), "--query-box", "10,10,20,20",
                                "--min-score", "0", "--out", str(tmp_path / "overlay.png"), "--heatmap", str(tmp_path / "h.png")],
                         capture_output=True, text=True)
     assert ok.returncode == 0, ok.stderr
@@ -212,10 +212,10 @@ def test_cli_predict_and_bad_input_are_one_line(tmp_path):
         ("--query-box", "1,2,3"): "x,y,w,h",
     }
     for args, message in cases.items():
-        bad = subprocess.run(CLI + ["detect", "predict", image, "--weights", str(tmp_path / "model.pt"), *args],
+        bad = subprocess.run(CLI + ["detect", "predict", image, "--weights", str(tmp_path / "model.safetensors"), *args],
                              capture_output=True, text=True)
         assert bad.returncode == 2 and message in bad.stderr and "Traceback" not in bad.stderr, bad.stderr
-    empty = subprocess.run(CLI + ["detect", "predict", str(tmp_path / "empty.png"), "--weights", str(tmp_path / "model.pt"),
+    empty = subprocess.run(CLI + ["detect", "predict", str(tmp_path / "empty.png"), "--weights", str(tmp_path / "model.safetensors"),
                                   "--query-box", "1,1,5,5"], capture_output=True, text=True)
     assert empty.returncode == 2 and "cannot read image" in empty.stderr
     foreign = subprocess.run(CLI + ["detect", "predict", image, "--weights", str(tmp_path / "other.pt"), "--query-box", "1,1,5,5"],
@@ -252,7 +252,7 @@ def test_shipped_weights_load_as_float32_and_predict(tmp_path):
 
     from binpick.detection.predict import predict
 
-    model = load_detector(str(files("binpick.detection") / "weights" / "rod_tiny_256.pt"))
+    model = load_detector(str(files("binpick.detection") / "weights" / "rod_tiny_256.safetensors"))
     assert model.spec == ModelSpec() and model.image_size == 256 and model.trained_config["data"]["targets"] == "pickable:y"
     assert next(model.parameters()).dtype == torch.float32  # stored as float16, used as float32
     # a synthetic scene: copies of one coloured shape; the prediction is well formed and in the image

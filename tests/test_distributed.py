@@ -30,18 +30,21 @@ def test_a_killed_worker_is_restarted_and_the_run_finishes(tmp_path):
     # its episode in flight is lost, unless the kill came before the worker had started it
     assert metrics["worker_restarts"] <= 1 and metrics["lost_episodes"] <= 1
     assert sum(metrics["steps_per_worker"].values()) == metrics["env_steps"]
-    assert (tmp_path / "run" / "model.zip").is_file()
+    from binpick.rl.persistence import load_saved_policy
+
+    policy = load_saved_policy(tmp_path / "run" / "policy.safetensors")
+    assert policy.action_space.shape == (4,) and "desired_goal" in policy.observation_space.spaces
 
 
 @pytest.mark.slow
 def test_a3c_workers_as_ray_actors_send_gradients_to_the_learner(tmp_path):
-    import torch
-
     from binpick.distributed.a3c import DistributedA3CConfig, train_a3c_distributed
 
     seen = []
     metrics = train_a3c_distributed(DistributedA3CConfig(workers=2, total_timesteps=120, n_steps=20, eval_episodes=1),
                                     tmp_path / "a3c", on_update=lambda steps, pool: seen.append(steps))
     assert metrics["env_steps"] >= 120 and metrics["updates"] == len(seen) >= 6 and seen == sorted(seen)
-    saved = torch.load(tmp_path / "a3c" / "model.pt", weights_only=False)
-    assert saved["config"]["workers"] == 2 and any(v.abs().sum() > 0 for v in saved["weights"].values())
+    from binpick import tensorfile
+
+    weights, meta, _ = tensorfile.load(tmp_path / "a3c" / "model.safetensors", "binpick-a3c-model-1")
+    assert meta["config"]["workers"] == 2 and any(v.abs().sum() > 0 for v in weights.values())

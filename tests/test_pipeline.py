@@ -57,14 +57,14 @@ def test_an_order_runs_end_to_end_and_the_cli_reports_it(tmp_path):
     assert len(result.attempts) == 1 and (tmp_path / result.gif).is_file() and (tmp_path / result.overlay).is_file()
     summary = summarise([result], 10.0)
     assert summary["orders"] == 1 and 0.0 <= summary["pick_success"] <= 1.0
-    save_detector(detector, tmp_path / "photo.pt")
-    ran = subprocess.run(CLI + ["pick", "--product", "can", "--orders", "1", "--weights", str(tmp_path / "photo.pt"),
+    save_detector(detector, tmp_path / "photo.safetensors")
+    ran = subprocess.run(CLI + ["pick", "--product", "can", "--orders", "1", "--weights", str(tmp_path / "photo.safetensors"),
                                 "--out", str(tmp_path / "cli")], capture_output=True, text=True)
     assert ran.returncode == 0, ran.stderr
     written = json.loads(next((tmp_path / "cli").glob("*/results.json")).read_text())
     assert next((tmp_path / "cli").glob("*/report.html")).read_text().count("<tr>") == 2  # header + the order
     assert written["summary"]["orders"] == 1 and written["orders"][0]["product"] == "robosuite/can"
-    bad = subprocess.run(CLI + ["pick", "--product", "sofa", "--weights", str(tmp_path / "photo.pt")], capture_output=True, text=True)
+    bad = subprocess.run(CLI + ["pick", "--product", "sofa", "--weights", str(tmp_path / "photo.safetensors")], capture_output=True, text=True)
     assert bad.returncode == 2 and "unknown product category 'sofa'" in bad.stderr
 
 

@@ -109,19 +109,32 @@ def test_bad_settings_name_the_parameter(kwargs, fragment):
         make_buffer(**kwargs)
 
 
-def test_pickle_keeps_only_used_slots_and_round_trips():
-    import pickle
+def test_saved_state_keeps_only_used_slots_and_round_trips(tmp_path):
+    from binpick.rl.persistence import load_replay, save_replay
 
     buffer = make_buffer(capacity_episodes=100_000, her_additions=1)
     for length in (3, 5, 7):
         buffer.add_episode(line_episode(length))
-    data = pickle.dumps(buffer)
-    assert len(data) < 200_000, "an almost empty M=1e5 buffer must not pickle its unused slots"
-    restored = pickle.loads(data)
+    save_replay(buffer, tmp_path)
+    assert (tmp_path / "replay.npz").stat().st_size < 200_000, "an almost empty M=1e5 buffer must not save its unused slots"
+    restored = make_buffer(capacity_episodes=100_000, her_additions=1)
+    load_replay(restored, tmp_path)
     assert restored.episodes == buffer.episodes and restored.added == buffer.added
     assert [e.length for e in restored.stored_episodes()] == [e.length for e in buffer.stored_episodes()]
+    np.testing.assert_array_equal(restored.sample_arrays(16)["actions"], buffer.sample_arrays(16)["actions"])  # same rng
     restored.add_episode(line_episode(2))
     assert restored.episodes == buffer.episodes + 2
+
+
+def test_saved_state_refuses_a_buffer_of_other_settings(tmp_path):
+    from binpick.errors import InputFileError
+    from binpick.rl.persistence import load_replay, save_replay
+
+    buffer = make_buffer(capacity_episodes=50, her_additions=1)
+    buffer.add_episode(line_episode(3))
+    save_replay(buffer, tmp_path)
+    with pytest.raises(InputFileError, match="M was 50"):
+        load_replay(make_buffer(capacity_episodes=60, her_additions=1), tmp_path)
 
 
 def test_counts_when_training_could_start_are_recorded():

@@ -43,7 +43,8 @@ def test_train_writes_a_complete_run_folder_and_eval_reads_it(tmp_path):
     for name in ("config.yaml", "metrics.json", "curves.png", "tb"):
         assert (run / name).exists(), name
     checkpoint = run / "checkpoints" / (run / "checkpoints" / "latest").read_text()
-    assert {p.name for p in checkpoint.iterdir()} >= {"model.zip", "replay.pkl", "state.json", "gp.pt"}
+    assert {p.name for p in checkpoint.iterdir()} >= {"algorithm.safetensors", "policy.safetensors", "replay.npz",
+                                                     "replay.json", "state.json", "gp.safetensors"}
     metrics = json.loads((run / "metrics.json").read_text())
     assert metrics["sim_steps"] == 300 and [e["sim_steps"] for e in metrics["evaluations"]] == [200, 300]
     assert metrics["imagined_episodes"] > 0 and metrics["her_episodes"] > 0 and metrics["gp_fits"] >= 1

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from binpick.errors import ConfigError
+from binpick.errors import ConfigError, InputFileError
 from binpick.sim import Product, default_library, load_products
 from binpick.sim.bin_scene import BinWorld
 from binpick.sim.gripper import TopDownGrasp
@@ -132,7 +132,7 @@ def test_generation_resumes_without_losing_or_duplicating_scenes(tmp_path, monke
     with pytest.raises(ConfigError, match="not empty and is not a binpick data set"):
         generate(_tiny(tmp_path / "unrelated"), show_progress=False)
     (partial / "scenes" / "000001.json").write_text("{broken")
-    with pytest.raises(ConfigError, match="000001.json is corrupt"):
+    with pytest.raises(InputFileError, match="000001.json' is not valid JSON.*redo that scene"):
         finalise(partial)
 
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Annotated
 
@@ -16,8 +17,10 @@ import yaml
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
+from rich.text import Text
 
 from binpick.errors import BinpickError, ConfigError
+from binpick.files import atomic_write, atomic_write_json, check_output_file, ensure_dir
 
 app = typer.Typer(help="Learned bin picking: simulated worlds, RL, APRiL and repeated object detection.",
                   no_args_is_help=True, pretty_exceptions_enable=False, add_completion=False)
@@ -36,7 +39,15 @@ ros_app = typer.Typer(help="ROS 1 bridge (thesis §6.1.1): serve a binpick env a
                       no_args_is_help=True)
 app.add_typer(ros_app, name="ros")
 
-console = Console()
+console = Console(markup=False)  # paths and names are printed as they are, never read as Rich markup
+MAX_SEED = 2**32 - 1  # NumPy's legacy seeding (SB3, Gymnasium) takes 32-bit seeds
+
+
+def seed_option(text: str):
+    """A ``--seed`` option that takes only what every seeded library accepts: 0 .. 2^32 - 1."""
+    return typer.Option("--seed", min=0, max=MAX_SEED, help=text)
+
+
 SetOption = Annotated[list[str] | None, typer.Option("--set", help="Env parameter KEY=VALUE (repeatable), e.g. --set goal_area=0.5")]
 POLICIES = ("random",)
 
@@ -53,7 +64,7 @@ def parse_settings(pairs: list[str] | None) -> dict:
 
 
 def progress_bar() -> Progress:
-    return Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+    return Progress(TextColumn("{task.description}", style="bold", markup=False), BarColumn(), MofNCompleteColumn(),
                     TimeElapsedColumn(), TimeRemainingColumn(), console=console, transient=False)
 
 
@@ -74,7 +85,7 @@ def envs_list() -> None:
 def envs_show(
     env_id: Annotated[str, typer.Argument(help="Env id, e.g. binpick/FetchReach-v0 or FetchReach")],
     out: Annotated[Path, typer.Option("--out", "-o", help="PNG file to write")] = Path("frame.png"),
-    seed: Annotated[int, typer.Option(help="Reset seed")] = 0,
+    seed: Annotated[int, seed_option("Reset seed")] = 0,
     size: Annotated[int, typer.Option(help="Frame side in pixels")] = 480,
     settings: SetOption = None,
 ) -> None:
@@ -83,6 +94,7 @@ def envs_show(
     from binpick.envs import make, resolve_env_id
 
     env_id = resolve_env_id(env_id)
+    _check_png_path(out)
     kwargs = parse_settings(settings)
     kwargs.update({"render_size": size} if env_id.endswith("Arm2D-v0") else {"width": size, "height": size})
     env = make(env_id, render_mode="rgb_array", **kwargs)
@@ -105,7 +117,7 @@ def envs_rollout(
     env_id: Annotated[str, typer.Argument(help="Env id, e.g. binpick/Arm2D-v0 or Arm2D")],
     policy: Annotated[str, typer.Option(help=f"Policy to run: {', '.join(POLICIES)}")] = "random",
     episodes: Annotated[int, typer.Option(help="Number of seeded episodes")] = 20,
-    seed: Annotated[int, typer.Option(help="Seed of the first episode (episode i uses seed+i)")] = 0,
+    seed: Annotated[int, seed_option("Seed of the first episode (episode i uses seed+i)")] = 0,
     json_out: Annotated[Path | None, typer.Option("--json", help="Also write the result as JSON here")] = None,
     settings: SetOption = None,
 ) -> None:
@@ -116,6 +128,8 @@ def envs_rollout(
 
     check_choice("policy", policy, POLICIES)
     check_range("episodes", episodes, 1, None, integer=True)
+    if json_out is not None:
+        check_output_file(json_out, "--json")
     env = make(env_id, **parse_settings(settings))
     try:
         with progress_bar() as progress:
@@ -126,8 +140,7 @@ def envs_rollout(
         env.close()
     console.print(result.summary())
     if json_out is not None:
-        json_out.parent.mkdir(parents=True, exist_ok=True)
-        json_out.write_text(json.dumps({**result.to_dict(), "policy": policy, "seed": seed}, indent=2))
+        atomic_write_json(json_out, {**result.to_dict(), "policy": policy, "seed": seed})
         console.print(f"wrote {json_out}")
 
 
@@ -137,11 +150,12 @@ def tour(
     episodes: Annotated[int, typer.Option(help="Random-policy episodes per env")] = 10,
 ) -> None:
     """Render every env and roll a random policy in each: a quick check that simulation and rendering work."""
+    from binpick.config import check_range
     from binpick.envs import ENV_IDS, make
     from binpick.rl.evaluate import evaluate_policy, random_policy
 
-    run_dir = out / time.strftime("%Y%m%d-%H%M%S")
-    run_dir.mkdir(parents=True, exist_ok=True)
+    check_range("episodes", episodes, 1, 10_000, integer=True)
+    run_dir = ensure_dir(out / time.strftime("%Y%m%d-%H%M%S"), "--out")
     table = Table(title=f"random policy, {episodes} seeded episodes per env")
     for column in ("env", "T", "avg actions ± std", "success"):
         table.add_column(column)
@@ -169,7 +183,7 @@ def tour(
             table.add_row(name, str(result.max_episode_steps), f"{result.mean_length:.1f} ± {result.std_length:.1f}",
                           f"{100 * result.success_rate:.0f}%")
     console.print(table)
-    (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+    atomic_write_json(run_dir / "summary.json", summary)
     console.print(f"frames and summary.json in {run_dir} ({time.perf_counter() - started:.1f} s)")
 
 
@@ -179,7 +193,7 @@ def rl_train(
     resume: Annotated[Path | None, typer.Option(help="Run folder to continue from its latest checkpoint")] = None,
     runs: Annotated[Path, typer.Option(help="Where new run folders go")] = Path("runs"),
     steps: Annotated[int | None, typer.Option(help="Override total_timesteps (simulator steps)")] = None,
-    seed: Annotated[int | None, typer.Option(help="Override the seed")] = None,
+    seed: Annotated[int | None, seed_option("Override the seed")] = None,
     init_from: Annotated[Path | None, typer.Option(help="A3C: start from this run's latest checkpoint")] = None,
 ) -> None:
     """Train a run: checkpoints, TensorBoard, metrics.json and curves.png in runs/<name>/<time>/."""
@@ -194,14 +208,8 @@ def rl_train(
         trainer = trainer_for(resume=resume)
         console.print(f"resuming {resume} at {trainer.steps_done} simulator steps")
     else:
-        settings = load_config(config)
-        if steps is not None:
-            settings.total_timesteps = steps
-        if seed is not None:
-            settings.seed = seed
-        if init_from is not None:
-            settings.init_from = str(init_from)
-            settings.__post_init__()
+        overrides = {"total_timesteps": steps, "seed": seed, "init_from": None if init_from is None else str(init_from)}
+        settings = replace(load_config(config), **{k: v for k, v in overrides.items() if v is not None})  # validated again
         trainer = trainer_for(settings, runs)
         console.print(f"run folder: {trainer.run_dir}")
     metrics = trainer.run()
@@ -220,27 +228,29 @@ def rl_distributed(
     steps: Annotated[int, typer.Option(help="Env steps the workers play")] = 5000,
     address: Annotated[str | None, typer.Option(help="Ray cluster to join (HOST:6379, from `ray start --head`); default: a local one")] = None,
     out: Annotated[Path, typer.Option(help="Folder for the model and metrics.json")] = Path("runs/distributed"),
-    seed: Annotated[int, typer.Option(help="Seed")] = 0,
+    seed: Annotated[int, seed_option("Seed")] = 0,
 ) -> None:
     """Learning from Ray simulator workers (thesis §6.1); a worker that dies is restarted and the run goes on."""
     from binpick.config import check_choice
     from binpick.envs import resolve_env_id
 
     check_choice("algorithm", algorithm, ("sac", "a3c"))
-    run_dir = out / time.strftime("%Y%m%d-%H%M%S")
+    if algorithm == "sac":
+        from binpick.distributed.learner import DistributedConfig, train_distributed
+
+        config = DistributedConfig(env=resolve_env_id(env_id or "FetchReach"), workers=workers, total_timesteps=steps,
+                                   address=address, seed=seed)
+    else:
+        from binpick.distributed.a3c import DistributedA3CConfig, train_a3c_distributed
+
+        config = DistributedA3CConfig(env=resolve_env_id(env_id or "Arm2D"), workers=workers, total_timesteps=steps,
+                                      address=address, seed=seed)
+    run_dir = ensure_dir(out, "--out") / time.strftime("%Y%m%d-%H%M%S")  # written when the run ends
     with progress_bar() as progress:
         task = progress.add_task(f"{algorithm}, {workers} workers", total=steps)
         if algorithm == "sac":
-            from binpick.distributed.learner import DistributedConfig, train_distributed
-
-            config = DistributedConfig(env=resolve_env_id(env_id or "FetchReach"), workers=workers, total_timesteps=steps,
-                                       address=address, seed=seed)
             metrics = train_distributed(config, run_dir, on_episode=lambda _e, _r, model: progress.update(task, completed=model.num_timesteps))
         else:
-            from binpick.distributed.a3c import DistributedA3CConfig, train_a3c_distributed
-
-            config = DistributedA3CConfig(env=resolve_env_id(env_id or "Arm2D"), workers=workers, total_timesteps=steps,
-                                          address=address, seed=seed)
             metrics = train_a3c_distributed(config, run_dir, on_update=lambda done, _pool: progress.update(task, completed=done))
     lost = metrics.get("lost_episodes", metrics.get("lost_rollouts"))
     console.print(f"{metrics['env_steps']} env steps in {metrics['wall_s']} s ({lost} lost to dead workers); "
@@ -251,14 +261,14 @@ def rl_distributed(
 def rl_eval(
     run: Annotated[Path, typer.Argument(help="Run folder (runs/<name>/<time>)")],
     episodes: Annotated[int, typer.Option(help="Seeded evaluation episodes")] = 100,
-    seed: Annotated[int, typer.Option(help="Seed of the first episode")] = 10_000,
+    seed: Annotated[int, seed_option("Seed of the first episode")] = 10_000,
     env_id: Annotated[str | None, typer.Option("--env", help="Must match the env the run was trained on")] = None,
 ) -> None:
     """Evaluate a run's latest checkpoint: average actions ± std and success rate."""
     from binpick.config import check_range
     from binpick.rl.train import load_policy, make_env
 
-    check_range("episodes", episodes, 1, None, integer=True)
+    check_range("episodes", episodes, 1, 1_000_000, integer=True)
     model, config = load_policy(run, env_id)
     _evaluate_with_progress(make_env(config), model, f"{config.name} · {config.env}", episodes, seed)
 
@@ -303,14 +313,14 @@ def april_eval(
     run: Annotated[Path, typer.Argument(help="APRiL run folder")],
     runtime_input: Annotated[str, typer.Option("--input", help="pixels, or state (ground truth; semantic policies)")] = "pixels",
     episodes: Annotated[int, typer.Option(help="Seeded evaluation episodes")] = 100,
-    seed: Annotated[int, typer.Option(help="Seed of the first episode")] = 30_000,
+    seed: Annotated[int, seed_option("Seed of the first episode")] = 30_000,
 ) -> None:
     """Evaluate a trained APRiL run from pixels or from the ground-truth state."""
     from binpick.april import AprilRun
     from binpick.april.evaluate import deployment_env
     from binpick.config import check_choice, check_range
 
-    check_range("episodes", episodes, 1, None, integer=True)
+    check_range("episodes", episodes, 1, 1_000_000, integer=True)
     check_choice("--input", runtime_input, ["pixels", "state"])
     april = AprilRun.resume(run)
     if "policy" not in april.stages:
@@ -343,10 +353,13 @@ def data_generate(
     held_out: Annotated[str, typer.Option(help="Product categories for the zero-shot test split, comma-separated")] = "",
     targets: Annotated[str, typer.Option(help="Products or categories to fill bins with, comma-separated (default: all)")] = "",
     randomise: Annotated[bool, typer.Option(help="Randomise lighting and colours per world")] = False,
-    seed: Annotated[int, typer.Option(help="Seed")] = 0,
+    seed: Annotated[int, seed_option("Seed")] = 0,
 ) -> None:
     """Generate bin scenes (resumes after a kill), shop photos, COCO files and a data-set card."""
     from binpick.warehouse.dataset import GenerateConfig, generate
+
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"--out {str(out)!r} is a file, not a data-set folder")
 
     config = GenerateConfig(out=str(out), scenes=scenes, policies=[p for p in policies.split(",") if p], workers=workers,
                             image_size=size, copies=_pair(copies, "copies"), distractors=_pair(distractors, "distractors"),
@@ -368,6 +381,7 @@ def data_show(
     from binpick.viz.bins import labelled_scene
     from binpick.warehouse.dataset import read_scene
 
+    _check_png_path(out)
     record, policies = read_scene(data, index)
     if policy is not None and policy not in policies:
         raise ConfigError(f"--policy {policy!r}: this data set was labelled by {', '.join(policies) or 'no policy'}")
@@ -404,7 +418,7 @@ def detect_train(
     runs: Annotated[Path, typer.Option(help="Where new run folders go")] = Path("runs"),
     settings: Annotated[list[str] | None, typer.Option("--set", help="Config override KEY=VALUE, e.g. --set train.epochs=2")] = None,
 ) -> None:
-    """Train a detector: checkpoints each epoch, TensorBoard, metrics.json and model.pt in runs/<name>/<time>/."""
+    """Train a detector: checkpoints each epoch, TensorBoard, metrics.json and model.safetensors in runs/<name>/<time>/."""
     from binpick.detection.config import load_detect_config
     from binpick.detection.train import DetectorTrainer
 
@@ -425,7 +439,7 @@ def detect_train(
         progress.console.print(f"run folder: {trainer.run_dir} ({len(trainer.train_set)} training tasks, epoch {trainer.epoch})")
         metrics = trainer.run()
     final = metrics["final"]
-    console.print(f"val AP50 {_fmt(final.get('ap50'))}, mAP {_fmt(final.get('map'))}; wrote {trainer.run_dir / 'model.pt'}")
+    console.print(f"val AP50 {_fmt(final.get('ap50'))}, mAP {_fmt(final.get('map'))}; wrote {trainer.run_dir / 'model.safetensors'}")
 
 
 def _fmt(value) -> str:
@@ -434,7 +448,7 @@ def _fmt(value) -> str:
 
 @detect_app.command("eval")
 def detect_eval(
-    run: Annotated[Path, typer.Argument(help="Run folder or model.pt")],
+    run: Annotated[Path, typer.Argument(help="Run folder or model.safetensors")],
     data: Annotated[Path, typer.Option(help="COCO annotations file (e.g. runs/data/bins_2000/annotations_test.json)")],
     targets: Annotated[str | None, typer.Option(help="all | pickable:<policy> (default: as trained)")] = None,
     out: Annotated[Path | None, typer.Option(help="Write the metrics JSON and a PR-curve PNG here (a folder)")] = None,
@@ -443,6 +457,8 @@ def detect_eval(
     from binpick.detection.data import RepeatedInstances, TaskDataset
     from binpick.detection.train import evaluate_model, load_detector
 
+    if out is not None:
+        ensure_dir(out, "--out")
     model = load_detector(run)
     targets = targets or model.trained_config.get("data", {}).get("targets", "all")
     dataset = TaskDataset(RepeatedInstances(data, targets=targets), model.image_size, model.spec.query, model.query_size)
@@ -459,8 +475,7 @@ def detect_eval(
     if out is not None:
         from binpick.viz.detection import plot_pr_curves
 
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
+        atomic_write_json(out / "metrics.json", metrics)
         plot_pr_curves({str(run.name): {**metrics["pr"], "ap50": metrics["ap50"] or 0.0}}, out / "pr_curve.png", f"{data.name}")
         console.print(f"wrote {out / 'metrics.json'} and {out / 'pr_curve.png'}")
 
@@ -468,7 +483,7 @@ def detect_eval(
 @detect_app.command("predict")
 def detect_predict(
     image: Annotated[Path, typer.Argument(help="Scene image (PNG/JPEG)")],
-    weights: Annotated[Path | None, typer.Option(help="Run folder or model.pt (default: the shipped small model for the query kind)")] = None,
+    weights: Annotated[Path | None, typer.Option(help="Run folder or model.safetensors (default: the shipped small model for the query kind)")] = None,
     query_box: Annotated[str | None, typer.Option(help="Known instance x,y,w,h in pixels")] = None,
     query_image: Annotated[Path | None, typer.Option(help="Product photo to look for (photo-conditioned models)")] = None,
     out: Annotated[Path | None, typer.Option(help="Overlay PNG: query blue, detections orange")] = None,
@@ -479,7 +494,13 @@ def detect_predict(
     from binpick.detection.predict import parse_box, predict
     from binpick.detection.train import load_detector
 
-    model = load_detector(weights or _shipped_weights("rod_photo_tiny_256.pt" if query_image is not None else "rod_tiny_256.pt"))
+    from binpick.config import check_range
+
+    check_range("--min-score", min_score, 0.0, 1.0)
+    for path, option in ((out, "--out"), (heatmap, "--heatmap")):
+        if path is not None:
+            _check_png_path(path, option)
+    model = load_detector(weights or _shipped_weights("rod_photo_tiny_256.safetensors" if query_image is not None else "rod_tiny_256.safetensors"))
     box = parse_box(query_box) if query_box is not None else None
     prediction = predict(model, image, box, query_image, score_threshold=min_score)
     print(json.dumps(prediction.to_json()))
@@ -488,7 +509,7 @@ def detect_predict(
         from binpick.viz.detection import overlay
 
         photo = read_image(query_image) if query_image is not None else None
-        _save_png(overlay(prediction.image, prediction.boxes, prediction.scores, prediction.query_box, photo, min_score), out)
+        _save_png(overlay(prediction.image, prediction.boxes, prediction.scores, prediction.query_box, photo, min_score), out, "--out")
     if heatmap is not None:
         from binpick.viz.detection import heatmap_image
 
@@ -497,7 +518,7 @@ def detect_predict(
         import numpy as np
 
         side = prediction.image.shape[0]
-        _save_png(np.concatenate([heatmap_image(h, side) for h in prediction.heatmaps], 1), heatmap)
+        _save_png(np.concatenate([heatmap_image(h, side) for h in prediction.heatmaps], 1), heatmap, "--heatmap")
 
 
 def _shipped_weights(name: str) -> Path:
@@ -510,26 +531,51 @@ def _shipped_weights(name: str) -> Path:
 
 
 MasterOption = Annotated[str | None, typer.Option("--master", help="ROS master URI (default: $ROS_MASTER_URI)")]
+NamespaceOption = Annotated[str, typer.Option(help="Action namespace clients connect to, e.g. /binpick/env")]
 
 
-def _ros_environment(master: str | None) -> None:
-    """Point this process's ROS node at ``master`` on 127.0.0.1 (before rospy is imported)."""
+def _check_timeout(timeout: float) -> float:
+    from binpick.config import check_range
+
+    return check_range("--timeout", timeout, 0.0, 3600.0, low_inclusive=False)
+
+
+def _check_namespace(namespace: str) -> str:
+    import re
+
+    if not re.fullmatch(r"/?[A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*/?", namespace):
+        raise ConfigError(f"--namespace must be a ROS graph name like /binpick/env (letters, digits, _ and /), "
+                          f"got {namespace!r}")
+    return namespace
+
+
+def _ros_environment(master: str | None, timeout: float) -> None:
+    """Point this process's ROS node at ``master`` on 127.0.0.1 (before rospy is imported), and wait up
+    to ``timeout`` seconds for it to answer: rospy would wait forever."""
     import os
 
-    from binpick.ros import local_ros_environment, require_ros
+    from binpick.ros import check_master_uri, local_ros_environment, require_ros, wait_for_master
 
-    require_ros()
     uri = master or os.environ.get("ROS_MASTER_URI")
     if not uri:
         raise ConfigError("no ROS master: give --master http://127.0.0.1:PORT/ or set ROS_MASTER_URI")
+    check_master_uri(uri)
+    require_ros()
+    wait_for_master(uri, timeout)
     os.environ.update({k: v for k, v in local_ros_environment(uri).items() if k not in os.environ or k == "ROS_MASTER_URI"})
 
 
 @ros_app.command("master")
-def ros_master(port: Annotated[int, typer.Option(help="Port on 127.0.0.1")] = 11311) -> None:
-    """Run a ROS master on 127.0.0.1 until Ctrl-C."""
+def ros_master(port: Annotated[int, typer.Option(min=1, max=65535, help="Port on 127.0.0.1")] = 11311) -> None:
+    """Run a ROS master on 127.0.0.1 until Ctrl-C or SIGTERM (both stop the master process too)."""
+    import signal
+
     from binpick.ros.master import RosMaster
 
+    def stop(*_: object) -> None:
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, stop)  # `kill` of this command must not leave rosmaster listening
     with RosMaster(port) as master:
         console.print(f"ROS master at {master.uri} (Ctrl-C to stop)")
         try:
@@ -541,14 +587,16 @@ def ros_master(port: Annotated[int, typer.Option(help="Port on 127.0.0.1")] = 11
 @ros_app.command("serve")
 def ros_serve(
     env_id: Annotated[str, typer.Argument(help="binpick env id, e.g. binpick/FetchReach-v0")],
-    namespace: Annotated[str, typer.Option(help="Action namespace clients connect to")] = "/binpick/env",
+    namespace: NamespaceOption = "/binpick/env",
     master: MasterOption = None,
+    timeout: Annotated[float, typer.Option(help="Seconds to wait for the ROS master")] = 10.0,
 ) -> None:
     """Serve an env as an actionlib server: goals reset or step it, results carry observation and reward."""
     from binpick.envs import resolve_env_id
 
     env_id = resolve_env_id(env_id)
-    _ros_environment(master)
+    _check_namespace(namespace)
+    _ros_environment(master, _check_timeout(timeout))
     from binpick.ros.server import serve
 
     serve(env_id, namespace)
@@ -556,7 +604,7 @@ def ros_serve(
 
 @ros_app.command("bench")
 def ros_bench(
-    namespace: Annotated[str, typer.Option(help="Action namespace of a served Fetch env")] = "/binpick/env",
+    namespace: Annotated[str, typer.Option(help="Action namespace of a served Fetch env, e.g. /binpick/env")] = "/binpick/env",
     episodes: Annotated[int, typer.Option(help="Episodes of the scripted reach policy")] = 10,
     master: MasterOption = None,
     json_out: Annotated[Path | None, typer.Option("--json", help="Also write the summary here")] = None,
@@ -566,7 +614,10 @@ def ros_bench(
     from binpick.config import check_range
 
     check_range("episodes", episodes, 1, 100_000, integer=True)
-    _ros_environment(master)
+    _check_namespace(namespace)
+    if json_out is not None:
+        check_output_file(json_out, "--json")
+    _ros_environment(master, _check_timeout(timeout))
     import gymnasium as gym
     import numpy as np
 
@@ -585,7 +636,7 @@ def ros_bench(
                "p95_ms": round(float(np.percentile(trips, 95)), 3), "namespace": namespace}
     print(json.dumps(summary))
     if json_out is not None:
-        json_out.write_text(json.dumps(summary, indent=2))
+        atomic_write_json(json_out, summary)
 
 
 @app.command("pick")
@@ -593,10 +644,10 @@ def pick(
     product: Annotated[str, typer.Option(help="Product(s) to order: ids or categories, comma-separated (orders cycle through them)")],
     photo: Annotated[Path | None, typer.Option(help="Your own shop photo of the product (default: rendered)")] = None,
     orders: Annotated[int, typer.Option(help="Orders to fulfil (one new bin each)")] = 5,
-    weights: Annotated[Path | None, typer.Option(help="Photo-conditioned detector: run folder or .pt (default: shipped)")] = None,
+    weights: Annotated[Path | None, typer.Option(help="Photo-conditioned detector: run folder or .safetensors (default: shipped)")] = None,
     axis: Annotated[str, typer.Option(help="Grasp policy: jaws along the robot's x or y axis")] = "y",
     out: Annotated[Path, typer.Option(help="Folder for per-order GIFs, overlays and results.json")] = Path("runs/pick"),
-    seed: Annotated[int, typer.Option(help="Seed of the first order's bin")] = 0,
+    seed: Annotated[int, seed_option("Seed of the first order's bin")] = 0,
 ) -> None:
     """Fulfil orders end to end: shop photo -> ROD -> grasp point from depth -> grasp -> order tote."""
     from binpick.config import check_choice, check_range
@@ -606,6 +657,7 @@ def pick(
 
     check_range("orders", orders, 1, 100_000, integer=True)
     check_choice("axis", axis, ("x", "y"))
+    ensure_dir(out, "--out")
     library = default_library()
     products = []
     for name in [n.strip() for n in product.split(",") if n.strip()]:
@@ -613,6 +665,8 @@ def pick(
             products.append(name)
         else:
             products += [p.id for p in library.in_categories([name])]
+    if not products:
+        raise ConfigError(f"--product {product!r} names no product: give ids or categories, e.g. robosuite/milk,can")
     if photo is not None:
         if len(products) != 1:
             raise ConfigError("--photo is the photo of one product: give exactly one product id with it")
@@ -622,7 +676,7 @@ def pick(
 
         read_image(photo)  # unreadable -> one line now, not mid-run
         library.add(replace(library[products[0]], photo=photo))
-    model = load_detector(weights or _shipped_weights("rod_photo_tiny_256.pt"))
+    model = load_detector(weights or _shipped_weights("rod_photo_tiny_256.safetensors"))
     _fulfil(PickPipeline(model, library, axis=axis), products, orders, seed, out / time.strftime("%Y%m%d-%H%M%S"))
 
 
@@ -638,7 +692,8 @@ def _fulfil(pipeline, products: list[str], orders: int, seed: int, run_dir: Path
 
         def row(result) -> None:
             seen = "?" if result.seen is None else "yes" if result.seen else "no"
-            table.add_row(str(result.order), result.product, seen, "[green]placed" if result.success else f"[red]{result.reason}",
+            outcome = Text("placed", style="green") if result.success else Text(str(result.reason), style="red")
+            table.add_row(str(result.order), result.product, seen, outcome,
                           str(len(result.attempts)), str(result.detections), f"{result.seconds:.1f}")
             progress.advance(task)
 
@@ -659,7 +714,7 @@ DEMO_PRODUCTS = ("robosuite/milk", "robosuite/cereal", "pybullet/duck", "procedu
 def demo(
     orders: Annotated[int, typer.Option(help="Orders to fulfil (products cycle through the demo's list)")] = 6,
     out: Annotated[Path, typer.Option(help="Folder for the report, GIFs and results.json")] = Path("runs/demo"),
-    seed: Annotated[int, typer.Option(help="Seed of the first order's bin")] = 0,
+    seed: Annotated[int, seed_option("Seed of the first order's bin")] = 0,
 ) -> None:
     """The main job: fulfil a handful of orders end to end with the shipped detector, products seen in
     its training and zero-shot ones, and write an HTML report with each order's detections and GIF."""
@@ -669,28 +724,58 @@ def demo(
     from binpick.warehouse.pipeline import PickPipeline
 
     check_range("orders", orders, 1, 1000, integer=True)
-    model = load_detector(_shipped_weights("rod_photo_tiny_256.pt"))
+    ensure_dir(out, "--out")
+    model = load_detector(_shipped_weights("rod_photo_tiny_256.safetensors"))
     run_dir = out / time.strftime("%Y%m%d-%H%M%S")
     _fulfil(PickPipeline(model, default_library()), list(DEMO_PRODUCTS), orders, seed, run_dir)
 
 
-def _save_png(array, path: Path) -> None:
-    from PIL import Image
-
+def _check_png_path(path: Path, option: str = "--out") -> Path:
+    """A PNG path that can be written (checked before the work that fills it starts)."""
     path = Path(path)
     if path.suffix.lower() != ".png":
-        raise ConfigError(f"--out must end in .png, got {str(path)!r}")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(array).save(path)
+        raise ConfigError(f"{option} must end in .png, got {str(path)!r}")
+    return check_output_file(path, option)
+
+
+def _save_png(array, path: Path, option: str = "--out") -> None:
+    from PIL import Image
+
+    path = _check_png_path(path, option)
+    atomic_write(path, lambda handle: Image.fromarray(array).save(handle, format="PNG"))
+
+
+def print_error(message: str) -> None:
+    """``error: <message>`` as one line on stderr; the message is never read as Rich markup."""
+    from rich.text import Text
+
+    line = " ".join(str(message).split())  # one line, whatever the message holds
+    Console(stderr=True, highlight=False).print(Text.assemble(("error: ", "bold red"), line), soft_wrap=True)
 
 
 def main() -> None:
-    """Console-script entry point: run the app, turning binpick errors into one line."""
+    """Console-script entry point: run the app; a user's mistake ends in one line and exit code 2.
+
+    Click's usage errors (a bad option value, a missing argument) are printed the same way as
+    binpick's own, instead of Typer's boxed panel."""
     try:
-        app()
+        code = app(prog_name="binpick", standalone_mode=False)
+    except typer.TyperException as error:  # Click's errors, as Typer vendors Click
+        context = getattr(error, "ctx", None)
+        if type(error).__name__ == "NoArgsIsHelpError" and context is not None:  # `binpick rl` alone: its help
+            typer.echo(context.get_help())
+        else:
+            command = context.command_path if context is not None else "binpick"
+            message = error.format_message() if hasattr(error, "format_message") else str(error)
+            print_error(f"{message} (see '{command} --help')")
+        sys.exit(getattr(error, "exit_code", 2))
+    except typer.Abort:
+        print_error("aborted")
+        sys.exit(130)
     except BinpickError as error:
-        Console(stderr=True).print(f"[bold red]error:[/] {error}", highlight=False, soft_wrap=True)
+        print_error(str(error))
         sys.exit(2)
+    sys.exit(code if isinstance(code, int) else 0)
 
 
 if __name__ == "__main__":

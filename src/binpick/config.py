@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 import types
 import typing
 from collections.abc import Iterable
@@ -17,6 +18,7 @@ from typing import Any, TypeVar
 import yaml
 
 from binpick.errors import ConfigError
+from binpick.files import read_text
 
 T = TypeVar("T")
 
@@ -33,7 +35,7 @@ def check_range(
 ) -> Any:
     """Return ``value`` if it is a finite number within [low, high]; raise ConfigError otherwise."""
     kind = "an integer" if integer else "a number"
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise ConfigError(f"{name} must be {kind}{_range_text(low, high, low_inclusive, high_inclusive)}, got {value!r}")
     if integer and not float(value).is_integer():
         raise ConfigError(f"{name} must be an integer{_range_text(low, high, low_inclusive, high_inclusive)}, got {value!r}")
@@ -71,10 +73,11 @@ def _range_text(low: float | None, high: float | None, low_inc: bool, high_inc: 
 def load_yaml(path: str | Path) -> dict[str, Any]:
     """Read a YAML mapping; a missing file, bad syntax or a non-mapping is one ConfigError line."""
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise ConfigError(f"config file {str(path)!r} does not exist")
+    text = read_text(path, "config file")  # a folder, unreadable or not UTF-8: one line
     try:
-        data = yaml.safe_load(path.read_text())
+        data = yaml.safe_load(text)
     except yaml.YAMLError as error:
         mark = getattr(error, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
@@ -138,7 +141,7 @@ def _convert(hint: Any, value: Any, where: str) -> Any:
             raise ConfigError(f"{where} must be an integer, got {value!r}")
         return value
     if hint is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
+        if isinstance(value, bool) or not isinstance(value, numbers.Real):
             raise ConfigError(f"{where} must be a number, got {value!r}")
         return float(value)
     if hint is str:

@@ -24,3 +24,11 @@ class UnknownEnvError(BinpickError, KeyError):
 
 class RenderingUnavailableError(BinpickError, RuntimeError):
     """MuJoCo could not open an OpenGL context (headless machine without EGL/OSMesa)."""
+
+
+class InputFileError(BinpickError):
+    """A file binpick was asked to read is missing, not decodable, damaged, or not what it claims to be."""
+
+
+class OutputPathError(BinpickError):
+    """binpick cannot write where it was asked to (a file where a folder must be, no permission, ...)."""

@@ -1,14 +1,175 @@
-"""Atomic file writes: a crash leaves the previous file or the new one, never half of one."""
+"""Reading and writing files for people: atomic writes, and one clear line when a path is wrong.
+
+Writes go to a unique temporary file beside the target, are flushed to disk (``fsync``) and then
+renamed over it, so a crash or ``kill -9`` leaves the previous file or the new one, never half of
+one, and two writers never share a temporary name. Reads turn the ways a file can be wrong (missing,
+a folder, not UTF-8, not JSON) into an :class:`~binpick.errors.InputFileError` that names the file.
+"""
 
 from __future__ import annotations
 
+import json
 import os
+import tempfile
+from collections.abc import Callable
 from pathlib import Path
+from typing import IO, Any
+
+from binpick.errors import InputFileError, OutputPathError
+
+
+def _reason(error: OSError) -> str:
+    return error.strerror or type(error).__name__
+
+
+# ---------------------------------------------------------------------- writing
+def ensure_dir(path: str | Path, what: str = "folder") -> Path:
+    """Create folder ``path`` (and its parents); a file in the way or no permission is one line."""
+    path = Path(path)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise OutputPathError(f"{what}: cannot create folder {str(path)!r}: a file with that name exists") from None
+    except OSError as error:
+        raise OutputPathError(f"{what}: cannot create folder {str(path)!r}: {_reason(error)}") from None
+    if not os.access(path, os.W_OK | os.X_OK):
+        raise OutputPathError(f"{what}: folder {str(path)!r} is not writable")
+    return path
+
+
+def check_output_file(path: str | Path, what: str = "output") -> Path:
+    """Check *before* long work starts that ``path`` can be written: not a folder, parent creatable."""
+    path = Path(path)
+    if path.is_dir():
+        raise OutputPathError(f"{what}: {str(path)!r} is a folder, not a file")
+    ensure_dir(path.parent if str(path.parent) else Path("."), what)
+    if path.exists() and not os.access(path, os.W_OK):
+        raise OutputPathError(f"{what}: {str(path)!r} is not writable")
+    return path
+
+
+def atomic_write(path: str | Path, write: Callable[[IO[bytes]], None]) -> Path:
+    """Call ``write(handle)`` on a temporary file, fsync it and rename it to ``path``."""
+    path = Path(path)
+    ensure_dir(path.parent, f"writing {path.name}")
+    try:
+        descriptor, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    except OSError as error:
+        raise OutputPathError(f"cannot write {str(path)!r}: {_reason(error)}") from None
+    try:
+        with os.fdopen(descriptor, "wb") as handle:
+            write(handle)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(temporary, path)
+    except OSError as error:
+        Path(temporary).unlink(missing_ok=True)
+        if isinstance(error, IsADirectoryError) or path.is_dir():
+            raise OutputPathError(f"cannot write {str(path)!r}: it is a folder") from None
+        raise OutputPathError(f"cannot write {str(path)!r}: {_reason(error)}") from None
+    except BaseException:
+        Path(temporary).unlink(missing_ok=True)
+        raise
+    fsync_dir(path.parent)
+    return path
+
+
+def fsync_dir(folder: Path) -> None:
+    """Make a rename durable: fsync the folder that holds the renamed entry (POSIX)."""
+    try:
+        descriptor = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(descriptor)
+    except OSError:
+        pass
+    finally:
+        os.close(descriptor)
+
+
+def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
+    return atomic_write(path, lambda handle: handle.write(data))
 
 
 def atomic_write_text(path: str | Path, text: str) -> Path:
+    return atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def atomic_write_json(path: str | Path, data: Any, indent: int | None = 2) -> Path:
+    return atomic_write_text(path, json.dumps(data, indent=indent))
+
+
+# ---------------------------------------------------------------------- reading
+def read_bytes(path: str | Path, what: str = "file") -> bytes:
     path = Path(path)
-    temporary = path.with_name(path.name + ".tmp")
-    temporary.write_text(text)
-    os.replace(temporary, path)
-    return path
+    try:
+        return path.read_bytes()
+    except FileNotFoundError:
+        raise InputFileError(f"{what} {str(path)!r} does not exist") from None
+    except IsADirectoryError:
+        raise InputFileError(f"{what} {str(path)!r} is a folder, not a file") from None
+    except OSError as error:
+        raise InputFileError(f"cannot read {what} {str(path)!r}: {_reason(error)}") from None
+
+
+def read_text(path: str | Path, what: str = "file") -> str:
+    """UTF-8 text; anything else is one line naming the file and the first bad byte."""
+    data = read_bytes(path, what)
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as error:
+        raise InputFileError(f"{what} {str(path)!r} is not UTF-8 text (byte 0x{data[error.start]:02x} "
+                             f"at position {error.start})") from None
+
+
+def read_json(path: str | Path, what: str = "JSON file") -> Any:
+    text = read_text(path, what)
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as error:
+        raise InputFileError(f"{what} {str(path)!r} is not valid JSON ({error.msg} at line {error.lineno})") from None
+
+
+def read_npz(path: str | Path, what: str = "array file") -> dict[str, Any]:
+    """Arrays of an ``.npz`` file, read with ``allow_pickle=False``: object arrays are refused, so
+    nothing in the file can run code."""
+    import zipfile
+
+    import numpy as np
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputFileError(f"{what} {str(path)!r} does not exist")
+    try:
+        with np.load(path, allow_pickle=False) as archive:
+            return {name: archive[name] for name in archive.files}
+    except (ValueError, OSError, zipfile.BadZipFile, EOFError) as error:
+        detail = str(error).splitlines()[0][:100] if str(error) else type(error).__name__
+        raise InputFileError(f"{what} {str(path)!r} is not a readable npz file ({detail})") from None
+
+
+def read_json_object(path: str | Path, what: str, keys: dict[str, type | tuple[type, ...]] | None = None) -> dict[str, Any]:
+    """A JSON mapping that must hold ``keys`` of the given types (a damaged file is one line)."""
+    data = read_json(path, what)
+    if not isinstance(data, dict):
+        raise InputFileError(f"{what} {str(path)!r} is damaged: expected a JSON object, got {type(data).__name__}")
+    require_fields(data, keys or {}, f"{what} {str(path)!r}")
+    return data
+
+
+def require_fields(data: dict[str, Any], keys: dict[str, type | tuple[type, ...]], where: str) -> dict[str, Any]:
+    """Check that ``data`` holds each key with a value of the given type(s); one line if not."""
+    for key, kind in keys.items():
+        if key not in data:
+            raise InputFileError(f"{where} is damaged: it has no {key!r}")
+        value = data[key]
+        kinds = kind if isinstance(kind, tuple) else (kind,)
+        if isinstance(value, bool) and bool not in kinds:
+            ok = False
+        else:
+            ok = isinstance(value, kinds)
+        if not ok:
+            names = " or ".join(k.__name__ for k in kinds)
+            raise InputFileError(f"{where} is damaged: {key!r} must be {names}, got {type(value).__name__}")
+    return data

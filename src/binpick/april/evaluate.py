@@ -16,10 +16,8 @@ if TYPE_CHECKING:
 
 def deployment_env(run: AprilRun, runtime_input: str):
     """The env and policy exactly as deployed: ``state`` (ground truth, semantic modes) or ``pixels``."""
-    from stable_baselines3 import SAC
-
     from binpick.april.finetune import with_action_scale
-    from binpick.perception import load_perception
+    from binpick.perception import load_perception, perception_path
     from binpick.rl.config import load_config
     from binpick.rl.train import load_policy
     from binpick.rl.wrappers import SemanticState
@@ -32,12 +30,26 @@ def deployment_env(run: AprilRun, runtime_input: str):
             base = GoalRecorder(run.make_env(image=False))
             return with_action_scale(SemanticState(base, run.gripper), scale), policy, base
         base = GoalRecorder(run.make_env())
-        return with_action_scale(PixelsAsSemantic(base, load_perception(run.run_dir / "perception.pt").encode, run.gripper), scale), policy, base
-    perception = load_perception(run.run_dir / "perception.pt")
+        return with_action_scale(PixelsAsSemantic(base, load_perception(perception_path(run.run_dir)).encode, run.gripper), scale), policy, base
+    perception = load_perception(perception_path(run.run_dir))
     base = GoalRecorder(run.make_env())
     env = EncodedObservation(base, perception.encode, perception.config.latent, perception.config.conditioned,
                              with_state=mode == "state_plus_latent", gripper=run.gripper)
-    return with_action_scale(env, scale), SAC.load(run.run_dir / "policy_latent.zip", device="cpu"), base
+    return with_action_scale(env, scale), load_latent_policy(run.run_dir), base
+
+
+def load_latent_policy(run_dir: Path):
+    """The SAC policy on φ_enc(I) of a latent-mode run, rebuilt from ``policy_latent.safetensors``."""
+    from binpick.april.finetune import LATENT_POLICY_FILE
+    from binpick.errors import ConfigError
+    from binpick.rl.persistence import load_saved_policy
+
+    path = Path(run_dir) / LATENT_POLICY_FILE
+    if not path.is_file():
+        older = " (older runs saved SB3 zips, which binpick no longer loads because they can run code)" \
+            if (Path(run_dir) / "policy_latent.zip").is_file() else ""
+        raise ConfigError(f"APRiL run {run_dir} has no {LATENT_POLICY_FILE}{older}")
+    return load_saved_policy(path)
 
 
 def row_names(run: AprilRun) -> dict[str, str]:

@@ -10,7 +10,6 @@ free features start at zero, so before fine-tuning the widened policy acts exact
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -20,7 +19,10 @@ from stable_baselines3 import SAC
 from stable_baselines3.common.callbacks import BaseCallback
 
 from binpick.april.observations import EncodedObservation
+from binpick.rl.persistence import SavedPolicy, save_policy
 from binpick.rl.wrappers import MinActionScale
+
+LATENT_POLICY_FILE = "policy_latent.safetensors"  # SAC on φ_enc(I): weights + spaces, no pickle
 
 
 def with_action_scale(env, scale: float | None):
@@ -31,7 +33,7 @@ if TYPE_CHECKING:
     from binpick.april.pipeline import AprilRun
 
 
-def _semantic_columns(model: SAC, goal_dim: int) -> list[np.ndarray]:
+def _semantic_columns(model: SavedPolicy, goal_dim: int) -> list[np.ndarray]:
     """For each feature column of the dict policy, the index in s̄ = (observation, g) it carries."""
     width = model.observation_space["observation"].shape[0]
     sources = {"observation": 0, "achieved_goal": width - goal_dim, "desired_goal": width}
@@ -58,7 +60,7 @@ def _widen_linear(old: torch.nn.Linear, new: torch.nn.Linear, columns: list[np.n
             new.weight[:, -tail:] = old.weight[:, -tail:]
 
 
-def widen_from_semantic(semantic: SAC, latent: SAC, goal_dim: int) -> None:
+def widen_from_semantic(semantic: SavedPolicy, latent: SAC, goal_dim: int) -> None:
     """Load a semantic-state SAC's weights into a latent SAC with a wider input (see module doc)."""
     columns = _semantic_columns(semantic, goal_dim)
     action_dim = semantic.action_space.shape[0]
@@ -73,7 +75,7 @@ def widen_from_semantic(semantic: SAC, latent: SAC, goal_dim: int) -> None:
             if not name.startswith("0."):
                 new_q.state_dict()[name].copy_(parameter)
     latent.policy.critic_target.load_state_dict(latent.policy.critic.state_dict())
-    if getattr(semantic, "log_ent_coef", None) is not None and getattr(latent, "log_ent_coef", None) is not None:
+    if semantic.log_ent_coef is not None and getattr(latent, "log_ent_coef", None) is not None:
         with torch.no_grad():  # a learnt entropy weight carries over; a fixed one is set by the config
             latent.log_ent_coef.copy_(semantic.log_ent_coef)
 
@@ -90,15 +92,15 @@ class _Progress(BaseCallback):
 
 
 def finetune_latent_policy(run: AprilRun, semantic_run: str | None, show_progress: bool) -> dict[str, Any]:
-    """Train (or fine-tune) SAC on encoded images; saves ``policy_latent.zip`` in the run folder."""
+    """Train (or fine-tune) SAC on encoded images; saves ``policy_latent.safetensors`` in the run folder."""
     from binpick.april.pipeline import _progress
-    from binpick.perception import load_perception
+    from binpick.perception import load_perception, perception_path
     from binpick.rl.config import load_config
     from binpick.rl.train import load_policy
 
     torch.set_num_threads(1)  # small networks, one env: a second thread only competes with other jobs
     config, policy = run.config, run.config.policy
-    perception = load_perception(run.run_dir / "perception.pt")
+    perception = load_perception(perception_path(run.run_dir))
     rl_settings = load_config(policy.rl_config)
     env = with_action_scale(EncodedObservation(run.make_env(), perception.encode, perception.config.latent,
                                                perception.config.conditioned, with_state=policy.mode == "state_plus_latent",
@@ -117,7 +119,6 @@ def finetune_latent_policy(run: AprilRun, semantic_run: str | None, show_progres
         callback = _Progress(progress, task)
         if policy.finetune_steps:
             model.learn(policy.finetune_steps, callback=callback, tb_log_name="latent")
-    model.save(run.run_dir / "policy_latent.tmp.zip")
-    os.replace(run.run_dir / "policy_latent.tmp.zip", run.run_dir / "policy_latent.zip")
+    save_policy(model, run.run_dir / LATENT_POLICY_FILE, algorithm="sac", env=config.env, mode=policy.mode)
     env.close()
     return {"sim_episodes": callback.episodes, "sim_steps": int(model.num_timesteps), "widened": semantic_run is not None}

@@ -1,11 +1,11 @@
 """The APRiL pipeline (thesis §4.2, Fig 4.2), one resumable stage at a time.
 
     collect     random-policy (or heuristic) episodes: images and the semantic state s̄ (data/random.npz)
-    perception  the AE / VAE trained on them (perception.pt, reconstructions.png)
+    perception  the AE / VAE trained on them (perception.safetensors, reconstructions.png)
     policy      the state policy: on s̄ with GP + HER (an ordinary binpick RL run under rl/)
     refine      optional: perception trained further on the state policy's episodes (data/policy.npz)
     finetune    latent modes: SAC on φ_enc(I) in the simulator, widened from the state policy
-                (policy_latent.zip)
+                (policy_latent.safetensors)
     evaluate    average actions, success and simulator episodes per row; Fig 4.7 heat maps
 
 Each finished stage is recorded in ``stages.json`` (replaced atomically); after a crash ``run``
@@ -16,7 +16,6 @@ from its own latest checkpoint).
 from __future__ import annotations
 
 import json
-import os
 import time
 from pathlib import Path
 from typing import Any
@@ -24,13 +23,14 @@ from typing import Any
 import numpy as np
 import yaml
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from binpick.april.config import AprilConfig
 from binpick.april.observations import semantic_state
 from binpick.config import load_run_config, to_dict
-from binpick.errors import ConfigError
-from binpick.files import atomic_write_text
+from binpick.errors import ConfigError, InputFileError
+from binpick.files import atomic_write, atomic_write_text, read_json_object, read_npz
 from binpick.rl.checkpoints import new_run_dir
 
 STAGES = ("collect", "perception", "policy", "refine", "finetune", "evaluate")
@@ -42,7 +42,7 @@ def _write_json(path: Path, data: Any) -> None:
 
 
 def _progress(label: str, show: bool) -> Progress:
-    return Progress(TextColumn(f"[bold]{label}"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[status]}"),
+    return Progress(TextColumn(label, style="bold", markup=False), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[status]}"),
                     TimeElapsedColumn(), disable=not show)
 
 
@@ -52,7 +52,12 @@ class AprilRun:
     def __init__(self, config: AprilConfig, run_dir: Path) -> None:
         self.config, self.run_dir = config, Path(run_dir)
         self.stages_path = self.run_dir / "stages.json"
-        self.stages: dict[str, Any] = json.loads(self.stages_path.read_text()) if self.stages_path.exists() else {}
+        self.stages: dict[str, Any] = read_json_object(self.stages_path, "APRiL stages file") if self.stages_path.exists() else {}
+        unknown = [stage for stage in self.stages if stage not in STAGES]
+        if unknown or not all(isinstance(result, dict) for result in self.stages.values()):
+            raise InputFileError(f"APRiL stages file {str(self.stages_path)!r} is damaged "
+                                 f"({'unknown stage ' + repr(unknown[0]) if unknown else 'a stage result is not a mapping'}): "
+                                 "delete it to redo every stage")
 
     @classmethod
     def new(cls, config: AprilConfig, runs_root: Path = Path("runs")) -> AprilRun:
@@ -89,7 +94,7 @@ class AprilRun:
         for stage in STAGES:
             if stage in self.stages:
                 continue
-            console.print(f"[bold]APRiL stage {stage}[/bold] ({self.run_dir})")
+            console.print(f"[bold]APRiL stage {stage}[/bold] ({escape(str(self.run_dir))})")
             started = time.perf_counter()
             result = getattr(self, f"stage_{stage}")(show_progress)
             self._done(stage, result | {"wall_seconds": round(time.perf_counter() - started, 1)})
@@ -126,22 +131,20 @@ class AprilRun:
         env.close()
         path = self.run_dir / "data" / "random.npz"
         path.parent.mkdir(exist_ok=True)
-        temporary = path.with_name("random.tmp.npz")
-        np.savez(temporary, images=np.stack(images), states=np.stack(states))
-        os.replace(temporary, path)
+        atomic_write(path, lambda handle: np.savez(handle, images=np.stack(images), states=np.stack(states)))
         return {"sim_episodes": collect.episodes, "sim_steps": steps, "images": len(images), "policy": collect.policy}
 
     def stage_perception(self, show_progress: bool) -> dict[str, Any]:
-        from binpick.perception import save_perception, train_perception
+        from binpick.perception import PERCEPTION_FILE, save_perception, train_perception
         from binpick.viz.april import plot_reconstructions
 
-        data = np.load(self.run_dir / "data" / "random.npz")
+        data = read_npz(self.run_dir / "data" / "random.npz", "APRiL image data")
         images, states = data["images"], data["states"]
         training = self.config.perception_training
         model, history = train_perception(self.config.perception, images, states, epochs=training.epochs,
                                           batch_size=training.batch_size, learning_rate=training.learning_rate,
                                           seed=self.config.seed, show_progress=show_progress)
-        save_perception(model, self.run_dir / "perception.pt")
+        save_perception(model, self.run_dir / PERCEPTION_FILE)
         _write_json(self.run_dir / "perception_history.json", history)
         rng = np.random.default_rng(self.config.seed)
         sample = images[rng.choice(len(images), size=min(8, len(images)), replace=False)]
@@ -179,7 +182,7 @@ class AprilRun:
             run_dir = Path(self.config.policy.state_run)
             if not (run_dir / "metrics.json").is_file():
                 raise ConfigError(f"policy.state_run: {str(run_dir)!r} is not a finished binpick rl run (no metrics.json)")
-            metrics = json.loads((run_dir / "metrics.json").read_text())
+            metrics = read_json_object(run_dir / "metrics.json", "state policy metrics", {"env": str})
             if metrics["env"] != self.config.env:
                 raise ConfigError(f"policy.state_run was trained on {metrics['env']}, this APRiL run is on {self.config.env}")
         else:
@@ -205,7 +208,7 @@ class AprilRun:
         """Episodes of the state policy (noisy actions, true state in, images recorded), then more
         perception epochs on random + policy images. Runs before any latent fine-tuning reads φ_enc."""
         from binpick.april.finetune import with_action_scale
-        from binpick.perception import load_perception, save_perception, train_perception
+        from binpick.perception import PERCEPTION_FILE, load_perception, perception_path, save_perception, train_perception
         from binpick.rl.config import load_config
         from binpick.rl.train import load_policy
         from binpick.rl.wrappers import semantic_part
@@ -235,17 +238,17 @@ class AprilRun:
                 states.append(semantic_state(raw, self.gripper))
                 progress.update(task, advance=1, status=f"{len(images):,} images")
         env.close()
-        np.savez(self.run_dir / "data" / "policy.tmp.npz", images=np.stack(images), states=np.stack(states))
-        os.replace(self.run_dir / "data" / "policy.tmp.npz", self.run_dir / "data" / "policy.npz")
-        random = np.load(self.run_dir / "data" / "random.npz")
+        atomic_write(self.run_dir / "data" / "policy.npz",
+                     lambda handle: np.savez(handle, images=np.stack(images), states=np.stack(states)))
+        random = read_npz(self.run_dir / "data" / "random.npz", "APRiL image data")
         all_images = np.concatenate([random["images"], np.stack(images)])
         all_states = np.concatenate([random["states"], np.stack(states)])
         training = self.config.perception_training
         model, history = train_perception(self.config.perception, all_images, all_states, epochs=refine.epochs,
                                           batch_size=training.batch_size, learning_rate=training.learning_rate,
                                           seed=self.config.seed + 1, show_progress=show_progress,
-                                          initial=load_perception(self.run_dir / "perception.pt"))
-        save_perception(model, self.run_dir / "perception.pt")
+                                          initial=load_perception(perception_path(self.run_dir)))
+        save_perception(model, self.run_dir / PERCEPTION_FILE)
         _write_json(self.run_dir / "refine_history.json", history)
         return {"sim_episodes": refine.episodes, "images": len(images), "state_mae": history["epochs"][-1]["state_mae"]}
 

@@ -18,15 +18,15 @@ class Policy:
 
     def __init__(self, run_dir: Path) -> None:
         from binpick.april.pipeline import AprilRun
-        from binpick.perception import load_perception
+        from binpick.perception import load_perception, perception_path
         from binpick.rl.config import load_config
 
         run = AprilRun.resume(run_dir)
-        if "policy" not in run.stages or not (run.run_dir / "perception.pt").is_file():
+        if "policy" not in run.stages or not perception_path(run.run_dir).is_file():
             raise ConfigError(f"APRiL run {run.run_dir} has no trained policy yet (finished stages: "
                               f"{', '.join(run.stages) or 'none'})")
         self.run, self.mode = run, run.config.policy.mode
-        self.perception = load_perception(run.run_dir / "perception.pt")
+        self.perception = load_perception(perception_path(run.run_dir))
         self.min_action_scale = load_config(run.config.policy.rl_config).min_action_scale
         if self.mode == "semantic":
             from binpick.rl.train import load_policy
@@ -38,9 +38,9 @@ class Policy:
                 raise ConfigError(f"perception latent n={self.perception.config.latent} does not match the policy's "
                                   f"semantic state of {state_dim}")
         else:
-            from stable_baselines3 import SAC
+            from binpick.april.evaluate import load_latent_policy
 
-            self.model = SAC.load(run.run_dir / "policy_latent.zip", device="cpu")
+            self.model = load_latent_policy(run.run_dir)
             needed = self.model.observation_space.shape[0]
             state_dim = self.perception.state_dim if self.mode == "state_plus_latent" else 0
             free = self.perception.config.free if self.mode == "state_plus_latent" else self.perception.config.latent

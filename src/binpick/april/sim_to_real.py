@@ -13,7 +13,6 @@ and known goal would give).
 
 from __future__ import annotations
 
-import json
 import shutil
 import time
 from pathlib import Path
@@ -21,6 +20,8 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
+
+from binpick.files import atomic_write_json, read_json_object
 
 
 class ShiftedDomain(gym.Wrapper):
@@ -73,15 +74,16 @@ def transfer(run_dir: Path, out: Path, real_episodes: int = 25, eval_episodes: i
     from binpick.april.evaluate import deployment_env
     from binpick.april.observations import semantic_state
     from binpick.april.pipeline import AprilRun
-    from binpick.perception import load_perception, save_perception, train_perception
+    from binpick.perception import PERCEPTION_FILE, load_perception, perception_path, save_perception, train_perception
     from binpick.rl.evaluate import evaluate_policy
 
     out = Path(out)
     if not out.exists():
         shutil.copytree(run_dir, out, ignore=shutil.ignore_patterns("rl"))
     run = AprilRun.resume(out)
-    sim_rows = json.loads((Path(run_dir) / "results.json").read_text())
-    rl_metrics = json.loads((Path(run.stages["policy"]["semantic_run"]) / "metrics.json").read_text())
+    sim_rows = read_json_object(Path(run_dir) / "results.json", "APRiL results")
+    rl_metrics = read_json_object(Path(run.stages["policy"]["semantic_run"]) / "metrics.json", "state policy metrics",
+                                  {"sim_episodes": int})
     counts = {"simulator_episodes": rl_metrics["sim_episodes"], "gp_episodes": rl_metrics.get("imagined_episodes", 0)}
     image_episodes = run.sim_episodes["images"]
     pixel_name = next(k for k in sim_rows if k != "ground_truth")
@@ -120,13 +122,13 @@ def transfer(run_dir: Path, out: Path, real_episodes: int = 25, eval_episodes: i
     training = run.config.perception_training
     model, history = train_perception(run.config.perception, np.stack(images), np.stack(states), epochs=epochs,
                                       batch_size=training.batch_size, learning_rate=training.learning_rate, seed=seed,
-                                      show_progress=show_progress, initial=load_perception(out / "perception.pt"))
-    save_perception(model, out / "perception.pt")
+                                      show_progress=show_progress, initial=load_perception(perception_path(out)))
+    save_perception(model, out / PERCEPTION_FILE)
     rows["shifted_encoded_retrained"] = _row(evaluate("pixels"), **counts, perception_sim_episodes=image_episodes,
                                              physical_episodes=real_episodes, physical_images=len(images))
     result = {"run": str(run_dir), "env": run.config.env, "domain": "ShiftedDomain (colour cast, dimmer light, camera "
               "off by 8°/-5°/5 cm with per-episode jitter, pixel noise σ = 6)", "eval_episodes": eval_episodes,
               "retraining_epochs": epochs, "retraining_state_mae": history["epochs"][-1]["state_mae"],
               "rows": rows, "wall_s": round(time.perf_counter() - started, 1)}
-    (out / "sim_to_real.json").write_text(json.dumps(result, indent=2))
+    atomic_write_json(out / "sim_to_real.json", result)
     return result

@@ -10,7 +10,7 @@ warehouse data the instance the robot really picked is the query when targets ar
 
 from __future__ import annotations
 
-import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -20,6 +20,7 @@ import torch
 from PIL import Image
 
 from binpick.errors import ConfigError
+from binpick.files import read_json
 
 
 @dataclass
@@ -44,6 +45,50 @@ def read_image(path: Path) -> np.ndarray:
     return array
 
 
+def check_coco(coco: dict[str, Any], path: Path) -> None:
+    """The fields binpick reads, with their types: a damaged or hand-edited file is one line naming the
+    first bad entry, before any training or evaluation starts."""
+    def fail(where: str, what: str, value: Any) -> None:
+        raise ConfigError(f"{path}: {where} must be {what}, got {str(value)[:60]!r}")
+
+    def integer(value: Any) -> bool:
+        return isinstance(value, int) and not isinstance(value, bool)
+
+    for key in ("images", "annotations", "categories"):
+        if not isinstance(coco[key], list):
+            fail(key, "a list", type(coco[key]).__name__)
+    categories = set()
+    for i, category in enumerate(coco["categories"]):
+        if not isinstance(category, dict) or not integer(category.get("id")) or not isinstance(category.get("name"), str):
+            fail(f"categories[{i}]", "an object with an integer id and a string name", category)
+        if not isinstance(category.get("supercategory", ""), str):
+            fail(f"categories[{i}].supercategory", "a string", category["supercategory"])
+        categories.add(category["id"])
+    for i, image in enumerate(coco["images"]):
+        if not isinstance(image, dict) or not integer(image.get("id")) or not isinstance(image.get("file_name"), str):
+            fail(f"images[{i}]", "an object with an integer id and a string file_name", image)
+    for i, annotation in enumerate(coco["annotations"]):
+        where = f"annotations[{i}]"
+        if not isinstance(annotation, dict):
+            fail(where, "an object", annotation)
+        for key in ("image_id", "category_id"):
+            if not integer(annotation.get(key)):
+                fail(f"{where}.{key}", "an integer", annotation.get(key))
+        if annotation["category_id"] not in categories:
+            fail(f"{where}.category_id", "the id of a listed category", annotation["category_id"])
+        box = annotation.get("bbox")
+        if (not isinstance(box, list) or len(box) != 4
+                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in box)
+                or box[2] <= 0 or box[3] <= 0):
+            fail(f"{where}.bbox", "[x, y, width, height]: 4 finite numbers, width and height > 0", box)
+        if "id" in annotation and not integer(annotation["id"]):
+            fail(f"{where}.id", "an integer", annotation["id"])
+        if not isinstance(annotation.get("pickable", {}), (dict, type(None))):
+            fail(f"{where}.pickable", "a mapping of policy to true/false", annotation["pickable"])
+        if not isinstance(annotation.get("iscrowd", 0), (int, bool)):
+            fail(f"{where}.iscrowd", "0 or 1", annotation["iscrowd"])
+
+
 def pickable_by(annotation: dict[str, Any], policy: str) -> bool | None:
     value = (annotation.get("pickable") or {}).get(policy)
     return None if value is None else bool(value)
@@ -56,14 +101,12 @@ class RepeatedInstances:
                  exclude_categories: list[str] | None = None, only_categories: list[str] | None = None,
                  photos: str | Path | None = None) -> None:
         path = Path(annotations)
-        if not path.is_file():
+        if not path.exists():
             raise ConfigError(f"annotations file {str(path)!r} does not exist")
-        try:
-            coco = json.loads(path.read_text())
-        except json.JSONDecodeError as error:
-            raise ConfigError(f"{path}: not valid JSON ({error.msg} at line {error.lineno})") from None
+        coco = read_json(path, "annotations file")
         if not isinstance(coco, dict) or not {"images", "annotations", "categories"} <= set(coco):
             raise ConfigError(f"{path}: not a COCO detection file (needs images, annotations and categories)")
+        check_coco(coco, path)
         self.root = Path(images) if images else path.parent
         self.photos = Path(photos) if photos else path.parent / "photos"
         self.targets = targets
@@ -89,6 +132,10 @@ class RepeatedInstances:
         if not self.tasks:
             raise ConfigError(f"{path}: no image holds two or more instances of a category"
                               f"{' with a picked query' if self.policy else ''} (after exclusions)")
+        missing = sorted({str(task.file) for task in self.tasks if not task.file.is_file()})
+        if missing:
+            raise ConfigError(f"{path}: {len(missing)} image file(s) it names do not exist, e.g. {missing[0]!r} "
+                              "(are the images beside the annotations, or give data.images?)")
 
     def _category_ids(self, names: list[str]) -> set[int]:
         """Category ids named by COCO name or supercategory (a product id or its category)."""

@@ -3,13 +3,11 @@ evaluation, checkpoints.
 
 A run folder ``runs/<name>/<time>/`` holds ``config.yaml``, TensorBoard events (``tb/``), atomic
 checkpoints (``checkpoints/``, one per epoch: a kill loses at most the epoch in progress),
-``metrics.json`` and the final ``model.pt`` that ``binpick detect eval/predict`` read.
+``metrics.json`` and the final ``model.safetensors`` that ``binpick detect eval/predict`` read.
 """
 
 from __future__ import annotations
 
-import json
-import os
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Callable
@@ -18,6 +16,7 @@ import numpy as np
 import torch
 import yaml
 
+from binpick import tensorfile
 from binpick.config import from_dict, load_yaml, to_dict
 from binpick.detection.config import DetectConfig
 from binpick.detection.data import RepeatedInstances, TaskDataset, collate
@@ -25,49 +24,73 @@ from binpick.detection.evaluate import collect, summarise
 from binpick.detection.losses import rod_loss
 from binpick.detection.model import ANCHORS_PER_LEVEL, Detector, ModelSpec
 from binpick.detection.ops import box_iou
-from binpick.errors import ConfigError
+from binpick.errors import ConfigError, InputFileError
+from binpick.files import atomic_write_json, require_fields
 from binpick.rl.checkpoints import commit_checkpoint, latest_checkpoint, new_run_dir
 
 
 # ---------------------------------------------------------------------- weights on disk
+FORMAT = "binpick-detector-2"  # safetensors + JSON; "binpick-detector-1" was a torch pickle (.pt)
+WEIGHTS_FILE = "model.safetensors"
+CHECKPOINT_FORMAT = "binpick-detector-checkpoint-1"
+
+
 def save_detector(model: Detector, path: Path, extra: dict[str, Any] | None = None, half: bool = False) -> None:
-    """Write atomically: a crash leaves the previous file or the new one. ``half`` stores float16
-    weights (half the size; loading turns them back into float32)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = path.with_suffix(path.suffix + ".tmp")
+    """Write weights (safetensors) and what rebuilds the network (JSON) atomically: a crash leaves the
+    previous file or the new one. ``half`` stores float16 weights (half the size; loading turns them
+    back into float32). ``extra`` must be JSON data (config, products trained on, ...)."""
     weights = model.state_dict()
     if half:
         weights = {k: v.half() if v.is_floating_point() and k != "anchors" else v for k, v in weights.items()}
-    torch.save({"format": "binpick-detector-1", "spec": asdict(model.spec), "image_size": model.image_size,
-                "query_size": model.query_size, "weights": weights, **(extra or {})}, temporary)
-    os.replace(temporary, path)
+    meta = {"spec": asdict(model.spec), "image_size": model.image_size, "query_size": model.query_size, **(extra or {})}
+    tensorfile.save(path, FORMAT, tensors=weights, meta=meta)
+
+
+def _weights_path(path: Path) -> Path:
+    """A file as given; a run folder's ``model.safetensors`` (or an older run's ``model.pt``)."""
+    if path.is_dir():
+        for name in (WEIGHTS_FILE, "model.pt"):
+            if (path / name).is_file():
+                return path / name
+        raise InputFileError(f"no detector weights in {str(path)!r} (no {WEIGHTS_FILE}): is the run finished?")
+    if not path.is_file():
+        raise InputFileError(f"no detector weights at {str(path)!r}")
+    return path
+
+
+def _read_detector_file(path: Path) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+    """Weights and metadata; older ``.pt`` files only through ``torch.load(weights_only=True)``."""
+    if not tensorfile.is_safetensors(path):  # an older binpick .pt: plain tensors only
+        data = tensorfile.load_legacy_torch(path, "detector weights")
+        if not isinstance(data, dict) or data.get("format") != "binpick-detector-1":
+            raise InputFileError(f"{str(path)!r} is not a binpick detector checkpoint")
+        weights = data.get("weights")
+        meta = {k: v for k, v in data.items() if k not in ("weights", "format")}
+    else:
+        weights, meta, _ = tensorfile.load(path, FORMAT, "detector weights")
+    where = f"detector weights {str(path)!r}"
+    require_fields({"weights": weights, **meta}, {"weights": dict, "spec": dict, "image_size": int}, where)
+    return weights, meta
 
 
 def load_detector(path: str | Path) -> Detector:
-    """A detector saved by :func:`save_detector` (or a run folder holding ``model.pt``)."""
-    path = Path(path)
-    if path.is_dir():
-        path = path / "model.pt"
-    if not path.is_file():
-        raise ConfigError(f"no detector weights at {str(path)!r}")
+    """A detector saved by :func:`save_detector` (or a run folder holding ``model.safetensors``)."""
+    path = _weights_path(Path(path))
+    weights, meta = _read_detector_file(path)
     try:
-        data = torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as error:  # noqa: BLE001 - torch raises many kinds for a foreign file
-        raise ConfigError(f"{str(path)!r} is not a binpick detector checkpoint ({type(error).__name__})") from None
-    if not isinstance(data, dict) or data.get("format") != "binpick-detector-1":
-        raise ConfigError(f"{str(path)!r} is not a binpick detector checkpoint")
-    spec = ModelSpec(**{**data["spec"], "scales": tuple(data["spec"]["scales"])})
-    model = Detector(spec, int(data["image_size"]), int(data.get("query_size", 96)))
+        spec = ModelSpec(**{**meta["spec"], "scales": tuple(meta["spec"]["scales"])})
+        model = Detector(spec, int(meta["image_size"]), int(meta.get("query_size", 96)))
+    except (TypeError, KeyError, ValueError) as error:
+        raise InputFileError(f"detector weights {str(path)!r} describe no valid network ({error})") from None
     try:
-        missing, unexpected = model.load_state_dict(data["weights"], strict=False)
+        missing, unexpected = model.load_state_dict(weights, strict=False)
     except RuntimeError:  # tensors of other shapes
         missing, unexpected = ["(shapes differ)"], []
     if missing or unexpected:
-        raise ConfigError(f"{str(path)!r} holds weights of another architecture "
-                          f"({len(missing)} missing, {len(unexpected)} unexpected tensors)")
-    model.trained_config = data.get("config") or {}
-    model.trained_products = data.get("trained_products")
+        raise InputFileError(f"{str(path)!r} holds weights of another architecture "
+                             f"({len(missing)} missing, {len(unexpected)} unexpected tensors)")
+    model.trained_config = meta.get("config") or {}
+    model.trained_products = meta.get("trained_products")
     model.eval()
     return model
 
@@ -140,28 +163,45 @@ class DetectorTrainer:
         if resume is not None:
             resume = Path(resume)
             config = from_dict(DetectConfig, load_yaml(resume / "config.yaml"), where=str(resume / "config.yaml"))
-            self.run_dir = resume
-        else:
-            self.run_dir = new_run_dir(Path(runs), config.name, yaml.safe_dump(to_dict(config), sort_keys=False))
         self.config, self.on_step = config, on_step
         torch.manual_seed(config.train.seed)
         torch.set_num_threads(config.train.threads)
-        self.train_set, self.val_set = make_datasets(config)
+        self.train_set, self.val_set = make_datasets(config)  # bad data: one line, before any folder exists
         self.model = Detector(config.model.spec(), config.data.image_size, config.data.query_size)
         self.optimizer = torch.optim.AdamW(self.model.parameters(), lr=config.train.lr, weight_decay=config.train.weight_decay)
         self.steps_per_epoch = -(-len(self.train_set) // config.train.batch_size)
         self.total_steps = self.steps_per_epoch * config.train.epochs
         self.epoch, self.step, self.history = 0, 0, []
-        checkpoint = latest_checkpoint(self.run_dir / "checkpoints")
+        checkpoint = latest_checkpoint(resume / "checkpoints") if resume is not None else None
         if checkpoint is not None:
-            state = torch.load(checkpoint / "state.pt", map_location="cpu", weights_only=False)
-            self.model.load_state_dict(state["model"])
-            self.optimizer.load_state_dict(state["optimizer"])
-            self.epoch, self.step, self.history = state["epoch"], state["step"], state["history"]
+            self._load_checkpoint(checkpoint)
         else:
             self.model.anchors.copy_(fit_anchors(self.train_set))
         if config.train.fast_cpu:
             self.model.to(memory_format=torch.channels_last)
+        self.run_dir = resume if resume is not None else new_run_dir(Path(runs), config.name, yaml.safe_dump(to_dict(config), sort_keys=False))
+
+    def _load_checkpoint(self, checkpoint: Path) -> None:
+        """Model, optimiser, epoch, step and history; any damage is one line naming the file."""
+        if (checkpoint / "state.safetensors").is_file() or not (checkpoint / "state.pt").is_file():
+            path = checkpoint / "state.safetensors"
+            _, meta, state = tensorfile.load(path, CHECKPOINT_FORMAT, "detector checkpoint")
+            state = state or {}
+        else:  # written before binpick stored checkpoints as safetensors
+            path = checkpoint / "state.pt"
+            state = meta = tensorfile.load_legacy_torch(path, "detector checkpoint")
+            if not isinstance(state, dict):
+                raise InputFileError(f"detector checkpoint {str(path)!r} is damaged: not a mapping")
+        where = f"detector checkpoint {str(path)!r}"
+        require_fields(meta, {"epoch": int, "step": int, "history": list}, where)
+        require_fields(state, {"model": dict, "optimizer": dict}, where)
+        try:
+            self.model.load_state_dict(state["model"])
+            self.optimizer.load_state_dict(state["optimizer"])
+        except (RuntimeError, ValueError, KeyError) as error:
+            raise InputFileError(f"{where} does not fit this run's network "
+                                 f"({str(error).splitlines()[0][:120]})") from None
+        self.epoch, self.step, self.history = meta["epoch"], meta["step"], meta["history"]
 
     def forward(self, batch: dict) -> dict:
         """The model's outputs in float32; with ``fast_cpu`` computed in bfloat16, channels-last."""
@@ -217,15 +257,16 @@ class DetectorTrainer:
                 self._checkpoint()
         finally:
             writer.close()
-        save_detector(self.model, self.run_dir / "model.pt", {"config": to_dict(config)})
+        save_detector(self.model, self.run_dir / WEIGHTS_FILE, {"config": to_dict(config)})
         final = self.history[-1] if self.history else {}
         metrics = {"name": config.name, "epochs": self.epoch, "steps": self.step, "final": final, "history": self.history}
-        (self.run_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
+        atomic_write_json(self.run_dir / "metrics.json", metrics)
         return metrics
 
     def _checkpoint(self) -> None:
         def write(folder: Path) -> None:
-            torch.save({"model": self.model.state_dict(), "optimizer": self.optimizer.state_dict(), "epoch": self.epoch,
-                        "step": self.step, "history": self.history}, folder / "state.pt")
+            tensorfile.save(folder / "state.safetensors", CHECKPOINT_FORMAT,
+                            state={"model": self.model.state_dict(), "optimizer": self.optimizer.state_dict()},
+                            meta={"epoch": self.epoch, "step": self.step, "history": self.history})
 
         commit_checkpoint(self.run_dir / "checkpoints", self.epoch, write)

@@ -16,8 +16,9 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+from binpick import tensorfile
 from binpick.config import check_range
-from binpick.distributed.rollouts import RestartingActors
+from binpick.distributed.rollouts import RestartingActors, check_ray_address
 from binpick.files import atomic_write_text
 
 
@@ -56,6 +57,8 @@ class DistributedA3CConfig:
     def __post_init__(self) -> None:
         check_range("workers", self.workers, 1, 4096, integer=True)
         check_range("total_timesteps", self.total_timesteps, 1, 10**9, integer=True)
+        check_range("seed", self.seed, 0, 2**32 - 1, integer=True)
+        check_ray_address(self.address)
 
 
 def train_a3c_distributed(config: DistributedA3CConfig, out: Path | None = None, on_update=None) -> dict[str, Any]:
@@ -100,8 +103,7 @@ def train_a3c_distributed(config: DistributedA3CConfig, out: Path | None = None,
                "training_success": round(sum(successes) / max(1, len(successes)), 3),
                "final_success": evaluation.success_rate, "final_avg_actions": evaluation.mean_length}
     if out is not None:
-        out.mkdir(parents=True, exist_ok=True)
-        torch.save({"weights": model.state_dict(), "config": asdict(config)}, out / "model.pt.tmp")
-        os.replace(out / "model.pt.tmp", out / "model.pt")
+        tensorfile.save(out / "model.safetensors", "binpick-a3c-model-1", tensors=model.state_dict(),
+                        meta={"config": asdict(config), "observation_shape": list(local.observation_space.shape)})
         atomic_write_text(out / "metrics.json", json.dumps(metrics, indent=2))
     return metrics

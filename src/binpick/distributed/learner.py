@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from binpick.config import check_range
-from binpick.distributed.rollouts import DistributedRollouts, Episode
+from binpick.distributed.rollouts import DistributedRollouts, Episode, check_ray_address
 from binpick.files import atomic_write_text
 
 
@@ -38,6 +38,8 @@ class DistributedConfig:
     def __post_init__(self) -> None:
         check_range("workers", self.workers, 1, 4096, integer=True)
         check_range("total_timesteps", self.total_timesteps, 1, 10**9, integer=True)
+        check_range("seed", self.seed, 0, 2**32 - 1, integer=True)
+        check_ray_address(self.address)
         check_range("sync_every", self.sync_every, 1, 10**6, integer=True)
 
 
@@ -98,8 +100,9 @@ def train_distributed(config: DistributedConfig, out: Path | None = None,
                "wall_s": round(elapsed, 1), "env_steps_per_s_with_learning": round(stats.steps / elapsed, 1),
                "final_success": evaluation.success_rate, "final_avg_actions": evaluation.mean_length}
     if out is not None:
-        out.mkdir(parents=True, exist_ok=True)
-        model.save(out / "model.zip")
+        from binpick.rl.persistence import save_policy
+
+        save_policy(model, out / "policy.safetensors", algorithm="sac", env=config.env)
         atomic_write_text(out / "metrics.json", json.dumps(metrics, indent=2))
     local.close()
     return metrics

@@ -63,12 +63,12 @@ class Arm2DEnv(gym.Env):
         if len(link_lengths) != 3:
             raise ConfigError(f"link_lengths must have 3 entries, got {len(link_lengths)}")
         self.link_lengths = np.array(
-            [check_range(f"link_lengths[{i}]", float(v), 0.0, 1.0, low_inclusive=False) for i, v in enumerate(link_lengths)]
+            [float(check_range(f"link_lengths[{i}]", v, 0.0, 1.0, low_inclusive=False)) for i, v in enumerate(link_lengths)]
         )
         self.reach = float(self.link_lengths.sum())
-        self.tolerance = check_range("tolerance", float(tolerance), 0.0, 0.5, low_inclusive=False)
+        self.tolerance = float(check_range("tolerance", tolerance, 0.0, 0.5, low_inclusive=False))
         self.fixed_goal = np.array(
-            [check_range(f"fixed_goal[{i}]", float(v), -PLAY_HALF_WIDTH, PLAY_HALF_WIDTH) for i, v in enumerate(fixed_goal)]
+            [float(check_range(f"fixed_goal[{i}]", v, -PLAY_HALF_WIDTH, PLAY_HALF_WIDTH)) for i, v in enumerate(fixed_goal)]
         )
         if np.linalg.norm(self.fixed_goal) > 0.95 * self.reach:
             raise ConfigError(
@@ -98,7 +98,7 @@ class Arm2DEnv(gym.Env):
     # ------------------------------------------------------------------ curriculum
     def set_goal_area(self, goal_area: float) -> None:
         """Change the fraction of the play area goals are drawn from (0 = the fixed goal, 1 = all)."""
-        self.goal_area = check_range("goal_area", float(goal_area), 0.0, 1.0)
+        self.goal_area = float(check_range("goal_area", goal_area, 0.0, 1.0))
 
     def goal_region(self) -> tuple[np.ndarray, np.ndarray]:
         """Corners (low, high) of the rectangle goals are sampled from; it contains the fixed goal.

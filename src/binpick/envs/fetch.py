@@ -94,12 +94,12 @@ class FetchReachEnv(_BinpickFetchMixin, MujocoFetchReachEnv):
 
     def __init__(self, goal_offset: tuple[float, float, float] | None = None, start_noise: float = 0.0,
                  **kwargs: Any) -> None:
-        self.start_noise = check_range("start_noise", float(start_noise), 0.0, 0.15)
+        self.start_noise = float(check_range("start_noise", start_noise, 0.0, 0.15))
         self.goal_offset = None
         if goal_offset is not None:
             if len(goal_offset) != 3:
                 raise ConfigError(f"goal_offset must have 3 entries (x, y, z metres), got {len(goal_offset)}")
-            self.goal_offset = np.array([check_range(f"goal_offset[{i}]", float(v), -0.15, 0.15)
+            self.goal_offset = np.array([float(check_range(f"goal_offset[{i}]", v, -0.15, 0.15))
                                          for i, v in enumerate(goal_offset)])
         super().__init__(**kwargs)
         EzPickle.__init__(self, goal_offset=goal_offset, start_noise=start_noise, **kwargs)
@@ -128,7 +128,7 @@ class FetchReachObstacleEnv(FetchReachEnv):
     """
 
     def __init__(self, obstacle_half_size: float = 0.05, **kwargs: Any) -> None:
-        self.obstacle_half_size = check_range("obstacle_half_size", float(obstacle_half_size), 0.01, 0.1)
+        self.obstacle_half_size = float(check_range("obstacle_half_size", obstacle_half_size, 0.01, 0.1))
         super().__init__(**kwargs)
         EzPickle.__init__(self, obstacle_half_size=obstacle_half_size, **kwargs)
 

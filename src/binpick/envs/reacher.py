@@ -41,7 +41,7 @@ class GoalReacherEnv(ImageObservationMixin, ReacherEnv):
         width: int = 480,
         height: int = 480,
     ) -> None:
-        self.tolerance = check_range("tolerance", float(tolerance), 0.0, 0.2, low_inclusive=False)
+        self.tolerance = float(check_range("tolerance", tolerance, 0.0, 0.2, low_inclusive=False))
         check_image_size("width", width)
         check_image_size("height", height)
         ReacherEnv.__init__(self, render_mode=render_mode, width=width, height=height)

@@ -7,7 +7,6 @@ random walk policy"). A held-out tenth reports how well the latent predicts s̄ 
 
 from __future__ import annotations
 
-import os
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -16,7 +15,9 @@ import numpy as np
 import torch
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from binpick.errors import ConfigError
+from binpick import tensorfile
+from binpick.errors import ConfigError, InputFileError
+from binpick.files import require_fields
 from binpick.perception.autoencoder import AutoPerception, PerceptionConfig
 
 
@@ -87,22 +88,42 @@ def held_out_error(model: AutoPerception, images: np.ndarray, states: np.ndarray
     return {"state_mae": float(np.abs(predicted[:, :m] - states[:, :m]).mean())}
 
 
+FORMAT = "binpick-perception-1"
+PERCEPTION_FILE = "perception.safetensors"
+
+
+def perception_path(folder: Path) -> Path:
+    """The perception weights in a run folder: ``perception.safetensors``, or an older run's ``.pt``."""
+    folder = Path(folder)
+    legacy = folder / "perception.pt"
+    return legacy if legacy.is_file() and not (folder / PERCEPTION_FILE).is_file() else folder / PERCEPTION_FILE
+
+
 def save_perception(model: AutoPerception, path: Path) -> None:
-    """Write atomically: a crash leaves the previous file or the new one."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = path.with_suffix(path.suffix + ".tmp")
-    torch.save({"config": asdict(model.config), "image_shape": model.image_shape, "state_dim": model.state_dim,
-                "weights": model.state_dict()}, temporary)
-    os.replace(temporary, path)
+    """Weights (safetensors) and what rebuilds the network (JSON), written atomically."""
+    meta = {"config": asdict(model.config), "image_shape": list(model.image_shape), "state_dim": model.state_dim}
+    tensorfile.save(path, FORMAT, tensors=model.state_dict(), meta=meta)
 
 
 def load_perception(path: Path) -> AutoPerception:
+    """A network saved by :func:`save_perception`; older ``.pt`` files only as plain tensors."""
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"no perception checkpoint at {path}")
-    data = torch.load(path, weights_only=False)
-    model = AutoPerception(PerceptionConfig(**data["config"]), tuple(data["image_shape"]), data["state_dim"])
-    model.load_state_dict(data["weights"])
+    if not tensorfile.is_safetensors(path):  # an older binpick .pt: plain tensors only
+        data = tensorfile.load_legacy_torch(path, "perception checkpoint")
+        if not isinstance(data, dict):
+            raise InputFileError(f"perception checkpoint {str(path)!r} is damaged: not a mapping")
+        weights, meta = data.get("weights"), data
+    else:
+        weights, meta, _ = tensorfile.load(path, FORMAT, "perception checkpoint")
+    where = f"perception checkpoint {str(path)!r}"
+    require_fields({"weights": weights, **meta}, {"weights": dict, "config": dict, "image_shape": (list, tuple),
+                                                  "state_dim": int}, where)
+    try:
+        model = AutoPerception(PerceptionConfig(**meta["config"]), tuple(meta["image_shape"]), meta["state_dim"])
+        model.load_state_dict(weights)
+    except (TypeError, ValueError, RuntimeError) as error:
+        raise InputFileError(f"{where} describes no valid network ({str(error).splitlines()[0][:120]})") from None
     model.eval()
     return model

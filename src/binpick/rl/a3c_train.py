@@ -8,8 +8,6 @@ checkpoints atomically and plots. Workers run :class:`~binpick.rl.a3c.A3CWorker`
 
 from __future__ import annotations
 
-import json
-import os
 import queue
 import time
 from pathlib import Path
@@ -22,12 +20,17 @@ import yaml
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from torch.utils.tensorboard import SummaryWriter
 
-from binpick.config import to_dict
-from binpick.errors import ConfigError
+from binpick import tensorfile
+from binpick.config import load_run_config, to_dict
+from binpick.errors import ConfigError, InputFileError
+from binpick.files import atomic_write_json, read_json_object, require_fields
 from binpick.rl.a3c import A3CWorker, ActorCritic, SharedAdam, apply_gradients
-from binpick.rl.checkpoints import commit_checkpoint, latest_checkpoint, new_run_dir
+from binpick.rl.checkpoints import commit_checkpoint, latest_checkpoint, new_run_dir, removed_on_error
 from binpick.rl.config import RLConfig
 from binpick.rl.evaluate import evaluate_policy
+
+FORMAT = "binpick-a3c-checkpoint-1"
+A3C_FILE = "a3c.safetensors"
 
 
 class _SampledPolicy:
@@ -73,9 +76,9 @@ def _source_checkpoint(config: RLConfig) -> Path:
     source = Path(config.init_from)
     if not (source / "config.yaml").is_file():
         raise ConfigError(f"init_from: {str(source)!r} is not a run folder (no config.yaml)")
-    settings = yaml.safe_load((source / "config.yaml").read_text()) or {}
-    if settings.get("algorithm") != "a3c" or settings.get("env") != config.env:
-        raise ConfigError(f"init_from: run {source} is {settings.get('algorithm')} on {settings.get('env')}, "
+    settings = load_run_config(RLConfig, source)
+    if settings.algorithm != "a3c" or settings.env != config.env:
+        raise ConfigError(f"init_from: run {source} is {settings.algorithm} on {settings.env}, "
                           f"this run is a3c on {config.env}")
     checkpoint = latest_checkpoint(source / "checkpoints")
     if checkpoint is None:
@@ -109,10 +112,11 @@ class A3CTrainer:
         curriculum schedule and the budget count the single-goal steps too.
         """
         source = None if config.init_from is None else _source_checkpoint(config)
-        trainer = cls(config, new_run_dir(runs_root, config.name, yaml.safe_dump(to_dict(config), sort_keys=False)))
-        if source is not None:
-            trainer.load_checkpoint(source)
-        return trainer
+        with removed_on_error(new_run_dir(runs_root, config.name, yaml.safe_dump(to_dict(config), sort_keys=False))) as run_dir:
+            trainer = cls(config, run_dir)
+            if source is not None:
+                trainer.load_checkpoint(source)
+            return trainer
 
     @property
     def steps_done(self) -> int:
@@ -125,10 +129,9 @@ class A3CTrainer:
     # ------------------------------------------------------------------ checkpoints
     def save_checkpoint(self) -> Path:
         def write(folder: Path) -> None:
-            torch.save({"model": self.model.state_dict(), "optimizer": self.optimizer.state_dict(),
-                        "observation_shape": self.observation_shape, "env": self.config.env}, folder / "a3c.pt")
-            (folder / "state.json").write_text(json.dumps({"steps": self.steps, "metrics": self.metrics,
-                                                           "env": self.config.env}))
+            tensorfile.save(folder / A3C_FILE, FORMAT, state={"model": self.model.state_dict(), "optimizer": self.optimizer.state_dict()},
+                            meta={"observation_shape": list(self.observation_shape), "env": self.config.env})
+            atomic_write_json(folder / "state.json", {"steps": self.steps, "metrics": self.metrics, "env": self.config.env})
 
         return commit_checkpoint(self.ckpt_dir, self.steps, write)
 
@@ -136,18 +139,24 @@ class A3CTrainer:
         checkpoint = latest_checkpoint(self.ckpt_dir) if checkpoint is None else checkpoint
         if checkpoint is None:
             return
-        data = torch.load(checkpoint / "a3c.pt", weights_only=False)
-        if tuple(data["observation_shape"]) != tuple(self.observation_shape):
-            raise ConfigError(f"checkpoint {checkpoint} sees observations of shape {tuple(data['observation_shape'])}, "
+        state, meta = read_a3c_checkpoint(checkpoint)
+        if tuple(meta["observation_shape"]) != tuple(self.observation_shape):
+            raise ConfigError(f"checkpoint {checkpoint} sees observations of shape {tuple(meta['observation_shape'])}, "
                               f"this run's env gives {tuple(self.observation_shape)}")
-        self.model.load_state_dict(data["model"])
-        self.optimizer.load_state_dict(data["optimizer"])
-        for state in self.optimizer.state.values():  # load_state_dict replaces tensors: share them again
-            for value in state.values():
+        try:
+            self.model.load_state_dict(state["model"])
+            self.optimizer.load_state_dict(state["optimizer"])
+        except (RuntimeError, ValueError, KeyError) as error:
+            raise InputFileError(f"A3C checkpoint {checkpoint} does not fit this network "
+                                 f"({str(error).splitlines()[0][:120]})") from None
+        for group in self.optimizer.state.values():  # load_state_dict replaces tensors: share them again
+            for value in group.values():
                 if torch.is_tensor(value):
                     value.share_memory_()
-        state = json.loads((checkpoint / "state.json").read_text())
-        self.steps, self.metrics = state["steps"], state["metrics"]
+        progress = read_json_object(checkpoint / "state.json", "A3C checkpoint state", {"steps": int, "metrics": dict})
+        require_fields(progress["metrics"], {"evaluations": list, "episodes": int, "wall_seconds": (int, float)},
+                       f"A3C checkpoint state {str(checkpoint / 'state.json')!r}")
+        self.steps, self.metrics = progress["steps"], progress["metrics"]
 
     # ------------------------------------------------------------------ evaluation
     def evaluate(self, area: float) -> dict[str, float]:
@@ -162,6 +171,16 @@ class A3CTrainer:
     # ------------------------------------------------------------------ training
     def run(self, show_progress: bool = True) -> dict[str, Any]:
         torch.set_num_threads(1)  # the workers need the cores; evaluation is one small forward pass a step
+        if self.steps < self.config.total_timesteps:
+            self._train(show_progress)
+        evaluations = self.metrics["evaluations"]
+        if not evaluations or evaluations[-1]["sim_steps"] != self.steps:  # the final policy is always measured
+            evaluations.append(self.evaluate(self.goal_area(self.steps)))
+            self.save_checkpoint()
+        return self.write_outputs()
+
+    def _train(self, show_progress: bool) -> None:
+        """Worker processes until ``total_timesteps``, evaluating and checkpointing on the way."""
         context = mp.get_context("spawn")
         counter = context.Value("l", self.steps)
         goal_area = context.Value("d", self.goal_area(self.steps))
@@ -176,7 +195,7 @@ class A3CTrainer:
         next_eval = (self.steps // every + 1) * every
         next_save = (self.steps // save_every + 1) * save_every
         lengths: list[int] = []
-        progress = Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+        progress = Progress(TextColumn("{task.description}", style="bold", markup=False), BarColumn(), MofNCompleteColumn(),
                             TextColumn("{task.fields[status]}"), TimeElapsedColumn(), TimeRemainingColumn(),
                             disable=not show_progress)
         task = progress.add_task(self.config.name, total=self.config.total_timesteps, completed=self.steps, status="")
@@ -220,10 +239,6 @@ class A3CTrainer:
             writer.close()
         self.steps = counter.value
         self.metrics["wall_seconds"] = time.perf_counter() - started
-        final = self.evaluate(self.goal_area(self.steps))
-        self.metrics["evaluations"].append(final)
-        self.save_checkpoint()
-        return self.write_outputs()
 
     def write_outputs(self) -> dict[str, Any]:
         from binpick.viz.plots import plot_learning_curve
@@ -234,17 +249,39 @@ class A3CTrainer:
                 "final_success": last["success_rate"], "final_avg_actions": last["mean_length"],
                 "final_std_actions": last["std_length"], "wall_seconds": round(self.metrics["wall_seconds"], 1),
                 "evaluations": self.metrics["evaluations"]}
-        (self.run_dir / "metrics.json.tmp").write_text(json.dumps(data, indent=2))
-        os.replace(self.run_dir / "metrics.json.tmp", self.run_dir / "metrics.json")
+        atomic_write_json(self.run_dir / "metrics.json", data)
         plot_learning_curve(self.metrics["evaluations"], self.run_dir / "curves.png", title=self.config.name,
                             goal_areas=[e["goal_area"] for e in self.metrics["evaluations"]])
         return data
 
 
+def read_a3c_checkpoint(checkpoint: Path) -> tuple[dict[str, Any], dict[str, Any]]:
+    """``(state, meta)`` of a checkpoint folder: ``a3c.safetensors``, or an older run's ``a3c.pt`` read
+    as plain tensors only. Damage is one line naming the file."""
+    checkpoint = Path(checkpoint)
+    legacy = checkpoint / "a3c.pt"
+    if legacy.is_file() and not (checkpoint / A3C_FILE).is_file():
+        state = meta = tensorfile.load_legacy_torch(legacy, "A3C checkpoint")
+        path = legacy
+        if not isinstance(state, dict):
+            raise InputFileError(f"A3C checkpoint {str(legacy)!r} is damaged: not a mapping")
+    else:
+        path = checkpoint / A3C_FILE
+        _, meta, state = tensorfile.load(path, FORMAT, "A3C checkpoint")
+        state = state or {}
+    where = f"A3C checkpoint {str(path)!r}"
+    require_fields(meta, {"observation_shape": (list, tuple)}, where)
+    require_fields(state, {"model": dict, "optimizer": dict}, where)
+    return state, meta
+
+
 def load_a3c_policy(checkpoint: Path) -> _SampledPolicy:
     """A trained A3C actor as a policy (samples its action distribution, as it acted in training)."""
-    data = torch.load(Path(checkpoint) / "a3c.pt", weights_only=False)
-    model = ActorCritic(tuple(data["observation_shape"]), 6)
-    model.load_state_dict(data["model"])
+    state, meta = read_a3c_checkpoint(checkpoint)
+    try:
+        model = ActorCritic(tuple(int(v) for v in meta["observation_shape"]), 6)
+        model.load_state_dict(state["model"])
+    except (TypeError, ValueError, RuntimeError) as error:
+        raise InputFileError(f"A3C checkpoint {checkpoint} is damaged ({str(error).splitlines()[0][:120]})") from None
     model.eval()
     return _SampledPolicy(model)

@@ -10,10 +10,17 @@ at any moment leaves either the previous checkpoint or the new one, never half o
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
+
+from binpick.errors import InputFileError
+from binpick.files import atomic_write_text, ensure_dir, fsync_dir, read_text
+
+_NAME = re.compile(r"ckpt-\d{9}")
 
 
 def commit_checkpoint(directory: Path, steps: int, write: Callable[[Path], None]) -> Path:
@@ -22,13 +29,12 @@ def commit_checkpoint(directory: Path, steps: int, write: Callable[[Path], None]
     final = directory / f"ckpt-{steps:09d}"
     partial = directory / f".partial-{steps:09d}"
     shutil.rmtree(partial, ignore_errors=True)
-    partial.mkdir(parents=True)
+    ensure_dir(partial, "checkpoint")
     write(partial)
+    fsync_dir(partial)
     shutil.rmtree(final, ignore_errors=True)
     os.replace(partial, final)
-    pointer = directory / "latest.tmp"
-    pointer.write_text(final.name)
-    os.replace(pointer, directory / "latest")
+    atomic_write_text(directory / "latest", final.name)
     for old in directory.glob("ckpt-*"):
         if old != final:
             shutil.rmtree(old, ignore_errors=True)
@@ -36,22 +42,46 @@ def commit_checkpoint(directory: Path, steps: int, write: Callable[[Path], None]
 
 
 def latest_checkpoint(directory: Path) -> Path | None:
-    """The folder ``latest`` names, or None before the first checkpoint."""
+    """The folder ``latest`` names, or None before the first checkpoint; a damaged pointer is one line."""
     pointer = Path(directory) / "latest"
-    return Path(directory) / pointer.read_text().strip() if pointer.exists() else None
+    if not pointer.exists():
+        return None
+    name = read_text(pointer, "checkpoint pointer").strip()
+    if not _NAME.fullmatch(name):
+        raise InputFileError(f"checkpoint pointer {str(pointer)!r} is damaged: it names {name[:40]!r}, "
+                             "not a checkpoint folder (ckpt-<steps>)")
+    folder = Path(directory) / name
+    if not folder.is_dir():
+        raise InputFileError(f"checkpoint pointer {str(pointer)!r} names {name}, which does not exist: "
+                             "the run folder was damaged (delete the pointer to restart from zero)")
+    return folder
 
 
 def new_run_dir(runs_root: Path, name: str, config_yaml: str) -> Path:
     """``runs_root/name/<YYYYmmdd-HHMMSS>[-k]/`` holding ``config.yaml``: everything to re-run it."""
     stamp = time.strftime("%Y%m%d-%H%M%S")
-    base = Path(runs_root) / name
-    base.mkdir(parents=True, exist_ok=True)
+    base = ensure_dir(Path(runs_root) / name, "runs folder")
     for attempt in range(1000):
         run_dir = base / (stamp if attempt == 0 else f"{stamp}-{attempt}")
         try:
             run_dir.mkdir()
         except FileExistsError:
             continue
-        (run_dir / "config.yaml").write_text(config_yaml)
+        atomic_write_text(run_dir / "config.yaml", config_yaml)
         return run_dir
     raise RuntimeError(f"could not create a new run folder under {base}")
+
+
+@contextmanager
+def removed_on_error(run_dir: Path) -> Iterator[Path]:
+    """A new run folder that is deleted again if setting the run up fails (a bad env parameter, a
+    damaged ``init_from`` run): failed starts leave no empty folders behind."""
+    try:
+        yield run_dir
+    except BaseException:
+        shutil.rmtree(run_dir, ignore_errors=True)
+        try:
+            run_dir.parent.rmdir()  # runs/<name>/ too, if this was its only run
+        except OSError:
+            pass
+        raise

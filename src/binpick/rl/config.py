@@ -14,6 +14,7 @@ from binpick.config import check_range, from_dict, load_yaml
 from binpick.errors import ConfigError
 
 ALGORITHMS = ("sac", "sb3_sac_her", "a3c", "dqn")
+MAX_SEED = 2**32 - 1  # NumPy's legacy seeding (used by SB3) takes 32-bit seeds
 
 
 @dataclass
@@ -244,6 +245,7 @@ class RLConfig:
 
         self.env = resolve_env_id(self.env)
         check_range("total_timesteps", self.total_timesteps, 1, 100_000_000, integer=True)
+        check_range("seed", self.seed, 0, MAX_SEED, integer=True)
         check_range("checkpoint_every", self.checkpoint_every, 1, None, integer=True)
         if self.min_action_scale is not None:
             check_range("min_action_scale", self.min_action_scale, 0.0, 1.0)

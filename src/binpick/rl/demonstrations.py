@@ -58,6 +58,17 @@ class DemonstrationSet:
     def __len__(self) -> int:
         return len(self.actions)
 
+    def arrays(self) -> dict[str, np.ndarray]:
+        """What a checkpoint stores (``from_arrays`` rebuilds the set)."""
+        return {key: getattr(self, key) for key in ("observation", "achieved_goal", "desired_goal", "actions")}
+
+    @classmethod
+    def from_arrays(cls, arrays: dict[str, np.ndarray]) -> DemonstrationSet:
+        demonstrations = cls.__new__(cls)
+        for key in ("observation", "achieved_goal", "desired_goal", "actions"):
+            setattr(demonstrations, key, np.asarray(arrays[key], np.float32))
+        return demonstrations
+
     def sample(self, rng: np.random.Generator, batch_size: int) -> tuple[dict[str, np.ndarray], np.ndarray]:
         batch = rng.integers(0, len(self), size=min(batch_size, len(self)))
         return ({"observation": self.observation[batch], "achieved_goal": self.achieved_goal[batch],

@@ -20,7 +20,10 @@ import gpytorch
 import numpy as np
 import torch
 
+from binpick import tensorfile
 from binpick.config import check_range
+from binpick.errors import InputFileError
+from binpick.files import require_fields
 
 
 class _IndependentGPs(gpytorch.models.ExactGP):
@@ -143,23 +146,35 @@ class GPDynamics:
         delta = mean + np.sqrt(variance) * rng.standard_normal(mean.shape) if stochastic else mean
         return states + delta
 
+    FORMAT = "binpick-gp-dynamics-1"
+
     def save(self, path: str | Path) -> None:
+        """The fitted GP as safetensors (hyper-parameters, training points, standardisation) + JSON settings."""
         if self.model is None:
             raise RuntimeError("nothing to save: the GP is not fitted")
-        torch.save({"state": self.model.state_dict(), "likelihood": self.likelihood.state_dict(),
-                    "train_x": self.model.train_inputs[0], "train_y": self.model.train_targets,
-                    "norm": (self._x_mean, self._x_std, self._y_mean, self._y_std),
-                    "settings": (self.max_points, self.iterations, self.learning_rate, self.seed)}, path)
+        state = {"model": self.model.state_dict(), "likelihood": self.likelihood.state_dict(),
+                 "train_x": self.model.train_inputs[0], "train_y": self.model.train_targets,
+                 "norm": [np.asarray(v) for v in (self._x_mean, self._x_std, self._y_mean, self._y_std)]}
+        settings = {"max_points": self.max_points, "iterations": self.iterations, "learning_rate": self.learning_rate,
+                    "seed": self.seed}
+        tensorfile.save(path, self.FORMAT, state=state, meta={"settings": settings})
 
     @classmethod
     def load(cls, path: str | Path) -> GPDynamics:
-        data = torch.load(path, weights_only=False)
-        gp = cls(*data["settings"])
-        gp._x_mean, gp._x_std, gp._y_mean, gp._y_std = data["norm"]
-        gp.likelihood = gpytorch.likelihoods.MultitaskGaussianLikelihood(num_tasks=data["train_y"].shape[-1])
-        gp.model = _IndependentGPs(data["train_x"], data["train_y"], gp.likelihood)
-        gp.model.load_state_dict(data["state"])
-        gp.likelihood.load_state_dict(data["likelihood"])
+        _, meta, state = tensorfile.load(path, cls.FORMAT, "GP dynamics model")
+        where = f"GP dynamics model {str(path)!r}"
+        require_fields(meta, {"settings": dict}, where)
+        require_fields(state or {}, {"model": dict, "likelihood": dict, "train_x": torch.Tensor, "train_y": torch.Tensor,
+                                     "norm": list}, where)
+        try:
+            gp = cls(**meta["settings"])
+            gp._x_mean, gp._x_std, gp._y_mean, gp._y_std = state["norm"]
+            gp.likelihood = gpytorch.likelihoods.MultitaskGaussianLikelihood(num_tasks=state["train_y"].shape[-1])
+            gp.model = _IndependentGPs(state["train_x"], state["train_y"], gp.likelihood)
+            gp.model.load_state_dict(state["model"])
+            gp.likelihood.load_state_dict(state["likelihood"])
+        except (TypeError, ValueError, RuntimeError, IndexError) as error:
+            raise InputFileError(f"{where} is damaged ({str(error).splitlines()[0][:120]})") from None
         gp.model.eval()
         gp.likelihood.eval()
         gp._cache_posterior()

@@ -235,24 +235,46 @@ class EpisodeReplayBuffer(DictReplayBuffer):
             rewards=self.to_torch(self._normalize_reward(batch["rewards"].reshape(-1, 1), env)),
         )
 
-    def __getstate__(self) -> dict[str, Any]:
-        """Pickle only the slots in use: an M = 10^6 buffer is GBs when full but small at first."""
-        state = self.__dict__.copy()
-        used = self._stored
-        for key in ("_obs", "_ag", "_dg", "_actions", "_lengths", "_origin"):
-            state[key] = state[key][:used].copy()
-        state["_cumulative"] = None
-        return state
+    # ------------------------------------------------------------------ saving (no pickle)
+    _ARRAYS = ("_obs", "_ag", "_dg", "_actions", "_lengths", "_origin")
+    _SETTINGS = ("M", "T", "her_additions", "start_fraction", "her_min_motion")
 
-    def __setstate__(self, state: dict[str, Any]) -> None:
-        state.setdefault("her_min_motion", 0.0)  # buffers pickled before the option existed
-        used = state["_stored"]
-        for key in ("_obs", "_ag", "_dg", "_actions", "_lengths", "_origin"):
-            stored = state[key]
-            full = np.zeros((state["M"], *stored.shape[1:]), stored.dtype)
-            full[:used] = stored
-            state[key] = full
-        self.__dict__.update(state)
+    def state_arrays(self) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """The used slots as arrays and the counters, random state and settings as JSON data: an
+        M = 10^6 buffer is GBs when full but small at first, so only what is stored is written."""
+        used = self._stored
+        arrays = {key.lstrip("_"): getattr(self, key)[:used] for key in self._ARRAYS}
+        counters = {"next": self._next, "stored": self._stored, "added": dict(self.added),
+                    "added_when_ready": self.added_when_ready, "real_transitions": self.real_transitions,
+                    "rng": self.rng.bit_generator.state, "settings": {k: getattr(self, k) for k in self._SETTINGS}}
+        return arrays, counters
+
+    def load_state_arrays(self, arrays: dict[str, np.ndarray], counters: dict[str, Any]) -> None:
+        """Refill a buffer built with the same settings from :meth:`state_arrays`. Episodes that were
+        still open are dropped: a resumed run starts new ones."""
+        settings = counters["settings"]
+        differ = [k for k in self._SETTINGS if settings.get(k) != getattr(self, k)]
+        if differ:
+            raise ValueError(f"{differ[0]} was {settings.get(differ[0])!r}, this buffer has {getattr(self, differ[0])!r}")
+        used = int(counters["stored"])
+        if not 0 <= used <= self.M or not 0 <= int(counters["next"]) < self.M:
+            raise ValueError(f"{used} stored episodes do not fit M = {self.M}")
+        for key in self._ARRAYS:
+            values = arrays[key.lstrip("_")]
+            target = getattr(self, key)
+            if values.shape != (used, *target.shape[1:]):
+                raise ValueError(f"{key.lstrip('_')} has shape {values.shape}, expected {(used, *target.shape[1:])}")
+            target[:used] = values
+        if np.any(self._lengths[:used] < 1) or np.any(self._lengths[:used] > self.T):
+            raise ValueError("episode lengths out of range")
+        self._next, self._stored = int(counters["next"]), used
+        self.added = {origin: int(counters["added"][origin]) for origin in self.ORIGINS}
+        ready = counters["added_when_ready"]
+        self.added_when_ready = None if ready is None else {origin: int(ready[origin]) for origin in self.ORIGINS}
+        self.real_transitions = int(counters["real_transitions"])
+        self.rng.bit_generator.state = counters["rng"]
+        self._cumulative = None
+        self._open = [self._empty_episode() for _ in range(self.n_envs)]
 
     @staticmethod
     def _empty_episode() -> dict[str, list]:

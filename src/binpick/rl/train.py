@@ -7,15 +7,13 @@ Run folder ``runs/<name>/<timestamp>/``: ``config.yaml``, ``tb/`` (TensorBoard),
 
 from __future__ import annotations
 
-import json
-import os
-import pickle
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
+import numpy as np
 import torch
 import yaml
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
@@ -25,12 +23,15 @@ from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 
 from binpick.config import load_run_config, to_dict
 from binpick.envs import make
-from binpick.errors import ConfigError
+from binpick.errors import ConfigError, InputFileError
+from binpick.files import atomic_write, atomic_write_json, read_json_object, read_npz, require_fields
 from binpick.rl.agents import GoalSAC, GPImagination
-from binpick.rl.checkpoints import commit_checkpoint, latest_checkpoint, new_run_dir
+from binpick.rl.checkpoints import commit_checkpoint, latest_checkpoint, new_run_dir, removed_on_error
 from binpick.rl.config import RLConfig
 from binpick.rl.dynamics import GPDynamics
 from binpick.rl.evaluate import evaluate_policy
+from binpick.rl.persistence import (load_algorithm, load_replay, load_saved_policy, save_algorithm, save_policy,
+                                    save_replay)
 from binpick.rl.replay import EpisodeReplayBuffer
 from binpick.rl.wrappers import MinActionScale, SemanticState, needs_gripper
 
@@ -174,7 +175,7 @@ class Checkpoint(BaseCallback):
 class RichProgress(BaseCallback):
     def __init__(self, total: int, start: int, label: str) -> None:
         super().__init__()
-        self.progress = Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+        self.progress = Progress(TextColumn("{task.description}", style="bold", markup=False), BarColumn(), MofNCompleteColumn(),
                                  TimeElapsedColumn(), TimeRemainingColumn())
         self.task = self.progress.add_task(label, total=total, completed=start)
 
@@ -196,6 +197,7 @@ class Trainer:
         self.config, self.run_dir = config, Path(run_dir)
         self.ckpt_dir = self.run_dir / "checkpoints"
         self.metrics = Metrics()
+        self._started: float | None = None  # perf_counter() minus the wall time of earlier sessions
         self.env = make_env(config)
         self.model = build_model(config, self.env, str(self.run_dir / "tb"))
         self.gp = None
@@ -212,7 +214,8 @@ class Trainer:
     # ------------------------------------------------------------------ construction
     @classmethod
     def new(cls, config: RLConfig, runs_root: Path = Path("runs")) -> Trainer:
-        return cls(config, new_run_dir(runs_root, config.name, yaml.safe_dump(to_dict(config), sort_keys=False)))
+        with removed_on_error(new_run_dir(runs_root, config.name, yaml.safe_dump(to_dict(config), sort_keys=False))) as run_dir:
+            return cls(config, run_dir)
 
     @classmethod
     def resume(cls, run_dir: Path) -> Trainer:
@@ -224,16 +227,23 @@ class Trainer:
 
     # ------------------------------------------------------------------ checkpoints
     def save_checkpoint(self) -> Path:
+        """Everything a resume needs, in files that hold no code (see :mod:`binpick.rl.persistence`)."""
+        if self._started is not None:  # wall time carries over resumes
+            self.metrics.wall_seconds = time.perf_counter() - self._started
+
         def write(folder: Path) -> None:
-            self.model.save(folder / "model.zip", exclude=["replay_buffer"])
+            save_algorithm(self.model, folder / ALGORITHM_FILE)
+            save_policy(self.model, folder / POLICY_FILE, algorithm=self.config.algorithm, env=self.config.env)
             if self.config.algorithm != "dqn":  # an image replay is GBs: a resumed DQN refills its replay
-                with open(folder / "replay.pkl", "wb") as handle:
-                    pickle.dump(self.model.replay_buffer, handle, protocol=pickle.HIGHEST_PROTOCOL)
+                save_replay(self.model.replay_buffer, folder)
+            demonstrations = getattr(self.model, "demonstrations", None)
+            if demonstrations is not None:
+                atomic_write(folder / "demonstrations.npz", lambda handle: np.savez(handle, **demonstrations.arrays()))
             state = {"metrics": self.metrics.__dict__, "env": self.config.env,
                      "num_timesteps": int(self.model.num_timesteps), "gp": self.gp.state() if self.gp else None}
-            (folder / "state.json").write_text(json.dumps(state))
+            atomic_write_json(folder / "state.json", state, indent=None)
             if self.gp is not None and self.gp.dynamics.fitted:
-                self.gp.dynamics.save(folder / "gp.pt")
+                self.gp.dynamics.save(folder / "gp.safetensors")
 
         return commit_checkpoint(self.ckpt_dir, int(self.model.num_timesteps), write)
 
@@ -241,20 +251,40 @@ class Trainer:
         checkpoint = latest_checkpoint(self.ckpt_dir)
         if checkpoint is None:
             return  # crashed before the first checkpoint: start again from zero
-        state = json.loads((checkpoint / "state.json").read_text())
-        model_class = MODEL_CLASSES[self.config.algorithm]
-        self.model = model_class.load(checkpoint / "model.zip", env=self.env, device="cpu",
-                                      tensorboard_log=str(self.run_dir / "tb"))
-        if (checkpoint / "replay.pkl").exists():
-            with open(checkpoint / "replay.pkl", "rb") as handle:
-                self.model.replay_buffer = pickle.load(handle)
-        if self.config.algorithm == "sb3_sac_her":
-            self.model.replay_buffer.set_env(self.model.get_env())
-        self.metrics = Metrics(**state["metrics"])
-        if self.gp is not None and state["gp"] is not None:
-            if (checkpoint / "gp.pt").exists():
-                self.gp.dynamics = GPDynamics.load(checkpoint / "gp.pt")
-            self.gp.restore(state["gp"])
+        if not (checkpoint / ALGORITHM_FILE).is_file() and (checkpoint / "model.zip").is_file():
+            raise InputFileError(f"checkpoint {checkpoint} was written by an older binpick (model.zip, replay.pkl), whose "
+                                 "pickles can run code when loaded: binpick no longer reads them; start the run again")
+        where = f"RL checkpoint state {str(checkpoint / 'state.json')!r}"
+        state = read_json_object(checkpoint / "state.json", "RL checkpoint state", {"metrics": dict, "num_timesteps": int})
+        load_algorithm(self.model, checkpoint / ALGORITHM_FILE)
+        if self.config.algorithm != "dqn":
+            load_replay(self.model.replay_buffer, checkpoint)
+        try:
+            self.metrics = Metrics(**state["metrics"])
+        except TypeError as error:
+            raise InputFileError(f"{where} is damaged ({error})") from None
+        require_fields(self.metrics.__dict__, {"evaluations": list, "wall_seconds": (int, float)}, where)
+        if (checkpoint / "demonstrations.npz").is_file():
+            self._restore_demonstrations(checkpoint / "demonstrations.npz")
+        if self.gp is not None and state.get("gp") is not None:
+            if (checkpoint / "gp.safetensors").is_file():  # else: refitted at the next step
+                self.gp.dynamics = GPDynamics.load(checkpoint / "gp.safetensors")
+            try:
+                self.gp.restore(state["gp"])
+            except (KeyError, TypeError) as error:
+                raise InputFileError(f"{where} is damaged: GP schedule {error}") from None
+
+    def _restore_demonstrations(self, path: Path) -> None:
+        """Pick and place keeps cloning its demonstrations while SAC learns (§4.5.3): they resume too."""
+        from binpick.rl.demonstrations import DemonstrationSet
+
+        demos = self.config.demonstrations
+        try:
+            self.model.demonstrations = DemonstrationSet.from_arrays(read_npz(path, "demonstrations"))
+        except KeyError as error:
+            raise InputFileError(f"demonstrations {str(path)!r} are damaged: no {error}") from None
+        self.model.bc_alpha, self.model.bc_likelihood_weight, self.model.bc_q_filter = (demos.bc_alpha, demos.likelihood_weight,
+                                                                                       demos.q_filter)
 
     # ------------------------------------------------------------------ training
     def learn_from_demonstrations(self) -> None:
@@ -281,7 +311,7 @@ class Trainer:
     def run(self, show_progress: bool = True) -> dict[str, Any]:
         torch.set_num_threads(1)  # small networks: threads cost more than they give on 2 cores
         remaining = 0 if stopped_early(self.config, self.metrics) else self.config.total_timesteps - int(self.model.num_timesteps)
-        started = time.perf_counter() - self.metrics.wall_seconds
+        self._started = time.perf_counter() - self.metrics.wall_seconds
         evaluator = Evaluate(self.config, self.metrics)
         callbacks: list[BaseCallback] = [evaluator, Checkpoint(self)]
         if self.gp is not None:
@@ -299,17 +329,22 @@ class Trainer:
                              tb_log_name=self.config.algorithm, log_interval=10)
         evaluated = [e["sim_steps"] for e in self.metrics.evaluations]
         if not evaluated or evaluated[-1] != self.model.num_timesteps:  # the final policy is always measured
+            self._ensure_logger()
             evaluator.init_callback(self.model)
             evaluator.evaluate()
-        self.metrics.wall_seconds = time.perf_counter() - started
         self.save_checkpoint()
         return self.write_outputs()
 
+    def _ensure_logger(self) -> None:
+        """SB3 makes a model's logger in learn(); a run resumed after its last step never calls it."""
+        if getattr(self.model, "_logger", None) is None:
+            from stable_baselines3.common.utils import configure_logger
+
+            self.model.set_logger(configure_logger(0, str(self.run_dir / "tb"), self.config.algorithm, False))
+
     def write_outputs(self) -> dict[str, Any]:
         data = self.metrics.to_dict(self.config, self.model, self.gp)
-        tmp = self.run_dir / "metrics.json.tmp"
-        tmp.write_text(json.dumps(data, indent=2))
-        os.replace(tmp, self.run_dir / "metrics.json")
+        atomic_write_json(self.run_dir / "metrics.json", data)
         from binpick.viz.plots import plot_learning_curve
 
         plot_learning_curve(self.metrics.evaluations, self.run_dir / "curves.png", title=self.config.name,
@@ -317,7 +352,8 @@ class Trainer:
         return data
 
 
-MODEL_CLASSES = {"sac": GoalSAC, "sb3_sac_her": SAC, "dqn": DQN}
+ALGORITHM_FILE = "algorithm.safetensors"
+POLICY_FILE = "policy.safetensors"
 
 
 def trainer_for(config: RLConfig | None = None, runs_root: Path = Path("runs"), resume: Path | None = None):
@@ -353,6 +389,7 @@ def load_policy(run_dir: Path, env_id: str | None = None):
         from binpick.rl.a3c_train import load_a3c_policy
 
         return load_a3c_policy(checkpoint), config
-    model = MODEL_CLASSES[config.algorithm].load(checkpoint / "model.zip", device="cpu")
-    return model, config
-
+    if not (checkpoint / POLICY_FILE).is_file():
+        raise InputFileError(f"run {run_dir} has no {POLICY_FILE} in its latest checkpoint (older runs saved SB3 zips, "
+                             "which binpick no longer loads because they can run code)")
+    return load_saved_policy(checkpoint / POLICY_FILE), config

@@ -45,3 +45,55 @@ def local_ros_environment(master_uri: str, home: str | None = None) -> dict[str,
     if home:
         environment |= {"ROS_HOME": home, "ROS_LOG_DIR": os.path.join(home, "log")}
     return environment
+
+
+def master_uri() -> str:
+    """The master this process's nodes use: ``$ROS_MASTER_URI``, or ROS's default."""
+    return os.environ.get("ROS_MASTER_URI") or "http://localhost:11311/"
+
+
+def check_master_uri(uri: str) -> str:
+    """``http://HOST:PORT/`` with a port in 1..65535; anything else is one line."""
+    from urllib.parse import urlsplit
+
+    from binpick.errors import ConfigError
+
+    try:
+        parts = urlsplit(uri)
+        port = parts.port
+    except ValueError:
+        parts, port = None, None
+    if parts is None or parts.scheme != "http" or not parts.hostname or port is None or not 1 <= port <= 65535:
+        raise ConfigError(f"ROS master URI must look like http://HOST:PORT/ (port 1-65535), got {uri!r}")
+    return uri
+
+
+def wait_for_master(uri: str, timeout: float) -> None:
+    """Return once the master at ``uri`` answers; otherwise one line after ``timeout`` seconds.
+
+    rospy itself retries an absent master forever (``init_node`` blocks), so every binpick node
+    asks first."""
+    import socket
+    import time
+    import xmlrpc.client
+
+    check_master_uri(uri)
+    deadline = time.monotonic() + timeout
+    reason = "no answer"
+    while True:
+        remaining = deadline - time.monotonic()
+        if remaining <= 0:
+            raise BinpickError(f"no ROS master answered at {uri} within {timeout:g} s ({reason}): start one with "
+                               "`binpick ros master` or `roscore`, or give --master")
+        previous = socket.getdefaulttimeout()
+        socket.setdefaulttimeout(max(0.1, min(remaining, 2.0)))
+        try:
+            code, _, _ = xmlrpc.client.ServerProxy(uri).getPid("/binpick")
+            if code == 1:
+                return
+            reason = f"getPid answered code {code}"
+        except (OSError, xmlrpc.client.Error) as error:
+            reason = getattr(error, "strerror", None) or type(error).__name__
+        finally:
+            socket.setdefaulttimeout(previous)
+        time.sleep(min(0.2, max(0.0, deadline - time.monotonic())))

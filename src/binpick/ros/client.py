@@ -18,27 +18,19 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from binpick.envs.spaces import build_space
 from binpick.errors import BinpickError
-from binpick.ros import require_ros
+from binpick.ros import master_uri, require_ros, wait_for_master
 from binpick.ros.messages import env_action_types
 
 
-def build_space(description: Any) -> gym.Space:
-    """The inverse of :func:`binpick.ros.server.describe_space`."""
-    if "shape" in description:
-        low = np.array(description["low"], dtype=np.float64)
-        high = np.array(description["high"], dtype=np.float64)
-        low[low <= -1e30], high[high >= 1e30] = -np.inf, np.inf
-        dtype = np.dtype(description["dtype"])
-        return gym.spaces.Box(low.astype(dtype), high.astype(dtype), shape=tuple(description["shape"]), dtype=dtype)
-    return gym.spaces.Dict({key: build_space(sub) for key, sub in description.items()})
-
-
-def init_node_once(name: str = "binpick_client") -> None:
-    """rospy allows one node per process: start it the first time a client needs it."""
+def init_node_once(name: str = "binpick_client", timeout: float = 10.0) -> None:
+    """rospy allows one node per process: start it the first time a client needs it, once the master
+    answers (rospy alone would wait for an absent master forever)."""
     import rospy
 
     if not rospy.core.is_initialized():
+        wait_for_master(master_uri(), timeout)
         rospy.init_node(name, anonymous=True, disable_signals=True)
 
 
@@ -50,7 +42,7 @@ class RosEnv(gym.Env):
         import actionlib
         import rospy
 
-        init_node_once()
+        init_node_once(timeout=timeout)
         self.namespace, self.timeout = namespace.rstrip("/"), timeout
         deadline = time.monotonic() + timeout
         while not rospy.has_param(f"{self.namespace}/description"):

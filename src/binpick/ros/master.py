@@ -21,6 +21,17 @@ def free_port() -> int:
         return probe.getsockname()[1]
 
 
+def _die_with_parent() -> None:
+    """In the child before exec: Linux sends it SIGTERM when the process that started it dies, even
+    by ``kill -9``, so a master never outlives the command that owns it."""
+    try:
+        import ctypes
+
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass  # not Linux: SIGTERM/Ctrl-C of the owner still stops the master (see stop())
+
+
 class RosMaster:
     """``with RosMaster() as master:`` runs a master on a free port; ``master.uri`` names it."""
 
@@ -32,7 +43,7 @@ class RosMaster:
         self.environment = {**os.environ, **local_ros_environment(self.uri, self.home)}
         self.process = subprocess.Popen([sys.executable, "-c", "import rosmaster; rosmaster.rosmaster_main()", "--core",
                                          "-p", str(self.port), "-w", "2"], env=self.environment,
-                                        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+                                        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, preexec_fn=_die_with_parent)
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             if self.process.poll() is not None:

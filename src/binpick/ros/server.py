@@ -14,18 +14,9 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from binpick.ros import require_ros
+from binpick.envs.spaces import describe_space
+from binpick.ros import master_uri, require_ros, wait_for_master
 from binpick.ros.messages import env_action_types
-
-
-def describe_space(space: gym.Space) -> Any:
-    """A Box or a Dict of Boxes as JSON-able data (inverse: :func:`binpick.ros.client.build_space`)."""
-    if isinstance(space, gym.spaces.Dict):
-        return {key: describe_space(sub) for key, sub in space.spaces.items()}
-    if isinstance(space, gym.spaces.Box):
-        return {"shape": list(space.shape), "low": np.nan_to_num(space.low, posinf=1e30, neginf=-1e30).tolist(),
-                "high": np.nan_to_num(space.high, posinf=1e30, neginf=-1e30).tolist(), "dtype": str(space.dtype)}
-    raise TypeError(f"the ROS bridge carries Box and Dict-of-Box spaces, not {type(space).__name__}")
 
 
 def _jsonable(value: Any) -> Any:
@@ -94,13 +85,16 @@ class EnvActionServer:
         self.server.stop()  # before rospy shuts down, or its status timer outlives the node
 
 
-def serve(env_id: str, namespace: str, node_name: str = "binpick_env_server", **env_kwargs) -> None:
-    """Run a server node until ROS shuts down (Ctrl-C or SIGTERM)."""
+def serve(env_id: str, namespace: str, node_name: str = "binpick_env_server", master_timeout: float = 10.0,
+          **env_kwargs) -> None:
+    """Run a server node until ROS shuts down (Ctrl-C or SIGTERM); fails in one line when no master
+    answers within ``master_timeout`` seconds."""
     require_ros()
     import rospy
 
     from binpick.envs import make
 
+    wait_for_master(master_uri(), master_timeout)
     env = make(env_id, **env_kwargs)
     rospy.init_node(node_name, anonymous=True, disable_signals=False)
     server = EnvActionServer(env, namespace)

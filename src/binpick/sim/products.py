@@ -21,7 +21,9 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from binpick.config import check_range
 from binpick.errors import ConfigError
+from binpick.files import read_text
 from binpick.sim.mjcf_mesh import merged_obj
 
 
@@ -190,10 +192,11 @@ def load_products(path: str | Path, library: ProductLibrary | None = None) -> Pr
     Paths are relative to the YAML file. Each mesh is checked by compiling it in MuJoCo, so a bad one
     is reported with its file name here rather than in the middle of data generation."""
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise ConfigError(f"products file {str(path)!r} does not exist")
+    text = read_text(path, "products file")
     try:
-        data = yaml.safe_load(path.read_text()) or {}
+        data = yaml.safe_load(text) or {}
     except yaml.YAMLError as error:
         raise ConfigError(f"{path}: not valid YAML ({str(error).splitlines()[0]})") from None
     entries = data.get("products") if isinstance(data, dict) else None
@@ -208,19 +211,28 @@ def load_products(path: str | Path, library: ProductLibrary | None = None) -> Pr
         extra = sorted(set(entry) - allowed)
         if extra:
             raise ConfigError(f"{where} has no key {extra[0]!r} (allowed: {', '.join(sorted(allowed))})")
+        for key in ("mesh", "texture", "photo"):
+            if key in entry and not isinstance(entry[key], str):
+                raise ConfigError(f"{where}.{key} must be a file name, got {entry[key]!r}")
         mesh = (path.parent / entry["mesh"]).resolve()
         if not mesh.is_file():
             raise ConfigError(f"{where}: mesh file {str(mesh)!r} does not exist")
-        scale = float(entry.get("scale", 1.0))
+        scale = check_range(f"{where}.scale", entry.get("scale", 1.0), 0.0, 1000.0, low_inclusive=False)
         if "longest_side" in entry:
-            scale = float(entry["longest_side"]) / float(mesh_extent(mesh).max())
+            longest = check_range(f"{where}.longest_side", entry["longest_side"], 0.005, 0.5)
+            scale = longest / float(mesh_extent(mesh).max())
         optional = {key: (path.parent / entry[key]).resolve() for key in ("texture", "photo") if entry.get(key)}
         for key, file in optional.items():
             if not file.is_file():
                 raise ConfigError(f"{where}: {key} file {str(file)!r} does not exist")
+        rgba = entry.get("rgba", (0.8, 0.8, 0.8, 1.0))
+        if not isinstance(rgba, (list, tuple)) or len(rgba) != 4:
+            raise ConfigError(f"{where}.rgba must be 4 numbers in [0, 1], got {rgba!r}")
+        rgba = tuple(check_range(f"{where}.rgba[{i}]", v, 0.0, 1.0) for i, v in enumerate(rgba))
         product = Product(str(entry["id"]), str(entry["category"]), mesh=mesh, scale=scale,
-                          mass=float(entry.get("mass", 0.15)), friction=float(entry.get("friction", 1.0)),
-                          rgba=tuple(entry.get("rgba", (0.8, 0.8, 0.8, 1.0))), **optional)
+                          mass=check_range(f"{where}.mass", entry.get("mass", 0.15), 0.001, 100.0),
+                          friction=check_range(f"{where}.friction", entry.get("friction", 1.0), 0.0, 10.0),
+                          rgba=rgba, **optional)
         check_product_compiles(product)
         library.add(product)
     return library

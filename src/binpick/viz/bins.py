@@ -7,6 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
+from binpick.errors import InputFileError
+
 COLOURS = {"pickable": (40, 200, 60), "unpickable": (230, 40, 40), "query": (40, 90, 255), "other": (150, 150, 150)}
 
 
@@ -24,7 +26,12 @@ def draw_boxes(image: np.ndarray, boxes: list[tuple[tuple[float, float, float, f
 def labelled_scene(data_dir: Path, record: dict, policy: str | None) -> np.ndarray:
     from PIL import Image
 
-    image = np.asarray(Image.open(Path(data_dir) / record["file_name"]).convert("RGB"))
+    path = Path(data_dir) / record["file_name"]
+    try:
+        with Image.open(path) as opened:
+            image = np.asarray(opened.convert("RGB"))
+    except (OSError, ValueError) as error:
+        raise InputFileError(f"cannot read scene image {str(path)!r} ({type(error).__name__}): regenerate the data set") from None
     boxes = []
     for a in sorted(record["annotations"], key=lambda a: a["is_query"]):  # the query on top
         if a["is_query"]:

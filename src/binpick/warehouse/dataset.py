@@ -29,8 +29,8 @@ from typing import Any
 
 import numpy as np
 
-from binpick.errors import ConfigError
-from binpick.files import atomic_write_text
+from binpick.errors import ConfigError, InputFileError
+from binpick.files import atomic_write, atomic_write_text, read_json_object, require_fields
 from binpick.sim.products import ProductLibrary, default_library, load_products
 
 FORMAT = "binpick-bins-1"
@@ -124,11 +124,8 @@ def prepare_output(config: GenerateConfig, library: ProductLibrary) -> Path:
     if out.is_dir() and any(out.iterdir()):
         if not manifest.is_file():
             raise ConfigError(f"output folder {str(out)!r} is not empty and is not a binpick data set; choose another")
-        try:
-            existing = json.loads(manifest.read_text())
-        except (OSError, json.JSONDecodeError):
-            raise ConfigError(f"{manifest} is corrupt (not JSON): remove the folder or choose another") from None
-        stored = {**GenerateConfig(out="").comparable(), **existing.get("config", {})}  # settings added later: defaults
+        existing = open_dataset(out)
+        stored = {**GenerateConfig(out="").comparable(), **existing["config"]}  # settings added later: defaults
         if existing.get("format") != FORMAT or stored != config.comparable():
             raise ConfigError(f"{str(out)!r} holds a data set made with other settings; choose another folder")
         return out
@@ -149,9 +146,8 @@ def _write_json(path: Path, data: Any) -> None:
 def _write_png(path: Path, array: np.ndarray) -> None:
     from PIL import Image
 
-    temporary = path.with_name(path.stem + ".tmp.png")
-    Image.fromarray(array).save(temporary, compress_level=1)  # fast; PNG stays lossless
-    os.replace(temporary, path)
+    # fast compression; PNG stays lossless
+    atomic_write(path, lambda handle: Image.fromarray(array).save(handle, format="PNG", compress_level=1))
 
 
 # ---------------------------------------------------------------------- what each world holds
@@ -246,8 +242,11 @@ def generate(config: GenerateConfig, show_progress: bool = True) -> dict[str, An
     library = build_library(config)
     out = prepare_output(config, library)
     done = len(list((out / "scenes").glob("*.json")))
+    if done > config.scenes:
+        raise ConfigError(f"{str(out)!r} already holds {done} scenes, more than --scenes {config.scenes}: nothing to "
+                          f"generate (give --scenes {done} or more to add to it, or another --out)")
     worlds = range(-(-config.scenes // config.scenes_per_world))
-    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+    with Progress(TextColumn("{task.description}", style="bold", markup=False), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                   TimeRemainingColumn(), disable=not show_progress) as progress:
         task = progress.add_task("scenes", total=config.scenes, completed=min(done, config.scenes))
         if config.workers == 1:
@@ -292,13 +291,38 @@ def open_dataset(data: Path) -> dict[str, Any]:
     manifest = Path(data) / "dataset.json"
     if not manifest.is_file():
         raise ConfigError(f"{str(data)!r} is not a binpick data set (no dataset.json)")
-    try:
-        content = json.loads(manifest.read_text())
-    except json.JSONDecodeError:
-        raise ConfigError(f"{manifest} is corrupt (not JSON)") from None
-    if content.get("format") != FORMAT:
+    content = read_json_object(manifest, "data-set manifest", {"format": str, "config": dict, "products": list})
+    if content["format"] != FORMAT:
         raise ConfigError(f"{manifest} is not a {FORMAT} data set")
+    require_fields(content["config"], {"policies": list}, f"data-set manifest {str(manifest)!r}")
+    if not all(isinstance(p, dict) and isinstance(p.get("id"), str) and isinstance(p.get("category"), str)
+               for p in content["products"]):
+        raise InputFileError(f"data-set manifest {str(manifest)!r} is damaged: a product has no id or category")
     return content
+
+
+_RECORD = {"index": int, "file_name": str, "depth_file": str, "width": int, "height": int, "split": str, "target": str,
+           "seed": int, "annotations": list, "picked_by": (str, type(None))}
+_ANNOTATION = {"slot": int, "product": str, "is_target": bool, "is_query": bool, "bbox": list, "area": (int, float),
+               "visible_fraction": (int, float), "pickable": dict}
+
+
+def read_record(path: Path) -> dict[str, Any]:
+    """One scene's JSON, checked field by field: a damaged file is one line that says how to redo it."""
+    where = f"scene file {str(path)!r}"
+    try:
+        record = read_json_object(path, "scene file")
+        require_fields(record, _RECORD, where)
+        for annotation in record["annotations"]:
+            if not isinstance(annotation, dict):
+                raise InputFileError(f"{where} is damaged: an annotation is not an object")
+            require_fields(annotation, _ANNOTATION, where)
+            box = annotation["bbox"]
+            if len(box) != 4 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in box):
+                raise InputFileError(f"{where} is damaged: a bbox is not 4 numbers")
+    except InputFileError as error:
+        raise InputFileError(f"{error}; delete it and run generate again to redo that scene") from None
+    return record
 
 
 def read_scene(data: Path, index: int) -> tuple[dict[str, Any], list[str]]:
@@ -306,21 +330,12 @@ def read_scene(data: Path, index: int) -> tuple[dict[str, Any], list[str]]:
     path = Path(data) / "scenes" / f"{index:06d}.json"
     if not path.is_file():
         raise ConfigError(f"scene {index} is not in {data} (scenes 0..{manifest['config'].get('scenes', '?')} may still be generating)")
-    try:
-        return json.loads(path.read_text()), manifest["config"]["policies"]
-    except json.JSONDecodeError:
-        raise ConfigError(f"{path} is corrupt (not JSON)") from None
+    return read_record(path), manifest["config"]["policies"]
 
 
 # ---------------------------------------------------------------------- COCO files and the card
 def load_records(out: Path) -> list[dict[str, Any]]:
-    records = []
-    for path in sorted((Path(out) / "scenes").glob("*.json")):
-        try:
-            records.append(json.loads(path.read_text()))
-        except json.JSONDecodeError:
-            raise ConfigError(f"{path} is corrupt (not JSON): delete it and run generate again to redo that scene") from None
-    return records
+    return [read_record(path) for path in sorted((Path(out) / "scenes").glob("*.json"))]
 
 
 def to_coco(records: list[dict[str, Any]], library_products: list[dict[str, str]]) -> dict[str, Any]:
@@ -351,7 +366,7 @@ def to_coco(records: list[dict[str, Any]], library_products: list[dict[str, str]
 def finalise(out: Path) -> dict[str, Any]:
     """Merge the scene shards into COCO files (all, and one per split) and write the card."""
     out = Path(out)
-    manifest = json.loads((out / "dataset.json").read_text())
+    manifest = open_dataset(out)
     records = load_records(out)
     coco = to_coco(records, manifest["products"])
     _write_json(out / "annotations.json", coco)
@@ -361,7 +376,7 @@ def finalise(out: Path) -> dict[str, Any]:
             "images": [i for i in coco["images"] if i["id"] in ids],
             "annotations": [a for a in coco["annotations"] if a["image_id"] in ids]})
     stats = dataset_stats(records, manifest["config"]["policies"])
-    (out / "CARD.md").write_text(card(stats, manifest))
+    atomic_write_text(out / "CARD.md", card(stats, manifest))
     return stats
 
 

@@ -21,7 +21,7 @@ import numpy as np
 from binpick.detection.model import Detector
 from binpick.detection.predict import predict
 from binpick.errors import ConfigError
-from binpick.files import atomic_write_text
+from binpick.files import atomic_write, atomic_write_text, ensure_dir
 from binpick.sim.bin_scene import BinWorld, Scene
 from binpick.sim.mjcf import CameraSpec
 from binpick.sim.photos import shop_photo
@@ -171,12 +171,12 @@ class PickPipeline:
 
         from binpick.viz.detection import overlay
 
-        out.mkdir(parents=True, exist_ok=True)
         name = f"order_{order:03d}_{product_id.replace('/', '_')}"
         picture = overlay(rgb, boxes, scores, None, self.photo(product_id), min_score=self.score_threshold)
-        Image.fromarray(picture).save(out / f"{name}.png")
+        atomic_write(out / f"{name}.png", lambda handle: Image.fromarray(picture).save(handle, format="PNG"))
         images = [Image.fromarray(f) for f in frames[::2] or frames]
-        images[0].save(out / f"{name}.gif", save_all=True, append_images=images[1:], duration=80, loop=0)
+        atomic_write(out / f"{name}.gif", lambda handle: images[0].save(handle, format="GIF", save_all=True,
+                                                                          append_images=images[1:], duration=80, loop=0))
         return f"{name}.gif", f"{name}.png"
 
 
@@ -187,7 +187,9 @@ def fulfil(pipeline: PickPipeline, products: list[str], orders: int, seed: int, 
     progress. Returns the summary (with placed/orders per product) and the per-order results."""
     from binpick.warehouse.report import write_report
 
-    out.mkdir(parents=True, exist_ok=True)
+    if not products:
+        raise ConfigError("no product to order: give product ids or categories, e.g. robosuite/milk or can")
+    ensure_dir(out, "order results folder")
     results: list[OrderResult] = []
     started = time.perf_counter()
 

@@ -1,0 +1,430 @@
+"""Every verb given a user's mistake, a damaged file or an unreachable peer: exit code 2, one line on
+stderr naming what is wrong, no traceback, no hang.
+
+The cases run the real console entry point (``binpick.cli.main``) in this process, so ~90 cases cost
+seconds; the ones that wait on a network peer run in a child process with a hard timeout instead.
+Placeholders in braces are paths in a folder of prepared good and bad inputs (see ``world``).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from PIL import Image
+
+from binpick.cli import main
+from binpick.ros.master import free_port
+
+TINY_RL = {"name": "tiny", "env": "FetchReach", "total_timesteps": 200, "checkpoint_every": 100,
+           "replay": {"capacity_episodes": 100, "her_additions": 1, "start_fraction": 0.01},
+           "sac": {"batch_size": 16, "net_arch": [8, 8]}, "eval": {"every": 100, "episodes": 1}}
+
+
+def _coco(images: list[dict], annotations: list[dict]) -> dict:
+    return {"images": images, "annotations": annotations, "categories": [{"id": 1, "name": "thing", "supercategory": "t"}]}
+
+
+@pytest.fixture(scope="module")
+def world(tmp_path_factory) -> dict[str, str]:
+    """Good and bad inputs, made once: their paths by name."""
+    root = tmp_path_factory.mktemp("bad_inputs")
+    paths: dict[str, Path] = {"root": root}
+
+    def put(name: str, content: bytes | str) -> Path:
+        path = root / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(content if isinstance(content, bytes) else content.encode())
+        paths[name.replace("/", "_").replace(".", "_")] = path
+        return path
+
+    put("plain.txt", "just a file\n")
+    (root / "adir.png").mkdir()
+    (root / "adir.json").mkdir()
+    image = root / "scene.png"
+    Image.fromarray(np.full((64, 64, 3), 120, np.uint8)).save(image)
+    paths["scene_png"] = image
+    from synthetic_coco import make_coco
+
+    paths["toy_coco"] = make_coco(root / "toy", images=4, size=64)  # enough boxes to fit anchors
+    put("fake.png", "not an image")
+    put("latin1.yaml", b"name: caf\xe9\n")
+    put("latin1.json", b'{"images": "caf\xe9"}')
+    put("notmapping.yaml", "- a\n- b\n")
+    put("rl.yaml", yaml.safe_dump(TINY_RL))
+    put("random.safetensors", os.urandom(256))
+
+    # COCO files: one good, the rest damaged in one field each
+    good_image = {"id": 1, "file_name": "scene.png", "width": 64, "height": 64}
+    box = {"id": 1, "image_id": 1, "category_id": 1, "bbox": [4, 4, 10, 10], "area": 100, "iscrowd": 0}
+    two = [box, box | {"id": 2, "bbox": [30, 30, 10, 10]}]
+    put("good.json", json.dumps(_coco([good_image], two)))
+    put("coco_no_bbox.json", json.dumps(_coco([good_image], [{k: v for k, v in box.items() if k != "bbox"}, two[1]])))
+    put("coco_nan_bbox.json", json.dumps(_coco([good_image], [box | {"bbox": [float("nan"), 4, 10, 10]}, two[1]])))
+    put("coco_string_category.json", json.dumps(_coco([good_image], [box | {"category_id": "1"}, two[1]])))
+    put("coco_string_bbox.json", json.dumps(_coco([good_image], [box | {"bbox": ["4", "4", "10", "10"]}, two[1]])))
+    put("coco_no_file_name.json", json.dumps(_coco([{"id": 1}], two)))
+    put("coco_missing_images.json", json.dumps(_coco([good_image | {"file_name": "gone.png"}], two)))
+    put("coco_zero_box.json", json.dumps(_coco([good_image], [box | {"bbox": [4, 4, 0, 10]}, two[1]])))
+
+    # detector weights: a good tiny one and damaged ones
+    from binpick import tensorfile
+    from binpick.detection.model import Detector, ModelSpec
+    from binpick.detection.train import FORMAT, save_detector
+
+    weights = root / "detector.safetensors"
+    save_detector(Detector(ModelSpec(), 64), weights)
+    paths["weights"] = weights
+    tensorfile.save(root / "nospec.safetensors", FORMAT, tensors={}, meta={"image_size": 64})
+    paths["nospec"] = root / "nospec.safetensors"
+    tensorfile.save(root / "other_format.safetensors", "binpick-perception-1", tensors={}, meta={})
+    paths["other_format"] = root / "other_format.safetensors"
+    (root / "empty_run").mkdir()
+    paths["empty_run"] = root / "empty_run"
+
+    # run folders with damaged checkpoints
+    def run_folder(name: str, config: dict, latest: str | None, files: dict[str, bytes | str] | None = None) -> Path:
+        run = root / name
+        (run / "checkpoints").mkdir(parents=True)
+        (run / "config.yaml").write_text(yaml.safe_dump(config))
+        if latest is not None:
+            (run / "checkpoints" / "latest").write_text(latest)
+        for file, content in (files or {}).items():
+            target = run / "checkpoints" / file
+            target.parent.mkdir(parents=True, exist_ok=True)
+            target.write_bytes(content if isinstance(content, bytes) else content.encode())
+        paths[name] = run
+        return run
+
+    run_folder("rl_dangling", TINY_RL, "ckpt-000000100")
+    run_folder("rl_escape", TINY_RL, "../../../etc")
+    run_folder("rl_bad_policy", TINY_RL, "ckpt-000000100", {"ckpt-000000100/policy.safetensors": b"\x00" * 64})
+    run_folder("rl_wrong_format", TINY_RL, "ckpt-000000100", {})
+    import shutil
+
+    (root / "rl_wrong_format" / "checkpoints" / "ckpt-000000100").mkdir()
+    shutil.copy(weights, root / "rl_wrong_format" / "checkpoints" / "ckpt-000000100" / "policy.safetensors")
+    run_folder("rl_state_not_json", TINY_RL, "ckpt-000000100",
+               {"ckpt-000000100/state.json": "{not json", "ckpt-000000100/algorithm.safetensors": b""})
+    run_folder("rl_bad_config", TINY_RL, None)
+    (root / "rl_bad_config" / "config.yaml").write_text("- just\n- a list\n")
+    a3c = {"name": "a3c", "env": "Arm2D", "algorithm": "a3c", "total_timesteps": 100}
+    run_folder("a3c_no_checkpoint", a3c, None)
+    detect_config = {"name": "tiny_detect", "data": {"train": str(paths["toy_coco"]), "val": str(paths["toy_coco"]),
+                                                     "image_size": 64, "targets": "all"}, "train": {"epochs": 1, "batch_size": 2}}
+    put("detect.yaml", yaml.safe_dump(detect_config))
+    run_folder("detect_dangling", detect_config, "ckpt-000000001")
+    run_folder("detect_bad_state", detect_config, "ckpt-000000001", {"ckpt-000000001/state.safetensors": b""})
+    tensorfile.save(root / "detect_bad_state" / "checkpoints" / "ckpt-000000001" / "state.safetensors",
+                    "binpick-detector-checkpoint-1", state={"model": {}, "optimizer": {}}, meta={"epoch": 1, "step": 2})
+
+    # APRiL run folders
+    april = {"name": "a", "env": "FetchReach", "image": "grey", "policy": {"mode": "semantic", "rl_config": str(paths["rl_yaml"])}}
+    for name, stages in (("april_bad_stages", "{broken"), ("april_unknown_stage", '{"bake": {}}'),
+                         ("april_no_policy", '{"collect": {"sim_episodes": 1}}')):
+        folder = root / name
+        folder.mkdir()
+        (folder / "config.yaml").write_text(yaml.safe_dump(april))
+        (folder / "stages.json").write_text(stages)
+        paths[name] = folder
+
+    # warehouse data sets: a manifest, and scenes damaged in different ways
+    data = root / "bins"
+    for sub in ("scenes", "images"):
+        (data / sub).mkdir(parents=True)
+    manifest = {"format": "binpick-bins-1", "config": {"policies": ["y"], "scenes": 3}, "products": [{"id": "p", "category": "c"}]}
+    (data / "dataset.json").write_text(json.dumps(manifest))
+    record = {"index": 0, "file_name": "images/000000.png", "depth_file": "depth/000000.png", "width": 64, "height": 64,
+              "split": "train", "target": "p", "seed": 0, "picked_by": None,
+              "annotations": [{"slot": 0, "product": "p", "is_target": True, "is_query": True, "bbox": [1, 1, 5, 5],
+                               "area": 25, "visible_fraction": 1.0, "pickable": {"y": True}}]}
+    (data / "scenes" / "000000.json").write_text(json.dumps(record)[:40])
+    (data / "scenes" / "000001.json").write_text(json.dumps({k: v for k, v in record.items() if k != "annotations"}))
+    (data / "scenes" / "000002.json").write_text(json.dumps(record | {"index": 2, "file_name": "images/000002.png"}))
+    (data / "images" / "000002.png").write_text("not a png")
+    paths["bins"] = data
+    bad_manifest = root / "bins_bad_manifest"
+    bad_manifest.mkdir()
+    (bad_manifest / "dataset.json").write_text(json.dumps({"format": "binpick-bins-1"}))
+    paths["bins_bad_manifest"] = bad_manifest
+    not_utf8 = root / "bins_latin1"
+    not_utf8.mkdir()
+    (not_utf8 / "dataset.json").write_bytes(b'{"format": "caf\xe9"}')
+    paths["bins_latin1"] = not_utf8
+
+    # a data set that already holds more scenes than asked for (as `data generate` would have left it)
+    from binpick.warehouse.dataset import GenerateConfig
+
+    full = root / "bins_24"
+    (full / "scenes").mkdir(parents=True)
+    settings = GenerateConfig(out=str(full), scenes=24, workers=1, image_size=64)
+    (full / "dataset.json").write_text(json.dumps({"format": "binpick-bins-1", "config": settings.comparable(),
+                                                   "products": [{"id": "p", "category": "c"}]}))
+    for index in range(24):
+        (full / "scenes" / f"{index:06d}.json").write_text(json.dumps(record | {"index": index}))
+    paths["bins_24"] = full
+
+    # products files
+    put("products_bad_number.yaml", "products:\n  - {id: a/b, category: c, mesh: box.obj, longest_side: abc}\n")
+    (root / "box.obj").write_text("v 0 0 0\nv 0.05 0 0\nv 0 0.05 0\nv 0 0 0.05\nf 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n")
+    put("products_no_mesh.yaml", "products:\n  - {id: a/b, category: c, mesh: missing.obj}\n")
+    return {key: str(value) for key, value in paths.items()}
+
+
+# (arguments, fragments the one line must hold); "{name}" is a path from ``world``
+CASES: list[tuple[list[str], list[str]]] = [
+    # usage errors: Click's, printed as one line
+    (["envs", "list", "--bogus"], ["No such option: --bogus"]),
+    (["envs", "show", "Arm2D", "--seed", "-1"], ["--seed", "greater than or equal to 0", "binpick envs show --help"]),
+    (["envs", "rollout", "Arm2D", "--seed", "-5"], ["--seed", "greater than or equal to 0"]),
+    (["envs", "rollout", "Arm2D", "--episodes", "abc"], ["--episodes", "integer"]),
+    (["rl", "eval", "{rl_dangling}", "--seed", "-1"], ["--seed"]),
+    (["rl", "train", "{rl_yaml}", "--seed", "-1"], ["--seed"]),
+    (["rl", "distributed", "--seed", "-1"], ["--seed"]),
+    (["april", "eval", "{april_no_policy}", "--seed", "-2"], ["--seed"]),
+    (["data", "generate", "--out", "{root}/new", "--seed", "-1"], ["--seed"]),
+    (["pick", "--product", "robosuite/milk", "--seed", "-1"], ["--seed"]),
+    (["demo", "--seed", "-1"], ["--seed"]),
+    (["envs", "show", "Arm2D", "--seed", "99999999999"], ["--seed"]),
+    (["ros", "master", "--port", "70000"], ["--port", "less than or equal to 65535"]),
+    (["rl", "eval"], ["Missing argument"]),
+    (["envs", "show", "Arm2D", "--bogus"], ["No such option: --bogus"]),
+    (["detect", "eval", "{weights}"], ["Missing option", "--data"]),
+    # numbers out of range, bad values
+    (["detect", "predict", "{scene_png}", "--weights", "{weights}", "--query-box", "4,4,10,10", "--min-score", "nan"],
+     ["--min-score", "finite"]),
+    (["detect", "predict", "{scene_png}", "--weights", "{weights}", "--query-box", "4,4,10,10", "--min-score", "-1"],
+     ["--min-score", "[0.0, 1.0]"]),
+    (["detect", "predict", "{scene_png}", "--weights", "{weights}", "--query-box", "4,4,10,10", "--min-score", "5"],
+     ["--min-score", "[0.0, 1.0]"]),
+    (["detect", "predict", "{scene_png}", "--weights", "{weights}", "--query-box", "4,4,10"], ["--query-box must be x,y,w,h"]),
+    (["rl", "train", "{rl_yaml}", "--steps", "-1", "--runs", "{root}/runs_steps"], ["total_timesteps", "-1"]),
+    (["rl", "train", "{rl_yaml}", "--steps", "0", "--runs", "{root}/runs_steps"], ["total_timesteps", "0"]),
+    (["rl", "train", "{rl_yaml}", "--init-from", "{a3c_no_checkpoint}", "--runs", "{root}/runs_steps"],
+     ["init_from", "sac"]),
+    (["envs", "rollout", "Arm2D", "--set", "goal_area=abc"], ["goal_area", "number", "'abc'"]),
+    (["envs", "rollout", "Arm2D", "--set", "goal_area=.nan"], ["goal_area", "finite"]),
+    (["envs", "rollout", "Arm2D", "--episodes", "0"], ["episodes", ">= 1"]),
+    (["envs", "tour", "--episodes", "0", "--out", "{root}/tour"], ["episodes", "[1, 10000]"]),
+    (["rl", "eval", "{rl_dangling}", "--episodes", "0"], ["episodes"]),
+    (["pick", "--product", ",", "--out", "{root}/picks"], ["--product", "names no product"]),
+    (["pick", "--product", "robosuite/milk", "--axis", "z", "--out", "{root}/picks"], ["axis", "'x'", "'y'"]),
+    (["data", "generate", "--out", "{root}/gen", "--copies", "5,2"], ["copies"]),
+    (["data", "generate", "--out", "{root}/gen", "--copies", "a,b"], ["--copies", "LOW,HIGH"]),
+    (["rl", "distributed", "--steps", "0", "--out", "{root}/dist"], ["total_timesteps", "0"]),
+    (["rl", "distributed", "--workers", "0", "--out", "{root}/dist"], ["workers", "0"]),
+    (["rl", "distributed", "--algorithm", "ppo"], ["algorithm", "'sac'", "'a3c'"]),
+    (["rl", "distributed", "--address", "notanaddress"], ["--address", "HOST:PORT", "notanaddress"]),
+    (["rl", "distributed", "--address", "127.0.0.1:99999"], ["--address", "127.0.0.1:99999"]),
+    (["ros", "bench", "--master", "notauri", "--timeout", "1"], ["ROS master URI", "notauri"]),
+    (["ros", "bench", "--master", "http://127.0.0.1:11311/", "--timeout", "0"], ["--timeout"]),
+    (["ros", "serve", "Arm2D", "--master", "http://127.0.0.1:99999/"], ["ROS master URI", "99999"]),
+    (["ros", "serve", "Arm2D", "--namespace", "bad name!", "--master", "http://127.0.0.1:1/"], ["--namespace"]),
+    # markup characters in what the user typed are printed as typed
+    (["envs", "show", "x[/]y"], ["unknown env id 'x[/]y'"]),
+    (["rl", "train", "{root}/cfg[/bold].yaml"], ["cfg[/bold].yaml", "does not exist"]),
+    (["envs", "show", "Arm2D", "--out", "{root}/[red]x[/].jpg"], ["--out must end in .png", "[red]x[/].jpg"]),
+    (["detect", "predict", "{root}/[/]missing.png", "--weights", "{weights}", "--query-box", "1,1,5,5"],
+     ["[/]missing.png"]),
+    # outputs that cannot be written: checked before the work starts
+    (["envs", "show", "Arm2D", "--out", "{plain_txt}/frame.png"], ["--out", "plain.txt", "file"]),
+    (["envs", "show", "Arm2D", "--out", "{root}/adir.png"], ["--out", "adir.png", "is a folder"]),
+    (["envs", "rollout", "Arm2D", "--episodes", "1", "--json", "{plain_txt}/r.json"], ["--json", "plain.txt"]),
+    (["envs", "rollout", "Arm2D", "--episodes", "1", "--json", "{root}/adir.json"], ["--json", "is a folder"]),
+    (["envs", "tour", "--out", "{plain_txt}"], ["--out", "plain.txt"]),
+    (["detect", "eval", "{weights}", "--data", "{good_json}", "--out", "{plain_txt}"], ["--out", "plain.txt"]),
+    (["rl", "train", "{rl_yaml}", "--runs", "{plain_txt}"], ["plain.txt"]),
+    (["detect", "train", "{detect_yaml}", "--runs", "{plain_txt}"], ["plain.txt"]),
+    (["pick", "--product", "robosuite/milk", "--out", "{plain_txt}"], ["--out", "plain.txt"]),
+    (["demo", "--out", "{plain_txt}"], ["--out", "plain.txt"]),
+    (["data", "generate", "--out", "{plain_txt}"], ["--out", "plain.txt", "is a file"]),
+    (["rl", "distributed", "--out", "{plain_txt}"], ["--out", "plain.txt"]),
+    (["data", "show", "{bins}", "--index", "2", "--out", "{plain_txt}/x.png"], ["--out", "plain.txt"]),
+    (["detect", "predict", "{scene_png}", "--weights", "{weights}", "--query-box", "4,4,10,10",
+      "--heatmap", "{plain_txt}/h.png"], ["--heatmap", "plain.txt"]),
+    # files that cannot be decoded
+    (["rl", "train", "{latin1_yaml}"], ["latin1.yaml", "not UTF-8"]),
+    (["detect", "train", "{latin1_yaml}"], ["latin1.yaml", "not UTF-8"]),
+    (["april", "run", "{latin1_yaml}"], ["latin1.yaml", "not UTF-8"]),
+    (["detect", "eval", "{weights}", "--data", "{latin1_json}"], ["latin1.json", "not UTF-8"]),
+    (["data", "generate", "--out", "{root}/gen", "--products", "{latin1_yaml}"], ["latin1.yaml", "not UTF-8"]),
+    (["data", "stats", "{bins_latin1}"], ["dataset.json", "not UTF-8"]),
+    (["rl", "train", "{root}"], ["is a folder"]),
+    (["rl", "train", "{notmapping_yaml}"], ["notmapping.yaml", "mapping"]),
+    (["detect", "predict", "{fake_png}", "--weights", "{weights}", "--query-box", "1,1,5,5"], ["cannot read image", "fake.png"]),
+    # damaged data sets
+    (["detect", "eval", "{weights}", "--data", "{coco_no_bbox_json}"], ["annotations[0].bbox"]),
+    (["detect", "eval", "{weights}", "--data", "{coco_nan_bbox_json}"], ["annotations[0].bbox", "finite"]),
+    (["detect", "eval", "{weights}", "--data", "{coco_string_category_json}"], ["annotations[0].category_id", "integer"]),
+    (["detect", "eval", "{weights}", "--data", "{coco_string_bbox_json}"], ["annotations[0].bbox"]),
+    (["detect", "eval", "{weights}", "--data", "{coco_no_file_name_json}"], ["images[0]", "file_name"]),
+    (["detect", "eval", "{weights}", "--data", "{coco_missing_images_json}"], ["gone.png", "do not exist"]),
+    (["detect", "eval", "{weights}", "--data", "{coco_zero_box_json}"], ["annotations[0].bbox", "> 0"]),
+    (["data", "show", "{bins}", "--index", "0", "--out", "{root}/s.png"], ["000000.json", "not valid JSON"]),
+    (["data", "show", "{bins}", "--index", "1", "--out", "{root}/s.png"], ["000001.json", "damaged", "annotations"]),
+    (["data", "show", "{bins}", "--index", "2", "--out", "{root}/s.png"], ["cannot read scene image", "000002.png"]),
+    (["data", "show", "{bins}", "--index", "7", "--out", "{root}/s.png"], ["scene 7 is not in"]),
+    (["data", "stats", "{bins_bad_manifest}"], ["dataset.json", "damaged", "config"]),
+    (["data", "stats", "{plain_txt}"], ["not a binpick data set"]),
+    (["data", "generate", "--out", "{bins_24}", "--scenes", "16", "--workers", "1", "--size", "64"],
+     ["already holds 24 scenes", "--scenes 16"]),
+    (["data", "generate", "--out", "{root}/gen", "--products", "{products_bad_number_yaml}"], ["longest_side", "'abc'"]),
+    (["data", "generate", "--out", "{root}/gen", "--products", "{products_no_mesh_yaml}"], ["missing.obj", "does not exist"]),
+    # damaged weights and checkpoints
+    (["detect", "predict", "{scene_png}", "--weights", "{random_safetensors}", "--query-box", "1,1,5,5"],
+     ["random.safetensors", "not a safetensors file"]),
+    (["detect", "predict", "{scene_png}", "--weights", "{nospec}", "--query-box", "1,1,5,5"], ["nospec.safetensors", "damaged", "spec"]),
+    (["detect", "predict", "{scene_png}", "--weights", "{other_format}", "--query-box", "1,1,5,5"],
+     ["binpick-perception-1", "expected 'binpick-detector-2'"]),
+    (["detect", "eval", "{empty_run}", "--data", "{good_json}"], ["no detector weights", "empty_run"]),
+    (["pick", "--product", "robosuite/milk", "--weights", "{plain_txt}", "--out", "{root}/picks"], ["plain.txt"]),
+    (["detect", "train", "--resume", "{detect_dangling}"], ["latest", "ckpt-000000001", "does not exist"]),
+    (["detect", "train", "--resume", "{detect_bad_state}"], ["state.safetensors", "damaged", "history"]),
+    (["rl", "eval", "{rl_dangling}"], ["latest", "ckpt-000000100", "does not exist"]),
+    (["rl", "eval", "{rl_escape}"], ["latest", "damaged", "../../../etc"]),
+    (["rl", "eval", "{rl_bad_policy}"], ["policy.safetensors", "not a safetensors file"]),
+    (["rl", "eval", "{rl_wrong_format}"], ["'binpick-detector-2' file", "expected 'binpick-sb3-policy-1'"]),
+    (["rl", "eval", "{rl_bad_config}"], ["config.yaml", "mapping"]),
+    (["rl", "train", "--resume", "{rl_state_not_json}"], ["state.json", "not valid JSON"]),
+    (["rl", "train", "--resume", "{rl_dangling}"], ["latest", "does not exist"]),
+    (["april", "eval", "{april_bad_stages}"], ["stages.json", "not valid JSON"]),
+    (["april", "eval", "{april_unknown_stage}"], ["stages.json", "damaged", "bake"]),
+    (["april", "eval", "{april_no_policy}"], ["no trained policy yet"]),
+    (["april", "run", "--resume", "{april_bad_stages}"], ["stages.json", "not valid JSON"]),
+]
+
+
+def _ids() -> list[str]:
+    return [f"{i:02d}-" + "-".join(a.strip("{}").replace("/", "_")[:14] for a in args[:3]) for i, (args, _) in enumerate(CASES)]
+
+
+@pytest.mark.parametrize("args,fragments", CASES, ids=_ids())
+def test_bad_input_is_one_line_and_exit_code_2(args, fragments, world, capsys, monkeypatch):
+    monkeypatch.chdir(world["root"])  # nothing a case writes lands in the repository
+    monkeypatch.setattr(sys, "argv", ["binpick", *[a.format(**world) for a in args]])
+    with pytest.raises(SystemExit) as exit_info:
+        main()
+    out, err = capsys.readouterr()
+    assert "Traceback" not in out + err
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert exit_info.value.code == 2 and len(lines) == 1, (exit_info.value.code, err)
+    assert lines[0].startswith("error: ")
+    for fragment in fragments:
+        assert fragment.format(**world) in lines[0], lines[0]
+
+
+def test_the_suite_covers_every_verb_and_enough_cases():
+    from binpick.cli import app
+
+    verbs = {" ".join(args[:2]) if args[0] in ("envs", "rl", "april", "data", "detect", "ros") else args[0] for args, _ in CASES}
+    groups = {group.name: group.typer_instance for group in app.registered_groups}
+    every = {f"{name} {command.name or command.callback.__name__}" for name, group in groups.items()
+             for command in group.registered_commands} | {command.name for command in app.registered_commands}
+    assert every <= verbs, sorted(every - verbs)
+    assert len(CASES) >= 60
+
+
+def _free_uri() -> str:
+    return f"http://127.0.0.1:{free_port()}/"
+
+
+@pytest.mark.parametrize("args", [
+    ["ros", "serve", "FetchReach", "--master", "{uri}", "--timeout", "2"],
+    ["ros", "bench", "--master", "{uri}", "--timeout", "2", "--episodes", "1"],
+], ids=["serve", "bench"])
+def test_an_absent_ros_master_is_one_line_within_the_timeout(args, tmp_path):
+    from binpick.ros import ros_missing
+
+    if ros_missing():
+        pytest.skip(ros_missing())
+    uri = _free_uri()
+    started = time.monotonic()
+    result = subprocess.run([sys.executable, "-c", "from binpick.cli import main; main()", *[a.format(uri=uri) for a in args]],
+                            capture_output=True, text=True, timeout=60, cwd=tmp_path,
+                            env={**os.environ, "ROS_HOME": str(tmp_path), "ROS_LOG_DIR": str(tmp_path)})
+    assert time.monotonic() - started < 30, "must give up near --timeout, not hang"
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    assert result.stderr.strip().count("\n") == 0 and f"no ROS master answered at {uri} within 2 s" in result.stderr
+
+
+def test_ros_client_env_gives_up_on_an_absent_master(tmp_path):
+    from binpick.ros import ros_missing
+
+    if ros_missing():
+        pytest.skip(ros_missing())
+    uri = _free_uri()
+    code = ("import gymnasium, binpick\n"
+            "from binpick.errors import BinpickError\n"
+            "try:\n    gymnasium.make('binpick/Ros-v0', namespace='/x', timeout=1.5)\n"
+            "except BinpickError as e:\n    print('refused:', e)\n")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
+                            env={**os.environ, "ROS_MASTER_URI": uri, "ROS_HOME": str(tmp_path), "ROS_LOG_DIR": str(tmp_path)})
+    assert f"refused: no ROS master answered at {uri}" in result.stdout, result.stderr[-500:]
+
+
+def test_ros_master_stops_its_child_on_sigterm(tmp_path):
+    import signal
+    import socket
+
+    from binpick.ros import ros_missing
+
+    if ros_missing():
+        pytest.skip(ros_missing())
+    port = free_port()
+    process = subprocess.Popen([sys.executable, "-c", "from binpick.cli import main; main()", "ros", "master", "--port", str(port)],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    try:
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline:
+            with socket.socket() as probe:
+                if probe.connect_ex(("127.0.0.1", port)) == 0:
+                    break
+            time.sleep(0.1)
+        else:
+            pytest.fail("the master never listened")
+        process.send_signal(signal.SIGTERM)
+        process.wait(timeout=20)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline:
+        with socket.socket() as probe:
+            if probe.connect_ex(("127.0.0.1", port)) != 0:
+                return
+        time.sleep(0.1)
+    pytest.fail(f"something still listens on port {port} after SIGTERM")
+
+
+def test_an_unreachable_ray_address_is_one_line_quickly(tmp_path):
+    started = time.monotonic()
+    result = subprocess.run([sys.executable, "-c", "from binpick.cli import main; main()", "rl", "distributed",
+                             "--address", f"127.0.0.1:{free_port()}", "--steps", "10", "--out", str(tmp_path)],
+                            capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert result.returncode == 2 and "Traceback" not in result.stderr, result.stderr[-800:]
+    assert "no Ray cluster answered at 127.0.0.1:" in result.stderr and result.stderr.strip().count("\n") == 0
+    assert time.monotonic() - started < 60
+
+
+def test_failed_starts_leave_no_run_folder(world, tmp_path, capsys, monkeypatch):
+    """A bad env parameter or a damaged init_from run is found before (or undone after) the run
+    folder is made: no empty folders pile up under runs/."""
+    monkeypatch.chdir(tmp_path)
+    bad_env = yaml.safe_dump(TINY_RL | {"env_kwargs": {"tolerance": 5.0}})
+    (tmp_path / "bad_env.yaml").write_text(bad_env)
+    for args in (["rl", "train", "bad_env.yaml", "--runs", "runs"],
+                 ["detect", "train", world["detect_yaml"], "--set", "data.val=missing.json", "--runs", "runs"]):
+        monkeypatch.setattr(sys, "argv", ["binpick", *args])
+        with pytest.raises(SystemExit) as exit_info:
+            main()
+        assert exit_info.value.code == 2, capsys.readouterr().err
+    capsys.readouterr()
+    assert not any(path.is_dir() and any(path.iterdir()) for path in (tmp_path / "runs").glob("*")), \
+        sorted(str(p) for p in (tmp_path / "runs").rglob("*"))
