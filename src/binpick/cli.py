@@ -96,6 +96,9 @@ def envs_show(
     env_id = resolve_env_id(env_id)
     _check_png_path(out)
     kwargs = parse_settings(settings)
+    own = sorted(set(kwargs) & {"render_mode", "render_size", "width", "height"})
+    if own:
+        raise ConfigError(f"--set {own[0]}: `envs show` sets the frame itself; give --size instead")
     kwargs.update({"render_size": size} if env_id.endswith("Arm2D-v0") else {"width": size, "height": size})
     env = make(env_id, render_mode="rgb_array", **kwargs)
     try:

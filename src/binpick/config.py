@@ -48,6 +48,23 @@ def check_range(
     return int(value) if integer else value
 
 
+def check_vector(name: str, value: Any, length: int, low: float | None = None, high: float | None = None,
+                 **bounds: bool) -> list[float]:
+    """``length`` finite numbers in [low, high] (a list or tuple); one ConfigError line otherwise."""
+    if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or not hasattr(value, "__iter__"):
+        raise ConfigError(f"{name} must be a list of {length} numbers, got {value!r}")
+    if len(value) != length:
+        raise ConfigError(f"{name} must have {length} entries, got {len(value)}")
+    return [float(check_range(f"{name}[{i}]", v, low, high, **bounds)) for i, v in enumerate(value)]
+
+
+def check_bool(name: str, value: Any) -> bool:
+    """``value`` if it is true or false (not a string that merely looks truthy)."""
+    if not isinstance(value, bool):
+        raise ConfigError(f"{name} must be true or false, got {value!r}")
+    return value
+
+
 def check_choice(name: str, value: Any, choices: Iterable[Any]) -> Any:
     """Return ``value`` if it is one of ``choices``; raise ConfigError listing them otherwise."""
     options = list(choices)

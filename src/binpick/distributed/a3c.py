@@ -18,6 +18,7 @@ from typing import Any
 
 from binpick import tensorfile
 from binpick.config import check_range
+from binpick.errors import ConfigError
 from binpick.distributed.rollouts import RestartingActors, check_ray_address
 from binpick.files import atomic_write_text
 
@@ -59,6 +60,11 @@ class DistributedA3CConfig:
         check_range("total_timesteps", self.total_timesteps, 1, 10**9, integer=True)
         check_range("seed", self.seed, 0, 2**32 - 1, integer=True)
         check_ray_address(self.address)
+        from binpick.envs import resolve_env_id
+
+        self.env = resolve_env_id(self.env)
+        if self.env != "binpick/Arm2D-v0":
+            raise ConfigError(f"A3C learns from images with discrete actions: --env must be Arm2D, got {self.env}")
 
 
 def train_a3c_distributed(config: DistributedA3CConfig, out: Path | None = None, on_update=None) -> dict[str, Any]:

@@ -21,7 +21,7 @@ import numpy as np
 from gymnasium import spaces
 from PIL import Image, ImageDraw
 
-from binpick.config import check_choice, check_range
+from binpick.config import check_bool, check_choice, check_range, check_vector
 from binpick.envs.goal_env import sparse_goal_reward
 from binpick.envs.images import IMAGE_MODES, check_image_size, to_mode
 from binpick.errors import ConfigError
@@ -55,21 +55,15 @@ class Arm2DEnv(gym.Env):
         render_mode: str | None = None,
     ) -> None:
         self.image_size = check_image_size("image_size", image_size)
-        self.goal_conditioned = bool(goal_conditioned)
+        self.goal_conditioned = check_bool("goal_conditioned", goal_conditioned)
         # a state-only Arm2D (image=None) exists for state-based RL; the pixel task needs a picture
         self.image_mode = check_choice("image", image, [None, *IMAGE_MODES] if self.goal_conditioned else IMAGE_MODES)
         self.render_size = check_image_size("render_size", render_size)
         self.render_mode = check_choice("render_mode", render_mode, [None, *self.metadata["render_modes"]])
-        if len(link_lengths) != 3:
-            raise ConfigError(f"link_lengths must have 3 entries, got {len(link_lengths)}")
-        self.link_lengths = np.array(
-            [float(check_range(f"link_lengths[{i}]", v, 0.0, 1.0, low_inclusive=False)) for i, v in enumerate(link_lengths)]
-        )
+        self.link_lengths = np.array(check_vector("link_lengths", link_lengths, 3, 0.0, 1.0, low_inclusive=False))
         self.reach = float(self.link_lengths.sum())
         self.tolerance = float(check_range("tolerance", tolerance, 0.0, 0.5, low_inclusive=False))
-        self.fixed_goal = np.array(
-            [float(check_range(f"fixed_goal[{i}]", v, -PLAY_HALF_WIDTH, PLAY_HALF_WIDTH)) for i, v in enumerate(fixed_goal)]
-        )
+        self.fixed_goal = np.array(check_vector("fixed_goal", fixed_goal, 2, -PLAY_HALF_WIDTH, PLAY_HALF_WIDTH))
         if np.linalg.norm(self.fixed_goal) > 0.95 * self.reach:
             raise ConfigError(
                 f"fixed_goal {tuple(self.fixed_goal)} is out of the arm's reach (|goal| must be <= {0.95 * self.reach:.3f})"

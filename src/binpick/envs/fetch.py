@@ -18,8 +18,7 @@ from typing import Any
 import numpy as np
 from gymnasium.utils import EzPickle
 
-from binpick.config import check_range
-from binpick.errors import ConfigError
+from binpick.config import check_bool, check_range, check_vector
 from binpick.envs.goal_env import ImageObservationMixin
 from binpick.envs.images import CameraPose, check_image_size, import_mujoco
 
@@ -60,7 +59,7 @@ class _BinpickFetchMixin(ImageObservationMixin):
             self, image=image, image_size=image_size, terminate_on_success=terminate_on_success,
             render_mode=render_mode, width=width, height=height,
         )
-        self.terminate_on_success = bool(terminate_on_success)
+        self.terminate_on_success = check_bool("terminate_on_success", terminate_on_success)
         self._init_image_observation(self.model, image, image_size, WORKSPACE_VIEW)
 
     def _prepare_frame(self) -> None:
@@ -97,10 +96,7 @@ class FetchReachEnv(_BinpickFetchMixin, MujocoFetchReachEnv):
         self.start_noise = float(check_range("start_noise", start_noise, 0.0, 0.15))
         self.goal_offset = None
         if goal_offset is not None:
-            if len(goal_offset) != 3:
-                raise ConfigError(f"goal_offset must have 3 entries (x, y, z metres), got {len(goal_offset)}")
-            self.goal_offset = np.array([float(check_range(f"goal_offset[{i}]", v, -0.15, 0.15))
-                                         for i, v in enumerate(goal_offset)])
+            self.goal_offset = np.array(check_vector("goal_offset (x, y, z metres)", goal_offset, 3, -0.15, 0.15))
         super().__init__(**kwargs)
         EzPickle.__init__(self, goal_offset=goal_offset, start_noise=start_noise, **kwargs)
 
