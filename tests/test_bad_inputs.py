@@ -310,6 +310,7 @@ def _ids() -> list[str]:
     return [f"{i:02d}-" + "-".join(a.strip("{}").replace("/", "_")[:14] for a in args[:3]) for i, (args, _) in enumerate(CASES)]
 
 
+@pytest.mark.timeout(60)  # a case that hangs fails here instead of blocking the suite
 @pytest.mark.parametrize("args,fragments", CASES, ids=_ids())
 def test_bad_input_is_one_line_and_exit_code_2(args, fragments, world, capsys, monkeypatch):
     monkeypatch.chdir(world["root"])  # nothing a case writes lands in the repository
