@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import replace
 import os
 import shutil
 import sys
@@ -22,6 +23,7 @@ sys.path.insert(0, os.path.dirname(__file__))
 import _common  # noqa: E402
 
 from binpick.april import AprilRun, load_april_config  # noqa: E402
+from binpick.terminal import RichCallback  # noqa: E402
 
 CONFIGS = {
     "FetchReach": ["april_fetchreach_w1.0", "april_fetchreach_w1.0_refined", "april_fetchreach_w0.5",
@@ -105,7 +107,7 @@ def main() -> None:
                                                    "success": result.success_rate, "sim_episodes": 0}})
             continue
         if name == "pickandplace_heuristic":  # Table 4.5's first row: the scripted policy (ours, §4.5.3)
-            from binpick.april.heuristic import PickAndPlaceHeuristic
+            from binpick.rl.heuristic import PickAndPlaceHeuristic
             from binpick.envs import make
             from binpick.rl.evaluate import evaluate_policy
 
@@ -121,11 +123,12 @@ def main() -> None:
             print(f"{name}: continuing {run.run_dir} (done: {', '.join(run.stages) or 'nothing'})", flush=True)
         else:
             shared = None if args.no_share else shared_state_run(results, env, name, config)
-            if shared is not None:
-                config.policy.state_run = shared
+            if shared is not None:  # the same config with the ground-truth row's state policy
+                config = replace(config, policy=replace(config.policy, state_run=shared))
                 print(f"{name}: state policy shared with the ground-truth row ({shared})", flush=True)
             run = AprilRun.new(config, _common.ROOT / args.runs)
-        rows = run.run(show_progress=True)["rows"]
+        with RichCallback() as callback:
+            rows = run.run(callback)["rows"]
         if "ground_truth" in rows and name != GROUND_TRUTH_FROM.get(env):
             rows.pop("ground_truth")  # the table's ground-truth row comes from the env's first config
         results = merge(env, {row: values | {"config": f"configs/{name}.yaml",

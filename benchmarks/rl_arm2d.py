@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import asdict
 import os
 import sys
 
@@ -24,9 +25,10 @@ sys.path.insert(0, os.path.dirname(__file__))
 import _common  # noqa: E402
 
 from binpick.envs import make  # noqa: E402
-from binpick.rl.config import load_config  # noqa: E402
+from binpick.rl.config import load_rl_config  # noqa: E402
 from binpick.rl.evaluate import evaluate_policy, random_policy  # noqa: E402
 from binpick.rl.train import load_policy, trainer_for  # noqa: E402
+from binpick.terminal import RichCallback  # noqa: E402
 
 RUNS = {
     "a3c": ("configs/rl_arm2d_a3c.yaml", 0.0),
@@ -63,18 +65,20 @@ def main() -> None:
             env.close()
         else:
             config_path, area = RUNS[key]
-            config = load_config(_common.ROOT / config_path)
-            config.total_timesteps = int(config.total_timesteps * args.steps_scale)
-            for stage in config.curriculum.stages:
-                stage.ramp_steps = int(stage.ramp_steps * args.steps_scale)
-                stage.hold_steps = int(stage.hold_steps * args.steps_scale)
+            base = load_rl_config(_common.ROOT / config_path)
+            overrides = {"total_timesteps": int(base.total_timesteps * args.steps_scale),
+                         "curriculum.stages": [{**asdict(stage), "ramp_steps": int(stage.ramp_steps * args.steps_scale),
+                                                "hold_steps": int(stage.hold_steps * args.steps_scale)}
+                                               for stage in base.curriculum.stages]}
             if key == "curriculum_whole_area":  # thesis §3.2: start from the single-goal A3C network
                 single_goal = _common.ROOT / results.get("a3c", {}).get("run_dir", "missing")
                 if not (single_goal / "config.yaml").is_file():
                     sys.exit("the curriculum starts from the single-goal A3C run: run --only a3c first")
-                config.init_from = str(single_goal)
+                overrides["init_from"] = str(single_goal)
+            config = load_rl_config(_common.ROOT / config_path, overrides)
             trainer = trainer_for(config, _common.ROOT / "runs" / "bench")
-            metrics = trainer.run(show_progress=True)
+            with RichCallback() as callback:
+                metrics = trainer.run(callback)
             policy, _ = load_policy(trainer.run_dir)
             results[key] = evaluate(policy, area) | {"sim_steps": metrics["sim_steps"],
                                                      "wall_seconds": metrics["wall_seconds"],

@@ -23,22 +23,21 @@ sys.path.insert(0, os.path.dirname(__file__))
 
 import _common  # noqa: E402
 
-from binpick.rl.config import load_config  # noqa: E402
+from binpick.rl.config import load_rl_config  # noqa: E402
 from binpick.rl.train import Trainer  # noqa: E402
+from binpick.terminal import RichCallback  # noqa: E402
 
 BASE = "configs/rl_fetchreach_gp_her.yaml"
 GOAL = (0.1, 0.05, 0.05)  # the single goal of Table 3.3, metres from the gripper's start
 
 
 def run(name: str, steps: int, seed: int, **changes) -> dict:
-    config = load_config(_common.ROOT / BASE)
-    config.name, config.total_timesteps, config.seed = name, steps, seed
-    config.eval.stop_after_successes = 0  # the tables need the whole run (e.g. iterations to < 5 actions)
-    for key, value in changes.items():
-        section, _, name = key.partition("__")
-        setattr(getattr(config, section) if name else config, name or section, value)
+    # the tables need the whole run (e.g. iterations to < 5 actions): no early stop
+    overrides = {"name": name, "total_timesteps": steps, "seed": seed, "eval.stop_after_successes": 0}
+    config = load_rl_config(_common.ROOT / BASE, overrides | {key.replace("__", "."): value for key, value in changes.items()})
     trainer = Trainer.new(config, _common.ROOT / "runs" / "bench")
-    metrics = trainer.run(show_progress=True)
+    with RichCallback() as callback:
+        metrics = trainer.run(callback)
     metrics["run_dir"] = str(trainer.run_dir.relative_to(_common.ROOT))
     reached = [e for e in metrics.pop("evaluations") if e["success_rate"] >= config.eval.success_threshold]
     metrics["at_threshold"] = reached[0] if reached else None  # what it took to first reach 95% success

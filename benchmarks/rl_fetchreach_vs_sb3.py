@@ -21,8 +21,9 @@ sys.path.insert(0, os.path.dirname(__file__))
 import _common  # noqa: E402
 import numpy as np  # noqa: E402
 
-from binpick.rl.config import load_config  # noqa: E402
+from binpick.rl.config import load_rl_config  # noqa: E402
 from binpick.rl.train import Trainer  # noqa: E402
+from binpick.terminal import RichCallback  # noqa: E402
 
 CONFIGS = {"sb3_sac_her": "configs/rl_fetchreach_sb3_sac_her.yaml", "binpick": "configs/rl_fetchreach_gp_her.yaml"}
 
@@ -82,11 +83,11 @@ def main() -> None:
             continue
         runs = []
         for seed in args.seeds:
-            config = load_config(_common.ROOT / config_path)
-            config.seed = seed
-            config.total_timesteps = args.sb3_steps if label == "sb3_sac_her" else args.binpick_steps
+            steps = args.sb3_steps if label == "sb3_sac_her" else args.binpick_steps
+            config = load_rl_config(_common.ROOT / config_path, {"seed": seed, "total_timesteps": steps})
             trainer = Trainer.new(config, _common.ROOT / "runs" / "bench")
-            metrics = trainer.run(show_progress=True)
+            with RichCallback() as callback:
+                metrics = trainer.run(callback)
             metrics["run_dir"] = str(trainer.run_dir.relative_to(_common.ROOT))
             runs.append(metrics)
             print(f"{label} seed {seed}: 95% at {metrics['sim_steps_to_threshold']} sim steps, final success "

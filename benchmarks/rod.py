@@ -38,6 +38,7 @@ def finished(folder: Path | None) -> bool:
 def train(runs: Path, only: list[str] | None) -> None:
     from binpick.detection.config import load_detect_config
     from binpick.detection.train import DetectorTrainer
+    from binpick.terminal import RichCallback
 
     for name in only or CONFIGS:
         folder = run_folder(runs, name)
@@ -45,11 +46,12 @@ def train(runs: Path, only: list[str] | None) -> None:
             print(f"{name}: finished in {folder}", flush=True)
             continue
         if folder is not None:
-            trainer = DetectorTrainer(resume=folder)
+            trainer = DetectorTrainer.resume(folder)
         else:
-            trainer = DetectorTrainer(load_detect_config(_common.ROOT / "configs" / f"{name}.yaml"), runs)
+            trainer = DetectorTrainer.new(load_detect_config(_common.ROOT / "configs" / f"{name}.yaml"), runs)
         print(f"{name}: training in {trainer.run_dir} from epoch {trainer.epoch}", flush=True)
-        metrics = trainer.run()
+        with RichCallback() as callback:
+            metrics = trainer.run(callback)
         print(f"{name}: {metrics['final']}", flush=True)
 
 

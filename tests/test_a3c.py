@@ -105,7 +105,7 @@ def _check_init_from(source, tmp_path):
     from binpick.config import from_dict
     from binpick.errors import ConfigError
     from binpick.rl.a3c_train import read_a3c_checkpoint
-    from binpick.rl.checkpoints import latest_checkpoint
+    from binpick.runs import latest_checkpoint
     from binpick.rl.config import RLConfig
     from binpick.rl.train import trainer_for
 
@@ -140,6 +140,6 @@ def test_sb3_curriculum_callback_widens_the_training_envs_goal_area(tmp_path):
     seen = []
     original = trainer.env.unwrapped.set_goal_area
     trainer.env.unwrapped.set_goal_area = lambda area: (seen.append(area), original(area))
-    trainer.run(show_progress=False)
+    trainer.run()
     assert seen[0] == 0.0 and seen[-1] == 1.0 and seen == sorted(seen)
     assert trainer.env.unwrapped.goal_area == 1.0

@@ -16,6 +16,7 @@ from stable_baselines3 import SAC
 from binpick.april.finetune import widen_from_semantic
 from binpick.envs import make
 from binpick.errors import ConfigError
+from binpick.runs import SILENT
 from binpick.rl.wrappers import SemanticState
 
 CLI = [sys.executable, "-c", "from binpick.cli import main; main()"]
@@ -94,7 +95,7 @@ def test_april_pipeline_runs_resumes_and_deploys_from_pixels(tmp_path):
     data_time = (run / "data" / "random.npz").stat().st_mtime_ns
     resumed = subprocess.run([*CLI, "april", "run", "--resume", str(run)], capture_output=True, text=True, timeout=600)
     assert resumed.returncode == 0, resumed.stderr
-    assert "stage evaluate" in resumed.stderr and "stage collect" not in resumed.stderr
+    assert "stage evaluate" in resumed.stdout and "stage collect" not in resumed.stdout
     assert (run / "data" / "random.npz").stat().st_mtime_ns == data_time
     # the deployed policy: one call to load, an image in, an action out
     policy = Policy.load(run)
@@ -120,7 +121,7 @@ def _latent_policy_widened_from_the_shared_state_policy(first_run, tmp_path):
                       .replace("finetune_steps", f"state_run: {state_run}, finetune_steps")
                       .replace("eval:", "refine: {episodes: 2, epochs: 1}\neval:"))
     run = AprilRun.new(load_april_config(config), tmp_path / "runs")
-    rows = run.run(show_progress=False)["rows"]
+    rows = run.run()["rows"]
     assert list(rows) == ["pixels_vae_n8_m6_w1_refined"] and not (run.run_dir / "rl").exists()
     assert run.stages["policy"]["semantic_run"] == state_run
     assert run.stages["finetune"]["widened"] and run.stages["finetune"]["sim_steps"] == 60
@@ -145,7 +146,7 @@ def test_bad_april_input_is_one_clear_line(tmp_path):
 
 
 def test_scripted_pick_and_place_heuristic_completes_the_task():
-    from binpick.april.heuristic import PickAndPlaceHeuristic
+    from binpick.rl.heuristic import PickAndPlaceHeuristic
     from binpick.rl.evaluate import evaluate_policy
 
     result = evaluate_policy(make("FetchPickAndPlace"), PickAndPlaceHeuristic(), episodes=6, seed=0)
@@ -171,7 +172,7 @@ sac: {batch_size: 64, net_arch: [64, 64]}
 demonstrations: {episodes: 4, bc_steps: 1000, noise: 0.0}
 eval: {every: 1000, episodes: 1}
 """))
-    from binpick.april.heuristic import PickAndPlaceHeuristic
+    from binpick.rl.heuristic import PickAndPlaceHeuristic
     from binpick.rl.demonstrations import collect_demonstrations
 
     trainer = trainer_for(config, tmp_path)
@@ -189,7 +190,7 @@ eval: {every: 1000, episodes: 1}
     trainer.learn_from_demonstrations()
     assert trainer.metrics.demo_episodes == 4 and trainer.model.replay_buffer.added["real"] == 4
     assert imitation_error() < 0.7 * before, (before, imitation_error())
-    metrics = trainer.run(show_progress=False)
+    metrics = trainer.run()
     assert metrics["demo_episodes"] == 4 and metrics["sim_episodes"] >= 4
     with pytest.raises(ConfigError, match="GP models the gripper alone"):
         from_dict(RLConfig, {"env": "FetchPickAndPlace", "gp": {"enabled": True}})
@@ -246,7 +247,7 @@ eval: {every: 1000, episodes: 1}
     dropped, _ = cloning_loss(fake, demo_states, demo_actions, q_filter=True)
     assert float(kept) == pytest.approx(float(mse)) and float(mse) > 0 and float(dropped) == 0.0
 
-    metrics = trainer.run(show_progress=False)
+    metrics = trainer.run()
     assert metrics["sim_steps"] == 60 and trainer.model._n_updates > 0
     resumed = Trainer.resume(trainer.run_dir)
     assert resumed.model.bc_alpha == 2.5 and resumed.model.bc_q_filter and resumed.model.bc_likelihood_weight == 0.1
@@ -270,7 +271,7 @@ perception: {kind: ae, latent: 9, conditioned: 9, channels: 4}
 policy: {mode: latent, pretrain: false}
 """))
     run = AprilRun.new(config, tmp_path)
-    result = run.stage_collect(show_progress=False)
+    result = run.stage_collect(SILENT)
     assert result["policy"] == "heuristic" and result["sim_episodes"] == 2
     states = np.load(run.run_dir / "data" / "random.npz")["states"]
     assert states.shape[1] == 9  # gripper, object, goal

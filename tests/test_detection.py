@@ -173,13 +173,13 @@ def test_training_learns_the_toy_set_resumes_and_predicts(tmp_path):
 data: {{train: {path}, val: {path}, targets: all, image_size: 128, augment: false}}
 train: {{epochs: 2, batch_size: 4, lr: 0.002, warmup_steps: 4, eval_every: 2, workers: 0, threads: 2}}
 """)
-    trainer = DetectorTrainer(load_detect_config(config), tmp_path / "runs")
+    trainer = DetectorTrainer.new(load_detect_config(config), tmp_path / "runs")
     trainer.run()
     assert (trainer.run_dir / "model.safetensors").is_file() and trainer.epoch == 2
     # resume: same run folder, more epochs, continues from epoch 2's checkpoint
     text = (trainer.run_dir / "config.yaml").read_text().replace("epochs: 2", "epochs: 25")
     (trainer.run_dir / "config.yaml").write_text(text)
-    resumed = DetectorTrainer(resume=trainer.run_dir)
+    resumed = DetectorTrainer.resume(trainer.run_dir)
     assert resumed.epoch == 2 and resumed.step == trainer.step
     metrics = resumed.run()
     assert metrics["epochs"] == 25

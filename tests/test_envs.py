@@ -149,3 +149,19 @@ def test_episode_limit_T(env_id, limit, make_env):
         steps += 1
         done = terminated or truncated
     assert steps == 7 and truncated
+
+
+@pytest.mark.parametrize("env_id,kwargs", [(i, {}) for i in binpick.ENV_IDS] + [("binpick/Arm2D-v0", {"goal_conditioned": True})])
+def test_every_env_passes_stable_baselines3_check_env(env_id, kwargs, make_env):
+    """SB3's checker on the unwrapped env: a goal env only where there is a goal dict (Arm2D's pixel
+    task has no compute_reward), float rewards (Gymnasium-Robotics returns float32)."""
+    import warnings
+
+    from stable_baselines3.common.env_checker import check_env
+
+    env = make_env(env_id, **kwargs)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        check_env(env.unwrapped, warn=False)
+    goal_env = binpick.envs.env_spec(env_id).goal_conditioned or kwargs.get("goal_conditioned", False)
+    assert hasattr(env.unwrapped, "compute_reward") == goal_env

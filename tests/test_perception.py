@@ -40,7 +40,7 @@ def test_encoder_decoder_shapes_and_vae_sigma_only_on_free_dims():
 def test_conditioning_makes_the_latent_predict_the_semantic_state(tmp_path):
     images, states = dot_images(600)
     conditioned, history = train_perception(PerceptionConfig(latent=2, conditioned=2, omega=1.0, channels=8),
-                                            images, states, epochs=12, batch_size=32, show_progress=False)
+                                            images, states, epochs=12, batch_size=32)
     errors = [row["state_mae"] for row in history["epochs"]]
     baseline = float(np.abs(states - states.mean(0)).mean())  # predicting the mean position
     assert errors[-1] < 0.4 * baseline, (errors, baseline)

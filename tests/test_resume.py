@@ -80,7 +80,7 @@ def die():
 
 {killer}
 trainer = train.trainer_for(from_dict(RLConfig, load_yaml(sys.argv[1])), Path(sys.argv[2]))
-trainer.run(show_progress=False)
+trainer.run()
 """
 
 
@@ -154,7 +154,7 @@ def die():
     os.kill(os.getpid(), signal.SIGKILL)
 
 {killer}
-trainer = train.DetectorTrainer(load_detect_config(sys.argv[1]), Path(sys.argv[2]))
+trainer = train.DetectorTrainer.new(load_detect_config(sys.argv[1]), Path(sys.argv[2]))
 trainer.run()
 """
 
@@ -211,7 +211,7 @@ def die():
 
 {killer}
 if __name__ == "__main__":  # the workers are spawned processes
-    A3CTrainer.new(from_dict(RLConfig, load_yaml(sys.argv[1])), Path(sys.argv[2])).run(show_progress=False)
+    A3CTrainer.new(from_dict(RLConfig, load_yaml(sys.argv[1])), Path(sys.argv[2])).run()
 """
 
 

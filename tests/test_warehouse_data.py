@@ -112,12 +112,12 @@ def test_generation_resumes_without_losing_or_duplicating_scenes(tmp_path, monke
 
     monkeypatch.setattr(dataset, "_LIBRARIES", {})
     monkeypatch.setattr(dataset, "default_library", lambda seed=0: default_library(procedural=3, seed=seed))
-    clean = generate(_tiny(tmp_path / "clean"), show_progress=False)
+    clean = generate(_tiny(tmp_path / "clean"))
     assert clean["scenes"] == 4 and clean["instances_per_image"] >= 2
     partial = tmp_path / "partial"
-    generate(_tiny(partial, scenes=2), show_progress=False)  # as if killed after two scenes ...
+    generate(_tiny(partial, scenes=2))  # as if killed after two scenes ...
     (partial / "images" / "000002.png").write_bytes(b"half-written")  # ... while writing the third
-    generate(_tiny(partial), show_progress=False)
+    generate(_tiny(partial))
     coco = json.loads((partial / "annotations.json").read_text())
     reference = json.loads((tmp_path / "clean" / "annotations.json").read_text())
     assert [i["id"] for i in coco["images"]] == [1, 2, 3, 4]
@@ -126,11 +126,11 @@ def test_generation_resumes_without_losing_or_duplicating_scenes(tmp_path, monke
     assert sum(1 for a in coco["annotations"] if a["is_query"]) == 4
     assert (partial / "photos" / "robosuite_can.png").is_file() and (partial / "CARD.md").is_file()
     with pytest.raises(ConfigError, match="made with other settings"):
-        generate(_tiny(partial, image_size=96), show_progress=False)
+        generate(_tiny(partial, image_size=96))
     (tmp_path / "unrelated").mkdir()
     (tmp_path / "unrelated" / "notes.txt").write_text("mine")
     with pytest.raises(ConfigError, match="not empty and is not a binpick data set"):
-        generate(_tiny(tmp_path / "unrelated"), show_progress=False)
+        generate(_tiny(tmp_path / "unrelated"))
     (partial / "scenes" / "000001.json").write_text("{broken")
     with pytest.raises(InputFileError, match="000001.json' is not valid JSON.*redo that scene"):
         finalise(partial)
@@ -145,7 +145,7 @@ def test_labels_and_zero_shot_split(tmp_path, monkeypatch):
     config = _tiny(tmp_path / "labelled", scenes=2, scenes_per_world=1, policies=["x", "y"], copies=(2, 2), targets=["can", "toy"],
                    distractors=(0, 0), held_out_categories=["can", "bottle", "box", "carton", "bakery", "fruit", "toy", "mug",
                                                             "procedural_box", "procedural_cylinder", "procedural_sphere"])
-    stats = generate(config, show_progress=False)
+    stats = generate(config)
     assert stats["splits"] == {"test": 2} and stats["labelled_instances"] >= 3
     coco = json.loads((tmp_path / "labelled" / "annotations_test.json").read_text())
     targets = [a for a in coco["annotations"] if a["is_target"]]

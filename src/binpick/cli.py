@@ -8,19 +8,18 @@ from __future__ import annotations
 import json
 import sys
 import time
-from dataclasses import replace
 from pathlib import Path
 from typing import Annotated
 
 import typer
 import yaml
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 from rich.text import Text
 
 from binpick.errors import BinpickError, ConfigError
 from binpick.files import atomic_write, atomic_write_json, check_output_file, ensure_dir
+from binpick.terminal import RichCallback
 
 app = typer.Typer(help="Learned bin picking: simulated worlds, RL, APRiL and repeated object detection.",
                   no_args_is_help=True, pretty_exceptions_enable=False, add_completion=False)
@@ -63,9 +62,33 @@ def parse_settings(pairs: list[str] | None) -> dict:
     return settings
 
 
-def progress_bar() -> Progress:
-    return Progress(TextColumn("{task.description}", style="bold", markup=False), BarColumn(), MofNCompleteColumn(),
-                    TimeElapsedColumn(), TimeRemainingColumn(), console=console, transient=False)
+def progress() -> RichCallback:
+    """Progress bars on this command's console (``with progress() as callback: job.run(callback)``)."""
+    return RichCallback(console)
+
+
+ConfigSetOption = Annotated[list[str] | None, typer.Option("--set", help="Config override KEY=VALUE or SECTION.KEY=VALUE, applied "
+                                                                        "before validation (repeatable), e.g. --set train.epochs=2")]
+
+
+def start_or_resume(job_class, config: Path | None, resume: Path | None, runs: Path, load, overrides: dict,
+                    where=lambda job: ""):
+    """The one way every training command starts: a new run from ``config`` (YAML + ``--set``
+    overrides, validated once by ``load``) or ``--resume`` of a run folder (its own saved config);
+    ``where(job)`` says how far a resumed run had come."""
+    if (config is None) == (resume is None):
+        raise ConfigError("give either a CONFIG file to start a run or --resume RUN_DIR to continue one")
+    if resume is not None:
+        if not (resume / "config.yaml").is_file():
+            raise ConfigError(f"{str(resume)!r} is not a run folder (no config.yaml)")
+        if overrides:
+            raise ConfigError("--set and other overrides apply to new runs; a resumed run keeps its config.yaml")
+        job = job_class.resume(resume)
+        console.print(f"resuming {resume}{where(job)}")
+        return job
+    job = job_class.new(load(config, overrides), runs)
+    console.print(f"run folder: {job.run_dir}")
+    return job
 
 
 @envs_app.command("list")
@@ -91,7 +114,7 @@ def envs_show(
 ) -> None:
     """Reset an env and save what a person sees (and the policy's image observation, if any)."""
 
-    from binpick.envs import make, resolve_env_id
+    from binpick.envs import env_spec, make, resolve_env_id
 
     env_id = resolve_env_id(env_id)
     _check_png_path(out)
@@ -99,7 +122,7 @@ def envs_show(
     own = sorted(set(kwargs) & {"render_mode", "render_size", "width", "height"})
     if own:
         raise ConfigError(f"--set {own[0]}: `envs show` sets the frame itself; give --size instead")
-    kwargs.update({"render_size": size} if env_id.endswith("Arm2D-v0") else {"width": size, "height": size})
+    kwargs.update(dict.fromkeys(env_spec(env_id).frame_size, size))
     env = make(env_id, render_mode="rgb_array", **kwargs)
     try:
         observation, _ = env.reset(seed=seed)
@@ -135,10 +158,9 @@ def envs_rollout(
         check_output_file(json_out, "--json")
     env = make(env_id, **parse_settings(settings))
     try:
-        with progress_bar() as progress:
-            task = progress.add_task(f"{env.spec.id} · {policy}", total=episodes)
+        with progress() as callback, callback.task(f"{env.spec.id} · {policy}", episodes) as task:
             result = evaluate_policy(env, random_policy(env, seed), episodes=episodes, seed=seed,
-                                     on_episode=lambda *_: progress.advance(task))
+                                     on_episode=lambda *_: task.update(advance=1))
     finally:
         env.close()
     console.print(result.summary())
@@ -164,8 +186,7 @@ def tour(
         table.add_column(column)
     summary = []
     started = time.perf_counter()
-    with progress_bar() as progress:
-        overall = progress.add_task("all envs", total=len(ENV_IDS) * episodes)
+    with progress() as callback, callback.task("all envs", len(ENV_IDS) * episodes) as overall:
         for env_id in ENV_IDS:
             name = env_id.split("/")[1]
             env = make(env_id, render_mode="rgb_array")
@@ -173,13 +194,12 @@ def tour(
                 env.reset(seed=0)
                 frame_path = run_dir / f"{name}.png"
                 _save_png(env.render(), frame_path)
-                task = progress.add_task(name, total=episodes)
+                with callback.task(name, episodes) as task:
+                    def advance(*_: object) -> None:
+                        task.update(advance=1)
+                        overall.update(advance=1)
 
-                def advance(*_: object, task: int = task) -> None:
-                    progress.advance(task)
-                    progress.advance(overall)
-
-                result = evaluate_policy(env, random_policy(env, 0), episodes=episodes, seed=0, on_episode=advance)
+                    result = evaluate_policy(env, random_policy(env, 0), episodes=episodes, seed=0, on_episode=advance)
             finally:
                 env.close()
             summary.append(result.to_dict())
@@ -195,27 +215,21 @@ def rl_train(
     config: Annotated[Path | None, typer.Argument(help="YAML config (see configs/rl_*.yaml)")] = None,
     resume: Annotated[Path | None, typer.Option(help="Run folder to continue from its latest checkpoint")] = None,
     runs: Annotated[Path, typer.Option(help="Where new run folders go")] = Path("runs"),
-    steps: Annotated[int | None, typer.Option(help="Override total_timesteps (simulator steps)")] = None,
-    seed: Annotated[int | None, seed_option("Override the seed")] = None,
-    init_from: Annotated[Path | None, typer.Option(help="A3C: start from this run's latest checkpoint")] = None,
+    steps: Annotated[int | None, typer.Option(help="Same as --set total_timesteps=N (simulator steps)")] = None,
+    seed: Annotated[int | None, seed_option("Same as --set seed=N")] = None,
+    init_from: Annotated[Path | None, typer.Option(help="A3C: start from this run's latest checkpoint (--set init_from=RUN)")] = None,
+    settings: ConfigSetOption = None,
 ) -> None:
     """Train a run: checkpoints, TensorBoard, metrics.json and curves.png in runs/<name>/<time>/."""
-    from binpick.rl.config import load_config
-    from binpick.rl.train import trainer_for
+    from binpick.rl.config import load_rl_config
+    from binpick.rl.train import RLRun
 
-    if (config is None) == (resume is None):
-        raise ConfigError("give either a CONFIG file to start a run or --resume RUN_DIR to continue one")
-    if resume is not None:
-        if not (resume / "config.yaml").is_file():
-            raise ConfigError(f"{str(resume)!r} is not a run folder (no config.yaml)")
-        trainer = trainer_for(resume=resume)
-        console.print(f"resuming {resume} at {trainer.steps_done} simulator steps")
-    else:
-        overrides = {"total_timesteps": steps, "seed": seed, "init_from": None if init_from is None else str(init_from)}
-        settings = replace(load_config(config), **{k: v for k, v in overrides.items() if v is not None})  # validated again
-        trainer = trainer_for(settings, runs)
-        console.print(f"run folder: {trainer.run_dir}")
-    metrics = trainer.run()
+    flags = {"total_timesteps": steps, "seed": seed, "init_from": None if init_from is None else str(init_from)}
+    overrides = parse_settings(settings) | {k: v for k, v in flags.items() if v is not None}
+    trainer = start_or_resume(RLRun, config, resume, runs, load_rl_config, overrides,
+                              where=lambda job: f" at {job.steps_done} simulator steps")
+    with progress() as callback:
+        metrics = trainer.run(callback)
     summary = (f"final success {metrics['final_success']:.0%}, average actions {metrics['final_avg_actions']:.2f} "
                f"± {metrics['final_std_actions']:.2f}")
     if metrics.get("sim_steps_to_threshold", "absent") != "absent":
@@ -249,12 +263,11 @@ def rl_distributed(
         config = DistributedA3CConfig(env=resolve_env_id(env_id or "Arm2D"), workers=workers, total_timesteps=steps,
                                       address=address, seed=seed)
     run_dir = ensure_dir(out, "--out") / time.strftime("%Y%m%d-%H%M%S")  # written when the run ends
-    with progress_bar() as progress:
-        task = progress.add_task(f"{algorithm}, {workers} workers", total=steps)
+    with progress() as callback, callback.task(f"{algorithm}, {workers} workers", steps) as task:
         if algorithm == "sac":
-            metrics = train_distributed(config, run_dir, on_episode=lambda _e, _r, model: progress.update(task, completed=model.num_timesteps))
+            metrics = train_distributed(config, run_dir, on_episode=lambda _e, _r, model: task.update(model.num_timesteps))
         else:
-            metrics = train_a3c_distributed(config, run_dir, on_update=lambda done, _pool: progress.update(task, completed=done))
+            metrics = train_a3c_distributed(config, run_dir, on_update=lambda done, _pool: task.update(done))
     lost = metrics.get("lost_episodes", metrics.get("lost_rollouts"))
     console.print(f"{metrics['env_steps']} env steps in {metrics['wall_s']} s ({lost} lost to dead workers); "
                   f"final success {metrics['final_success']:.0%}, {metrics['final_avg_actions']:.1f} actions; wrote {run_dir}")
@@ -281,9 +294,8 @@ def _evaluate_with_progress(env, policy, label: str, episodes: int, seed: int) -
     from binpick.rl.evaluate import evaluate_policy
 
     try:
-        with progress_bar() as progress:
-            task = progress.add_task(label, total=episodes)
-            result = evaluate_policy(env, policy, episodes=episodes, seed=seed, on_episode=lambda *_: progress.advance(task))
+        with progress() as callback, callback.task(label, episodes) as task:
+            result = evaluate_policy(env, policy, episodes=episodes, seed=seed, on_episode=lambda *_: task.update(advance=1))
     finally:
         env.close()
     console.print(result.summary())
@@ -294,15 +306,15 @@ def april_run(
     config: Annotated[Path | None, typer.Argument(help="YAML config (see configs/april_*.yaml)")] = None,
     resume: Annotated[Path | None, typer.Option(help="APRiL run folder to continue after a crash")] = None,
     runs: Annotated[Path, typer.Option(help="Where new run folders go")] = Path("runs"),
+    settings: ConfigSetOption = None,
 ) -> None:
     """The whole pipeline: collect -> perception -> policy -> evaluate (resumable per stage)."""
     from binpick.april import AprilRun, load_april_config
 
-    if (config is None) == (resume is None):
-        raise ConfigError("give either a CONFIG file to start an APRiL run or --resume RUN_DIR to continue one")
-    run = AprilRun.resume(resume) if resume is not None else AprilRun.new(load_april_config(config), runs)
-    console.print(f"run folder: {run.run_dir}" + (f" (done: {', '.join(run.stages) or 'nothing yet'})" if resume else ""))
-    result = run.run()
+    run = start_or_resume(AprilRun, config, resume, runs, load_april_config, parse_settings(settings),
+                          where=lambda job: f" (done: {', '.join(job.stages) or 'nothing yet'})")
+    with progress() as callback:
+        result = run.run(callback)
     table = Table(title=f"{run.config.name}: average actions per episode")
     for column in ("row", "avg actions ± std", "success", "simulator episodes"):
         table.add_column(column)
@@ -357,19 +369,23 @@ def data_generate(
     targets: Annotated[str, typer.Option(help="Products or categories to fill bins with, comma-separated (default: all)")] = "",
     randomise: Annotated[bool, typer.Option(help="Randomise lighting and colours per world")] = False,
     seed: Annotated[int, seed_option("Seed")] = 0,
+    settings: Annotated[list[str] | None, typer.Option("--set", help="Any other generator setting KEY=VALUE, e.g. "
+                                                                     "--set val_fraction=0.25 (see GenerateConfig)")] = None,
 ) -> None:
     """Generate bin scenes (resumes after a kill), shop photos, COCO files and a data-set card."""
-    from binpick.warehouse.dataset import GenerateConfig, generate
+    from binpick.config import from_dict
+    from binpick.warehouse.dataset import DataGeneration, GenerateConfig
 
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {str(out)!r} is a file, not a data-set folder")
-
-    config = GenerateConfig(out=str(out), scenes=scenes, policies=[p for p in policies.split(",") if p], workers=workers,
-                            image_size=size, copies=_pair(copies, "copies"), distractors=_pair(distractors, "distractors"),
-                            held_out_categories=[c for c in held_out.split(",") if c], randomise=randomise,
-                            targets=[t for t in targets.split(",") if t],
-                            products=str(products) if products else None, only_products=only_products, seed=seed)
-    stats = generate(config)
+    flags = {"out": str(out), "scenes": scenes, "policies": [p for p in policies.split(",") if p], "workers": workers,
+             "image_size": size, "copies": list(_pair(copies, "copies")), "distractors": list(_pair(distractors, "distractors")),
+             "held_out_categories": [c for c in held_out.split(",") if c], "randomise": randomise,
+             "targets": [t for t in targets.split(",") if t], "products": str(products) if products else None,
+             "only_products": only_products, "seed": seed}
+    config = from_dict(GenerateConfig, flags | parse_settings(settings), where="data generate")  # validated once
+    with progress() as callback:
+        stats = DataGeneration.new(config).run(callback)
     _print_stats(stats, out)
 
 
@@ -419,28 +435,17 @@ def detect_train(
     config: Annotated[Path | None, typer.Argument(help="YAML config (see configs/rod_*.yaml)")] = None,
     resume: Annotated[Path | None, typer.Option(help="Run folder to continue from its latest checkpoint")] = None,
     runs: Annotated[Path, typer.Option(help="Where new run folders go")] = Path("runs"),
-    settings: Annotated[list[str] | None, typer.Option("--set", help="Config override KEY=VALUE, e.g. --set train.epochs=2")] = None,
+    settings: ConfigSetOption = None,
 ) -> None:
     """Train a detector: checkpoints each epoch, TensorBoard, metrics.json and model.safetensors in runs/<name>/<time>/."""
     from binpick.detection.config import load_detect_config
     from binpick.detection.train import DetectorTrainer
 
-    if (config is None) == (resume is None):
-        raise ConfigError("give either a CONFIG file to start a run or --resume RUN_DIR to continue one")
-    with progress_bar() as progress:
-        task = progress.add_task("training", total=None)
-
-        def on_step(step: int, total: int) -> None:
-            progress.update(task, completed=step, total=total)
-
-        if resume is not None:
-            if not (resume / "config.yaml").is_file():
-                raise ConfigError(f"{str(resume)!r} is not a run folder (no config.yaml)")
-            trainer = DetectorTrainer(resume=resume, on_step=on_step)
-        else:
-            trainer = DetectorTrainer(load_detect_config(config, parse_settings(settings)), runs, on_step=on_step)
-        progress.console.print(f"run folder: {trainer.run_dir} ({len(trainer.train_set)} training tasks, epoch {trainer.epoch})")
-        metrics = trainer.run()
+    trainer = start_or_resume(DetectorTrainer, config, resume, runs, load_detect_config, parse_settings(settings),
+                              where=lambda job: f" at epoch {job.epoch}")
+    console.print(f"{len(trainer.train_set)} training tasks")
+    with progress() as callback:
+        metrics = trainer.run(callback)
     final = metrics["final"]
     console.print(f"val AP50 {_fmt(final.get('ap50'))}, mAP {_fmt(final.get('map'))}; wrote {trainer.run_dir / 'model.safetensors'}")
 
@@ -465,9 +470,8 @@ def detect_eval(
     model = load_detector(run)
     targets = targets or model.trained_config.get("data", {}).get("targets", "all")
     dataset = TaskDataset(RepeatedInstances(data, targets=targets), model.image_size, model.spec.query, model.query_size)
-    with progress_bar() as progress:
-        task = progress.add_task("evaluating", total=len(dataset))
-        metrics = evaluate_model(model, dataset, progress=lambda n: progress.advance(task, n))
+    with progress() as callback, callback.task("evaluating", len(dataset)) as task:
+        metrics = evaluate_model(model, dataset, progress=lambda n: task.update(advance=n))
     table = Table(title=f"{run} on {data} ({len(dataset)} tasks, targets {targets})")
     for column in ("ground truth", "AP50", "mAP"):
         table.add_column(column)
@@ -690,15 +694,14 @@ def _fulfil(pipeline, products: list[str], orders: int, seed: int, run_dir: Path
     table = Table(title=f"{orders} order{'s' if orders > 1 else ''}")
     for column in ("order", "product", "trained", "result", "tries", "found", "s"):
         table.add_column(column, no_wrap=column != "result")  # long failure reasons wrap; the rest stays whole
-    with progress_bar() as progress:
-        task = progress.add_task("orders", total=orders)
+    with progress() as callback, callback.task("orders", orders) as task:
 
         def row(result) -> None:
             seen = "?" if result.seen is None else "yes" if result.seen else "no"
             outcome = Text("placed", style="green") if result.success else Text(str(result.reason), style="red")
             table.add_row(str(result.order), result.product, seen, outcome,
                           str(len(result.attempts)), str(result.detections), f"{result.seconds:.1f}")
-            progress.advance(task)
+            task.update(advance=1)
 
         summary, _ = fulfil(pipeline, products, orders, seed, run_dir, on_order=row)
     console.print(table)

@@ -8,15 +8,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from binpick.config import check_choice, check_range, from_dict, load_yaml
+from binpick.config import check_choice, check_range, load_config
 from binpick.errors import ConfigError
 from binpick.perception.autoencoder import PerceptionConfig
 
-ENVS = ("binpick/Reacher-v0", "binpick/FetchReach-v0", "binpick/FetchReachObstacle-v0", "binpick/FetchPickAndPlace-v0")
+
 POLICY_MODES = ("semantic", "latent", "state_plus_latent")
 
 
-@dataclass
+@dataclass(frozen=True)
 class CollectConfig:
     """Episodes with images and semantic state for perception (thesis §4.2): a random policy, or for
     pick and place the scripted heuristic (§4.5.3), since random arms almost never move the object."""
@@ -32,7 +32,7 @@ class CollectConfig:
         check_range("collect.noise", self.noise, 0.0, 1.0)
 
 
-@dataclass
+@dataclass(frozen=True)
 class PerceptionTraining:
     epochs: int = 20
     batch_size: int = 64
@@ -44,7 +44,7 @@ class PerceptionTraining:
         check_range("perception_training.learning_rate", self.learning_rate, 0.0, 1.0, low_inclusive=False)
 
 
-@dataclass
+@dataclass(frozen=True)
 class PolicyConfig:
     """How the policy learns and what it sees.
 
@@ -69,7 +69,7 @@ class PolicyConfig:
         check_range("policy.learning_starts", self.learning_starts, 0, 100_000_000, integer=True)
 
 
-@dataclass
+@dataclass(frozen=True)
 class RefineConfig:
     """Perception trained further on the state policy's own episodes (thesis §4.5.2: "the data from the
     random policy and any episodes collected using the simulator are used to train the perception
@@ -85,7 +85,7 @@ class RefineConfig:
         check_range("refine.action_noise", self.action_noise, 0.0, 2.0)
 
 
-@dataclass
+@dataclass(frozen=True)
 class AprilEval:
     episodes: int = 100
     seed: int = 20_000
@@ -94,7 +94,7 @@ class AprilEval:
         check_range("eval.episodes", self.episodes, 1, 100_000, integer=True)
 
 
-@dataclass
+@dataclass(frozen=True)
 class AprilConfig:
     name: str = "april"
     env: str = "binpick/FetchReach-v0"
@@ -110,11 +110,15 @@ class AprilConfig:
     eval: AprilEval = field(default_factory=AprilEval)
 
     def __post_init__(self) -> None:
-        from binpick.envs import resolve_env_id
+        from binpick.envs import ENVS, env_spec
 
-        self.env = check_choice("env", resolve_env_id(self.env), ENVS)
+        spec = env_spec(self.env)
+        if not spec.goal_conditioned or spec.discrete_actions:
+            raise ConfigError(f"APRiL needs a goal-conditioned env with continuous actions, not {spec.env_id}; "
+                              f"choose one of {', '.join(s.env_id for s in ENVS.values() if s.goal_conditioned)}")
+        object.__setattr__(self, "env", spec.env_id)  # frozen: normalised once
         check_choice("image", self.image, ["rgb", "grey"])
-        if self.collect.policy == "heuristic" and self.env != "binpick/FetchPickAndPlace-v0":
+        if self.collect.policy == "heuristic" and not spec.moves_object:
             raise ConfigError(f"collect.policy heuristic is the pick-and-place script; {self.env} collects with random")
         check_range("image_size", self.image_size, 64, 512, integer=True)
         if self.image_size % 64:
@@ -132,5 +136,5 @@ class AprilConfig:
                 raise ConfigError(f"policy.rl_config: no such file {self.policy.rl_config!r}")
 
 
-def load_april_config(path: str | Path) -> AprilConfig:
-    return from_dict(AprilConfig, load_yaml(path), where=Path(path).name)
+def load_april_config(path: str | Path, overrides: dict | None = None) -> AprilConfig:
+    return load_config(AprilConfig, path, overrides)

@@ -9,6 +9,7 @@ import numpy as np
 
 from binpick.april.observations import EncodedObservation, GoalRecorder, PixelsAsSemantic
 from binpick.rl.evaluate import evaluate_policy
+from binpick.runs import SILENT, RunCallback
 
 if TYPE_CHECKING:
     from binpick.april.pipeline import AprilRun
@@ -18,12 +19,12 @@ def deployment_env(run: AprilRun, runtime_input: str):
     """The env and policy exactly as deployed: ``state`` (ground truth, semantic modes) or ``pixels``."""
     from binpick.april.finetune import with_action_scale
     from binpick.perception import load_perception, perception_path
-    from binpick.rl.config import load_config
+    from binpick.rl.config import load_rl_config
     from binpick.rl.train import load_policy
     from binpick.rl.wrappers import SemanticState
 
     mode = run.config.policy.mode
-    scale = load_config(run.config.policy.rl_config).min_action_scale
+    scale = load_rl_config(run.config.policy.rl_config).min_action_scale
     if mode == "semantic":
         policy, _ = load_policy(Path(run.stages["policy"]["semantic_run"]))
         if runtime_input == "state":
@@ -63,25 +64,22 @@ def row_names(run: AprilRun) -> dict[str, str]:
     return {"pixels": pixels}
 
 
-def evaluate_rows(run: AprilRun, show_progress: bool = True) -> dict[str, Any]:
-    from binpick.april.pipeline import _progress
+def evaluate_rows(run: AprilRun, callback: RunCallback = SILENT) -> dict[str, Any]:
     from binpick.viz.april import plot_goal_heatmap
 
     episodes, seed = run.config.eval.episodes, run.config.eval.seed
     used = run.sim_episodes
     rows = {}
-    with _progress("evaluate", show_progress) as progress:
-        for runtime_input, name in row_names(run).items():
-            env, policy, recorder = deployment_env(run, runtime_input)
-            task = progress.add_task(name, total=episodes, status=name)
-            result = evaluate_policy(env, policy, episodes=episodes, seed=seed,
-                                     on_episode=lambda *_: progress.advance(task))
-            env.close()
-            goals = np.stack(recorder.goals[:episodes])
-            plot_goal_heatmap(goals, np.asarray(result.lengths), run.run_dir / f"heatmap_{name}.png",
-                              title=f"{run.config.name}: {name}")
-            # simulator episodes the row needed: the state row never used the image episodes
-            needed = used["state_policy"] + (0 if runtime_input == "state" else used["images"] + used["latent_policy"])
-            rows[name] = {"avg_actions": result.mean_length, "std": result.std_length, "success": result.success_rate,
-                          "sim_episodes": int(needed), "episodes": episodes}
+    for runtime_input, name in row_names(run).items():
+        env, policy, recorder = deployment_env(run, runtime_input)
+        with callback.task(f"evaluate {name}", episodes) as task:
+            result = evaluate_policy(env, policy, episodes=episodes, seed=seed, on_episode=lambda *_: task.update(advance=1))
+        env.close()
+        goals = np.stack(recorder.goals[:episodes])
+        plot_goal_heatmap(goals, np.asarray(result.lengths), run.run_dir / f"heatmap_{name}.png",
+                          title=f"{run.config.name}: {name}")
+        # simulator episodes the row needed: the state row never used the image episodes
+        needed = used["state_policy"] + (0 if runtime_input == "state" else used["images"] + used["latent_policy"])
+        rows[name] = {"avg_actions": result.mean_length, "std": result.std_length, "success": result.success_rate,
+                      "sim_episodes": int(needed), "episodes": episodes}
     return rows

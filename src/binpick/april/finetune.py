@@ -21,6 +21,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from binpick.april.observations import EncodedObservation
 from binpick.rl.persistence import SavedPolicy, save_policy
 from binpick.rl.wrappers import MinActionScale
+from binpick.runs import SILENT, RunCallback, Task
 
 LATENT_POLICY_FILE = "policy_latent.safetensors"  # SAC on φ_enc(I): weights + spaces, no pickle
 
@@ -81,27 +82,26 @@ def widen_from_semantic(semantic: SavedPolicy, latent: SAC, goal_dim: int) -> No
 
 
 class _Progress(BaseCallback):
-    def __init__(self, progress, task) -> None:
+    def __init__(self, task: Task) -> None:
         super().__init__()
-        self.progress, self.task, self.episodes = progress, task, 0
+        self.task, self.episodes = task, 0
 
     def _on_step(self) -> bool:
         self.episodes += int(np.sum(self.locals["dones"]))
-        self.progress.update(self.task, completed=self.num_timesteps, status=f"{self.episodes} episodes")
+        self.task.update(self.num_timesteps, status=f"{self.episodes} episodes")
         return True
 
 
-def finetune_latent_policy(run: AprilRun, semantic_run: str | None, show_progress: bool) -> dict[str, Any]:
+def finetune_latent_policy(run: AprilRun, semantic_run: str | None, callback: RunCallback = SILENT) -> dict[str, Any]:
     """Train (or fine-tune) SAC on encoded images; saves ``policy_latent.safetensors`` in the run folder."""
-    from binpick.april.pipeline import _progress
     from binpick.perception import load_perception, perception_path
-    from binpick.rl.config import load_config
+    from binpick.rl.config import load_rl_config
     from binpick.rl.train import load_policy
 
     torch.set_num_threads(1)  # small networks, one env: a second thread only competes with other jobs
     config, policy = run.config, run.config.policy
     perception = load_perception(perception_path(run.run_dir))
-    rl_settings = load_config(policy.rl_config)
+    rl_settings = load_rl_config(policy.rl_config)
     env = with_action_scale(EncodedObservation(run.make_env(), perception.encode, perception.config.latent,
                                                perception.config.conditioned, with_state=policy.mode == "state_plus_latent",
                                                gripper=run.gripper),
@@ -114,11 +114,10 @@ def finetune_latent_policy(run: AprilRun, semantic_run: str | None, show_progres
     if semantic_run is not None:
         semantic, _ = load_policy(Path(semantic_run))
         widen_from_semantic(semantic, model, env.unwrapped.observation_space["achieved_goal"].shape[0])
-    with _progress("fine-tune on φ_enc(I)", show_progress) as progress:
-        task = progress.add_task("finetune", total=policy.finetune_steps, status="")
-        callback = _Progress(progress, task)
+    with callback.task("fine-tune on φ_enc(I)", policy.finetune_steps) as task:
+        report = _Progress(task)
         if policy.finetune_steps:
-            model.learn(policy.finetune_steps, callback=callback, tb_log_name="latent")
+            model.learn(policy.finetune_steps, callback=report, tb_log_name="latent")
     save_policy(model, run.run_dir / LATENT_POLICY_FILE, algorithm="sac", env=config.env, mode=policy.mode)
     env.close()
-    return {"sim_episodes": callback.episodes, "sim_steps": int(model.num_timesteps), "widened": semantic_run is not None}
+    return {"sim_episodes": report.episodes, "sim_steps": int(model.num_timesteps), "widened": semantic_run is not None}

@@ -22,28 +22,19 @@ from typing import Any
 
 import numpy as np
 import yaml
-from rich.console import Console
-from rich.markup import escape
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from binpick.april.config import AprilConfig
 from binpick.april.observations import semantic_state
 from binpick.config import load_run_config, to_dict
 from binpick.errors import ConfigError, InputFileError
 from binpick.files import atomic_write, atomic_write_text, read_json_object, read_npz
-from binpick.rl.checkpoints import new_run_dir
+from binpick.runs import SILENT, RunCallback, new_run_dir
 
 STAGES = ("collect", "perception", "policy", "refine", "finetune", "evaluate")
-console = Console(stderr=True)
 
 
 def _write_json(path: Path, data: Any) -> None:
     atomic_write_text(path, json.dumps(data, indent=2))
-
-
-def _progress(label: str, show: bool) -> Progress:
-    return Progress(TextColumn(label, style="bold", markup=False), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[status]}"),
-                    TimeElapsedColumn(), disable=not show)
 
 
 class AprilRun:
@@ -90,32 +81,32 @@ class AprilRun:
         return make(self.config.env, **kwargs)
 
     # ------------------------------------------------------------------ the whole pipeline
-    def run(self, show_progress: bool = True) -> dict[str, Any]:
+    def run(self, callback: RunCallback = SILENT) -> dict[str, Any]:
         for stage in STAGES:
             if stage in self.stages:
                 continue
-            console.print(f"[bold]APRiL stage {stage}[/bold] ({escape(str(self.run_dir))})")
+            callback.message(f"APRiL stage {stage} ({self.run_dir})")
             started = time.perf_counter()
-            result = getattr(self, f"stage_{stage}")(show_progress)
+            result = getattr(self, f"stage_{stage}")(callback)
             self._done(stage, result | {"wall_seconds": round(time.perf_counter() - started, 1)})
         return self.stages["evaluate"]
 
     # ------------------------------------------------------------------ stages
-    def stage_collect(self, show_progress: bool) -> dict[str, Any]:
+    def stage_collect(self, callback: RunCallback) -> dict[str, Any]:
         """Random-policy (or heuristic) episodes; every observation's image and s̄ (the reset one included)."""
         collect = self.config.collect
         env = self.make_env()
         env.action_space.seed(collect.seed)
         if collect.policy == "heuristic":
-            from binpick.april.heuristic import PickAndPlaceHeuristic
+            from binpick.rl.heuristic import PickAndPlaceHeuristic
 
             heuristic = PickAndPlaceHeuristic(noise=collect.noise, seed=collect.seed)
             act = lambda: heuristic(env.unwrapped._get_obs())  # noqa: E731
         else:
             act = env.action_space.sample
         images, states, steps = [], [], 0
-        with _progress("collect", show_progress) as progress:
-            task = progress.add_task("collect", total=collect.episodes, status=f"{collect.policy} policy")
+        with callback.task("collect", collect.episodes) as task:
+            task.update(status=f"{collect.policy} policy")
             for episode in range(collect.episodes):
                 observation, _ = env.reset(seed=collect.seed + episode)
                 images.append(observation["image"])
@@ -127,14 +118,14 @@ class AprilRun:
                     states.append(semantic_state(observation, self.gripper))
                     steps += 1
                     done = terminated or truncated
-                progress.update(task, advance=1, status=f"{len(images):,} images")
+                task.update(advance=1, status=f"{len(images):,} images")
         env.close()
         path = self.run_dir / "data" / "random.npz"
         path.parent.mkdir(exist_ok=True)
         atomic_write(path, lambda handle: np.savez(handle, images=np.stack(images), states=np.stack(states)))
         return {"sim_episodes": collect.episodes, "sim_steps": steps, "images": len(images), "policy": collect.policy}
 
-    def stage_perception(self, show_progress: bool) -> dict[str, Any]:
+    def stage_perception(self, callback: RunCallback) -> dict[str, Any]:
         from binpick.perception import PERCEPTION_FILE, save_perception, train_perception
         from binpick.viz.april import plot_reconstructions
 
@@ -143,7 +134,7 @@ class AprilRun:
         training = self.config.perception_training
         model, history = train_perception(self.config.perception, images, states, epochs=training.epochs,
                                           batch_size=training.batch_size, learning_rate=training.learning_rate,
-                                          seed=self.config.seed, show_progress=show_progress)
+                                          seed=self.config.seed, callback=callback)
         save_perception(model, self.run_dir / PERCEPTION_FILE)
         _write_json(self.run_dir / "perception_history.json", history)
         rng = np.random.default_rng(self.config.seed)
@@ -153,18 +144,18 @@ class AprilRun:
         last = history["epochs"][-1]
         return {"recon": last["recon"], "state_mae": last["state_mae"], "epochs": len(history["epochs"])}
 
-    def stage_policy(self, show_progress: bool) -> dict[str, Any]:
+    def stage_policy(self, callback: RunCallback) -> dict[str, Any]:
         policy = self.config.policy
         if policy.mode != "latent" or policy.pretrain:
-            return self._semantic_policy(show_progress)
+            return self._semantic_policy(callback)
         return {"sim_episodes": 0, "sim_steps": 0}
 
-    def stage_finetune(self, show_progress: bool) -> dict[str, Any]:
+    def stage_finetune(self, callback: RunCallback) -> dict[str, Any]:
         if "finetune" in self.stages["policy"]:  # runs made before this was a stage of its own
             return self.stages["policy"]["finetune"]
         if self.config.policy.mode == "semantic":
             return {"sim_episodes": 0, "sim_steps": 0}
-        return self._latent_policy(show_progress, self.stages["policy"].get("semantic_run"))
+        return self._latent_policy(callback, self.stages["policy"].get("semantic_run"))
 
     @property
     def sim_episodes(self) -> dict[str, int]:
@@ -173,9 +164,9 @@ class AprilRun:
                 "state_policy": self.stages["policy"]["sim_episodes"] - self.stages["policy"].get("finetune", {}).get("sim_episodes", 0),
                 "latent_policy": self.stages.get("finetune", {}).get("sim_episodes", 0)}
 
-    def _semantic_policy(self, show_progress: bool) -> dict[str, Any]:
+    def _semantic_policy(self, callback: RunCallback) -> dict[str, Any]:
         """Eq 4.8: the policy learns on ground-truth s̄ with the cheap tools of chapter 3 (GP + HER)."""
-        from binpick.rl.config import load_config
+        from binpick.rl.config import load_rl_config
         from binpick.rl.train import trainer_for
 
         if self.config.policy.state_run is not None:  # perception variants can share one state policy
@@ -186,30 +177,30 @@ class AprilRun:
             if metrics["env"] != self.config.env:
                 raise ConfigError(f"policy.state_run was trained on {metrics['env']}, this APRiL run is on {self.config.env}")
         else:
-            settings = load_config(self.config.policy.rl_config)
+            settings = load_rl_config(self.config.policy.rl_config)
             if settings.env != self.config.env:
                 raise ConfigError(f"policy.rl_config trains on {settings.env}, this APRiL run is on {self.config.env}")
             root = self.run_dir / "rl"
             existing = sorted(root.glob(f"{settings.name}/*/config.yaml"))
             trainer = trainer_for(resume=existing[-1].parent) if existing else trainer_for(settings, root)
-            metrics = trainer.run(show_progress=show_progress)
+            metrics = trainer.run(callback)
             run_dir = trainer.run_dir
         return {"semantic_run": str(run_dir), "sim_episodes": int(metrics.get("sim_episodes") or 0),
                 "sim_steps": int(metrics["sim_steps"]), "semantic_final_avg_actions": metrics["final_avg_actions"],
                 "semantic_final_success": metrics["final_success"]}
 
-    def _latent_policy(self, show_progress: bool, semantic_run: str | None) -> dict[str, Any]:
+    def _latent_policy(self, callback: RunCallback, semantic_run: str | None) -> dict[str, Any]:
         """Eq 4.9: SAC on φ_enc(I) in the simulator; first layers widened from the s̄ policy if there is one."""
         from binpick.april.finetune import finetune_latent_policy
 
-        return finetune_latent_policy(self, semantic_run, show_progress)
+        return finetune_latent_policy(self, semantic_run, callback)
 
-    def stage_refine(self, show_progress: bool) -> dict[str, Any]:
+    def stage_refine(self, callback: RunCallback) -> dict[str, Any]:
         """Episodes of the state policy (noisy actions, true state in, images recorded), then more
         perception epochs on random + policy images. Runs before any latent fine-tuning reads φ_enc."""
         from binpick.april.finetune import with_action_scale
         from binpick.perception import PERCEPTION_FILE, load_perception, perception_path, save_perception, train_perception
-        from binpick.rl.config import load_config
+        from binpick.rl.config import load_rl_config
         from binpick.rl.train import load_policy
         from binpick.rl.wrappers import semantic_part
 
@@ -217,11 +208,10 @@ class AprilRun:
         if not refine.episodes:
             return {"sim_episodes": 0}
         policy, _ = load_policy(Path(self.stages["policy"]["semantic_run"]))
-        env = with_action_scale(self.make_env(), load_config(self.config.policy.rl_config).min_action_scale)
+        env = with_action_scale(self.make_env(), load_rl_config(self.config.policy.rl_config).min_action_scale)
         rng = np.random.default_rng(self.config.seed + 7)
         images, states = [], []
-        with _progress("refine: policy episodes", show_progress) as progress:
-            task = progress.add_task("refine", total=refine.episodes, status="")
+        with callback.task("refine: policy episodes", refine.episodes) as task:
             for episode in range(refine.episodes):
                 raw, _ = env.reset(seed=self.config.collect.seed + 100_000 + episode)
                 done = False
@@ -236,7 +226,7 @@ class AprilRun:
                     done = terminated or truncated
                 images.append(raw["image"])
                 states.append(semantic_state(raw, self.gripper))
-                progress.update(task, advance=1, status=f"{len(images):,} images")
+                task.update(advance=1, status=f"{len(images):,} images")
         env.close()
         atomic_write(self.run_dir / "data" / "policy.npz",
                      lambda handle: np.savez(handle, images=np.stack(images), states=np.stack(states)))
@@ -246,15 +236,15 @@ class AprilRun:
         training = self.config.perception_training
         model, history = train_perception(self.config.perception, all_images, all_states, epochs=refine.epochs,
                                           batch_size=training.batch_size, learning_rate=training.learning_rate,
-                                          seed=self.config.seed + 1, show_progress=show_progress,
+                                          seed=self.config.seed + 1, callback=callback,
                                           initial=load_perception(perception_path(self.run_dir)))
         save_perception(model, self.run_dir / PERCEPTION_FILE)
         _write_json(self.run_dir / "refine_history.json", history)
         return {"sim_episodes": refine.episodes, "images": len(images), "state_mae": history["epochs"][-1]["state_mae"]}
 
-    def stage_evaluate(self, show_progress: bool) -> dict[str, Any]:
+    def stage_evaluate(self, callback: RunCallback) -> dict[str, Any]:
         from binpick.april.evaluate import evaluate_rows
 
-        rows = evaluate_rows(self, show_progress)
+        rows = evaluate_rows(self, callback)
         _write_json(self.run_dir / "results.json", rows)
         return {"rows": rows}

@@ -19,7 +19,7 @@ class Policy:
     def __init__(self, run_dir: Path) -> None:
         from binpick.april.pipeline import AprilRun
         from binpick.perception import load_perception, perception_path
-        from binpick.rl.config import load_config
+        from binpick.rl.config import load_rl_config
 
         run = AprilRun.resume(run_dir)
         if "policy" not in run.stages or not perception_path(run.run_dir).is_file():
@@ -27,7 +27,7 @@ class Policy:
                               f"{', '.join(run.stages) or 'none'})")
         self.run, self.mode = run, run.config.policy.mode
         self.perception = load_perception(perception_path(run.run_dir))
-        self.min_action_scale = load_config(run.config.policy.rl_config).min_action_scale
+        self.min_action_scale = load_rl_config(run.config.policy.rl_config).min_action_scale
         if self.mode == "semantic":
             from binpick.rl.train import load_policy
 

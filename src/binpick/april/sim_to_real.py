@@ -22,6 +22,7 @@ import gymnasium as gym
 import numpy as np
 
 from binpick.files import atomic_write_json, read_json_object
+from binpick.runs import SILENT, RunCallback
 
 
 class ShiftedDomain(gym.Wrapper):
@@ -68,7 +69,7 @@ def _row(result, **counts) -> dict[str, Any]:
 
 
 def transfer(run_dir: Path, out: Path, real_episodes: int = 25, eval_episodes: int = 100, epochs: int = 20,
-             seed: int = 0, show_progress: bool = False) -> dict[str, Any]:
+             seed: int = 0, callback: RunCallback = SILENT) -> dict[str, Any]:
     """Table 6.1 for one APRiL run (a semantic-mode run: state policy + perception). The run is
     copied to ``out`` first; the original is never changed."""
     from binpick.april.evaluate import deployment_env
@@ -122,7 +123,7 @@ def transfer(run_dir: Path, out: Path, real_episodes: int = 25, eval_episodes: i
     training = run.config.perception_training
     model, history = train_perception(run.config.perception, np.stack(images), np.stack(states), epochs=epochs,
                                       batch_size=training.batch_size, learning_rate=training.learning_rate, seed=seed,
-                                      show_progress=show_progress, initial=load_perception(perception_path(out)))
+                                      callback=callback, initial=load_perception(perception_path(out)))
     save_perception(model, out / PERCEPTION_FILE)
     rows["shifted_encoded_retrained"] = _row(evaluate("pixels"), **counts, perception_sim_episodes=image_episodes,
                                              physical_episodes=real_episodes, physical_images=len(images))

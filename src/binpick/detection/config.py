@@ -5,13 +5,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from binpick.config import check_range, from_dict, load_yaml
+from binpick.config import check_range, load_config
 from binpick.detection.losses import LossWeights
 from binpick.detection.model import ModelSpec
 from binpick.errors import ConfigError
 
 
-@dataclass
+@dataclass(frozen=True)
 class DataConfig:
     train: str = "runs/data/bins_2000/annotations_train.json"  # a COCO file (binpick's or anyone's)
     val: str = "runs/data/bins_2000/annotations_val.json"
@@ -29,7 +29,7 @@ class DataConfig:
         check_range("data.query_size", self.query_size, 32, 512, integer=True)
 
 
-@dataclass
+@dataclass(frozen=True)
 class TrainConfig:
     epochs: int = 30
     batch_size: int = 8
@@ -51,7 +51,7 @@ class TrainConfig:
         check_range("train.eval_every", self.eval_every, 1, 10_000, integer=True)
 
 
-@dataclass
+@dataclass(frozen=True)
 class ModelConfig:
     backbone: str = "tiny"
     method: str = "rod"
@@ -65,7 +65,7 @@ class ModelConfig:
         return spec
 
 
-@dataclass
+@dataclass(frozen=True)
 class DetectConfig:
     name: str = "rod"
     data: DataConfig = field(default_factory=DataConfig)
@@ -78,11 +78,4 @@ class DetectConfig:
 
 
 def load_detect_config(path: str | Path, overrides: dict | None = None) -> DetectConfig:
-    data = load_yaml(path)
-    for dotted, value in (overrides or {}).items():
-        node = data
-        *parents, leaf = dotted.split(".")
-        for key in parents:
-            node = node.setdefault(key, {})
-        node[leaf] = value
-    return from_dict(DetectConfig, data, where=str(path))
+    return load_config(DetectConfig, path, overrides)

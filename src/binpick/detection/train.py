@@ -17,7 +17,7 @@ import torch
 import yaml
 
 from binpick import tensorfile
-from binpick.config import from_dict, load_yaml, to_dict
+from binpick.config import load_run_config, to_dict
 from binpick.detection.config import DetectConfig
 from binpick.detection.data import RepeatedInstances, TaskDataset, collate
 from binpick.detection.evaluate import collect, summarise
@@ -26,7 +26,7 @@ from binpick.detection.model import ANCHORS_PER_LEVEL, Detector, ModelSpec
 from binpick.detection.ops import box_iou
 from binpick.errors import ConfigError, InputFileError
 from binpick.files import atomic_write_json, require_fields
-from binpick.rl.checkpoints import commit_checkpoint, latest_checkpoint, new_run_dir
+from binpick.runs import SILENT, RunCallback, Task, commit_checkpoint, latest_checkpoint, new_run_dir
 
 
 # ---------------------------------------------------------------------- weights on disk
@@ -155,15 +155,11 @@ def evaluate_model(model: Detector, dataset: TaskDataset, batch_size: int = 8, p
 
 
 class DetectorTrainer:
-    """``DetectorTrainer(config, runs).run()`` trains a new run; ``DetectorTrainer(resume=RUN)``
-    continues one from its latest checkpoint."""
+    """``DetectorTrainer.new(config, runs).run()`` trains a new run; ``DetectorTrainer.resume(RUN)``
+    continues one from its latest checkpoint (see :class:`binpick.runs.Job`)."""
 
-    def __init__(self, config: DetectConfig | None = None, runs: Path = Path("runs"), resume: Path | None = None,
-                 on_step: Callable[[int, int], None] | None = None) -> None:
-        if resume is not None:
-            resume = Path(resume)
-            config = from_dict(DetectConfig, load_yaml(resume / "config.yaml"), where=str(resume / "config.yaml"))
-        self.config, self.on_step = config, on_step
+    def __init__(self, config: DetectConfig, resume: Path | None = None, runs: Path = Path("runs")) -> None:
+        self.config = config
         torch.manual_seed(config.train.seed)
         torch.set_num_threads(config.train.threads)
         self.train_set, self.val_set = make_datasets(config)  # bad data: one line, before any folder exists
@@ -180,6 +176,16 @@ class DetectorTrainer:
         if config.train.fast_cpu:
             self.model.to(memory_format=torch.channels_last)
         self.run_dir = resume if resume is not None else new_run_dir(Path(runs), config.name, yaml.safe_dump(to_dict(config), sort_keys=False))
+
+    @classmethod
+    def new(cls, config: DetectConfig, runs: Path = Path("runs")) -> DetectorTrainer:
+        """A new run folder under ``runs/<name>/``, made once the data are known to be good."""
+        return cls(config, runs=runs)
+
+    @classmethod
+    def resume(cls, run_dir: Path) -> DetectorTrainer:
+        """Continue ``run_dir`` from its latest checkpoint (from the start if it has none)."""
+        return cls(load_run_config(DetectConfig, run_dir), resume=Path(run_dir))
 
     def _load_checkpoint(self, checkpoint: Path) -> None:
         """Model, optimiser, epoch, step and history; any damage is one line naming the file."""
@@ -219,11 +225,18 @@ class DetectorTrainer:
         progress = min(1.0, (self.step - train.warmup_steps) / max(1, self.total_steps - train.warmup_steps))
         return train.lr * (0.05 + 0.95 * 0.5 * (1 + np.cos(np.pi * progress)))
 
-    def run(self) -> dict[str, Any]:
+    def run(self, callback: RunCallback = SILENT) -> dict[str, Any]:
+        with callback.task(self.config.name, self.total_steps, self.step) as task:
+            metrics = self._train(task)
+        callback.message(f"wrote {self.run_dir / WEIGHTS_FILE}")
+        return metrics
+
+    def _train(self, task: Task) -> dict[str, Any]:
         from torch.utils.tensorboard import SummaryWriter
 
         config, weights = self.config, self.config.loss
         writer = SummaryWriter(str(self.run_dir / "tb"))
+        status = ""
         try:
             while self.epoch < config.train.epochs:
                 self.train_set.set_epoch(self.epoch)
@@ -242,8 +255,7 @@ class DetectorTrainer:
                     for key, value in losses.items():
                         sums[key] = sums.get(key, 0.0) + float(value.detach())
                         writer.add_scalar(f"loss/{key}", float(value.detach()), self.step)
-                    if self.on_step:
-                        self.on_step(self.step, self.total_steps)
+                    task.update(self.step, status=f"epoch {self.epoch + 1}/{config.train.epochs} {status}")
                 self.epoch += 1
                 record = {"epoch": self.epoch, "step": self.step,
                           **{f"loss_{k}": v / self.steps_per_epoch for k, v in sums.items()}}
@@ -255,6 +267,8 @@ class DetectorTrainer:
                             writer.add_scalar(f"val/{key}", metrics[key], self.epoch)
                 self.history.append(record)
                 self._checkpoint()
+                if record.get("ap50") is not None:
+                    status = f"· val AP50 {record['ap50']:.3f}"
         finally:
             writer.close()
         save_detector(self.model, self.run_dir / WEIGHTS_FILE, {"config": to_dict(config)})

@@ -44,7 +44,7 @@ class A3CActor:
         return self.worker.compute_gradients(weights)
 
 
-@dataclass
+@dataclass(frozen=True)
 class DistributedA3CConfig:
     env: str = "binpick/Arm2D-v0"
     workers: int = 2
@@ -60,11 +60,11 @@ class DistributedA3CConfig:
         check_range("total_timesteps", self.total_timesteps, 1, 10**9, integer=True)
         check_range("seed", self.seed, 0, 2**32 - 1, integer=True)
         check_ray_address(self.address)
-        from binpick.envs import resolve_env_id
+        from binpick.envs import env_spec, resolve_env_id
 
-        self.env = resolve_env_id(self.env)
-        if self.env != "binpick/Arm2D-v0":
-            raise ConfigError(f"A3C learns from images with discrete actions: --env must be Arm2D, got {self.env}")
+        object.__setattr__(self, "env", resolve_env_id(self.env))
+        if not env_spec(self.env).discrete_actions:
+            raise ConfigError(f"A3C learns from images with discrete actions (Arm2D); {self.env} has continuous ones")
 
 
 def train_a3c_distributed(config: DistributedA3CConfig, out: Path | None = None, on_update=None) -> dict[str, Any]:

@@ -23,7 +23,7 @@ from binpick.distributed.rollouts import DistributedRollouts, Episode, check_ray
 from binpick.files import atomic_write_text
 
 
-@dataclass
+@dataclass(frozen=True)
 class DistributedConfig:
     env: str = "binpick/FetchReach-v0"
     workers: int = 2

@@ -18,20 +18,27 @@ from binpick.errors import ConfigError, UnknownEnvError
 
 @dataclass(frozen=True)
 class EnvSpec:
-    """What ``binpick envs list`` shows about each env, and how it is registered."""
+    """What ``binpick envs list`` shows about each env, how it is registered, and what it can do:
+    the capabilities other code asks about (never the id's spelling)."""
 
     env_id: str
     entry_point: str
     max_episode_steps: int
     thesis: str
     summary: str
+    discrete_actions: bool = False  # A3C and DQN; SAC needs continuous actions
+    goal_conditioned: bool = True  # dict observations + compute_reward (HER, GP imagination, APRiL)
+    moves_object: bool = False  # the goal is an object moved by contact: no GP model, demonstrations, gripper in s̄
+    goal_area: bool = False  # set_goal_area(): the goal area can grow while training (§3.2 curriculum)
+    frame_size: tuple[str, ...] = ("width", "height")  # the parameters that size render()'s frame
 
 
 ENVS: dict[str, EnvSpec] = {
     spec.env_id: spec
     for spec in (
         EnvSpec("binpick/Arm2D-v0", "binpick.envs.arm2d:Arm2DEnv", 1000, "§3.1.3, Fig 3.2",
-                "planar 3-joint arm from 64x64 RGB, 6 discrete ±π/8 actions, growable goal area"),
+                "planar 3-joint arm from 64x64 RGB, 6 discrete ±π/8 actions, growable goal area",
+                discrete_actions=True, goal_conditioned=False, goal_area=True, frame_size=("render_size",)),
         EnvSpec("binpick/Reacher-v0", "binpick.envs.reacher:GoalReacherEnv", 50, "§4.5.1, Fig 4.5",
                 "MuJoCo Reacher, goal-conditioned, actions Δα ∈ [-0.1, 0.1]"),
         EnvSpec("binpick/FetchReach-v0", "binpick.envs.fetch:FetchReachEnv", 50, "§3.3, §4.5.2",
@@ -39,7 +46,7 @@ ENVS: dict[str, EnvSpec] = {
         EnvSpec("binpick/FetchReachObstacle-v0", "binpick.envs.fetch:FetchReachObstacleEnv", 50, "§4.5.2, Fig 4.9",
                 "FetchReach with a random solid box that blocks the arm and hides the goal"),
         EnvSpec("binpick/FetchPickAndPlace-v0", "binpick.envs.fetch:FetchPickAndPlaceEnv", 100, "§4.5.3",
-                "Fetch grasps a cube and carries it to a target, actions (Δz, a_g)"),
+                "Fetch grasps a cube and carries it to a target, actions (Δz, a_g)", moves_object=True),
     )
 }
 ENV_IDS: tuple[str, ...] = tuple(ENVS)
@@ -51,6 +58,11 @@ for _spec in ENVS.values():
 # Not among ENV_IDS: it needs a running server, and the served env keeps its own time limit.
 if "binpick/Ros-v0" not in registry:
     register(id="binpick/Ros-v0", entry_point="binpick.ros.client:RosEnv")
+
+
+def env_spec(name: str) -> EnvSpec:
+    """The :class:`EnvSpec` of a full id or a short name (one-line error for an unknown one)."""
+    return ENVS[resolve_env_id(name)]
 
 
 def resolve_env_id(name: str) -> str:
@@ -95,4 +107,4 @@ def _parameters(env_class: type) -> set[str]:
     return names
 
 
-__all__ = ["ENVS", "ENV_IDS", "EnvSpec", "make", "resolve_env_id"]
+__all__ = ["ENVS", "ENV_IDS", "EnvSpec", "env_spec", "make", "resolve_env_id"]

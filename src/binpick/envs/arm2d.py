@@ -23,7 +23,7 @@ from PIL import Image, ImageDraw
 
 from binpick.config import check_bool, check_choice, check_range, check_vector
 from binpick.envs.goal_env import sparse_goal_reward
-from binpick.envs.images import IMAGE_MODES, check_image_size, to_mode
+from binpick.sim.camera import IMAGE_MODES, check_image_size, to_mode
 from binpick.errors import ConfigError
 
 PLAY_HALF_WIDTH = 1.0  # the play area is [-1, 1]^2 in world units
@@ -122,7 +122,16 @@ class Arm2DEnv(gym.Env):
         """Semantic state: joint angles (3), end point (2), goal (2)."""
         return np.concatenate([self.angles, self.end_point, self.goal])
 
-    def compute_reward(self, achieved_goal: Any, desired_goal: Any, info: Any = None) -> np.ndarray:
+    @property
+    def compute_reward(self):
+        """HER's reward function ``(achieved, desired, info) -> reward``, with ``goal_conditioned=True``
+        only: tools such as SB3's env checker take any env with ``compute_reward`` for a goal env,
+        and the pixel task's observation is an image, not a goal dict."""
+        if not self.goal_conditioned:
+            raise AttributeError("Arm2D has compute_reward only with goal_conditioned=True")
+        return self._sparse_reward
+
+    def _sparse_reward(self, achieved_goal: Any, desired_goal: Any, info: Any = None) -> np.ndarray:
         """Sparse reward for HER, vectorised over leading axes: 0 within tolerance, -1 otherwise."""
         return sparse_goal_reward(achieved_goal, desired_goal, self.tolerance)
 
@@ -143,7 +152,7 @@ class Arm2DEnv(gym.Env):
         self.angles[joint] += STEP_ANGLE if direction == 0 else -STEP_ANGLE
         self.angles = (self.angles + math.pi) % (2 * math.pi) - math.pi
         info = self._info()
-        reward = float(self.compute_reward(self.end_point, self.goal, info))
+        reward = float(self._sparse_reward(self.end_point, self.goal, info))
         return self._observation(), reward, bool(info["is_success"]), False, info
 
     def render(self):

@@ -20,7 +20,7 @@ from gymnasium.utils import EzPickle
 
 from binpick.config import check_bool, check_range, check_vector
 from binpick.envs.goal_env import ImageObservationMixin
-from binpick.envs.images import CameraPose, check_image_size, import_mujoco
+from binpick.sim.camera import CameraPose, check_image_size, import_mujoco
 
 import_mujoco()  # a missing OpenGL platform becomes one clear error, not an import traceback
 with contextlib.redirect_stderr(io.StringIO()):  # it prints an unrelated Adroit notice on import
@@ -78,6 +78,11 @@ class _BinpickFetchMixin(ImageObservationMixin):
         observation, _ = super().reset(seed=seed, options=options)
         success = self._is_success(observation["achieved_goal"], self.goal)
         return observation, {"is_success": success}
+
+    def step(self, action):
+        """Gymnasium-Robotics returns a NumPy float32 reward; Gymnasium's API (and SB3's check) wants a float."""
+        observation, reward, terminated, truncated, info = super().step(action)
+        return observation, float(reward), terminated, truncated, info
 
     def close(self):
         self._close_camera()

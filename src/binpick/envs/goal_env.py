@@ -9,7 +9,7 @@ import numpy as np
 from gymnasium import spaces
 
 from binpick.config import check_choice
-from binpick.envs.images import IMAGE_MODES, CameraPose, MujocoCamera, check_image_size
+from binpick.sim.camera import IMAGE_MODES, CameraPose, MujocoCamera, check_image_size
 
 
 def sparse_goal_reward(achieved_goal: Any, desired_goal: Any, tolerance: float) -> np.ndarray:

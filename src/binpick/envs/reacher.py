@@ -16,7 +16,7 @@ from gymnasium.utils import EzPickle
 
 from binpick.config import check_range
 from binpick.envs.goal_env import ImageObservationMixin, sparse_goal_reward
-from binpick.envs.images import CameraPose, check_image_size, import_mujoco
+from binpick.sim.camera import CameraPose, check_image_size, import_mujoco
 
 import_mujoco()  # a missing OpenGL platform becomes one clear error, not an import traceback
 from gymnasium.envs.mujoco.reacher_v5 import ReacherEnv  # noqa: E402

@@ -26,7 +26,7 @@ from binpick.errors import ConfigError
 LAYERS = 6  # stride-2 convolutions in the encoder, transposed ones in the decoder (thesis §4.3.1)
 
 
-@dataclass
+@dataclass(frozen=True)
 class PerceptionConfig:
     """The network and its loss: kind, latent size n, conditioned size m, ω and β."""
 

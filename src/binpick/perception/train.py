@@ -13,12 +13,12 @@ from typing import Any
 
 import numpy as np
 import torch
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from binpick import tensorfile
 from binpick.errors import ConfigError, InputFileError
 from binpick.files import require_fields
 from binpick.perception.autoencoder import AutoPerception, PerceptionConfig
+from binpick.runs import SILENT, RunCallback
 
 
 def train_perception(
@@ -29,7 +29,7 @@ def train_perception(
     batch_size: int = 64,
     learning_rate: float = 1e-3,
     seed: int = 0,
-    show_progress: bool = True,
+    callback: RunCallback = SILENT,
     initial: AutoPerception | None = None,
 ) -> tuple[AutoPerception, dict[str, Any]]:
     """A network trained on ``images`` (N, H, W, C) uint8 and ``states`` (N, d); returns it and its history.
@@ -51,10 +51,7 @@ def train_perception(
     optimizer = torch.optim.Adam(model.parameters(), lr=learning_rate)
     history: dict[str, Any] = {"epochs": [], "train_images": len(train), "held_out_images": len(held_out)}
     steps_per_epoch = max(1, len(train) // batch_size)
-    progress = Progress(TextColumn("[bold]perception"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[status]}"),
-                        TimeElapsedColumn(), TimeRemainingColumn(), disable=not show_progress)
-    with progress:
-        task = progress.add_task("perception", total=epochs, status="")
+    with callback.task("perception", epochs) as task:
         for epoch in range(epochs):
             model.train()
             shuffled = rng.permutation(train)
@@ -72,9 +69,8 @@ def train_perception(
             status = f"L_recon {sums['recon']:.4f}"
             if row["state_mae"] is not None:
                 status += f" · held-out s̄ error {row['state_mae']:.4f}"
-            progress.update(task, advance=1, status=status)
-            if show_progress:
-                progress.console.print(f"perception epoch {epoch + 1}/{epochs}: {status}")
+            task.update(epoch + 1, status=status)
+            callback.message(f"perception epoch {epoch + 1}/{epochs}: {status}")
     return model, history
 
 

@@ -17,7 +17,6 @@ import numpy as np
 import torch
 import torch.multiprocessing as mp
 import yaml
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from torch.utils.tensorboard import SummaryWriter
 
 from binpick import tensorfile
@@ -25,7 +24,7 @@ from binpick.config import load_run_config, to_dict
 from binpick.errors import ConfigError, InputFileError
 from binpick.files import atomic_write_json, read_json_object, require_fields
 from binpick.rl.a3c import A3CWorker, ActorCritic, SharedAdam, apply_gradients
-from binpick.rl.checkpoints import commit_checkpoint, latest_checkpoint, new_run_dir, removed_on_error
+from binpick.runs import SILENT, RunCallback, Task, commit_checkpoint, latest_checkpoint, new_run_dir, removed_on_error
 from binpick.rl.config import RLConfig
 from binpick.rl.evaluate import evaluate_policy
 
@@ -118,6 +117,13 @@ class A3CTrainer:
                 trainer.load_checkpoint(source)
             return trainer
 
+    @classmethod
+    def resume(cls, run_dir: Path) -> A3CTrainer:
+        """Continue run folder ``run_dir`` from its latest checkpoint (or from zero if it has none)."""
+        trainer = cls(load_run_config(RLConfig, run_dir), Path(run_dir))
+        trainer.load_checkpoint()
+        return trainer
+
     @property
     def steps_done(self) -> int:
         return self.steps
@@ -169,17 +175,18 @@ class A3CTrainer:
                 "mean_length": result.mean_length, "std_length": result.std_length}
 
     # ------------------------------------------------------------------ training
-    def run(self, show_progress: bool = True) -> dict[str, Any]:
+    def run(self, callback: RunCallback = SILENT) -> dict[str, Any]:
         torch.set_num_threads(1)  # the workers need the cores; evaluation is one small forward pass a step
         if self.steps < self.config.total_timesteps:
-            self._train(show_progress)
+            with callback.task(self.config.name, self.config.total_timesteps, self.steps) as task:
+                self._train(task)
         evaluations = self.metrics["evaluations"]
         if not evaluations or evaluations[-1]["sim_steps"] != self.steps:  # the final policy is always measured
             evaluations.append(self.evaluate(self.goal_area(self.steps)))
             self.save_checkpoint()
         return self.write_outputs()
 
-    def _train(self, show_progress: bool) -> None:
+    def _train(self, task: Task) -> None:
         """Worker processes until ``total_timesteps``, evaluating and checkpointing on the way."""
         context = mp.get_context("spawn")
         counter = context.Value("l", self.steps)
@@ -195,41 +202,36 @@ class A3CTrainer:
         next_eval = (self.steps // every + 1) * every
         next_save = (self.steps // save_every + 1) * save_every
         lengths: list[int] = []
-        progress = Progress(TextColumn("{task.description}", style="bold", markup=False), BarColumn(), MofNCompleteColumn(),
-                            TextColumn("{task.fields[status]}"), TimeElapsedColumn(), TimeRemainingColumn(),
-                            disable=not show_progress)
-        task = progress.add_task(self.config.name, total=self.config.total_timesteps, completed=self.steps, status="")
         for worker in workers:
             worker.start()
         try:
-            with progress:
-                while any(w.is_alive() for w in workers) and self.steps < self.config.total_timesteps:
-                    try:
-                        rank, finished, successes, policy_loss, value_loss, entropy, area = stats_queue.get(timeout=1.0)
-                    except queue.Empty:
-                        continue
-                    self.steps = counter.value
-                    goal_area.value = self.goal_area(self.steps)
-                    for length in finished:
-                        lengths.append(length)
-                        self.metrics["episodes"] += 1
-                        writer.add_scalar("episode/length", length, self.steps)
-                    writer.add_scalar("loss/policy", policy_loss, self.steps)
-                    writer.add_scalar("loss/value", value_loss, self.steps)
-                    writer.add_scalar("loss/entropy", entropy, self.steps)
-                    writer.add_scalar("curriculum/goal_area", goal_area.value, self.steps)
-                    recent = f"last 100 episodes {np.mean(lengths[-100:]):.1f} actions" if lengths else ""
-                    progress.update(task, completed=self.steps, status=f"area {goal_area.value:.2f} · {recent}")
-                    if self.steps >= next_eval:
-                        next_eval += every
-                        row = self.evaluate(goal_area.value)
-                        self.metrics["evaluations"].append(row)
-                        writer.add_scalar("eval/avg_actions", row["mean_length"], self.steps)
-                        writer.add_scalar("eval/success_rate", row["success_rate"], self.steps)
-                    if self.steps >= next_save:
-                        next_save += save_every
-                        self.metrics["wall_seconds"] = time.perf_counter() - started
-                        self.save_checkpoint()
+            while any(w.is_alive() for w in workers) and self.steps < self.config.total_timesteps:
+                try:
+                    rank, finished, successes, policy_loss, value_loss, entropy, area = stats_queue.get(timeout=1.0)
+                except queue.Empty:
+                    continue
+                self.steps = counter.value
+                goal_area.value = self.goal_area(self.steps)
+                for length in finished:
+                    lengths.append(length)
+                    self.metrics["episodes"] += 1
+                    writer.add_scalar("episode/length", length, self.steps)
+                writer.add_scalar("loss/policy", policy_loss, self.steps)
+                writer.add_scalar("loss/value", value_loss, self.steps)
+                writer.add_scalar("loss/entropy", entropy, self.steps)
+                writer.add_scalar("curriculum/goal_area", goal_area.value, self.steps)
+                recent = f"last 100 episodes {np.mean(lengths[-100:]):.1f} actions" if lengths else ""
+                task.update(self.steps, status=f"area {goal_area.value:.2f} · {recent}")
+                if self.steps >= next_eval:
+                    next_eval += every
+                    row = self.evaluate(goal_area.value)
+                    self.metrics["evaluations"].append(row)
+                    writer.add_scalar("eval/avg_actions", row["mean_length"], self.steps)
+                    writer.add_scalar("eval/success_rate", row["success_rate"], self.steps)
+                if self.steps >= next_save:
+                    next_save += save_every
+                    self.metrics["wall_seconds"] = time.perf_counter() - started
+                    self.save_checkpoint()
         finally:
             stop.set()
             for worker in workers:

@@ -10,14 +10,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-from binpick.config import check_range, from_dict, load_yaml
+from binpick.config import check_range, load_config
 from binpick.errors import ConfigError
 
 ALGORITHMS = ("sac", "sb3_sac_her", "a3c", "dqn")
 MAX_SEED = 2**32 - 1  # NumPy's legacy seeding (used by SB3) takes 32-bit seeds
 
 
-@dataclass
+@dataclass(frozen=True)
 class ReplayConfig:
     """Thesis Ω (§3.1.1) with episode HER (§3.3.2); for ``sb3_sac_her`` only ``future_k`` is used."""
 
@@ -35,7 +35,7 @@ class ReplayConfig:
         check_range("replay.her_min_motion", self.her_min_motion, 0.0, None)
 
 
-@dataclass
+@dataclass(frozen=True)
 class GPConfig:
     """GP dynamics and imagined episodes (§3.3.1)."""
 
@@ -57,7 +57,7 @@ class GPConfig:
         check_range("gp.iterations", self.iterations, 1, 10_000, integer=True)
 
 
-@dataclass
+@dataclass(frozen=True)
 class SACConfig:
     learning_rate: float = 1e-3
     batch_size: int = 256
@@ -89,7 +89,7 @@ class SACConfig:
             check_range(f"sac.net_arch[{i}]", width, 1, 4096, integer=True)
 
 
-@dataclass
+@dataclass(frozen=True)
 class A3CConfig:
     """Asynchronous advantage actor-critic (§3.1.2)."""
 
@@ -113,7 +113,7 @@ class A3CConfig:
         check_range("a3c.max_grad_norm", self.max_grad_norm, 0.0, 1e6, low_inclusive=False)
 
 
-@dataclass
+@dataclass(frozen=True)
 class DemonstrationConfig:
     """Scripted demonstrations before RL (thesis §4.5.3): replay episodes and behaviour cloning."""
 
@@ -134,7 +134,7 @@ class DemonstrationConfig:
         check_range("demonstrations.critic_steps", self.critic_steps, 0, 10_000_000, integer=True)
 
 
-@dataclass
+@dataclass(frozen=True)
 class DQNConfig:
     """SB3's DQN (§3.1.1): replay of capacity M transitions, target network refreshed every C steps."""
 
@@ -162,7 +162,7 @@ class DQNConfig:
             raise ConfigError(f"dqn.buffer_size (M={self.buffer_size}) must be >= dqn.batch_size ({self.batch_size})")
 
 
-@dataclass
+@dataclass(frozen=True)
 class CurriculumStage:
     """Widen the goal area to ``area`` over ``ramp_steps``, then hold it ``hold_steps`` to re-converge."""
 
@@ -176,7 +176,7 @@ class CurriculumStage:
         check_range("curriculum.stages[].hold_steps", self.hold_steps, 0, None, integer=True)
 
 
-@dataclass
+@dataclass(frozen=True)
 class CurriculumConfig:
     """Goal-area curriculum of §3.2 (Fig 3.4); empty = the env's own goal area throughout."""
 
@@ -202,7 +202,7 @@ class CurriculumConfig:
         return sum(s.ramp_steps + s.hold_steps for s in self.stages)
 
 
-@dataclass
+@dataclass(frozen=True)
 class EvalConfig:
     every: int = 1000  # simulator steps between evaluations
     episodes: int = 50
@@ -217,7 +217,7 @@ class EvalConfig:
         check_range("eval.stop_after_successes", self.stop_after_successes, 0, None, integer=True)
 
 
-@dataclass
+@dataclass(frozen=True)
 class RLConfig:
     """One training run: env, algorithm, the thesis's additions, evaluation and checkpoints."""
 
@@ -241,9 +241,9 @@ class RLConfig:
     eval: EvalConfig = field(default_factory=EvalConfig)
 
     def __post_init__(self) -> None:
-        from binpick.envs import resolve_env_id
+        from binpick.envs import env_spec, resolve_env_id
 
-        self.env = resolve_env_id(self.env)
+        object.__setattr__(self, "env", resolve_env_id(self.env))  # frozen: normalised once, here
         check_range("total_timesteps", self.total_timesteps, 1, 100_000_000, integer=True)
         check_range("seed", self.seed, 0, MAX_SEED, integer=True)
         check_range("checkpoint_every", self.checkpoint_every, 1, None, integer=True)
@@ -258,22 +258,23 @@ class RLConfig:
             )
         if self.gp.enabled and (self.algorithm != "sac" or not self.semantic_state):
             raise ConfigError("gp.enabled needs algorithm: sac and semantic_state: true (the GP models z -> z')")
-        if self.gp.enabled and self.env.endswith("PickAndPlace-v0"):
+        spec = env_spec(self.env)
+        if self.gp.enabled and spec.moves_object:
             raise ConfigError("gp.enabled: the GP models the gripper alone; pick and place moves an object by contact - "
                               "set gp.enabled: false")
-        if self.demonstrations.episodes and (self.algorithm != "sac" or not self.env.endswith("PickAndPlace-v0")):
+        if self.demonstrations.episodes and (self.algorithm != "sac" or not spec.moves_object):
             raise ConfigError("demonstrations come from the scripted pick-and-place heuristic: algorithm sac on "
                               "binpick/FetchPickAndPlace-v0 only")
-        discrete = self.env.endswith("Arm2D-v0") and not self.env_kwargs.get("goal_conditioned", False)
+        discrete = spec.discrete_actions and not self.env_kwargs.get("goal_conditioned", False)
         if self.algorithm in ("a3c", "dqn") and not discrete:
             raise ConfigError(f"algorithm {self.algorithm} learns from images with discrete actions: use env binpick/Arm2D-v0")
-        if self.algorithm in ("sac", "sb3_sac_her") and self.env.endswith("Arm2D-v0"):
+        if self.algorithm in ("sac", "sb3_sac_her") and spec.discrete_actions:
             raise ConfigError(f"algorithm {self.algorithm} needs continuous actions; Arm2D takes a3c or dqn")
         if self.algorithm == "dqn" and self.env_kwargs.get("image_size", 64) < 36:
             raise ConfigError("algorithm dqn uses SB3's NatureCNN, which needs env_kwargs.image_size >= 36")
-        if self.curriculum.stages and not self.env.endswith("Arm2D-v0"):
+        if self.curriculum.stages and not spec.goal_area:
             raise ConfigError("curriculum widens Arm2D's goal area: use env binpick/Arm2D-v0")
 
 
-def load_config(path: str | Path) -> RLConfig:
-    return from_dict(RLConfig, load_yaml(path), where=Path(path).name)
+def load_rl_config(path: str | Path, overrides: dict | None = None) -> RLConfig:
+    return load_config(RLConfig, path, overrides)

@@ -16,7 +16,6 @@ import gymnasium as gym
 import numpy as np
 import torch
 import yaml
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from stable_baselines3 import DQN, SAC, HerReplayBuffer
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
@@ -26,7 +25,7 @@ from binpick.envs import make
 from binpick.errors import ConfigError, InputFileError
 from binpick.files import atomic_write, atomic_write_json, read_json_object, read_npz, require_fields
 from binpick.rl.agents import GoalSAC, GPImagination
-from binpick.rl.checkpoints import commit_checkpoint, latest_checkpoint, new_run_dir, removed_on_error
+from binpick.runs import SILENT, RunCallback, Task, commit_checkpoint, latest_checkpoint, new_run_dir, removed_on_error
 from binpick.rl.config import RLConfig
 from binpick.rl.dynamics import GPDynamics
 from binpick.rl.evaluate import evaluate_policy
@@ -172,22 +171,17 @@ class Checkpoint(BaseCallback):
         return True
 
 
-class RichProgress(BaseCallback):
-    def __init__(self, total: int, start: int, label: str) -> None:
-        super().__init__()
-        self.progress = Progress(TextColumn("{task.description}", style="bold", markup=False), BarColumn(), MofNCompleteColumn(),
-                                 TimeElapsedColumn(), TimeRemainingColumn())
-        self.task = self.progress.add_task(label, total=total, completed=start)
+class ReportProgress(BaseCallback):
+    """Simulator steps and the latest evaluation, to the run's :class:`~binpick.runs.Task`."""
 
-    def _on_training_start(self) -> None:
-        self.progress.start()
+    def __init__(self, task: Task, metrics: Metrics) -> None:
+        super().__init__()
+        self.task, self.metrics = task, metrics
 
     def _on_step(self) -> bool:
-        self.progress.update(self.task, completed=self.num_timesteps)
+        last = self.metrics.evaluations[-1] if self.metrics.evaluations else None
+        self.task.update(self.num_timesteps, status=f"success {last['success_rate']:.0%}" if last else "")
         return True
-
-    def _on_training_end(self) -> None:
-        self.progress.stop()
 
 
 class Trainer:
@@ -289,7 +283,7 @@ class Trainer:
     # ------------------------------------------------------------------ training
     def learn_from_demonstrations(self) -> None:
         """Thesis §4.5.3: heuristic episodes into the replay, then behaviour cloning of the actor."""
-        from binpick.april.heuristic import PickAndPlaceHeuristic
+        from binpick.rl.heuristic import PickAndPlaceHeuristic
         from binpick.rl.demonstrations import (DemonstrationSet, add_demonstrations, behaviour_clone,
                                                collect_demonstrations)
 
@@ -308,7 +302,7 @@ class Trainer:
         self.metrics.demo_episodes, self.metrics.demo_steps = len(episodes), steps
         self.metrics.bc_final_loss = losses[-1] if losses else None
 
-    def run(self, show_progress: bool = True) -> dict[str, Any]:
+    def run(self, callback: RunCallback = SILENT) -> dict[str, Any]:
         torch.set_num_threads(1)  # small networks: threads cost more than they give on 2 cores
         remaining = 0 if stopped_early(self.config, self.metrics) else self.config.total_timesteps - int(self.model.num_timesteps)
         self._started = time.perf_counter() - self.metrics.wall_seconds
@@ -320,13 +314,14 @@ class Trainer:
             from binpick.rl.curriculum import GoalAreaCurriculum
 
             callbacks.insert(0, GoalAreaCurriculum(self.config.curriculum))
-        if show_progress:
-            callbacks.append(RichProgress(self.config.total_timesteps, int(self.model.num_timesteps), self.config.name))
         if self.config.demonstrations.episodes and not self.metrics.demo_episodes and not self.model.num_timesteps:
+            callback.message(f"{self.config.name}: {self.config.demonstrations.episodes} demonstrations, behaviour cloning")
             self.learn_from_demonstrations()
-        if remaining > 0:
-            self.model.learn(remaining, callback=CallbackList(callbacks), reset_num_timesteps=False,
-                             tb_log_name=self.config.algorithm, log_interval=10)
+        with callback.task(self.config.name, self.config.total_timesteps, int(self.model.num_timesteps)) as task:
+            callbacks.append(ReportProgress(task, self.metrics))
+            if remaining > 0:
+                self.model.learn(remaining, callback=CallbackList(callbacks), reset_num_timesteps=False,
+                                 tb_log_name=self.config.algorithm, log_interval=10)
         evaluated = [e["sim_steps"] for e in self.metrics.evaluations]
         if not evaluated or evaluated[-1] != self.model.num_timesteps:  # the final policy is always measured
             self._ensure_logger()
@@ -356,19 +351,28 @@ ALGORITHM_FILE = "algorithm.safetensors"
 POLICY_FILE = "policy.safetensors"
 
 
+class RLRun:
+    """An RL run as one job (:class:`binpick.runs.Job`), whatever its algorithm: A3C trains with worker
+    processes (:class:`~binpick.rl.a3c_train.A3CTrainer`), SAC / SB3 SAC+HER / DQN with :class:`Trainer`."""
+
+    @staticmethod
+    def new(config: RLConfig, runs: Path = Path("runs")):
+        return trainer_for(config, runs)
+
+    @staticmethod
+    def resume(run_dir: Path):
+        return trainer_for(resume=run_dir)
+
+
 def trainer_for(config: RLConfig | None = None, runs_root: Path = Path("runs"), resume: Path | None = None):
-    """A new trainer for ``config``, or the one that continues run folder ``resume``."""
+    """A new trainer for ``config``, or the one that continues run folder ``resume`` (A3C or SB3-based)."""
     if resume is not None:
         config = load_run_config(RLConfig, resume)
     if config.algorithm == "a3c":
-        from binpick.rl.a3c_train import A3CTrainer
-
-        if resume is None:
-            return A3CTrainer.new(config, runs_root)
-        trainer = A3CTrainer(config, Path(resume))
-        trainer.load_checkpoint()
-        return trainer
-    return Trainer.new(config, runs_root) if resume is None else Trainer.resume(Path(resume))
+        from binpick.rl.a3c_train import A3CTrainer as trainer_class
+    else:
+        trainer_class = Trainer
+    return trainer_class.new(config, runs_root) if resume is None else trainer_class.resume(Path(resume))
 
 
 def load_policy(run_dir: Path, env_id: str | None = None):

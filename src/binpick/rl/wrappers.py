@@ -45,7 +45,9 @@ def semantic_part(observation: dict, gripper: bool = False) -> np.ndarray:
 
 def needs_gripper(env_id: str) -> bool:
     """Envs whose achieved goal is an object, so the semantic state also holds the gripper."""
-    return env_id.endswith("PickAndPlace-v0")
+    from binpick.envs import env_spec
+
+    return env_spec(env_id).moves_object
 
 
 class MinActionScale(gym.ActionWrapper):

@@ -96,7 +96,7 @@ class BinWorld:
             self.gripper = Gripper(self.model)
         self.renderer = mujoco.Renderer(self.model, camera.size, camera.size)
         self.small = mujoco.Renderer(self.model, min(AMODAL_SIZE, camera.size), min(AMODAL_SIZE, camera.size))
-        from binpick.envs.images import close_at_exit
+        from binpick.sim.camera import close_at_exit
 
         close_at_exit(self)
         self._alpha = self.model.geom_rgba[:, 3].copy()

@@ -10,9 +10,12 @@ the meshes a scene uses are declared: an unused convex-inertia mesh crashed MuJo
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from binpick.sim.mjcf_mesh import merged_obj
-from binpick.sim.products import Product
+
+if TYPE_CHECKING:  # products.py compiles MJCF from here: the type only, no import cycle
+    from binpick.sim.products import Product
 
 # tote: inner half-sizes (x, y), wall height and thickness, floor thickness (metres)
 BIN_HALF = (0.21, 0.16)

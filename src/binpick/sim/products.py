@@ -225,6 +225,7 @@ def load_products(path: str | Path, library: ProductLibrary | None = None) -> Pr
         for key, file in optional.items():
             if not file.is_file():
                 raise ConfigError(f"{where}: {key} file {str(file)!r} does not exist")
+            read_photo(file)  # an image PIL cannot read is reported now, not after the scenes are made
         rgba = entry.get("rgba", (0.8, 0.8, 0.8, 1.0))
         if not isinstance(rgba, (list, tuple)) or len(rgba) != 4:
             raise ConfigError(f"{where}.rgba must be 4 numbers in [0, 1], got {rgba!r}")
@@ -236,6 +237,17 @@ def load_products(path: str | Path, library: ProductLibrary | None = None) -> Pr
         check_product_compiles(product)
         library.add(product)
     return library
+
+
+def read_photo(path: Path):
+    """RGB uint8 (H, W, 3) of a user's image file; one line naming the file if it cannot be read."""
+    from PIL import Image
+
+    try:
+        with Image.open(path) as image:
+            return np.asarray(image.convert("RGB"))
+    except (OSError, ValueError) as error:
+        raise ConfigError(f"cannot read image {str(path)!r} ({type(error).__name__})") from None
 
 
 def check_product_compiles(product: Product) -> None:

@@ -9,6 +9,7 @@ requested moves have the same length on the page.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import matplotlib
 import numpy as np
@@ -16,7 +17,9 @@ import numpy as np
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from binpick.rl.dynamics import GPDynamics  # noqa: E402
+
+if TYPE_CHECKING:  # viz sits below rl: the type only
+    from binpick.rl.dynamics import GPDynamics
 
 DIRECTIONS = np.array([[1, 0], [-1, 0], [0, 1], [0, -1]], float)
 

@@ -31,12 +31,13 @@ import numpy as np
 
 from binpick.errors import ConfigError, InputFileError
 from binpick.files import atomic_write, atomic_write_text, read_json_object, require_fields
+from binpick.runs import SILENT, RunCallback
 from binpick.sim.products import ProductLibrary, default_library, load_products
 
 FORMAT = "binpick-bins-1"
 
 
-@dataclass
+@dataclass(frozen=True)
 class GenerateConfig:
     out: str
     scenes: int = 100
@@ -63,7 +64,8 @@ class GenerateConfig:
         check_range("image_size", self.image_size, 32, 2048, integer=True)
         check_range("scenes_per_world", self.scenes_per_world, 1, 1000, integer=True)
         check_range("val_fraction", self.val_fraction, 0.0, 1.0)
-        self.copies, self.distractors = tuple(self.copies), tuple(self.distractors)
+        object.__setattr__(self, "copies", tuple(self.copies))  # frozen: normalised once, here
+        object.__setattr__(self, "distractors", tuple(self.distractors))
         if not 1 <= self.copies[0] <= self.copies[1] <= 16:
             raise ConfigError(f"copies must be a range within 1..16, got {self.copies}")
         if not 0 <= self.distractors[0] <= self.distractors[1] <= 8:
@@ -128,6 +130,8 @@ def prepare_output(config: GenerateConfig, library: ProductLibrary) -> Path:
         stored = {**GenerateConfig(out="").comparable(), **existing["config"]}  # settings added later: defaults
         if existing.get("format") != FORMAT or stored != config.comparable():
             raise ConfigError(f"{str(out)!r} holds a data set made with other settings; choose another folder")
+        if existing.get("scenes") != max(config.scenes, existing.get("scenes") or 0):  # what a resume finishes
+            _write_json(manifest, existing | {"scenes": config.scenes})
         return out
     try:
         for sub in ("images", "depth", "scenes", "photos", "queries"):
@@ -135,7 +139,7 @@ def prepare_output(config: GenerateConfig, library: ProductLibrary) -> Path:
     except OSError as error:
         raise ConfigError(f"cannot write to {str(out)!r}: {error.strerror}") from None
     products = [{"id": p.id, "category": p.category} for p in library]
-    _write_json(manifest, {"format": FORMAT, "config": config.comparable(), "products": products})
+    _write_json(manifest, {"format": FORMAT, "config": config.comparable(), "products": products, "scenes": config.scenes})
     return out
 
 
@@ -235,32 +239,57 @@ def label_pickability(sim, scene, record: dict[str, Any], policies, rng: np.rand
 
 
 # ---------------------------------------------------------------------- the whole run
-def generate(config: GenerateConfig, show_progress: bool = True) -> dict[str, Any]:
+class DataGeneration:
+    """A data set as a job (:class:`binpick.runs.Job`): ``DataGeneration.new(config)`` checks the
+    products and the output folder, ``DataGeneration.resume(folder)`` continues a killed run with the
+    settings it was started with, ``run(callback)`` makes the missing scenes, photos and COCO files."""
+
+    def __init__(self, config: GenerateConfig) -> None:
+        self.config = config
+        self.library = build_library(config)
+        self.run_dir = prepare_output(config, self.library)
+        done = len(list((self.run_dir / "scenes").glob("*.json")))
+        if done > config.scenes:
+            raise ConfigError(f"{str(self.run_dir)!r} already holds {done} scenes, more than --scenes {config.scenes}: "
+                              f"nothing to generate (give --scenes {done} or more to add to it, or another --out)")
+        self.done = done
+
+    @classmethod
+    def new(cls, config: GenerateConfig, runs: Path | None = None) -> DataGeneration:
+        """The data set goes to ``config.out`` (``runs`` is not used: a data set is its own folder)."""
+        return cls(config)
+
+    @classmethod
+    def resume(cls, run_dir: Path, workers: int | None = None) -> DataGeneration:
+        """Continue the data set in ``run_dir`` with the settings it was started with."""
+        manifest = open_dataset(run_dir)
+        settings = {k: v for k, v in manifest["config"].items() if k in GenerateConfig.__dataclass_fields__}
+        scenes = manifest.get("scenes") or len(list(Path(run_dir, "scenes").glob("*.json")))
+        config = GenerateConfig(**{**settings, "out": str(run_dir), "scenes": int(scenes),
+                                   "workers": workers or GenerateConfig.workers})
+        return cls(config)
+
+    def run(self, callback: RunCallback = SILENT) -> dict[str, Any]:
+        config, out = self.config, self.run_dir
+        worlds = range(-(-config.scenes // config.scenes_per_world))
+        with callback.task("scenes", config.scenes, min(self.done, config.scenes)) as task:
+            if config.workers == 1:
+                for world in worlds:
+                    task.update(advance=len(generate_world(config, world, out)))
+            else:
+                import multiprocessing
+
+                context = multiprocessing.get_context("spawn")  # MuJoCo/EGL contexts do not survive fork
+                with context.Pool(config.workers) as pool:
+                    for records in pool.imap_unordered(_generate_world_job, [(config, w, out) for w in worlds]):
+                        task.update(advance=len(records))
+        photos = write_photos(config, self.library, out, callback)
+        return finalise(out) | {"photos": photos}
+
+
+def generate(config: GenerateConfig, callback: RunCallback = SILENT) -> dict[str, Any]:
     """Generate (or finish) a data set: worlds in parallel processes, then COCO files and the card."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
-
-    library = build_library(config)
-    out = prepare_output(config, library)
-    done = len(list((out / "scenes").glob("*.json")))
-    if done > config.scenes:
-        raise ConfigError(f"{str(out)!r} already holds {done} scenes, more than --scenes {config.scenes}: nothing to "
-                          f"generate (give --scenes {done} or more to add to it, or another --out)")
-    worlds = range(-(-config.scenes // config.scenes_per_world))
-    with Progress(TextColumn("{task.description}", style="bold", markup=False), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                  TimeRemainingColumn(), disable=not show_progress) as progress:
-        task = progress.add_task("scenes", total=config.scenes, completed=min(done, config.scenes))
-        if config.workers == 1:
-            for world in worlds:
-                progress.advance(task, len(generate_world(config, world, out)))
-        else:
-            import multiprocessing
-
-            context = multiprocessing.get_context("spawn")  # MuJoCo/EGL contexts do not survive fork
-            with context.Pool(config.workers) as pool:
-                for records in pool.imap_unordered(_generate_world_job, [(config, w, out) for w in worlds]):
-                    progress.advance(task, len(records))
-        photos = write_photos(config, library, out, progress)
-    return finalise(out) | {"photos": photos}
+    return DataGeneration.new(config).run(callback)
 
 
 def _generate_world_job(arguments) -> list[dict[str, Any]]:
@@ -268,21 +297,20 @@ def _generate_world_job(arguments) -> list[dict[str, Any]]:
     return generate_world(*arguments)
 
 
-def write_photos(config: GenerateConfig, library: ProductLibrary, out: Path, progress=None) -> int:
+def write_photos(config: GenerateConfig, library: ProductLibrary, out: Path, callback: RunCallback = SILENT) -> int:
     from binpick.sim.photos import shop_photo
 
     missing = [p for p in library if not (out / "photos" / f"{p.name}.png").is_file()]
-    task = progress.add_task("shop photos", total=len(missing)) if progress is not None and missing else None
-    for product in missing:
-        if product.photo is not None:
-            from PIL import Image
+    with callback.task("shop photos", len(missing)) as task:
+        for product in missing:
+            if product.photo is not None:
+                from binpick.sim.products import read_photo
 
-            image = np.asarray(Image.open(product.photo).convert("RGB"))
-        else:
-            image = shop_photo(product, config.photo_size)
-        _write_png(out / "photos" / f"{product.name}.png", image)
-        if task is not None:
-            progress.advance(task)
+                image = read_photo(product.photo)
+            else:
+                image = shop_photo(product, config.photo_size)
+            _write_png(out / "photos" / f"{product.name}.png", image)
+            task.update(advance=1)
     return len(library)
 
 

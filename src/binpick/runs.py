@@ -1,10 +1,19 @@
-"""Run folders and crash-safe checkpoints.
+"""The run layer: what every long job in binpick (RL, A3C, detection, APRiL, data generation) shares.
+
+A job has one shape (:class:`Job`): ``Job.new(config, runs)`` makes a run folder for a validated
+config, ``Job.resume(run_dir)`` continues one, ``job.run(callback)`` does the work and returns its
+metrics. A run folder ``runs/<name>/<time>/`` holds ``config.yaml`` (everything to re-run it),
+``checkpoints/``, TensorBoard events and the job's outputs.
 
 Checkpoints: write a whole folder, then switch to it with one atomic rename.
-
 ``checkpoints/ckpt-<steps>/`` is filled under a temporary name and renamed when complete; the
 one-line file ``checkpoints/latest`` names the current one and is replaced atomically. A ``kill -9``
-at any moment leaves either the previous checkpoint or the new one, never half of one.
+at any moment leaves either the previous checkpoint or the new one, never half of one. Single files
+are written atomically by :mod:`binpick.files` (text, JSON, bytes, npz) and :mod:`binpick.tensorfile`
+(safetensors).
+
+Progress: library code never owns the terminal. A job reports through a :class:`RunCallback`; the
+CLI passes one that draws Rich progress bars, the default stays silent.
 """
 
 from __future__ import annotations
@@ -14,6 +23,7 @@ import re
 import shutil
 import time
 from collections.abc import Callable, Iterator
+from typing import Any, Protocol
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -85,3 +95,48 @@ def removed_on_error(run_dir: Path) -> Iterator[Path]:
         except OSError:
             pass
         raise
+
+
+# ---------------------------------------------------------------------- progress
+class Task:
+    """One progress bar's worth of work. The silent default does nothing; a front end overrides it."""
+
+    def update(self, done: int | None = None, *, advance: int = 0, total: int | None = None, status: str | None = None) -> None:
+        """Set ``done`` (or add ``advance``) units of work, optionally a new ``total`` and status text."""
+
+    def close(self) -> None:
+        """The task is over (its bar may stay on screen)."""
+
+    def __enter__(self) -> Task:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class RunCallback:
+    """How a job reports: tasks with progress, and one-line messages. This base class is silent;
+    ``binpick.cli`` passes one that draws Rich progress bars, tests and scripts may pass their own."""
+
+    def task(self, label: str, total: int | None = None, done: int = 0) -> Task:
+        return Task()
+
+    def message(self, text: str) -> None:
+        """A line worth showing a person (a stage started, a file written)."""
+
+
+SILENT = RunCallback()
+
+
+class Job(Protocol):
+    """The shape of every long job (see the module docstring)."""
+
+    run_dir: Path
+
+    @classmethod
+    def new(cls, config: Any, runs: Path) -> Job: ...
+
+    @classmethod
+    def resume(cls, run_dir: Path) -> Job: ...
+
+    def run(self, callback: RunCallback = SILENT) -> dict[str, Any]: ...

@@ -1,4 +1,4 @@
-"""Camera image observations shared by every env: mode/size checks and an off-screen MuJoCo camera.
+"""Cameras for every MuJoCo world (envs and bin scenes): image mode/size checks and an off-screen camera.
 
 The image observation uses its own :class:`mujoco.Renderer`, separate from ``render()``, so a
 policy's input (small, fixed camera) and a person's view (large, ``render_mode``) never interfere.

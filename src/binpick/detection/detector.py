@@ -1,0 +1,105 @@
+"""The detection job as one object, in the shape users know from Ultralytics::
+
+    detector = Detector.load("rod_tiny_256")                 # shipped weights, a .safetensors file or a run folder
+    result = detector.predict("scene.png", query_box=(120, 80, 40, 52))
+    result.save("overlay.png"); print(result.to_json())      # or result.plot() -> RGB array
+    metrics = detector.val("runs/data/bins/annotations_val.json")
+    trained = Detector.train("configs/rod_warehouse.yaml", epochs=2)   # overrides as keyword arguments
+
+``predict`` finds every other instance of the query (a box in the image, or a shop photo for
+photo-conditioned weights); ``val`` is COCO AP against the data set's targets; ``train`` runs a
+:class:`~binpick.detection.train.DetectorTrainer` and returns the trained detector.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from binpick.detection.model import DetectorNetwork
+from binpick.detection.predict import Prediction, predict
+from binpick.errors import ConfigError
+from binpick.runs import SILENT, RunCallback
+
+SHIPPED = ("rod_tiny_256", "rod_photo_tiny_256")  # crop query (§5.3) and shop-photo query (§6.3)
+
+
+def shipped_weights(name: str) -> Path:
+    """The path of weights that ship inside the package, by name (``rod_tiny_256``, ``rod_photo_tiny_256``)."""
+    from importlib.resources import files
+
+    stem = name.removesuffix(".safetensors")
+    path = Path(str(files("binpick.detection") / "weights" / f"{stem}.safetensors"))
+    if stem not in SHIPPED or not path.is_file():
+        raise ConfigError(f"no shipped detector weights named {name!r}; shipped: {', '.join(SHIPPED)}")
+    return path
+
+
+class Detector:
+    """Repeated-object detector: a trained network plus what it was trained on."""
+
+    def __init__(self, network: DetectorNetwork, source: Path | None = None, metrics: dict[str, Any] | None = None) -> None:
+        self.network, self.source, self.metrics = network, source, metrics
+
+    @classmethod
+    def load(cls, weights: str | Path = "rod_tiny_256") -> Detector:
+        """A shipped name, a ``.safetensors`` (or older ``.pt``) file, or a run folder."""
+        from binpick.detection.train import load_detector
+
+        path = Path(weights)
+        if not path.exists() and str(weights).removesuffix(".safetensors") in SHIPPED:
+            path = shipped_weights(str(weights))
+        return cls(load_detector(path), path)
+
+    # ------------------------------------------------------------------ what it is
+    @property
+    def query(self) -> str:
+        """``crop`` (a box in the image) or ``photo`` (a shop photo)."""
+        return self.network.spec.query
+
+    @property
+    def trained_products(self) -> list[str] | None:
+        return self.network.trained_products
+
+    def __repr__(self) -> str:
+        spec = self.network.spec
+        return (f"Detector({spec.method} {spec.layout}, {spec.backbone} backbone, {self.network.image_size} px, "
+                f"{spec.query} query, from {self.source})")
+
+    # ------------------------------------------------------------------ jobs
+    def predict(self, image: np.ndarray | str | Path, query_box=None, query_image: np.ndarray | str | Path | None = None,
+                min_score: float = 0.3) -> Prediction:
+        """Boxes (x, y, w, h) and scores of the other instances; the result plots and saves itself."""
+        from binpick.config import check_range
+
+        check_range("min_score", min_score, 0.0, 1.0)
+        box = None if query_box is None else np.asarray(query_box, dtype=np.float32)
+        if box is not None and box.shape != (4,):
+            raise ConfigError(f"query_box must be x, y, w, h, got {query_box!r}")
+        return predict(self.network, image, box, query_image, score_threshold=min_score)
+
+    def val(self, data: str | Path, targets: str | None = None, batch_size: int = 8, callback: RunCallback = SILENT) -> dict:
+        """COCO AP50 and mAP on an annotations file, against ``targets`` (default: what it was trained on)."""
+        from binpick.detection.data import RepeatedInstances, TaskDataset
+        from binpick.detection.train import evaluate_model
+
+        targets = targets or self.network.trained_config.get("data", {}).get("targets", "all")
+        dataset = TaskDataset(RepeatedInstances(data, targets=targets), self.network.image_size, self.query,
+                              self.network.query_size)
+        with callback.task("evaluating", len(dataset)) as task:
+            metrics = evaluate_model(self.network, dataset, batch_size, progress=lambda n: task.update(advance=n))
+        return metrics | {"targets": targets}
+
+    @classmethod
+    def train(cls, config: str | Path, runs: str | Path = "runs", callback: RunCallback = SILENT, **overrides: Any) -> Detector:
+        """Train a new run from a YAML config; ``overrides`` are ``--set`` keys with ``.`` written as
+        ``__`` (``train__epochs=2``) or plain top-level keys. Returns the trained detector."""
+        from binpick.detection.config import load_detect_config
+        from binpick.detection.train import WEIGHTS_FILE, DetectorTrainer, load_detector
+
+        settings = {key.replace("__", "."): value for key, value in overrides.items()}
+        trainer = DetectorTrainer.new(load_detect_config(config, settings), Path(runs))
+        metrics = trainer.run(callback)
+        return cls(load_detector(trainer.run_dir / WEIGHTS_FILE), trainer.run_dir, metrics)
