@@ -102,7 +102,7 @@ def main() -> None:
             from binpick.rl.evaluate import evaluate_policy, random_policy
 
             env = make("binpick/Reacher-v0")
-            result = evaluate_policy(env, random_policy(env, 0), episodes=1000, seed=20_000)  # successes are rare (~1%)
+            result = evaluate_policy(random_policy(env, 0), env, episodes=1000, seed=20_000)  # successes are rare (~1%)
             results = merge("Reacher", {"random": {"avg_actions": result.mean_length, "std": result.std_length,
                                                    "success": result.success_rate, "sim_episodes": 0}})
             continue
@@ -111,7 +111,7 @@ def main() -> None:
             from binpick.envs import make
             from binpick.rl.evaluate import evaluate_policy
 
-            result = evaluate_policy(make("binpick/FetchPickAndPlace-v0"), PickAndPlaceHeuristic(), episodes=100, seed=20_000)
+            result = evaluate_policy(PickAndPlaceHeuristic(), make("binpick/FetchPickAndPlace-v0"), episodes=100, seed=20_000)
             results = merge("FetchPickAndPlace", {"heuristic": {"avg_actions": result.mean_length, "std": result.std_length,
                                                                 "success": result.success_rate, "sim_episodes": 0}})
             continue

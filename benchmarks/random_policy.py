@@ -48,7 +48,7 @@ def main() -> None:
             tolerance = getattr(unwrapped, "tolerance", getattr(unwrapped, "distance_threshold", None))
             task = progress.add_task(env_id, total=episodes)
             started = time.perf_counter()
-            result = evaluate_policy(env, random_policy(env, args.seed), episodes=episodes, seed=args.seed,
+            result = evaluate_policy(random_policy(env, args.seed), env, episodes=episodes, seed=args.seed,
                                      on_episode=lambda *_: progress.advance(task))
             env.close()
             rows.append({**result.to_dict(), "env_kwargs": kwargs, "success_tolerance": tolerance,

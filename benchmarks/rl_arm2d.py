@@ -42,7 +42,7 @@ EPISODES = 200
 
 def evaluate(policy, goal_area: float, seed: int = 50_000) -> dict:
     env = make("binpick/Arm2D-v0", goal_area=goal_area)
-    result = evaluate_policy(env, policy, episodes=EPISODES, seed=seed)
+    result = evaluate_policy(policy, env, episodes=EPISODES, seed=seed)
     env.close()
     return {"mean": result.mean_length, "std": result.std_length, "success_rate": result.success_rate,
             "episodes": EPISODES, "goal_area": goal_area}

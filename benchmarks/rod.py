@@ -113,7 +113,7 @@ def report(runs: Path) -> None:
 
     from binpick.detection.baselines import histogram_detect, template_detect
     from binpick.detection.data import read_image
-    from binpick.detection.model import Detector, ModelSpec
+    from binpick.detection.model import DetectorNetwork, ModelSpec
     from binpick.detection.train import detector_detect, load_detector
     from binpick.viz.detection import plot_ap_by_scale, plot_pr_curves
 
@@ -163,7 +163,7 @@ def report(runs: Path) -> None:
     query = next(a for a in first["annotations"] if a["image_id"] == first["images"][0]["id"])
     box = np.array(query["bbox"], dtype=np.float32)
     for key, backbone, side in (("small_256", "tiny", 256), ("small_416", "tiny", 416), ("darknet53_416", "darknet53", 416)):
-        model = models.get("rod_warehouse") if key == "small_256" and "rod_warehouse" in models else Detector(ModelSpec(backbone=backbone), side).eval()
+        model = models.get("rod_warehouse") if key == "small_256" and "rod_warehouse" in models else DetectorNetwork(ModelSpec(backbone=backbone), side).eval()
         result["latency_ms"][key] = latency_ms(model, image, box)
         print("latency", key, result["latency_ms"][key], flush=True)
     result["latency_target_ms_small_256"] = 100

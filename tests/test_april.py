@@ -149,7 +149,7 @@ def test_scripted_pick_and_place_heuristic_completes_the_task():
     from binpick.rl.heuristic import PickAndPlaceHeuristic
     from binpick.rl.evaluate import evaluate_policy
 
-    result = evaluate_policy(make("FetchPickAndPlace"), PickAndPlaceHeuristic(), episodes=6, seed=0)
+    result = evaluate_policy(PickAndPlaceHeuristic(), make("FetchPickAndPlace"), episodes=6, seed=0)
     assert result.success_rate >= 0.8 and result.mean_length < 60, (result.success_rate, result.mean_length)
 
 

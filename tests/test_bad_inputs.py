@@ -76,11 +76,11 @@ def world(tmp_path_factory) -> dict[str, str]:
 
     # detector weights: a good tiny one and damaged ones
     from binpick import tensorfile
-    from binpick.detection.model import Detector, ModelSpec
+    from binpick.detection.model import DetectorNetwork, ModelSpec
     from binpick.detection.train import FORMAT, save_detector
 
     weights = root / "detector.safetensors"
-    save_detector(Detector(ModelSpec(), 64), weights)
+    save_detector(DetectorNetwork(ModelSpec(), 64), weights)
     paths["weights"] = weights
     tensorfile.save(root / "nospec.safetensors", FORMAT, tensors={}, meta={"image_size": 64})
     paths["nospec"] = root / "nospec.safetensors"

@@ -18,7 +18,7 @@ from binpick.detection.config import load_detect_config
 from binpick.detection.data import RepeatedInstances, TaskDataset, collate
 from binpick.detection.evaluate import coco_ap
 from binpick.detection.losses import LossWeights, assign, gaussian_targets, rod_loss
-from binpick.detection.model import Detector, ModelSpec
+from binpick.detection.model import DetectorNetwork, ModelSpec
 from binpick.detection.ops import box_iou, generalized_box_iou, nms
 from binpick.detection.rod import RODModule
 from binpick.detection.train import DetectorTrainer, evaluate_model, kmeans_anchors, load_detector, save_detector
@@ -76,7 +76,7 @@ def test_rod_heatmap_peaks_where_the_query_repeats_at_another_scale():
 
 def test_assignment_picks_the_cell_holding_the_centre_and_the_loss_falls():
     torch.manual_seed(0)
-    model = Detector(ModelSpec(), 64)
+    model = DetectorNetwork(ModelSpec(), 64)
     images, boxes = torch.rand(1, 3, 64, 64), torch.tensor([[4.0, 4.0, 20.0, 20.0]])
     target = [torch.tensor([[30.0, 34.0, 50.0, 60.0]])]
     out = model(images, boxes)
@@ -192,7 +192,7 @@ train: {{epochs: 2, batch_size: 4, lr: 0.002, warmup_steps: 4, eval_every: 2, wo
 
 def test_cli_predict_and_bad_input_are_one_line(tmp_path):
     make_coco(tmp_path / "toy", images=2)
-    model = Detector(ModelSpec(), 64)
+    model = DetectorNetwork(ModelSpec(), 64)
     save_detector(model, tmp_path / "model.safetensors")
     image = str(tmp_path / "toy" / "images" / "0000.png")
     ok = subprocess.run(CLI + ["detect", "predict", image, "--weights", str(tmp_path / "model.safetensors"), "--query-box", "10,10,20,20",
@@ -203,7 +203,7 @@ def test_cli_predict_and_bad_input_are_one_line(tmp_path):
     assert detections and set(detections[0]) == {"bbox", "score"}
     assert (tmp_path / "overlay.png").is_file() and (tmp_path / "h.png").is_file()
     (tmp_path / "empty.png").write_bytes(b"")
-    other = Detector(ModelSpec(backbone="darknet53"), 64)
+    other = DetectorNetwork(ModelSpec(backbone="darknet53"), 64)
     torch.save({"format": "binpick-detector-1", "spec": {**ModelSpec().__dict__, "scales": [0.5, 1.0, 2.0]}, "image_size": 64,
                 "weights": other.state_dict()}, tmp_path / "other.pt")
     cases = {

@@ -30,7 +30,7 @@ class Countdown(gym.Env):
 
 def test_lengths_are_actions_until_success():
     env = gym.wrappers.TimeLimit(Countdown(), max_episode_steps=20)
-    result = evaluate_policy(env, lambda _obs: 1, episodes=10, seed=0)
+    result = evaluate_policy(lambda _obs: 1, env, episodes=10, seed=0)
     expected = [s % 7 + 1 for s in range(10)]
     assert result.lengths == expected
     assert result.mean_length == pytest.approx(np.mean(expected))
@@ -40,7 +40,7 @@ def test_lengths_are_actions_until_success():
 
 def test_failures_count_as_T():
     env = gym.wrappers.TimeLimit(Countdown(), max_episode_steps=20)
-    result = evaluate_policy(env, lambda _obs: 0, episodes=3)
+    result = evaluate_policy(lambda _obs: 0, env, episodes=3)
     assert result.lengths == [20, 20, 20] and result.success_rate == 0.0
 
 
@@ -53,14 +53,15 @@ def test_stops_at_first_success_even_when_env_does_not_terminate(make_env):
             action[:3] = np.clip(10 * (observation["desired_goal"] - observation["achieved_goal"]), -1, 1)
             return action, None
 
-    result = evaluate_policy(env, Controller(), episodes=5)
+    result = evaluate_policy(Controller(), env, episodes=5)
     assert result.success_rate == 1.0
     assert 1 <= result.mean_length <= 10, result.lengths
 
 
 def test_random_policy_is_repeatable_and_worse_than_the_controller(make_env):
-    first = evaluate_policy(env := make_env("binpick/FetchReach-v0"), random_policy(env, 3), episodes=5)
-    second = evaluate_policy(env, random_policy(env, 3), episodes=5)
+    env = make_env("binpick/FetchReach-v0")
+    first = evaluate_policy(random_policy(env, 3), env, episodes=5)
+    second = evaluate_policy(random_policy(env, 3), env, episodes=5)
     assert first.lengths == second.lengths
     assert first.mean_length > 10
     assert set(first.to_dict()) >= {"mean_length", "std_length", "success_rate", "episodes", "env_id"}
@@ -69,4 +70,4 @@ def test_random_policy_is_repeatable_and_worse_than_the_controller(make_env):
 def test_episodes_must_be_positive():
     env = binpick.make("binpick/Arm2D-v0")
     with pytest.raises(binpick.errors.ConfigError, match="episodes"):
-        evaluate_policy(env, random_policy(env), episodes=0)
+        evaluate_policy(random_policy(env), env, episodes=0)

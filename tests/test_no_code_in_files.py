@@ -260,9 +260,9 @@ def test_python_loaders_refuse_crafted_files(tmp_path):
 def test_plain_tensor_pt_files_of_older_binpick_still_load(tmp_path):
     """Older binpick .pt files hold only tensors and plain containers: torch.load(weights_only=True) reads them."""
     from binpick.detection import load_detector
-    from binpick.detection.model import Detector, ModelSpec
+    from binpick.detection.model import DetectorNetwork, ModelSpec
 
-    model = Detector(ModelSpec(), 64)
+    model = DetectorNetwork(ModelSpec(), 64)
     torch.save({"format": "binpick-detector-1", "spec": {**ModelSpec().__dict__, "scales": [0.5, 1.0, 2.0]}, "image_size": 64,
                 "query_size": 96, "weights": model.state_dict(), "config": {"name": "old"}}, tmp_path / "old.pt")
     loaded = load_detector(tmp_path / "old.pt")

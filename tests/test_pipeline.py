@@ -9,7 +9,7 @@ import sys
 
 import numpy as np
 
-from binpick.detection.model import Detector, ModelSpec
+from binpick.detection.model import DetectorNetwork, ModelSpec
 from binpick.detection.train import save_detector
 from binpick.sim import default_library
 from binpick.sim.bin_scene import BinWorld
@@ -49,7 +49,7 @@ def test_a_detected_can_is_grasped_at_its_top_and_placed_in_the_order_tote():
 
 
 def test_an_order_runs_end_to_end_and_the_cli_reports_it(tmp_path):
-    detector = Detector(ModelSpec(query="photo"), 128).eval()  # untrained: whatever it finds is tried
+    detector = DetectorNetwork(ModelSpec(query="photo"), 128).eval()  # untrained: whatever it finds is tried
     pipeline = PickPipeline(detector, default_library(procedural=3, shapes=0), score_threshold=0.0, max_attempts=1,
                             camera=CameraSpec(size=128))
     result = pipeline.run_order("robosuite/can", 0, seed=0, out=tmp_path)
@@ -69,7 +69,7 @@ def test_an_order_runs_end_to_end_and_the_cli_reports_it(tmp_path):
 
 
 def test_the_oracle_locates_the_ordered_product_from_the_simulator(tmp_path):
-    detector = Detector(ModelSpec(query="photo"), 128).eval()
+    detector = DetectorNetwork(ModelSpec(query="photo"), 128).eval()
     pipeline = PickPipeline(detector, default_library(procedural=3, shapes=0), max_attempts=1, camera=CameraSpec(size=128),
                             oracle=True)
     result = pipeline.run_order("robosuite/can", 0, seed=3)

@@ -159,7 +159,7 @@ def envs_rollout(
     env = make(env_id, **parse_settings(settings))
     try:
         with progress() as callback, callback.task(f"{env.spec.id} · {policy}", episodes) as task:
-            result = evaluate_policy(env, random_policy(env, seed), episodes=episodes, seed=seed,
+            result = evaluate_policy(random_policy(env, seed), env, episodes=episodes, seed=seed,
                                      on_episode=lambda *_: task.update(advance=1))
     finally:
         env.close()
@@ -199,7 +199,7 @@ def tour(
                         task.update(advance=1)
                         overall.update(advance=1)
 
-                    result = evaluate_policy(env, random_policy(env, 0), episodes=episodes, seed=0, on_episode=advance)
+                    result = evaluate_policy(random_policy(env, 0), env, episodes=episodes, seed=0, on_episode=advance)
             finally:
                 env.close()
             summary.append(result.to_dict())
@@ -295,7 +295,7 @@ def _evaluate_with_progress(env, policy, label: str, episodes: int, seed: int) -
 
     try:
         with progress() as callback, callback.task(label, episodes) as task:
-            result = evaluate_policy(env, policy, episodes=episodes, seed=seed, on_episode=lambda *_: task.update(advance=1))
+            result = evaluate_policy(policy, env, episodes=episodes, seed=seed, on_episode=lambda *_: task.update(advance=1))
     finally:
         env.close()
     console.print(result.summary())
@@ -456,23 +456,20 @@ def _fmt(value) -> str:
 
 @detect_app.command("eval")
 def detect_eval(
-    run: Annotated[Path, typer.Argument(help="Run folder or model.safetensors")],
+    run: Annotated[Path, typer.Argument(help="Run folder, model.safetensors or a shipped name (rod_tiny_256)")],
     data: Annotated[Path, typer.Option(help="COCO annotations file (e.g. runs/data/bins_2000/annotations_test.json)")],
     targets: Annotated[str | None, typer.Option(help="all | pickable:<policy> (default: as trained)")] = None,
     out: Annotated[Path | None, typer.Option(help="Write the metrics JSON and a PR-curve PNG here (a folder)")] = None,
 ) -> None:
     """AP50 and mAP@[.5:.95] (pycocotools) against the targets, all instances and unpickable ones."""
-    from binpick.detection.data import RepeatedInstances, TaskDataset
-    from binpick.detection.train import evaluate_model, load_detector
+    from binpick.detection import Detector
 
     if out is not None:
         ensure_dir(out, "--out")
-    model = load_detector(run)
-    targets = targets or model.trained_config.get("data", {}).get("targets", "all")
-    dataset = TaskDataset(RepeatedInstances(data, targets=targets), model.image_size, model.spec.query, model.query_size)
-    with progress() as callback, callback.task("evaluating", len(dataset)) as task:
-        metrics = evaluate_model(model, dataset, progress=lambda n: task.update(advance=n))
-    table = Table(title=f"{run} on {data} ({len(dataset)} tasks, targets {targets})")
+    detector = Detector.load(run)
+    with progress() as callback:
+        metrics = detector.val(data, targets, callback=callback)
+    table = Table(title=f"{run} on {data} ({metrics['tasks']} tasks, targets {metrics['targets']})")
     for column in ("ground truth", "AP50", "mAP"):
         table.add_column(column)
     table.add_row("targets", _fmt(metrics["ap50"]), _fmt(metrics["map"]))
@@ -490,51 +487,30 @@ def detect_eval(
 @detect_app.command("predict")
 def detect_predict(
     image: Annotated[Path, typer.Argument(help="Scene image (PNG/JPEG)")],
-    weights: Annotated[Path | None, typer.Option(help="Run folder or model.safetensors (default: the shipped small model for the query kind)")] = None,
+    weights: Annotated[Path | None, typer.Option(help="Run folder, model.safetensors or a shipped name (default: the shipped model for the query kind)")] = None,
     query_box: Annotated[str | None, typer.Option(help="Known instance x,y,w,h in pixels")] = None,
     query_image: Annotated[Path | None, typer.Option(help="Product photo to look for (photo-conditioned models)")] = None,
-    out: Annotated[Path | None, typer.Option(help="Overlay PNG: query blue, detections orange")] = None,
-    heatmap: Annotated[Path | None, typer.Option(help="PNG of the max heatmaps (ROD levels)")] = None,
+    out: Annotated[Path | None, typer.Option(help="Overlay PNG: query blue, detections orange with scores, a legend")] = None,
+    heatmap: Annotated[Path | None, typer.Option(help="PNG of the ROD levels' max heatmaps, titled, with a colour bar")] = None,
     min_score: Annotated[float, typer.Option(help="Detections below this score are not printed or drawn")] = 0.3,
 ) -> None:
     """Find the other instances of the query; prints JSON boxes (x, y, w, h) and scores."""
-    from binpick.detection.predict import parse_box, predict
-    from binpick.detection.train import load_detector
-
     from binpick.config import check_range
+    from binpick.detection import Detector
+    from binpick.detection.predict import parse_box
 
     check_range("--min-score", min_score, 0.0, 1.0)
     for path, option in ((out, "--out"), (heatmap, "--heatmap")):
         if path is not None:
             _check_png_path(path, option)
-    model = load_detector(weights or _shipped_weights("rod_photo_tiny_256.safetensors" if query_image is not None else "rod_tiny_256.safetensors"))
+    detector = Detector.load(weights or ("rod_photo_tiny_256" if query_image is not None else "rod_tiny_256"))
     box = parse_box(query_box) if query_box is not None else None
-    prediction = predict(model, image, box, query_image, score_threshold=min_score)
+    prediction = detector.predict(image, box, query_image, min_score=min_score)
     print(json.dumps(prediction.to_json()))
     if out is not None:
-        from binpick.detection.data import read_image
-        from binpick.viz.detection import overlay
-
-        photo = read_image(query_image) if query_image is not None else None
-        _save_png(overlay(prediction.image, prediction.boxes, prediction.scores, prediction.query_box, photo, min_score), out, "--out")
+        _save_png(prediction.plot(), out, "--out")
     if heatmap is not None:
-        from binpick.viz.detection import heatmap_image
-
-        if not prediction.heatmaps:
-            raise ConfigError("this detector has no ROD heatmaps (TDID or skip-only layout)")
-        import numpy as np
-
-        side = prediction.image.shape[0]
-        _save_png(np.concatenate([heatmap_image(h, side) for h in prediction.heatmaps], 1), heatmap, "--heatmap")
-
-
-def _shipped_weights(name: str) -> Path:
-    from importlib.resources import files
-
-    path = Path(str(files("binpick.detection") / "weights" / name))
-    if not path.is_file():
-        raise ConfigError("no shipped detector weights in this install; give --weights RUN")
-    return path
+        _save_png(prediction.plot_heatmaps(), heatmap, "--heatmap")
 
 
 MasterOption = Annotated[str | None, typer.Option("--master", help="ROS master URI (default: $ROS_MASTER_URI)")]
@@ -637,7 +613,7 @@ def ros_bench(
         action[:3] = np.clip(10 * (observation["desired_goal"] - observation["achieved_goal"]), -1, 1)
         return action
 
-    result = evaluate_policy(env, reach, episodes=episodes, seed=0)
+    result = evaluate_policy(reach, env, episodes=episodes, seed=0)
     trips = np.array(env.unwrapped.round_trips_ms)
     summary = {**result.to_dict(), "round_trips": int(trips.size), "median_ms": round(float(np.median(trips)), 3),
                "p95_ms": round(float(np.percentile(trips, 95)), 3), "namespace": namespace}
@@ -658,7 +634,7 @@ def pick(
 ) -> None:
     """Fulfil orders end to end: shop photo -> ROD -> grasp point from depth -> grasp -> order tote."""
     from binpick.config import check_choice, check_range
-    from binpick.detection.train import load_detector
+    from binpick.detection import Detector
     from binpick.sim import default_library
     from binpick.warehouse.pipeline import PickPipeline
 
@@ -683,7 +659,7 @@ def pick(
 
         read_image(photo)  # unreadable -> one line now, not mid-run
         library.add(replace(library[products[0]], photo=photo))
-    model = load_detector(weights or _shipped_weights("rod_photo_tiny_256.safetensors"))
+    model = Detector.load(weights or "rod_photo_tiny_256").network
     _fulfil(PickPipeline(model, library, axis=axis), products, orders, seed, out / time.strftime("%Y%m%d-%H%M%S"))
 
 
@@ -725,13 +701,13 @@ def demo(
     """The main job: fulfil a handful of orders end to end with the shipped detector, products seen in
     its training and zero-shot ones, and write an HTML report with each order's detections and GIF."""
     from binpick.config import check_range
-    from binpick.detection.train import load_detector
+    from binpick.detection import Detector
     from binpick.sim import default_library
     from binpick.warehouse.pipeline import PickPipeline
 
     check_range("orders", orders, 1, 1000, integer=True)
     ensure_dir(out, "--out")
-    model = load_detector(_shipped_weights("rod_photo_tiny_256.safetensors"))
+    model = Detector.load("rod_photo_tiny_256").network
     run_dir = out / time.strftime("%Y%m%d-%H%M%S")
     _fulfil(PickPipeline(model, default_library()), list(DEMO_PRODUCTS), orders, seed, run_dir)
 

@@ -73,7 +73,7 @@ def evaluate_rows(run: AprilRun, callback: RunCallback = SILENT) -> dict[str, An
     for runtime_input, name in row_names(run).items():
         env, policy, recorder = deployment_env(run, runtime_input)
         with callback.task(f"evaluate {name}", episodes) as task:
-            result = evaluate_policy(env, policy, episodes=episodes, seed=seed, on_episode=lambda *_: task.update(advance=1))
+            result = evaluate_policy(policy, env, episodes=episodes, seed=seed, on_episode=lambda *_: task.update(advance=1))
         env.close()
         goals = np.stack(recorder.goals[:episodes])
         plot_goal_heatmap(goals, np.asarray(result.lengths), run.run_dir / f"heatmap_{name}.png",

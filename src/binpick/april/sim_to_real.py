@@ -96,7 +96,7 @@ def transfer(run_dir: Path, out: Path, real_episodes: int = 25, eval_episodes: i
     def evaluate(runtime_input: str):
         env, policy, _ = deployment_env(run, runtime_input)
         try:
-            return evaluate_policy(env, policy, episodes=eval_episodes, seed=20_000)
+            return evaluate_policy(policy, env, episodes=eval_episodes, seed=20_000)
         finally:
             env.close()
 

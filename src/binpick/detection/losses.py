@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import torch
 
-from binpick.detection.model import STRIDES, Detector
+from binpick.detection.model import STRIDES, DetectorNetwork
 from binpick.detection.ops import box_iou, generalized_box_iou, xyxy_to_cxcywh
 
 
@@ -45,10 +45,10 @@ class LossWeights:
         check_range("loss.ignore_iou", self.ignore_iou, 0, 1)
 
 
-def assign(model: Detector, raw: list[torch.Tensor], boxes: torch.Tensor, targets: torch.Tensor
+def assign(model: DetectorNetwork, raw: list[torch.Tensor], boxes: torch.Tensor, targets: torch.Tensor
            ) -> list[tuple[int, int, int, int, int]]:
     """Eq 5.21 for one image: (target index, level, anchor, row, column) of each responsible pair.
-    ``boxes`` are the image's decoded predictions (N, 4), in the order :meth:`Detector.decode` gives."""
+    ``boxes`` are the image's decoded predictions (N, 4), in the order :meth:`DetectorNetwork.decode` gives."""
     if len(targets) == 0:
         return []
     offsets, offset = [], 0
@@ -86,7 +86,7 @@ def gaussian_targets(boxes: torch.Tensor, height: int, width: int, stride: int, 
     return target
 
 
-def rod_loss(model: Detector, out: dict, targets: list[torch.Tensor], weights: LossWeights) -> dict[str, torch.Tensor]:
+def rod_loss(model: DetectorNetwork, out: dict, targets: list[torch.Tensor], weights: LossWeights) -> dict[str, torch.Tensor]:
     """Batch mean of L_bbox, L_obj and L_h, and their weighted sum ``total``."""
     raw = out["raw"]
     boxes, _ = model.decode([r.detach() for r in raw])

@@ -53,7 +53,7 @@ class ModelSpec:
             raise ConfigError(f"model.scales must be positive numbers, got {list(self.scales)}")
 
 
-class Detector(nn.Module):
+class DetectorNetwork(nn.Module):
     def __init__(self, spec: ModelSpec, image_size: int, query_size: int = 96) -> None:
         super().__init__()
         spec.check()

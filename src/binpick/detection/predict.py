@@ -10,7 +10,7 @@ import torch
 from PIL import Image
 
 from binpick.detection.data import crop_resize, read_image, to_tensor
-from binpick.detection.model import Detector
+from binpick.detection.model import DetectorNetwork
 from binpick.errors import ConfigError
 
 
@@ -21,10 +21,34 @@ class Prediction:
     heatmaps: list[np.ndarray]  # per ROD level (H_l, W_l), empty for TDID / skip levels
     image: np.ndarray  # the input image (RGB uint8)
     query_box: np.ndarray | None  # x, y, w, h, when the query was a box
+    query_image: np.ndarray | None = None  # the shop photo, when the query was one (RGB uint8)
+    min_score: float = 0.0  # the threshold it was made with
 
     def to_json(self) -> list[dict]:
         return [{"bbox": [round(float(v), 1) for v in box], "score": round(float(score), 4)}
                 for box, score in zip(self.boxes, self.scores)]
+
+    def plot(self, min_score: float | None = None) -> np.ndarray:
+        """The image with the detections (orange, with scores), the query and a legend (RGB array)."""
+        from binpick.viz.detection import overlay
+
+        return overlay(self.image, self.boxes, self.scores, self.query_box, self.query_image,
+                       self.min_score if min_score is None else min_score)
+
+    def plot_heatmaps(self) -> np.ndarray:
+        """The ROD levels' max heatmaps beside the scene, titled, with a colour bar (RGB array)."""
+        from binpick.viz.detection import heatmap_figure
+
+        if not self.heatmaps:
+            raise ConfigError("this detector has no ROD heatmaps (TDID or skip-only layout)")
+        return heatmap_figure(self.heatmaps, self.image)
+
+    def save(self, path: str | Path, heatmaps: bool = False) -> Path:
+        """:meth:`plot` (or :meth:`plot_heatmaps`) as a PNG file, written atomically."""
+        from binpick.files import atomic_write
+
+        picture = self.plot_heatmaps() if heatmaps else self.plot()
+        return atomic_write(Path(path), lambda handle: Image.fromarray(picture).save(handle, format="PNG"))
 
 
 def parse_box(text: str) -> np.ndarray:
@@ -46,7 +70,7 @@ def check_query_box(box: np.ndarray, width: int, height: int) -> None:
         raise ConfigError(f"query box {box.tolist()} lies outside the {width}x{height} image")
 
 
-def predict(model: Detector, image: np.ndarray | str | Path, query_box: np.ndarray | None = None,
+def predict(model: DetectorNetwork, image: np.ndarray | str | Path, query_box: np.ndarray | None = None,
             query_image: np.ndarray | str | Path | None = None, score_threshold: float = 0.1) -> Prediction:
     """Run the detector on one image. Give ``query_box`` (x, y, w, h) for a crop query, or
     ``query_image`` for a shop photo (models trained with ``query: photo``, or TDID)."""
@@ -69,8 +93,8 @@ def predict(model: Detector, image: np.ndarray | str | Path, query_box: np.ndarr
     else:
         if model.spec.method == "rod" and model.spec.query == "crop":
             raise ConfigError("this detector finds copies of a box in the image: give --query-box")
-        query_pixels = read_image(Path(query_image)) if isinstance(query_image, (str, Path)) else query_image
-        query_pixels = np.asarray(Image.fromarray(query_pixels).resize((model.query_size,) * 2, Image.BILINEAR))
+        photo = read_image(Path(query_image)) if isinstance(query_image, (str, Path)) else np.asarray(query_image)
+        query_pixels = np.asarray(Image.fromarray(photo).resize((model.query_size,) * 2, Image.BILINEAR))
     boxes_input = torch.tensor(box_xyxy, dtype=torch.float32)[None] if box_xyxy is not None else None
     model.eval()
     results, heatmaps = model.detect(to_tensor(resized)[None], boxes_input, to_tensor(query_pixels)[None],
@@ -78,4 +102,4 @@ def predict(model: Detector, image: np.ndarray | str | Path, query_box: np.ndarr
     boxes = results[0]["boxes"].numpy() / scale
     xywh = np.c_[boxes[:, :2], boxes[:, 2:] - boxes[:, :2]] if len(boxes) else np.zeros((0, 4), np.float32)
     return Prediction(xywh, results[0]["scores"].numpy(), [h[0, 0].numpy() for h in heatmaps if h is not None],
-                      image, query_box)
+                      image, query_box, None if query_image is None else photo, score_threshold)

@@ -22,7 +22,7 @@ from binpick.detection.config import DetectConfig
 from binpick.detection.data import RepeatedInstances, TaskDataset, collate
 from binpick.detection.evaluate import collect, summarise
 from binpick.detection.losses import rod_loss
-from binpick.detection.model import ANCHORS_PER_LEVEL, Detector, ModelSpec
+from binpick.detection.model import ANCHORS_PER_LEVEL, DetectorNetwork, ModelSpec
 from binpick.detection.ops import box_iou
 from binpick.errors import ConfigError, InputFileError
 from binpick.files import atomic_write_json, require_fields
@@ -35,7 +35,7 @@ WEIGHTS_FILE = "model.safetensors"
 CHECKPOINT_FORMAT = "binpick-detector-checkpoint-1"
 
 
-def save_detector(model: Detector, path: Path, extra: dict[str, Any] | None = None, half: bool = False) -> None:
+def save_detector(model: DetectorNetwork, path: Path, extra: dict[str, Any] | None = None, half: bool = False) -> None:
     """Write weights (safetensors) and what rebuilds the network (JSON) atomically: a crash leaves the
     previous file or the new one. ``half`` stores float16 weights (half the size; loading turns them
     back into float32). ``extra`` must be JSON data (config, products trained on, ...)."""
@@ -73,13 +73,13 @@ def _read_detector_file(path: Path) -> tuple[dict[str, torch.Tensor], dict[str, 
     return weights, meta
 
 
-def load_detector(path: str | Path) -> Detector:
+def load_detector(path: str | Path) -> DetectorNetwork:
     """A detector saved by :func:`save_detector` (or a run folder holding ``model.safetensors``)."""
     path = _weights_path(Path(path))
     weights, meta = _read_detector_file(path)
     try:
         spec = ModelSpec(**{**meta["spec"], "scales": tuple(meta["spec"]["scales"])})
-        model = Detector(spec, int(meta["image_size"]), int(meta.get("query_size", 96)))
+        model = DetectorNetwork(spec, int(meta["image_size"]), int(meta.get("query_size", 96)))
     except (TypeError, KeyError, ValueError) as error:
         raise InputFileError(f"detector weights {str(path)!r} describe no valid network ({error})") from None
     try:
@@ -141,14 +141,14 @@ def loader(dataset: TaskDataset, batch_size: int, shuffle: bool, workers: int, s
                                        collate_fn=collate, generator=generator, persistent_workers=False)
 
 
-def detector_detect(model: Detector) -> Callable[[dict], list[dict[str, torch.Tensor]]]:
+def detector_detect(model: DetectorNetwork) -> Callable[[dict], list[dict[str, torch.Tensor]]]:
     def detect(batch: dict) -> list[dict[str, torch.Tensor]]:
         results, _ = model.detect(batch["image"], batch["query_box"], batch["query_image"])
         return results
     return detect
 
 
-def evaluate_model(model: Detector, dataset: TaskDataset, batch_size: int = 8, progress=None) -> dict[str, Any]:
+def evaluate_model(model: DetectorNetwork, dataset: TaskDataset, batch_size: int = 8, progress=None) -> dict[str, Any]:
     model.eval()
     batches = loader(dataset, batch_size, shuffle=False, workers=0, seed=0)
     return summarise(collect(detector_detect(model), batches, progress), dataset.size)
@@ -163,7 +163,7 @@ class DetectorTrainer:
         torch.manual_seed(config.train.seed)
         torch.set_num_threads(config.train.threads)
         self.train_set, self.val_set = make_datasets(config)  # bad data: one line, before any folder exists
-        self.model = Detector(config.model.spec(), config.data.image_size, config.data.query_size)
+        self.model = DetectorNetwork(config.model.spec(), config.data.image_size, config.data.query_size)
         self.optimizer = torch.optim.AdamW(self.model.parameters(), lr=config.train.lr, weight_decay=config.train.weight_decay)
         self.steps_per_epoch = -(-len(self.train_set) // config.train.batch_size)
         self.total_steps = self.steps_per_epoch * config.train.epochs

@@ -100,7 +100,7 @@ def train_a3c_distributed(config: DistributedA3CConfig, out: Path | None = None,
         elapsed = time.perf_counter() - started
     finally:
         pool.close()
-    evaluation = evaluate_policy(local, lambda observation: model.act(observation, deterministic=True),
+    evaluation = evaluate_policy(lambda observation: model.act(observation, deterministic=True), local,
                                  episodes=config.eval_episodes, seed=10_000)
     local.close()
     metrics = {"config": asdict(config), "env_steps": steps, "updates": updates, "episodes": len(lengths),

@@ -93,7 +93,7 @@ def train_distributed(config: DistributedConfig, out: Path | None = None,
         stats = rollouts.stats
     finally:
         rollouts.close()
-    evaluation = evaluate_policy(local, model, episodes=config.eval_episodes, seed=10_000)
+    evaluation = evaluate_policy(model, local, episodes=config.eval_episodes, seed=10_000)
     metrics = {"config": asdict(config), "env_steps": stats.steps, "episodes": stats.episodes,
                "lost_episodes": rollouts.pool.deaths, "worker_restarts": rollouts.pool.deaths,
                "steps_per_worker": {str(k): v for k, v in sorted(stats.per_worker_steps.items())},

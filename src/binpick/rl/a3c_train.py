@@ -41,6 +41,10 @@ class _SampledPolicy:
     def __call__(self, observation: np.ndarray) -> int:
         return self.model.act(observation, deterministic=self.deterministic)
 
+    def predict(self, observation: np.ndarray, state=None, episode_start=None, deterministic: bool = False):
+        """SB3's shape: ``(action, state)``. A3C acts by sampling unless ``deterministic``."""
+        return self.model.act(observation, deterministic=deterministic or self.deterministic), None
+
 
 def _make_env(config: RLConfig):
     from binpick.envs import make
@@ -168,7 +172,7 @@ class A3CTrainer:
     def evaluate(self, area: float) -> dict[str, float]:
         env = _make_env(self.config)
         env.unwrapped.set_goal_area(area)
-        result = evaluate_policy(env, _SampledPolicy(self.model), episodes=self.config.eval.episodes,
+        result = evaluate_policy(_SampledPolicy(self.model), env, episodes=self.config.eval.episodes,
                                  seed=self.config.eval.seed)
         env.close()
         return {"sim_steps": self.steps, "goal_area": area, "success_rate": result.success_rate,

@@ -75,19 +75,22 @@ def random_policy(env: gym.Env, seed: int = 0) -> Callable[[Any], Any]:
 
 
 def evaluate_policy(
+    model: Policy,
     env: gym.Env,
-    policy: Policy,
     episodes: int = 100,
     seed: int = 0,
     on_episode: EpisodeCallback | None = None,
 ) -> EvalResult:
     """Run ``episodes`` episodes (episode i reset with ``seed + i``) and measure their lengths.
 
+    Arguments in Stable-Baselines3's order (``evaluate_policy(model, env, ...)``); ``model`` is any
+    callable ``obs -> action`` or an object with SB3's ``predict``.
+
     An episode ends at the first step whose ``info["is_success"]`` is true (its length is the number
     of actions taken), or when the env terminates or truncates (length T if never successful).
     """
     check_range("episodes", episodes, 1, None, integer=True)
-    act = _as_callable(policy)
+    act = _as_callable(model)
     spec = env.spec
     result = EvalResult(env_id=spec.id if spec else type(env.unwrapped).__name__,
                         max_episode_steps=spec.max_episode_steps if spec else None)

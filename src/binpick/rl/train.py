@@ -137,7 +137,7 @@ class Evaluate(BaseCallback):
 
     def evaluate(self) -> dict[str, float]:
         steps = int(self.model.num_timesteps)
-        result = evaluate_policy(self.env, self.model, episodes=self.config.eval.episodes, seed=self.config.eval.seed)
+        result = evaluate_policy(self.model, self.env, episodes=self.config.eval.episodes, seed=self.config.eval.seed)
         row = {"sim_steps": steps, "gradient_steps": int(self.model._n_updates), "success_rate": result.success_rate,
                "mean_length": result.mean_length, "std_length": result.std_length}
         buffer = self.model.replay_buffer
@@ -397,3 +397,23 @@ def load_policy(run_dir: Path, env_id: str | None = None):
         raise InputFileError(f"run {run_dir} has no {POLICY_FILE} in its latest checkpoint (older runs saved SB3 zips, "
                              "which binpick no longer loads because they can run code)")
     return load_saved_policy(checkpoint / POLICY_FILE), config
+
+
+class TrainedPolicy:
+    """A trained RL policy as SB3 users know it: ``TrainedPolicy.load(run)`` and
+    ``predict(observation, deterministic=True) -> (action, None)``. ``run`` is a run folder (its
+    latest checkpoint, any algorithm) or a ``policy.safetensors`` file. Nothing is unpickled."""
+
+    @staticmethod
+    def load(path: str | Path, env_id: str | None = None):
+        path = Path(path)
+        if path.is_file():
+            return load_saved_policy(path)
+        policy, _ = load_policy(path, env_id)
+        return policy
+
+    @staticmethod
+    def make_env(run_dir: str | Path) -> gym.Env:
+        """The env exactly as the run trained on it (semantic state, minimum action scale): what its
+        policy's observations and actions mean."""
+        return make_env(load_run_config(RLConfig, run_dir))

@@ -78,6 +78,23 @@ class ProductLibrary:
     def add(self, product: Product) -> None:
         self.products[product.id] = product
 
+    def resolve(self, name: str) -> list[str]:
+        """Product ids for a name: a full id (``robosuite/cereal``), a short name when only one product
+        has it (``cereal``), or a product category (``box``: every product in it). Anything else is
+        one line that lists what would be accepted."""
+        if name in self.products:
+            return [name]
+        short = [pid for pid in self.products if pid.split("/")[-1] == name]
+        if len(short) == 1:
+            return short
+        if len(short) > 1:
+            raise ConfigError(f"{name!r} is the short name of {', '.join(sorted(short))}: give the full id")
+        if name in self.categories:
+            return sorted(p.id for p in self.products.values() if p.category == name)
+        close = sorted(pid for pid in self.products if name.lower() in pid.lower())[:6]
+        hint = f"; did you mean {', '.join(close)}?" if close else "; `binpick products list` shows them all"
+        raise ConfigError(f"unknown product or category {name!r}{hint}")
+
 
 def package_dir(name: str) -> Path | None:
     """Where an installed package's files are, without importing it (robosuite's import needs its deps)."""

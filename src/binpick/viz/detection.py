@@ -10,19 +10,37 @@ import numpy as np
 ORANGE, BLUE = (255, 140, 0), (40, 90, 255)
 
 
+def _font(size: int):
+    """A scalable font at ``size`` pixels (Pillow's bundled one: no system fonts needed)."""
+    from PIL import ImageFont
+
+    return ImageFont.load_default(size=size)
+
+
+def _label(draw, xy: tuple[float, float], text: str, colour, font) -> None:
+    """Text on a dark box, readable on any background."""
+    left, top, right, bottom = draw.textbbox(xy, text, font=font)
+    draw.rectangle([left - 2, top - 1, right + 2, bottom + 1], fill=(20, 20, 20))
+    draw.text(xy, text, fill=colour, font=font)
+
+
 def overlay(image: np.ndarray, boxes: np.ndarray, scores: np.ndarray, query_box: np.ndarray | None = None,
             query_image: np.ndarray | None = None, min_score: float = 0.3) -> np.ndarray:
     """Detections scoring at least ``min_score`` in orange with their scores, the query box in blue,
-    a photo query inset at the top right. Boxes are x, y, w, h."""
+    a photo query inset at the top right, and a legend. Boxes are x, y, w, h. Line widths and text
+    scale with the image, so a 416 px scene and a 1920 px camera frame both read well."""
     from PIL import Image, ImageDraw
 
     picture = Image.fromarray(image)
     draw = ImageDraw.Draw(picture)
     width = max(2, image.shape[1] // 200)
+    font = _font(max(11, image.shape[1] // 32))
+    shown = 0
     for (x, y, w, h), score in zip(boxes, scores):
         if score >= min_score:
             draw.rectangle([x, y, x + w - 1, y + h - 1], outline=ORANGE, width=width)
-            draw.text((x + 3, y + 2), f"{score:.2f}", fill=ORANGE)
+            _label(draw, (x + width + 1, y + width), f"{score:.2f}", ORANGE, font)
+            shown += 1
     if query_box is not None:
         x, y, w, h = query_box
         draw.rectangle([x, y, x + w - 1, y + h - 1], outline=BLUE, width=width)
@@ -31,7 +49,39 @@ def overlay(image: np.ndarray, boxes: np.ndarray, scores: np.ndarray, query_box:
         inset = Image.fromarray(query_image).resize((side, side))
         picture.paste(inset, (image.shape[1] - side - 4, 4))
         draw.rectangle([image.shape[1] - side - 5, 3, image.shape[1] - 4, side + 4], outline=BLUE, width=2)
+    query = "query: photo (inset)" if query_image is not None else "query: blue box"
+    _label(draw, (6, image.shape[0] - font.size - 8), f"{query}; {shown} detections >= {min_score:.2f} (orange)",
+           (235, 235, 235), font)
     return np.asarray(picture)
+
+
+def heatmap_figure(heatmaps: list[np.ndarray], image: np.ndarray | None = None) -> np.ndarray:
+    """The ROD modules' max heatmaps (Eq 5.12; Fig 6.11's bottom row) as one RGB picture: the scene,
+    then one panel per pyramid level with its title and a shared colour bar of the correlation."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    panels = ([image] if image is not None else []) + list(heatmaps)
+    fig, axes = plt.subplots(1, len(panels), figsize=(3.0 * len(panels) + 1.0, 3.3), squeeze=False, layout="constrained")
+    shown = None
+    for index, (axis, panel) in enumerate(zip(axes[0], panels)):
+        if image is not None and index == 0:
+            axis.imshow(panel)
+            axis.set_title("scene")
+        else:
+            level = index - (image is not None)
+            shown = axis.imshow(panel, cmap="magma", vmin=-1, vmax=1)
+            axis.set_title(f"ROD level {level + 1}: {panel.shape[1]}×{panel.shape[0]} cells")
+        axis.set_xticks([])
+        axis.set_yticks([])
+    if shown is not None:
+        fig.colorbar(shown, ax=list(axes[0]), fraction=0.03, label="max correlation with the query")
+    fig.canvas.draw()
+    picture = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
+    plt.close(fig)
+    return picture
 
 
 def heatmap_image(heatmap: np.ndarray, size: int) -> np.ndarray:

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from binpick.detection.model import Detector
+from binpick.detection.model import DetectorNetwork
 from binpick.detection.predict import predict
 from binpick.errors import ConfigError
 from binpick.files import atomic_write, atomic_write_text, ensure_dir
@@ -69,7 +69,7 @@ class PickPipeline:
     ``oracle=True`` takes the ordered product's boxes from the simulator (most visible first) instead of
     the detector: what the grasp alone achieves, to tell detection failures from grasp failures."""
 
-    def __init__(self, detector: Detector, library: ProductLibrary, axis: str = "y", copies: tuple[int, int] = (3, 6),
+    def __init__(self, detector: DetectorNetwork, library: ProductLibrary, axis: str = "y", copies: tuple[int, int] = (3, 6),
                  distractors: tuple[int, int] = (2, 3), max_attempts: int = 3, score_threshold: float = 0.2,
                  camera: CameraSpec = CameraSpec(size=416), colour_check: float | None = 0.15, oracle: bool = False) -> None:
         if detector.spec.query != "photo":
