@@ -40,12 +40,10 @@ def machine() -> dict:
 
 
 def write_result(name: str, payload: dict) -> Path:
-    RESULTS.mkdir(exist_ok=True)
+    from binpick.files import atomic_write_text
+
     path = RESULTS / f"{name}.json"
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps({"benchmark": name, "machine": machine(), **payload}, indent=2) + "\n")
-    tmp.replace(path)
-    return path
+    return atomic_write_text(path, json.dumps({"benchmark": name, "machine": machine(), **payload}, indent=2) + "\n")
 
 
 def write_section(name: str, markdown: str) -> None:
@@ -59,5 +57,6 @@ def write_section(name: str, markdown: str) -> None:
         text = before + block + after
     else:
         text = text.rstrip() + "\n\n" + block + "\n"
-    RESULTS_MD.parent.mkdir(exist_ok=True)
-    RESULTS_MD.write_text(text)
+    from binpick.files import atomic_write_text
+
+    atomic_write_text(RESULTS_MD, text)

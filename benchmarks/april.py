@@ -140,7 +140,7 @@ def main() -> None:
                 continue  # the shared state policy's heat map is the ground-truth config's
             shutil.copy(picture, IMAGES / f"{name}_{picture.name}")
         print(name, json.dumps(rows), flush=True)
-    lines = ["## APRiL: train on state, deploy on pixels (issue 4, Tables 4.2-4.5)", "",
+    lines = ["## APRiL: train on state, deploy on pixels (Tables 4.2-4.5)", "",
              "Average actions per episode (T = 50; pick and place T = 100) over seeded evaluation episodes; simulator episodes = "
              "training episodes the row needed (random-policy image episodes for perception + RL episodes; "
              "evaluation episodes not counted). Rows ending `_refined` had perception trained further on 100 noisy "

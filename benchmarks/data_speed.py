@@ -4,7 +4,7 @@ process, 416 px, written to disk as a data set) and trial grasps per second with
     python benchmarks/data_speed.py [--scenes 40] [--trial-scenes 6]
 
 Writes results/data_speed.json ({scenes_per_s, grasp_trials_per_s, image_size, ...}) and the
-data-speed section of docs/RESULTS.md. Target (issue 5): >= 3 scenes/s per core at 416 px.
+data-speed section of docs/RESULTS.md. Target: >= 3 scenes/s per core at 416 px.
 The load average is recorded: other jobs on the machine slow both figures.
 """
 
@@ -88,7 +88,7 @@ def main() -> None:
               "peak_rss_mib": round(_common.peak_rss_mib(), 1)}
     path = _common.write_result("data_speed", result)
     _common.write_section("data_speed", "\n".join([
-        "## Warehouse data generation speed (issue 5)", "",
+        "## Warehouse data generation speed", "",
         f"`python benchmarks/data_speed.py` → `{path.relative_to(_common.ROOT)}`. One process; scenes are settled, rendered "
         f"(RGB, depth, segmentation, per-instance masks for the visible fraction), annotated and written as PNG + JSON.", "",
         "| | ours | target |", "|---|---|---|",

@@ -1,6 +1,6 @@
-"""Statistics of a generated warehouse data set (issue 5), and its pictures for the docs.
+"""Statistics of a generated warehouse data set, and its pictures for the docs.
 
-    binpick data generate --out runs/data/bins_2000 --scenes 2000 --workers 2 --held-out can,mug,toy
+    binpick data generate --out runs/data/bins_2000 --scenes 2000 --workers 2 --held-out can,mug,toy --set split_rule=random
     python benchmarks/data_stats.py [--data runs/data/bins_2000]
 
 Writes results/data_stats.json ({scenes, instances_per_image, pickable_fraction {policy},
@@ -60,7 +60,7 @@ def main() -> None:
     if photos:
         Image.fromarray(contact_sheet(photos, columns=9)).save(IMAGES / "shop_photos.png")
 
-    rows = ["## Warehouse bin data set (issue 5, thesis §5.4.4, §6.3)", "",
+    rows = ["## Warehouse bin data set (thesis §5.4.4, §6.3)", "",
             f"`python benchmarks/data_stats.py --data {args.data.relative_to(_common.ROOT) if args.data.is_relative_to(_common.ROOT) else args.data}` → "
             f"`{path.relative_to(_common.ROOT)}`; pictures: `docs/img/bins_labelled.png`, `docs/img/shop_photos.png`.", "",
             "| | ours | target / thesis |", "|---|---|---|",

@@ -3,7 +3,7 @@
     python benchmarks/env_speed.py [--seconds 3]
 
 Writes results/env_speed.json and the env-speed table of docs/RESULTS.md. Random actions; the
-episode is reset when it ends (reset time counts). Target (issue 2): FetchReach >= 800 steps/s
+episode is reset when it ends (reset time counts). Target: FetchReach >= 800 steps/s
 without images and >= 80 steps/s with 84x84 images on a 2-core machine.
 """
 
@@ -76,7 +76,7 @@ def main() -> None:
     for row in rows:
         by_env.setdefault(row["env_id"], {})[row["image"]] = row["steps_per_s"]
     lines = [
-        "## Environment speed (issue 2)",
+        "## Environment speed",
         "",
         f"Steps per second with random actions, one process, `MUJOCO_GL={os.environ.get('MUJOCO_GL')}` "
         f"(Mesa llvmpipe), {os.cpu_count()} cores; RGB image observations rendered every step. "

@@ -5,7 +5,7 @@
 Fits the GP on 15 random FetchReach episodes (as the thesis does), then times
 - the simulator: FetchReach steps without rendering, and with an 84x84 camera image;
 - the GP: batched imagined episodes with the current SAC policy (actor forward pass included).
-Thesis: 0.0025 s per GP step vs 0.01 s per rendered simulator step. Target (issue 3): batched GP
+Thesis: 0.0025 s per GP step vs 0.01 s per rendered simulator step. Target: batched GP
 imagination >= 20x cheaper per transition than a MuJoCo step. Also draws docs/img/gp_dynamics.png
 (the Fig 3.9 diagnostic). Writes results/gp_cost.json and a section of docs/RESULTS.md.
 """
@@ -109,7 +109,7 @@ def main() -> None:
     path = _common.write_result("gp_cost", payload)
     print(f"wrote {path} and {figure}")
     _common.write_section("gp_cost", "\n".join([
-        "## GP imagination cost (issue 3, thesis §3.3.1)",
+        "## GP imagination cost (thesis §3.3.1)",
         "",
         "Seconds per transition, measured in one process by `python benchmarks/gp_cost.py` → "
         "`results/gp_cost.json`. GP: 15 random FetchReach episodes, imagined episodes rolled "

@@ -1,4 +1,4 @@
-"""Orders fulfilled end to end (issue 7, thesis ch. 6, Fig 1.1): shop photo -> ROD with external
+"""Orders fulfilled end to end (thesis ch. 6, Fig 1.1): shop photo -> ROD with external
 conditioning -> grasp point from depth -> top-down grasp (jaws along y, the policy the detector's
 pickability labels are for) -> order tote.
 
@@ -92,7 +92,7 @@ def section(result: dict, path: Path, orders: int) -> None:
         return (f"| {name} ({group['products']} products) | {group['orders']} | {group['pick_success']:.0%} | {right} | "
                 f"{group['picks_per_min']} | {group['attempts_per_order']} | {reasons} | {'met' if met else 'missed'} |")
 
-    lines = ["## Pick pipeline (issue 7, thesis ch. 6)", "",
+    lines = ["## Pick pipeline (thesis ch. 6)", "",
              f"`python benchmarks/pick.py --orders {orders}` → `{path.relative_to(_common.ROOT)}`. Each order is a new bin "
              "(3–6 copies of the product, 2–3 other products); the detector (`rod_photo_tiny_256.safetensors`, ROD conditioned on "
              "the shop photo, trained on Policy 1 pickability) ranks the instances; detections whose colours do not match "

@@ -61,7 +61,7 @@ def main() -> None:
     print(f"wrote {path}")
 
     lines = [
-        "## Random-policy baselines (issue 2)",
+        "## Random-policy baselines",
         "",
         "Average episode length = actions until success, capped at T; ± one standard deviation over "
         "seeded episodes (episode i uses seed i). Produced by `python benchmarks/random_policy.py` → "

@@ -1,4 +1,4 @@
-"""Ray simulator workers on this machine (issue 7, thesis §6.1): env steps/s with 1 and 2 workers,
+"""Ray simulator workers on this machine (thesis §6.1): env steps/s with 1 and 2 workers,
 and a SAC + HER run in which one worker is killed midway.
 
     python benchmarks/ray_scaling.py [--seconds 40] [--run-steps 3000]
@@ -80,7 +80,7 @@ def main() -> None:
               "worker_killed_run_finished": run["finished"], "killed_run": run, "load_average": round(os.getloadavg()[0], 2),
               "peak_rss_mib": round(_common.peak_rss_mib(), 1)}
     path = _common.write_result("ray_scaling", result)
-    lines = ["## Ray simulator workers (issue 7, thesis §6.1)", "",
+    lines = ["## Ray simulator workers (thesis §6.1)", "",
              f"`python benchmarks/ray_scaling.py --seconds {args.seconds:g} --run-steps {args.run_steps}` → "
              f"`{path.relative_to(_common.ROOT)}`. Local Ray cluster on 127.0.0.1, one Fetch Reach simulator per worker "
              "process, untrained SAC policy in the workers.", "",

@@ -6,7 +6,7 @@ A3C with and without the goal-area curriculum on the same budget.
 Each learner trains from its config in configs/ (run folders in runs/bench/) and is then evaluated
 on 200 seeded episodes; the curriculum runs are evaluated on the whole play area, and Table 3.2's
 per-stage figures come from the evaluations at the end of each hold. Thesis: 369±341 / 134±99 /
-15±3 (Table 3.1); 15 / 42 / 13 / 25±6 at single goal / ¼ / ½ / whole (Table 3.2). Targets (issue 3):
+15±3 (Table 3.1); 15 / 42 / 13 / 25±6 at single goal / ¼ / ½ / whole (Table 3.2). Targets:
 A3C <= 20 actions; curriculum <= 25 at the whole area. Long: millions of steps; results are merged
 into results/rl_arm2d.json so parts can be run separately.
 """
@@ -98,7 +98,7 @@ def main() -> None:
         return f"{row['mean']:.1f} ± {row['std']:.1f} ({row['success_rate']:.0%} reach{budget})"
 
     _common.write_section("rl_arm2d", "\n".join([
-        "## Arm2D from images: Tables 3.1 and 3.2 (issue 3)",
+        "## Arm2D from images: Tables 3.1 and 3.2",
         "",
         f"Average actions per episode ± std over {EPISODES} seeded episodes (T = 1000) after training; "
         "`python benchmarks/rl_arm2d.py` → `results/rl_arm2d.json`.",

@@ -47,7 +47,7 @@ def run(name: str, steps: int, seed: int, **changes) -> dict:
 def write_table_3_4(rows: dict, steps: int) -> None:
     thesis = {(1, 10_000): (550, 12_700), (10, 10_000): (100, 22_700), (50, 10_000): (300, 114_100),
               (1, 1_000_000): (50_150, 13_100), (10, 1_000_000): (9_450, 21_900), (50, 1_000_000): (21_600, 66_200)}
-    lines = ["## Table 3.4: FetchReach, random goals, α_HER × M (issue 3)", "",
+    lines = ["## Table 3.4: FetchReach, random goals, α_HER × M", "",
              "`python benchmarks/rl_fetchreach_gp_tables.py --table 3.4` → `results/rl_fetchreach_gp_tables.json`. "
              "Episodes sampled (simulator + GP) until Ω is 10% full and training starts; in brackets all "
              "episodes in Ω then, HER copies included. Iterations = gradient steps until the evaluated average is "
@@ -93,7 +93,7 @@ def main() -> None:
                                                 "final_avg_actions", "final_std_actions", "final_success", "run_dir")}}
             print(label, rows[label], flush=True)
         results["table_3_3"] = rows
-        lines = ["## Table 3.3: FetchReach, single goal, GP imagination (issue 3)", "",
+        lines = ["## Table 3.3: FetchReach, single goal, GP imagination", "",
                  "`python benchmarks/rl_fetchreach_gp_tables.py --table 3.3` → `results/rl_fetchreach_gp_tables.json`. "
                  f"Goal fixed at {GOAL} m from the gripper's start; noisy start = ±10 cm per axis; "
                  f"{args.steps} simulator steps, seed {args.seed}.", "",

@@ -5,7 +5,7 @@
 Both run through binpick's trainer from configs/rl_fetchreach_sb3_sac_her.yaml and
 configs/rl_fetchreach_gp_her.yaml, evaluating 50 seeded episodes every 1,000 (SB3) / 500 (binpick)
 simulator steps. Reported: simulator steps until eval success >= 95%, final success and average
-actions. Target (issue 3): binpick needs <= 1/4 of SB3's simulator steps at the same final success.
+actions. Target: binpick needs <= 1/4 of SB3's simulator steps at the same final success.
 Writes results/rl_fetchreach_vs_sb3.json and a section of docs/RESULTS.md; run folders go to runs/bench/.
 """
 
@@ -113,7 +113,7 @@ def main() -> None:
         return f"| {name} | {steps} | {r['final_success']:.0%} | {r['final_avg_actions']:.2f} ± {r['final_std_actions']:.2f} |"
 
     _common.write_section("rl_fetchreach_vs_sb3", "\n".join([
-        "## FetchReach, random goals: SB3 SAC+HER vs binpick GP + episode HER (issue 3)",
+        "## FetchReach, random goals: SB3 SAC+HER vs binpick GP + episode HER",
         "",
         "Simulator steps until eval success ≥ 95% (50 seeded episodes per evaluation), per seed; final "
         "success and average actions of the last evaluation, mean over seeds. `python "

@@ -1,4 +1,4 @@
-"""Repeated object detection on the warehouse bins (issue 6, thesis ch. 5 and §6.3).
+"""Repeated object detection on the warehouse bins (thesis ch. 5 and §6.3).
 
     python benchmarks/rod.py train [--runs runs/rod]    # trains every config below (resumes)
     python benchmarks/rod.py report [--runs runs/rod]   # evaluates, writes results and pictures
@@ -222,7 +222,7 @@ def _cell(value) -> str:
 
 def write_markdown(result: dict, path: Path) -> None:
     seen = result["seen"]
-    lines = ["## Repeated object detection (issue 6, thesis ch. 5, §6.3)", "",
+    lines = ["## Repeated object detection (thesis ch. 5, §6.3)", "",
              f"`python benchmarks/rod.py train && python benchmarks/rod.py report` → `{path.relative_to(_common.ROOT)}`; "
              "pictures in `docs/img/rod/`. Every model: the small backbone at 256 px, the same data "
              f"(`{result['data']}`), 12 epochs, batch 8, seed 0. Targets: instances pickable by Policy 1 "
@@ -265,7 +265,7 @@ def write_markdown(result: dict, path: Path) -> None:
               "| model | ms | target |", "|---|---|---|",
               f"| small backbone, 256 px | {lat.get('small_256')} | ≤ 100 ({'met' if lat.get('small_256', 1e9) <= 100 else 'missed'}) |",
               f"| small backbone, 416 px | {lat.get('small_416')} | — |", f"| Darknet-53, 416 px | {lat.get('darknet53_416')} | — |",
-              "", f"Peak RSS {result['peak_rss_mib']:.0f} MiB. No GPU was lent to this task, so there is no GPU images/s figure.", "",
+              "", f"Peak RSS {result['peak_rss_mib']:.0f} MiB. All figures are CPU-only (2 cores); none were measured on a GPU.", "",
               "![PR curves](img/rod/pr_seen.png)", "![Examples](img/rod/examples.png)"]
     _common.write_section("rod", "\n".join(lines))
     print("\n".join(lines))

@@ -1,4 +1,4 @@
-"""ROS bridge round trip on this machine (issue 7, thesis §6.1.1): a Fetch Reach env served by
+"""ROS bridge round trip on this machine (thesis §6.1.1): a Fetch Reach env served by
 ``binpick ros serve``, driven over ROS by the scripted reach policy from ``binpick ros bench``, on a
 master at 127.0.0.1.
 
@@ -71,7 +71,7 @@ def main() -> None:
               "sim_step_ms_without_ros": sim_step_ms(), "target_median_ms": 5.0, "met": summary["median_ms"] <= 5.0,
               "load_average": round(load, 2), "policy": "scripted reach: clip(10 (goal - gripper), -1, 1)"}
     path = _common.write_result("ros_latency", result)
-    lines = ["## ROS bridge (issue 7, thesis §6.1.1)", "",
+    lines = ["## ROS bridge (thesis §6.1.1)", "",
              f"`python benchmarks/ros_latency.py --episodes {args.episodes}` → `{path.relative_to(_common.ROOT)}`. "
              "Fetch Reach served by `binpick ros serve` (actionlib.ActionServer), driven by `binpick ros bench` through "
              "`binpick/Ros-v0`, master on 127.0.0.1.", "",

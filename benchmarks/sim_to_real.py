@@ -1,4 +1,4 @@
-"""Sim-to-real stand-in (issue 7, thesis §6.2, Table 6.1): the Fetch Reach APRiL run's policies in a
+"""Sim-to-real stand-in (thesis §6.2, Table 6.1): the Fetch Reach APRiL run's policies in a
 second rendering domain that plays the physical robot's camera, before and after retraining
 perception on <= 25 episodes recorded there.
 
@@ -42,7 +42,7 @@ def main() -> None:
              "shifted_encoded_retrained": ("shifted domain", "Enc S, perception retrained")}
     thesis = {"simulated_ground_truth": "15 / 2800 / - / 3.38 ± 2.37", "simulated_encoded": "65 / 2800 / - / 10.18 ± 10.84",
               "shifted_ground_truth": "15 / 2800 / 0 / 3.52 ± 2.45", "shifted_encoded_retrained": "65 / 2800 / 23 / 8.14 ± 12.75"}
-    lines = ["## Sim-to-real stand-in (issue 7, thesis §6.2, Table 6.1)", "",
+    lines = ["## Sim-to-real stand-in (thesis §6.2, Table 6.1)", "",
              f"`python benchmarks/sim_to_real.py --episodes {args.episodes}` → `{path.relative_to(_common.ROOT)}`. "
              f"Fetch Reach, APRiL run `{Path(result['run']).relative_to(_common.ROOT)}`; the 'physical' robot is a second "
              f"rendering domain: {result['domain']}. Control is never retrained; perception is retrained for "

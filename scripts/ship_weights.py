@@ -8,24 +8,14 @@ products its training set asked it to find, so the pick pipeline can say whether
 
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 
+from binpick.detection.data import trained_products
 from binpick.detection.train import load_detector, save_detector
 
 ROOT = Path(__file__).resolve().parents[1]
 WEIGHTS = ROOT / "src" / "binpick" / "detection" / "weights"
-
-
-def trained_products(annotations: Path) -> list[str]:
-    """Names of the categories the detector was asked to find in training: in binpick's bins, those
-    that were a scene's ordered product (held-out products can still appear there as distractors);
-    in other COCO files, every category with a box."""
-    coco = json.loads(annotations.read_text())
-    flagged = any("is_target" in a for a in coco["annotations"])
-    used = {a["category_id"] for a in coco["annotations"] if a.get("is_target") or not flagged}
-    return sorted(c["name"] for c in coco["categories"] if c["id"] in used)
 
 
 def main() -> None:

@@ -182,6 +182,10 @@ def world(tmp_path_factory) -> dict[str, str]:
 CASES: list[tuple[list[str], list[str]]] = [
     # usage errors: Click's, printed as one line
     (["envs", "list", "--bogus"], ["No such option: --bogus"]),
+    (["products", "list", "--products", "{latin1_yaml}"], ["latin1.yaml", "not UTF-8"]),
+    (["products", "list", "--products", "{products_no_mesh_yaml}"], ["missing.obj", "does not exist"]),
+    (["pick", "--product", "sofa", "--out", "{root}/picks"], ["unknown product or category 'sofa'"]),
+    (["pick", "--product", "box_0", "--out", "{root}/picks"], ["'box_0'", "did you mean", "procedural/box_00"]),
     (["envs", "show", "Arm2D", "--seed", "-1"], ["--seed", "greater than or equal to 0", "binpick envs show --help"]),
     (["envs", "rollout", "Arm2D", "--seed", "-5"], ["--seed", "greater than or equal to 0"]),
     (["envs", "rollout", "Arm2D", "--episodes", "abc"], ["--episodes", "integer"]),
@@ -247,6 +251,8 @@ CASES: list[tuple[list[str], list[str]]] = [
     (["detect", "eval", "{weights}", "--data", "{good_json}", "--out", "{plain_txt}"], ["--out", "plain.txt"]),
     (["rl", "train", "{rl_yaml}", "--runs", "{plain_txt}"], ["plain.txt"]),
     (["detect", "train", "{detect_yaml}", "--runs", "{plain_txt}"], ["plain.txt"]),
+    (["detect", "train", "{detect_yaml}", "--set", "model.layout=RXR"], ["model.layout", "RXR"]),
+    (["detect", "train", "--resume", "{detect_dangling}", "--set", "train.epochs=3"], ["--set", "resumed run keeps"]),
     (["pick", "--product", "robosuite/milk", "--out", "{plain_txt}"], ["--out", "plain.txt"]),
     (["demo", "--out", "{plain_txt}"], ["--out", "plain.txt"]),
     (["data", "generate", "--out", "{plain_txt}"], ["--out", "plain.txt", "is a file"]),
@@ -329,7 +335,7 @@ def test_bad_input_is_one_line_and_exit_code_2(args, fragments, world, capsys, m
 def test_the_suite_covers_every_verb_and_enough_cases():
     from binpick.cli import app
 
-    verbs = {" ".join(args[:2]) if args[0] in ("envs", "rl", "april", "data", "detect", "ros") else args[0] for args, _ in CASES}
+    verbs = {" ".join(args[:2]) if args[0] in ("envs", "rl", "april", "data", "detect", "ros", "products") else args[0] for args, _ in CASES}
     groups = {group.name: group.typer_instance for group in app.registered_groups}
     every = {f"{name} {command.name or command.callback.__name__}" for name, group in groups.items()
              for command in group.registered_commands} | {command.name for command in app.registered_commands}
@@ -412,7 +418,7 @@ def test_ros_master_stops_its_child_on_sigterm(tmp_path):
 def test_an_unreachable_ray_address_is_one_line_quickly(tmp_path):
     started = time.monotonic()
     result = subprocess.run([sys.executable, "-c", "from binpick.cli import main; main()", "rl", "distributed",
-                             "--address", f"127.0.0.1:{free_port()}", "--steps", "10", "--out", str(tmp_path)],
+                             "--address", f"127.0.0.1:{free_port()}", "--steps", "1000", "--out", str(tmp_path)],
                             capture_output=True, text=True, timeout=120, cwd=tmp_path)
     assert result.returncode == 2 and "Traceback" not in result.stderr, result.stderr[-800:]
     assert "no Ray cluster answered at 127.0.0.1:" in result.stderr and result.stderr.strip().count("\n") == 0

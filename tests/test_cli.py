@@ -61,15 +61,6 @@ def test_envs_rollout_prints_length_and_success_and_writes_json(tmp_path):
     assert 0 < summary["mean_length"] <= 50 and 0 <= summary["success_rate"] <= 1
 
 
-def test_envs_tour_renders_every_env_and_summarises(tmp_path):
-    result = runner.invoke(app, ["envs", "tour", "--out", str(tmp_path), "--episodes", "1"], env={"COLUMNS": "200"})
-    assert result.exit_code == 0, result.output
-    (run_dir,) = list(tmp_path.iterdir())
-    summary = json.loads((run_dir / "summary.json").read_text())
-    assert [row["env_id"] for row in summary] == list(binpick.ENV_IDS)
-    assert len(list(run_dir.glob("*.png"))) == len(binpick.ENV_IDS)
-
-
 @pytest.mark.parametrize(
     "args,expected",
     [

@@ -223,28 +223,6 @@ def test_cli_predict_and_bad_input_are_one_line(tmp_path):
     assert foreign.returncode == 2 and "another architecture" in foreign.stderr and "Traceback" not in foreign.stderr
 
 
-def test_cli_train_and_eval_on_a_coco_file(tmp_path):
-    path = make_coco(tmp_path / "toy", images=4)
-    config = tmp_path / "rod.yaml"
-    config.write_text(f"""name: toy
-data: {{train: {path}, val: {path}, targets: all, image_size: 64, augment: false}}
-train: {{epochs: 3, batch_size: 4, warmup_steps: 1, eval_every: 5, workers: 0}}
-""")
-    trained = subprocess.run(CLI + ["detect", "train", str(config), "--runs", str(tmp_path / "runs"), "--set", "train.epochs=1"],
-                             capture_output=True, text=True)
-    assert trained.returncode == 0, trained.stderr
-    run = next((tmp_path / "runs" / "toy").glob("*"))
-    assert json.loads((run / "metrics.json").read_text())["epochs"] == 1  # --set overrode the YAML
-    evaluated = subprocess.run(CLI + ["detect", "eval", str(run), "--data", str(path), "--out", str(tmp_path / "eval")],
-                               capture_output=True, text=True)
-    assert evaluated.returncode == 0, evaluated.stderr
-    metrics = json.loads((tmp_path / "eval" / "metrics.json").read_text())
-    assert metrics["tasks"] == 4 and 0.0 <= metrics["ap50"] <= 1.0 and (tmp_path / "eval" / "pr_curve.png").is_file()
-    bad = subprocess.run(CLI + ["detect", "train", str(config), "--runs", str(tmp_path / "runs"), "--set", "model.layout=RXR"],
-                         capture_output=True, text=True)
-    assert bad.returncode == 2 and "model.layout" in bad.stderr and "Traceback" not in bad.stderr
-
-
 def test_shipped_weights_load_as_float32_and_predict(tmp_path):
     from importlib.resources import files
 

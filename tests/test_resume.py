@@ -93,7 +93,18 @@ def reference(tmp_path_factory) -> dict:
                             capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr
     (run,) = (root / "runs" / "resume").iterdir()
-    return json.loads((run / "metrics.json").read_text())
+    for name in ("config.yaml", "metrics.json", "curves.png", "tb"):
+        assert (run / name).exists(), name
+    checkpoint = run / "checkpoints" / (run / "checkpoints" / "latest").read_text()
+    assert {p.name for p in checkpoint.iterdir()} == {"algorithm.safetensors", "policy.safetensors", "replay.npz",
+                                                     "replay.json", "state.json", "gp.safetensors"}  # and no pickle
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["her_episodes"] > 0 and metrics["gp_fits"] >= 1
+    evaluation = subprocess.run(CLI + ["rl", "eval", str(run), "--episodes", "2"], capture_output=True, text=True, timeout=300)
+    assert evaluation.returncode == 0 and "actions per episode" in evaluation.stdout, evaluation.stderr
+    wrong_env = subprocess.run(CLI + ["rl", "eval", str(run), "--env", "Reacher"], capture_output=True, text=True, timeout=300)
+    assert wrong_env.returncode == 2 and "trained on binpick/FetchReach-v0, not binpick/Reacher-v0" in wrong_env.stderr
+    return metrics
 
 
 @pytest.mark.parametrize("boundary", list(KILLERS))
@@ -179,7 +190,7 @@ def test_detector_run_killed_at_a_boundary_resumes_to_the_same_end(boundary, tmp
 
 
 A3C = {"name": "a3c", "env": "Arm2D", "env_kwargs": {"image_size": 32, "tolerance": 0.2}, "algorithm": "a3c",
-       "total_timesteps": 400, "checkpoint_every": 200, "a3c": {"workers": 2, "n_steps": 10}, "eval": {"every": 200, "episodes": 2}}
+       "total_timesteps": 200, "checkpoint_every": 100, "a3c": {"workers": 2, "n_steps": 10}, "eval": {"every": 100, "episodes": 1}}
 A3C_KILLERS = {
     "during_last_evaluation": """
 original = A3CTrainer.evaluate
@@ -228,7 +239,7 @@ def test_a3c_run_killed_at_a_boundary_resumes_with_every_evaluation_once(boundar
     assert resumed.returncode == 0, resumed.stderr[-2000:]
     metrics = json.loads((run / "metrics.json").read_text())
     steps = [e["sim_steps"] for e in metrics["evaluations"]]
-    # workers add 10-step rollouts asynchronously, so evaluations land at or just after 200 and 400 (and, as
+    # workers add 10-step rollouts asynchronously, so evaluations land at or just after 100 and 200 (and, as
     # in an uninterrupted run, once more at the final count when the workers went past the last one)
-    assert metrics["sim_steps"] >= 400 and steps == sorted(set(steps)) and steps[-1] == metrics["sim_steps"]
-    assert sum(200 <= s < 400 for s in steps) == 1 and sum(s >= 400 for s in steps) in (1, 2)
+    assert metrics["sim_steps"] >= 200 and steps == sorted(set(steps)) and steps[-1] == metrics["sim_steps"]
+    assert sum(100 <= s < 200 for s in steps) == 1 and sum(s >= 200 for s in steps) in (1, 2)

@@ -34,26 +34,6 @@ def cli(*args: str, **kwargs) -> subprocess.CompletedProcess:
                           capture_output=True, text=True, timeout=300, **kwargs)
 
 
-def test_train_writes_a_complete_run_folder_and_eval_reads_it(tmp_path):
-    config = tmp_path / "tiny.yaml"
-    config.write_text(TINY.format(steps=300))
-    result = cli("rl", "train", str(config), "--runs", str(tmp_path / "runs"))
-    assert result.returncode == 0, result.stderr
-    (run,) = (tmp_path / "runs" / "tiny").iterdir()
-    for name in ("config.yaml", "metrics.json", "curves.png", "tb"):
-        assert (run / name).exists(), name
-    checkpoint = run / "checkpoints" / (run / "checkpoints" / "latest").read_text()
-    assert {p.name for p in checkpoint.iterdir()} >= {"algorithm.safetensors", "policy.safetensors", "replay.npz",
-                                                     "replay.json", "state.json", "gp.safetensors"}
-    metrics = json.loads((run / "metrics.json").read_text())
-    assert metrics["sim_steps"] == 300 and [e["sim_steps"] for e in metrics["evaluations"]] == [200, 300]
-    assert metrics["imagined_episodes"] > 0 and metrics["her_episodes"] > 0 and metrics["gp_fits"] >= 1
-    evaluation = cli("rl", "eval", str(run), "--episodes", "2")
-    assert evaluation.returncode == 0 and "actions per episode" in evaluation.stdout
-    wrong_env = cli("rl", "eval", str(run), "--env", "Reacher")
-    assert wrong_env.returncode == 2 and "trained on binpick/FetchReach-v0, not binpick/Reacher-v0" in wrong_env.stderr
-
-
 def test_killed_run_resumes_from_its_last_checkpoint(tmp_path):
     config = tmp_path / "tiny.yaml"
     config.write_text(TINY.format(steps=900))

@@ -14,5 +14,5 @@ os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
 
 from binpick.envs import ENV_IDS, make  # noqa: E402  (registers the envs)
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 __all__ = ["ENV_IDS", "make", "__version__"]

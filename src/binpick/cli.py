@@ -34,6 +34,9 @@ data_app = typer.Typer(help="Warehouse bin data sets with pickability from trial
 app.add_typer(data_app, name="data")
 detect_app = typer.Typer(help="Repeated object detection (thesis ch. 5, §6.3): ROD and TDID.", no_args_is_help=True)
 app.add_typer(detect_app, name="detect")
+products_app = typer.Typer(help="The products binpick can generate bins of and pick: built in, or your own (--products YAML).",
+                           no_args_is_help=True)
+app.add_typer(products_app, name="products")
 ros_app = typer.Typer(help="ROS 1 bridge (thesis §6.1.1): serve a binpick env as an action server, drive it over ROS.",
                       no_args_is_help=True)
 app.add_typer(ros_app, name="ros")
@@ -49,6 +52,20 @@ def seed_option(text: str):
 
 SetOption = Annotated[list[str] | None, typer.Option("--set", help="Env parameter KEY=VALUE (repeatable), e.g. --set goal_area=0.5")]
 POLICIES = ("random",)
+
+
+def _print_version(value: bool) -> None:
+    if value:
+        from binpick import __version__
+
+        console.print(f"binpick {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(version: Annotated[bool, typer.Option("--version", callback=_print_version, is_eager=True,
+                                                help="Print binpick's version and exit")] = False) -> None:
+    pass
 
 
 def parse_settings(pairs: list[str] | None) -> dict:
@@ -97,8 +114,8 @@ def envs_list() -> None:
     from binpick.envs import ENVS
 
     table = Table(title="binpick environments")
-    for column in ("id", "T", "thesis", "what it is"):
-        table.add_column(column)
+    for column in ("id", "T", "thesis", "what it is"):  # ids are what people copy: never cut; the summary wraps
+        table.add_column(column, no_wrap=column != "what it is")
     for spec in ENVS.values():
         table.add_row(spec.env_id, str(spec.max_episode_steps), spec.thesis, spec.summary)
     console.print(table)
@@ -210,6 +227,31 @@ def tour(
     console.print(f"frames and summary.json in {run_dir} ({time.perf_counter() - started:.1f} s)")
 
 
+def product_library(products_file: Path | None):
+    """The built-in products, plus a user's YAML of their own when given (checked as data generate checks it)."""
+    from binpick.sim import default_library, load_products
+
+    library = default_library()
+    return load_products(products_file, library) if products_file is not None else library
+
+
+@products_app.command("list")
+def products_list(
+    products_file: Annotated[Path | None, typer.Option("--products", help="Also your own products from this YAML")] = None,
+) -> None:
+    """Every product: the id to order it by (a unique short name works too), its category and source."""
+    library = product_library(products_file)
+    shorts = [pid.split("/")[-1] for pid in library.products]
+    table = Table(title=f"{len(library)} products in {len(library.categories)} categories")
+    for column in ("id", "short name", "category", "mesh"):
+        table.add_column(column, no_wrap=column != "mesh", overflow="fold")
+    for product in sorted(library, key=lambda p: p.id):
+        short = product.id.split("/")[-1]
+        table.add_row(product.id, short if shorts.count(short) == 1 else "(not unique)", product.category,
+                      product.mesh.name if product.mesh else "procedural")
+    console.print(table)
+
+
 @rl_app.command("train")
 def rl_train(
     config: Annotated[Path | None, typer.Argument(help="YAML config (see configs/rl_*.yaml)")] = None,
@@ -221,13 +263,14 @@ def rl_train(
     settings: ConfigSetOption = None,
 ) -> None:
     """Train a run: checkpoints, TensorBoard, metrics.json and curves.png in runs/<name>/<time>/."""
-    from binpick.rl.config import load_rl_config
+    from binpick.rl.config import load_rl_config, never_learns
     from binpick.rl.train import RLRun
 
     flags = {"total_timesteps": steps, "seed": seed, "init_from": None if init_from is None else str(init_from)}
     overrides = parse_settings(settings) | {k: v for k, v in flags.items() if v is not None}
     trainer = start_or_resume(RLRun, config, resume, runs, load_rl_config, overrides,
                               where=lambda job: f" at {job.steps_done} simulator steps")
+    warn(never_learns(trainer.config))
     with progress() as callback:
         metrics = trainer.run(callback)
     summary = (f"final success {metrics['final_success']:.0%}, average actions {metrics['final_avg_actions']:.2f} "
@@ -262,6 +305,9 @@ def rl_distributed(
 
         config = DistributedA3CConfig(env=resolve_env_id(env_id or "Arm2D"), workers=workers, total_timesteps=steps,
                                       address=address, seed=seed)
+    if algorithm == "sac" and steps <= config.learning_starts:
+        warn(f"--steps {steps} ends before the learner's first update (after {config.learning_starts} steps): "
+             "the policy will not learn")
     run_dir = ensure_dir(out, "--out") / time.strftime("%Y%m%d-%H%M%S")  # written when the run ends
     with progress() as callback, callback.task(f"{algorithm}, {workers} workers", steps) as task:
         if algorithm == "sac":
@@ -368,6 +414,8 @@ def data_generate(
     held_out: Annotated[str, typer.Option(help="Product categories for the zero-shot test split, comma-separated")] = "",
     targets: Annotated[str, typer.Option(help="Products or categories to fill bins with, comma-separated (default: all)")] = "",
     randomise: Annotated[bool, typer.Option(help="Randomise lighting and colours per world")] = False,
+    val_fraction: Annotated[float, typer.Option(help="Share of worlds (groups of --scenes-per-world scenes) in the val split")] = 0.1,
+    scenes_per_world: Annotated[int, typer.Option(help="Scenes made from one compiled world (one product); small sets: 1")] = 8,
     seed: Annotated[int, seed_option("Seed")] = 0,
     settings: Annotated[list[str] | None, typer.Option("--set", help="Any other generator setting KEY=VALUE, e.g. "
                                                                      "--set val_fraction=0.25 (see GenerateConfig)")] = None,
@@ -382,11 +430,15 @@ def data_generate(
              "image_size": size, "copies": list(_pair(copies, "copies")), "distractors": list(_pair(distractors, "distractors")),
              "held_out_categories": [c for c in held_out.split(",") if c], "randomise": randomise,
              "targets": [t for t in targets.split(",") if t], "products": str(products) if products else None,
-             "only_products": only_products, "seed": seed}
+             "only_products": only_products, "val_fraction": val_fraction, "scenes_per_world": scenes_per_world, "seed": seed}
     config = from_dict(GenerateConfig, flags | parse_settings(settings), where="data generate")  # validated once
     with progress() as callback:
         stats = DataGeneration.new(config).run(callback)
     _print_stats(stats, out)
+    empty = [split for split in ("train", "val") if not stats["splits"].get(split)]
+    if empty:
+        warn(f"no {' and no '.join(empty)} scenes: a detector needs both; give --scenes-per-world 1 and a "
+             "--val-fraction that leaves each some scenes")
 
 
 @data_app.command("show")
@@ -410,11 +462,12 @@ def data_show(
 
 @data_app.command("stats")
 def data_stats(data: Annotated[Path, typer.Argument(help="Data-set folder")]) -> None:
-    """Counts: instances per image, pickable fraction per policy and category, policy disagreement."""
-    from binpick.warehouse.dataset import finalise, open_dataset
+    """Counts: instances per image, pickable fraction per policy and category, policy disagreement.
+    Reads the scene files only: nothing in the data set is written."""
+    from binpick.warehouse.dataset import dataset_stats, load_records, open_dataset
 
-    open_dataset(data)
-    _print_stats(finalise(data), data)
+    manifest = open_dataset(data)
+    _print_stats(dataset_stats(load_records(data), manifest["config"]["policies"]), data)
 
 
 def _print_stats(stats: dict, where: Path) -> None:
@@ -605,15 +658,10 @@ def ros_bench(
     import numpy as np
 
     from binpick.rl.evaluate import evaluate_policy
+    from binpick.rl.heuristic import ReachController
 
     env = gym.make("binpick/Ros-v0", namespace=namespace, timeout=timeout)
-
-    def reach(observation):  # a P-controller to the goal, gripper still (FACTS: 100% on Fetch Reach)
-        action = np.zeros(env.action_space.shape, dtype=np.float32)
-        action[:3] = np.clip(10 * (observation["desired_goal"] - observation["achieved_goal"]), -1, 1)
-        return action
-
-    result = evaluate_policy(reach, env, episodes=episodes, seed=0)
+    result = evaluate_policy(ReachController(env.action_space.shape[0]), env, episodes=episodes, seed=0)
     trips = np.array(env.unwrapped.round_trips_ms)
     summary = {**result.to_dict(), "round_trips": int(trips.size), "median_ms": round(float(np.median(trips)), 3),
                "p95_ms": round(float(np.percentile(trips, 95)), 3), "namespace": namespace}
@@ -624,30 +672,27 @@ def ros_bench(
 
 @app.command("pick")
 def pick(
-    product: Annotated[str, typer.Option(help="Product(s) to order: ids or categories, comma-separated (orders cycle through them)")],
+    product: Annotated[str, typer.Option(help="Product(s) to order: ids, unique short names or categories, comma-separated "
+                                              "(orders cycle through them); `binpick products list` shows them")],
+    products_file: Annotated[Path | None, typer.Option("--products", help="YAML of your own products (as for data generate)")] = None,
     photo: Annotated[Path | None, typer.Option(help="Your own shop photo of the product (default: rendered)")] = None,
     orders: Annotated[int, typer.Option(help="Orders to fulfil (one new bin each)")] = 5,
     weights: Annotated[Path | None, typer.Option(help="Photo-conditioned detector: run folder or .safetensors (default: shipped)")] = None,
     axis: Annotated[str, typer.Option(help="Grasp policy: jaws along the robot's x or y axis")] = "y",
-    out: Annotated[Path, typer.Option(help="Folder for per-order GIFs, overlays and results.json")] = Path("runs/pick"),
+    out: Annotated[Path | None, typer.Option(help="Folder for per-order GIFs, overlays, results.json and report.html "
+                                                  "(default: runs/pick/<time>)")] = None,
     seed: Annotated[int, seed_option("Seed of the first order's bin")] = 0,
 ) -> None:
     """Fulfil orders end to end: shop photo -> ROD -> grasp point from depth -> grasp -> order tote."""
     from binpick.config import check_choice, check_range
     from binpick.detection import Detector
-    from binpick.sim import default_library
     from binpick.warehouse.pipeline import PickPipeline
 
     check_range("orders", orders, 1, 100_000, integer=True)
     check_choice("axis", axis, ("x", "y"))
-    ensure_dir(out, "--out")
-    library = default_library()
-    products = []
-    for name in [n.strip() for n in product.split(",") if n.strip()]:
-        if name in library.products:
-            products.append(name)
-        else:
-            products += [p.id for p in library.in_categories([name])]
+    run_dir = ensure_dir(out or Path("runs/pick") / time.strftime("%Y%m%d-%H%M%S"), "--out")
+    library = product_library(products_file)
+    products = [pid for name in product.split(",") if name.strip() for pid in library.resolve(name.strip())]
     if not products:
         raise ConfigError(f"--product {product!r} names no product: give ids or categories, e.g. robosuite/milk,can")
     if photo is not None:
@@ -660,7 +705,7 @@ def pick(
         read_image(photo)  # unreadable -> one line now, not mid-run
         library.add(replace(library[products[0]], photo=photo))
     model = Detector.load(weights or "rod_photo_tiny_256").network
-    _fulfil(PickPipeline(model, library, axis=axis), products, orders, seed, out / time.strftime("%Y%m%d-%H%M%S"))
+    _fulfil(PickPipeline(model, library, axis=axis), products, orders, seed, run_dir)
 
 
 def _fulfil(pipeline, products: list[str], orders: int, seed: int, run_dir: Path) -> dict:
@@ -695,7 +740,7 @@ DEMO_PRODUCTS = ("robosuite/milk", "robosuite/cereal", "pybullet/duck", "procedu
 @app.command("demo")
 def demo(
     orders: Annotated[int, typer.Option(help="Orders to fulfil (products cycle through the demo's list)")] = 6,
-    out: Annotated[Path, typer.Option(help="Folder for the report, GIFs and results.json")] = Path("runs/demo"),
+    out: Annotated[Path | None, typer.Option(help="Folder for the report, GIFs and results.json (default: runs/demo/<time>)")] = None,
     seed: Annotated[int, seed_option("Seed of the first order's bin")] = 0,
 ) -> None:
     """The main job: fulfil a handful of orders end to end with the shipped detector, products seen in
@@ -706,9 +751,8 @@ def demo(
     from binpick.warehouse.pipeline import PickPipeline
 
     check_range("orders", orders, 1, 1000, integer=True)
-    ensure_dir(out, "--out")
+    run_dir = ensure_dir(out or Path("runs/demo") / time.strftime("%Y%m%d-%H%M%S"), "--out")
     model = Detector.load("rod_photo_tiny_256").network
-    run_dir = out / time.strftime("%Y%m%d-%H%M%S")
     _fulfil(PickPipeline(model, default_library()), list(DEMO_PRODUCTS), orders, seed, run_dir)
 
 
@@ -725,6 +769,12 @@ def _save_png(array, path: Path, option: str = "--out") -> None:
 
     path = _check_png_path(path, option)
     atomic_write(path, lambda handle: Image.fromarray(array).save(handle, format="PNG"))
+
+
+def warn(message: str | None) -> None:
+    """``warning: <message>`` as one line on stderr (nothing for None)."""
+    if message:
+        Console(stderr=True, highlight=False).print(f"warning: {' '.join(message.split())}", markup=False, soft_wrap=True)
 
 
 def print_error(message: str) -> None:

@@ -89,6 +89,18 @@ def check_coco(coco: dict[str, Any], path: Path) -> None:
             fail(f"{where}.iscrowd", "0 or 1", annotation["iscrowd"])
 
 
+def trained_products(annotations: str | Path) -> list[str]:
+    """Names of the categories a detector trained on this COCO file was asked to find: in binpick's
+    bins, those that were a scene's ordered product (held-out products can still appear there as
+    distractors); in other COCO files, every category with a box."""
+    path = Path(annotations)
+    coco = read_json(path, "annotations file")
+    check_coco(coco, path)
+    flagged = any("is_target" in a for a in coco["annotations"])
+    used = {a["category_id"] for a in coco["annotations"] if a.get("is_target") or not flagged}
+    return sorted(c["name"] for c in coco["categories"] if c["id"] in used)
+
+
 def pickable_by(annotation: dict[str, Any], policy: str) -> bool | None:
     value = (annotation.get("pickable") or {}).get(policy)
     return None if value is None else bool(value)

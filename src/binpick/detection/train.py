@@ -19,7 +19,7 @@ import yaml
 from binpick import tensorfile
 from binpick.config import load_run_config, to_dict
 from binpick.detection.config import DetectConfig
-from binpick.detection.data import RepeatedInstances, TaskDataset, collate
+from binpick.detection.data import RepeatedInstances, TaskDataset, collate, trained_products
 from binpick.detection.evaluate import collect, summarise
 from binpick.detection.losses import rod_loss
 from binpick.detection.model import ANCHORS_PER_LEVEL, DetectorNetwork, ModelSpec
@@ -271,7 +271,8 @@ class DetectorTrainer:
                     status = f"· val AP50 {record['ap50']:.3f}"
         finally:
             writer.close()
-        save_detector(self.model, self.run_dir / WEIGHTS_FILE, {"config": to_dict(config)})
+        save_detector(self.model, self.run_dir / WEIGHTS_FILE,
+                      {"config": to_dict(config), "trained_products": trained_products(config.data.train)})
         final = self.history[-1] if self.history else {}
         metrics = {"name": config.name, "epochs": self.epoch, "steps": self.step, "final": final, "history": self.history}
         atomic_write_json(self.run_dir / "metrics.json", metrics)

@@ -18,6 +18,7 @@ from stable_baselines3.common.utils import polyak_update
 from stable_baselines3.common.callbacks import BaseCallback
 
 from binpick.config import check_range
+from binpick.rl.config import GPConfig
 from binpick.rl.dynamics import GPDynamics
 from binpick.rl.imagination import imagine_episodes
 from binpick.rl.demonstrations import DemonstrationSet, cloning_loss
@@ -36,6 +37,13 @@ class GoalSAC(SAC):
     bc_alpha: float = 0.0  # weight of the RL term against the cloning term (TD3+BC's α)
     bc_likelihood_weight: float = 0.0  # keep fitting σ to the demonstrations (see behaviour_clone)
     bc_q_filter: bool = False  # clone only where the critic prefers the demonstrated action
+
+    def keep_cloning(self, demonstrations: DemonstrationSet, alpha: float, likelihood_weight: float = 0.0,
+                     q_filter: bool = False) -> None:
+        """Go on cloning ``demonstrations`` while SAC learns (thesis §4.5.3): the actor loss becomes
+        ``alpha`` · SAC's term + the cloning term (see :meth:`_train_with_demonstrations`)."""
+        self.demonstrations, self.bc_alpha = demonstrations, check_range("demonstrations.bc_alpha", alpha, 0.0, None)
+        self.bc_likelihood_weight, self.bc_q_filter = likelihood_weight, bool(q_filter)
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
         buffer = self.replay_buffer
@@ -128,10 +136,11 @@ class GPImagination(BaseCallback):
                  batch_episodes: int = 500, dynamics: GPDynamics | None = None, seed: int = 0,
                  fill_until_ready: bool = True, verbose: int = 0) -> None:
         super().__init__(verbose)
-        self.warmup_episodes = check_range("gp.warmup_episodes", warmup_episodes, 2, None, integer=True)
-        self.refit_every = check_range("gp.refit_every", refit_every, 1, None, integer=True)
-        self.imagined_per_real = check_range("gp.imagined_per_real", imagined_per_real, 0.0, 10_000.0)
-        self.batch_episodes = check_range("gp.batch_episodes", batch_episodes, 1, 100_000, integer=True)
+        # the same rules a YAML config's gp section is checked with, written once (GPConfig)
+        settings = GPConfig(enabled=True, warmup_episodes=warmup_episodes, refit_every=refit_every,
+                            imagined_per_real=imagined_per_real, batch_episodes=batch_episodes)
+        self.warmup_episodes, self.refit_every = settings.warmup_episodes, settings.refit_every
+        self.imagined_per_real, self.batch_episodes = settings.imagined_per_real, settings.batch_episodes
         self.dynamics = dynamics or GPDynamics(seed=seed)
         self.fill_until_ready = fill_until_ready
         self.rng = np.random.default_rng(seed)

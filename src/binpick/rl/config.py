@@ -276,5 +276,25 @@ class RLConfig:
             raise ConfigError("curriculum widens Arm2D's goal area: use env binpick/Arm2D-v0")
 
 
+def never_learns(config: RLConfig) -> str | None:
+    """Why a run with this config would end before its first gradient step, or None. A warning, not
+    an error: a run that only collects (a baseline, a smoke test) is allowed."""
+    from binpick.envs import env_spec
+
+    if config.algorithm == "a3c":
+        return None
+    if config.algorithm == "dqn":
+        starts = config.dqn.learning_starts
+    elif config.gp.enabled:
+        horizon = config.env_kwargs.get("max_episode_steps", env_spec(config.env).max_episode_steps)
+        starts = config.gp.warmup_episodes * horizon  # the GP needs its warm-up episodes first
+    else:
+        starts = config.sac.learning_starts
+    if config.total_timesteps <= starts:
+        return (f"total_timesteps {config.total_timesteps} ends before learning starts (after {starts} simulator steps): "
+                "the policy will not learn")
+    return None
+
+
 def load_rl_config(path: str | Path, overrides: dict | None = None) -> RLConfig:
     return load_config(RLConfig, path, overrides)

@@ -22,6 +22,7 @@ import torch
 
 from binpick import tensorfile
 from binpick.config import check_range
+from binpick.rl.config import GPConfig
 from binpick.errors import InputFileError
 from binpick.files import require_fields
 
@@ -53,8 +54,8 @@ class GPDynamics:
     """Learns Δz = D(z, a) from transitions and predicts or samples next states in batches."""
 
     def __init__(self, max_points: int = 1000, iterations: int = 60, learning_rate: float = 0.1, seed: int = 0) -> None:
-        self.max_points = check_range("gp.max_points", max_points, 10, 20_000, integer=True)
-        self.iterations = check_range("gp.iterations", iterations, 1, 10_000, integer=True)
+        settings = GPConfig(max_points=max_points, iterations=iterations)  # the config's rules, written once
+        self.max_points, self.iterations = settings.max_points, settings.iterations
         self.learning_rate = check_range("gp.learning_rate", learning_rate, 0.0, 10.0, low_inclusive=False)
         self.seed = seed
         self.model: _IndependentGPs | None = None

@@ -41,3 +41,17 @@ class PickAndPlaceHeuristic:
         if self.noise:
             action[:3] = np.clip(action[:3] + self.rng.normal(0, self.noise, 3), -1.0, 1.0)
         return action.astype(np.float32)
+
+
+class ReachController:
+    """A P-controller to the goal for Fetch reach envs, gripper still: ``clip(gain · (g − z), −1, 1)``
+    (FACTS: 100% success in 3.1 actions on Fetch Reach). The reference that `binpick ros bench` drives
+    a served env with, and a sanity check for any new reach env."""
+
+    def __init__(self, action_dim: int = 4, gain: float = 10.0) -> None:
+        self.action_dim, self.gain = action_dim, gain
+
+    def __call__(self, observation: dict) -> np.ndarray:
+        action = np.zeros(self.action_dim, dtype=np.float32)
+        action[:3] = np.clip(self.gain * (observation["desired_goal"] - observation["achieved_goal"]), -1, 1)
+        return action

@@ -25,6 +25,7 @@ from stable_baselines3.common.type_aliases import DictReplayBufferSamples
 
 from binpick.config import check_range
 from binpick.errors import ConfigError
+from binpick.rl.config import ReplayConfig
 
 RewardFn = Callable[[np.ndarray, np.ndarray, Any], np.ndarray]
 KEYS = ("observation", "achieved_goal", "desired_goal")
@@ -74,11 +75,12 @@ class EpisodeReplayBuffer(DictReplayBuffer):
             raise ConfigError(f"episode replay needs dict observations with {', '.join(KEYS)}; missing {', '.join(missing)}")
         self.compute_reward = compute_reward
         self.T = check_range("max_episode_steps", max_episode_steps, 1, 100_000, integer=True)
-        self.M = check_range("capacity_episodes (M)", capacity_episodes, 1, 10_000_000, integer=True)
-        self.her_additions = check_range("her_additions (alpha_HER)", her_additions, 0, 100_000, integer=True)
-        self.start_fraction = check_range("start_fraction", start_fraction, 0.0, 1.0)
+        # the same rules a YAML config's replay section is checked with, written once (ReplayConfig)
+        settings = ReplayConfig(capacity_episodes=capacity_episodes, her_additions=her_additions,
+                                start_fraction=start_fraction, her_min_motion=her_min_motion)
+        self.M, self.her_additions, self.start_fraction = settings.capacity_episodes, settings.her_additions, settings.start_fraction
         # thesis §4.5.3: HER copies only for episodes in which the achieved goal (the object) moved
-        self.her_min_motion = check_range("her_min_motion", her_min_motion, 0.0, None)
+        self.her_min_motion = settings.her_min_motion
         self.rng = np.random.default_rng(seed)
         obs_dim = observation_space["observation"].shape[0]
         goal_dim = observation_space["achieved_goal"].shape[0]

@@ -274,11 +274,10 @@ class Trainer:
 
         demos = self.config.demonstrations
         try:
-            self.model.demonstrations = DemonstrationSet.from_arrays(read_npz(path, "demonstrations"))
+            demonstrations = DemonstrationSet.from_arrays(read_npz(path, "demonstrations"))
         except KeyError as error:
             raise InputFileError(f"demonstrations {str(path)!r} are damaged: no {error}") from None
-        self.model.bc_alpha, self.model.bc_likelihood_weight, self.model.bc_q_filter = (demos.bc_alpha, demos.likelihood_weight,
-                                                                                       demos.q_filter)
+        self.model.keep_cloning(demonstrations, demos.bc_alpha, demos.likelihood_weight, demos.q_filter)
 
     # ------------------------------------------------------------------ training
     def learn_from_demonstrations(self) -> None:
@@ -295,8 +294,7 @@ class Trainer:
         losses = behaviour_clone(self.model, demonstrations, demos.bc_steps, self.config.sac.batch_size,
                                  self.config.seed, demos.likelihood_weight)
         if demos.bc_alpha:  # keep cloning while SAC learns
-            self.model.demonstrations, self.model.bc_alpha = demonstrations, demos.bc_alpha
-            self.model.bc_likelihood_weight, self.model.bc_q_filter = demos.likelihood_weight, demos.q_filter
+            self.model.keep_cloning(demonstrations, demos.bc_alpha, demos.likelihood_weight, demos.q_filter)
             if demos.critic_steps and self.model.replay_buffer.ready:
                 self.model.pretrain_critic(demos.critic_steps, self.config.sac.batch_size)
         self.metrics.demo_episodes, self.metrics.demo_steps = len(episodes), steps

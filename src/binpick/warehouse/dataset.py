@@ -49,6 +49,7 @@ class GenerateConfig:
     held_out_categories: list[str] = field(default_factory=list)  # zero-shot test split
     targets: list[str] = field(default_factory=list)  # product ids or categories to order (default: all)
     val_fraction: float = 0.1
+    split_rule: str = "even"  # which worlds go to val: "even" (every 1/val_fraction-th, stable as a set grows) or "random"
     scenes_per_world: int = 8  # scenes made from one compiled model (compiling + renderers ≈ 1 s)
     randomise: bool = False  # lighting, table and tote colours per world
     products: str | None = None  # a user's products YAML (added to the built-in library)
@@ -64,6 +65,9 @@ class GenerateConfig:
         check_range("image_size", self.image_size, 32, 2048, integer=True)
         check_range("scenes_per_world", self.scenes_per_world, 1, 1000, integer=True)
         check_range("val_fraction", self.val_fraction, 0.0, 1.0)
+        from binpick.config import check_choice
+
+        check_choice("split_rule", self.split_rule, ("even", "random"))
         object.__setattr__(self, "copies", tuple(self.copies))  # frozen: normalised once, here
         object.__setattr__(self, "distractors", tuple(self.distractors))
         if not 1 <= self.copies[0] <= self.copies[1] <= 16:
@@ -127,7 +131,8 @@ def prepare_output(config: GenerateConfig, library: ProductLibrary) -> Path:
         if not manifest.is_file():
             raise ConfigError(f"output folder {str(out)!r} is not empty and is not a binpick data set; choose another")
         existing = open_dataset(out)
-        stored = {**GenerateConfig(out="").comparable(), **existing["config"]}  # settings added later: defaults
+        # settings added later take their defaults; a set made before split_rule existed split at random
+        stored = {**GenerateConfig(out="").comparable(), "split_rule": "random", **existing["config"]}
         if existing.get("format") != FORMAT or stored != config.comparable():
             raise ConfigError(f"{str(out)!r} holds a data set made with other settings; choose another folder")
         if existing.get("scenes") != max(config.scenes, existing.get("scenes") or 0):  # what a resume finishes
@@ -166,9 +171,18 @@ def world_plan(config: GenerateConfig, library: ProductLibrary, world: int) -> t
     category = library[target].category
     if category in config.held_out_categories:
         split = "test"
-    else:
+    elif config.split_rule == "random":  # data sets made before binpick 0.2 (bins_2000 among them)
         split = "val" if rng.uniform() < config.val_fraction else "train"
+    else:
+        split = "val" if val_world(world, config.val_fraction) else "train"
     return target, distractors, split
+
+
+def val_world(world: int, fraction: float) -> bool:
+    """World ``world`` goes to val when the running count of ``fraction`` per world passes a whole
+    number (half a step early): exactly that share of worlds, spread evenly, the first already at
+    world 1 for fraction 0.25 or world 4 for 0.1, and a world keeps its split when a set grows."""
+    return int((world + 1) * fraction + 0.5) > int(world * fraction + 0.5)
 
 
 def generate_world(config: GenerateConfig, world: int, out: Path) -> list[dict[str, Any]]:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from enum import StrEnum
 
 import mujoco
 import numpy as np
@@ -68,11 +69,23 @@ def _half_height(box_xywh, depth: float, camera: CameraSpec) -> float:
     return float(np.clip(narrow / 2, 0.01, 0.06))
 
 
+class Reason(StrEnum):
+    """Why an order ended as it did. A ``StrEnum``: it compares and prints as its text."""
+
+    PLACED = "placed"
+    NO_DETECTION = "no detection"
+    COLOUR_MISMATCH = "colour mismatch"  # every detection failed the colour check
+    WRONG_PRODUCT = "wrong product"
+    MISSED = "missed"  # nothing came up with the gripper
+    SLIPPED = "slipped"  # something came up and fell back
+    DROPPED = "dropped outside the order tote"
+
+
 @dataclass
 class PickOutcome:
     lifted_slot: int | None  # the instance that came up with the gripper, if any
     placed: bool  # it ended inside the order tote
-    reason: str  # "placed", "missed", "slipped", "dropped outside the order tote"
+    reason: Reason  # PLACED, MISSED, SLIPPED or DROPPED
 
 
 def execute_pick(world, point: np.ndarray, axis: str, on_frame: Callable[[], None] | None = None,
@@ -110,7 +123,7 @@ def execute_pick(world, point: np.ndarray, axis: str, on_frame: Callable[[], Non
         rise = np.array([data.xpos[b][2] for b in world.body_ids]) - heights
         slot = int(np.argmax(rise))
         if rise[slot] < LIFT_SUCCESS:
-            return PickOutcome(None, False, "missed" if rise.max() < 0.02 else "slipped")
+            return PickOutcome(None, False, Reason.MISSED if rise.max() < 0.02 else Reason.SLIPPED)
         carry = np.array([point[0], point[1], CARRY_HEIGHT])
         move(carry, 0.5, OPENING / 2)
         above_order = np.array([ORDER_TOTE[0], ORDER_TOTE[1], CARRY_HEIGHT])
@@ -118,13 +131,13 @@ def execute_pick(world, point: np.ndarray, axis: str, on_frame: Callable[[], Non
         lowered = above_order - [0, 0, 0.2]
         move(lowered, 0.5, OPENING / 2)
         if data.xpos[world.body_ids[slot]][2] < lowered[2] - 0.15:
-            return PickOutcome(slot, False, "slipped")  # fell on the way
+            return PickOutcome(slot, False, Reason.SLIPPED)  # fell on the way
         move(lowered, 0.4, 0.0)  # open
         move(above_order, 0.3, 0.0)
         move(above_order, 0.6, 0.0)  # let it settle
         x, y, z = data.xpos[world.body_ids[slot]]
         inside = abs(x - ORDER_TOTE[0]) < ORDER_HALF and abs(y - ORDER_TOTE[1]) < ORDER_HALF and z < ORDER_HEIGHT + 0.1
-        return PickOutcome(slot, bool(inside), "placed" if inside else "dropped outside the order tote")
+        return PickOutcome(slot, bool(inside), Reason.PLACED if inside else Reason.DROPPED)
     finally:
         model.opt.timestep = settle_timestep
         gripper.teleport(data, (-3.0, 0.0, 0.5), 0.0)  # park out of view

@@ -26,7 +26,7 @@ from binpick.sim.bin_scene import BinWorld, Scene
 from binpick.sim.mjcf import CameraSpec
 from binpick.sim.photos import shop_photo
 from binpick.sim.products import ProductLibrary
-from binpick.warehouse.grasping import execute_pick, grasp_point, half_height, order_tote_xml
+from binpick.warehouse.grasping import Reason, execute_pick, grasp_point, half_height, order_tote_xml
 from binpick.warehouse.verify import colour_histogram, colour_similarity, photo_mask
 
 GIF_SIZE = 240
@@ -38,7 +38,7 @@ class Attempt:
     score: float
     colour_similarity: float | None
     grasp_point: list[float]
-    outcome: str
+    outcome: Reason
     lifted_product: str | None
 
 
@@ -48,7 +48,7 @@ class OrderResult:
     product: str
     seed: int
     success: bool  # the ordered product ended in the order tote
-    reason: str  # placed | no detection | colour mismatch (every detection failed the colour check) | wrong product | missed | slipped | ...
+    reason: Reason
     seen: bool | None = None  # the detector's training set had this product (None: unknown)
     attempts: list[Attempt] = field(default_factory=list)
     detections: int = 0
@@ -124,12 +124,12 @@ class PickPipeline:
             frame()
             boxes, scores = self.locate(scene, product_id)
             trained = self.detector.trained_products
-            result = OrderResult(order, product_id, seed, False, "no detection",
+            result = OrderResult(order, product_id, seed, False, Reason.NO_DETECTION,
                                  seen=None if trained is None else product_id in trained, detections=len(boxes))
             candidates = list(zip(boxes, scores, self.colour_similarities(scene, product_id, boxes)))
             candidates = [c for c in candidates if c[2] is None or c[2] >= self.colour_check]  # None: not checked
             if len(boxes) and not candidates:
-                result.reason = "colour mismatch"
+                result.reason = Reason.COLOUR_MISMATCH
             for box, score, similarity in candidates[:self.max_attempts]:
                 point = grasp_point(box, scene.depth, self.camera)
                 outcome = execute_pick(world, point, self.axis, on_frame=frame,
@@ -138,9 +138,9 @@ class PickPipeline:
                 result.attempts.append(Attempt([float(v) for v in box], float(score), None if similarity is None else round(similarity, 3),
                                                point.round(4).tolist(), outcome.reason, lifted))
                 if outcome.placed and lifted == product_id:
-                    result.success, result.reason = True, "placed"
+                    result.success, result.reason = True, Reason.PLACED
                     break
-                result.reason = "wrong product" if lifted not in (None, product_id) else outcome.reason
+                result.reason = Reason.WRONG_PRODUCT if lifted not in (None, product_id) else outcome.reason
             frame()
             if out is not None:
                 result.gif, result.overlay = self._write_pictures(out, order, product_id, scene.rgb, boxes, scores, frames)
