@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -26,3 +27,18 @@ def make_env():
     yield _make
     for env in made:
         env.close()
+
+
+def train_rl_run(config: dict, root: Path) -> Path:
+    """``binpick rl train`` of ``config`` (a mapping) in a fresh process under ``root``: the run folder."""
+    import subprocess
+    import sys
+
+    import yaml
+
+    (root / "run.yaml").write_text(yaml.safe_dump(config))
+    result = subprocess.run([sys.executable, "-c", "from binpick.cli import main; main()", "rl", "train",
+                             str(root / "run.yaml"), "--runs", str(root / "runs")], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    (run,) = (root / "runs" / config["name"]).iterdir()
+    return run

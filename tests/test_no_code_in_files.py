@@ -24,6 +24,7 @@ import torch
 import yaml
 
 from binpick.cli import main
+from conftest import train_rl_run
 
 CLI = [sys.executable, "-c", "from binpick.cli import main; main()"]
 TINY_RL = {"name": "tiny", "env": "FetchReach", "total_timesteps": 200, "checkpoint_every": 100, "min_action_scale": 0.4,
@@ -92,13 +93,7 @@ def test_the_payloads_are_live(tmp_path):
 @pytest.fixture(scope="module")
 def trained_run(tmp_path_factory) -> Path:
     """A real (tiny) SAC + GP + HER run: its checkpoint is what a shared run folder holds."""
-    root = tmp_path_factory.mktemp("trained")
-    (root / "tiny.yaml").write_text(yaml.safe_dump(TINY_RL))
-    result = subprocess.run(CLI + ["rl", "train", str(root / "tiny.yaml"), "--runs", str(root / "runs")],
-                            capture_output=True, text=True, timeout=300)
-    assert result.returncode == 0, result.stderr
-    (run,) = (root / "runs" / "tiny").iterdir()
-    return run
+    return train_rl_run(TINY_RL, tmp_path_factory.mktemp("trained"))
 
 
 def _run_folder(root: Path, name: str, config: dict, files: dict[str, object], marker: Path) -> Path:

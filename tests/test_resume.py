@@ -87,12 +87,9 @@ trainer.run()
 @pytest.fixture(scope="module")
 def reference(tmp_path_factory) -> dict:
     """The same run, not interrupted."""
-    root = tmp_path_factory.mktemp("reference")
-    (root / "rl.yaml").write_text(yaml.safe_dump(RL))
-    result = subprocess.run(CLI + ["rl", "train", str(root / "rl.yaml"), "--runs", str(root / "runs")],
-                            capture_output=True, text=True, timeout=300)
-    assert result.returncode == 0, result.stderr
-    (run,) = (root / "runs" / "resume").iterdir()
+    from conftest import train_rl_run
+
+    run = train_rl_run(RL, tmp_path_factory.mktemp("reference"))
     for name in ("config.yaml", "metrics.json", "curves.png", "tb"):
         assert (run / name).exists(), name
     checkpoint = run / "checkpoints" / (run / "checkpoints" / "latest").read_text()

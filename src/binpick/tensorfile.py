@@ -156,6 +156,16 @@ def _header(data: bytes) -> dict[str, Any]:
     return header
 
 
+def restore(parts: dict[str, Any], state: dict[str, Any], where: str) -> None:
+    """``part.load_state_dict(state[name])`` for each named module or optimiser; a checkpoint of
+    another network (missing keys, other shapes) is one line naming ``where``."""
+    try:
+        for name, part in parts.items():
+            part.load_state_dict(state[name])
+    except (RuntimeError, ValueError, KeyError) as error:
+        raise InputFileError(f"{where} does not fit this run's network ({str(error).splitlines()[0][:120]})") from None
+
+
 def is_safetensors(path: str | Path) -> bool:
     """Is this a safetensors file: named so, or starting like one (an 8-byte header length, then a
     JSON object)? Decides between :func:`load` and :func:`load_legacy_torch`."""

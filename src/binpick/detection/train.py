@@ -201,12 +201,7 @@ class DetectorTrainer:
         where = f"detector checkpoint {str(path)!r}"
         require_fields(meta, {"epoch": int, "step": int, "history": list}, where)
         require_fields(state, {"model": dict, "optimizer": dict}, where)
-        try:
-            self.model.load_state_dict(state["model"])
-            self.optimizer.load_state_dict(state["optimizer"])
-        except (RuntimeError, ValueError, KeyError) as error:
-            raise InputFileError(f"{where} does not fit this run's network "
-                                 f"({str(error).splitlines()[0][:120]})") from None
+        tensorfile.restore({"model": self.model, "optimizer": self.optimizer}, state, where)
         self.epoch, self.step, self.history = meta["epoch"], meta["step"], meta["history"]
 
     def forward(self, batch: dict) -> dict:

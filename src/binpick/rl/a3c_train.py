@@ -153,12 +153,7 @@ class A3CTrainer:
         if tuple(meta["observation_shape"]) != tuple(self.observation_shape):
             raise ConfigError(f"checkpoint {checkpoint} sees observations of shape {tuple(meta['observation_shape'])}, "
                               f"this run's env gives {tuple(self.observation_shape)}")
-        try:
-            self.model.load_state_dict(state["model"])
-            self.optimizer.load_state_dict(state["optimizer"])
-        except (RuntimeError, ValueError, KeyError) as error:
-            raise InputFileError(f"A3C checkpoint {checkpoint} does not fit this network "
-                                 f"({str(error).splitlines()[0][:120]})") from None
+        tensorfile.restore({"model": self.model, "optimizer": self.optimizer}, state, f"A3C checkpoint {checkpoint}")
         for group in self.optimizer.state.values():  # load_state_dict replaces tensors: share them again
             for value in group.values():
                 if torch.is_tensor(value):
