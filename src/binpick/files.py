@@ -101,6 +101,18 @@ def atomic_write_json(path: str | Path, data: Any, indent: int | None = 2) -> Pa
 
 
 # ---------------------------------------------------------------------- reading
+def require_file(path: str | Path, what: str = "file") -> Path:
+    """``path`` if it is a readable file; missing, a folder or unreadable is one line (nothing is read)."""
+    path = Path(path)
+    if path.is_dir():
+        raise InputFileError(f"{what} {str(path)!r} is a folder, not a file")
+    if not path.is_file():
+        raise InputFileError(f"{what} {str(path)!r} does not exist")
+    if not os.access(path, os.R_OK):
+        raise InputFileError(f"cannot read {what} {str(path)!r}: permission denied")
+    return path
+
+
 def read_bytes(path: str | Path, what: str = "file") -> bytes:
     path = Path(path)
     try:

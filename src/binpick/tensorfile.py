@@ -23,7 +23,7 @@ import numpy as np
 import torch
 
 from binpick.errors import InputFileError
-from binpick.files import atomic_write_bytes, read_bytes
+from binpick.files import atomic_write_bytes, read_bytes, require_file
 
 FORMAT_KEY = "binpick_format"
 META_KEY = "binpick_meta"
@@ -187,7 +187,7 @@ def load_legacy_torch(path: str | Path, what: str = "file") -> Any:
     from safetensors import SafetensorError
 
     path = Path(path)
-    read_bytes(path, what)  # missing / a folder / unreadable: one line
+    require_file(path, what)  # missing / a folder / unreadable: one line, without reading it twice
     try:
         return torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as error:

@@ -15,7 +15,6 @@ from its own latest checkpoint).
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 from typing import Any
@@ -27,14 +26,10 @@ from binpick.april.config import AprilConfig
 from binpick.april.observations import semantic_state
 from binpick.config import load_run_config, to_dict
 from binpick.errors import ConfigError, InputFileError
-from binpick.files import atomic_write, atomic_write_text, read_json_object, read_npz
+from binpick.files import atomic_write, atomic_write_json, read_json_object, read_npz
 from binpick.runs import SILENT, RunCallback, new_run_dir
 
 STAGES = ("collect", "perception", "policy", "refine", "finetune", "evaluate")
-
-
-def _write_json(path: Path, data: Any) -> None:
-    atomic_write_text(path, json.dumps(data, indent=2))
 
 
 class AprilRun:
@@ -70,7 +65,7 @@ class AprilRun:
 
     def _done(self, stage: str, result: dict[str, Any]) -> None:
         self.stages[stage] = result
-        _write_json(self.stages_path, self.stages)
+        atomic_write_json(self.stages_path, self.stages)
 
     def make_env(self, image: bool = True):
         from binpick.envs import make
@@ -136,7 +131,7 @@ class AprilRun:
                                           batch_size=training.batch_size, learning_rate=training.learning_rate,
                                           seed=self.config.seed, callback=callback)
         save_perception(model, self.run_dir / PERCEPTION_FILE)
-        _write_json(self.run_dir / "perception_history.json", history)
+        atomic_write_json(self.run_dir / "perception_history.json", history)
         rng = np.random.default_rng(self.config.seed)
         sample = images[rng.choice(len(images), size=min(8, len(images)), replace=False)]
         plot_reconstructions(sample, model.reconstruct(sample), self.run_dir / "reconstructions.png",
@@ -239,12 +234,12 @@ class AprilRun:
                                           seed=self.config.seed + 1, callback=callback,
                                           initial=load_perception(perception_path(self.run_dir)))
         save_perception(model, self.run_dir / PERCEPTION_FILE)
-        _write_json(self.run_dir / "refine_history.json", history)
+        atomic_write_json(self.run_dir / "refine_history.json", history)
         return {"sim_episodes": refine.episodes, "images": len(images), "state_mae": history["epochs"][-1]["state_mae"]}
 
     def stage_evaluate(self, callback: RunCallback) -> dict[str, Any]:
         from binpick.april.evaluate import evaluate_rows
 
         rows = evaluate_rows(self, callback)
-        _write_json(self.run_dir / "results.json", rows)
+        atomic_write_json(self.run_dir / "results.json", rows)
         return {"rows": rows}

@@ -9,7 +9,6 @@ rollout is lost.
 
 from __future__ import annotations
 
-import json
 import os
 import time
 from dataclasses import asdict, dataclass
@@ -20,7 +19,7 @@ from binpick import tensorfile
 from binpick.config import check_range
 from binpick.errors import ConfigError
 from binpick.distributed.rollouts import RestartingActors, check_ray_address
-from binpick.files import atomic_write_text
+from binpick.files import atomic_write_json
 
 
 class A3CActor:
@@ -111,5 +110,5 @@ def train_a3c_distributed(config: DistributedA3CConfig, out: Path | None = None,
     if out is not None:
         tensorfile.save(out / "model.safetensors", "binpick-a3c-model-1", tensors=model.state_dict(),
                         meta={"config": asdict(config), "observation_shape": list(local.observation_space.shape)})
-        atomic_write_text(out / "metrics.json", json.dumps(metrics, indent=2))
+        atomic_write_json(out / "metrics.json", metrics)
     return metrics

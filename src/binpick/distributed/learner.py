@@ -9,7 +9,6 @@ policy. A worker that dies costs its in-flight episode only.
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -20,7 +19,7 @@ import numpy as np
 
 from binpick.config import check_range
 from binpick.distributed.rollouts import DistributedRollouts, Episode, check_ray_address
-from binpick.files import atomic_write_text
+from binpick.files import atomic_write_json
 
 
 @dataclass(frozen=True)
@@ -103,6 +102,6 @@ def train_distributed(config: DistributedConfig, out: Path | None = None,
         from binpick.rl.persistence import save_policy
 
         save_policy(model, out / "policy.safetensors", algorithm="sac", env=config.env)
-        atomic_write_text(out / "metrics.json", json.dumps(metrics, indent=2))
+        atomic_write_json(out / "metrics.json", metrics)
     local.close()
     return metrics

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from binpick.errors import ConfigError, InputFileError
-from binpick.files import atomic_write, atomic_write_text, read_json_object, require_fields
+from binpick.files import atomic_write, atomic_write_json, atomic_write_text, read_json_object, require_fields
 from binpick.runs import SILENT, RunCallback
 from binpick.sim.products import ProductLibrary, default_library, load_products
 
@@ -135,8 +135,8 @@ def prepare_output(config: GenerateConfig, library: ProductLibrary) -> Path:
         stored = {**GenerateConfig(out="").comparable(), "split_rule": "random", **existing["config"]}
         if existing.get("format") != FORMAT or stored != config.comparable():
             raise ConfigError(f"{str(out)!r} holds a data set made with other settings; choose another folder")
-        if existing.get("scenes") != max(config.scenes, existing.get("scenes") or 0):  # what a resume finishes
-            _write_json(manifest, existing | {"scenes": config.scenes})
+        if config.scenes > (existing.get("scenes") or 0):  # what a resume finishes
+            atomic_write_json(manifest, existing | {"scenes": config.scenes}, indent=None)
         return out
     try:
         for sub in ("images", "depth", "scenes", "photos", "queries"):
@@ -144,12 +144,9 @@ def prepare_output(config: GenerateConfig, library: ProductLibrary) -> Path:
     except OSError as error:
         raise ConfigError(f"cannot write to {str(out)!r}: {error.strerror}") from None
     products = [{"id": p.id, "category": p.category} for p in library]
-    _write_json(manifest, {"format": FORMAT, "config": config.comparable(), "products": products, "scenes": config.scenes})
+    manifest_data = {"format": FORMAT, "config": config.comparable(), "products": products, "scenes": config.scenes}
+    atomic_write_json(manifest, manifest_data, indent=None)
     return out
-
-
-def _write_json(path: Path, data: Any) -> None:
-    atomic_write_text(path, json.dumps(data))
 
 
 def _write_png(path: Path, array: np.ndarray) -> None:
@@ -218,7 +215,7 @@ def generate_world(config: GenerateConfig, world: int, out: Path) -> list[dict[s
             if query is not None:
                 x, y, w, h = (int(round(v)) for v in query["bbox"])
                 _write_png(out / "queries" / f"{index:06d}.png", scene.rgb[y:y + h, x:x + w])
-            _write_json(out / "scenes" / f"{index:06d}.json", record)  # last: the scene now exists
+            atomic_write_json(out / "scenes" / f"{index:06d}.json", record, indent=None)  # last: the scene now exists
             records.append(record)
     finally:
         sim.close()
@@ -411,12 +408,12 @@ def finalise(out: Path) -> dict[str, Any]:
     manifest = open_dataset(out)
     records = load_records(out)
     coco = to_coco(records, manifest["products"])
-    _write_json(out / "annotations.json", coco)
+    atomic_write_json(out / "annotations.json", coco, indent=None)
     for split in ("train", "val", "test"):
         ids = {image["id"] for image in coco["images"] if image["split"] == split}
-        _write_json(out / f"annotations_{split}.json", coco | {
+        atomic_write_json(out / f"annotations_{split}.json", coco | {
             "images": [i for i in coco["images"] if i["id"] in ids],
-            "annotations": [a for a in coco["annotations"] if a["image_id"] in ids]})
+            "annotations": [a for a in coco["annotations"] if a["image_id"] in ids]}, indent=None)
     stats = dataset_stats(records, manifest["config"]["policies"])
     atomic_write_text(out / "CARD.md", card(stats, manifest))
     return stats
