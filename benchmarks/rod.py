@@ -55,15 +55,80 @@ def train(runs: Path, only: list[str] | None) -> None:
         print(f"{name}: {metrics['final']}", flush=True)
 
 
+# the rows of the generalisation tables (issue 16): name -> (query, overrides of the shared config)
+VARIANTS = {
+    "rod": ("crop", {}),
+    "rod_no_lh": ("crop", {"loss.heatmap": 0.0}),
+    "tdid": ("crop", {"model.method": "tdid"}),
+    "rod_photo": ("photo", {}),
+    "rod_small": ("crop", {"model.backbone": "small"}),
+}
+
+
+def stage_trainers(stage: str, runs: Path, overrides: dict, init: dict[str, Path] | None = None,
+                   rows: list[str] | None = None) -> list:
+    """One trainer per row for ``stage`` (pretrain | finetune), resumed where its run folder exists."""
+    from binpick.detection.config import load_detect_config
+    from binpick.detection.train import DetectorTrainer
+
+    trainers = []
+    for row, (query, changes) in VARIANTS.items():
+        if rows and row not in rows:
+            continue
+        name = f"{stage}_{row}"
+        folder = run_folder(runs, name)
+        if finished(folder):
+            print(f"{name}: finished in {folder}", flush=True)
+            continue
+        if folder is not None:
+            trainers.append(DetectorTrainer.resume(folder))
+            continue
+        config_file = _common.ROOT / "configs" / (f"rod_pretrain_random_{query}.yaml" if stage == "pretrain" else f"rod_finetune_{query}.yaml")
+        settings = {**overrides, **changes, "name": name}
+        if init is not None:
+            settings["train.init_from"] = str(init[row])
+        trainers.append(DetectorTrainer.new(load_detect_config(config_file, settings), runs))
+    return trainers
+
+
+def joint(stage: str, runs: Path, overrides: dict, init: dict[str, Path] | None = None, rows: list[str] | None = None) -> None:
+    """Train every row of ``stage`` on the same batches (detection.train.JointTraining)."""
+    from binpick.detection.train import JointTraining
+    from binpick.terminal import RichCallback
+
+    trainers = stage_trainers(stage, runs, overrides, init, rows)
+    if not trainers:
+        return
+    with RichCallback() as callback:
+        metrics = JointTraining(trainers).run(callback)
+    for name, values in metrics.items():
+        print(f"{name}: {values['final']}", flush=True)
+
+
+def parse_overrides(items: list[str] | None) -> dict:
+    import yaml
+
+    return {key: yaml.safe_load(value) for key, value in (item.split("=", 1) for item in items or [])}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("phase", choices=["train", "report"])
+    parser.add_argument("phase", choices=["train", "pretrain", "finetune", "report"])
     parser.add_argument("--runs", type=Path, default=_common.ROOT / "runs" / "rod")
     parser.add_argument("--only", nargs="*")
+    parser.add_argument("--set", dest="settings", action="append", help="KEY=VALUE for every row (e.g. train.device=cuda)")
     args = parser.parse_args()
     os.chdir(_common.ROOT)  # configs name the data relative to the repository
     if args.phase == "train":
         train(args.runs, args.only)
+    elif args.phase == "pretrain":
+        joint("pretrain", args.runs, parse_overrides(args.settings), rows=args.only)
+    elif args.phase == "finetune":
+        init = {row: run_folder(args.runs, f"pretrain_{row}") for row in VARIANTS if not args.only or row in args.only}
+        missing = [row for row, folder in init.items() if not finished(folder)]
+        if missing:
+            raise SystemExit(f"pre-train first (python benchmarks/rod.py pretrain): no finished run for {', '.join(missing)}")
+        joint("finetune", args.runs, parse_overrides(args.settings), init, rows=args.only)
     else:
         report(args.runs)
 

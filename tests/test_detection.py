@@ -169,9 +169,10 @@ def test_kmeans_anchors_recover_two_box_sizes():
 def test_training_learns_the_toy_set_resumes_and_predicts(tmp_path):
     path = make_coco(tmp_path / "toy", images=16, seed=1)
     config = tmp_path / "rod.yaml"
+    # fp32: in bfloat16 this 16-image toy run is chaotic (0.03 to 0.3 AP50 for numerically equal models)
     config.write_text(f"""name: toy
 data: {{train: {path}, val: {path}, targets: all, image_size: 128, augment: false}}
-train: {{epochs: 2, batch_size: 4, lr: 0.002, warmup_steps: 4, eval_every: 2, workers: 0, threads: 2}}
+train: {{epochs: 2, batch_size: 4, lr: 0.002, warmup_steps: 4, eval_every: 2, workers: 0, threads: 2, fast_cpu: false}}
 """)
     trainer = DetectorTrainer.new(load_detect_config(config), tmp_path / "runs")
     trainer.run()

@@ -413,7 +413,9 @@ def data_generate(
     distractors: Annotated[str, typer.Option(help="Other products per bin, LOW,HIGH")] = "0,3",
     held_out: Annotated[str, typer.Option(help="Product categories for the zero-shot test split, comma-separated")] = "",
     targets: Annotated[str, typer.Option(help="Products or categories to fill bins with, comma-separated (default: all)")] = "",
-    randomise: Annotated[bool, typer.Option(help="Randomise lighting and colours per world")] = False,
+    randomise: Annotated[bool, typer.Option(help="Randomise lighting and colours per world (older; see --domain)")] = False,
+    domain: Annotated[str, typer.Option(help="Scene look: default, random (domain randomisation), shifted, or a domain YAML file")] = "default",
+    address: Annotated[str | None, typer.Option(help="Run scene workers as Ray tasks: HOST:PORT of a Ray cluster, or local")] = None,
     val_fraction: Annotated[float, typer.Option(help="Share of worlds (groups of --scenes-per-world scenes) in the val split")] = 0.1,
     scenes_per_world: Annotated[int, typer.Option(help="Scenes made from one compiled world (one product); small sets: 1")] = 8,
     seed: Annotated[int, seed_option("Seed")] = 0,
@@ -428,7 +430,7 @@ def data_generate(
         raise ConfigError(f"--out {str(out)!r} is a file, not a data-set folder")
     flags = {"out": str(out), "scenes": scenes, "policies": [p for p in policies.split(",") if p], "workers": workers,
              "image_size": size, "copies": list(_pair(copies, "copies")), "distractors": list(_pair(distractors, "distractors")),
-             "held_out_categories": [c for c in held_out.split(",") if c], "randomise": randomise,
+             "held_out_categories": [c for c in held_out.split(",") if c], "randomise": randomise, "domain": domain, "address": address,
              "targets": [t for t in targets.split(",") if t], "products": str(products) if products else None,
              "only_products": only_products, "val_fraction": val_fraction, "scenes_per_world": scenes_per_world, "seed": seed}
     config = from_dict(GenerateConfig, flags | parse_settings(settings), where="data generate")  # validated once

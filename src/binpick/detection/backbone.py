@@ -2,7 +2,8 @@
 
 ``darknet53`` is YOLOv3's backbone as the thesis uses it (Fig 5.9: residual blocks 1-2-8-8-4,
 widths 64-1024). ``tiny`` is the same design, narrower and shallower, for training and inference on
-a laptop CPU (measured in ``benchmarks/rod.py``).
+a laptop CPU; ``small`` is tiny at 1.5 times the width (the AP / latency trade-off is measured in
+``benchmarks/rod.py``).
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ class BackboneSpec:
 BACKBONES = {
     "darknet53": BackboneSpec(32, (1, 2, 8, 8, 4)),
     "tiny": BackboneSpec(8, (1, 1, 2, 2, 1)),
+    "small": BackboneSpec(12, (1, 1, 2, 2, 1)),  # tiny at 1.5x the width: ~2.2x the compute
 }
 
 

@@ -21,12 +21,26 @@ class DataConfig:
     image_size: int = 256
     query_size: int = 96  # side of the query image (TDID's target crop, or the shop photo)
     augment: bool = True
+    photometric: bool = False  # also sensor noise, blur and JPEG artefacts (another camera's images)
+    train_sizes: list[int] = field(default_factory=list)  # [low, high]: multi-scale training, a size per batch
 
     def __post_init__(self) -> None:
         check_range("data.image_size", self.image_size, 64, 1024, integer=True)
         if self.image_size % 32:
             raise ConfigError(f"data.image_size must be a multiple of 32, got {self.image_size}")
         check_range("data.query_size", self.query_size, 32, 512, integer=True)
+        if self.train_sizes:
+            if len(self.train_sizes) != 2 or self.train_sizes[0] > self.train_sizes[1]:
+                raise ConfigError(f"data.train_sizes must be [low, high], got {self.train_sizes}")
+            for i, size in enumerate(self.train_sizes):
+                check_range(f"data.train_sizes[{i}]", size, 64, 1024, integer=True)
+                if size % 32:
+                    raise ConfigError(f"data.train_sizes[{i}] must be a multiple of 32, got {size}")
+
+    @property
+    def load_size(self) -> int:
+        """Side of the images the training loader makes (the largest training size)."""
+        return max([self.image_size, *self.train_sizes])
 
 
 @dataclass(frozen=True)
@@ -40,9 +54,19 @@ class TrainConfig:
     threads: int = 2  # torch threads for the model
     eval_every: int = 5  # epochs
     fast_cpu: bool = True  # bf16 autocast + channels_last: 1.8x faster training on this CPU
+    device: str = "cpu"  # cpu | cuda (a GPU, where one is at hand; nothing depends on one)
+    init_from: str | None = None  # detector weights to start from (fine-tuning a pre-trained model)
+    keep_best: bool = False  # the final weights are those of the best val AP50 (early stopping)
+    patience: int = 0  # stop after this many evaluations without a better val AP50 (0: never)
+    max_minutes: float = 0.0  # stop (and save) after this long; 0: no limit
     seed: int = 0
 
     def __post_init__(self) -> None:
+        from binpick.config import check_choice
+
+        check_choice("train.device", self.device, ("cpu", "cuda"))
+        check_range("train.patience", self.patience, 0, 10_000, integer=True)
+        check_range("train.max_minutes", self.max_minutes, 0, 1e6)
         check_range("train.epochs", self.epochs, 1, 10_000, integer=True)
         check_range("train.batch_size", self.batch_size, 1, 512, integer=True)
         check_range("train.lr", self.lr, 0, 1, low_inclusive=False)

@@ -198,11 +198,12 @@ class TaskDataset(torch.utils.data.Dataset):
     zoom and colour jitter."""
 
     def __init__(self, source: RepeatedInstances, size: int, query_mode: str = "crop", query_size: int = 96,
-                 augment: bool = False, seed: int = 0) -> None:
+                 augment: bool = False, seed: int = 0, photometric: bool = False) -> None:
         if query_mode not in ("crop", "photo"):
             raise ConfigError(f"query must be 'crop' or 'photo', got {query_mode!r}")
         self.source, self.size, self.query_mode, self.query_size = source, size, query_mode, query_size
-        self.augment, self.seed, self.epoch = augment, seed, 0
+        self.augment, self.seed, self.epoch, self.photometric = augment, seed, 0, photometric
+        self.with_photo = False  # also the shop photo, for joint training of crop and photo queries
         if query_mode == "photo":
             missing = [t for t in source.tasks if t.photo is None]
             if missing:
@@ -227,11 +228,16 @@ class TaskDataset(torch.utils.data.Dataset):
         image, query_box, boxes = self._resize(image, query_box, boxes)
         if self.augment:
             image, query_box, boxes = augment(image, query_box, boxes, rng)
-        if self.query_mode == "photo":
-            query_image = np.asarray(Image.fromarray(read_image(task.photo)).resize((self.query_size, self.query_size), Image.BILINEAR))
-        else:
-            query_image = crop_resize(image, query_box, self.query_size)
-        return {"image": to_tensor(image), "query_box": torch.from_numpy(query_box), "query_image": to_tensor(query_image),
+            if self.photometric:
+                image = camera_effects(image, rng)
+        photo = None
+        if self.query_mode == "photo" or self.with_photo:
+            if task.photo is None:
+                raise ConfigError(f"no shop photo for category {self.source.categories[task.category_id]['name']!r}")
+            photo = np.asarray(Image.fromarray(read_image(task.photo)).resize((self.query_size, self.query_size), Image.BILINEAR))
+        query_image = photo if self.query_mode == "photo" else crop_resize(image, query_box, self.query_size)
+        extra = {"photo": to_tensor(photo)} if self.with_photo else {}
+        return {**extra, "image": to_tensor(image), "query_box": torch.from_numpy(query_box), "query_image": to_tensor(query_image),
                 "targets": torch.from_numpy(boxes["targets"]), "all": torch.from_numpy(boxes["all"]),
                 "unpickable": torch.from_numpy(boxes["unpickable"]), "image_id": task.image_id,
                 "category_id": task.category_id, "index": index, "query_id": int(query.get("id", -1))}
@@ -284,8 +290,31 @@ def augment(image: np.ndarray, query_box: np.ndarray, boxes: dict[str, np.ndarra
     return np.ascontiguousarray(image), query_box, {k: v.astype(np.float32) for k, v in every.items()}
 
 
+def camera_effects(image: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """What another camera does to an image: exposure and white balance, sensor noise, blur
+    (focus, motion) and JPEG artefacts, each now and then (Tremblay et al. 2018)."""
+    import io
+
+    from PIL import ImageFilter
+
+    out = image.astype(np.float32)
+    if rng.uniform() < 0.5:
+        out = out * rng.uniform(0.6, 1.4) * rng.uniform(0.85, 1.15, 3)
+    if rng.uniform() < 0.4:
+        out = out + rng.normal(0, rng.uniform(1, 8), out.shape)
+    result = Image.fromarray(np.clip(out, 0, 255).astype(np.uint8))
+    if rng.uniform() < 0.3:
+        result = result.filter(ImageFilter.GaussianBlur(rng.uniform(0.3, 1.5)))
+    if rng.uniform() < 0.3:
+        buffer = io.BytesIO()
+        result.save(buffer, format="JPEG", quality=int(rng.integers(30, 90)))
+        buffer.seek(0)
+        result = Image.open(buffer).convert("RGB")
+    return np.asarray(result)
+
+
 def collate(samples: list[dict[str, Any]]) -> dict[str, Any]:
-    batch = {key: torch.stack([s[key] for s in samples]) for key in ("image", "query_box", "query_image")}
+    batch = {key: torch.stack([s[key] for s in samples]) for key in ("image", "query_box", "query_image", "photo") if key in samples[0]}
     for key in ("targets", "all", "unpickable", "image_id", "category_id", "index", "query_id"):
         batch[key] = [s[key] for s in samples]
     return batch

@@ -90,11 +90,12 @@ class DetectorNetwork(nn.Module):
                        query_images: torch.Tensor | None) -> list[list[torch.Tensor]]:
         """Per level, per sample: the query's features. ROD with a box crops the scene's own features
         (Eq 5.11); TDID and photo queries run the query image through the same backbone."""
+        # unbind, not level[b]: each indexing's backward pass allocates the whole batch's gradient
         if self.spec.method == "rod" and self.spec.query == "crop":
-            return [[crop_features(level[b], query_boxes[b], stride) for b in range(level.shape[0])]
+            return [[crop_features(sample, box, stride) for sample, box in zip(level.unbind(0), query_boxes)]
                     for level, stride in zip(scene, STRIDES)]
         query = self.features(query_images)
-        return [[level[b] for b in range(level.shape[0])] for level in query]
+        return [list(level.unbind(0)) for level in query]
 
     def forward(self, images: torch.Tensor, query_boxes: torch.Tensor | None = None,
                 query_images: torch.Tensor | None = None) -> dict[str, list]:
@@ -135,7 +136,7 @@ class DetectorNetwork(nn.Module):
                ) -> tuple[list[dict[str, torch.Tensor]], list]:
         """Boxes and scores after NMS, per image, plus the heatmaps (for pictures like Fig 6.11)."""
         out = self.forward(images, query_boxes, query_images)
-        boxes, scores = self.decode(out["raw"])
+        boxes, scores = (v.float().cpu() for v in self.decode(out["raw"]))  # NMS is sequential: on the CPU
         results = []
         for b in range(images.shape[0]):
             keep = scores[b] > score_threshold

@@ -62,11 +62,11 @@ def nms(boxes: torch.Tensor, scores: torch.Tensor, iou_threshold: float) -> torc
     """Indices of the boxes kept, best score first: greedily drop any box overlapping a kept one by
     more than ``iou_threshold``."""
     if boxes.numel() == 0:
-        return torch.zeros(0, dtype=torch.long)
+        return torch.zeros(0, dtype=torch.long, device=boxes.device)
     order = scores.argsort(descending=True)
     boxes = boxes[order]
     overlaps = box_iou(boxes, boxes)
-    keep = torch.ones(len(boxes), dtype=torch.bool)
+    keep = torch.ones(len(boxes), dtype=torch.bool, device=boxes.device)
     for i in range(len(boxes)):
         if keep[i]:
             suppressed = overlaps[i] > iou_threshold

@@ -52,8 +52,43 @@ def scaled_kernels(crop: torch.Tensor, scales: tuple[float, ...]) -> list[torch.
 def correlate(features: torch.Tensor, kernel: torch.Tensor) -> torch.Tensor:
     """Mean cosine similarity of ``kernel`` (C, h, w) at every position of ``features`` (C, H, W),
     both already normalised per position: (H, W)."""
-    out = F.conv2d(features[None], kernel[None], padding="same")
-    return out[0, 0] / (kernel.shape[1] * kernel.shape[2])
+    return correlate_batch(features[None], [kernel])[0]
+
+
+def _framed(kernels: list[torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+    """Kernels of different sizes in one odd-sized frame (B, C, K_h, K_w), each placed where
+    PyTorch's 'same' padding would centre it alone (so even sizes keep their alignment), zeros
+    elsewhere; and each kernel's own area (B,)."""
+    height = max(k.shape[1] for k in kernels) | 1  # the next odd number
+    width = max(k.shape[2] for k in kernels) | 1
+    framed, areas = [], []
+    for k in kernels:
+        h, w = k.shape[1:]
+        top, left = (height - 1) // 2 - (h - 1) // 2, (width - 1) // 2 - (w - 1) // 2
+        framed.append(F.pad(k, (left, width - w - left, top, height - h - top)))
+        areas.append(h * w)
+    return torch.stack(framed), torch.tensor(areas, dtype=kernels[0].dtype, device=kernels[0].device)
+
+
+def _fft_correlate(features: torch.Tensor, weight: torch.Tensor, sum_channels: bool) -> torch.Tensor:
+    """Cross-correlation with 'same' zero padding through the FFT: ``features`` (B, C, H, W) with
+    ``weight`` (B, C, k_h, k_w), odd sides. On a CPU this is ~10x faster than a grouped convolution,
+    whose backward pass oneDNN runs slowly for large kernels; the result is the same up to rounding
+    (the transform is zero-padded to H + k - 1, so nothing wraps around)."""
+    height, width = features.shape[2:]
+    kh, kw = weight.shape[2:]
+    size = (height + kh - 1, width + kw - 1)
+    spectrum = torch.fft.rfft2(features.float(), s=size) * torch.fft.rfft2(weight.float(), s=size).conj()
+    if sum_channels:
+        spectrum = spectrum.sum(1)
+    out = torch.fft.irfft2(spectrum, s=size)
+    return torch.roll(out, shifts=(kh // 2, kw // 2), dims=(-2, -1))[..., :height, :width]
+
+
+def correlate_batch(features: torch.Tensor, kernels: list[torch.Tensor]) -> torch.Tensor:
+    """:func:`correlate` for a batch (B, C, H, W) with one kernel per sample, in one call. (B, H, W)."""
+    weight, areas = _framed(kernels)
+    return _fft_correlate(features, weight, sum_channels=True) / areas.float()[:, None, None]
 
 
 class RODModule(nn.Module):
@@ -68,12 +103,10 @@ class RODModule(nn.Module):
         """Eq 5.12 for a batch: (B, 1, H, W). ``queries[b]`` is sample b's query features (C, h, w)."""
         mean = features.mean(dim=(2, 3), keepdim=True)
         normalised = F.normalize(features - mean, dim=1)
-        maps = []
-        for b, query in enumerate(queries):
-            query = query - mean[b]
-            per_scale = [correlate(normalised[b], F.normalize(k, dim=0)) for k in scaled_kernels(query, self.scales)]
-            maps.append(torch.stack(per_scale).amax(0))
-        return torch.stack(maps)[:, None]
+        kernels = [[F.normalize(k, dim=0) for k in scaled_kernels(query - m, self.scales)]
+                   for query, m in zip(queries, mean.unbind(0))]
+        per_scale = [correlate_batch(normalised, [sample[s] for sample in kernels]) for s in range(len(self.scales))]
+        return torch.stack(per_scale).amax(0)[:, None].to(features.dtype)
 
     def forward(self, features: torch.Tensor, queries: list[torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
         heatmap = self.heatmaps(features, queries)
@@ -101,10 +134,7 @@ class TDIDModule(nn.Module):
         self.fuse = nn.Sequential(conv_bn(3 * channels, channels, 1), conv_bn(channels, channels, 3))
 
     def forward(self, features: torch.Tensor, queries: list[torch.Tensor]) -> tuple[torch.Tensor, None]:
-        correlations, differences = [], []
-        for b, target in enumerate(queries):
-            kernel = target[:, None]  # (C, 1, h, w): one filter per channel
-            correlation = F.conv2d(features[b:b + 1], kernel, padding="same", groups=features.shape[1])
-            correlations.append(correlation[0] / (target.shape[1] * target.shape[2]))
-            differences.append(features[b] - target.amax(dim=(1, 2))[:, None, None])
-        return self.fuse(torch.cat([features, torch.stack(correlations), torch.stack(differences)], 1)), None
+        weight, areas = _framed(queries)  # one depthwise filter per channel and sample, in one call
+        correlation = (_fft_correlate(features, weight, sum_channels=False) / areas.float()[:, None, None, None]).to(features.dtype)
+        differences = features - torch.stack([target.amax(dim=(1, 2)) for target in queries])[:, :, None, None]
+        return self.fuse(torch.cat([features, correlation, differences], 1)), None

@@ -95,6 +95,30 @@ def load_detector(path: str | Path) -> DetectorNetwork:
     return model
 
 
+def trained_domains(config: DetectConfig) -> list[str]:
+    """The scene domains of the data a run was trained on: its own, plus those of the weights it was
+    fine-tuned from (read from each data set's manifest, ``domain_values.name``)."""
+    domains = []
+    if config.train.init_from:
+        try:
+            domains += _read_detector_file(_weights_path(Path(config.train.init_from)))[1].get("trained_domains") or []
+        except InputFileError:
+            pass
+    manifest = Path(config.data.train).parent / "dataset.json"
+    name = "default"
+    if manifest.is_file():
+        import json
+
+        try:
+            content = json.loads(manifest.read_text())
+            name = ((content.get("config") or {}).get("domain_values") or {}).get("name", "default")
+        except (OSError, ValueError):
+            name = "unknown"
+    else:
+        name = "external"  # a COCO file that binpick did not generate
+    return sorted(set(domains + [name]))
+
+
 # ---------------------------------------------------------------------- anchors
 def kmeans_anchors(sizes: np.ndarray, clusters: int = 3 * ANCHORS_PER_LEVEL, iterations: int = 50, seed: int = 0) -> np.ndarray:
     """YOLOv3's anchor priors: k-means of box sizes (w, h) under the 1 - IoU distance, smallest first."""
@@ -130,7 +154,8 @@ def make_datasets(config: DetectConfig) -> tuple[TaskDataset, TaskDataset]:
     train_source = RepeatedInstances(data.train, data.images, data.targets, exclude_categories=data.exclude_categories)
     val_source = RepeatedInstances(data.val, data.images, data.targets)
     query_mode = config.model.query
-    train = TaskDataset(train_source, data.image_size, query_mode, data.query_size, augment=data.augment, seed=config.train.seed)
+    train = TaskDataset(train_source, data.load_size, query_mode, data.query_size, augment=data.augment, seed=config.train.seed,
+                        photometric=data.photometric)
     val = TaskDataset(val_source, data.image_size, query_mode, data.query_size, augment=False, seed=config.train.seed + 1)
     return train, val
 
@@ -143,8 +168,9 @@ def loader(dataset: TaskDataset, batch_size: int, shuffle: bool, workers: int, s
 
 def detector_detect(model: DetectorNetwork) -> Callable[[dict], list[dict[str, torch.Tensor]]]:
     def detect(batch: dict) -> list[dict[str, torch.Tensor]]:
-        results, _ = model.detect(batch["image"], batch["query_box"], batch["query_image"])
-        return results
+        device = model.anchors.device
+        results, _ = model.detect(batch["image"].to(device), batch["query_box"].to(device), batch["query_image"].to(device))
+        return [{k: v.cpu() for k, v in r.items()} for r in results]
     return detect
 
 
@@ -171,10 +197,18 @@ class DetectorTrainer:
         checkpoint = latest_checkpoint(resume / "checkpoints") if resume is not None else None
         if checkpoint is not None:
             self._load_checkpoint(checkpoint)
+        elif config.train.init_from:
+            self._start_from(Path(config.train.init_from))
         else:
             self.model.anchors.copy_(fit_anchors(self.train_set))
-        if config.train.fast_cpu:
+        self.device = torch.device(config.train.device)
+        if self.device.type == "cuda" and not torch.cuda.is_available():
+            raise ConfigError("train.device is cuda but torch sees no GPU; use train.device=cpu")
+        self.model.to(self.device)
+        self.optimizer.load_state_dict(self.optimizer.state_dict())  # moves optimiser state to the model's device
+        if config.train.fast_cpu or self.device.type == "cuda":
             self.model.to(memory_format=torch.channels_last)
+        self.best = max((h["ap50"] for h in self.history if h.get("ap50") is not None), default=None)
         self.run_dir = resume if resume is not None else new_run_dir(Path(runs), config.name, yaml.safe_dump(to_dict(config), sort_keys=False))
 
     @classmethod
@@ -204,12 +238,42 @@ class DetectorTrainer:
         tensorfile.restore({"model": self.model, "optimizer": self.optimizer}, state, where)
         self.epoch, self.step, self.history = meta["epoch"], meta["step"], meta["history"]
 
+    def _start_from(self, path: Path) -> None:
+        """Weights of a pre-trained detector (same architecture), its anchors included: fine-tuning."""
+        pretrained = load_detector(path)
+        if pretrained.spec != self.model.spec:
+            raise ConfigError(f"train.init_from {str(path)!r} is a {pretrained.spec.backbone} {pretrained.spec.method} "
+                              f"{pretrained.spec.query}-query network; this run's model section asks for another")
+        self.model.load_state_dict(pretrained.state_dict())
+
+    def scaled(self, batch: dict) -> dict:
+        """Multi-scale training: the batch resized to a random size in ``data.train_sizes`` (a
+        multiple of 32, drawn per step from the run's seed), boxes and query boxes with it."""
+        sizes = self.config.data.train_sizes
+        batch = {**batch, "image": batch["image"].to(self.device, non_blocking=True),
+                 "query_box": batch["query_box"].to(self.device), "query_image": batch["query_image"].to(self.device),
+                 **({"photo": batch["photo"].to(self.device)} if "photo" in batch else {}),
+                 "targets": [t.to(self.device) for t in batch["targets"]]}
+        if not sizes:
+            return batch
+        rng = np.random.default_rng([self.config.train.seed, self.step])
+        size = int(rng.integers(sizes[0] // 32, sizes[1] // 32 + 1)) * 32
+        current = batch["image"].shape[-1]
+        if size == current:
+            return batch
+        factor = size / current
+        batch["image"] = torch.nn.functional.interpolate(batch["image"], size=(size, size), mode="bilinear", align_corners=False)
+        batch["query_box"] = batch["query_box"] * factor
+        batch["targets"] = [t * factor for t in batch["targets"]]
+        return batch
+
     def forward(self, batch: dict) -> dict:
-        """The model's outputs in float32; with ``fast_cpu`` computed in bfloat16, channels-last."""
-        fast = self.config.train.fast_cpu
+        """The model's outputs in float32; with ``fast_cpu`` (or on a GPU) computed in bfloat16, channels-last."""
+        fast = self.config.train.fast_cpu or self.device.type == "cuda"
         images = batch["image"].contiguous(memory_format=torch.channels_last) if fast else batch["image"]
-        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=fast):
-            out = self.model(images, batch["query_box"], batch["query_image"])
+        with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=fast):
+            query_image = batch["photo"] if self.model.spec.query == "photo" and "photo" in batch else batch["query_image"]
+            out = self.model(images, batch["query_box"], query_image)
         return {"raw": [r.float() for r in out["raw"]], "heatmaps": [None if h is None else h.float() for h in out["heatmaps"]]}
 
     def learning_rate(self) -> float:
@@ -227,51 +291,100 @@ class DetectorTrainer:
         return metrics
 
     def _train(self, task: Task) -> dict[str, Any]:
-        from torch.utils.tensorboard import SummaryWriter
+        import time
 
-        config, weights = self.config, self.config.loss
-        writer = SummaryWriter(str(self.run_dir / "tb"))
-        status = ""
+        config = self.config
+        self.open_log()
+        started = time.monotonic()
         try:
             while self.epoch < config.train.epochs:
                 self.train_set.set_epoch(self.epoch)
                 self.model.train()
-                sums = {}
+                sums: dict[str, float] = {}
                 for batch in loader(self.train_set, config.train.batch_size, True, config.train.workers, config.train.seed + self.epoch):
-                    for group in self.optimizer.param_groups:
-                        group["lr"] = self.learning_rate()
-                    out = self.forward(batch)
-                    losses = rod_loss(self.model, out, batch["targets"], weights)
-                    self.optimizer.zero_grad(set_to_none=True)
-                    losses["total"].backward()
-                    torch.nn.utils.clip_grad_norm_(self.model.parameters(), 10.0)
-                    self.optimizer.step()
-                    self.step += 1
-                    for key, value in losses.items():
-                        sums[key] = sums.get(key, 0.0) + float(value.detach())
-                        writer.add_scalar(f"loss/{key}", float(value.detach()), self.step)
-                    task.update(self.step, status=f"epoch {self.epoch + 1}/{config.train.epochs} {status}")
-                self.epoch += 1
-                record = {"epoch": self.epoch, "step": self.step,
-                          **{f"loss_{k}": v / self.steps_per_epoch for k, v in sums.items()}}
-                if self.epoch % config.train.eval_every == 0 or self.epoch == config.train.epochs:
-                    metrics = evaluate_model(self.model, self.val_set, config.train.batch_size)
-                    record |= {k: metrics[k] for k in ("ap50", "map", "ap50_all", "ap50_unpickable")}
-                    for key in ("ap50", "map", "ap50_all", "ap50_unpickable"):
-                        if metrics[key] is not None:
-                            writer.add_scalar(f"val/{key}", metrics[key], self.epoch)
-                self.history.append(record)
-                self._checkpoint()
-                if record.get("ap50") is not None:
-                    status = f"· val AP50 {record['ap50']:.3f}"
+                    self.train_step(batch, sums)
+                    task.update(self.step, status=f"epoch {self.epoch + 1}/{config.train.epochs} {self.status}")
+                    if self.out_of_time(time.monotonic() - started):
+                        break  # the epoch ends here: evaluate, keep the best, checkpoint
+                if self.end_epoch(sums, time.monotonic() - started):
+                    break
         finally:
-            writer.close()
-        save_detector(self.model, self.run_dir / WEIGHTS_FILE,
-                      {"config": to_dict(config), "trained_products": trained_products(config.data.train)})
+            self.writer.close()
+        return self.finish()
+
+    def open_log(self) -> None:
+        from torch.utils.tensorboard import SummaryWriter
+
+        self.writer = SummaryWriter(str(self.run_dir / "tb"))
+        self.status, self.stale = "", 0
+
+    def train_step(self, batch: dict, sums: dict[str, float]) -> None:
+        """One optimiser step on ``batch`` (as the loader gives it); losses add into ``sums``."""
+        for group in self.optimizer.param_groups:
+            group["lr"] = self.learning_rate()
+        batch = self.scaled(batch)
+        out = self.forward(batch)
+        losses = rod_loss(self.model, out, batch["targets"], self.config.loss)
+        self.optimizer.zero_grad(set_to_none=True)
+        losses["total"].backward()
+        torch.nn.utils.clip_grad_norm_(self.model.parameters(), 10.0)
+        self.optimizer.step()
+        self.step += 1
+        for key, value in losses.items():
+            sums[key] = sums.get(key, 0.0) + float(value.detach())
+            self.writer.add_scalar(f"loss/{key}", float(value.detach()), self.step)
+
+    def out_of_time(self, elapsed: float) -> bool:
+        limit = self.config.train.max_minutes
+        return limit > 0 and elapsed > 60 * limit
+
+    def end_epoch(self, sums: dict[str, float], elapsed: float) -> bool:
+        """Evaluate (every ``eval_every`` epochs, and last), keep the best weights, checkpoint.
+        Returns True when training should stop: out of time, or no better val AP50 for
+        ``patience`` evaluations (early stopping)."""
+        config = self.config
+        self.epoch += 1
+        out_of_time = self.out_of_time(elapsed)
+        record = {"epoch": self.epoch, "step": self.step, "images_seen": self.step * config.train.batch_size,
+                  **{f"loss_{k}": v / self.steps_per_epoch for k, v in sums.items()}}
+        if self.epoch % config.train.eval_every == 0 or self.epoch == config.train.epochs or out_of_time:
+            metrics = evaluate_model(self.model, self.val_set, config.train.batch_size)
+            record |= {k: metrics[k] for k in ("ap50", "map", "ap50_all", "ap50_unpickable")}
+            for key in ("ap50", "map", "ap50_all", "ap50_unpickable"):
+                if metrics[key] is not None:
+                    self.writer.add_scalar(f"val/{key}", metrics[key], self.epoch)
+            if record["ap50"] is not None and (self.best is None or record["ap50"] > self.best):
+                self.best, self.stale = record["ap50"], 0
+                if config.train.keep_best:
+                    self._save(self.run_dir / "best.safetensors")
+            else:
+                self.stale += 1
+        self.history.append(record)
+        self._checkpoint()
+        if record.get("ap50") is not None:
+            self.status = f"· val AP50 {record['ap50']:.3f} (best {self.best:.3f})"
+        return out_of_time or bool(config.train.patience and self.stale >= config.train.patience)
+
+    def finish(self) -> dict[str, Any]:
+        """The final weights (the best val AP50's with ``keep_best``) and ``metrics.json``."""
+        best = self.run_dir / "best.safetensors"
+        if self.config.train.keep_best and best.is_file():
+            self.model.load_state_dict(load_detector(best).state_dict())
+        self._save(self.run_dir / WEIGHTS_FILE)
         final = self.history[-1] if self.history else {}
-        metrics = {"name": config.name, "epochs": self.epoch, "steps": self.step, "final": final, "history": self.history}
+        metrics = {"name": self.config.name, "epochs": self.epoch, "steps": self.step, "final": final, "history": self.history}
         atomic_write_json(self.run_dir / "metrics.json", metrics)
         return metrics
+
+    def _save(self, path: Path) -> None:
+        """The deployable weights, with the config, the products and the scene domain trained on."""
+        self.model.cpu()
+        try:
+            save_detector(self.model, path, {"config": to_dict(self.config),
+                                             "trained_products": trained_products(self.config.data.train),
+                                             "trained_domains": trained_domains(self.config)})
+        finally:
+            self.model.to(self.device)
 
     def _checkpoint(self) -> None:
         def write(folder: Path) -> None:
@@ -280,3 +393,53 @@ class DetectorTrainer:
                             meta={"epoch": self.epoch, "step": self.step, "history": self.history})
 
         commit_checkpoint(self.run_dir / "checkpoints", self.epoch, write)
+
+
+class JointTraining:
+    """Several detectors trained on the very same batches: one loader (the costly part on a CPU, and
+    the bottleneck beside a GPU) feeds every model, so rows compared in a table (ROD, ROD without
+    L_h, TDID, the photo query, two backbones) share data, order, augmentation, budget and seed by
+    construction. Every trainer keeps its own run folder, checkpoints and early stopping."""
+
+    def __init__(self, trainers: list[DetectorTrainer]) -> None:
+        if not trainers:
+            raise ConfigError("joint training needs at least one detector")
+        first = trainers[0].config
+        for trainer in trainers[1:]:
+            if trainer.config.data != first.data or trainer.config.train.batch_size != first.train.batch_size:
+                raise ConfigError(f"{trainer.config.name}: joint training needs the same data section and batch size as {first.name}")
+        self.trainers = trainers
+        self.train_set = trainers[0].train_set
+        self.train_set.with_photo = any(t.model.spec.query == "photo" for t in trainers)
+
+    def run(self, callback: RunCallback = SILENT) -> dict[str, dict[str, Any]]:
+        import time
+
+        first = self.trainers[0]
+        config = first.config
+        active = list(self.trainers)
+        for trainer in active:
+            trainer.open_log()
+        started = time.monotonic()
+        try:
+            with callback.task("joint training", first.total_steps, first.step) as task:
+                while active and first.epoch < config.train.epochs:
+                    epoch = first.epoch
+                    self.train_set.set_epoch(epoch)
+                    sums = {id(t): {} for t in active}
+                    for trainer in active:
+                        trainer.model.train()
+                    for batch in loader(self.train_set, config.train.batch_size, True, config.train.workers, config.train.seed + epoch):
+                        for trainer in active:
+                            trainer.train_step(batch, sums[id(trainer)])
+                        task.update(first.step, status=f"epoch {epoch + 1}/{config.train.epochs} " +
+                                    " ".join(f"{t.config.name}{t.status}" for t in active))
+                        if first.out_of_time(time.monotonic() - started):
+                            break
+                    elapsed = time.monotonic() - started
+                    active = [t for t in active if not t.end_epoch(sums[id(t)], elapsed)]
+                    first = active[0] if active else first
+        finally:
+            for trainer in self.trainers:
+                trainer.writer.close()
+        return {trainer.config.name: trainer.finish() for trainer in self.trainers}

@@ -18,7 +18,8 @@ from typing import Any
 from binpick import tensorfile
 from binpick.config import check_range
 from binpick.errors import ConfigError
-from binpick.distributed.rollouts import RestartingActors, check_ray_address
+from binpick.cluster import check_ray_address
+from binpick.distributed.rollouts import RestartingActors
 from binpick.files import atomic_write_json
 
 

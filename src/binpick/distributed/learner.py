@@ -18,7 +18,8 @@ from typing import Any
 import numpy as np
 
 from binpick.config import check_range
-from binpick.distributed.rollouts import DistributedRollouts, Episode, check_ray_address
+from binpick.cluster import check_ray_address
+from binpick.distributed.rollouts import DistributedRollouts, Episode
 from binpick.files import atomic_write_json
 
 

@@ -14,8 +14,6 @@ Locally ``ray.init()`` starts a private cluster on this machine; ``address="ray:
 from __future__ import annotations
 
 import os
-import re
-import socket
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -23,39 +21,7 @@ from typing import Any
 
 import numpy as np
 
-# With this set to 0, Ray treats the machine as a single-node setup and uses 127.0.0.1 for every
-# address, instead of the machine's network address (its name says Windows/macOS; it works on Linux).
-LOCAL_ONLY_ENV = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
-_ADDRESS = re.compile(r"(ray://)?(?P<host>[A-Za-z0-9][A-Za-z0-9.\-]*|\[[0-9A-Fa-f:.]+\]):(?P<port>\d{1,5})")
-
-
-def check_ray_address(address: str | None) -> str | None:
-    """None (a private local cluster), ``auto``, or ``HOST:PORT`` / ``ray://HOST:PORT``; anything else
-    is one line before Ray starts (Ray itself would retry a bad address for a long time)."""
-    from binpick.errors import ConfigError
-
-    if address is None or address == "auto":
-        return address
-    match = _ADDRESS.fullmatch(address)
-    if match is None or not 1 <= int(match["port"]) <= 65535:
-        raise ConfigError(f"--address must be HOST:PORT of a Ray head (e.g. 10.0.0.5:6379, from `ray start --head`), "
-                          f"ray://HOST:PORT or auto; got {address!r}")
-    return address
-
-
-def probe_ray_address(address: str, timeout: float = 5.0) -> None:
-    """Fail in one line, within ``timeout``, when nothing listens at a cluster address."""
-    from binpick.errors import ConfigError
-
-    match = _ADDRESS.fullmatch(address)
-    if match is None:
-        return  # "auto": Ray finds the cluster itself
-    host = match["host"].strip("[]")
-    try:
-        socket.create_connection((host, int(match["port"])), timeout=timeout).close()
-    except OSError as error:
-        raise ConfigError(f"no Ray cluster answered at {address} within {timeout:.0f} s "
-                          f"({error.strerror or type(error).__name__}): start one with `ray start --head`") from None
+from binpick.cluster import start_ray
 
 
 @dataclass
@@ -137,21 +103,13 @@ class RestartingActors:
     (to resend state the fresh process lacks)."""
 
     def __init__(self, actor_class: type, arguments: list[tuple], address: str | None = None) -> None:
-        if address is None:  # a private local cluster: keep every Ray socket on 127.0.0.1 (read at import)
-            os.environ.setdefault(LOCAL_ONLY_ENV, "0")
-        import ray
-
         from binpick.errors import ConfigError
 
         if not arguments:
             raise ConfigError("workers must be at least 1, got 0")
-        if address is not None:
-            probe_ray_address(check_ray_address(address))
-        self.owns_ray = not ray.is_initialized()
-        if self.owns_ray:
-            options = {"address": address} if address else {"num_cpus": len(arguments)}
-            ray.init(include_dashboard=False, log_to_driver=False, logging_level="ERROR",
-                     runtime_env={"env_vars": {"MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}}, **options)
+        self.owns_ray = start_ray(address, len(arguments))  # a private local cluster stays on 127.0.0.1
+        import ray
+
         remote = ray.remote(num_cpus=1, max_restarts=-1, max_task_retries=0)(actor_class)
         self.actors = [remote.remote(*args) for args in arguments]
         self.in_flight: dict[Any, int] = {}

@@ -14,7 +14,9 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
-from binpick.sim.mjcf import BIN_HALF, FLOOR_TOP, CameraSpec, product_assets, product_body, scene_xml
+from binpick.sim.domain import DomainConfig
+from binpick.sim.mjcf import (BIN_HALF, BIN_WALL, FLOOR_TOP, CameraSpec, product_assets, product_body, random_world_xml,
+                              scene_xml)
 from binpick.sim.products import Product
 
 PARK_X = 3.0  # unused slots wait here, on the table, out of view
@@ -46,6 +48,7 @@ class Scene:
     target_id: str
     seed: int
     state: np.ndarray = field(repr=False, default=None)  # qpos after settling (for grasp trials)
+    camera: dict = field(default_factory=dict)  # intrinsics K (3x3, pixels) and camera-to-world extrinsics (4x4, OpenCV axes)
 
 
 class BinWorld:
@@ -53,11 +56,15 @@ class BinWorld:
 
     def __init__(self, target: Product, distractors: list[Product], max_copies: int = 8,
                  camera: CameraSpec = CameraSpec(), extra_worldbody: str = "", extra: str = "",
-                 randomise_lighting: bool = False, gripper: bool = False, seed: int = 0) -> None:
+                 randomise_lighting: bool = False, gripper: bool = False, seed: int = 0,
+                 domain: DomainConfig | None = None) -> None:
         self.target, self.distractors, self.camera = target, list(distractors), camera
         self.max_copies = max_copies
+        self.domain = domain if domain is not None and domain.randomise else None
+        self.half = BIN_HALF
         self.slots: list[Product] = [target] * max_copies + self.distractors
         rng = np.random.default_rng(seed)
+        self._seed, self.clutter = seed, []
         products = {target.id: target, **{d.id: d for d in self.distractors}}
         prefixes = {pid: f"p{i}" for i, pid in enumerate(products)}
         assets = "".join(product_assets(p, prefixes[p.id]) for p in products.values())
@@ -72,7 +79,10 @@ class BinWorld:
             from binpick.sim.gripper import GRIPPER_BODY, GRIPPER_EXTRA
 
             extra_worldbody, extra = extra_worldbody + GRIPPER_BODY, extra + GRIPPER_EXTRA
-        self.xml = scene_xml(assets, bodies, camera, extra_worldbody, extra, **lighting)
+        if self.domain is not None:
+            self.xml = self._random_world(assets, bodies, extra_worldbody, extra, rng)
+        else:
+            self.xml = scene_xml(assets, bodies, camera, extra_worldbody, extra, **lighting)
         self.model = mujoco.MjModel.from_xml_string(self.xml)
         self.data = mujoco.MjData(self.model)
         self.body_ids = [self.model.body(f"slot{i}").id for i in range(len(self.slots))]
@@ -94,6 +104,8 @@ class BinWorld:
             from binpick.sim.gripper import Gripper
 
             self.gripper = Gripper(self.model)
+        if self.domain is not None:  # generated textures go in before a renderer uploads them
+            self._fill_textures(products, prefixes)
         self.renderer = mujoco.Renderer(self.model, camera.size, camera.size)
         self.small = mujoco.Renderer(self.model, min(AMODAL_SIZE, camera.size), min(AMODAL_SIZE, camera.size))
         from binpick.sim.camera import close_at_exit
@@ -101,6 +113,85 @@ class BinWorld:
         close_at_exit(self)
         self._alpha = self.model.geom_rgba[:, 3].copy()
         self._matid = self.model.geom_matid.copy()
+
+    # ------------------------------------------------------------------ domain randomisation
+    def _random_world(self, assets: str, bodies: str, extra_worldbody: str, extra: str, rng: np.random.Generator) -> str:
+        """Per-world draws: tote size and walls, number of lights, clutter objects beside the tote."""
+        from binpick.sim.domain import integer, uniform
+        from binpick.sim.products import random_primitive
+
+        domain = self.domain
+        self.half = (uniform(rng, domain.tote_half_x), uniform(rng, domain.tote_half_y))
+        self.wall_height = uniform(rng, domain.wall_height)
+        self.lights = integer(rng, domain.lights)
+        self.clutter = [random_primitive(f"clutter{i}", rng) for i in range(domain.clutter[1])]
+        for i, item in enumerate(self.clutter):
+            assets += product_assets(item, f"c{i}")
+            bodies += product_body(item, f"clutter{i}", (PARK_X, -0.5 - 0.25 * i, 0.1), (1, 0, 0, 0), f"c{i}")
+        return random_world_xml(assets, bodies, self.camera.size, self.half, self.wall_height, max(self.lights, 1),
+                                extra_worldbody, extra)
+
+    def _fill_textures(self, products: dict[str, Product], prefixes: dict[str, str]) -> None:
+        from binpick.sim.domain import fill_texture, pattern
+
+        rng = np.random.default_rng(int(self.model.nbody) * 7919 + int(self._seed))
+        pool = self.domain.textures
+        fill_texture(self.model, self.model.texture("table_tex").id, pattern(rng, pool))
+        fill_texture(self.model, self.model.texture("tote_tex").id, pattern(rng, pool))
+        named = [(prefixes[p.id], p) for p in products.values()] + [(f"c{i}", c) for i, c in enumerate(self.clutter)]
+        for prefix, product in named:
+            seed = product.pattern[0] if product.pattern else int(rng.integers(2**31))
+            if product.pattern is not None or prefix.startswith("c"):
+                fill_texture(self.model, self.model.texture(f"{prefix}_tex").id, pattern(np.random.default_rng(seed), pool))
+        self._materials = {name: self.model.material(name).id for name in ("table", "bin")}
+        self._product_materials = [self.model.material(f"{prefixes[p.id]}_mat").id for p in products.values()
+                                   if p.pattern is not None or p.texture is not None or p.shape is not None]
+        self._base_rgba = self.model.mat_rgba.copy()
+
+    def _randomise_scene(self, rng: np.random.Generator):
+        """Per-scene draws: camera, lights, colour tints, clutter positions. Returns the camera."""
+        from binpick.sim.domain import apply_camera, draw_camera, draw_lights, uniform
+
+        domain = self.domain
+        draw = draw_camera(domain, rng, self.camera.size, FLOOR_TOP)
+        apply_camera(self.model, self.camera_id, draw)
+        draw_lights(domain, rng, self.model, self.lights)
+        rgba = self._base_rgba.copy()
+        for name in ("table", "bin"):
+            rgba[self._materials[name], :3] *= rng.uniform(0.6, 1.15, 3)
+        jitter = uniform(rng, domain.product_colour)
+        for material in self._product_materials:
+            rgba[material, :3] *= 1 + rng.uniform(-1, 1, 3) * jitter
+        self.model.mat_rgba[:] = np.clip(rgba, 0, 1)
+        shown = int(rng.integers(domain.clutter[0], domain.clutter[1] + 1))
+        hx, hy = self.half
+        for i in range(len(self.clutter)):
+            joint = self.model.body(f"clutter{i}").jntadr[0]
+            adr = self.model.jnt_qposadr[joint]
+            if i < shown:  # on the table, beside the tote, where a wide view may see it
+                side = rng.integers(4)
+                along = rng.uniform(-1, 1) * (hx if side < 2 else hy)
+                out = rng.uniform(0.06, 0.2) + (hy if side < 2 else hx) + BIN_WALL
+                x, y = (along, out if side == 0 else -out) if side < 2 else (out if side == 2 else -out, along)
+                self.data.qpos[adr:adr + 3] = (x, y, float(self.model.geom_rbound[self.model.body(f"clutter{i}").geomadr[0]]))
+            else:
+                self.data.qpos[adr:adr + 3] = (PARK_X, -0.5 - 0.25 * i, 0.1)
+        mujoco.mj_forward(self.model, self.data)
+        return draw
+
+    def camera_record(self, draw=None) -> dict:
+        """Intrinsics and extrinsics of the scene's camera, recorded beside its annotations."""
+        if draw is not None:
+            fx, fy, cx, cy = draw.intrinsics()
+            extrinsics = draw.extrinsics()
+            fovy = draw.fovy
+        else:
+            fx, fy, cx, cy = self.camera.intrinsics()
+            extrinsics = [[1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, -1.0, self.camera.height], [0.0, 0.0, 0.0, 1.0]]
+            fovy = self.camera.fovy
+        return {"K": [[round(fx, 4), 0.0, round(cx, 4)], [0.0, round(fy, 4), round(cy, 4)], [0.0, 0.0, 1.0]],
+                "width": self.camera.size, "height": self.camera.size, "fovy": round(fovy, 4),
+                "camera_to_world": extrinsics}
 
     def set_guards(self, enabled: bool) -> None:
         """Switch the invisible drop guards above the tote walls on or off. They keep products that
@@ -130,16 +221,22 @@ class BinWorld:
         for attempt in range(3):
             if self._drop_and_settle(used, rng):
                 break
+        draw = self._randomise_scene(rng) if self.domain is not None else None
         rgb, depth, segmentation = self.render()
         instances = self._annotate(used, segmentation)
-        return Scene(rgb, depth, segmentation, instances, self.target.id, int(seed), self.data.qpos.copy())
+        if self.domain is not None and self.domain.post_processing:
+            from binpick.sim.domain import post_process
+
+            rgb = post_process(rgb, self.domain, rng)
+        return Scene(rgb, depth, segmentation, instances, self.target.id, int(seed), self.data.qpos.copy(),
+                     self.camera_record(draw))
 
     def _drop_and_settle(self, used: list[int], rng: np.random.Generator) -> bool:
         self.set_guards(True)
         mujoco.mj_resetData(self.model, self.data)
         for slot in range(len(self.slots)):
             self._place(slot, self._parked(slot), (1, 0, 0, 0))
-        hx, hy = BIN_HALF
+        hx, hy = self.half
         placed: list[tuple[np.ndarray, float]] = []  # (centre, radius) of the bounding spheres so far
         for slot in rng.permutation(used):
             radius = self.radius[slot]
@@ -223,7 +320,7 @@ class BinWorld:
                 continue  # fully hidden, or bounced out of view
             position = self.data.qpos[self.qpos_adr[slot]:self.qpos_adr[slot] + 3]
             centre, _ = self.instance_centre_and_top(slot)  # not the body origin: meshes may sit off it
-            if centre[2] < FLOOR_TOP - 0.01 or abs(centre[0]) > BIN_HALF[0] + 0.03 or abs(centre[1]) > BIN_HALF[1] + 0.03:
+            if centre[2] < FLOOR_TOP - 0.01 or abs(centre[0]) > self.half[0] + 0.03 or abs(centre[1]) > self.half[1] + 0.03:
                 continue  # fell out of the tote
             ys, xs = np.nonzero(mask)
             full = self._amodal_pixels(slot)

@@ -51,11 +51,16 @@ def _fmt(values) -> str:
 def product_assets(product: Product, prefix: str) -> str:
     """Mesh, texture and material of one product (declared once, used by all its copies)."""
     parts = []
+    if product.pattern is not None:  # pixels filled after compiling (binpick.sim.domain.fill_product_textures)
+        parts.append(f'<texture name="{prefix}_tex" type="cube" builtin="flat" rgb1="1 1 1" width="64" height="64"/>')
+        parts.append(f'<material name="{prefix}_mat" texture="{prefix}_tex" rgba="1 1 1 1"/>')
     if product.mesh is not None:
         inline = merged_obj(product.mesh) if product.mesh.suffix.lower() == ".obj" else None
         source = f'vertex="{inline[0]}" face="{inline[1]}"' if inline else f'file="{product.mesh}"'
         parts.append(f'<mesh name="{prefix}_mesh" {source} scale="{_fmt([product.scale] * 3)}" inertia="convex"/>')
-    if product.texture is not None:
+    if product.pattern is not None:
+        pass
+    elif product.texture is not None:
         parts.append(f'<texture name="{prefix}_tex" type="2d" file="{product.texture}"/>')
         uniform = "true" if product.texuniform else "false"
         parts.append(f'<material name="{prefix}_mat" texture="{prefix}_tex" texrepeat="{_fmt(product.texrepeat)}" '
@@ -69,7 +74,8 @@ def product_assets(product: Product, prefix: str) -> str:
 
 
 def product_geom(product: Product, prefix: str) -> str:
-    material = f'material="{prefix}_mat"' if (product.texture is not None or product.shape is not None) else f'rgba="{_fmt(product.rgba)}"'
+    textured = product.texture is not None or product.shape is not None or product.pattern is not None
+    material = f'material="{prefix}_mat"' if textured else f'rgba="{_fmt(product.rgba)}"'
     common = (f'mass="{product.mass:.4g}" friction="{product.friction:.3g} 0.005 0.0001" condim="6" '
               f'solref="{PRODUCT_SOLREF}" solimp="{PRODUCT_SOLIMP}" {material}')
     if product.mesh is not None:
@@ -82,10 +88,10 @@ def product_body(product: Product, name: str, pos, quat, prefix: str | None = No
             f'{product_geom(product, prefix or name)}</body>')
 
 
-def tote() -> str:
+def tote(half: tuple[float, float] = BIN_HALF, wall_height: float = BIN_WALL_HEIGHT) -> str:
     """A tote on the table: a thick floor and four walls (static geoms)."""
-    hx, hy = BIN_HALF
-    h, t = BIN_WALL_HEIGHT, BIN_WALL
+    hx, hy = half
+    h, t = wall_height, BIN_WALL
     z = FLOOR_TOP + h / 2
     walls = [((hx + t / 2, 0, z), (t / 2, hy + t, h / 2)), ((-hx - t / 2, 0, z), (t / 2, hy + t, h / 2)),
              ((0, hy + t / 2, z), (hx, t / 2, h / 2)), ((0, -hy - t / 2, z), (hx, t / 2, h / 2))]
@@ -119,6 +125,39 @@ def scene_xml(assets: str, bodies: str, camera: CameraSpec, extra_worldbody: str
     <geom name="table" type="plane" size="0 0 0.05" material="table"/>
     {tote()}
     <camera name="overhead" pos="0 0 {camera.height}" xyaxes="1 0 0 0 1 0" fovy="{camera.fovy}"/>
+    {extra_worldbody}
+    {bodies}
+  </worldbody>
+  {extra}
+</mujoco>"""
+
+
+def random_world_xml(assets: str, bodies: str, size: int, half: tuple[float, float], wall_height: float,
+                     lights: int, extra_worldbody: str = "", extra: str = "") -> str:
+    """A randomised bin world (:mod:`binpick.sim.domain`): a tote of the given size, textured table
+    and tote (``table_tex``/``tote_tex``, filled after compiling), ``lights`` lights and a camera
+    whose pose and intrinsics are set per scene (declared with ``sensorsize`` so that
+    ``cam_intrinsic`` holds focal length and principal point)."""
+    light_xml = "".join(f'<light name="light{i}" pos="0 0 1.6" dir="0 0 -1" castshadow="true"/>' for i in range(lights))
+    return f"""<mujoco model="bin_scene_random">
+  <compiler angle="radian" autolimits="true"/>
+  <option timestep="0.002" integrator="implicitfast"/>
+  <visual><global offwidth="{size}" offheight="{size}"/><quality shadowsize="1024"/>
+    <headlight ambient="0.35 0.35 0.35" diffuse="0.1 0.1 0.1"/></visual>
+  <default><joint damping="0.002"/></default>
+  <asset>
+    <texture name="table_tex" type="2d" builtin="flat" rgb1="1 1 1" width="64" height="64"/>
+    <material name="table" texture="table_tex" texrepeat="{_fmt((6, 6))}" rgba="1 1 1 1"/>
+    <texture name="tote_tex" type="cube" builtin="flat" rgb1="1 1 1" width="64" height="64"/>
+    <material name="bin" texture="tote_tex" rgba="1 1 1 1"/>
+    {assets}
+  </asset>
+  <worldbody>
+    {light_xml}
+    <geom name="table" type="plane" size="0 0 0.05" material="table"/>
+    {tote(half, wall_height)}
+    <camera name="overhead" pos="0 0 1" xyaxes="1 0 0 0 1 0" sensorsize="0.01 0.01" focal="0.012 0.012"
+            principal="0 0" resolution="{size} {size}"/>
     {extra_worldbody}
     {bodies}
   </worldbody>

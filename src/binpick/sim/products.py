@@ -44,6 +44,7 @@ class Product:
     mass: float = 0.15
     friction: float = 1.0
     photo: Path | None = None  # the shop's own photo, if the user has one
+    pattern: tuple[int, str] | None = None  # (seed, texture pool): a generated texture (domain randomisation)
 
     @property
     def name(self) -> str:
@@ -284,3 +285,76 @@ def check_product_compiles(product: Product) -> None:
         raise ConfigError(f"mesh {str(product.mesh)!r} is {extent.max():.3f} m across after scaling; "
                           "set longest_side (metres) for it")
 
+
+
+PRIMITIVES = ("box", "cylinder", "sphere", "capsule", "ellipsoid")
+
+
+def random_primitive(product_id: str, rng: np.random.Generator, scale: float = 1.0) -> Product:
+    """A box, cylinder, sphere, capsule or ellipsoid 4–10 cm across (before ``scale``)."""
+    shape = PRIMITIVES[rng.integers(len(PRIMITIVES))]
+    if shape == "box":
+        size = np.sort(rng.uniform(0.015, 0.05, 3))[::-1]
+    elif shape == "cylinder":
+        size = np.array([rng.uniform(0.018, 0.035), rng.uniform(0.02, 0.05)])
+    elif shape == "sphere":
+        size = np.array([rng.uniform(0.02, 0.035)])
+    elif shape == "capsule":
+        size = np.array([rng.uniform(0.018, 0.03), rng.uniform(0.01, 0.035)])
+    else:
+        size = np.sort(rng.uniform(0.02, 0.045, 3))[::-1]
+    return Product(product_id, f"random_{shape}", shape=shape, size=tuple(np.round(size * scale, 4).tolist()), mass=0.1)
+
+
+def random_pool_shape(product_id: str, rng: np.random.Generator, scale: float = 1.0) -> Product | None:
+    """One of pybullet's 1000 random shapes (stubby ones only, see MIN_ASPECT), 5–10 cm long before
+    ``scale``; None when pybullet_data is not installed."""
+    data = package_dir("pybullet_data")
+    if data is None:
+        return None
+    for _ in range(20):
+        index = int(rng.integers(1000))
+        path = data / "random_urdfs" / f"{index:03d}" / f"{index:03d}.obj"
+        try:
+            extent = _extent_cached(str(path))
+        except ConfigError:
+            continue
+        if extent.min() / extent.max() < MIN_ASPECT:
+            continue
+        return Product(product_id, "random_shape", mesh=path, scale=float(rng.uniform(0.05, 0.1) * scale / extent.max()), mass=0.1)
+    return None
+
+
+_EXTENTS: dict[str, np.ndarray | ConfigError] = {}
+
+
+def _extent_cached(path: str) -> np.ndarray:
+    if path not in _EXTENTS:
+        try:
+            _EXTENTS[path] = mesh_extent(Path(path))
+        except ConfigError as error:
+            _EXTENTS[path] = error
+    value = _EXTENTS[path]
+    if isinstance(value, ConfigError):
+        raise value
+    return value
+
+
+def random_product(product_id: str, rng: np.random.Generator, seen: list[Product], pool: str,
+                   scale: tuple[float, float] = (1.0, 1.0)) -> Product:
+    """A "product" that exists for one world of a randomised data set: a random pybullet shape or a
+    primitive with a generated texture (stripes, noise, a printed label, a material picture, ...), or
+    now and then one of the ``seen`` library products (never a held-out one) at another scale."""
+    from dataclasses import replace
+
+    factor = float(rng.uniform(*scale)) if scale[1] > scale[0] else scale[0]
+    draw = rng.uniform()
+    if seen and draw < 0.15:
+        product = seen[rng.integers(len(seen))]
+        if product.mesh is not None:
+            return replace(product, id=product_id, scale=product.scale * factor)
+        return replace(product, id=product_id, size=tuple(s * factor for s in product.size))
+    product = random_pool_shape(product_id, rng, factor) if draw < 0.6 else None
+    if product is None:
+        product = random_primitive(product_id, rng, factor)
+    return replace(product, pattern=(int(rng.integers(2**31)), pool))

@@ -51,7 +51,9 @@ class GenerateConfig:
     val_fraction: float = 0.1
     split_rule: str = "even"  # which worlds go to val: "even" (every 1/val_fraction-th, stable as a set grows) or "random"
     scenes_per_world: int = 8  # scenes made from one compiled model (compiling + renderers ≈ 1 s)
-    randomise: bool = False  # lighting, table and tote colours per world
+    randomise: bool = False  # lighting, table and tote colours per world (before domains existed)
+    domain: str = "default"  # default | random | shifted | a domain YAML file (binpick.sim.domain)
+    address: str | None = None  # a Ray cluster (HOST:PORT) or "local" (Ray on this machine): scene workers as Ray tasks
     products: str | None = None  # a user's products YAML (added to the built-in library)
     only_products: bool = False  # use only the user's products
     photo_size: int = 256
@@ -74,6 +76,13 @@ class GenerateConfig:
             raise ConfigError(f"copies must be a range within 1..16, got {self.copies}")
         if not 0 <= self.distractors[0] <= self.distractors[1] <= 8:
             raise ConfigError(f"distractors must be a range within 0..8, got {self.distractors}")
+        from binpick.sim.domain import load_domain
+
+        object.__setattr__(self, "_domain", load_domain(self.domain))  # a bad name or file: one line, now
+        if self.address not in (None, "local"):
+            from binpick.cluster import check_ray_address
+
+            check_ray_address(self.address)
         from binpick.sim.gripper import POLICIES
 
         unknown = [p for p in self.policies if p not in POLICIES]
@@ -82,11 +91,19 @@ class GenerateConfig:
 
     def comparable(self) -> dict[str, Any]:
         """What must match for a resume to add to the same data set (not scenes or workers)."""
+        from binpick.sim.domain import domain_dict
+
         data = asdict(self)
-        for key in ("out", "scenes", "workers"):
+        for key in ("out", "scenes", "workers", "address"):
             data.pop(key)
         data["copies"], data["distractors"] = list(self.copies), list(self.distractors)
+        data["domain_values"] = domain_dict(self.domain_config)  # so an edited domain file is noticed on resume
         return data
+
+    @property
+    def domain_config(self):
+        """The :class:`binpick.sim.domain.DomainConfig` that ``domain`` names (loaded once)."""
+        return self._domain
 
 
 _LIBRARIES: dict[str, ProductLibrary] = {}
@@ -157,8 +174,23 @@ def _write_png(path: Path, array: np.ndarray) -> None:
 
 
 # ---------------------------------------------------------------------- what each world holds
+def random_world_products(config: GenerateConfig, library: ProductLibrary, world: int) -> list:
+    """A randomised world's own products (target first, then distractors), made for it alone: a
+    domain with ``random_products`` sees thousands of distinct products over a data set."""
+    from binpick.sim.products import random_product
+
+    domain = config.domain_config
+    rng = np.random.default_rng([config.seed, world, 7])
+    seen = [p for p in library if p.category not in config.held_out_categories]
+    return [random_product(f"random/{world:06d}_{k}", rng, seen, domain.textures, domain.product_scale)
+            for k in range(1 + config.distractors[1])]
+
+
 def world_plan(config: GenerateConfig, library: ProductLibrary, world: int) -> tuple[str, list[str], str]:
     """The target product, distractor products and split of world ``world`` (deterministic)."""
+    if config.domain_config.random_products:
+        ids = [p.id for p in random_world_products(config, library, world)]
+        return ids[0], ids[1:], "val" if val_world(world, config.val_fraction) else "train"
     rng = np.random.default_rng([config.seed, world])
     candidates = target_products(config, library)
     target = candidates[rng.integers(len(candidates))]
@@ -182,25 +214,59 @@ def val_world(world: int, fraction: float) -> bool:
     return int((world + 1) * fraction + 0.5) > int(world * fraction + 0.5)
 
 
+def missing_scenes(config: GenerateConfig, world: int, out: Path) -> list[int]:
+    """Indices of the world's scenes that have no scene file yet (a scene exists once its JSON does)."""
+    first = world * config.scenes_per_world
+    return [i for i in range(first, min(first + config.scenes_per_world, config.scenes))
+            if not (out / "scenes" / f"{i:06d}.json").is_file()]
+
+
 def generate_world(config: GenerateConfig, world: int, out: Path) -> list[dict[str, Any]]:
-    """Make the missing scenes of one world; returns their shard records (for progress)."""
+    """Make and write the missing scenes of one world; returns their records (for progress)."""
+    records = []
+    for files, record in world_scenes(config, world, missing_scenes(config, world, out)):
+        write_scene(out, files, record)
+        records.append(record)
+    return records
+
+
+def write_scene(out: Path, files: dict[str, bytes], record: dict[str, Any]) -> None:
+    """A scene's images first, its JSON last and atomically: the scene now exists (resume relies on it)."""
+    from binpick.files import atomic_write_bytes
+
+    for name, data in files.items():
+        if name.startswith("photos/") and (out / name).is_file():
+            continue
+        atomic_write_bytes(out / name, data)
+    atomic_write_json(out / "scenes" / f"{record['index']:06d}.json", record, indent=None)
+
+
+def world_scenes(config: GenerateConfig, world: int, indices: list[int]):
+    """Yield ``(files, record)`` for scenes ``indices`` of one world: encoded images by relative path
+    and the scene's annotations. Writes nothing, so Ray tasks on other machines can run it."""
     from binpick.sim.bin_scene import BinWorld
     from binpick.sim.gripper import make_policies
     from binpick.sim.mjcf import CameraSpec
 
-    library = build_library(config)
-    first = world * config.scenes_per_world
-    indices = [i for i in range(first, min(first + config.scenes_per_world, config.scenes))
-               if not (out / "scenes" / f"{i:06d}.json").is_file()]
     if not indices:
-        return []
+        return
+    library = build_library(config)
     target, distractors, split = world_plan(config, library, world)
-    sim = BinWorld(library[target], [library[d] for d in distractors], max_copies=config.copies[1],
+    if config.domain_config.random_products:
+        own = {p.id: p for p in random_world_products(config, library, world)}
+        products = [own[target]] + [own[d] for d in distractors]
+    else:
+        products = [library[target]] + [library[d] for d in distractors]
+    sim = BinWorld(products[0], products[1:], max_copies=config.copies[1],
                    camera=CameraSpec(size=config.image_size), randomise_lighting=config.randomise,
-                   gripper=bool(config.policies), seed=config.seed * 1_000_003 + world)
+                   gripper=bool(config.policies), seed=config.seed * 1_000_003 + world, domain=config.domain_config)
     policies = make_policies(config.policies)
-    records = []
     try:
+        photo = {}
+        if config.domain_config.random_products:  # a world's own product has its own shop photo
+            from binpick.sim.photos import shop_photo
+
+            photo = {f"photos/{products[0].name}.png": _png_bytes(shop_photo(products[0], config.photo_size))}
         for index in indices:
             rng = np.random.default_rng([config.seed, world, index])
             copies = int(rng.integers(config.copies[0], config.copies[1] + 1))
@@ -208,18 +274,25 @@ def generate_world(config: GenerateConfig, world: int, out: Path) -> list[dict[s
             scene = sim.scene(copies, extra, seed=int(rng.integers(2**31)))
             record = scene_record(scene, index, split, config)
             label_pickability(sim, scene, record, policies, rng)
-            _write_png(out / "images" / f"{index:06d}.png", scene.rgb)
-            depth_mm = np.clip(scene.depth * 1000.0, 0, 65535).astype(np.uint16)
-            _write_png(out / "depth" / f"{index:06d}.png", depth_mm)
+            files = {**photo, f"images/{index:06d}.png": _png_bytes(scene.rgb),
+                     f"depth/{index:06d}.png": _png_bytes(np.clip(scene.depth * 1000.0, 0, 65535).astype(np.uint16))}
             query = next((a for a in record["annotations"] if a["is_query"]), None)
             if query is not None:
                 x, y, w, h = (int(round(v)) for v in query["bbox"])
-                _write_png(out / "queries" / f"{index:06d}.png", scene.rgb[y:y + h, x:x + w])
-            atomic_write_json(out / "scenes" / f"{index:06d}.json", record, indent=None)  # last: the scene now exists
-            records.append(record)
+                files[f"queries/{index:06d}.png"] = _png_bytes(scene.rgb[y:y + h, x:x + w])
+            yield files, record
     finally:
         sim.close()
-    return records
+
+
+def _png_bytes(array: np.ndarray) -> bytes:
+    import io
+
+    from PIL import Image
+
+    buffer = io.BytesIO()
+    Image.fromarray(array).save(buffer, format="PNG", compress_level=1)  # fast; PNG stays lossless
+    return buffer.getvalue()
 
 
 def scene_record(scene, index: int, split: str, config: GenerateConfig) -> dict[str, Any]:
@@ -228,7 +301,7 @@ def scene_record(scene, index: int, split: str, config: GenerateConfig) -> dict[
                     "position": list(i.position), "pickable": {}, "is_query": False} for i in scene.instances]
     return {"index": index, "file_name": f"images/{index:06d}.png", "depth_file": f"depth/{index:06d}.png",
             "width": config.image_size, "height": config.image_size, "split": split, "target": scene.target_id,
-            "seed": scene.seed, "annotations": annotations, "picked_by": None}
+            "seed": scene.seed, "annotations": annotations, "picked_by": None, "camera": scene.camera}
 
 
 def label_pickability(sim, scene, record: dict[str, Any], policies, rng: np.random.Generator) -> None:
@@ -284,7 +357,9 @@ class DataGeneration:
         config, out = self.config, self.run_dir
         worlds = range(-(-config.scenes // config.scenes_per_world))
         with callback.task("scenes", config.scenes, min(self.done, config.scenes)) as task:
-            if config.workers == 1:
+            if config.address is not None:
+                self._run_on_ray(worlds, task)
+            elif config.workers == 1:
                 for world in worlds:
                     task.update(advance=len(generate_world(config, world, out)))
             else:
@@ -296,6 +371,35 @@ class DataGeneration:
                         task.update(advance=len(records))
         photos = write_photos(config, self.library, out, callback)
         return finalise(out) | {"photos": photos}
+
+
+    def _run_on_ray(self, worlds: range, task) -> None:
+        """Worlds as Ray tasks (this machine's private cluster, or one at ``address``): each task
+        returns its scenes' files, which only this process writes, so a task lost with its machine
+        is retried by Ray and a killed run resumes exactly as with local processes."""
+        from binpick.cluster import start_ray
+
+        config = self.config
+        owns = start_ray(None if config.address == "local" else config.address, config.workers)
+        import ray
+
+        remote = ray.remote(num_cpus=1, max_retries=3)(_ray_world)
+        try:
+            pending = [remote.remote(config, world, indices) for world in worlds
+                       if (indices := missing_scenes(config, world, self.run_dir))]
+            while pending:
+                ready, pending = ray.wait(pending, num_returns=1)
+                for files, record in ray.get(ready[0]):
+                    write_scene(self.run_dir, files, record)
+                    task.update(advance=1)
+        finally:
+            if owns:
+                ray.shutdown()
+
+
+def _ray_world(config: GenerateConfig, world: int, indices: list[int]) -> list[tuple[dict[str, bytes], dict[str, Any]]]:
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    return list(world_scenes(config, world, indices))
 
 
 def generate(config: GenerateConfig, callback: RunCallback = SILENT) -> dict[str, Any]:
@@ -311,6 +415,8 @@ def _generate_world_job(arguments) -> list[dict[str, Any]]:
 def write_photos(config: GenerateConfig, library: ProductLibrary, out: Path, callback: RunCallback = SILENT) -> int:
     from binpick.sim.photos import shop_photo
 
+    if config.domain_config.random_products and not config.products:
+        return len(list((out / "photos").glob("*.png")))  # each world wrote its own product's photo
     missing = [p for p in library if not (out / "photos" / f"{p.name}.png").is_file()]
     with callback.task("shop photos", len(missing)) as task:
         for product in missing:
@@ -378,6 +484,13 @@ def load_records(out: Path) -> list[dict[str, Any]]:
 
 
 def to_coco(records: list[dict[str, Any]], library_products: list[dict[str, str]]) -> dict[str, Any]:
+    library_products = list(library_products)
+    listed = {p["id"] for p in library_products}
+    for record in records:  # a randomised world's own products are not in the library
+        for a in record["annotations"]:
+            if a["product"] not in listed:
+                listed.add(a["product"])
+                library_products.append({"id": a["product"], "category": a.get("category", "random")})
     category_ids = {p["id"]: i + 1 for i, p in enumerate(library_products)}
     coco = {"info": {"description": "binpick warehouse bins", "format": FORMAT},
             "categories": [{"id": category_ids[p["id"]], "name": p["id"], "supercategory": p["category"]} for p in library_products],
@@ -398,7 +511,8 @@ def to_coco(records: list[dict[str, Any]], library_products: list[dict[str, str]
         coco["images"].append({"id": image_id, "file_name": record["file_name"], "depth_file": record["depth_file"],
                                "width": record["width"], "height": record["height"], "split": record["split"],
                                "target_product": record["target"], "query_annotation_id": query_id,
-                               "picked_by": record["picked_by"], "seed": record["seed"]})
+                               "picked_by": record["picked_by"], "seed": record["seed"],
+                               **({"camera": record["camera"]} if record.get("camera") else {})})
     return coco
 
 

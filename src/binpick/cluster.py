@@ -1,0 +1,62 @@
+"""Ray cluster addresses, checked before Ray starts (used by distributed RL and by data generation).
+
+Locally ``ray.init()`` starts a private cluster on this machine, with every socket on 127.0.0.1;
+``HOST:PORT`` or ``ray://HOST:PORT`` joins one started with ``ray start --head``.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import socket
+
+# With this set to 0, Ray treats the machine as a single-node setup and uses 127.0.0.1 for every
+# address, instead of the machine's network address (its name says Windows/macOS; it works on Linux).
+LOCAL_ONLY_ENV = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
+_ADDRESS = re.compile(r"(ray://)?(?P<host>[A-Za-z0-9][A-Za-z0-9.\-]*|\[[0-9A-Fa-f:.]+\]):(?P<port>\d{1,5})")
+
+
+def check_ray_address(address: str | None) -> str | None:
+    """None (a private local cluster), ``auto``, or ``HOST:PORT`` / ``ray://HOST:PORT``; anything else
+    is one line before Ray starts (Ray itself would retry a bad address for a long time)."""
+    from binpick.errors import ConfigError
+
+    if address is None or address == "auto":
+        return address
+    match = _ADDRESS.fullmatch(address)
+    if match is None or not 1 <= int(match["port"]) <= 65535:
+        raise ConfigError(f"--address must be HOST:PORT of a Ray head (e.g. 10.0.0.5:6379, from `ray start --head`), "
+                          f"ray://HOST:PORT or auto; got {address!r}")
+    return address
+
+
+def probe_ray_address(address: str, timeout: float = 5.0) -> None:
+    """Fail in one line, within ``timeout``, when nothing listens at a cluster address."""
+    from binpick.errors import ConfigError
+
+    match = _ADDRESS.fullmatch(address)
+    if match is None:
+        return  # "auto": Ray finds the cluster itself
+    host = match["host"].strip("[]")
+    try:
+        socket.create_connection((host, int(match["port"])), timeout=timeout).close()
+    except OSError as error:
+        raise ConfigError(f"no Ray cluster answered at {address} within {timeout:.0f} s "
+                          f"({error.strerror or type(error).__name__}): start one with `ray start --head`") from None
+
+
+def start_ray(address: str | None, workers: int) -> bool:
+    """Connect to ``address`` (checked and probed first) or start a private local cluster of
+    ``workers`` CPUs on 127.0.0.1. Returns whether this call started Ray (and must shut it down)."""
+    if address is None:
+        os.environ.setdefault(LOCAL_ONLY_ENV, "0")
+    import ray
+
+    if address is not None:
+        probe_ray_address(check_ray_address(address))
+    if ray.is_initialized():
+        return False
+    options = {"address": address} if address else {"num_cpus": workers}
+    ray.init(include_dashboard=False, log_to_driver=False, logging_level="ERROR",
+             runtime_env={"env_vars": {"MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}}, **options)
+    return True
