@@ -1,9 +1,10 @@
 """Copy a trained detector into the package as half-precision safetensors weights (what `binpick detect
 predict`, `binpick pick` and the demo use when no --weights is given). The file also lists the
-products its training set asked it to find, so the pick pipeline can say whether an order is zero-shot.
+products its training set asked it to find, so the pick pipeline can say whether an order is zero-shot,
+and the scene domains it was trained on (``default``, ``random``, ...: pre-training and fine-tuning).
 
-    python scripts/ship_weights.py runs/rod/rod_warehouse/<time> rod_tiny_256
-    python scripts/ship_weights.py runs/rod/rod_warehouse_photo/<time> rod_photo_tiny_256
+    python scripts/ship_weights.py runs/rod16/finetune_rod/<time> rod_tiny_320
+    python scripts/ship_weights.py runs/rod16/finetune_rod_photo/<time> rod_photo_tiny_320
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ import sys
 from pathlib import Path
 
 from binpick.detection.data import trained_products
-from binpick.detection.train import load_detector, save_detector
+from binpick.detection.train import _read_detector_file, _weights_path, load_detector, save_detector
 
 ROOT = Path(__file__).resolve().parents[1]
 WEIGHTS = ROOT / "src" / "binpick" / "detection" / "weights"
@@ -25,9 +26,11 @@ def main() -> None:
     model = load_detector(run)
     train = Path(model.trained_config["data"]["train"])
     products = trained_products(train if train.is_absolute() else ROOT / train)
+    domains = _read_detector_file(_weights_path(run))[1].get("trained_domains") or ["default"]
     path = WEIGHTS / f"{name}.safetensors"
-    save_detector(model, path, {"config": model.trained_config, "source_run": str(run), "trained_products": products}, half=True)
-    print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB; trained on {len(products)} products)")
+    save_detector(model, path, {"config": model.trained_config, "source_run": str(run), "trained_products": products,
+                                "trained_domains": domains}, half=True)
+    print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB; trained on {len(products)} products, domains {', '.join(domains)})")
 
 
 if __name__ == "__main__":

@@ -34,6 +34,12 @@ SKIPPED = {
     "ray start --head --port=6379 --num-cpus=1": "Ray's own command, for a cluster of several machines",
     "ray start --address=A_HOST:6379 --num-cpus=8": "needs the machines B, C, ... of a cluster",
     "binpick rl distributed --workers 16 --address A_HOST:6379": "needs the cluster above (a local Ray run is tested)",
+    "binpick data generate --out runs/data/random_20k --scenes 20000 --domain random --policies '' --held-out can,mug,toy "
+    "--scenes-per-world 16 --address A_HOST:6379": "needs a cluster (tests/test_domain.py runs Ray scene workers locally)",
+    "python benchmarks/rod.py pretrain --runs runs/rod16": "a benchmark on the full data sets (hours on a CPU); "
+                                                           "the commands above run its pieces",
+    "python benchmarks/rod.py finetune --runs runs/rod16": "a benchmark, after the one above",
+    "python benchmarks/rod.py generalise --runs runs/rod16": "a benchmark, after the two above",
 }
 
 TINY_RL = {"total_timesteps": 150, "checkpoint_every": 75, "eval.every": 150, "eval.episodes": 1, "gp.warmup_episodes": 2,
@@ -41,6 +47,9 @@ TINY_RL = {"total_timesteps": 150, "checkpoint_every": 75, "eval.every": 150, "e
            "replay.capacity_episodes": 100, "sac.batch_size": 16, "sac.net_arch": "[8,8]"}
 # (regular expression, replacement) on each command: smaller numbers, then shorter training
 TINY: list[tuple[str, str]] = [
+    (r"--scenes 20000\b", "--scenes 32"),  # randomised: 16 worlds of 2 below, two of them val
+    (r"--scenes-per-world 16\b", "--scenes-per-world 2"),
+    (r"--scenes 120\b", "--scenes 4"),
     (r"--scenes 2000\b", "--scenes 24"),  # 3 worlds of 8: one each for val, test and train (split_rule=random)
     (r"--policies x,y", "--policies y"),  # the one the rod_* configs and `data show --policy y` read
     (r"--scenes 400\b", "--scenes 6 --scenes-per-world 1 --val-fraction 0.34"),

@@ -63,6 +63,11 @@ class Detector:
     def trained_products(self) -> list[str] | None:
         return self.network.trained_products
 
+    @property
+    def trained_domains(self) -> list[str]:
+        """Scene domains it was trained on (``default``, ``random``, ...), pre-training included."""
+        return self.network.trained_domains
+
     def __repr__(self) -> str:
         spec = self.network.spec
         return (f"Detector({spec.method} {spec.layout}, {spec.backbone} backbone, {self.network.image_size} px, "

@@ -60,6 +60,7 @@ class DetectorNetwork(nn.Module):
         self.spec, self.image_size, self.query_size = spec, image_size, query_size
         self.trained_config: dict = {}  # the run's config, when loaded from a checkpoint
         self.trained_products: list[str] | None = None  # products its training set asked it to find, when known
+        self.trained_domains: list[str] = ["default"]  # scene domains of its training data (binpick.sim.domain)
         self.backbone = build_backbone(spec.backbone)
         channels = BACKBONES[spec.backbone].channels
         modules = []

@@ -91,6 +91,7 @@ def load_detector(path: str | Path) -> DetectorNetwork:
                              f"({len(missing)} missing, {len(unexpected)} unexpected tensors)")
     model.trained_config = meta.get("config") or {}
     model.trained_products = meta.get("trained_products")
+    model.trained_domains = meta.get("trained_domains") or ["default"]  # before domains existed: the default scene
     model.eval()
     return model
 

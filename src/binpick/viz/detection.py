@@ -140,3 +140,29 @@ def plot_ap_by_scale(results: dict[str, dict[str, float | None]], path: Path, ti
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def plot_learning_curves(histories: dict[str, list[dict]], path: Path, title: str) -> None:
+    """Val AP50 against training images seen, one line per run (``{name: metrics['history']}``);
+    a fine-tuning run continues from the images its pre-training saw when named ``A -> B``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axis = plt.subplots(figsize=(6.4, 4.2))
+    for name, history in histories.items():
+        points = [(h.get("images_seen", h["step"]), h["ap50"]) for h in history if h.get("ap50") is not None]
+        if points:
+            xs, ys = zip(*points)
+            axis.plot(xs, ys, marker="o", markersize=3, label=name)
+    axis.set_xlabel("training images seen")
+    axis.set_ylabel("val AP50")
+    axis.set_ylim(0, 1)
+    axis.set_title(title)
+    axis.legend(fontsize=8)
+    axis.grid(alpha=0.3)
+    fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
