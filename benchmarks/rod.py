@@ -294,6 +294,27 @@ def _cell(value) -> str:
     return "—" if value is None else f"{value:.3f}"
 
 
+def pickability_and_scale_tables(result: dict) -> list[str]:
+    """Table 6.3 (policy-dependent pickability) and the Fig 5.12 scale ablation, as markdown lines."""
+    lines = []
+    if result.get("policy_pickability"):
+        pp = result["policy_pickability"]
+        lines += ["Policy-dependent pickability (Table 6.3; AP50 / mAP on val):", "",
+                  "| trained on | tested on Policy 1 | tested on Policy 2 |", "|---|---|---|",
+                  f"| Policy 1 (y) | {pp['train_p1_test_p1']:.3f} / {pp['train_p1_test_p1_map']:.3f} | {pp['train_p1_test_p2']:.3f} / {pp['train_p1_test_p2_map']:.3f} |",
+                  f"| Policy 2 (x) | {pp['train_p2_test_p1']:.3f} / {pp['train_p2_test_p1_map']:.3f} | {pp['train_p2_test_p2']:.3f} / {pp['train_p2_test_p2_map']:.3f} |",
+                  "", "Thesis AP50: trained on Policy 1, 0.5896 on Policy 1 and 0.4840 on Policy 2; trained on Policy 2, 0.3040 and 0.5014. The diagonal must beat the off-diagonal.", ""]
+    if result.get("scale_ablation"):
+        labels = list(next(iter(result["scale_ablation"].values()))["ap50_by_scale"])
+        lines += ["Multi-scale ablation (Fig 5.12; layout = module at strides 8, 16, 32; AP50 per scale bin, scale = sqrt(area) / image side):", "",
+                  "| layout | AP50 | " + " | ".join(labels) + " |", "|---|---|" + "---|" * len(labels)]
+        for layout, values in result["scale_ablation"].items():
+            lines.append(f"| {layout} | {values['ap50']:.3f} | " + " | ".join(_cell(values["ap50_by_scale"][k]) for k in labels) + " |")
+        counts = next(iter(result["scale_ablation"].values()))["gt_by_scale"]
+        lines += ["", "Boxes per bin: " + ", ".join(f"{k}: {v}" for k, v in counts.items()) + ".", "", "![AP by scale](img/rod/scales.png)", ""]
+    return lines
+
+
 def write_markdown(result: dict, path: Path) -> None:
     seen = result["seen"]
     lines = ["## Repeated object detection (thesis ch. 5, §6.3)", "",
@@ -319,21 +340,7 @@ def write_markdown(result: dict, path: Path) -> None:
                          f"{_cell(rows.get('rod_photo', {}).get('ap50'))} | "
                          f"{_cell(rows.get('template_matching', {}).get('ap50'))} | {_cell(rows.get('colour_histogram', {}).get('ap50'))} |")
         lines.append("")
-    if result["policy_pickability"]:
-        pp = result["policy_pickability"]
-        lines += ["Policy-dependent pickability (Table 6.3; AP50 / mAP on val):", "",
-                  "| trained on | tested on Policy 1 | tested on Policy 2 |", "|---|---|---|",
-                  f"| Policy 1 (y) | {pp['train_p1_test_p1']:.3f} / {pp['train_p1_test_p1_map']:.3f} | {pp['train_p1_test_p2']:.3f} / {pp['train_p1_test_p2_map']:.3f} |",
-                  f"| Policy 2 (x) | {pp['train_p2_test_p1']:.3f} / {pp['train_p2_test_p1_map']:.3f} | {pp['train_p2_test_p2']:.3f} / {pp['train_p2_test_p2_map']:.3f} |",
-                  "", "Thesis AP50: trained on Policy 1, 0.5896 on Policy 1 and 0.4840 on Policy 2; trained on Policy 2, 0.3040 and 0.5014. The diagonal must beat the off-diagonal.", ""]
-    if result["scale_ablation"]:
-        labels = list(next(iter(result["scale_ablation"].values()))["ap50_by_scale"])
-        lines += ["Multi-scale ablation (Fig 5.12; layout = module at strides 8, 16, 32; AP50 per scale bin, scale = sqrt(area) / image side):", "",
-                  "| layout | AP50 | " + " | ".join(labels) + " |", "|---|---|" + "---|" * len(labels)]
-        for layout, values in result["scale_ablation"].items():
-            lines.append(f"| {layout} | {values['ap50']:.3f} | " + " | ".join(_cell(values["ap50_by_scale"][k]) for k in labels) + " |")
-        counts = next(iter(result["scale_ablation"].values()))["gt_by_scale"]
-        lines += ["", "Boxes per bin: " + ", ".join(f"{k}: {v}" for k, v in counts.items()) + ".", "", "![AP by scale](img/rod/scales.png)", ""]
+    lines += pickability_and_scale_tables(result)
     lat = result["latency_ms"]
     lines += ["`predict` latency, one image and one query, batch 1, 2 CPU cores, fp32 (median of 20):", "",
               "| model | ms | target |", "|---|---|---|",
@@ -382,6 +389,11 @@ def report_generalisation(runs: Path) -> None:
     folders = {name: run_folder(runs, name) for name in
                [f"{stage}_{row}" for stage in ("pretrain", "finetune") for row in VARIANTS]}
     models = {name: load_detector(folder) for name, folder in folders.items() if finished(folder)}
+    # the weights shipped before issue 16 (bins-only training at 256 px), kept aside for the comparison
+    before = _common.ROOT / "runs" / "old_weights"
+    for name, file in (("before_rod", "rod_tiny_256"), ("before_rod_photo", "rod_photo_tiny_256")):
+        if (before / f"{file}.safetensors").is_file():
+            models[name] = load_detector(before / f"{file}.safetensors")
     print("models:", ", ".join(models), flush=True)
     previous = json.loads((_common.RESULTS / "rod.json").read_text()) if (_common.RESULTS / "rod.json").is_file() else {}
     size = SHIPPED_SIZE
@@ -392,8 +404,9 @@ def report_generalisation(runs: Path) -> None:
         for row, name in names.items():
             if name in classical:
                 metrics = evaluate_on(classical[name], data, split, targets, size, only)
-            elif name in models:
-                metrics = evaluate_on(detector_detect(models[name]), data, split, targets, size, only, models[name].spec.query)
+            elif name in models:  # each model at the size it was trained for
+                model = models[name]
+                metrics = evaluate_on(detector_detect(model), data, split, targets, model.image_size, only, model.spec.query)
             else:
                 continue
             out[row] = keep(metrics)
@@ -411,18 +424,22 @@ def report_generalisation(runs: Path) -> None:
                            "shifted_domain": "every other copy of the query's product, pre-trained models"},
                "kept_from_earlier_runs": ["policy_pickability", "scale_ablation"]}
     # (c) the shifted domain: other camera, tote and light, held-out products; the query is one copy's box
-    result["shifted_domain"] = rows({**pretrained, "rod_finetuned": "finetune_rod"}, SHIFTED, "test", "all")
+    result["shifted_domain"] = rows({**pretrained, "rod_finetuned": "finetune_rod", "rod_before": "before_rod"}, SHIFTED, "test", "all")
     # (b) held-out categories, default domain, per category (zero-shot)
     result["zero_shot"] = {category: rows(pretrained, DATA, "test", "all", [category]) for category in HELD_OUT}
-    result["zero_shot_pickable"] = {category: rows({"rod": "finetune_rod", "rod_photo": "finetune_rod_photo"}, DATA, "test", P1, [category])
+    result["zero_shot_pickable"] = {category: rows({"rod": "finetune_rod", "rod_photo": "finetune_rod_photo",
+                                                    "rod_before": "before_rod", "rod_photo_before": "before_rod_photo"}, DATA, "test", P1, [category])
                                     for category in HELD_OUT}
     # (a) seen products, default domain, pickable targets (the thesis's Table 5.4 setting)
     result["seen"] = rows({"rod": "finetune_rod", "rod_no_lh": "finetune_rod_no_lh", "tdid": "finetune_tdid",
                            "rod_photo": "finetune_rod_photo", "rod_pretrained_only": "pretrain_rod",
+                           "rod_before": "before_rod", "rod_photo_before": "before_rod_photo",
                            "histogram": "histogram", "template": "template"}, DATA, "val", P1)
     result["photo"] = {"seen": result["seen"].get("rod_photo"),
                        "held_out": keep(evaluate_on(detector_detect(models["finetune_rod_photo"]), DATA, "test", P1, size,
-                                                    query="photo")) if "finetune_rod_photo" in models else None}
+                                                    query="photo")) if "finetune_rod_photo" in models else None,
+                       "held_out_before": keep(evaluate_on(detector_detect(models["before_rod_photo"]), DATA, "test", P1, 256,
+                                                           query="photo")) if "before_rod_photo" in models else None}
     # latency of predict at the shipped size, batch 1, 2 threads (weights do not change the time)
     first = json.loads((DATA / "annotations_val.json").read_text())
     image = read_image(DATA / first["images"][0]["file_name"])
@@ -458,17 +475,19 @@ def write_generalisation_markdown(result: dict, path: Path) -> None:
              f"{result['image_size']} px, rows trained on the same batches (one loader), seed 0.", "",
              "Shifted domain (camera, tote and light outside the training ranges; held-out products can, mug, toy; "
              "the query is one copy's box; targets: every other copy). Target: ROD ≥ 0.60 and ≥ histogram + 0.25:", "",
-             "| ROD | ROD w/o L_h | TDID | ROD, small backbone | ROD after fine-tuning | template matching | colour histogram |",
-             "|---|---|---|---|---|---|---|",
+             "| ROD | ROD w/o L_h | TDID | ROD, small backbone | ROD after fine-tuning | ROD shipped before | template matching | colour histogram |",
+             "|---|---|---|---|---|---|---|---|",
              f"| {ap(shifted, 'rod')} | {ap(shifted, 'rod_no_lh')} | {ap(shifted, 'tdid')} | {ap(shifted, 'rod_small')} | "
-             f"{ap(shifted, 'rod_finetuned')} | {ap(shifted, 'template')} | {ap(shifted, 'histogram')} |", "",
+             f"{ap(shifted, 'rod_finetuned')} | {ap(shifted, 'rod_before')} | {ap(shifted, 'template')} | {ap(shifted, 'histogram')} |", "",
+             "(— : not trained in this session.)", "",
              "Zero-shot, default domain (categories never trained on; targets: every other copy). Target: ROD ≥ TDID + 0.05 on each:", "",
-             "| held-out category | ROD | ROD w/o L_h | TDID | template | histogram | ROD fine-tuned, pickable | photo query, pickable |",
+             "| held-out category | ROD | ROD w/o L_h | TDID | template | histogram | ROD fine-tuned, pickable (before) | photo query, pickable (before) |",
              "|---|---|---|---|---|---|---|---|"]
     for category, rows in result["zero_shot"].items():
         pickable = result["zero_shot_pickable"].get(category, {})
         lines.append(f"| {category} | {ap(rows, 'rod')} | {ap(rows, 'rod_no_lh')} | {ap(rows, 'tdid')} | {ap(rows, 'template')} | "
-                     f"{ap(rows, 'histogram')} | {ap(pickable, 'rod')} | {ap(pickable, 'rod_photo')} |")
+                     f"{ap(rows, 'histogram')} | {ap(pickable, 'rod')} ({ap(pickable, 'rod_before')}) | "
+                     f"{ap(pickable, 'rod_photo')} ({ap(pickable, 'rod_photo_before')}) |")
     seen = result["seen"]
     lines += ["", "Seen products, default domain, targets pickable by Policy 1 (thesis Table 5.4: ROD 0.9056; target ≥ 0.85):", "",
               "| model | AP50 | mAP | AP50 all instances | AP50 unpickable (lower is better) |", "|---|---|---|---|---|"]
@@ -481,7 +500,8 @@ def write_generalisation_markdown(result: dict, path: Path) -> None:
               f"`predict` latency, batch 1, 2 CPU cores, {result['image_size']} px: shipped model {lat['shipped']} ms (target ≤ 50); "
               f"tiny {lat.get('tiny_' + str(result['image_size']))} ms, small {lat.get('small_' + str(result['image_size']))} ms.", "",
               "![learning curves](img/rod/learning_curves.png)", "",
-              f"Peak RSS {result['peak_rss_mib']:.0f} MiB. The policy-pickability and scale-ablation figures in `rod.json` are kept "
-              "from the earlier bins-only models."]
+              "Kept from the earlier bins-only models (12 epochs on `bins_2000`, 256 px; not retrained here):", ""]
+    lines += pickability_and_scale_tables(result)
+    lines += [f"Peak RSS {result['peak_rss_mib']:.0f} MiB. All figures are CPU-only (2 cores)."]
     _common.write_section("rod", "\n".join(lines))
     print("\n".join(lines))

@@ -129,3 +129,35 @@ def test_batched_loss_assigns_what_the_per_image_rule_assigns():
                      for i, t, lv, a, r, c in zip(image, target, level, anchor, row, col))
     single = sorted((b, *pair) for b in range(3) for pair in assign(model, out["raw"], boxes[b], targets[b]))
     assert batched == single and len(single) == 4  # the duplicate target takes the next-best anchor
+
+
+def test_joint_training_feeds_every_detector_the_same_batches_and_keeps_the_best(tmp_path):
+    from synthetic_coco import make_coco
+
+    from binpick.detection.config import load_detect_config
+    from binpick.detection.train import DetectorTrainer, JointTraining
+
+    path = make_coco(tmp_path / "toy", images=8, size=64, seed=2)
+    config = tmp_path / "rod.yaml"
+    config.write_text(f"""name: a
+data: {{train: {path}, val: {path}, targets: all, image_size: 64, train_sizes: [64, 96], photometric: true}}
+train: {{epochs: 2, batch_size: 4, warmup_steps: 2, eval_every: 1, workers: 0, threads: 1, keep_best: true}}
+""")
+    seen: dict[str, list] = {"a": [], "b": []}
+    trainers = [DetectorTrainer.new(load_detect_config(config, {"name": name, **extra}), tmp_path / "runs")
+                for name, extra in (("a", {}), ("b", {"loss.heatmap": 0.0}))]
+    for trainer in trainers:
+        original = trainer.train_step
+
+        def recording(batch, sums, trainer=trainer, original=original):
+            seen[trainer.config.name].append(batch["image"].sum().item())
+            return original(batch, sums)
+        trainer.train_step = recording
+    metrics = JointTraining(trainers).run()
+    assert seen["a"] == seen["b"] and len(seen["a"]) == 4  # 2 epochs of 2 batches, the same for both
+    assert metrics["a"]["steps"] == metrics["b"]["steps"] == 4
+    for trainer in trainers:
+        assert (trainer.run_dir / "best.safetensors").is_file() and (trainer.run_dir / "model.safetensors").is_file()
+    other = load_detect_config(config, {"name": "c", "data.image_size": 96})
+    with pytest.raises(ConfigError, match="same data section"):
+        JointTraining([trainers[0], DetectorTrainer.new(other, tmp_path / "runs")])

@@ -78,10 +78,11 @@ def _fft_correlate(features: torch.Tensor, weight: torch.Tensor, sum_channels: b
     height, width = features.shape[2:]
     kh, kw = weight.shape[2:]
     size = (height + kh - 1, width + kw - 1)
-    spectrum = torch.fft.rfft2(features.float(), s=size) * torch.fft.rfft2(weight.float(), s=size).conj()
-    if sum_channels:
-        spectrum = spectrum.sum(1)
-    out = torch.fft.irfft2(spectrum, s=size)
+    with torch.autocast(features.device.type, enabled=False):  # transforms in float32 whatever the caller's autocast
+        spectrum = torch.fft.rfft2(features.float(), s=size) * torch.fft.rfft2(weight.float(), s=size).conj()
+        if sum_channels:
+            spectrum = spectrum.sum(1)
+        out = torch.fft.irfft2(spectrum, s=size)
     return torch.roll(out, shifts=(kh // 2, kw // 2), dims=(-2, -1))[..., :height, :width]
 
 

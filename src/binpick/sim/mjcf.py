@@ -105,15 +105,20 @@ def tote(half: tuple[float, float] = BIN_HALF, wall_height: float = BIN_WALL_HEI
     return "".join(geoms)
 
 
+def _preamble(size: int, headlight_diffuse: float) -> str:
+    """Compiler, integrator, off-screen buffer, headlight and joint damping of every bin world."""
+    return f"""<compiler angle="radian" autolimits="true"/>
+  <option timestep="0.002" integrator="implicitfast"/>
+  <visual><global offwidth="{size}" offheight="{size}"/><quality shadowsize="1024"/>
+    <headlight ambient="0.35 0.35 0.35" diffuse="{_fmt([headlight_diffuse] * 3)}"/></visual>
+  <default><joint damping="0.002"/></default>"""
+
+
 def scene_xml(assets: str, bodies: str, camera: CameraSpec, extra_worldbody: str = "", extra: str = "",
               light_dir=(0.0, 0.0, -1.0), light_diffuse=(0.7, 0.7, 0.7), table_rgba=(0.55, 0.45, 0.35, 1.0),
               bin_rgba=(0.2, 0.35, 0.6, 1.0)) -> str:
     return f"""<mujoco model="bin_scene">
-  <compiler angle="radian" autolimits="true"/>
-  <option timestep="0.002" integrator="implicitfast"/>
-  <visual><global offwidth="{camera.size}" offheight="{camera.size}"/><quality shadowsize="1024"/>
-    <headlight ambient="0.35 0.35 0.35" diffuse="0.3 0.3 0.3"/></visual>
-  <default><joint damping="0.002"/></default>
+  {_preamble(camera.size, 0.3)}
   <asset>
     <texture name="table_tex" type="2d" builtin="flat" rgb1="{_fmt(table_rgba[:3])}" width="16" height="16"/>
     <material name="table" texture="table_tex" rgba="1 1 1 1"/>
@@ -140,11 +145,7 @@ def random_world_xml(assets: str, bodies: str, size: int, half: tuple[float, flo
     ``cam_intrinsic`` holds focal length and principal point)."""
     light_xml = "".join(f'<light name="light{i}" pos="0 0 1.6" dir="0 0 -1" castshadow="true"/>' for i in range(lights))
     return f"""<mujoco model="bin_scene_random">
-  <compiler angle="radian" autolimits="true"/>
-  <option timestep="0.002" integrator="implicitfast"/>
-  <visual><global offwidth="{size}" offheight="{size}"/><quality shadowsize="1024"/>
-    <headlight ambient="0.35 0.35 0.35" diffuse="0.1 0.1 0.1"/></visual>
-  <default><joint damping="0.002"/></default>
+  {_preamble(size, 0.1)}
   <asset>
     <texture name="table_tex" type="2d" builtin="flat" rgb1="1 1 1" width="64" height="64"/>
     <material name="table" texture="table_tex" texrepeat="{_fmt((6, 6))}" rgba="1 1 1 1"/>

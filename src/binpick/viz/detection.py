@@ -108,6 +108,13 @@ def plot_pr_curves(curves: dict[str, dict], path: Path, title: str) -> None:
     axis.set_ylabel("precision")
     axis.set_xlim(0, 1)
     axis.set_ylim(0, 1.02)
+    _finish(fig, axis, path, title)
+
+
+def _finish(fig, axis, path: Path, title: str) -> None:
+    """Title, legend and grid; then the PNG, written where asked."""
+    import matplotlib.pyplot as plt
+
     axis.set_title(title)
     axis.legend(fontsize=8)
     axis.grid(alpha=0.3)
@@ -159,10 +166,4 @@ def plot_learning_curves(histories: dict[str, list[dict]], path: Path, title: st
     axis.set_xlabel("training images seen")
     axis.set_ylabel("val AP50")
     axis.set_ylim(0, 1)
-    axis.set_title(title)
-    axis.legend(fontsize=8)
-    axis.grid(alpha=0.3)
-    fig.tight_layout()
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _finish(fig, axis, path, title)
