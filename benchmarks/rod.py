@@ -352,9 +352,6 @@ def write_markdown(result: dict, path: Path) -> None:
     print("\n".join(lines))
 
 
-if __name__ == "__main__":
-    main()
-
 
 SHIFTED = _common.ROOT / "runs" / "data" / "shifted"  # binpick data generate --domain shifted (see its YAML)
 SHIPPED_SIZE = 320
@@ -383,8 +380,6 @@ def report_generalisation(runs: Path) -> None:
     from binpick.detection.data import read_image
     from binpick.detection.model import DetectorNetwork, ModelSpec
     from binpick.detection.train import detector_detect, load_detector
-    from binpick.viz.detection import plot_learning_curves
-
     torch.set_num_threads(2)
     folders = {name: run_folder(runs, name) for name in
                [f"{stage}_{row}" for stage in ("pretrain", "finetune") for row in VARIANTS]}
@@ -449,18 +444,32 @@ def report_generalisation(runs: Path) -> None:
     for backbone in ("tiny", "small"):
         result["latency_ms"][f"{backbone}_{size}"] = latency_ms(DetectorNetwork(ModelSpec(backbone=backbone), size).eval(), image, box)
     result["latency_target_ms"] = 50
-    histories = {}
-    for name, folder in folders.items():
-        if folder is not None and (folder / "metrics.json").is_file():
-            histories[name] = json.loads((folder / "metrics.json").read_text())["history"]
-    IMAGES.mkdir(parents=True, exist_ok=True)
-    plot_learning_curves(histories, IMAGES / "learning_curves.png",
-                         "val AP50 (pre-training: randomised val, all copies; fine-tuning: bins val, pickable)")
+    histories = plot_curves(folders)
     result["learning_curves"] = {name: [(h.get("images_seen"), h.get("ap50")) for h in history if h.get("ap50") is not None]
                                  for name, history in histories.items()}
     result["peak_rss_mib"] = _common.peak_rss_mib()
     path = _common.write_result("rod", result)
     write_generalisation_markdown(result, path)
+
+
+def plot_curves(folders: dict[str, Path | None]) -> dict[str, list[dict]]:
+    """docs/img/rod/learning_curves.png: val AP50 against training images seen; a fine-tuning run is
+    drawn after the images its pre-training saw. Returns each run's history."""
+    import json
+
+    from binpick.viz.detection import plot_learning_curves
+
+    histories = {name: json.loads((folder / "metrics.json").read_text())["history"]
+                 for name, folder in folders.items() if folder is not None and (folder / "metrics.json").is_file()}
+    drawn = {}
+    for name, history in histories.items():
+        before = histories.get(name.replace("finetune_", "pretrain_"), []) if name.startswith("finetune_") else []
+        offset = before[-1].get("images_seen", 0) if before else 0
+        label = f"{name} (pickable, bins val)" if name.startswith("finetune_") else f"{name} (all copies, randomised val)"
+        drawn[label] = [{**h, "images_seen": h.get("images_seen", 0) + offset} for h in history]
+    IMAGES.mkdir(parents=True, exist_ok=True)
+    plot_learning_curves(drawn, IMAGES / "learning_curves.png", "ROD: pre-training, then fine-tuning")
+    return histories
 
 
 def write_generalisation_markdown(result: dict, path: Path) -> None:
@@ -505,3 +514,7 @@ def write_generalisation_markdown(result: dict, path: Path) -> None:
     lines += [f"Peak RSS {result['peak_rss_mib']:.0f} MiB. All figures are CPU-only (2 cores)."]
     _common.write_section("rod", "\n".join(lines))
     print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()

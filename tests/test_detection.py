@@ -231,8 +231,13 @@ def test_shipped_weights_load_as_float32_and_predict(tmp_path):
 
     from binpick.detection.predict import predict
 
-    model = load_detector(str(files("binpick.detection") / "weights" / "rod_tiny_256.safetensors"))
-    assert model.spec == ModelSpec() and model.image_size == 256 and model.trained_config["data"]["targets"] == "pickable:y"
+    path = files("binpick.detection") / "weights" / "rod_tiny_320.safetensors"
+    assert path.stat().st_size < 15e6  # fp16, within the shipping budget
+    model = load_detector(str(path))
+    assert model.spec == ModelSpec() and model.image_size == 320 and model.trained_config["data"]["targets"] == "pickable:y"
+    assert model.trained_domains == ["default", "random"]  # pre-trained on randomised bins, fine-tuned on the default ones
+    photo = load_detector(str(files("binpick.detection") / "weights" / "rod_photo_tiny_320.safetensors"))
+    assert photo.spec.query == "photo" and photo.score_threshold == 0.1  # its own calibrated threshold for picking
     assert next(model.parameters()).dtype == torch.float32  # stored as float16, used as float32
     # a synthetic scene: copies of one coloured shape; the prediction is well formed and in the image
     image = np.asarray(Image.open(make_coco(tmp_path, images=1).parent / "images" / "0000.png"))

@@ -511,7 +511,7 @@ def _fmt(value) -> str:
 
 @detect_app.command("eval")
 def detect_eval(
-    run: Annotated[Path, typer.Argument(help="Run folder, model.safetensors or a shipped name (rod_tiny_256)")],
+    run: Annotated[Path, typer.Argument(help="Run folder, model.safetensors or a shipped name (rod_tiny_320)")],
     data: Annotated[Path, typer.Option(help="COCO annotations file (e.g. runs/data/bins_2000/annotations_test.json)")],
     targets: Annotated[str | None, typer.Option(help="all | pickable:<policy> (default: as trained)")] = None,
     out: Annotated[Path | None, typer.Option(help="Write the metrics JSON and a PR-curve PNG here (a folder)")] = None,
@@ -558,7 +558,7 @@ def detect_predict(
     for path, option in ((out, "--out"), (heatmap, "--heatmap")):
         if path is not None:
             _check_png_path(path, option)
-    detector = Detector.load(weights or ("rod_photo_tiny_256" if query_image is not None else "rod_tiny_256"))
+    detector = Detector.load(weights or ("rod_photo_tiny_320" if query_image is not None else "rod_tiny_320"))
     box = parse_box(query_box) if query_box is not None else None
     prediction = detector.predict(image, box, query_image, min_score=min_score)
     print(json.dumps(prediction.to_json()))
@@ -706,7 +706,7 @@ def pick(
 
         read_image(photo)  # unreadable -> one line now, not mid-run
         library.add(replace(library[products[0]], photo=photo))
-    model = Detector.load(weights or "rod_photo_tiny_256").network
+    model = Detector.load(weights or "rod_photo_tiny_320").network
     _fulfil(PickPipeline(model, library, axis=axis), products, orders, seed, run_dir)
 
 
@@ -754,7 +754,7 @@ def demo(
 
     check_range("orders", orders, 1, 1000, integer=True)
     run_dir = ensure_dir(out or Path("runs/demo") / time.strftime("%Y%m%d-%H%M%S"), "--out")
-    model = Detector.load("rod_photo_tiny_256").network
+    model = Detector.load("rod_photo_tiny_320").network
     _fulfil(PickPipeline(model, default_library()), list(DEMO_PRODUCTS), orders, seed, run_dir)
 
 

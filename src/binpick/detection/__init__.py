@@ -1,7 +1,7 @@
 """Repeated object detection (thesis ch. 5, §6.3): find every other instance of a known one.
 
     from binpick.detection import Detector
-    detector = Detector.load("rod_tiny_256")                              # or a run folder / .safetensors
+    detector = Detector.load("rod_tiny_320")                              # or a run folder / .safetensors
     detector.predict("scene.png", query_box=(120, 80, 40, 52)).save("overlay.png")
 """
 

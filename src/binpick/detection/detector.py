@@ -1,6 +1,6 @@
 """The detection job as one object, in the shape users know from Ultralytics::
 
-    detector = Detector.load("rod_tiny_256")                 # shipped weights, a .safetensors file or a run folder
+    detector = Detector.load("rod_tiny_320")                 # shipped weights, a .safetensors file or a run folder
     result = detector.predict("scene.png", query_box=(120, 80, 40, 52))
     result.save("overlay.png"); print(result.to_json())      # or result.plot() -> RGB array
     metrics = detector.val("runs/data/bins/annotations_val.json")
@@ -23,11 +23,11 @@ from binpick.detection.predict import Prediction, predict
 from binpick.errors import ConfigError
 from binpick.runs import SILENT, RunCallback
 
-SHIPPED = ("rod_tiny_256", "rod_photo_tiny_256")  # crop query (§5.3) and shop-photo query (§6.3)
+SHIPPED = ("rod_tiny_320", "rod_photo_tiny_320")  # crop query (§5.3) and shop-photo query (§6.3)
 
 
 def shipped_weights(name: str) -> Path:
-    """The path of weights that ship inside the package, by name (``rod_tiny_256``, ``rod_photo_tiny_256``)."""
+    """The path of weights that ship inside the package, by name (``rod_tiny_320``, ``rod_photo_tiny_320``)."""
     from importlib.resources import files
 
     stem = name.removesuffix(".safetensors")
@@ -44,7 +44,7 @@ class Detector:
         self.network, self.source, self.metrics = network, source, metrics
 
     @classmethod
-    def load(cls, weights: str | Path = "rod_tiny_256") -> Detector:
+    def load(cls, weights: str | Path = "rod_tiny_320") -> Detector:
         """A shipped name, a ``.safetensors`` (or older ``.pt``) file, or a run folder."""
         from binpick.detection.train import load_detector
 

@@ -61,6 +61,7 @@ class DetectorNetwork(nn.Module):
         self.trained_config: dict = {}  # the run's config, when loaded from a checkpoint
         self.trained_products: list[str] | None = None  # products its training set asked it to find, when known
         self.trained_domains: list[str] = ["default"]  # scene domains of its training data (binpick.sim.domain)
+        self.score_threshold: float | None = None  # the score above which its detections are kept, when chosen for it
         self.backbone = build_backbone(spec.backbone)
         channels = BACKBONES[spec.backbone].channels
         modules = []

@@ -92,6 +92,8 @@ def load_detector(path: str | Path) -> DetectorNetwork:
     model.trained_config = meta.get("config") or {}
     model.trained_products = meta.get("trained_products")
     model.trained_domains = meta.get("trained_domains") or ["default"]  # before domains existed: the default scene
+    threshold = meta.get("score_threshold")
+    model.score_threshold = float(threshold) if isinstance(threshold, (int, float)) and 0 <= threshold <= 1 else None
     model.eval()
     return model
 

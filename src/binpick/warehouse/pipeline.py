@@ -70,12 +70,15 @@ class PickPipeline:
     the detector: what the grasp alone achieves, to tell detection failures from grasp failures."""
 
     def __init__(self, detector: DetectorNetwork, library: ProductLibrary, axis: str = "y", copies: tuple[int, int] = (3, 6),
-                 distractors: tuple[int, int] = (2, 3), max_attempts: int = 3, score_threshold: float = 0.2,
+                 distractors: tuple[int, int] = (2, 3), max_attempts: int = 3, score_threshold: float | None = None,
                  camera: CameraSpec = CameraSpec(size=416), colour_check: float | None = 0.15, oracle: bool = False) -> None:
         if detector.spec.query != "photo":
             raise ConfigError("the pick pipeline conditions on shop photos: give a detector trained with query: photo")
         self.detector, self.library, self.axis = detector, library, axis
         self.copies, self.distractors, self.max_attempts = copies, distractors, max_attempts
+        # the weights' own threshold where they carry one (scores are calibrated per model), else 0.2
+        if score_threshold is None:
+            score_threshold = detector.score_threshold if detector.score_threshold is not None else 0.2
         self.score_threshold, self.camera, self.oracle = score_threshold, camera, oracle
         self.colour_check = colour_check
         self._photos: dict[str, tuple[np.ndarray, np.ndarray]] = {}
