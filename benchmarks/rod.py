@@ -149,12 +149,7 @@ P1, P2 = "pickable:y", "pickable:x"  # Policy 1: jaws along the robot's y-axis; 
 
 
 def evaluate(detect, split: str, targets: str, size: int, only: list[str] | None = None, query: str = "crop") -> dict:
-    from binpick.detection.data import RepeatedInstances, TaskDataset
-    from binpick.detection.evaluate import collect, summarise
-    from binpick.detection.train import loader
-
-    dataset = TaskDataset(RepeatedInstances(DATA / f"annotations_{split}.json", targets=targets, only_categories=only), size, query)
-    return summarise(collect(detect, loader(dataset, 8, False, 0, 0)), size)
+    return evaluate_on(detect, DATA, split, targets, size, only, query)
 
 
 def keep(metrics: dict) -> dict:

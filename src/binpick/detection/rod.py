@@ -49,12 +49,6 @@ def scaled_kernels(crop: torch.Tensor, scales: tuple[float, ...]) -> list[torch.
     return kernels
 
 
-def correlate(features: torch.Tensor, kernel: torch.Tensor) -> torch.Tensor:
-    """Mean cosine similarity of ``kernel`` (C, h, w) at every position of ``features`` (C, H, W),
-    both already normalised per position: (H, W)."""
-    return correlate_batch(features[None], [kernel])[0]
-
-
 def _framed(kernels: list[torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
     """Kernels of different sizes in one odd-sized frame (B, C, K_h, K_w), each placed where
     PyTorch's 'same' padding would centre it alone (so even sizes keep their alignment), zeros
@@ -87,7 +81,8 @@ def _fft_correlate(features: torch.Tensor, weight: torch.Tensor, sum_channels: b
 
 
 def correlate_batch(features: torch.Tensor, kernels: list[torch.Tensor]) -> torch.Tensor:
-    """:func:`correlate` for a batch (B, C, H, W) with one kernel per sample, in one call. (B, H, W)."""
+    """Mean cosine similarity of each sample's kernel (C, h, w) at every position of its features
+    (B, C, H, W), both already normalised per position, in one call: (B, H, W)."""
     weight, areas = _framed(kernels)
     return _fft_correlate(features, weight, sum_channels=True) / areas.float()[:, None, None]
 

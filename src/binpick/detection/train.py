@@ -25,7 +25,7 @@ from binpick.detection.losses import rod_loss
 from binpick.detection.model import ANCHORS_PER_LEVEL, DetectorNetwork, ModelSpec
 from binpick.detection.ops import box_iou
 from binpick.errors import ConfigError, InputFileError
-from binpick.files import atomic_write_json, require_fields
+from binpick.files import atomic_write_json, read_json, require_fields
 from binpick.runs import SILENT, RunCallback, Task, commit_checkpoint, latest_checkpoint, new_run_dir
 
 
@@ -108,14 +108,12 @@ def trained_domains(config: DetectConfig) -> list[str]:
         except InputFileError:
             pass
     manifest = Path(config.data.train).parent / "dataset.json"
-    name = "default"
     if manifest.is_file():
-        import json
-
         try:
-            content = json.loads(manifest.read_text())
-            name = ((content.get("config") or {}).get("domain_values") or {}).get("name", "default")
-        except (OSError, ValueError):
+            content = read_json(manifest, "data-set manifest")
+            name = (((content.get("config") or {}).get("domain_values") or {}).get("name", "default")
+                    if isinstance(content, dict) else "unknown")
+        except InputFileError:
             name = "unknown"
     else:
         name = "external"  # a COCO file that binpick did not generate

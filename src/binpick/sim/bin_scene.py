@@ -9,7 +9,7 @@ and creating a renderer cost more than a whole scene). Everything is determinist
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import mujoco
 import numpy as np
@@ -124,7 +124,8 @@ class BinWorld:
         self.half = (uniform(rng, domain.tote_half_x), uniform(rng, domain.tote_half_y))
         self.wall_height = uniform(rng, domain.wall_height)
         self.lights = integer(rng, domain.lights)
-        self.clutter = [random_primitive(f"clutter{i}", rng) for i in range(domain.clutter[1])]
+        self.clutter = [replace(random_primitive(f"clutter{i}", rng), pattern=(int(rng.integers(2**31)), domain.textures))
+                        for i in range(domain.clutter[1])]
         for i, item in enumerate(self.clutter):
             assets += product_assets(item, f"c{i}")
             bodies += product_body(item, f"clutter{i}", (PARK_X, -0.5 - 0.25 * i, 0.1), (1, 0, 0, 0), f"c{i}")
@@ -134,15 +135,14 @@ class BinWorld:
     def _fill_textures(self, products: dict[str, Product], prefixes: dict[str, str]) -> None:
         from binpick.sim.domain import fill_texture, pattern
 
-        rng = np.random.default_rng(int(self.model.nbody) * 7919 + int(self._seed))
+        rng = np.random.default_rng(self._seed)
         pool = self.domain.textures
         fill_texture(self.model, self.model.texture("table_tex").id, pattern(rng, pool))
         fill_texture(self.model, self.model.texture("tote_tex").id, pattern(rng, pool))
         named = [(prefixes[p.id], p) for p in products.values()] + [(f"c{i}", c) for i, c in enumerate(self.clutter)]
         for prefix, product in named:
-            seed = product.pattern[0] if product.pattern else int(rng.integers(2**31))
-            if product.pattern is not None or prefix.startswith("c"):
-                fill_texture(self.model, self.model.texture(f"{prefix}_tex").id, pattern(np.random.default_rng(seed), pool))
+            if product.pattern is not None:
+                fill_texture(self.model, self.model.texture(f"{prefix}_tex").id, pattern(np.random.default_rng(product.pattern[0]), pool))
         self._materials = {name: self.model.material(name).id for name in ("table", "bin")}
         self._product_materials = [self.model.material(f"{prefixes[p.id]}_mat").id for p in products.values()
                                    if p.pattern is not None or p.texture is not None or p.shape is not None]

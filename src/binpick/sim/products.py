@@ -155,16 +155,31 @@ def random_shapes(data: Path, count: int, rng: np.random.Generator) -> list[Prod
     for index in rng.permutation(1000):
         if len(products) == count:
             break
-        path = data / "random_urdfs" / f"{index:03d}" / f"{index:03d}.obj"
-        try:
-            extent = mesh_extent(path)
-        except ConfigError:  # a few files hold non-finite vertices
-            continue
-        if extent.min() / extent.max() < MIN_ASPECT:
-            continue
-        products.append(Product(f"pybullet/shape_{index:03d}", "random_shape", mesh=path,
-                                scale=float(rng.uniform(0.05, 0.09) / extent.max()), rgba=_random_colour(rng), mass=0.1))
+        found = _stubby_shape(data, int(index))
+        if found is not None:
+            path, extent = found
+            products.append(Product(f"pybullet/shape_{index:03d}", "random_shape", mesh=path,
+                                    scale=float(rng.uniform(0.05, 0.09) / extent.max()), rgba=_random_colour(rng), mass=0.1))
     return products
+
+
+def _stubby_shape(data: Path, index: int) -> tuple[Path, np.ndarray] | None:
+    """Mesh file and extent of random shape ``index``, or None when it is thin (MIN_ASPECT) or
+    unreadable (a few files hold non-finite vertices). Extents are cached per process."""
+    path = data / "random_urdfs" / f"{index:03d}" / f"{index:03d}.obj"
+    key = str(path)
+    if key not in _EXTENTS:
+        try:
+            _EXTENTS[key] = mesh_extent(path)
+        except ConfigError:
+            _EXTENTS[key] = None
+    extent = _EXTENTS[key]
+    if extent is None or extent.min() / extent.max() < MIN_ASPECT:
+        return None
+    return path, extent
+
+
+_EXTENTS: dict[str, np.ndarray | None] = {}
 
 
 def default_library(procedural: int = 18, shapes: int = 12, seed: int = 0) -> ProductLibrary:
@@ -313,31 +328,11 @@ def random_pool_shape(product_id: str, rng: np.random.Generator, scale: float = 
     if data is None:
         return None
     for _ in range(20):
-        index = int(rng.integers(1000))
-        path = data / "random_urdfs" / f"{index:03d}" / f"{index:03d}.obj"
-        try:
-            extent = _extent_cached(str(path))
-        except ConfigError:
-            continue
-        if extent.min() / extent.max() < MIN_ASPECT:
-            continue
-        return Product(product_id, "random_shape", mesh=path, scale=float(rng.uniform(0.05, 0.1) * scale / extent.max()), mass=0.1)
+        found = _stubby_shape(data, int(rng.integers(1000)))
+        if found is not None:
+            path, extent = found
+            return Product(product_id, "random_shape", mesh=path, scale=float(rng.uniform(0.05, 0.1) * scale / extent.max()), mass=0.1)
     return None
-
-
-_EXTENTS: dict[str, np.ndarray | ConfigError] = {}
-
-
-def _extent_cached(path: str) -> np.ndarray:
-    if path not in _EXTENTS:
-        try:
-            _EXTENTS[path] = mesh_extent(Path(path))
-        except ConfigError as error:
-            _EXTENTS[path] = error
-    value = _EXTENTS[path]
-    if isinstance(value, ConfigError):
-        raise value
-    return value
 
 
 def random_product(product_id: str, rng: np.random.Generator, seen: list[Product], pool: str,

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from binpick.errors import ConfigError, InputFileError
-from binpick.files import atomic_write, atomic_write_json, atomic_write_text, read_json_object, require_fields
+from binpick.files import atomic_write_json, atomic_write_text, read_json_object, require_fields
 from binpick.runs import SILENT, RunCallback
 from binpick.sim.products import ProductLibrary, default_library, load_products
 
@@ -167,10 +167,9 @@ def prepare_output(config: GenerateConfig, library: ProductLibrary) -> Path:
 
 
 def _write_png(path: Path, array: np.ndarray) -> None:
-    from PIL import Image
+    from binpick.files import atomic_write_bytes
 
-    # fast compression; PNG stays lossless
-    atomic_write(path, lambda handle: Image.fromarray(array).save(handle, format="PNG", compress_level=1))
+    atomic_write_bytes(path, _png_bytes(array))
 
 
 # ---------------------------------------------------------------------- what each world holds
