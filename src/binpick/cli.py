@@ -34,6 +34,9 @@ data_app = typer.Typer(help="Warehouse bin data sets with pickability from trial
 app.add_typer(data_app, name="data")
 detect_app = typer.Typer(help="Repeated object detection (thesis ch. 5, §6.3): ROD and TDID.", no_args_is_help=True)
 app.add_typer(detect_app, name="detect")
+grasp_app = typer.Typer(help="Grasps from depth (issue 17): train the grasp-quality model on simulated trials.",
+                        no_args_is_help=True)
+app.add_typer(grasp_app, name="grasp")
 products_app = typer.Typer(help="The products binpick can generate bins of and pick: built in, or your own (--products YAML).",
                            no_args_is_help=True)
 app.add_typer(products_app, name="products")
@@ -52,6 +55,7 @@ def seed_option(text: str):
 
 SetOption = Annotated[list[str] | None, typer.Option("--set", help="Env parameter KEY=VALUE (repeatable), e.g. --set goal_area=0.5")]
 POLICIES = ("random",)
+DEFAULT_POLICY = "analytic"  # the grasp policy of pick and demo: the best in results/grasp.json and results/pick.json
 
 
 def _print_version(value: bool) -> None:
@@ -406,6 +410,8 @@ def data_generate(
     scenes: Annotated[int, typer.Option(help="Number of bin scenes")] = 100,
     policies: Annotated[str, typer.Option(help="Grasp policies that label pickability, comma-separated (x,y); '' for none")] = "x,y",
     workers: Annotated[int, typer.Option(help="Parallel processes")] = 2,
+    grasp_trials: Annotated[int, typer.Option(help="Random grasp candidates from depth to execute per visible instance "
+                                                   "(grasp-quality training data); 0 for none")] = 0,
     products: Annotated[Path | None, typer.Option(help="YAML of your own products (meshes, textures)")] = None,
     only_products: Annotated[bool, typer.Option(help="Use only the products in --products")] = False,
     size: Annotated[int, typer.Option(help="Image size in pixels")] = 416,
@@ -429,6 +435,7 @@ def data_generate(
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {str(out)!r} is a file, not a data-set folder")
     flags = {"out": str(out), "scenes": scenes, "policies": [p for p in policies.split(",") if p], "workers": workers,
+             "grasp_trials": grasp_trials,
              "image_size": size, "copies": list(_pair(copies, "copies")), "distractors": list(_pair(distractors, "distractors")),
              "held_out_categories": [c for c in held_out.split(",") if c], "randomise": randomise, "domain": domain, "address": address,
              "targets": [t for t in targets.split(",") if t], "products": str(products) if products else None,
@@ -503,6 +510,26 @@ def detect_train(
         metrics = trainer.run(callback)
     final = metrics["final"]
     console.print(f"val AP50 {_fmt(final.get('ap50'))}, mAP {_fmt(final.get('map'))}; wrote {trainer.run_dir / 'model.safetensors'}")
+
+
+@grasp_app.command("train")
+def grasp_train(
+    config: Annotated[Path | None, typer.Argument(help="YAML config (see configs/grasp_quality.yaml)")] = None,
+    resume: Annotated[Path | None, typer.Option(help="Run folder to continue from its latest checkpoint")] = None,
+    runs: Annotated[Path, typer.Option(help="Where new run folders go")] = Path("runs"),
+    settings: ConfigSetOption = None,
+) -> None:
+    """Train the grasp-quality network on a data set with --grasp-trials: a checkpoint each epoch,
+    TensorBoard, the best val ROC AUC kept, model.safetensors in runs/<name>/<time>/."""
+    from binpick.config import load_config
+    from binpick.grasping.training import QualityTrainConfig, QualityTrainer
+
+    trainer = start_or_resume(QualityTrainer, config, resume, runs, lambda path, overrides: load_config(QualityTrainConfig, path, overrides),
+                              parse_settings(settings), where=lambda job: f" at epoch {job.epoch}")
+    with progress() as callback:
+        metrics = trainer.run(callback)
+    console.print(f"best val ROC AUC {_fmt(metrics['best_val_auc'])}; wrote {trainer.run_dir / 'model.safetensors'} "
+                  f"(use it with binpick pick --grasp learnt --grasp-weights)")
 
 
 def _fmt(value) -> str:
@@ -680,18 +707,21 @@ def pick(
     photo: Annotated[Path | None, typer.Option(help="Your own shop photo of the product (default: rendered)")] = None,
     orders: Annotated[int, typer.Option(help="Orders to fulfil (one new bin each)")] = 5,
     weights: Annotated[Path | None, typer.Option(help="Photo-conditioned detector: run folder or .safetensors (default: shipped)")] = None,
-    axis: Annotated[str, typer.Option(help="Grasp policy: jaws along the robot's x or y axis")] = "y",
+    grasp: Annotated[str, typer.Option(help="Grasp policy: learnt (grasp-quality model), analytic (across the "
+                                            "principal minor axis) or fixed (jaws along y, as before)")] = DEFAULT_POLICY,
+    grasp_weights: Annotated[Path | None, typer.Option(help="Grasp-quality weights for --grasp learnt (default: shipped)")] = None,
     out: Annotated[Path | None, typer.Option(help="Folder for per-order GIFs, overlays, results.json and report.html "
                                                   "(default: runs/pick/<time>)")] = None,
     seed: Annotated[int, seed_option("Seed of the first order's bin")] = 0,
 ) -> None:
-    """Fulfil orders end to end: shop photo -> ROD -> grasp point from depth -> grasp -> order tote."""
-    from binpick.config import check_choice, check_range
+    """Fulfil orders end to end: shop photo -> ROD -> grasp chosen from depth -> grasp -> order tote."""
+    from binpick.config import check_range
     from binpick.detection import Detector
+    from binpick.grasping import GraspPlanner
     from binpick.warehouse.pipeline import PickPipeline
 
     check_range("orders", orders, 1, 100_000, integer=True)
-    check_choice("axis", axis, ("x", "y"))
+    planner = GraspPlanner.load(grasp, grasp_weights)  # a bad policy or weights file: one line, before any work
     run_dir = ensure_dir(out or Path("runs/pick") / time.strftime("%Y%m%d-%H%M%S"), "--out")
     library = product_library(products_file)
     products = [pid for name in product.split(",") if name.strip() for pid in library.resolve(name.strip())]
@@ -707,7 +737,7 @@ def pick(
         read_image(photo)  # unreadable -> one line now, not mid-run
         library.add(replace(library[products[0]], photo=photo))
     model = Detector.load(weights or "rod_photo_tiny_320").network
-    _fulfil(PickPipeline(model, library, axis=axis), products, orders, seed, run_dir)
+    _fulfil(PickPipeline(model, library, grasp=planner), products, orders, seed, run_dir)
 
 
 def _fulfil(pipeline, products: list[str], orders: int, seed: int, run_dir: Path) -> dict:
@@ -749,13 +779,14 @@ def demo(
     its training and zero-shot ones, and write an HTML report with each order's detections and GIF."""
     from binpick.config import check_range
     from binpick.detection import Detector
+    from binpick.grasping import GraspPlanner
     from binpick.sim import default_library
     from binpick.warehouse.pipeline import PickPipeline
 
     check_range("orders", orders, 1, 1000, integer=True)
     run_dir = ensure_dir(out or Path("runs/demo") / time.strftime("%Y%m%d-%H%M%S"), "--out")
     model = Detector.load("rod_photo_tiny_320").network
-    _fulfil(PickPipeline(model, default_library()), list(DEMO_PRODUCTS), orders, seed, run_dir)
+    _fulfil(PickPipeline(model, default_library(), grasp=GraspPlanner.load(DEFAULT_POLICY)), list(DEMO_PRODUCTS), orders, seed, run_dir)
 
 
 def _check_png_path(path: Path, option: str = "--out") -> Path:

@@ -12,6 +12,8 @@ learnt APRiL policy driving the mocap target, can label data the same way.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Protocol
 
 import mujoco
@@ -23,6 +25,7 @@ PARK = (-3.0, 0.0, 0.5)  # the gripper waits out of the camera's view
 OPENING = 0.11  # jaw opening when open (m)
 LIFT_SUCCESS = 0.10  # the object must rise this much ...
 HOLD_SECONDS = 1.0  # ... and stay held this long
+CARRY_TRIAL = (0.0, 0.2, 0.5)  # a grasp trial's carry: dx, dy (m) in seconds, the pick pipeline's 0.4 m/s
 TRIAL_TIMESTEP = 0.004  # trials step at 4 ms (scenes settle at 2 ms): same pick rates, half the cost
 
 GRIPPER_BODY = f"""
@@ -83,6 +86,17 @@ class Gripper:
             mujoco.mj_step(self.model, data)
 
 
+@contextmanager
+def trial_timestep(model: mujoco.MjModel) -> Iterator[None]:
+    """Trials step at TRIAL_TIMESTEP; the scene's own (settling) timestep comes back afterwards."""
+    settle_timestep = model.opt.timestep
+    model.opt.timestep = TRIAL_TIMESTEP
+    try:
+        yield
+    finally:
+        model.opt.timestep = settle_timestep
+
+
 class TopDownGrasp:
     """Scripted top-down grasp with the jaws closing along the robot's ``axis`` ("x" or "y")."""
 
@@ -92,36 +106,44 @@ class TopDownGrasp:
         self.axis, self.name = axis, axis
 
     def attempt(self, world, slot: int) -> bool:
-        settle_timestep = world.model.opt.timestep
-        world.model.opt.timestep = TRIAL_TIMESTEP
-        try:
+        with trial_timestep(world.model):
             return self._attempt(world, slot)
-        finally:
-            world.model.opt.timestep = settle_timestep
 
     def _attempt(self, world, slot: int) -> bool:
-        model, data, gripper = world.model, world.data, world.gripper
-        body = world.body_ids[slot]
         centre, top = world.instance_centre_and_top(slot)
-        start_height = data.xpos[body][2]
-        yaw = 0.0 if self.axis == "x" else np.pi / 2
-        above = np.array([centre[0], centre[1], top + 0.12])
-        gripper.teleport(data, above, yaw)
-        data.ctrl[gripper.fingers] = 0.0
-        mujoco.mj_forward(model, data)
-        # fingertips a little below the centre (but above the floor), so the jaws close across it;
-        # the gripper's origin is the fingers' centre, 4 cm above the tips
+        # fingertips a little below the centre (but above the floor), so the jaws close across it
         tips = max(FLOOR_TOP + 0.006, min(centre[2] - 0.01, top - 0.02))
-        grasp = [centre[0], centre[1], tips + 0.04]
-        gripper.move(data, grasp, 0.3, close=0.0)
-        gripper.move(data, grasp, 0.3, close=OPENING / 2)
-        lifted_to = [centre[0], centre[1], tips + 0.04 + 0.15]
-        gripper.move(data, lifted_to, 0.5, close=OPENING / 2)
-        if not data.xpos[body][2] - start_height >= LIFT_SUCCESS / 2:
-            return False  # not even half-way up: no need to simulate the hold
-        gripper.move(data, lifted_to, HOLD_SECONDS, close=OPENING / 2)
-        lifted = data.xpos[body][2] - start_height
-        return bool(np.isfinite(lifted) and lifted >= LIFT_SUCCESS)
+        yaw = 0.0 if self.axis == "x" else np.pi / 2
+        return lift_test(world, slot, (centre[0], centre[1], tips), yaw, top)
+
+
+def lift_test(world, slot: int, tips, yaw: float, top: float | None = None, carry: bool = False) -> bool:
+    """A top-down grasp from the world's current state: fingertips' midpoint to ``tips`` (world xyz),
+    jaws closing along ``yaw`` (radians about z), close, lift 15 cm, hold; True if instance ``slot``
+    rose by LIFT_SUCCESS and stayed. With ``carry``, it must also stay through a sideways carry at
+    the pick pipeline's speed (grasps that lift but slip on the way to the order tote fail). Call it
+    inside ``with trial_timestep(world.model)``."""
+    model, data, gripper = world.model, world.data, world.gripper
+    body = world.body_ids[slot]
+    start_height = data.xpos[body][2]
+    x, y, z = (float(v) for v in tips)
+    above = np.array([x, y, (top if top is not None else z + 0.04) + 0.12])
+    gripper.teleport(data, above, yaw)
+    data.ctrl[gripper.fingers] = 0.0
+    mujoco.mj_forward(model, data)
+    grasp = [x, y, z + 0.04]  # the gripper's origin is the fingers' centre, 4 cm above the tips
+    gripper.move(data, grasp, 0.3, close=0.0)
+    gripper.move(data, grasp, 0.3, close=OPENING / 2)
+    lifted_to = [x, y, z + 0.04 + 0.15]
+    gripper.move(data, lifted_to, 0.5, close=OPENING / 2)
+    if not data.xpos[body][2] - start_height >= LIFT_SUCCESS / 2:
+        return False  # not even half-way up: no need to simulate the hold
+    gripper.move(data, lifted_to, HOLD_SECONDS, close=OPENING / 2)
+    if carry:
+        gripper.move(data, [x + CARRY_TRIAL[0], y + CARRY_TRIAL[1], lifted_to[2]], CARRY_TRIAL[2], close=OPENING / 2)
+        gripper.move(data, data.mocap_pos[gripper.mocap].copy(), 0.3, close=OPENING / 2)
+    lifted = data.xpos[body][2] - start_height
+    return bool(np.isfinite(lifted) and lifted >= LIFT_SUCCESS)
 
 
 POLICIES = {"x": lambda: TopDownGrasp("x"), "y": lambda: TopDownGrasp("y")}

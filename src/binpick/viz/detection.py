@@ -55,6 +55,31 @@ def overlay(image: np.ndarray, boxes: np.ndarray, scores: np.ndarray, query_box:
     return np.asarray(picture)
 
 
+GREEN, RED = (40, 200, 60), (230, 40, 40)
+
+
+def draw_jaws(image: np.ndarray, jaws: list[tuple[np.ndarray, np.ndarray, bool, str]]) -> np.ndarray:
+    """Grasps drawn as jaw lines: for each ``(finger_a, finger_b, succeeded, label)`` (pixels (u, v) of
+    the open fingers), a line between the fingers with a bar for each finger, green where the grasp
+    placed the product and red where it did not, and its label (the attempt's number) beside it."""
+    from PIL import Image, ImageDraw
+
+    picture = Image.fromarray(image)
+    draw = ImageDraw.Draw(picture)
+    width = max(2, image.shape[1] // 200)
+    font = _font(max(11, image.shape[1] // 32))
+    for a, b, succeeded, label in jaws:
+        a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+        colour = GREEN if succeeded else RED
+        across = b - a
+        bar = np.array([-across[1], across[0]]) / max(np.linalg.norm(across), 1e-6) * max(4.0, 0.12 * np.linalg.norm(across))
+        draw.line([tuple(a), tuple(b)], fill=colour, width=width)
+        for finger in (a, b):
+            draw.line([tuple(finger - bar), tuple(finger + bar)], fill=colour, width=2 * width)
+        _label(draw, tuple(b + bar + 2), label, colour, font)
+    return np.asarray(picture)
+
+
 def heatmap_figure(heatmaps: list[np.ndarray], image: np.ndarray | None = None) -> np.ndarray:
     """The ROD modules' max heatmaps (Eq 5.12; Fig 6.11's bottom row) as one RGB picture: the scene,
     then one panel per pyramid level with its title and a shared colour bar of the correlation."""

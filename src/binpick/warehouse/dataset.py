@@ -42,6 +42,7 @@ class GenerateConfig:
     out: str
     scenes: int = 100
     policies: list[str] = field(default_factory=lambda: ["x", "y"])  # empty: no labels
+    grasp_trials: int = 0  # per visible instance: random grasp candidates from depth, executed (grasp-quality data)
     workers: int = 2
     image_size: int = 416
     copies: tuple[int, int] = (2, 8)  # K instances of the target product
@@ -64,6 +65,7 @@ class GenerateConfig:
 
         check_range("scenes", self.scenes, 1, 10_000_000, integer=True)
         check_range("workers", self.workers, 1, 256, integer=True)
+        check_range("grasp_trials", self.grasp_trials, 0, 100, integer=True)
         check_range("image_size", self.image_size, 32, 2048, integer=True)
         check_range("scenes_per_world", self.scenes_per_world, 1, 1000, integer=True)
         check_range("val_fraction", self.val_fraction, 0.0, 1.0)
@@ -258,7 +260,7 @@ def world_scenes(config: GenerateConfig, world: int, indices: list[int]):
         products = [library[target]] + [library[d] for d in distractors]
     sim = BinWorld(products[0], products[1:], max_copies=config.copies[1],
                    camera=CameraSpec(size=config.image_size), randomise_lighting=config.randomise,
-                   gripper=bool(config.policies), seed=config.seed * 1_000_003 + world, domain=config.domain_config)
+                   gripper=bool(config.policies) or config.grasp_trials > 0, seed=config.seed * 1_000_003 + world, domain=config.domain_config)
     policies = make_policies(config.policies)
     try:
         photo = {}
@@ -273,6 +275,8 @@ def world_scenes(config: GenerateConfig, world: int, indices: list[int]):
             scene = sim.scene(copies, extra, seed=int(rng.integers(2**31)))
             record = scene_record(scene, index, split, config)
             label_pickability(sim, scene, record, policies, rng)
+            if config.grasp_trials:
+                record_grasp_trials(sim, scene, record, config.grasp_trials, rng)
             files = {**photo, f"images/{index:06d}.png": _png_bytes(scene.rgb),
                      f"depth/{index:06d}.png": _png_bytes(np.clip(scene.depth * 1000.0, 0, 65535).astype(np.uint16))}
             query = next((a for a in record["annotations"] if a["is_query"]), None)
@@ -319,6 +323,41 @@ def label_pickability(sim, scene, record: dict[str, Any], policies, rng: np.rand
     query = picked or order[0]
     query["is_query"] = True
     record["picked_by"] = first_policy if picked is not None else None
+
+
+TRIAL_OFFSET = 0.012  # random shifts of the jaws' centre (m) beside the even-squeeze positions
+TRIAL_VISIBLE = 0.3  # instances less visible than this get no trials (depth shows too little of them)
+
+
+def record_grasp_trials(sim, scene, record: dict[str, Any], trials: int, rng: np.random.Generator) -> None:
+    """Grasp-quality data (Dex-Net 2.0's recipe, on binpick's bins): per visible instance, ``trials``
+    candidates from depth alone (:func:`binpick.grasping.grasp_candidates`: all yaws, the even-squeeze
+    centre and random shifts), three in four drawn among the feasible ones, each executed from the
+    saved scene state; the outcome is whether that instance rose and stayed in the jaws through a
+    carry at the pick pipeline's speed."""
+    from binpick.grasping import JawGripper, PinholeCamera, grasp_candidates
+    from binpick.sim.gripper import lift_test, trial_timestep
+
+    camera = PinholeCamera.from_record(scene.camera)
+    points = camera.points(scene.depth)
+    results = []
+    for annotation in record["annotations"]:
+        if annotation["visible_fraction"] < TRIAL_VISIBLE:
+            continue
+        offsets = rng.uniform(-TRIAL_OFFSET, TRIAL_OFFSET, size=(2, 2))
+        _, candidates = grasp_candidates(points, camera, annotation["bbox"], JawGripper(), offsets=offsets)
+        if not candidates:
+            continue
+        feasible = [c for c in candidates if c.rejected is None]
+        for _ in range(trials):
+            pool = feasible if feasible and rng.random() < 0.75 else candidates
+            candidate = pool[int(rng.integers(len(pool)))]
+            sim.restore(scene.state)
+            with trial_timestep(sim.model):
+                success = lift_test(sim, annotation["slot"], candidate.position, candidate.yaw, candidate.top, carry=True)
+            results.append({"slot": annotation["slot"], "product": annotation["product"], **candidate.to_json(),
+                            "top": round(candidate.top, 4), "support": round(candidate.support, 4), "success": success})
+    record["grasp_trials"] = results
 
 
 # ---------------------------------------------------------------------- the whole run

@@ -75,6 +75,7 @@ class Reason(StrEnum):
     PLACED = "placed"
     NO_DETECTION = "no detection"
     COLOUR_MISMATCH = "colour mismatch"  # every detection failed the colour check
+    NO_GRASP = "no feasible grasp"  # every grasp candidate was too wide or blocked
     WRONG_PRODUCT = "wrong product"
     MISSED = "missed"  # nothing came up with the gripper
     SLIPPED = "slipped"  # something came up and fell back
@@ -88,12 +89,17 @@ class PickOutcome:
     reason: Reason  # PLACED, MISSED, SLIPPED or DROPPED
 
 
-def execute_pick(world, point: np.ndarray, axis: str, on_frame: Callable[[], None] | None = None,
-                 frame_every: float = 0.1, depth_below_top: float = 0.03) -> PickOutcome:
-    """Top-down grasp at ``point`` (the product's top; jaws along the robot's ``axis``), lift, carry to
-    the order tote, release, and report what happened. The fingertips go a centimetre below the
-    product's middle, ``depth_below_top`` under its top, as the labelling grasp does, so the jaws
-    close across its widest part."""
+def fixed_tips(point: np.ndarray, depth_below_top: float) -> np.ndarray:
+    """The fixed policy's fingertips under the grasp point (the product's top): a centimetre below
+    the product's middle, ``depth_below_top`` under its top, at least 2 cm down, clear of the floor."""
+    tips = max(FLOOR_TOP + 0.006, min(point[2] - depth_below_top - 0.01, point[2] - 0.02))
+    return np.array([point[0], point[1], tips])
+
+
+def execute_pick(world, tips: np.ndarray, yaw: float, on_frame: Callable[[], None] | None = None,
+                 frame_every: float = 0.1) -> PickOutcome:
+    """Top-down grasp with the fingertips' midpoint at ``tips`` (world xyz) and the jaws closing along
+    ``yaw`` (radians about z), lift, carry to the order tote, release, and report what happened."""
     model, data, gripper = world.model, world.data, world.gripper
     settle_timestep = model.opt.timestep
     model.opt.timestep = TRIAL_TIMESTEP
@@ -111,9 +117,8 @@ def execute_pick(world, point: np.ndarray, axis: str, on_frame: Callable[[], Non
 
     try:
         heights = np.array([data.xpos[b][2] for b in world.body_ids])
-        yaw = 0.0 if axis == "x" else np.pi / 2
-        tips = max(FLOOR_TOP + 0.006, min(point[2] - depth_below_top - 0.01, point[2] - 0.02))
-        grasp = np.array([point[0], point[1], tips + 0.04])
+        point = np.asarray(tips, dtype=float)
+        grasp = np.array([point[0], point[1], point[2] + 0.04])
         gripper.teleport(data, grasp + [0, 0, 0.15], yaw)
         mujoco.mj_forward(model, data)
         move(grasp, 0.4, 0.0)

@@ -1,7 +1,9 @@
 """The warehouse pick pipeline (thesis ch. 6, Fig 1.1): an order's shop photo -> ROD with external
 conditioning -> ranked detections of pickable instances -> a colour check against the photo -> the
 best one's 3D grasp point from depth -> a top-down grasp -> carried to the order tote -> verified.
-After a failed attempt the next detection is tried, up to ``max_attempts``.
+Each detection gets a grasp from the grasp planner (:mod:`binpick.grasping`, depth only); detections
+without a feasible one are skipped. After a failed attempt the next detection is tried, up to
+``max_attempts`` grasps.
 
 Each order is a new bin: K copies of the ordered product and some other products, settled from a
 seed. What happened is reported per order, with a reason when it failed.
@@ -26,7 +28,8 @@ from binpick.sim.bin_scene import BinWorld, Scene
 from binpick.sim.mjcf import CameraSpec
 from binpick.sim.photos import shop_photo
 from binpick.sim.products import ProductLibrary
-from binpick.warehouse.grasping import Reason, execute_pick, grasp_point, half_height, order_tote_xml
+from binpick.grasping import GraspChoice, GraspPlanner, GraspPolicyName, PinholeCamera
+from binpick.warehouse.grasping import Reason, execute_pick, fixed_tips, grasp_point, half_height, order_tote_xml
 from binpick.warehouse.verify import colour_histogram, colour_similarity, photo_mask
 
 GIF_SIZE = 240
@@ -37,9 +40,13 @@ class Attempt:
     box: list[float]
     score: float
     colour_similarity: float | None
-    grasp_point: list[float]
+    grasp_point: list[float]  # the fingertips' midpoint, world xyz
     outcome: Reason
     lifted_product: str | None
+    yaw: float = 0.0  # the jaws' closing direction, radians about z
+    width: float | None = None  # the instance's width across the jaws (m)
+    quality: float | None = None  # the grasp policy's score of the chosen candidate
+    rejected: dict[str, int] = field(default_factory=dict)  # other candidates: reason -> count
 
 
 @dataclass
@@ -69,12 +76,14 @@ class PickPipeline:
     ``oracle=True`` takes the ordered product's boxes from the simulator (most visible first) instead of
     the detector: what the grasp alone achieves, to tell detection failures from grasp failures."""
 
-    def __init__(self, detector: DetectorNetwork, library: ProductLibrary, axis: str = "y", copies: tuple[int, int] = (3, 6),
-                 distractors: tuple[int, int] = (2, 3), max_attempts: int = 3, score_threshold: float | None = None,
-                 camera: CameraSpec = CameraSpec(size=416), colour_check: float | None = 0.15, oracle: bool = False) -> None:
+    def __init__(self, detector: DetectorNetwork, library: ProductLibrary, grasp: GraspPlanner | str = "analytic",
+                 copies: tuple[int, int] = (3, 6), distractors: tuple[int, int] = (2, 3), max_attempts: int = 3,
+                 score_threshold: float | None = None, camera: CameraSpec = CameraSpec(size=416),
+                 colour_check: float | None = 0.15, oracle: bool = False) -> None:
         if detector.spec.query != "photo":
             raise ConfigError("the pick pipeline conditions on shop photos: give a detector trained with query: photo")
-        self.detector, self.library, self.axis = detector, library, axis
+        self.detector, self.library = detector, library
+        self.grasp = grasp if isinstance(grasp, GraspPlanner) else GraspPlanner.load(grasp)
         self.copies, self.distractors, self.max_attempts = copies, distractors, max_attempts
         # the weights' own threshold where they carry one (scores are calibrated per model), else 0.2
         if score_threshold is None:
@@ -133,26 +142,40 @@ class PickPipeline:
             candidates = [c for c in candidates if c[2] is None or c[2] >= self.colour_check]  # None: not checked
             if len(boxes) and not candidates:
                 result.reason = Reason.COLOUR_MISMATCH
-            for box, score, similarity in candidates[:self.max_attempts]:
-                point = grasp_point(box, scene.depth, self.camera)
-                outcome = execute_pick(world, point, self.axis, on_frame=frame,
-                                       depth_below_top=half_height(box, point, self.camera))
+            points = self.pinhole(scene).points(scene.depth)
+            for box, score, similarity in candidates:  # detections without a feasible grasp cost no attempt
+                if sum(a.outcome is not Reason.NO_GRASP for a in result.attempts) >= self.max_attempts:
+                    break
+                choice, tips = plan_grasp(self.grasp, points, self.pinhole(scene), box, scene.depth, self.camera)
+                if choice.chosen is None:
+                    result.attempts.append(Attempt([float(v) for v in box], float(score), None if similarity is None else round(similarity, 3),
+                                                   [], Reason.NO_GRASP, None, rejected=choice.rejections()))
+                    result.reason = Reason.NO_GRASP
+                    continue
+                chosen = choice.chosen
+                outcome = execute_pick(world, tips, chosen.yaw, on_frame=frame)
                 lifted = world.slots[outcome.lifted_slot].id if outcome.lifted_slot is not None else None
                 result.attempts.append(Attempt([float(v) for v in box], float(score), None if similarity is None else round(similarity, 3),
-                                               point.round(4).tolist(), outcome.reason, lifted))
+                                               np.round(tips, 4).tolist(), outcome.reason, lifted, round(float(chosen.yaw), 4),
+                                               round(float(chosen.width), 4), None if chosen.quality is None else round(float(chosen.quality), 4),
+                                               choice.rejections()))
                 if outcome.placed and lifted == product_id:
                     result.success, result.reason = True, Reason.PLACED
                     break
                 result.reason = Reason.WRONG_PRODUCT if lifted not in (None, product_id) else outcome.reason
             frame()
             if out is not None:
-                result.gif, result.overlay = self._write_pictures(out, order, product_id, scene.rgb, boxes, scores, frames)
+                result.gif, result.overlay = self._write_pictures(out, order, product_id, scene, boxes, scores, frames, result.attempts)
         finally:
             if overview is not None:
                 overview.close()
             world.close()
         result.seconds = round(time.perf_counter() - started, 2)
         return result
+
+    def pinhole(self, scene: Scene) -> PinholeCamera:
+        """The scene camera's calibration, as a real camera's would come (no simulator needed)."""
+        return PinholeCamera.from_record(scene.camera)
 
     def locate(self, scene: Scene, product_id: str) -> tuple[np.ndarray, np.ndarray]:
         """Boxes (x, y, w, h) of the ordered product, best first, with scores."""
@@ -169,18 +192,44 @@ class PickPipeline:
         histogram = self._photo_and_histogram(product_id)[1]
         return [colour_similarity(histogram, scene.rgb, scene.depth, box, self.camera) for box in boxes]
 
-    def _write_pictures(self, out: Path, order: int, product_id: str, rgb, boxes, scores, frames) -> tuple[str, str]:
+    def _write_pictures(self, out: Path, order: int, product_id: str, scene: Scene, boxes, scores, frames,
+                        attempts: list[Attempt]) -> tuple[str, str]:
         from PIL import Image
 
-        from binpick.viz.detection import overlay
+        from binpick.viz.detection import draw_jaws, overlay
 
         name = f"order_{order:03d}_{product_id.replace('/', '_')}"
-        picture = overlay(rgb, boxes, scores, None, self.photo(product_id), min_score=self.score_threshold)
+        picture = overlay(scene.rgb, boxes, scores, None, self.photo(product_id), min_score=self.score_threshold)
+        picture = draw_jaws(picture, self.jaws(scene, attempts))
         atomic_write(out / f"{name}.png", lambda handle: Image.fromarray(picture).save(handle, format="PNG"))
         images = [Image.fromarray(f) for f in frames[::2] or frames]
         atomic_write(out / f"{name}.gif", lambda handle: images[0].save(handle, format="GIF", save_all=True,
                                                                           append_images=images[1:], duration=80, loop=0))
         return f"{name}.gif", f"{name}.png"
+
+    def jaws(self, scene: Scene, attempts: list[Attempt]) -> list:
+        """Each grasp tried, as its open fingers' pixels: the jaw lines of the order's picture."""
+        camera, reach = self.pinhole(scene), self.grasp.gripper.opening / 2
+        lines = []
+        for number, attempt in enumerate((a for a in attempts if a.outcome is not Reason.NO_GRASP), start=1):
+            centre = np.array(attempt.grasp_point)
+            d = np.array([np.cos(attempt.yaw), np.sin(attempt.yaw), 0.0]) * reach
+            (a, b), _ = camera.project(np.stack([centre - d, centre + d]))
+            lines.append((a, b, attempt.outcome is Reason.PLACED, str(number)))
+        return lines
+
+
+def plan_grasp(planner: GraspPlanner, points: np.ndarray, camera: PinholeCamera, box, depth: np.ndarray,
+               overhead: CameraSpec) -> tuple[GraspChoice, np.ndarray | None]:
+    """The planner's grasp for a detection and its fingertips' position (world xyz). The fixed policy
+    keeps the grasp point and depth it had before the planner existed, so its rows stay comparable."""
+    choice = planner.choose(points, camera, box)
+    if choice.chosen is None:
+        return choice, None
+    if planner.policy is GraspPolicyName.FIXED:
+        point = grasp_point(box, depth, overhead)
+        return choice, fixed_tips(point, half_height(box, point, overhead))
+    return choice, choice.chosen.position
 
 
 def fulfil(pipeline: PickPipeline, products: list[str], orders: int, seed: int, out: Path,
@@ -226,7 +275,7 @@ def summarise(results: list[OrderResult], wall_seconds: float) -> dict[str, Any]
             "right_product": round(sum(lifted) / len(lifted), 4) if lifted else None, "lifts": len(lifted),
             "picks_per_min": round(60 * sum(r.success for r in results) / max(wall_seconds, 1e-9), 2),
             "orders_per_min": round(60 * len(results) / max(wall_seconds, 1e-9), 2),
-            "attempts_per_order": round(float(np.mean([len(r.attempts) for r in results])), 2) if results else 0.0,
+            "attempts_per_order": round(float(np.mean([sum(a.outcome is not Reason.NO_GRASP for a in r.attempts) for r in results])), 2) if results else 0.0,
             "reasons": reasons, "by_product": by_product, "wall_s": round(wall_seconds, 1)}
 
 

@@ -1,0 +1,183 @@
+"""Grasps that fit each instance (issue 17): the grasp-quality model and three grasp policies.
+
+    binpick data generate --out runs/data/grasp_trials --scenes 480 --policies '' --grasp-trials 3 \\
+        --copies 3,6 --distractors 2,3 --held-out can,mug,toy --workers 2        # trials (resumable)
+    python benchmarks/grasp.py train [--data runs/data/grasp_trials]            # trains, ships the weights
+    python benchmarks/grasp.py eval [--bins 40]                                 # results/grasp.json
+
+``eval`` reports (a) the model's ROC AUC on the held-out categories' trials (test split: products it
+never trained on), next to the analytic score's; (b) top-1 success: in new bins of held-out products,
+every visible copy (≥ 50% visible) is grasped by each policy's first choice from the same saved state
+(fixed yaw, analytic, learnt); (c) planning time per order: depth -> points -> candidates and scores
+for three detections, on 2 cores. Writes results/grasp.json and the grasp section of docs/RESULTS.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+sys.path.insert(0, os.path.dirname(__file__))
+
+import _common  # noqa: E402
+
+DATA = _common.ROOT / "runs" / "data" / "grasp_trials"
+RUNS = _common.ROOT / "runs" / "grasp"
+HELD_OUT = ["can", "mug", "toy"]
+SEED = 40_000  # bins away from the data set's and the pick benchmark's
+POLICIES = ["fixed", "analytic", "learnt"]
+
+
+def train(data: Path, epochs: int) -> None:
+    from binpick.grasping.quality import SHIPPED, GraspQuality
+    from binpick.grasping.training import QualityTrainConfig, QualityTrainer
+    from binpick.terminal import RichCallback
+
+    folders = sorted(p for p in (RUNS / "grasp_quality").glob("*") if (p / "config.yaml").is_file()) if (RUNS / "grasp_quality").is_dir() else []
+    if folders and not (folders[-1] / "model.safetensors").is_file():
+        trainer = QualityTrainer.resume(folders[-1])
+    else:
+        trainer = QualityTrainer.new(QualityTrainConfig(data=str(data.relative_to(_common.ROOT) if data.is_absolute() else data),
+                                                        epochs=epochs), RUNS)
+    with RichCallback() as callback:
+        metrics = trainer.run(callback)
+    print(f"best val AUC {metrics['best_val_auc']} after {metrics['epochs']} epochs in {trainer.run_dir}", flush=True)
+    model = GraspQuality.load(trainer.run_dir / "model.safetensors")
+    SHIPPED.parent.mkdir(parents=True, exist_ok=True)
+    model.save(SHIPPED, {"run": str(trainer.run_dir.relative_to(_common.ROOT)), "held_out_categories": HELD_OUT})
+    print(f"shipped {SHIPPED.relative_to(_common.ROOT)} ({SHIPPED.stat().st_size / 1024:.0f} KiB)", flush=True)
+
+
+def held_out_auc(data: Path) -> dict:
+    import numpy as np
+
+    from binpick.grasping.quality import SHIPPED, GraspQuality
+    from binpick.grasping.training import load_trials, roc_auc
+
+    trials = load_trials(data, "test")
+    model = GraspQuality.load(SHIPPED)
+    scores = model.probabilities(trials.maps, trials.features)
+    # the analytic policy's ingredients as a score: room for the fingers, a width that fits
+    clearance, width = trials.features[:, 3], trials.features[:, 0]
+    analytic = np.clip(clearance, -0.2, 0.6) - 4.0 * np.maximum(0.0, width - 0.93)
+    return {"trials": len(trials), "success_rate": round(float(trials.labels.mean()), 4),
+            "products": sorted(set(trials.products)), "roc_auc": {"learnt": round(roc_auc(trials.labels, scores), 4),
+                                                                  "analytic": round(roc_auc(trials.labels, analytic), 4)}}
+
+
+def top1(bins: int) -> dict:
+    import numpy as np
+
+    from binpick.grasping import GraspPlanner, PinholeCamera
+    from binpick.grasping.quality import SHIPPED, GraspQuality
+    from binpick.sim import default_library
+    from binpick.sim.bin_scene import BinWorld
+    from binpick.sim.gripper import lift_test, trial_timestep
+    from binpick.sim.mjcf import CameraSpec
+    from binpick.warehouse.pipeline import plan_grasp
+
+    library = default_library()
+    products = [p.id for p in library.in_categories(HELD_OUT)]
+    quality = GraspQuality.load(SHIPPED)
+    planners = {name: GraspPlanner(name, quality if name == "learnt" else None) for name in POLICIES}
+    outcomes: dict[str, list[bool]] = {name: [] for name in POLICIES}
+    by_product: dict[str, dict[str, list[bool]]] = {}
+    plan_ms: list[float] = []
+    camera_spec = CameraSpec(size=416)
+    for b in range(bins):
+        seed = SEED + b
+        rng = np.random.default_rng(seed)
+        product = products[b % len(products)]
+        others = [p for p in sorted(library.products) if p != product]
+        distractors = [library[others[i]] for i in rng.choice(len(others), size=3, replace=False)]
+        world = BinWorld(library[product], distractors, max_copies=6, camera=camera_spec, gripper=True, seed=seed)
+        try:
+            scene = world.scene(int(rng.integers(3, 7)), int(rng.integers(2, 4)), seed)
+            world.set_guards(False)
+            camera = PinholeCamera.from_record(scene.camera)
+            mine = sorted((i for i in scene.instances if i.product_id == product and i.visible_fraction >= 0.5),
+                          key=lambda i: -i.visible_fraction)
+            started = time.perf_counter()  # an order's planning: points once, then up to three detections
+            points = camera.points(scene.depth)
+            for instance in mine[:3]:
+                planners["learnt"].choose(points, camera, instance.bbox)
+            plan_ms.append(1000 * (time.perf_counter() - started))
+            for instance in mine:
+                for name, planner in planners.items():
+                    choice, tips = plan_grasp(planner, points, camera, instance.bbox, scene.depth, camera_spec)
+                    success = False
+                    if tips is not None:
+                        world.restore(scene.state)
+                        with trial_timestep(world.model):
+                            success = lift_test(world, instance.slot, tips, choice.chosen.yaw, choice.chosen.top)
+                    outcomes[name].append(success)
+                    by_product.setdefault(product, {n: [] for n in POLICIES})[name].append(success)
+        finally:
+            world.close()
+        print(f"bin {b + 1}/{bins}: " + ", ".join(f"{n} {np.mean(v):.0%}" for n, v in outcomes.items() if v), flush=True)
+    return {"bins": bins, "instances": len(outcomes["fixed"]), "products": products,
+            "top1_success": {n: round(float(np.mean(v)), 4) for n, v in outcomes.items()},
+            "top1_by_product": {p: {n: f"{sum(v)}/{len(v)}" for n, v in groups.items()} for p, groups in sorted(by_product.items())},
+            "plan_ms_median": round(float(np.median(plan_ms)), 1), "plan_ms_p95": round(float(np.percentile(plan_ms, 95)), 1)}
+
+
+def evaluate(data: Path, bins: int) -> None:
+    import torch
+
+    from binpick.grasping.quality import SHIPPED, GraspQuality
+
+    torch.set_num_threads(2)
+    meta = GraspQuality.load(SHIPPED).meta
+    result = {"weights": str(SHIPPED.relative_to(_common.ROOT)), "training": {k: meta.get(k) for k in ("train_trials", "train_success_rate", "val_auc", "epoch", "run")},
+              "held_out_trials": held_out_auc(data), **top1(bins), "targets": {"plan_ms_median": 100}}
+    result["peak_rss_mib"] = round(_common.peak_rss_mib(), 1)
+    result["load_average"] = round(os.getloadavg()[0], 2)
+    path = _common.write_result("grasp", result)
+    section(result, path, bins)
+    print({k: result[k] for k in ("top1_success", "plan_ms_median")}, result["held_out_trials"]["roc_auc"], flush=True)
+
+
+def section(result: dict, path: Path, bins: int) -> None:
+    trials = result["held_out_trials"]
+    top = result["top1_success"]
+    lines = ["## Grasp policies and the grasp-quality model (issue 17; Dex-Net 2.0 / GG-CNN's setting)", "",
+             f"`python benchmarks/grasp.py eval --bins {bins}` → `{path.relative_to(_common.ROOT)}`. Candidates come from depth "
+             "alone (`binpick.grasping`): the instance's region of a height watershed that matches its box, yaws every 22.5° "
+             "and across its principal minor axis, the jaws centred on its extent, fingertips a centimetre under its middle; "
+             "a candidate is rejected when it is wider than the open jaws or a finger's footprint meets a surface above "
+             "the tips. Policies: **fixed** (jaws along y, the grasp before this issue), **analytic** (minor axis where "
+             "elongated, then clearance), **learnt** (a GQ-CNN-style network on a 32×32 height map in the grasp's frame "
+             f"plus width, depth and clearance; {result['training'].get('train_trials')} simulated training trials).", "",
+             "| measure | fixed | analytic | learnt |", "|---|---|---|---|",
+             f"| top-1 success, held-out products ({result['instances']} instances in {result['bins']} bins) | "
+             f"{top['fixed']:.0%} | {top['analytic']:.0%} | {top['learnt']:.0%} |",
+             f"| ROC AUC on held-out products' trials ({trials['trials']} trials, {trials['success_rate']:.0%} succeeded) | – | "
+             f"{trials['roc_auc']['analytic']:.3f} | {trials['roc_auc']['learnt']:.3f} |", "",
+             f"Planning per order (points, candidates and scores for three detections), 2 cores: median "
+             f"**{result['plan_ms_median']} ms**, p95 {result['plan_ms_p95']} ms (target ≤ 100 ms). "
+             f"Held-out products: {', '.join(result['products'])}. Per product (fixed / analytic / learnt): "
+             + "; ".join(f"{p.split('/')[-1]} {g['fixed']} / {g['analytic']} / {g['learnt']}" for p, g in result["top1_by_product"].items())
+             + f". Peak RSS {result['peak_rss_mib']:.0f} MiB."]
+    _common.write_section("grasp", "\n".join(lines))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("phase", choices=["train", "eval"])
+    parser.add_argument("--data", type=Path, default=DATA)
+    parser.add_argument("--epochs", type=int, default=40)
+    parser.add_argument("--bins", type=int, default=40)
+    args = parser.parse_args()
+    os.chdir(_common.ROOT)
+    if args.phase == "train":
+        train(args.data, args.epochs)
+    else:
+        evaluate(args.data, args.bins)
+
+
+if __name__ == "__main__":
+    main()

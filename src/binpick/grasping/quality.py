@@ -1,0 +1,114 @@
+"""A grasp-quality network in the spirit of Dex-Net 2.0's GQ-CNN: the depth around a candidate, as a
+height map in the grasp's own frame (columns along the closing direction, rows along the jaws, heights
+relative to the fingertips), plus the candidate's width, depth and clearance -> the probability that
+the grasp lifts the instance and holds it. Trained on trials executed in simulation
+(``binpick data generate --grasp-trials N``; :mod:`binpick.grasping.training`).
+
+Small on purpose: a few tens of thousands of weights, every candidate of an order scored in one batch.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from binpick.grasping.camera import PinholeCamera
+from binpick.grasping.candidates import GraspCandidate, JawGripper, surface_heights
+
+FORMAT = "binpick-grasp-quality-1"
+SHIPPED = Path(__file__).parent / "weights" / "grasp_quality.safetensors"  # trained by benchmarks/grasp.py
+HEIGHT_SCALE = 0.05  # metres per unit of the height map
+
+
+@dataclass(frozen=True)
+class MapSpec:
+    size: int = 32  # cells per side
+    extent: float = 0.16  # metres per side (5 mm cells): both open fingers and some room beyond
+
+
+def height_map(points: np.ndarray, camera: PinholeCamera, position, yaw: float, top: float, support: float,
+               spec: MapSpec = MapSpec()) -> np.ndarray:
+    """(size, size) float32: surface heights around the grasp minus its fingertips' height, in units
+    of HEIGHT_SCALE; unseen cells read as the support surface's height."""
+    d = np.array([np.cos(yaw), np.sin(yaw)])
+    j = np.array([-d[1], d[0]])
+    steps = (np.arange(spec.size) - (spec.size - 1) / 2) * spec.extent / spec.size
+    grid = np.asarray(position[:2]) + steps[None, :, None] * d + steps[:, None, None] * j  # rows: jaw axis
+    heights = surface_heights(points, camera, grid.reshape(-1, 2), top).reshape(spec.size, spec.size)
+    heights = np.where(np.isfinite(heights), heights, support)
+    return np.clip((heights - position[2]) / HEIGHT_SCALE, -1.0, 4.0).astype(np.float32)
+
+
+def grasp_features(width: float, clearance: float, tips: float, top: float, support: float,
+                   gripper: JawGripper = JawGripper()) -> np.ndarray:
+    """The candidate's numbers the height map shows only coarsely (5 mm cells)."""
+    return np.array([width / gripper.opening, (top - tips) / HEIGHT_SCALE, (top - support) / (2 * HEIGHT_SCALE),
+                     np.clip(clearance, -0.05, 0.05) / HEIGHT_SCALE], dtype=np.float32)
+
+
+FEATURES = 4
+
+
+class GraspQualityNet(nn.Module):
+    """Height map (1 x size x size) + features -> a logit of grasp success."""
+
+    def __init__(self, size: int = 32, width: int = 16) -> None:
+        super().__init__()
+        self.conv = nn.Sequential(
+            nn.Conv2d(1, width, 5, padding=2), nn.ReLU(), nn.MaxPool2d(2),
+            nn.Conv2d(width, 2 * width, 3, padding=1), nn.ReLU(), nn.MaxPool2d(2),
+            nn.Conv2d(2 * width, 2 * width, 3, padding=1), nn.ReLU(), nn.MaxPool2d(2))
+        self.head = nn.Sequential(nn.Linear(2 * width * (size // 8) ** 2 + FEATURES, 64), nn.ReLU(), nn.Linear(64, 1))
+
+    def forward(self, maps: torch.Tensor, features: torch.Tensor) -> torch.Tensor:
+        return self.head(torch.cat([self.conv(maps).flatten(1), features], dim=1)).squeeze(1)
+
+
+class GraspQuality:
+    """``GraspQuality.load(path).score(points, camera, candidates)``: success probabilities."""
+
+    def __init__(self, net: GraspQualityNet | None = None, spec: MapSpec = MapSpec(), width: int = 16, meta: dict | None = None) -> None:
+        self.spec, self.width = spec, width
+        self.net = net if net is not None else GraspQualityNet(spec.size, width)
+        self.net.eval()
+        self.meta = meta or {}
+
+    def inputs(self, points: np.ndarray, camera: PinholeCamera, candidates: list[GraspCandidate]) -> tuple[np.ndarray, np.ndarray]:
+        maps = np.stack([height_map(points, camera, c.position, c.yaw, c.top, c.support, self.spec) for c in candidates])
+        features = np.stack([grasp_features(c.width, c.clearance, c.position[2], c.top, c.support) for c in candidates])
+        return maps, features
+
+    @torch.no_grad()
+    def probabilities(self, maps: np.ndarray, features: np.ndarray) -> np.ndarray:
+        logits = self.net(torch.from_numpy(maps)[:, None], torch.from_numpy(features))
+        return torch.sigmoid(logits).numpy()
+
+    def score(self, points: np.ndarray, camera: PinholeCamera, candidates: list[GraspCandidate]) -> np.ndarray:
+        if not candidates:
+            return np.zeros(0)
+        return self.probabilities(*self.inputs(points, camera, candidates))
+
+    def save(self, path: str | Path, meta: dict | None = None) -> Path:
+        from binpick import tensorfile
+
+        document = {"size": self.spec.size, "extent": self.spec.extent, "width": self.width, **self.meta, **(meta or {})}
+        return tensorfile.save(path, FORMAT, tensors=self.net.state_dict(), meta=document)
+
+    @classmethod
+    def load(cls, path: str | Path) -> GraspQuality:
+        from binpick import tensorfile
+        from binpick.errors import InputFileError
+
+        tensors, meta, _ = tensorfile.load(path, FORMAT, "grasp-quality weights")
+        spec = MapSpec(int(meta.get("size", 32)), float(meta.get("extent", 0.16)))
+        quality = cls(None, spec, int(meta.get("width", 16)), meta)
+        try:
+            quality.net.load_state_dict({k: v.float() for k, v in tensors.items()})
+        except RuntimeError as error:
+            raise InputFileError(f"grasp-quality weights {str(path)!r} do not fit the network ({str(error).splitlines()[0][:100]})") from None
+        quality.net.eval()
+        return quality

@@ -1,0 +1,208 @@
+"""Training the grasp-quality network on simulated trials (``binpick data generate --grasp-trials N``).
+
+A job in binpick's run layer: ``QualityTrainer.new(config, runs).run(callback)`` or
+``QualityTrainer.resume(run_dir)``; a checkpoint per epoch, TensorBoard scalars, the weights with the
+best validation ROC AUC kept as ``best.safetensors`` and written as ``model.safetensors`` at the end.
+Splits come from the data set: train, val (other worlds) and test (held-out product categories).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from binpick import tensorfile
+from binpick.config import check_range, load_run_config, to_dict
+from binpick.errors import ConfigError, InputFileError
+from binpick.files import atomic_write_text, read_json
+from binpick.grasping.camera import PinholeCamera, read_depth
+from binpick.grasping.candidates import Surface, describe, instance_surface
+from binpick.grasping.quality import GraspQuality, GraspQualityNet, MapSpec, grasp_features, height_map
+from binpick.runs import SILENT, RunCallback, commit_checkpoint, latest_checkpoint, new_run_dir
+
+CHECKPOINT_FORMAT = "binpick-grasp-quality-checkpoint-1"
+
+
+@dataclass(frozen=True)
+class QualityTrainConfig:
+    data: str  # a data set made with --grasp-trials
+    name: str = "grasp_quality"
+    epochs: int = 30
+    batch_size: int = 128
+    lr: float = 0.001
+    weight_decay: float = 0.0001
+    width: int = 16  # channels of the first convolution
+    threads: int = 2
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        check_range("epochs", self.epochs, 1, 10_000, integer=True)
+        check_range("batch_size", self.batch_size, 2, 65_536, integer=True)
+        check_range("lr", self.lr, 0.0, 1.0, low_inclusive=False)
+        check_range("weight_decay", self.weight_decay, 0.0, 1.0)
+        check_range("width", self.width, 1, 256, integer=True)
+        check_range("threads", self.threads, 1, 256, integer=True)
+
+
+@dataclass
+class TrialSet:
+    maps: np.ndarray  # (N, size, size) float32
+    features: np.ndarray  # (N, F) float32
+    labels: np.ndarray  # (N,) float32, 1: lifted and held
+    products: list[str]
+
+    def __len__(self) -> int:
+        return len(self.labels)
+
+
+def load_trials(data: str | Path, split: str, spec: MapSpec = MapSpec()) -> TrialSet:
+    """Every recorded trial of the data set's ``split`` scenes, as height maps, features and outcomes."""
+    data = Path(data)
+    scenes = sorted((data / "scenes").glob("*.json"))
+    if not scenes:
+        raise InputFileError(f"{str(data)!r} holds no scenes: make them with binpick data generate --grasp-trials N")
+    maps, features, labels, products = [], [], [], []
+    for path in scenes:
+        record = read_json(path, "scene file")
+        if record.get("split") != split or not record.get("grasp_trials"):
+            continue
+        camera = PinholeCamera.from_record(record["camera"])
+        points = camera.points(read_depth(data / record["depth_file"]))
+        boxes = {a["slot"]: a["bbox"] for a in record["annotations"]}
+        surfaces: dict[int, Surface | None] = {}
+        for trial in record["grasp_trials"]:
+            # what the executed grasp (position, yaw) was, described by today's candidate code
+            slot = trial["slot"]
+            if slot not in surfaces:
+                surfaces[slot] = instance_surface(points, boxes[slot])
+            surface = surfaces[slot]
+            if surface is None:
+                continue
+            position = np.array(trial["position"])
+            candidate = describe(points, camera, surface, position, trial["yaw"], position[2])
+            maps.append(height_map(points, camera, position, trial["yaw"], surface.top, surface.support, spec))
+            clearance = candidate.clearance if np.isfinite(candidate.clearance) else -0.05
+            features.append(grasp_features(candidate.width, clearance, position[2], surface.top, surface.support))
+            labels.append(float(trial["success"]))
+            products.append(trial["product"])
+    size = spec.size
+    return TrialSet(np.array(maps, dtype=np.float32).reshape(-1, size, size), np.array(features, dtype=np.float32).reshape(len(labels), -1),
+                    np.array(labels, dtype=np.float32), products)
+
+
+def roc_auc(labels: np.ndarray, scores: np.ndarray) -> float | None:
+    """Area under the ROC curve (the Mann-Whitney statistic, ties counted half); None with one class."""
+    labels, scores = np.asarray(labels) > 0.5, np.asarray(scores, dtype=float)
+    positives, negatives = int(labels.sum()), int((~labels).sum())
+    if positives == 0 or negatives == 0:
+        return None
+    order = np.argsort(scores, kind="mergesort")
+    ranks = np.empty(len(scores))
+    sorted_scores = scores[order]
+    i = 0
+    while i < len(scores):  # average ranks over ties
+        j = i
+        while j + 1 < len(scores) and sorted_scores[j + 1] == sorted_scores[i]:
+            j += 1
+        ranks[order[i:j + 1]] = (i + j) / 2 + 1
+        i = j + 1
+    return float((ranks[labels].sum() - positives * (positives + 1) / 2) / (positives * negatives))
+
+
+class QualityTrainer:
+    """One training run of the grasp-quality network (see the module docstring)."""
+
+    def __init__(self, config: QualityTrainConfig, run_dir: Path) -> None:
+        self.config, self.run_dir = config, Path(run_dir)
+        torch.manual_seed(config.seed)
+        self.quality = GraspQuality(GraspQualityNet(MapSpec().size, config.width), MapSpec(), config.width)
+        self.optimizer = torch.optim.AdamW(self.quality.net.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+        self.epoch, self.best_auc, self.history = 0, -1.0, []
+        checkpoint = latest_checkpoint(self.run_dir / "checkpoints")
+        if checkpoint is not None:
+            _, meta, state = tensorfile.load(checkpoint / "state.safetensors", CHECKPOINT_FORMAT, "grasp-quality checkpoint")
+            self.quality.net.load_state_dict(state["net"])
+            self.optimizer.load_state_dict(state["optimizer"])
+            self.epoch, self.best_auc, self.history = int(meta["epoch"]), float(meta["best_auc"]), list(meta["history"])
+
+    @classmethod
+    def new(cls, config: QualityTrainConfig, runs: Path = Path("runs")) -> QualityTrainer:
+        import yaml
+
+        if not (Path(config.data) / "scenes").is_dir():
+            raise ConfigError(f"data {config.data!r} is not a data set folder (binpick data generate --grasp-trials N)")
+        return cls(config, new_run_dir(Path(runs), config.name, yaml.safe_dump(to_dict(config), sort_keys=False)))
+
+    @classmethod
+    def resume(cls, run_dir: Path) -> QualityTrainer:
+        return cls(load_run_config(QualityTrainConfig, run_dir), Path(run_dir))
+
+    def run(self, callback: RunCallback = SILENT) -> dict[str, Any]:
+        from torch.utils.tensorboard import SummaryWriter
+
+        config = self.config
+        torch.set_num_threads(config.threads)
+        callback.message(f"reading trials from {config.data}")
+        train, val = load_trials(config.data, "train"), load_trials(config.data, "val")
+        if len(train) < config.batch_size or len(val) == 0:
+            raise ConfigError(f"{config.data!r} has {len(train)} train and {len(val)} val trials: "
+                              f"too few (more scenes, or a larger --grasp-trials)")
+        rng = np.random.default_rng([config.seed, self.epoch])
+        positive = float(train.labels.mean())
+        loss_fn = nn.BCEWithLogitsLoss(pos_weight=torch.tensor((1 - positive) / max(positive, 1e-3)))
+        writer = SummaryWriter(str(self.run_dir / "tb"))
+        maps, features, labels = torch.from_numpy(train.maps), torch.from_numpy(train.features), torch.from_numpy(train.labels)
+        try:
+            with callback.task(f"grasp quality ({len(train)} trials)", config.epochs, self.epoch) as task:
+                while self.epoch < config.epochs:
+                    net = self.quality.net.train()
+                    order = torch.from_numpy(rng.permutation(len(train)))
+                    losses = []
+                    for start in range(0, len(order) - config.batch_size + 1, config.batch_size):
+                        batch = order[start:start + config.batch_size]
+                        x = maps[batch][:, None]
+                        # the jaws are symmetric: a grasp mirrored along or across them is the same grasp
+                        if rng.random() < 0.5:
+                            x = x.flip(3)
+                        if rng.random() < 0.5:
+                            x = x.flip(2)
+                        loss = loss_fn(net(x, features[batch]), labels[batch])
+                        self.optimizer.zero_grad()
+                        loss.backward()
+                        self.optimizer.step()
+                        losses.append(loss.item())
+                    self.epoch += 1
+                    self.quality.net.eval()
+                    scores = self.quality.probabilities(val.maps, val.features)
+                    auc = roc_auc(val.labels, scores)
+                    row = {"epoch": self.epoch, "loss": float(np.mean(losses)), "val_auc": auc}
+                    self.history.append(row)
+                    writer.add_scalar("train/loss", row["loss"], self.epoch)
+                    if auc is not None:
+                        writer.add_scalar("val/roc_auc", auc, self.epoch)
+                    if (auc if auc is not None else -0.5) > self.best_auc:  # one class in val: keep the first epoch's
+                        self.best_auc = auc if auc is not None else -0.5
+                        self.quality.save(self.run_dir / "best.safetensors", {"val_auc": auc, "epoch": self.epoch})
+                    self._checkpoint()
+                    task.update(self.epoch, status=f"loss {row['loss']:.3f} val AUC {auc if auc is None else round(auc, 3)}")
+        finally:
+            writer.close()
+        best = GraspQuality.load(self.run_dir / "best.safetensors")
+        best.save(self.run_dir / "model.safetensors", {"data": config.data, "train_trials": len(train),
+                                                       "train_success_rate": round(positive, 4)})
+        metrics = {"name": config.name, "epochs": self.epoch, "best_val_auc": self.best_auc if self.best_auc >= 0 else None,
+                   "history": self.history}
+        atomic_write_text(self.run_dir / "metrics.json", json.dumps(metrics, indent=2))
+        return metrics
+
+    def _checkpoint(self) -> None:
+        state = {"net": self.quality.net.state_dict(), "optimizer": self.optimizer.state_dict()}
+        meta = {"epoch": self.epoch, "best_auc": self.best_auc, "history": self.history}
+        commit_checkpoint(self.run_dir / "checkpoints", self.epoch,
+                          lambda folder: tensorfile.save(folder / "state.safetensors", CHECKPOINT_FORMAT, meta=meta, state=state))
