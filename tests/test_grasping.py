@@ -163,18 +163,20 @@ def test_the_default_gripper_matches_the_simulated_one():
     assert JawGripper().opening == gripper.OPENING
 
 
-def test_grasp_trials_are_recorded_and_the_quality_model_trains_and_resumes_on_them(tmp_path):
+def test_grasp_trials_and_planned_pickability_are_recorded_and_the_quality_model_trains_and_resumes_on_them(tmp_path):
     from binpick.grasping.training import QualityTrainConfig, QualityTrainer, load_trials
     from binpick.warehouse.dataset import DataGeneration, GenerateConfig
 
     data = tmp_path / "trials"
-    DataGeneration.new(GenerateConfig(out=str(data), scenes=4, policies=[], grasp_trials=2, workers=1, image_size=128,
+    DataGeneration.new(GenerateConfig(out=str(data), scenes=4, policies=["analytic"], grasp_trials=2, workers=1, image_size=128,
                                       copies=(2, 3), distractors=(0, 1), targets=["can", "procedural_box"], scenes_per_world=1,
                                       val_fraction=0.5)).run()
     records = [__import__("json").loads(p.read_text()) for p in sorted((data / "scenes").glob("*.json"))]
     trials = [t for r in records for t in r["grasp_trials"]]
     assert trials and all(isinstance(t["success"], bool) and len(t["position"]) == 3 and 0 <= t["yaw"] < np.pi for t in trials)
     assert {r["split"] for r in records} == {"train", "val"}
+    targets = [a for r in records for a in r["annotations"] if a["is_target"]]
+    assert targets and all(isinstance(a["pickable"]["analytic"], bool) for a in targets)  # labelled by the planner's policy
     train = load_trials(data, "train")
     assert len(train) > 0 and train.maps.shape[1:] == (32, 32) and set(np.unique(train.labels)) <= {0.0, 1.0}
     config = QualityTrainConfig(data=str(data), epochs=1, batch_size=2, threads=1)

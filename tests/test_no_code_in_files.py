@@ -72,12 +72,20 @@ def object_npz_payload(path: Path, marker: Path) -> Path:
     return path
 
 
+def object_npy_payload(path: Path, marker: Path) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "wb") as handle:  # a handle: np.save would add .npy to the name
+        np.save(handle, np.array([Payload(marker)], dtype=object), allow_pickle=True)
+    return path
+
+
 def test_the_payloads_are_live(tmp_path):
     """Loaded the unsafe way, each payload does run: so the tests below can fail."""
     loaders = [
         (torch_payload, lambda p: torch.load(p, weights_only=False)),
         (pickle_payload, lambda p: pickle.loads(p.read_bytes())),
         (object_npz_payload, lambda p: np.load(p, allow_pickle=True)["obs"]),
+        (object_npy_payload, lambda p: np.load(p, allow_pickle=True)),
     ]
     for index, (make, unsafe_load) in enumerate(loaders):
         marker = tmp_path / f"ran_{index}"
@@ -170,6 +178,9 @@ def _verbs(root: Path, marker: Path, trained: Path) -> dict[str, tuple[list[str]
         "detect eval RUN (model.pt)": (["detect", "eval", str(detector_run), "--data", str(coco)], "refusing to load"),
         "pick --weights FILE.pt": (["pick", "--product", "robosuite/milk", "--weights", str(weights), "--out", str(root / "p")],
                                    "refusing to load"),
+        "pick --grasp-weights pickle named .safetensors": (["pick", "--product", "robosuite/milk", "--grasp", "learnt",
+                                                            "--grasp-weights", str(disguised), "--out", str(root / "g")],
+                                                           "not a safetensors file"),
         "detect train --resume (state.pt)": (["detect", "train", "--resume", str(detect_resume)], "refusing to load"),
         "rl eval SB3 run (model.zip)": (["rl", "eval", str(old_rl)], "no policy.safetensors"),
         "rl eval A3C run (a3c.pt)": (["rl", "eval", str(a3c_run)], "refusing to load"),
@@ -219,6 +230,8 @@ def test_python_loaders_refuse_crafted_files(tmp_path):
     from binpick.detection import load_detector
     from binpick.errors import BinpickError
     from binpick.files import read_npz
+    from binpick.grasping.camera import read_depth
+    from binpick.grasping.quality import GraspQuality
     from binpick.perception import load_perception
     from binpick.rl.a3c_train import load_a3c_policy
     from binpick.rl.dynamics import GPDynamics
@@ -245,6 +258,9 @@ def test_python_loaders_refuse_crafted_files(tmp_path):
         "Policy.load": lambda: Policy.load(april),
         "tensorfile.load": lambda: tensorfile.load(evil, "binpick-detector-2"),
         "read_npz": lambda: read_npz(object_npz_payload(tmp_path / "evil.npz", marker)),
+        "GraspQuality.load": lambda: GraspQuality.load(disguised),
+        "read_depth(object .npy)": lambda: read_depth(object_npy_payload(tmp_path / "evil_depth.npy", marker)),
+        "read_depth(.npz named .npy)": lambda: read_depth(object_npz_payload(tmp_path / "evil.npz", marker).rename(tmp_path / "zip.npy")),
     }
     for name, call in calls.items():
         with pytest.raises(BinpickError):

@@ -408,7 +408,7 @@ def _pair(text: str, name: str) -> tuple[int, int]:
 def data_generate(
     out: Annotated[Path, typer.Option(help="Data-set folder (new, or one to resume)")],
     scenes: Annotated[int, typer.Option(help="Number of bin scenes")] = 100,
-    policies: Annotated[str, typer.Option(help="Grasp policies that label pickability, comma-separated (x,y); '' for none")] = "x,y",
+    policies: Annotated[str, typer.Option(help="Grasp policies that label pickability, comma-separated: x, y (scripted, jaws along an axis), analytic, learnt (the grasp planner); '' for none")] = "x,y",
     workers: Annotated[int, typer.Option(help="Parallel processes")] = 2,
     grasp_trials: Annotated[int, typer.Option(help="Random grasp candidates from depth to execute per visible instance "
                                                    "(grasp-quality training data); 0 for none")] = 0,

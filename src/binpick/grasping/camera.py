@@ -48,15 +48,17 @@ class PinholeCamera:
                 "camera_to_world": self.camera_to_world.round(6).tolist()}
 
     def points(self, depth: np.ndarray, rows: slice = slice(None), cols: slice = slice(None)) -> np.ndarray:
-        """World xyz (H, W, 3) of every pixel of ``depth[rows, cols]`` (metres along the optical
-        axis; 0 or non-finite: no reading, NaN out)."""
-        z = np.asarray(depth[rows, cols], dtype=np.float64)
+        """World xyz (H, W, 3) float32 of every pixel of ``depth[rows, cols]`` (metres along the
+        optical axis; 0 or non-finite: no reading, NaN out)."""
+        z = np.asarray(depth[rows, cols], dtype=np.float32)
         v0, u0 = rows.start or 0, cols.start or 0
-        v, u = np.mgrid[v0:v0 + z.shape[0], u0:u0 + z.shape[1]]
-        z = np.where(np.isfinite(z) & (z > 0), z, np.nan)
-        fx, fy, cx, cy = self.K[0, 0], self.K[1, 1], self.K[0, 2], self.K[1, 2]
-        camera = np.stack([(u - cx) * z / fx, (v - cy) * z / fy, z], axis=-1)
-        return camera @ self.camera_to_world[:3, :3].T + self.camera_to_world[:3, 3]
+        z = np.where(np.isfinite(z) & (z > 0), z, np.float32(np.nan))
+        fx, fy, cx, cy = (float(self.K[i, j]) for i, j in ((0, 0), (1, 1), (0, 2), (1, 2)))  # Python floats keep float32
+        x = ((np.arange(u0, u0 + z.shape[1], dtype=np.float32) - cx) / fx)[None, :] * z  # camera axes
+        y = ((np.arange(v0, v0 + z.shape[0], dtype=np.float32) - cy) / fy)[:, None] * z
+        rotation, origin = self.camera_to_world[:3, :3].astype(np.float32), self.camera_to_world[:3, 3].astype(np.float32)
+        return np.stack([float(rotation[i, 0]) * x + float(rotation[i, 1]) * y + float(rotation[i, 2]) * z + float(origin[i])
+                         for i in range(3)], axis=-1)
 
     def project(self, world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Pixels (..., 2) as (u, v) of world points (..., 3), and their depth along the axis."""
@@ -81,7 +83,10 @@ def read_depth(path: str | Path) -> np.ndarray:
     path = require_file(Path(path), "depth image")
     if path.suffix.lower() == ".npy":
         try:
-            depth = np.load(path, allow_pickle=False).astype(np.float32)
+            loaded = np.load(path, allow_pickle=False)  # object arrays (pickles) are refused here
+            if not isinstance(loaded, np.ndarray) or not np.issubdtype(loaded.dtype, np.number):
+                raise ValueError("not a single numeric array")
+            depth = loaded.astype(np.float32)
         except (ValueError, OSError) as error:
             raise InputFileError(f"depth image {str(path)!r} is not a numeric .npy array ({str(error)[:80]})") from None
     else:

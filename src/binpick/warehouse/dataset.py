@@ -85,11 +85,9 @@ class GenerateConfig:
             from binpick.cluster import check_ray_address
 
             check_ray_address(self.address)
-        from binpick.sim.gripper import POLICIES
+        from binpick.warehouse.policies import check_policies
 
-        unknown = [p for p in self.policies if p not in POLICIES]
-        if unknown:
-            raise ConfigError(f"unknown grasp policy {unknown[0]!r}; choose from {', '.join(POLICIES)}")
+        check_policies(self.policies)
 
     def comparable(self) -> dict[str, Any]:
         """What must match for a resume to add to the same data set (not scenes or workers)."""
@@ -246,7 +244,7 @@ def world_scenes(config: GenerateConfig, world: int, indices: list[int]):
     """Yield ``(files, record)`` for scenes ``indices`` of one world: encoded images by relative path
     and the scene's annotations. Writes nothing, so Ray tasks on other machines can run it."""
     from binpick.sim.bin_scene import BinWorld
-    from binpick.sim.gripper import make_policies
+    from binpick.warehouse.policies import make_policies
     from binpick.sim.mjcf import CameraSpec
 
     if not indices:
@@ -315,6 +313,8 @@ def label_pickability(sim, scene, record: dict[str, Any], policies, rng: np.rand
         return
     order = [targets[i] for i in rng.permutation(len(targets))]
     for policy in policies:
+        if hasattr(policy, "prepare"):  # planned grasps read the scene's depth once
+            policy.prepare(scene)
         for annotation in order:
             sim.restore(scene.state)
             annotation["pickable"][policy.name] = policy.attempt(sim, annotation["slot"])

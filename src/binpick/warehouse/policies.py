@@ -1,0 +1,56 @@
+"""Grasp policies that label pickability (thesis §5.4.4, §6.3: "pickable" is always pickable *by a
+policy*): the scripted top-down grasps x and y of :mod:`binpick.sim.gripper`, and the grasp planner's
+policies (``analytic``, ``learnt``; :mod:`binpick.grasping`) that choose each grasp from depth alone,
+as the pick pipeline does. A planned attempt must hold the product through a carry at the pipeline's
+speed, the way the pipeline's picks are judged.
+"""
+
+from __future__ import annotations
+
+from binpick.errors import ConfigError
+from binpick.grasping import GraspPlanner, GraspPolicyName, PinholeCamera
+from binpick.sim.gripper import POLICIES as SCRIPTED
+
+PLANNED = (GraspPolicyName.ANALYTIC.value, GraspPolicyName.LEARNT.value)
+
+
+def policy_names() -> list[str]:
+    return [*SCRIPTED, *PLANNED]
+
+
+def check_policies(names: list[str]) -> None:
+    unknown = [n for n in names if n not in policy_names()]
+    if unknown:
+        raise ConfigError(f"unknown grasp policy {unknown[0]!r}; choose from {', '.join(policy_names())}")
+
+
+def make_policies(names: list[str]) -> list:
+    check_policies(names)
+    return [PlannedGrasp(n) if n in PLANNED else SCRIPTED[n]() for n in names]
+
+
+class PlannedGrasp:
+    """The grasp planner as a labelling policy: ``prepare(scene)`` once per scene (depth -> points),
+    then ``attempt(world, slot)`` plans the instance's grasp from its box and executes it."""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+        self.planner = GraspPlanner.load(name)
+        self._scene = None
+
+    def prepare(self, scene) -> None:
+        camera = PinholeCamera.from_record(scene.camera)
+        boxes = {i.slot: i.bbox for i in scene.instances}
+        self._scene = (camera, camera.points(scene.depth), boxes)
+
+    def attempt(self, world, slot: int) -> bool:
+        from binpick.sim.gripper import lift_test, trial_timestep
+
+        if self._scene is None:
+            raise RuntimeError("PlannedGrasp.prepare(scene) comes before attempt()")
+        camera, points, boxes = self._scene
+        chosen = self.planner.choose(points, camera, boxes[slot]).chosen
+        if chosen is None:
+            return False  # nothing feasible: the pipeline would not try it either
+        with trial_timestep(world.model):
+            return lift_test(world, slot, chosen.position, chosen.yaw, chosen.top, carry=True)
