@@ -7,9 +7,9 @@
 
 ``eval`` reports (a) the model's ROC AUC on the held-out categories' trials (test split: products it
 never trained on), next to the analytic score's; (b) top-1 success: in new bins of held-out products,
-every visible copy (≥ 50% visible) is grasped by each policy's first choice from the same saved state
-(fixed yaw, analytic, learnt); (c) planning time per order: depth -> points -> candidates and scores
-for three detections, on 2 cores. Writes results/grasp.json and the grasp section of docs/RESULTS.md.
+every visible copy (≥ 50% visible) is grasped by each policy's first choice (fixed yaw, analytic,
+learnt) from the same saved state, lifted, held and carried at the pick pipeline's speed; (c)
+planning time per order: depth -> points -> candidates and scores for three detections, on 2 cores. Writes results/grasp.json and the grasp section of docs/RESULTS.md.
 """
 
 from __future__ import annotations
@@ -113,7 +113,7 @@ def top1(bins: int) -> dict:
                     if tips is not None:
                         world.restore(scene.state)
                         with trial_timestep(world.model):
-                            success = lift_test(world, instance.slot, tips, choice.chosen.yaw, choice.chosen.top)
+                            success = lift_test(world, instance.slot, tips, choice.chosen.yaw, choice.chosen.top, carry=True)
                     outcomes[name].append(success)
                     by_product.setdefault(product, {n: [] for n in POLICIES})[name].append(success)
         finally:
@@ -147,9 +147,11 @@ def section(result: dict, path: Path, bins: int) -> None:
     lines = ["## Grasp policies and the grasp-quality model (issue 17; Dex-Net 2.0 / GG-CNN's setting)", "",
              f"`python benchmarks/grasp.py eval --bins {bins}` → `{path.relative_to(_common.ROOT)}`. Candidates come from depth "
              "alone (`binpick.grasping`): the instance's region of a height watershed that matches its box, yaws every 22.5° "
-             "and across its principal minor axis, the jaws centred on its extent, fingertips a centimetre under its middle; "
-             "a candidate is rejected when it is wider than the open jaws or a finger's footprint meets a surface above "
-             "the tips. Policies: **fixed** (jaws along y, the grasp before this issue), **analytic** (minor axis where "
+             "and across its principal minor axis, the jaws centred on its extent, fingertips as deep as the fingers have "
+             "room for (at most 7 cm under the top, at least 1.5 cm under its middle); a candidate is rejected when it is "
+             "wider than the open jaws or a finger's footprint meets a surface more than 3 cm above the tips. Top-1 success: "
+             "each policy's first choice, executed from the same saved state, must lift, hold and carry the product at the "
+             "pick pipeline's speed. Policies: **fixed** (jaws along y, the grasp before this issue), **analytic** (minor axis where "
              "elongated, then clearance), **learnt** (a GQ-CNN-style network on a 32×32 height map in the grasp's frame "
              f"plus width, depth and clearance; {result['training'].get('train_trials')} simulated training trials).", "",
              "| measure | fixed | analytic | learnt |", "|---|---|---|---|",

@@ -55,7 +55,7 @@ def seed_option(text: str):
 
 SetOption = Annotated[list[str] | None, typer.Option("--set", help="Env parameter KEY=VALUE (repeatable), e.g. --set goal_area=0.5")]
 POLICIES = ("random",)
-DEFAULT_POLICY = "analytic"  # the grasp policy of pick and demo: the best in results/grasp.json and results/pick.json
+DEFAULT_POLICY = "learnt"  # the grasp policy of pick and demo: the best in results/grasp.json and results/pick.json
 
 
 def _print_version(value: bool) -> None:

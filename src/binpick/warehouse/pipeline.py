@@ -76,7 +76,7 @@ class PickPipeline:
     ``oracle=True`` takes the ordered product's boxes from the simulator (most visible first) instead of
     the detector: what the grasp alone achieves, to tell detection failures from grasp failures."""
 
-    def __init__(self, detector: DetectorNetwork, library: ProductLibrary, grasp: GraspPlanner | str = "analytic",
+    def __init__(self, detector: DetectorNetwork, library: ProductLibrary, grasp: GraspPlanner | str = "learnt",
                  copies: tuple[int, int] = (3, 6), distractors: tuple[int, int] = (2, 3), max_attempts: int = 3,
                  score_threshold: float | None = None, camera: CameraSpec = CameraSpec(size=416),
                  colour_check: float | None = 0.15, oracle: bool = False) -> None:
