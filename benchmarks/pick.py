@@ -125,8 +125,9 @@ def section(result: dict, path: Path, orders: int) -> None:
     lines = ["## Pick pipeline (thesis ch. 6; issue 17)", "",
              f"`python benchmarks/pick.py --orders {orders} --compare-grasps` → `{path.relative_to(_common.ROOT)}`. Each order is a new bin "
              f"(3–6 copies of the product, 2–3 other products); the detector (`{Path(result['weights']).name}`, ROD conditioned on "
-             "the shop photo) ranks the instances; detections whose colours do not match the photo's product are skipped "
-             "(histogram intersection < 0.15); the grasp planner (`binpick.grasping`, depth alone) chooses each detection's "
+             "the shop photo) finds the instances; detections whose colours do not match the photo's product are skipped "
+             "(histogram intersection < 0.15) and the rest, down to a score of 0.01, are ranked by detector score times colour "
+             "similarity (`PickPipeline(colour_rank=0.01)`); the grasp planner (`binpick.grasping`, depth alone) chooses each detection's "
              f"grasp with the **{result['oracle']['grasp']}** policy and skips detections without a feasible one; the grasp "
              "lifts the product, carries it to the order tote and the result is checked; after a failure the next detection "
              "is tried (3 grasps at most). Right product: of all grasps that lifted something, the share that lifted the ordered "

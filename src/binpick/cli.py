@@ -745,7 +745,7 @@ def _fulfil(pipeline, products: list[str], orders: int, seed: int, run_dir: Path
     from binpick.warehouse.pipeline import fulfil
 
     table = Table(title=f"{orders} order{'s' if orders > 1 else ''}")
-    for column in ("order", "product", "trained", "result", "tries", "found", "s"):
+    for column in ("order", "product", "trained", "result", "grasps", "found", "s"):
         table.add_column(column, no_wrap=column != "result")  # long failure reasons wrap; the rest stays whole
     with progress() as callback, callback.task("orders", orders) as task:
 
@@ -753,7 +753,7 @@ def _fulfil(pipeline, products: list[str], orders: int, seed: int, run_dir: Path
             seen = "?" if result.seen is None else "yes" if result.seen else "no"
             outcome = Text("placed", style="green") if result.success else Text(str(result.reason), style="red")
             table.add_row(str(result.order), result.product, seen, outcome,
-                          str(len(result.attempts)), str(result.detections), f"{result.seconds:.1f}")
+                          str(result.grasps), str(result.detections), f"{result.seconds:.1f}")
             task.update(advance=1)
 
         summary, _ = fulfil(pipeline, products, orders, seed, run_dir, on_order=row)

@@ -1,5 +1,5 @@
-"""Grasp candidates for one detection, from depth alone (no simulator): the instance's top surface
-inside its box, a set of yaws (evenly over 180° plus the surface's principal minor axis), the
+"""Grasp candidates for one detection, from depth alone (no simulator): the instance's surface as
+the depth image shows it (a height watershed, the region matching its box), a set of yaws (evenly over 180° plus the surface's principal minor axis), the
 fingertips' depth, the width across the jaws, and a check that each finger can descend beside it.
 
 A top-down parallel-jaw grasp (Dex-Net 2.0's and GG-CNN's setting): the jaws close along the
@@ -10,7 +10,7 @@ say why the others were not tried.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -69,7 +69,6 @@ class GraspCandidate:
     support: float
     rejected: str | None = None  # why it is not tried (None: feasible)
     quality: float | None = None  # the policy's score, where it scored it
-    features: dict = field(default_factory=dict)
 
     def to_json(self) -> dict:
         return {"position": [round(float(v), 4) for v in self.position], "yaw": round(float(self.yaw), 4),

@@ -41,7 +41,7 @@ def write_report(folder: Path, summary: dict[str, Any], orders: list[dict[str, A
         seen = {True: "seen", False: "held out"}.get(order.get("seen"), "?")
         grasps = "<br>".join(grasp_lines(order["attempts"]))
         rows.append(f"<tr><td>{order['order']}</td><td>{html.escape(order['product'])}</td><td>{seen}</td>"
-                    f"<td style='color:{colour}'><b>{outcome}</b></td><td>{len(order['attempts'])}</td>"
+                    f"<td style='color:{colour}'><b>{outcome}</b></td><td>{sum(a['outcome'] != 'no feasible grasp' for a in order['attempts'])}</td>"
                     f"<td>{order['detections']}</td><td>{order['seconds']:.1f}</td><td>{pictures}</td><td style='font-size:small'>{grasps}</td></tr>")
     right = "n/a" if summary.get("right_product") is None else f"{summary['right_product']:.0%}"
     page = f"""<!doctype html><html><head><meta charset="utf-8"><title>{html.escape(title)}</title>
@@ -52,6 +52,6 @@ def write_report(folder: Path, summary: dict[str, Any], orders: list[dict[str, A
 <p>Each order: a new bin; the shop photo (top right of the left picture) conditions the detector; orange boxes are its
 detections with scores; lines across a product are the grasps tried (the open jaws; green: placed, red: not); the GIF
 shows the grasp and the carry to the order tote. Each grasp lists the candidates the policy did not take and why.</p>
-<table><tr><th>order</th><th>product</th><th>in training</th><th>result</th><th>attempts</th><th>detections</th><th>s</th><th>pictures</th><th>grasps tried (numbered as in the picture)</th></tr>
+<table><tr><th>order</th><th>product</th><th>in training</th><th>result</th><th>grasps</th><th>detections</th><th>s</th><th>pictures</th><th>grasps tried (numbered as in the picture)</th></tr>
 {''.join(rows)}</table></body></html>"""
     return atomic_write_text(Path(folder) / "report.html", page)
