@@ -59,6 +59,7 @@ def world(tmp_path_factory) -> dict[str, str]:
     put("latin1.json", b'{"images": "caf\xe9"}')
     put("notmapping.yaml", "- a\n- b\n")
     put("rl.yaml", yaml.safe_dump(TINY_RL))
+    put("grasp.yaml", yaml.safe_dump({"data": str(root), "epochs": 0}))
     put("random.safetensors", os.urandom(256))
 
     # COCO files: one good, the rest damaged in one field each
@@ -224,7 +225,18 @@ CASES: list[tuple[list[str], list[str]]] = [
     (["envs", "tour", "--episodes", "0", "--out", "{root}/tour"], ["episodes", "[1, 10000]"]),
     (["rl", "eval", "{rl_dangling}", "--episodes", "0"], ["episodes"]),
     (["pick", "--product", ",", "--out", "{root}/picks"], ["--product", "names no product"]),
-    (["pick", "--product", "robosuite/milk", "--axis", "z", "--out", "{root}/picks"], ["axis", "'x'", "'y'"]),
+    (["pick", "--product", "robosuite/milk", "--grasp", "sideways", "--out", "{root}/picks"],
+     ["unknown grasp policy 'sideways'", "fixed, analytic, learnt"]),
+    (["pick", "--product", "robosuite/milk", "--grasp", "analytic", "--grasp-weights", "{root}/q.safetensors", "--out", "{root}/picks"],
+     ["grasp weights are for the learnt policy"]),
+    (["pick", "--product", "robosuite/milk", "--grasp-weights", "{root}/missing.safetensors", "--out", "{root}/picks"],
+     ["missing.safetensors", "does not exist"]),
+    (["data", "generate", "--out", "{root}/gen", "--grasp-trials", "-1"], ["grasp_trials"]),
+    (["data", "generate", "--out", "{root}/gen", "--policies", "y,sideways"], ["unknown grasp policy 'sideways'", "analytic"]),
+    (["grasp", "train", "--resume", "{root}"], ["is not a run folder"]),
+    (["grasp", "train", "{root}/missing.yaml"], ["missing.yaml"]),
+    (["grasp", "train", "{grasp_yaml}"], ["epochs must be in"]),
+    (["grasp", "train", "{grasp_yaml}", "--set", "epochs=3"], ["is not a data set folder"]),
     (["data", "generate", "--out", "{root}/gen", "--copies", "5,2"], ["copies"]),
     (["data", "generate", "--out", "{root}/gen", "--copies", "a,b"], ["--copies", "LOW,HIGH"]),
     (["rl", "distributed", "--steps", "0", "--out", "{root}/dist"], ["total_timesteps", "0"]),
@@ -335,7 +347,7 @@ def test_bad_input_is_one_line_and_exit_code_2(args, fragments, world, capsys, m
 def test_the_suite_covers_every_verb_and_enough_cases():
     from binpick.cli import app
 
-    verbs = {" ".join(args[:2]) if args[0] in ("envs", "rl", "april", "data", "detect", "ros", "products") else args[0] for args, _ in CASES}
+    verbs = {" ".join(args[:2]) if args[0] in ("envs", "rl", "april", "data", "detect", "grasp", "ros", "products") else args[0] for args, _ in CASES}
     groups = {group.name: group.typer_instance for group in app.registered_groups}
     every = {f"{name} {command.name or command.callback.__name__}" for name, group in groups.items()
              for command in group.registered_commands} | {command.name for command in app.registered_commands}
