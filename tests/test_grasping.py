@@ -174,6 +174,7 @@ def test_grasp_trials_and_planned_pickability_are_recorded_and_the_quality_model
     records = [__import__("json").loads(p.read_text()) for p in sorted((data / "scenes").glob("*.json"))]
     trials = [t for r in records for t in r["grasp_trials"]]
     assert trials and all(isinstance(t["success"], bool) and len(t["position"]) == 3 and 0 <= t["yaw"] < np.pi for t in trials)
+    assert f"| grasp trials (candidates from depth, executed with a carry) | {len(trials)}," in (data / "CARD.md").read_text()
     assert {r["split"] for r in records} == {"train", "val"}
     targets = [a for r in records for a in r["annotations"] if a["is_target"]]
     assert targets and all(isinstance(a["pickable"]["analytic"], bool) for a in targets)  # labelled by the planner's policy

@@ -585,7 +585,9 @@ def dataset_stats(records: list[dict[str, Any]], policies: list[str]) -> dict[st
             by_category[category][policy] = round(float(np.mean(values)), 4)
     differs = [len({a["pickable"][p] for p in policies}) > 1 for a in labelled] if len(policies) > 1 else []
     splits = Counter(r["split"] for r in records)
+    trials = [t["success"] for r in records for t in r.get("grasp_trials", [])]
     return {"scenes": len(records), "instances": int(sum(instances)),
+            "grasp_trials": len(trials), "grasp_trial_success": round(float(np.mean(trials)), 4) if trials else None,
             "instances_per_image": round(float(np.mean(instances)), 3) if records else 0.0,
             "target_instances_per_image": round(len(targets) / max(1, len(records)), 3),
             "labelled_instances": len(labelled),
@@ -608,6 +610,9 @@ def card(stats: dict[str, Any], manifest: dict[str, Any]) -> str:
              f"| labelled target instances | {stats['labelled_instances']} |"]
     for policy, fraction in stats["pickable_fraction"].items():
         lines.append(f"| pickable by policy {policy} | {fraction:.1%} |")
+    if stats.get("grasp_trials"):
+        lines.append(f"| grasp trials (candidates from depth, executed with a carry) | {stats['grasp_trials']}, "
+                     f"{stats['grasp_trial_success']:.1%} held |")
     if stats["pickability_differs_fraction"] is not None:
         lines.append(f"| pickability differs between policies | {stats['pickability_differs_fraction']:.1%} |")
     if stats["pickable_fraction_by_category"]:
