@@ -40,6 +40,8 @@ SKIPPED = {
                                                            "the commands above run its pieces",
     "python benchmarks/rod.py finetune --runs runs/rod16": "a benchmark, after the one above",
     "python benchmarks/rod.py generalise --runs runs/rod16": "a benchmark, after the two above",
+    "python benchmarks/grasp.py eval": "a benchmark (40 bins of held-out products, the shipped grasp model); "
+                                       "tests/test_grasping.py runs its pieces",
 }
 
 TINY_RL = {"total_timesteps": 150, "checkpoint_every": 75, "eval.every": 150, "eval.episodes": 1, "gp.warmup_episodes": 2,
@@ -53,6 +55,8 @@ TINY: list[tuple[str, str]] = [
     (r"--scenes 2000\b", "--scenes 24"),  # 3 worlds of 8: one each for val, test and train (split_rule=random)
     (r"--policies x,y", "--policies y"),  # the one the rod_* configs and `data show --policy y` read
     (r"--scenes 400\b", "--scenes 6 --scenes-per-world 1 --val-fraction 0.34"),
+    (r"--scenes 480\b", "--scenes 6 --scenes-per-world 1 --val-fraction 0.5"),  # grasp trials: train and val worlds
+    (r"--grasp-trials \d+", "--grasp-trials 1"),
     (r"--workers \d+", "--workers 1"),
     (r"--orders \d+", "--orders 1"),
     (r"--episodes \d+", "--episodes 1"),
@@ -63,6 +67,7 @@ TINY: list[tuple[str, str]] = [
     (r"^(binpick rl train configs/\S+.*)$", r"\1 " + " ".join(f"--set {k}={v}" for k, v in TINY_RL.items())),
     (r"^(binpick april run configs/\S+.*)$", r"\1 --set collect.episodes=2 --set perception_training.epochs=1 "
                                             r"--set eval.episodes=1 --set policy.rl_config=tiny_rl.yaml"),
+    (r"^(binpick grasp train configs/\S+.*)$", r"\1 --set epochs=1 --set batch_size=2"),
     (r"^(binpick detect train configs/\S+.*)$", r"\1 --set train.epochs=1 --set train.batch_size=4 --set train.workers=0 "
                                                r"--set data.image_size=128"),
 ]

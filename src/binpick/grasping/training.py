@@ -23,7 +23,7 @@ from binpick.errors import ConfigError, InputFileError
 from binpick.files import atomic_write_text, read_json
 from binpick.grasping.camera import PinholeCamera, read_depth
 from binpick.grasping.candidates import Surface, describe, instance_surface
-from binpick.grasping.quality import GraspQuality, GraspQualityNet, MapSpec, grasp_features, height_map
+from binpick.grasping.quality import FEATURES, GraspQuality, GraspQualityNet, MapSpec, grasp_features, height_map
 from binpick.runs import SILENT, RunCallback, commit_checkpoint, latest_checkpoint, new_run_dir
 
 CHECKPOINT_FORMAT = "binpick-grasp-quality-checkpoint-1"
@@ -92,7 +92,7 @@ def load_trials(data: str | Path, split: str, spec: MapSpec = MapSpec()) -> Tria
             labels.append(float(trial["success"]))
             products.append(trial["product"])
     size = spec.size
-    return TrialSet(np.array(maps, dtype=np.float32).reshape(-1, size, size), np.array(features, dtype=np.float32).reshape(len(labels), -1),
+    return TrialSet(np.array(maps, dtype=np.float32).reshape(-1, size, size), np.array(features, dtype=np.float32).reshape(-1, FEATURES),
                     np.array(labels, dtype=np.float32), products)
 
 
