@@ -27,6 +27,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 sys.path.insert(0, os.path.dirname(__file__))
 
 import _common  # noqa: E402
+from rod import run_folder, finished  # noqa: E402  (the newest run folder of a name; has it written its weights)
 
 DATA = _common.ROOT / "runs" / "data" / "grasp_trials"
 RUNS = _common.ROOT / "runs" / "grasp"
@@ -40,9 +41,9 @@ def train(data: Path, epochs: int) -> None:
     from binpick.grasping.training import QualityTrainConfig, QualityTrainer
     from binpick.terminal import RichCallback
 
-    folders = sorted(p for p in (RUNS / "grasp_quality").glob("*") if (p / "config.yaml").is_file()) if (RUNS / "grasp_quality").is_dir() else []
-    if folders and not (folders[-1] / "model.safetensors").is_file():
-        trainer = QualityTrainer.resume(folders[-1])
+    folder = run_folder(RUNS, "grasp_quality")
+    if folder is not None and not finished(folder):
+        trainer = QualityTrainer.resume(folder)
     else:
         trainer = QualityTrainer.new(QualityTrainConfig(data=str(data.relative_to(_common.ROOT) if data.is_absolute() else data),
                                                         epochs=epochs), RUNS)
@@ -206,11 +207,11 @@ def pickability() -> None:
 
     torch.set_num_threads(2)
     name = "rod_finetune_photo_learnt"
-    folders = sorted(p for p in (RUNS / name).glob("*") if (p / "config.yaml").is_file()) if (RUNS / name).is_dir() else []
-    if folders and (folders[-1] / "model.safetensors").is_file():
-        run_dir = folders[-1]
+    folder = run_folder(RUNS, name)
+    if finished(folder):
+        run_dir = folder
     else:
-        trainer = DetectorTrainer.resume(folders[-1]) if folders else DetectorTrainer.new(
+        trainer = DetectorTrainer.resume(folder) if folder is not None else DetectorTrainer.new(
             load_detect_config(_common.ROOT / "configs" / f"{name}.yaml"), RUNS)
         with RichCallback() as callback:
             trainer.run(callback)

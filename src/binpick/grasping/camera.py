@@ -47,15 +47,14 @@ class PinholeCamera:
         return {"K": self.K.round(6).tolist(), "width": int(self.width), "height": int(self.height),
                 "camera_to_world": self.camera_to_world.round(6).tolist()}
 
-    def points(self, depth: np.ndarray, rows: slice = slice(None), cols: slice = slice(None)) -> np.ndarray:
-        """World xyz (H, W, 3) float32 of every pixel of ``depth[rows, cols]`` (metres along the
-        optical axis; 0 or non-finite: no reading, NaN out)."""
-        z = np.asarray(depth[rows, cols], dtype=np.float32)
-        v0, u0 = rows.start or 0, cols.start or 0
+    def points(self, depth: np.ndarray) -> np.ndarray:
+        """World xyz (H, W, 3) float32 of every pixel of ``depth`` (metres along the optical axis; 0 or
+        non-finite: no reading, NaN out)."""
+        z = np.asarray(depth, dtype=np.float32)
         z = np.where(np.isfinite(z) & (z > 0), z, np.float32(np.nan))
         fx, fy, cx, cy = (float(self.K[i, j]) for i, j in ((0, 0), (1, 1), (0, 2), (1, 2)))  # Python floats keep float32
-        x = ((np.arange(u0, u0 + z.shape[1], dtype=np.float32) - cx) / fx)[None, :] * z  # camera axes
-        y = ((np.arange(v0, v0 + z.shape[0], dtype=np.float32) - cy) / fy)[:, None] * z
+        x = ((np.arange(z.shape[1], dtype=np.float32) - cx) / fx)[None, :] * z  # camera axes
+        y = ((np.arange(z.shape[0], dtype=np.float32) - cy) / fy)[:, None] * z
         rotation, origin = self.camera_to_world[:3, :3].astype(np.float32), self.camera_to_world[:3, 3].astype(np.float32)
         return np.stack([float(rotation[i, 0]) * x + float(rotation[i, 1]) * y + float(rotation[i, 2]) * z + float(origin[i])
                          for i in range(3)], axis=-1)

@@ -95,7 +95,9 @@ class GraspPlanner:
             return GraspChoice(fixed, candidates)  # today's grasp: tried whatever the checks say
         feasible = [c for c in candidates if c.rejected is None]
         if not feasible:
-            return GraspChoice(None, candidates, "no candidate fits: " + ", ".join(f"{n} {k}" for k, n in GraspChoice(None, candidates).rejections().items()))
+            choice = GraspChoice(None, candidates)
+            choice.reason = "no candidate fits: " + ", ".join(f"{n} {k}" for k, n in choice.rejections().items())
+            return choice
         if self.policy is GraspPolicyName.ANALYTIC:
             for candidate in feasible:
                 candidate.quality = analytic_score(candidate, surface)

@@ -156,11 +156,12 @@ class PickPipeline:
                 candidates.sort(key=lambda c: -c[1] * (c[2] if c[2] is not None else 1.0))
             if len(boxes) and not candidates:
                 result.reason = Reason.COLOUR_MISMATCH
-            points = self.pinhole(scene).points(scene.depth)
+            camera = self.pinhole(scene)
+            points = camera.points(scene.depth)  # once per frame, shared by every detection
             for box, score, similarity in candidates:  # detections without a feasible grasp cost no attempt
                 if result.grasps >= self.max_attempts:
                     break
-                choice, tips = plan_grasp(self.grasp, points, self.pinhole(scene), box, scene.depth, self.camera)
+                choice, tips = plan_grasp(self.grasp, points, camera, box, scene.depth, self.camera)
                 if choice.chosen is None:
                     result.attempts.append(Attempt([float(v) for v in box], float(score), None if similarity is None else round(similarity, 3),
                                                    [], Reason.NO_GRASP, None, rejected=choice.rejections()))
