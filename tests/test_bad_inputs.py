@@ -172,6 +172,22 @@ def world(tmp_path_factory) -> dict[str, str]:
         (full / "scenes" / f"{index:06d}.json").write_text(json.dumps(record | {"index": index}))
     paths["bins_24"] = full
 
+    # one RGB-D frame from a "real" camera (binpick plan): 64x64 colour = scene.png
+    def depth_png(name: str, array: np.ndarray) -> None:
+        Image.fromarray(array.astype(np.uint16)).save(root / name)
+        paths[name.replace(".", "_")] = root / name
+
+    depth_png("depth_mm.png", np.full((64, 64), 800))
+    depth_png("depth_small.png", np.full((32, 32), 800))
+    depth_png("depth_zero.png", np.zeros((64, 64)))
+    np.save(root / "depth_in_mm.npy", np.full((64, 64), 800.0, np.float32))  # millimetres given as metres
+    paths["depth_in_mm_npy"] = root / "depth_in_mm.npy"
+    camera = {"image_width": 64, "image_height": 64, "camera_matrix": {"rows": 3, "cols": 3, "data": [60, 0, 32, 0, 60, 32, 0, 0, 1]}}
+    put("camera.yaml", yaml.safe_dump(camera))
+    put("camera_no_k.yaml", yaml.safe_dump({"image_width": 64, "image_height": 64}))
+    put("camera_640.yaml", yaml.safe_dump(camera | {"image_width": 640, "image_height": 480}))
+    put("camera_bad_rotation.yaml", yaml.safe_dump(camera | {"camera_to_base": {"translation": [0, 0, 1], "rotation": [0, 0, 0, 0]}}))
+
     # products files
     put("products_bad_number.yaml", "products:\n  - {id: a/b, category: c, mesh: box.obj, longest_side: abc}\n")
     (root / "box.obj").write_text("v 0 0 0\nv 0.05 0 0\nv 0 0.05 0\nv 0 0 0.05\nf 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n")
@@ -234,6 +250,27 @@ CASES: list[tuple[list[str], list[str]]] = [
     (["data", "generate", "--out", "{root}/gen", "--grasp-trials", "-1"], ["grasp_trials"]),
     (["data", "generate", "--out", "{root}/gen", "--policies", "y,sideways"], ["unknown grasp policy 'sideways'", "analytic"]),
     (["grasp", "train", "--resume", "{root}"], ["is not a run folder"]),
+    (["plan", "--rgb", "{scene_png}", "--depth", "{depth_mm_png}", "--camera", "{camera_yaml}"], ["exactly one of --photo", "--query-box"]),
+    (["plan", "--rgb", "{scene_png}", "--depth", "{depth_small_png}", "--camera", "{camera_yaml}", "--photo", "{scene_png}"],
+     ["depth is 32x32 but colour is 64x64"]),
+    (["plan", "--rgb", "{scene_png}", "--depth", "{depth_zero_png}", "--camera", "{camera_yaml}", "--photo", "{scene_png}"],
+     ["depth_zero.png", "no valid reading"]),
+    (["plan", "--rgb", "{scene_png}", "--depth", "{depth_in_mm_npy}", "--camera", "{camera_yaml}", "--photo", "{scene_png}"],
+     ["reads 800 m", "metres in .npy"]),
+    (["plan", "--rgb", "{scene_png}", "--depth", "{depth_mm_png}", "--camera", "{camera_no_k_yaml}", "--photo", "{scene_png}"],
+     ["camera_no_k.yaml", "has no camera_matrix"]),
+    (["plan", "--rgb", "{scene_png}", "--depth", "{depth_mm_png}", "--camera", "{camera_640_yaml}", "--photo", "{scene_png}"],
+     ["calibration is for 640x480 images", "64x64"]),
+    (["plan", "--rgb", "{scene_png}", "--depth", "{depth_mm_png}", "--camera", "{camera_bad_rotation_yaml}", "--photo", "{scene_png}"],
+     ["camera_to_base.rotation", "non-zero quaternion"]),
+    (["plan", "--rgb", "{scene_png}", "--depth", "{depth_mm_png}", "--camera", "{camera_yaml}", "--query-box", "50,50,30,30"],
+     ["--query-box", "outside the 64x64"]),
+    (["plan", "--rgb", "{scene_png}", "--depth", "{depth_mm_png}", "--camera", "{camera_yaml}", "--photo", "{scene_png}", "--out", "p.txt"],
+     ["--out must end in .json"]),
+    (["plan", "--rgb", "{fake_png}", "--depth", "{depth_mm_png}", "--camera", "{camera_yaml}", "--photo", "{scene_png}"],
+     ["colour image", "fake.png"]),
+    (["data", "export", "{root}", "--out", "{root}/export"], ["is not a binpick data set"]),
+    (["data", "export", "{bins_24}", "--scene", "99", "--out", "{root}/export"], ["scene 99 is not in"]),
     (["grasp", "train", "{root}/missing.yaml"], ["missing.yaml"]),
     (["grasp", "train", "{grasp_yaml}"], ["epochs must be in"]),
     (["grasp", "train", "{grasp_yaml}", "--set", "epochs=3"], ["is not a data set folder"]),

@@ -97,7 +97,8 @@ def test_the_demo_fulfils_an_order_with_the_shipped_detector(tmp_path):
 
 def test_the_colour_check_tells_the_ordered_product_from_another_colour():
     from binpick.sim.photos import shop_photo
-    from binpick.warehouse.verify import colour_histogram, colour_similarity, photo_mask
+    from binpick.grasping import PinholeCamera
+    from binpick.picking.colour import colour_histogram, colour_similarity, photo_mask
 
     library = default_library(procedural=0, shapes=0)
     camera = CameraSpec(size=160)
@@ -110,8 +111,9 @@ def test_the_colour_check_tells_the_ordered_product_from_another_colour():
     assert 0.01 < can_mask.mean() < 0.5
     histogram = colour_histogram(can_photo, can_mask)
     by_product: dict[str, list[float]] = {}
+    points = PinholeCamera.from_record(scene.camera).points(scene.depth)  # camera-agnostic: world heights, no floor constant
     for instance in scene.instances:
-        by_product.setdefault(instance.product_id, []).append(colour_similarity(histogram, scene.rgb, scene.depth, instance.bbox, camera))
+        by_product.setdefault(instance.product_id, []).append(colour_similarity(histogram, scene.rgb, points, instance.bbox))
     assert min(by_product["robosuite/can"]) > 0.3 > max(by_product["robosuite/lemon"])
     user_photo = np.full((40, 40, 3), 235, np.uint8)
     user_photo[10:20, 5:30] = (200, 30, 30)  # a red product on a light grey background

@@ -469,6 +469,26 @@ def data_show(
     console.print(f"scene {index} ({record['target']}, {len(record['annotations'])} instances) -> {out}")
 
 
+@data_app.command("export")
+def data_export(
+    data: Annotated[Path, typer.Argument(help="Data-set folder")],
+    out: Annotated[Path, typer.Option(help="Folder for the files (one sub-folder per scene when several)")],
+    scene: Annotated[list[int] | None, typer.Option(help="Scene index (repeat for several; default: 0)")] = None,
+) -> None:
+    """Write scenes as a real RGB-D camera gives them: rgb.png, depth.png (16-bit mm), camera.yaml
+    (ROS camera_info + camera_to_base), photo.png (the ordered product) and truth.json; try
+    `binpick plan` on them."""
+    from binpick.warehouse.export import export_dataset_scene
+
+    scenes = scene or [0]
+    for index in scenes:
+        if index < 0:
+            raise ConfigError(f"--scene must be 0 or more, got {index}")
+    for index in scenes:
+        folder = export_dataset_scene(data, index, out if len(scenes) == 1 else out / f"{index:06d}")
+        console.print(f"scene {index} -> {folder}: rgb.png depth.png camera.yaml photo.png truth.json")
+
+
 @data_app.command("stats")
 def data_stats(data: Annotated[Path, typer.Argument(help="Data-set folder")]) -> None:
     """Counts: instances per image, pickable fraction per policy and category, policy disagreement.
@@ -738,6 +758,67 @@ def pick(
         library.add(replace(library[products[0]], photo=photo))
     model = Detector.load(weights or "rod_photo_tiny_320").network
     _fulfil(PickPipeline(model, library, grasp=planner), products, orders, seed, run_dir)
+
+
+@app.command("plan")
+def plan(
+    rgb: Annotated[Path, typer.Option(help="Colour image (PNG/JPEG), registered with the depth image")],
+    depth: Annotated[Path, typer.Option(help="Depth image: 16-bit PNG in millimetres or .npy in metres (0: no reading)")],
+    camera: Annotated[Path, typer.Option(help="camera.yaml: ROS camera_info layout, plus camera_to_base (the camera's pose in the robot's base frame)")],
+    photo: Annotated[Path | None, typer.Option(help="Shop photo of the ordered product")] = None,
+    query_box: Annotated[str | None, typer.Option(help="Or: x,y,w,h of one instance of it in the colour image")] = None,
+    out: Annotated[Path, typer.Option(help="plan.json: grasps (position, quaternion x,y,z,w in the base frame), scores, boxes")] = Path("plan.json"),
+    overlay: Annotated[Path | None, typer.Option(help="PNG of the frame with detections and the planned jaws, numbered")] = None,
+    weights: Annotated[Path | None, typer.Option(help="Detector: run folder or .safetensors (default: the shipped one for the query)")] = None,
+    grasp: Annotated[str, typer.Option(help="Grasp policy: learnt, analytic or fixed")] = DEFAULT_POLICY,
+    grasp_weights: Annotated[Path | None, typer.Option(help="Grasp-quality weights for --grasp learnt (default: shipped)")] = None,
+    max_grasps: Annotated[int, typer.Option(help="Plan grasps for this many detections (best first)")] = 3,
+) -> None:
+    """Plan grasps from one real RGB-D frame: no simulator. Prints the best grasp; writes plan.json."""
+    from binpick.config import check_range
+    import numpy as np
+
+    from binpick.detection.predict import parse_box
+    from binpick.files import atomic_write_text
+    from binpick.picking import Picker
+    from binpick.picking.frames import read_colour, read_frame
+
+    check_range("--max-grasps", max_grasps, 1, 100, integer=True)
+    if (photo is None) == (query_box is None):
+        raise ConfigError("give exactly one of --photo (the product's shop photo) or --query-box x,y,w,h")
+    if out.suffix.lower() != ".json":
+        raise ConfigError(f"--out must end in .json, got {str(out)!r}")
+    check_output_file(out, "--out")
+    if overlay is not None:
+        _check_png_path(overlay, "--overlay")
+    box = parse_box(query_box) if query_box is not None else None
+    colour, metres, info = read_frame(rgb, depth, camera)
+    query = read_colour(photo, "--photo") if photo is not None else None
+    if box is not None and (box[0] < 0 or box[1] < 0 or box[0] + box[2] > colour.shape[1] or box[1] + box[3] > colour.shape[0]):
+        raise ConfigError(f"--query-box {query_box!r} lies outside the {colour.shape[1]}x{colour.shape[0]} colour image")
+    crop = weights if box is not None else None
+    picker = Picker.load(None if box is not None else weights, grasp, grasp_weights, crop_detector=crop, max_grasps=max_grasps)
+    plans = picker.plan(colour, metres, info, photo=query, query_box=box)
+    result = {"inputs": {"rgb": str(rgb), "depth": str(depth), "camera": str(camera),
+                         "photo": None if photo is None else str(photo), "query_box": query_box},
+              "grasp_policy": grasp, **plans.to_json()}
+    atomic_write_text(out, json.dumps(result, indent=1))
+    if overlay is not None:
+        _save_png(plans.plot(colour, info.camera, picker.grasp.gripper.opening, query, box), overlay, "--overlay")
+    best = plans.grasps[0] if plans.grasps else None
+    if best is None:
+        reasons: dict[str, int] = {}
+        for p in plans:
+            for k, n in p.rejected.items():
+                reasons[k] = reasons.get(k, 0) + n
+        why = [f"{plans.colour_rejected} failed the colour check"] if plans.colour_rejected else []
+        why += [f"{k} x{n}" for k, n in reasons.items()]
+        console.print(f"no feasible grasp: {plans.detections} detection(s){': ' + '; '.join(why) if why else ''} -> {out}", soft_wrap=True)
+    else:
+        x, y, z = best.position
+        console.print(f"{len(plans.grasps)} grasp(s) from {plans.detections} detections in {plans.timing_ms['total']:.0f} ms; best: "
+                      f"({x:.3f}, {y:.3f}, {z:.3f}) m in {plans.frame}, yaw {np.degrees(best.yaw):.0f} deg, "
+                      f"width {100 * best.width:.1f} cm, score {best.score:.2f} -> {out}", soft_wrap=True)
 
 
 def _fulfil(pipeline, products: list[str], orders: int, seed: int, run_dir: Path) -> dict:

@@ -3,7 +3,8 @@ conditioning -> ranked detections of pickable instances -> a colour check agains
 best one's 3D grasp point from depth -> a top-down grasp -> carried to the order tote -> verified.
 Each detection gets a grasp from the grasp planner (:mod:`binpick.grasping`, depth only); detections
 without a feasible one are skipped. After a failed attempt the next detection is tried, up to
-``max_attempts`` grasps.
+``max_attempts`` grasps. The planning is :class:`binpick.picking.Picker`'s, the same code a real
+camera's frames go through (`binpick plan`, the ROS nodes); this module renders and executes.
 
 Each order is a new bin: K copies of the ordered product and some other products, settled from a
 seed. What happened is reported per order, with a reason when it failed.
@@ -21,7 +22,6 @@ from typing import Any
 import numpy as np
 
 from binpick.detection.model import DetectorNetwork
-from binpick.detection.predict import predict
 from binpick.errors import ConfigError
 from binpick.files import atomic_write, atomic_write_text, ensure_dir
 from binpick.sim.bin_scene import BinWorld, Scene
@@ -29,8 +29,9 @@ from binpick.sim.mjcf import CameraSpec
 from binpick.sim.photos import shop_photo
 from binpick.sim.products import ProductLibrary
 from binpick.grasping import GraspChoice, GraspPlanner, GraspPolicyName, PinholeCamera
+from binpick.picking import GraspPlan, Picker, Plans
+from binpick.picking.colour import photo_mask
 from binpick.warehouse.grasping import Reason, execute_pick, fixed_tips, grasp_point, half_height, order_tote_xml
-from binpick.warehouse.verify import colour_histogram, colour_similarity, photo_mask
 
 GIF_SIZE = 240
 
@@ -70,10 +71,12 @@ class OrderResult:
 
 
 class PickPipeline:
-    """``PickPipeline(detector, library).run_order(product_id, order, seed)``, or many with :func:`fulfil`.
+    """``PickPipeline(detector, library).run_order(product_id, order, seed)``, or many with :func:`fulfil`:
+    the simulator's client of :class:`binpick.picking.Picker` (render -> plan -> execute in MuJoCo),
+    so the simulated orders and a real camera's frames run the same planning code.
 
     ``colour_check`` skips detections whose colours match the photo's product less than this
-    (histogram intersection, :mod:`binpick.warehouse.verify`; None: no check). On tuning bins (seeds
+    (histogram intersection, :mod:`binpick.picking.colour`; None: no check). On tuning bins (seeds
     30000+, not the benchmark's), 0.15 raised the share of the top three detections that were the
     ordered product from 66% to 90% on 36 orders of seen products (all kept a candidate) and from
     34% to 74% on 16 orders of held-out ones (7 kept a right one in their top three, 6 before).
@@ -86,29 +89,35 @@ class PickPipeline:
     product 90% to 95%) and held-out ones from 40% to 95% (right product 80% to 95%).
 
     ``oracle=True`` takes the ordered product's boxes from the simulator (most visible first) instead of
-    the detector: what the grasp alone achieves, to tell detection failures from grasp failures."""
+    the detector: what the grasp alone achieves, to tell detection failures from grasp failures.
+    ``domain`` (a :class:`binpick.sim.domain.DomainConfig`) renders the bins in another domain, e.g.
+    the shifted-domain test set's camera, tote and light."""
 
     def __init__(self, detector: DetectorNetwork, library: ProductLibrary, grasp: GraspPlanner | str = "learnt",
                  copies: tuple[int, int] = (3, 6), distractors: tuple[int, int] = (2, 3), max_attempts: int = 3,
                  score_threshold: float | None = None, camera: CameraSpec = CameraSpec(size=416),
-                 colour_check: float | None = 0.15, oracle: bool = False, colour_rank: float | None = 0.01) -> None:
+                 colour_check: float | None = 0.15, oracle: bool = False, colour_rank: float | None = 0.01,
+                 domain=None) -> None:
         if detector.spec.query != "photo":
             raise ConfigError("the pick pipeline conditions on shop photos: give a detector trained with query: photo")
-        self.detector, self.library = detector, library
-        self.grasp = grasp if isinstance(grasp, GraspPlanner) else GraspPlanner.load(grasp)
+        planner = grasp if isinstance(grasp, GraspPlanner) else GraspPlanner.load(grasp)
+        self.picker = Picker(detector, planner, score_threshold=score_threshold, colour_check=None if oracle else colour_check,
+                             colour_rank=colour_rank, max_grasps=max_attempts)
+        self.detector, self.library, self.grasp = detector, library, planner
         self.copies, self.distractors, self.max_attempts = copies, distractors, max_attempts
-        # the weights' own threshold where they carry one (scores are calibrated per model), else 0.2
-        if score_threshold is None:
-            score_threshold = detector.score_threshold if detector.score_threshold is not None else 0.2
-        self.score_threshold, self.camera, self.oracle = score_threshold, camera, oracle
-        self.colour_check, self.colour_rank = colour_check, colour_rank
+        self.camera, self.oracle, self.domain = camera, oracle, domain
         self._photos: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+
+    @property
+    def score_threshold(self) -> float:
+        return self.picker.score_threshold
 
     def photo(self, product_id: str) -> np.ndarray:
         """The shop's photo of a product: the user's own, or rendered like the training data's."""
-        return self._photo_and_histogram(product_id)[0]
+        return self.photo_and_mask(product_id)[0]
 
-    def _photo_and_histogram(self, product_id: str) -> tuple[np.ndarray, np.ndarray]:
+    def photo_and_mask(self, product_id: str) -> tuple[np.ndarray, np.ndarray]:
+        """The photo and its product pixels (the renderer's mask; a user's photo: not bright grey)."""
         if product_id not in self._photos:
             from binpick.detection.data import read_image
 
@@ -118,17 +127,29 @@ class PickPipeline:
             else:
                 photo = read_image(product.photo)
                 mask = photo_mask(photo)
-            self._photos[product_id] = photo, colour_histogram(photo, mask)
+            self._photos[product_id] = photo, mask
         return self._photos[product_id]
 
-    def run_order(self, product_id: str, order: int, seed: int, out: Path | None = None) -> OrderResult:
-        started = time.perf_counter()
+    def build_world(self, product_id: str, seed: int) -> tuple[BinWorld, np.random.Generator]:
+        """The order's bin world (not yet settled) and the generator that settles it: K copies of the
+        product and some others, all chosen from ``seed``."""
         rng = np.random.default_rng(seed)
         target = self.library[product_id]
         others = [p for p in sorted(self.library.products) if p != product_id]
         chosen = [self.library[others[i]] for i in rng.choice(len(others), size=self.distractors[1], replace=False)]
         world = BinWorld(target, chosen, max_copies=self.copies[1], camera=self.camera, extra_worldbody=order_tote_xml(),
-                         gripper=True, seed=seed)
+                         gripper=True, seed=seed, domain=self.domain)
+        return world, rng
+
+    def settle(self, world: BinWorld, rng: np.random.Generator, seed: int) -> Scene:
+        scene = world.scene(int(rng.integers(self.copies[0], self.copies[1] + 1)),
+                            int(rng.integers(self.distractors[0], self.distractors[1] + 1)), seed)
+        world.set_guards(False)  # the invisible drop guards would block the carry to the order tote
+        return scene
+
+    def run_order(self, product_id: str, order: int, seed: int, out: Path | None = None) -> OrderResult:
+        started = time.perf_counter()
+        world, rng = self.build_world(product_id, seed)
         frames: list[np.ndarray] = []
         overview = None
         try:
@@ -142,45 +163,19 @@ class PickPipeline:
                 overview.update_scene(world.data, camera=camera_id)
                 frames.append(overview.render().copy())
 
-            scene = world.scene(int(rng.integers(self.copies[0], self.copies[1] + 1)),
-                                int(rng.integers(self.distractors[0], self.distractors[1] + 1)), seed)
-            world.set_guards(False)  # the invisible drop guards would block the carry to the order tote
+            scene = self.settle(world, rng, seed)
             frame()
-            boxes, scores = self.locate(scene, product_id)
+            plans = self.plan(scene, product_id)
             trained = self.detector.trained_products
             result = OrderResult(order, product_id, seed, False, Reason.NO_DETECTION,
-                                 seen=None if trained is None else product_id in trained, detections=len(boxes))
-            candidates = list(zip(boxes, scores, self.colour_similarities(scene, product_id, boxes)))
-            candidates = [c for c in candidates if c[2] is None or c[2] >= self.colour_check]  # None: not checked
-            if self.colour_rank is not None:  # the colour check's evidence joins the detector's in the ranking
-                candidates.sort(key=lambda c: -c[1] * (c[2] if c[2] is not None else 1.0))
-            if len(boxes) and not candidates:
+                                 seen=None if trained is None else product_id in trained, detections=plans.detections)
+            if plans.detections and not plans:
                 result.reason = Reason.COLOUR_MISMATCH
-            camera = self.pinhole(scene)
-            points = camera.points(scene.depth)  # once per frame, shared by every detection
-            for box, score, similarity in candidates:  # detections without a feasible grasp cost no attempt
-                if result.grasps >= self.max_attempts:
-                    break
-                choice, tips = plan_grasp(self.grasp, points, camera, box, scene.depth, self.camera)
-                if choice.chosen is None:
-                    result.attempts.append(Attempt([float(v) for v in box], float(score), None if similarity is None else round(similarity, 3),
-                                                   [], Reason.NO_GRASP, None, rejected=choice.rejections()))
-                    result.reason = Reason.NO_GRASP
-                    continue
-                chosen = choice.chosen
-                outcome = execute_pick(world, tips, chosen.yaw, on_frame=frame)
-                lifted = world.slots[outcome.lifted_slot].id if outcome.lifted_slot is not None else None
-                result.attempts.append(Attempt([float(v) for v in box], float(score), None if similarity is None else round(similarity, 3),
-                                               np.round(tips, 4).tolist(), outcome.reason, lifted, round(float(chosen.yaw), 4),
-                                               round(float(chosen.width), 4), None if chosen.quality is None else round(float(chosen.quality), 4),
-                                               choice.rejections()))
-                if outcome.placed and lifted == product_id:
-                    result.success, result.reason = True, Reason.PLACED
-                    break
-                result.reason = Reason.WRONG_PRODUCT if lifted not in (None, product_id) else outcome.reason
+            self.execute(world, scene, plans, result, on_frame=frame)
             frame()
             if out is not None:
-                result.gif, result.overlay = self._write_pictures(out, order, product_id, scene, boxes, scores, frames, result.attempts)
+                result.gif, result.overlay = self._write_pictures(out, order, product_id, scene, plans.boxes, plans.scores,
+                                                                  frames, result.attempts)
         finally:
             if overview is not None:
                 overview.close()
@@ -188,29 +183,49 @@ class PickPipeline:
         result.seconds = round(time.perf_counter() - started, 2)
         return result
 
-    @property
-    def candidate_threshold(self) -> float:
-        """The lowest detection score the pipeline considers."""
-        return self.score_threshold if self.colour_rank is None else min(self.score_threshold, self.colour_rank)
-
-    def pinhole(self, scene: Scene) -> PinholeCamera:
-        """The scene camera's calibration, as a real camera's would come (no simulator needed)."""
-        return PinholeCamera.from_record(scene.camera)
-
-    def locate(self, scene: Scene, product_id: str) -> tuple[np.ndarray, np.ndarray]:
-        """Boxes (x, y, w, h) of the ordered product, best first, with scores."""
+    def plan(self, scene: Scene, product_id: str) -> Plans:
+        """The picker's plans for the scene's frame, as a real camera would give it."""
+        photo, mask = self.photo_and_mask(product_id)
+        camera = PinholeCamera.from_record(scene.camera)
         if self.oracle:
-            mine = sorted((i for i in scene.instances if i.product_id == product_id and i.visible_fraction >= 0.5),
-                          key=lambda i: -i.visible_fraction)
-            return np.array([i.bbox for i in mine], dtype=float).reshape(-1, 4), np.array([i.visible_fraction for i in mine])
-        prediction = predict(self.detector, scene.rgb, query_image=self.photo(product_id), score_threshold=self.candidate_threshold)
-        return prediction.boxes, prediction.scores
+            return self.picker.plan(scene.rgb, scene.depth, camera, boxes=self.oracle_boxes(scene, product_id))
+        return self.picker.plan(scene.rgb, scene.depth, camera, photo=photo, photo_product_mask=mask)
 
-    def colour_similarities(self, scene: Scene, product_id: str, boxes: np.ndarray) -> list[float | None]:
-        if self.colour_check is None or self.oracle:
-            return [None] * len(boxes)
-        histogram = self._photo_and_histogram(product_id)[1]
-        return [colour_similarity(histogram, scene.rgb, scene.depth, box, self.camera) for box in boxes]
+    def execute(self, world: BinWorld, scene: Scene, plans: list[GraspPlan], result: OrderResult, on_frame=None) -> None:
+        """Try the plans in turn in the simulator until the ordered product lands in the order tote
+        (plans without a feasible grasp are recorded and cost no attempt)."""
+        for plan in plans:
+            if result.grasps >= self.max_attempts:
+                break
+            if not plan.feasible:
+                result.attempts.append(Attempt(plan.box, plan.score, plan.colour_similarity, [], Reason.NO_GRASP, None,
+                                               rejected=plan.rejected))
+                result.reason = Reason.NO_GRASP
+                continue
+            tips = self.tips(plan, scene)
+            outcome = execute_pick(world, tips, plan.yaw, on_frame=on_frame)
+            lifted = world.slots[outcome.lifted_slot].id if outcome.lifted_slot is not None else None
+            result.attempts.append(Attempt(plan.box, plan.score, plan.colour_similarity, np.round(tips, 4).tolist(),
+                                           outcome.reason, lifted, plan.yaw, plan.width, plan.quality, plan.rejected))
+            if outcome.placed and lifted == result.product:
+                result.success, result.reason = True, Reason.PLACED
+                return
+            result.reason = Reason.WRONG_PRODUCT if lifted not in (None, result.product) else outcome.reason
+
+    def tips(self, plan: GraspPlan, scene: Scene) -> np.ndarray:
+        """Where the fingertips go. The fixed policy keeps the grasp point and depth it had before the
+        planner existed (from the overhead camera), so its rows stay comparable."""
+        if self.grasp.policy is GraspPolicyName.FIXED:
+            point = grasp_point(plan.box, scene.depth, self.camera)
+            return fixed_tips(point, half_height(plan.box, point, self.camera))
+        return np.asarray(plan.position, dtype=float)
+
+    @staticmethod
+    def oracle_boxes(scene: Scene, product_id: str) -> tuple[np.ndarray, np.ndarray]:
+        """The ordered product's boxes from the simulator, most visible first, scored by visibility."""
+        mine = sorted((i for i in scene.instances if i.product_id == product_id and i.visible_fraction >= 0.5),
+                      key=lambda i: -i.visible_fraction)
+        return np.array([i.bbox for i in mine], dtype=float).reshape(-1, 4), np.array([i.visible_fraction for i in mine])
 
     def _write_pictures(self, out: Path, order: int, product_id: str, scene: Scene, boxes, scores, frames,
                         attempts: list[Attempt]) -> tuple[str, str]:
@@ -219,7 +234,7 @@ class PickPipeline:
         from binpick.viz.detection import draw_jaws, overlay
 
         name = f"order_{order:03d}_{product_id.replace('/', '_')}"
-        picture = overlay(scene.rgb, boxes, scores, None, self.photo(product_id), min_score=self.candidate_threshold)
+        picture = overlay(scene.rgb, boxes, scores, None, self.photo(product_id), min_score=self.picker.candidate_threshold)
         picture = draw_jaws(picture, self.jaws(scene, attempts))
         atomic_write(out / f"{name}.png", lambda handle: Image.fromarray(picture).save(handle, format="PNG"))
         images = [Image.fromarray(f) for f in frames[::2] or frames]
@@ -229,7 +244,7 @@ class PickPipeline:
 
     def jaws(self, scene: Scene, attempts: list[Attempt]) -> list:
         """Each grasp tried, as its open fingers' pixels: the jaw lines of the order's picture."""
-        camera, reach = self.pinhole(scene), self.grasp.gripper.opening / 2
+        camera, reach = PinholeCamera.from_record(scene.camera), self.grasp.gripper.opening / 2
         lines = []
         for number, attempt in enumerate((a for a in attempts if a.outcome is not Reason.NO_GRASP), start=1):
             centre = np.array(attempt.grasp_point)

@@ -1,0 +1,180 @@
+"""A real camera's calibration in the files robot integrators already have: ROS's ``camera_info``
+YAML (``camera_calibration_parsers`` layout: image_width, image_height, camera_matrix,
+distortion_model, distortion_coefficients) plus binpick's one addition, ``camera_to_base``: where the
+camera's optical frame (x right, y down, z forward) sits in the robot's base frame, from hand-eye
+calibration. Distorted images are rectified before planning, so everything downstream is pinhole.
+
+    camera_to_base:
+      base_frame: base_link
+      translation: [0.0, 0.0, 0.8]      # metres
+      rotation: [1.0, 0.0, 0.0, 0.0]    # quaternion x, y, z, w (this one: looking straight down)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from binpick.errors import ConfigError, InputFileError
+from binpick.grasping.camera import PinholeCamera
+
+DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "equidistant", "none", "")
+
+
+def quaternion_to_matrix(q) -> np.ndarray:
+    """(x, y, z, w) -> 3x3 rotation (normalised first; a zero quaternion is an error)."""
+    x, y, z, w = (float(v) for v in q)
+    n = np.sqrt(x * x + y * y + z * z + w * w)
+    if not np.isfinite(n) or n < 1e-9:
+        raise ConfigError(f"camera_to_base.rotation must be a non-zero quaternion x, y, z, w, got {list(q)}")
+    x, y, z, w = x / n, y / n, z / n, w / n
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def matrix_to_quaternion(R: np.ndarray) -> list[float]:
+    """3x3 rotation -> (x, y, z, w) with w >= 0 (Shepperd's method: stable for every rotation)."""
+    R = np.asarray(R, dtype=float)
+    trace = R[0, 0] + R[1, 1] + R[2, 2]
+    if trace > 0:
+        s = 2.0 * np.sqrt(trace + 1.0)
+        q = [(R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s, 0.25 * s]
+    elif R[0, 0] > R[1, 1] and R[0, 0] > R[2, 2]:
+        s = 2.0 * np.sqrt(1.0 + R[0, 0] - R[1, 1] - R[2, 2])
+        q = [0.25 * s, (R[0, 1] + R[1, 0]) / s, (R[0, 2] + R[2, 0]) / s, (R[2, 1] - R[1, 2]) / s]
+    elif R[1, 1] > R[2, 2]:
+        s = 2.0 * np.sqrt(1.0 + R[1, 1] - R[0, 0] - R[2, 2])
+        q = [(R[0, 1] + R[1, 0]) / s, 0.25 * s, (R[1, 2] + R[2, 1]) / s, (R[0, 2] - R[2, 0]) / s]
+    else:
+        s = 2.0 * np.sqrt(1.0 + R[2, 2] - R[0, 0] - R[1, 1])
+        q = [(R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s, (R[1, 0] - R[0, 1]) / s]
+    q = np.array(q) / np.linalg.norm(q)
+    return (q if q[3] >= 0 else -q).tolist()
+
+
+@dataclass(frozen=True)
+class CameraInfo:
+    """Intrinsics (K, D, size) and extrinsic (camera-to-base) of one calibrated RGB-D camera."""
+
+    camera: PinholeCamera  # the pinhole model planning uses (K, size, camera_to_base)
+    D: np.ndarray = field(default_factory=lambda: np.zeros(0))  # distortion coefficients, ROS order
+    distortion_model: str = "plumb_bob"
+    base_frame: str = "base_link"
+
+    @property
+    def distorted(self) -> bool:
+        return self.distortion_model not in ("none", "") and bool(np.any(np.abs(self.D) > 1e-12))
+
+    @classmethod
+    def from_ros(cls, K, D, width: int, height: int, camera_to_base=None, distortion_model: str = "plumb_bob",
+                 base_frame: str = "base_link") -> CameraInfo:
+        """From a ``sensor_msgs/CameraInfo``'s fields (K row-major, 9 numbers) and a 4x4 transform."""
+        K = np.asarray(K, dtype=float)
+        if K.size != 9:
+            raise ConfigError(f"camera intrinsics K must have 9 numbers (3x3, row-major), got {K.size}")
+        if distortion_model not in DISTORTION_MODELS:
+            raise ConfigError(f"distortion_model {distortion_model!r} is not one binpick rectifies: "
+                              f"use one of {', '.join(m for m in DISTORTION_MODELS if m)}")
+        pose = np.eye(4) if camera_to_base is None else np.asarray(camera_to_base, dtype=float)
+        return cls(PinholeCamera(K.reshape(3, 3), int(width), int(height), pose), np.asarray(D, dtype=float).ravel(),
+                   distortion_model, base_frame)
+
+    def rectify(self, rgb: np.ndarray, depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Undistorted colour (bilinear) and depth (nearest: never a depth between two surfaces),
+        with the same K; unchanged when the camera has no distortion."""
+        if not self.distorted:
+            return rgb, depth
+        import cv2
+
+        K, size = self.camera.K, (int(self.camera.width), int(self.camera.height))
+        if self.distortion_model == "equidistant":
+            maps = cv2.fisheye.initUndistortRectifyMap(K, self.D[:4], np.eye(3), K, size, cv2.CV_32FC1)
+        else:
+            maps = cv2.initUndistortRectifyMap(K, self.D, np.eye(3), K, size, cv2.CV_32FC1)
+        return (cv2.remap(rgb, *maps, cv2.INTER_LINEAR),
+                cv2.remap(np.asarray(depth, np.float32), *maps, cv2.INTER_NEAREST, borderValue=0.0))
+
+    def to_yaml_dict(self, camera_name: str = "binpick") -> dict[str, Any]:
+        """The ``camera_info`` YAML layout (with ``camera_to_base``) that :func:`read_camera_info` reads."""
+        K = self.camera.K.round(6).tolist()
+        P = np.hstack([self.camera.K, np.zeros((3, 1))]).round(6).ravel().tolist()
+        D = self.D.tolist() if self.D.size else [0.0] * 5
+        pose = self.camera.camera_to_world
+        return {"image_width": int(self.camera.width), "image_height": int(self.camera.height), "camera_name": camera_name,
+                "camera_matrix": {"rows": 3, "cols": 3, "data": [v for row in K for v in row]},
+                "distortion_model": self.distortion_model or "plumb_bob",
+                "distortion_coefficients": {"rows": 1, "cols": len(D), "data": D},
+                "rectification_matrix": {"rows": 3, "cols": 3, "data": np.eye(3).ravel().tolist()},
+                "projection_matrix": {"rows": 3, "cols": 4, "data": P},
+                "camera_to_base": {"base_frame": self.base_frame, "translation": pose[:3, 3].round(6).tolist(),
+                                   "rotation": [round(v, 8) for v in matrix_to_quaternion(pose[:3, :3])]}}
+
+
+def _numbers(data: dict, key: str, count: int | None, where: str) -> np.ndarray:
+    value = data.get(key)
+    if isinstance(value, dict):
+        value = value.get("data")
+    if value is None:
+        raise InputFileError(f"camera file {where} has no {key} (the camera_info YAML layout: {key}: {{data: [...]}})")
+    try:
+        array = np.asarray(value, dtype=float).ravel()
+    except (TypeError, ValueError):
+        raise InputFileError(f"camera file {where}: {key} must be numbers, got {value!r:.60}") from None
+    if count is not None and array.size != count:
+        raise InputFileError(f"camera file {where}: {key} must have {count} numbers, got {array.size}")
+    if not np.all(np.isfinite(array)):
+        raise InputFileError(f"camera file {where}: {key} has a number that is not finite")
+    return array
+
+
+def read_camera_info(path: str | Path) -> CameraInfo:
+    """A ``camera_info`` YAML file with an optional ``camera_to_base`` (default: the camera is the
+    base frame). Anything missing or malformed is one line naming the field."""
+    import yaml
+
+    from binpick.files import require_file
+
+    path = require_file(Path(path), "camera file")
+    where = repr(str(path))
+    try:
+        data = yaml.safe_load(path.read_text())
+    except (yaml.YAMLError, UnicodeDecodeError) as error:
+        raise InputFileError(f"camera file {where} is not valid YAML ({str(error).splitlines()[0][:80]})") from None
+    if not isinstance(data, dict):
+        raise InputFileError(f"camera file {where} must be a mapping in the ROS camera_info YAML layout")
+    for key in ("image_width", "image_height"):
+        if not isinstance(data.get(key), int) or data[key] < 1:
+            raise InputFileError(f"camera file {where}: {key} must be a positive whole number of pixels, got {data.get(key)!r}")
+    K = _numbers(data, "camera_matrix", 9, where)
+    D = _numbers(data, "distortion_coefficients", None, where) if "distortion_coefficients" in data else np.zeros(0)
+    model = str(data.get("distortion_model", "plumb_bob") or "")
+    pose = np.eye(4)
+    base_frame = "base_link"
+    extrinsic = data.get("camera_to_base")
+    if extrinsic is not None:
+        if not isinstance(extrinsic, dict):
+            raise InputFileError(f"camera file {where}: camera_to_base must be a mapping with translation and rotation")
+        if "matrix" in extrinsic:
+            pose = _numbers(extrinsic, "matrix", 16, where).reshape(4, 4)
+        else:
+            pose[:3, 3] = _numbers(extrinsic, "translation", 3, where)
+            pose[:3, :3] = quaternion_to_matrix(_numbers(extrinsic, "rotation", 4, where))
+        base_frame = str(extrinsic.get("base_frame", base_frame))
+    try:
+        return CameraInfo.from_ros(K, D, data["image_width"], data["image_height"], pose, model, base_frame)
+    except ConfigError as error:
+        raise InputFileError(f"camera file {where}: {error}") from None
+
+
+def write_camera_info(info: CameraInfo, path: str | Path) -> Path:
+    import yaml
+
+    from binpick.files import atomic_write_text
+
+    path = Path(path)
+    atomic_write_text(path, yaml.safe_dump(info.to_yaml_dict(), sort_keys=False, default_flow_style=None))
+    return path

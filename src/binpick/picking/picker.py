@@ -1,0 +1,255 @@
+"""Pick planning from one RGB-D frame, with no simulator in it: the step between a robot's camera and
+its controller (thesis ch. 6: ROS as the interface between the learning system and a real robot).
+
+    picker = Picker.load()                                   # shipped detector and grasp model
+    plans = picker.plan(rgb, depth, camera, photo=photo)     # or query_box=(x, y, w, h)
+    best = plans[0]            # position (m) + quaternion (x, y, z, w) in the robot's base frame
+
+ROD (conditioned on the shop photo, or on a box around one instance) finds the ordered product's
+instances; a colour check against the photo drops confident detections of other products and ranks
+the rest; each in turn gets a grasp from depth (:mod:`binpick.grasping`) until ``max_grasps`` have a
+feasible one. The simulator's pick loop, ``binpick plan`` and the ROS nodes all call this.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from binpick.errors import ConfigError, InputFileError
+from binpick.grasping import GraspChoice, GraspPlanner, PinholeCamera
+from binpick.picking.camera_info import CameraInfo, matrix_to_quaternion
+from binpick.picking.colour import colour_histogram, colour_similarity, detection_mask, photo_mask
+
+APPROACH = (0.0, 0.0, -1.0)  # top-down: the gripper moves along the base frame's -z (z up)
+
+
+def grasp_orientation(yaw: float) -> list[float]:
+    """The gripper frame's quaternion (x, y, z, w) in the base frame: z along the approach (down),
+    x along the jaws' closing direction (``yaw`` about the base's z), y = z x x."""
+    x_axis = np.array([np.cos(yaw), np.sin(yaw), 0.0])
+    z_axis = np.array(APPROACH)
+    return matrix_to_quaternion(np.stack([x_axis, np.cross(z_axis, x_axis), z_axis], axis=1))
+
+
+@dataclass
+class GraspPlan:
+    """One detection of the ordered product and the grasp chosen for it (``position`` None: no
+    candidate was feasible; ``rejected`` says why, reason -> candidates)."""
+
+    box: list[float]  # x, y, w, h pixels in the (rectified) colour image
+    score: float  # the detector's
+    colour_similarity: float | None  # to the photo's product (None: not checked)
+    position: list[float] | None = None  # fingertips' midpoint, base frame (m)
+    orientation: list[float] | None = None  # gripper frame, quaternion x, y, z, w in the base frame
+    approach: list[float] = field(default_factory=lambda: list(APPROACH))
+    yaw: float | None = None  # the jaws' closing direction about the base's z (rad)
+    width: float | None = None  # the instance's width across the jaws (m)
+    opening: float | None = None  # how far to open the jaws before descending (m)
+    quality: float | None = None  # the grasp policy's score of the chosen candidate
+    rejected: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def feasible(self) -> bool:
+        return self.position is not None
+
+
+class Plans(list):
+    """``list[GraspPlan]`` in the order to try them, with what the frame gave: ``grasps`` (the
+    feasible ones), ``boxes``/``scores`` of every detection above the score threshold, ``frame``
+    (the base frame's name) and ``timing_ms``."""
+
+    def __init__(self, plans: list[GraspPlan], frame: str, timing_ms: dict[str, float], boxes: np.ndarray | None = None,
+                 scores: np.ndarray | None = None) -> None:
+        super().__init__(plans)
+        self.frame, self.timing_ms = frame, timing_ms
+        self.colour_rejected = 0  # detections dropped by the colour check
+        self.boxes = np.zeros((0, 4)) if boxes is None else np.asarray(boxes, dtype=float).reshape(-1, 4)  # every detection
+        self.scores = np.zeros(0) if scores is None else np.asarray(scores, dtype=float)
+
+    @property
+    def detections(self) -> int:
+        return len(self.boxes)
+
+    @property
+    def grasps(self) -> list[GraspPlan]:
+        return [p for p in self if p.feasible]
+
+    def to_json(self) -> dict[str, Any]:
+        return {"frame": self.frame, "detections": self.detections, "colour_rejected": self.colour_rejected, "timing_ms": self.timing_ms,
+                "grasps": len(self.grasps), "plans": [asdict(p) for p in self]}
+
+    def plot(self, rgb: np.ndarray, camera: PinholeCamera, opening: float, photo: np.ndarray | None = None,
+             query_box=None) -> np.ndarray:
+        """The frame with each detection's box and score, and each grasp's open jaws numbered in the
+        order to try them (green)."""
+        from binpick.viz.detection import draw_jaws, overlay
+
+        boxes = np.array([p.box for p in self], dtype=float).reshape(-1, 4)
+        picture = overlay(rgb, boxes, np.array([p.score for p in self]), query_box, photo, min_score=0.0)
+        jaws = []
+        for number, plan in enumerate(self.grasps, start=1):
+            centre = np.array(plan.position)
+            d = np.array([np.cos(plan.yaw), np.sin(plan.yaw), 0.0]) * opening / 2
+            (a, b), _ = camera.project(np.stack([centre - d, centre + d]))
+            jaws.append((a, b, True, str(number)))
+        return draw_jaws(picture, jaws)
+
+
+def as_camera_info(camera: CameraInfo | PinholeCamera) -> CameraInfo:
+    return camera if isinstance(camera, CameraInfo) else CameraInfo(camera)
+
+
+def check_frame(rgb: np.ndarray, depth: np.ndarray, camera: PinholeCamera) -> None:
+    """Colour and depth of one size that the calibration describes; depth in metres."""
+    rgb, depth = np.asarray(rgb), np.asarray(depth)
+    if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+        raise InputFileError(f"colour image must be 8-bit RGB (height x width x 3), got {rgb.dtype} with shape {rgb.shape}")
+    if depth.ndim != 2:
+        raise InputFileError(f"depth image must be 2-D (height x width), got shape {depth.shape}")
+    if depth.shape != rgb.shape[:2]:
+        raise InputFileError(f"depth is {depth.shape[1]}x{depth.shape[0]} but colour is {rgb.shape[1]}x{rgb.shape[0]}: "
+                             "register depth to the colour camera (same size and intrinsics)")
+    if (camera.width, camera.height) != (rgb.shape[1], rgb.shape[0]):
+        raise InputFileError(f"the camera calibration is for {camera.width}x{camera.height} images, the frame is "
+                             f"{rgb.shape[1]}x{rgb.shape[0]}")
+    valid = depth[np.isfinite(depth) & (depth > 0)]
+    if valid.size == 0:
+        raise InputFileError("depth image has no valid reading (all zero or not finite)")
+    if float(np.median(valid)) > 10.0:
+        raise InputFileError(f"depth reads {float(np.median(valid)):.0f} m at its median: give depth in metres "
+                             "(16-bit PNGs in millimetres are converted when read)")
+
+
+class Picker:
+    """``Picker.load(...).plan(rgb, depth, camera, photo=...)``: grasps for the ordered product.
+
+    ``colour_check`` drops detections whose colours match the query's product less than this
+    (histogram intersection; None: no check); ``colour_rank`` (None: off) considers detections down
+    to this score and ranks them by detector score times colour similarity. Their values and why are
+    in :class:`binpick.warehouse.pipeline.PickPipeline`, which measured them."""
+
+    def __init__(self, detector, grasp: GraspPlanner, crop_detector=None, score_threshold: float | None = None,
+                 colour_check: float | None = 0.15, colour_rank: float | None = 0.01, max_grasps: int = 3) -> None:
+        self.detector, self.crop_detector, self.grasp = detector, crop_detector, grasp
+        if score_threshold is None:  # the weights' own threshold where they carry one (scores are calibrated per model)
+            own = getattr(detector, "score_threshold", None) if detector is not None else None
+            score_threshold = own if own is not None else 0.2
+        self.score_threshold, self.colour_check, self.colour_rank = score_threshold, colour_check, colour_rank
+        if max_grasps < 1:
+            raise ConfigError(f"max_grasps must be at least 1, got {max_grasps}")
+        self.max_grasps = max_grasps
+
+    @classmethod
+    def load(cls, detector: str | Path | None = None, grasp: str = "learnt", grasp_weights: str | Path | None = None,
+             crop_detector: str | Path | None = None, **settings) -> Picker:
+        """The photo-conditioned detector (default: shipped), the box-conditioned one for ``query_box``
+        (default: shipped, loaded when first needed) and the grasp policy (default: learnt, shipped)."""
+        from binpick.detection import Detector
+
+        planner = GraspPlanner.load(grasp, grasp_weights)
+        network = Detector.load(detector or "rod_photo_tiny_320").network
+        crop = Detector.load(crop_detector).network if crop_detector is not None else None
+        return cls(network, planner, crop, **settings)
+
+    @property
+    def candidate_threshold(self) -> float:
+        """The lowest detection score considered."""
+        return self.score_threshold if self.colour_rank is None else min(self.score_threshold, self.colour_rank)
+
+    def _detector_for(self, query_box) -> Any:
+        if query_box is None:
+            if self.detector is None or self.detector.spec.query != "photo":
+                raise ConfigError("planning from a shop photo needs a detector trained with query: photo")
+            return self.detector
+        if self.detector is not None and self.detector.spec.query != "photo":
+            return self.detector
+        if self.crop_detector is None:
+            from binpick.detection import Detector
+
+            self.crop_detector = Detector.load("rod_tiny_320").network
+        return self.crop_detector
+
+    def plan(self, rgb: np.ndarray, depth: np.ndarray, camera: CameraInfo | PinholeCamera, photo: np.ndarray | None = None,
+             query_box=None, *, photo_product_mask: np.ndarray | None = None, boxes: tuple[np.ndarray, np.ndarray] | None = None,
+             max_grasps: int | None = None) -> Plans:
+        """Grasps for the product in ``photo`` (or the one inside ``query_box``, x, y, w, h pixels) in
+        one frame: ``rgb`` uint8 (H, W, 3), ``depth`` metres (H, W, 0 = no reading), registered to the
+        colour camera. ``boxes`` (boxes, scores) skips detection and the colour check: grasps for
+        detections from elsewhere. ``photo_product_mask`` marks the product's pixels in the photo
+        (default: what is not bright grey)."""
+        info = as_camera_info(camera)
+        check_frame(rgb, depth, info.camera)
+        if boxes is None and (photo is None) == (query_box is None):
+            raise ConfigError("give exactly one of a shop photo or a query box")
+        timing: dict[str, float] = {}
+        started = time.perf_counter()
+        rgb, depth = info.rectify(np.asarray(rgb), np.asarray(depth, dtype=np.float32))
+        points = info.camera.points(depth)  # once per frame, shared by every detection
+        timing["points"] = 1000 * (time.perf_counter() - started)
+        tick = time.perf_counter()
+        if boxes is not None:
+            found, scores = np.asarray(boxes[0], dtype=float).reshape(-1, 4), np.asarray(boxes[1], dtype=float)
+            similarities: list[float | None] = [None] * len(found)
+        else:
+            from binpick.detection.predict import predict
+
+            query_box = None if query_box is None else np.asarray(query_box, dtype=float)
+            model = self._detector_for(query_box)
+            prediction = (predict(model, rgb, query_image=photo, score_threshold=self.candidate_threshold) if query_box is None
+                          else predict(model, rgb, query_box=query_box, score_threshold=self.candidate_threshold))
+            found, scores = prediction.boxes, prediction.scores
+            timing["detect"] = 1000 * (time.perf_counter() - tick)
+            tick = time.perf_counter()
+            similarities = self.colour_similarities(rgb, points, found, photo, photo_product_mask, query_box)
+            timing["colour"] = 1000 * (time.perf_counter() - tick)
+        ranked = list(zip(found, scores, similarities))
+        if self.colour_check is not None:
+            ranked = [c for c in ranked if c[2] is None or c[2] >= self.colour_check]
+        colour_rejected = len(found) - len(ranked)
+        if self.colour_rank is not None:  # the colour check's evidence joins the detector's in the ranking
+            ranked.sort(key=lambda c: -c[1] * (c[2] if c[2] is not None else 1.0))
+        tick = time.perf_counter()
+        plans: list[GraspPlan] = []
+        wanted = max_grasps or self.max_grasps
+        for box, score, similarity in ranked:
+            if sum(p.feasible for p in plans) >= wanted:
+                break
+            plans.append(self.plan_detection(points, info.camera, box, float(score), similarity))
+        timing["grasp"] = 1000 * (time.perf_counter() - tick)
+        timing["total"] = 1000 * (time.perf_counter() - started)
+        result = Plans(plans, info.base_frame, {k: round(v, 2) for k, v in timing.items()}, found, scores)
+        result.colour_rejected = colour_rejected
+        return result
+
+    def plan_detection(self, points: np.ndarray, camera: PinholeCamera, box, score: float,
+                       similarity: float | None) -> GraspPlan:
+        choice: GraspChoice = self.grasp.choose(points, camera, box)
+        plan = GraspPlan([round(float(v), 2) for v in box], round(score, 4), None if similarity is None else round(similarity, 3),
+                         rejected=choice.rejections())
+        chosen = choice.chosen
+        if chosen is not None:
+            plan.position = [round(float(v), 4) for v in chosen.position]
+            plan.yaw = round(float(chosen.yaw), 4)
+            plan.orientation = [round(v, 6) for v in grasp_orientation(plan.yaw)]
+            plan.width = round(float(chosen.width), 4)
+            plan.opening = float(self.grasp.gripper.opening)
+            plan.quality = None if chosen.quality is None else round(float(chosen.quality), 4)
+        return plan
+
+    def colour_similarities(self, rgb: np.ndarray, points: np.ndarray, boxes: np.ndarray, photo: np.ndarray | None,
+                            photo_product_mask: np.ndarray | None, query_box) -> list[float | None]:
+        """Each box's colour similarity to the query's product: the photo's product pixels, or the
+        query box's pixels standing above what they rest on."""
+        if self.colour_check is None:
+            return [None] * len(boxes)
+        if query_box is None:
+            histogram = colour_histogram(photo, photo_mask(photo) if photo_product_mask is None else photo_product_mask)
+        else:
+            mask = detection_mask(points, query_box)
+            histogram = colour_histogram(rgb, mask if mask.any() else None)
+        return [colour_similarity(histogram, rgb, points, box) for box in boxes]
