@@ -269,6 +269,9 @@ CASES: list[tuple[list[str], list[str]]] = [
      ["--out must end in .json"]),
     (["plan", "--rgb", "{fake_png}", "--depth", "{depth_mm_png}", "--camera", "{camera_yaml}", "--photo", "{scene_png}"],
      ["colour image", "fake.png"]),
+    (["ros", "pick-node", "--colour-topic", "camera colour"], ["--colour-topic must be a ROS graph name"]),
+    (["ros", "pick-node", "--camera", "{camera_no_k_yaml}", "--master", "http://127.0.0.1:0/"], ["camera_no_k.yaml", "has no camera_matrix"]),
+    (["ros2", "pick-node"], ["ROS 2 is not importable here", ".venv-ros2/bin/binpick"]),
     (["data", "export", "{root}", "--out", "{root}/export"], ["is not a binpick data set"]),
     (["data", "export", "{bins_24}", "--scene", "99", "--out", "{root}/export"], ["scene 99 is not in"]),
     (["grasp", "train", "{root}/missing.yaml"], ["missing.yaml"]),
@@ -384,7 +387,7 @@ def test_bad_input_is_one_line_and_exit_code_2(args, fragments, world, capsys, m
 def test_the_suite_covers_every_verb_and_enough_cases():
     from binpick.cli import app
 
-    verbs = {" ".join(args[:2]) if args[0] in ("envs", "rl", "april", "data", "detect", "grasp", "ros", "products") else args[0] for args, _ in CASES}
+    verbs = {" ".join(args[:2]) if args[0] in ("envs", "rl", "april", "data", "detect", "grasp", "ros", "ros2", "products") else args[0] for args, _ in CASES}
     groups = {group.name: group.typer_instance for group in app.registered_groups}
     every = {f"{name} {command.name or command.callback.__name__}" for name, group in groups.items()
              for command in group.registered_commands} | {command.name for command in app.registered_commands}

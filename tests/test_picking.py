@@ -119,3 +119,30 @@ def test_binpick_plan_on_an_exported_scene_matches_the_in_memory_plan(tmp_path, 
     assert len(from_memory) == len(from_files) and from_files.grasps
     for a, b in zip(from_files.grasps, from_memory.grasps):
         assert np.allclose(a.position, b.position, atol=0.004) and a.box == b.box
+
+
+def test_ros_images_convert_both_ways_and_frames_are_matched_by_stamp():
+    from binpick.picking.node import FrameSynchroniser, depth_of, image_array, image_fields, photo_of
+
+    rgb = np.random.default_rng(0).integers(0, 255, (5, 7, 3), dtype=np.uint8)
+    fields = image_fields(rgb, "rgb8")
+    assert np.array_equal(image_array("rgb8", 5, 7, fields["step"], fields["data"]), rgb)
+    padded = b"".join(rgb[r].tobytes() + b"\0\0\0" for r in range(5))  # rows padded to a 24-byte step
+    assert np.array_equal(image_array("rgb8", 5, 7, 24, padded), rgb)
+    bgra = np.dstack([rgb[..., ::-1], np.full((5, 7), 255, np.uint8)])
+    assert np.array_equal(photo_of("bgra8", bgra)[..., :3], rgb)
+    millimetres = np.full((2, 2), 812, np.uint16)
+    assert np.allclose(depth_of("16UC1", image_array("16UC1", 2, 2, 4, millimetres.tobytes())), 0.812)
+    with pytest.raises(InputFileError, match="too few"):
+        image_array("rgb8", 5, 7, 21, b"\0" * 20)
+    with pytest.raises(InputFileError, match="not supported"):
+        image_array("yuv422", 5, 7, 14, b"\0" * 70)
+    frames = FrameSynchroniser(slop=0.02)
+    info = CameraInfo(PinholeCamera(K, 7, 5))
+    frames.add_colour(1.00, rgb)
+    frames.add_depth(1.10, np.ones((5, 7)))  # 100 ms apart: not the same frame
+    frames.add_info(1.00, info)
+    assert frames.latest() is None
+    frames.add_depth(1.01, np.full((5, 7), 2.0))
+    latest = frames.latest()
+    assert latest.stamp == 1.00 and latest.depth[0, 0] == 2.0

@@ -49,3 +49,18 @@ def test_fetch_reach_episodes_through_the_bridge_and_a_missing_server_is_one_lin
         finally:
             server.terminate()
             server.wait(timeout=20)
+
+
+def test_a_bin_is_picked_through_the_plan_pick_node():
+    """The whole loop on 127.0.0.1: the simulator publishes a bin's colour, depth and camera_info, the
+    pick node (a child process) plans for the product named in the goal, the simulator executes the
+    returned pose and the product lands in the order tote."""
+    from pathlib import Path
+
+    loop = Path(__file__).resolve().parents[1] / "benchmarks" / "ros_loop.py"
+    ran = subprocess.run([sys.executable, str(loop), "--ros", "1", "--orders", "1", "--goal", "id", "--timeout", "120"],
+                         capture_output=True, text=True, timeout=300)
+    assert ran.returncode == 0, ran.stderr[-2000:]
+    summary = json.loads(ran.stdout.strip().splitlines()[-1])
+    assert summary["orders"] == 1 and summary["placed"] == 1, summary
+    assert summary["frame"] == "world" and summary["latency_ms"]["median"] > 0

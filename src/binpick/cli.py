@@ -43,6 +43,8 @@ app.add_typer(products_app, name="products")
 ros_app = typer.Typer(help="ROS 1 bridge (thesis §6.1.1): serve a binpick env as an action server, drive it over ROS.",
                       no_args_is_help=True)
 app.add_typer(ros_app, name="ros")
+ros2_app = typer.Typer(help="ROS 2 (PyPI's ros-rclpy wheels, in .venv-ros2): pick planning for a robot's camera.", no_args_is_help=True)
+app.add_typer(ros2_app, name="ros2")
 
 console = Console(markup=False)  # paths and names are printed as they are, never read as Rich markup
 MAX_SEED = 2**32 - 1  # NumPy's legacy seeding (SB3, Gymnasium) takes 32-bit seeds
@@ -625,11 +627,11 @@ def _check_timeout(timeout: float) -> float:
     return check_range("--timeout", timeout, 0.0, 3600.0, low_inclusive=False)
 
 
-def _check_namespace(namespace: str) -> str:
+def _check_namespace(namespace: str, option: str = "--namespace") -> str:
     import re
 
     if not re.fullmatch(r"/?[A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*/?", namespace):
-        raise ConfigError(f"--namespace must be a ROS graph name like /binpick/env (letters, digits, _ and /), "
+        raise ConfigError(f"{option} must be a ROS graph name like /binpick/env (letters, digits, _ and /), "
                           f"got {namespace!r}")
     return namespace
 
@@ -719,6 +721,72 @@ def ros_bench(
         atomic_write_json(json_out, summary)
 
 
+def _picker_options(camera: Path | None, weights: Path | None, grasp: str, grasp_weights: Path | None):
+    """The extrinsic (from a camera.yaml's camera_to_base; identity without one) and the picker."""
+    import numpy as np
+
+    from binpick.picking import Picker, read_camera_info
+
+    pose, frame = np.eye(4), "camera"
+    if camera is not None:
+        info = read_camera_info(camera)
+        pose, frame = info.camera.camera_to_world, info.base_frame
+    return pose, frame, Picker.load(weights, grasp, grasp_weights)
+
+
+@ros_app.command("pick-node")
+def ros_pick_node(
+    camera: Annotated[Path | None, typer.Option(help="camera.yaml whose camera_to_base places the camera in the robot's base frame "
+                                                     "(intrinsics come from the camera_info topic)")] = None,
+    namespace: Annotated[str, typer.Option(help="Action namespace of the PlanPick server")] = "/binpick/plan_pick",
+    colour_topic: Annotated[str, typer.Option(help="sensor_msgs/Image colour topic")] = "/camera/color/image_raw",
+    depth_topic: Annotated[str, typer.Option(help="sensor_msgs/Image depth topic, registered to colour (16UC1 mm or 32FC1 m)")] = "/camera/aligned_depth_to_color/image_raw",
+    info_topic: Annotated[str, typer.Option(help="sensor_msgs/CameraInfo of the colour camera")] = "/camera/color/camera_info",
+    products_file: Annotated[Path | None, typer.Option("--products", help="YAML of your own products (ids goals may name)")] = None,
+    weights: Annotated[Path | None, typer.Option(help="Photo-conditioned detector (default: shipped)")] = None,
+    grasp: Annotated[str, typer.Option(help="Grasp policy: learnt, analytic or fixed")] = DEFAULT_POLICY,
+    grasp_weights: Annotated[Path | None, typer.Option(help="Grasp-quality weights (default: shipped)")] = None,
+    master: MasterOption = None,
+    timeout: Annotated[float, typer.Option(help="Seconds to wait for the ROS master")] = 10.0,
+) -> None:
+    """Serve pick planning over ROS 1: camera topics in, a PlanPick action (grasp poses in the base frame) out."""
+    from binpick.picking.node import Topics
+
+    for name, option in ((namespace, "--namespace"), (colour_topic, "--colour-topic"), (depth_topic, "--depth-topic"), (info_topic, "--info-topic")):
+        _check_namespace(name, option)
+    pose, frame, picker = _picker_options(camera, weights, grasp, grasp_weights)
+    library = product_library(products_file)
+    _ros_environment(master, _check_timeout(timeout))
+    from binpick.ros.pick_node import serve
+
+    serve(picker, pose, frame, namespace, Topics(colour_topic, depth_topic, info_topic), library)
+
+
+@ros2_app.command("pick-node")
+def ros2_pick_node(
+    camera: Annotated[Path | None, typer.Option(help="camera.yaml whose camera_to_base places the camera in the robot's base frame")] = None,
+    namespace: Annotated[str, typer.Option(help="Namespace of the goal/result topics")] = "/binpick/plan_pick",
+    colour_topic: Annotated[str, typer.Option(help="sensor_msgs/Image colour topic")] = "/camera/color/image_raw",
+    depth_topic: Annotated[str, typer.Option(help="sensor_msgs/Image depth topic, registered to colour")] = "/camera/aligned_depth_to_color/image_raw",
+    info_topic: Annotated[str, typer.Option(help="sensor_msgs/CameraInfo of the colour camera")] = "/camera/color/camera_info",
+    products_file: Annotated[Path | None, typer.Option("--products", help="YAML of your own products (ids goals may name)")] = None,
+    weights: Annotated[Path | None, typer.Option(help="Photo-conditioned detector (default: shipped)")] = None,
+    grasp: Annotated[str, typer.Option(help="Grasp policy: learnt, analytic or fixed")] = DEFAULT_POLICY,
+    grasp_weights: Annotated[Path | None, typer.Option(help="Grasp-quality weights (default: shipped)")] = None,
+) -> None:
+    """Serve pick planning over ROS 2 (run with .venv-ros2/bin/binpick): camera topics in, grasp poses out."""
+    from binpick.picking.node import Topics
+    from binpick.ros2 import require_ros2
+
+    for name, option in ((namespace, "--namespace"), (colour_topic, "--colour-topic"), (depth_topic, "--depth-topic"), (info_topic, "--info-topic")):
+        _check_namespace(name, option)
+    require_ros2()
+    pose, frame, picker = _picker_options(camera, weights, grasp, grasp_weights)
+    from binpick.ros2.pick_node import serve
+
+    serve(picker, pose, frame, namespace, Topics(colour_topic, depth_topic, info_topic), product_library(products_file))
+
+
 @app.command("pick")
 def pick(
     product: Annotated[str, typer.Option(help="Product(s) to order: ids, unique short names or categories, comma-separated "
@@ -765,7 +833,7 @@ def plan(
     rgb: Annotated[Path, typer.Option(help="Colour image (PNG/JPEG), registered with the depth image")],
     depth: Annotated[Path, typer.Option(help="Depth image: 16-bit PNG in millimetres or .npy in metres (0: no reading)")],
     camera: Annotated[Path, typer.Option(help="camera.yaml: ROS camera_info layout, plus camera_to_base (the camera's pose in the robot's base frame)")],
-    photo: Annotated[Path | None, typer.Option(help="Shop photo of the ordered product")] = None,
+    photo: Annotated[Path | None, typer.Option(help="Shop photo of the ordered product (a transparent PNG's alpha marks the product)")] = None,
     query_box: Annotated[str | None, typer.Option(help="Or: x,y,w,h of one instance of it in the colour image")] = None,
     out: Annotated[Path, typer.Option(help="plan.json: grasps (position, quaternion x,y,z,w in the base frame), scores, boxes")] = Path("plan.json"),
     overlay: Annotated[Path | None, typer.Option(help="PNG of the frame with detections and the planned jaws, numbered")] = None,
@@ -781,7 +849,7 @@ def plan(
     from binpick.detection.predict import parse_box
     from binpick.files import atomic_write_text
     from binpick.picking import Picker
-    from binpick.picking.frames import read_colour, read_frame
+    from binpick.picking.frames import read_frame, read_photo
 
     check_range("--max-grasps", max_grasps, 1, 100, integer=True)
     if (photo is None) == (query_box is None):
@@ -793,7 +861,7 @@ def plan(
         _check_png_path(overlay, "--overlay")
     box = parse_box(query_box) if query_box is not None else None
     colour, metres, info = read_frame(rgb, depth, camera)
-    query = read_colour(photo, "--photo") if photo is not None else None
+    query = read_photo(photo) if photo is not None else None
     if box is not None and (box[0] < 0 or box[1] < 0 or box[0] + box[2] > colour.shape[1] or box[1] + box[3] > colour.shape[0]):
         raise ConfigError(f"--query-box {query_box!r} lies outside the {colour.shape[1]}x{colour.shape[0]} colour image")
     crop = weights if box is not None else None

@@ -36,3 +36,21 @@ def read_frame(rgb: str | Path, depth: str | Path, camera: str | Path) -> tuple[
     except InputFileError as error:
         raise InputFileError(f"{Path(rgb).name} / {Path(depth).name} / {Path(camera).name}: {error}") from None
     return colour, metres, info
+
+
+def read_photo(path: str | Path) -> np.ndarray:
+    """A shop photo: RGBA where the file has transparency (its alpha marks the product), else RGB."""
+    from PIL import Image, UnidentifiedImageError
+
+    from binpick.files import require_file
+
+    path = require_file(Path(path), "--photo")
+    try:
+        with Image.open(path) as image:
+            transparent = image.mode in ("RGBA", "LA", "PA") or "transparency" in image.info
+            array = np.asarray(image.convert("RGBA" if transparent else "RGB"))
+    except (UnidentifiedImageError, OSError, ValueError) as error:
+        raise InputFileError(f"--photo {str(path)!r} cannot be read ({str(error)[:80] or type(error).__name__})") from None
+    if array.size == 0 or min(array.shape[:2]) < 8:
+        raise InputFileError(f"--photo {str(path)!r} is empty or smaller than 8 pixels")
+    return array

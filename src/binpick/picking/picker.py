@@ -90,6 +90,7 @@ class Plans(list):
         from binpick.viz.detection import draw_jaws, overlay
 
         boxes = np.array([p.box for p in self], dtype=float).reshape(-1, 4)
+        photo = None if photo is None else split_photo(photo)[0]
         picture = overlay(rgb, boxes, np.array([p.score for p in self]), query_box, photo, min_score=0.0)
         jaws = []
         for number, plan in enumerate(self.grasps, start=1):
@@ -98,6 +99,16 @@ class Plans(list):
             (a, b), _ = camera.project(np.stack([centre - d, centre + d]))
             jaws.append((a, b, True, str(number)))
         return draw_jaws(picture, jaws)
+
+
+def split_photo(photo: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """A shop photo's RGB and its product mask: the alpha channel of an RGBA photo (a cut-out PNG),
+    None for an RGB one (the colour check then takes what is not bright grey)."""
+    photo = np.asarray(photo)
+    if photo.ndim == 3 and photo.shape[2] == 4:
+        alpha = photo[..., 3] > 127
+        return np.ascontiguousarray(photo[..., :3]), None if alpha.all() or not alpha.any() else alpha
+    return photo, None
 
 
 def as_camera_info(camera: CameraInfo | PinholeCamera) -> CameraInfo:
@@ -156,6 +167,15 @@ class Picker:
         crop = Detector.load(crop_detector).network if crop_detector is not None else None
         return cls(network, planner, crop, **settings)
 
+    def warm_up(self, size: int = 320) -> None:
+        """Run the detector once on a blank frame: a process's first inference costs seconds (kernel
+        selection, allocation), which a node should pay at start, not on its first request."""
+        from binpick.detection.predict import predict
+
+        blank = np.zeros((size, size, 3), np.uint8)
+        if self.detector is not None and self.detector.spec.query == "photo":
+            predict(self.detector, blank, query_image=blank[:96, :96], score_threshold=1.0)
+
     @property
     def candidate_threshold(self) -> float:
         """The lowest detection score considered."""
@@ -180,10 +200,13 @@ class Picker:
         """Grasps for the product in ``photo`` (or the one inside ``query_box``, x, y, w, h pixels) in
         one frame: ``rgb`` uint8 (H, W, 3), ``depth`` metres (H, W, 0 = no reading), registered to the
         colour camera. ``boxes`` (boxes, scores) skips detection and the colour check: grasps for
-        detections from elsewhere. ``photo_product_mask`` marks the product's pixels in the photo
-        (default: what is not bright grey)."""
+        detections from elsewhere. ``photo`` may be RGBA, its alpha marking the product's pixels (as
+        ``photo_product_mask`` does; default: what is not bright grey)."""
         info = as_camera_info(camera)
         check_frame(rgb, depth, info.camera)
+        if photo is not None:
+            photo, alpha = split_photo(photo)
+            photo_product_mask = alpha if photo_product_mask is None else photo_product_mask
         if boxes is None and (photo is None) == (query_box is None):
             raise ConfigError("give exactly one of a shop photo or a query box")
         timing: dict[str, float] = {}

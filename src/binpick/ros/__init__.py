@@ -14,7 +14,8 @@ import os
 from binpick.errors import BinpickError
 
 DEBIAN_PACKAGES = ("python3-rospy", "python3-actionlib", "python3-rosmaster", "python3-genpy", "python3-genmsg",
-                   "ros-std-msgs", "ros-actionlib-msgs", "python3-actionlib-msgs", "python3-std-msgs")
+                   "ros-std-msgs", "ros-actionlib-msgs", "python3-actionlib-msgs", "python3-std-msgs", "python3-sensor-msgs",
+                   "ros-sensor-msgs", "python3-geometry-msgs", "ros-geometry-msgs")
 
 
 class RosUnavailable(BinpickError):

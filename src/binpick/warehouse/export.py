@@ -33,9 +33,16 @@ def depth_millimetres(depth: np.ndarray) -> np.ndarray:
     return np.clip(np.round(depth * 1000.0), 0, 65535).astype(np.uint16)
 
 
+def cut_out(photo: np.ndarray, mask: np.ndarray | None) -> np.ndarray:
+    """The photo as RGBA, its alpha the product mask (how shops publish cut-out product photos)."""
+    if mask is None:
+        return np.asarray(photo, np.uint8)
+    return np.dstack([np.asarray(photo, np.uint8)[..., :3], np.where(mask, 255, 0).astype(np.uint8)])
+
+
 def export_frame(out: Path, rgb: np.ndarray, depth_m: np.ndarray, camera: dict | PinholeCamera, photo: np.ndarray,
                  truth: dict[str, Any]) -> Path:
-    """Write one frame's files into ``out`` (created)."""
+    """Write one frame's files into ``out`` (created); ``photo`` RGB or RGBA (alpha: the product)."""
     out = ensure_dir(Path(out), "export folder")
     pinhole = camera if isinstance(camera, PinholeCamera) else PinholeCamera.from_record(camera)
     _png(out / "rgb.png", np.asarray(rgb, np.uint8))
@@ -58,16 +65,16 @@ def export_dataset_scene(data: Path, index: int, out: Path, library=None) -> Pat
         raise ConfigError(f"scene {index} of {data} has no camera record: regenerate the data set with this binpick")
     target = record["target"]
     photo_path = Path(data) / "photos" / f"{target.replace('/', '_')}.png"
-    if photo_path.is_file():
+    from binpick.sim import default_library
+    from binpick.sim.photos import shop_photo
+
+    library = library or default_library()
+    if target in library.products:  # rendered again with its mask, as a cut-out
+        photo = cut_out(*shop_photo(library[target], with_mask=True))
+    elif photo_path.is_file():
         photo = read_image(photo_path)
     else:
-        from binpick.sim import default_library
-        from binpick.sim.photos import shop_photo
-
-        library = library or default_library()
-        if target not in library.products:
-            raise ConfigError(f"scene {index}'s product {target!r} is not in the product library and the data set has no photo of it")
-        photo = shop_photo(library[target])
+        raise ConfigError(f"scene {index}'s product {target!r} is not in the product library and the data set has no photo of it")
     out = ensure_dir(Path(out), "--out")
     shutil.copyfile(Path(data) / record["file_name"], out / "rgb.png")
     depth_file = Path(data) / record.get("depth_file", f"depth/{index:06d}.png")

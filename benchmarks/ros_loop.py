@@ -1,0 +1,305 @@
+"""The whole pick loop over ROS on 127.0.0.1: the simulator plays the robot's camera and arm, the
+binpick pick-planning node plans. For each order the simulator settles a bin, publishes its colour,
+depth and camera_info, asks the node to plan (goal: the product id), executes the returned grasp
+poses in MuJoCo until one places the product in the order tote, and records the round trip.
+
+    python benchmarks/ros_loop.py --ros 1 [--orders 10] [--seed 0] [--json out.json]
+    python benchmarks/ros_loop.py --ros 2 ...   # in the ROS 2 interpreter, inside `unshare -n`
+
+The node runs as a separate process (`binpick ros pick-node` / `binpick ros2 pick-node`) started
+here; ROS 1's master too. Prints one JSON line: orders, placed, latency_ms {median, p95}.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+ROOT = Path(__file__).resolve().parents[1]
+PRODUCTS = ("robosuite/milk", "robosuite/bottle", "robosuite/can", "pybullet/duck", "procedural/box_03")
+
+
+class Ros1:
+    """A master, the node (a child process) and this process's publishers and action client."""
+
+    def __init__(self, camera_yaml: Path, node_args: list[str], timeout: float) -> None:
+        from binpick.ros.master import RosMaster
+
+        self.master = RosMaster()
+        os.environ.update({k: v for k, v in self.master.environment.items() if k.startswith("ROS_")})
+        self.node = subprocess.Popen([sys.executable, "-c", "from binpick.cli import main; main()", "ros", "pick-node",
+                                      "--camera", str(camera_yaml), "--master", self.master.uri, *node_args],
+                                     env=self.master.environment, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        import actionlib
+        import rospy
+        import sensor_msgs.msg
+
+        from binpick.ros.client import init_node_once
+        from binpick.ros.messages import plan_pick_action_types
+
+        init_node_once("binpick_sim_camera", timeout)
+        self.rospy, self.actionlib, self.msgs = rospy, actionlib, sensor_msgs.msg
+        self.types = plan_pick_action_types()
+        self.publishers = {name: rospy.Publisher(topic, kind, queue_size=2) for name, topic, kind in (
+            ("colour", "/camera/color/image_raw", sensor_msgs.msg.Image),
+            ("depth", "/camera/aligned_depth_to_color/image_raw", sensor_msgs.msg.Image),
+            ("info", "/camera/color/camera_info", sensor_msgs.msg.CameraInfo))}
+        self.client = actionlib.ActionClient("/binpick/plan_pick", self.types["PlanPickAction"])
+        deadline = time.monotonic() + timeout
+        while not self.client.wait_for_server(rospy.Duration(1.0)):
+            if self.node.poll() is not None or time.monotonic() > deadline:
+                raise RuntimeError(f"the pick node did not come up: {self.output()}")
+
+    def output(self) -> str:
+        if self.node.poll() is None:
+            return "(still running)"
+        return (self.node.stdout.read() or "")[-2000:]
+
+    def publish(self, rgb, depth_mm, K, stamp: float) -> None:
+        from binpick.picking.node import image_fields
+
+        now = self.rospy.Time.from_sec(stamp)
+        colour = self.msgs.Image(**image_fields(rgb, "rgb8"))
+        depth = self.msgs.Image(**image_fields(depth_mm, "16UC1"))
+        info = self.msgs.CameraInfo(width=rgb.shape[1], height=rgb.shape[0], distortion_model="plumb_bob", D=[0.0] * 5,
+                                    K=[float(v) for v in K.ravel()])
+        for message in (colour, depth, info):
+            message.header.stamp, message.header.frame_id = now, "camera_color_optical_frame"
+        self.publishers["colour"].publish(colour)
+        self.publishers["depth"].publish(depth)
+        self.publishers["info"].publish(info)
+
+    def plan(self, product_id: str, timeout: float, photo=None) -> dict:
+        done = threading.Event()
+
+        def on_transition(handle) -> None:
+            if handle.get_comm_state() == self.actionlib.CommState.DONE:
+                done.set()
+
+        goal = self.types["PlanPickGoal"](product_id=product_id)
+        if photo is not None:
+            from binpick.picking.node import image_fields
+
+            for key, value in image_fields(photo, "rgba8" if photo.shape[2] == 4 else "rgb8").items():
+                setattr(goal.photo, key, value)
+        handle = self.client.send_goal(goal, transition_cb=on_transition)
+        if not done.wait(timeout):
+            handle.cancel()
+            raise RuntimeError(f"no PlanPick result within {timeout:g} s")
+        if handle.get_goal_status() != self.actionlib.GoalStatus.SUCCEEDED:
+            raise RuntimeError(f"PlanPick failed: {handle.get_goal_status_text()}")
+        result = handle.get_result()
+        plans = json.loads(result.plans_json)
+        poses = [[g.pose.position.x, g.pose.position.y, g.pose.position.z, g.pose.orientation.x, g.pose.orientation.y,
+                  g.pose.orientation.z, g.pose.orientation.w] for g in result.grasps]
+        return {"plans": plans, "poses": poses, "frame": result.grasps[0].header.frame_id if result.grasps else plans["frame"]}
+
+    def close(self) -> None:
+        self.client = None
+        self.node.terminate()
+        try:
+            self.node.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            self.node.kill()
+        self.master.stop()
+
+
+def interfaces() -> list[str]:
+    """This network namespace's interfaces (/proc/net/dev)."""
+    return [line.split(":")[0].strip() for line in Path("/proc/net/dev").read_text().splitlines()[2:]]
+
+
+class Ros2:
+    """The node (a child process) and this process's rclpy publishers and result subscription, inside a
+    network namespace that has only loopback (checked: DDS cannot reach another address)."""
+
+    def __init__(self, camera_yaml: Path, node_args: list[str], timeout: float) -> None:
+        if interfaces() != ["lo"]:
+            raise RuntimeError(f"ROS 2 runs only inside a namespace with just loopback (unshare -n); here: {interfaces()}")
+        os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+        self.node = subprocess.Popen([sys.executable, "-c", "from binpick.cli import main; main()", "ros2", "pick-node",
+                                      "--camera", str(camera_yaml), *node_args],
+                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        import rclpy
+        import rclpy.executors
+        import rclpy.node
+        import sensor_msgs.msg
+        import std_msgs.msg
+        from rclpy.qos import qos_profile_sensor_data
+
+        from binpick.ros2.pick_node import image_message
+
+        self.rclpy, self.msgs, self.std, self.image_message = rclpy, sensor_msgs.msg, std_msgs.msg, image_message
+        rclpy.init()
+        self.client = rclpy.node.Node("binpick_sim_camera")
+        self.publishers = {name: self.client.create_publisher(kind, topic, qos_profile_sensor_data) for name, topic, kind in (
+            ("colour", "/camera/color/image_raw", sensor_msgs.msg.Image),
+            ("depth", "/camera/aligned_depth_to_color/image_raw", sensor_msgs.msg.Image),
+            ("info", "/camera/color/camera_info", sensor_msgs.msg.CameraInfo))}
+        self.goal = self.client.create_publisher(std_msgs.msg.String, "/binpick/plan_pick/goal", 10)
+        self.goal_photo = self.client.create_publisher(sensor_msgs.msg.Image, "/binpick/plan_pick/goal_photo", 10)
+        self.answers: dict[str, dict] = {}
+        self.answered = threading.Condition()
+
+        def on_result(message) -> None:
+            answer = json.loads(message.data)
+            with self.answered:
+                self.answers[answer.get("id", "")] = answer
+                self.answered.notify_all()
+
+        self.client.create_subscription(std_msgs.msg.String, "/binpick/plan_pick/result", on_result, 10)
+        self.executor = rclpy.executors.SingleThreadedExecutor()
+        self.executor.add_node(self.client)
+        self.spinner = threading.Thread(target=self.executor.spin, daemon=True)
+        self.spinner.start()
+        deadline = time.monotonic() + timeout
+        while (self.goal.get_subscription_count() == 0 or self.goal_photo.get_subscription_count() == 0
+               or self.client.count_publishers("/binpick/plan_pick/result") == 0):
+            if self.node.poll() is not None or time.monotonic() > deadline:
+                raise RuntimeError(f"the ROS 2 pick node did not come up: {self.output()}")
+            time.sleep(0.1)
+        self.requests = 0
+
+    def output(self) -> str:
+        if self.node.poll() is None:
+            return "(still running)"
+        return (self.node.stdout.read() or "")[-2000:]
+
+    def publish(self, rgb, depth_mm, K, stamp: float) -> None:
+        from builtin_interfaces.msg import Time
+
+        now = Time(sec=int(stamp), nanosec=int(1e9 * (stamp % 1)))
+        frame = "camera_color_optical_frame"
+        info = self.msgs.CameraInfo(width=rgb.shape[1], height=rgb.shape[0], distortion_model="plumb_bob", d=[0.0] * 5,
+                                    k=[float(v) for v in K.ravel()])
+        info.header.stamp, info.header.frame_id = now, frame
+        self.publishers["colour"].publish(self.image_message(rgb, "rgb8", now, frame))
+        self.publishers["depth"].publish(self.image_message(depth_mm, "16UC1", now, frame))
+        self.publishers["info"].publish(info)
+
+    def plan(self, product_id: str, timeout: float, photo=None) -> dict:
+        self.requests += 1
+        request = f"r{self.requests}"
+        if photo is None:
+            self.goal.publish(self.std.String(data=json.dumps({"id": request, "product_id": product_id})))
+        else:
+            self.goal_photo.publish(self.image_message(photo, "rgba8" if photo.shape[2] == 4 else "rgb8", frame_id=request))
+        with self.answered:
+            if not self.answered.wait_for(lambda: request in self.answers, timeout):
+                raise RuntimeError(f"no plan result within {timeout:g} s")
+            answer = self.answers.pop(request)
+        if answer["status"] != "succeeded":
+            raise RuntimeError(f"plan failed: {answer['text']}")
+        poses = [g["position"] + g["orientation"] for g in answer["grasps"]]
+        return {"plans": answer["plans"], "poses": poses, "frame": answer["frame"]}
+
+    def close(self) -> None:
+        self.node.terminate()
+        try:
+            self.node.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            self.node.kill()
+        self.executor.shutdown()
+        self.client.destroy_node()
+        self.rclpy.try_shutdown()
+
+
+def transport(version: int, camera_yaml: Path, node_args: list[str], timeout: float):
+    return Ros1(camera_yaml, node_args, timeout) if version == 1 else Ros2(camera_yaml, node_args, timeout)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--ros", type=int, choices=(1, 2), required=True)
+    parser.add_argument("--orders", type=int, default=10)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--products", default=",".join(PRODUCTS))
+    parser.add_argument("--timeout", type=float, default=120.0, help="seconds for the node to start and for each plan")
+    parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("--node-args", default="", help="extra options for the node, e.g. '--grasp analytic'")
+    parser.add_argument("--goal", choices=("id", "photo"), default="photo",
+                        help="name the product (the node renders its catalogue photo, once per product) or send its shop photo")
+    args = parser.parse_args()
+
+    import numpy as np
+
+    from binpick.detection import Detector
+    from binpick.grasping import GraspPlanner, PinholeCamera
+    from binpick.picking import CameraInfo, GraspPlan, write_camera_info
+    from binpick.sim import default_library
+    from binpick.warehouse.export import cut_out, depth_millimetres
+    from binpick.warehouse.grasping import Reason
+    from binpick.warehouse.pipeline import OrderResult, PickPipeline
+
+    products = [p for p in args.products.split(",") if p]
+    # only the world building, settling and execution of the pipeline are used here: the node plans
+    pipeline = PickPipeline(Detector.load("rod_photo_tiny_320").network, default_library(), grasp=GraspPlanner("analytic"))
+    work = Path(tempfile.mkdtemp(prefix="binpick-ros-loop-"))
+    world, rng = pipeline.build_world(products[0], args.seed)
+    scene = pipeline.settle(world, rng, args.seed)
+    world.close()
+    fixed_camera = PinholeCamera.from_record(scene.camera)  # the overhead camera is the same in every bin
+    camera_yaml = write_camera_info(CameraInfo(fixed_camera, base_frame="world"), work / "camera.yaml")
+    ros = transport(args.ros, camera_yaml, args.node_args.split(), args.timeout)
+    results, latencies, planning = [], [], []
+    try:
+        for order in range(args.orders):
+            product, seed = products[order % len(products)], args.seed + order
+            world, rng = pipeline.build_world(product, seed)
+            try:
+                scene = pipeline.settle(world, rng, seed)
+                assert np.allclose(PinholeCamera.from_record(scene.camera).camera_to_world, fixed_camera.camera_to_world)
+                stamp = time.time()
+                depth_mm = depth_millimetres(scene.depth)
+                stop = threading.Event()
+
+                def stream() -> None:  # a camera streams: the node matches the three topics by stamp
+                    while not stop.is_set():
+                        ros.publish(scene.rgb, depth_mm, fixed_camera.K, stamp)
+                        stop.wait(0.1)
+
+                streamer = threading.Thread(target=stream, daemon=True)
+                streamer.start()
+                if args.goal == "photo":
+                    pipeline.photo(product)  # rendered before the clock starts: a shop system has its photos
+                time.sleep(0.3)  # the first frame reaches the node before the goal
+                started = time.perf_counter()
+                answer = ros.plan(product, args.timeout, cut_out(*pipeline.photo_and_mask(product)) if args.goal == "photo" else None)
+                latencies.append(1000 * (time.perf_counter() - started))
+                stop.set()
+                streamer.join()
+                planning.append(answer["plans"]["timing_ms"]["total"])
+                plans = [GraspPlan(**p) for p in answer["plans"]["plans"]]
+                for plan, pose in zip([p for p in plans if p.position is not None], answer["poses"]):
+                    assert np.allclose(plan.position, pose[:3], atol=1e-5)  # the poses are the plans'
+                result = OrderResult(order, product, seed, False, Reason.NO_DETECTION, detections=answer["plans"]["detections"])
+                if answer["plans"]["detections"] and not plans:
+                    result.reason = Reason.COLOUR_MISMATCH
+                pipeline.execute(world, scene, plans, result)
+                results.append(result)
+                print(f"order {order}: {product} {'placed' if result.success else result.reason} "
+                      f"({latencies[-1]:.0f} ms round trip, {planning[-1]:.0f} ms planning)", file=sys.stderr, flush=True)
+            finally:
+                world.close()
+    finally:
+        ros.close()
+    summary = {"ros": args.ros, "goal": args.goal, "orders": len(results), "placed": sum(r.success for r in results),
+               "pick_success": round(sum(r.success for r in results) / max(1, len(results)), 4),
+               "latency_ms": {"median": round(float(np.median(latencies)), 1), "p95": round(float(np.percentile(latencies, 95)), 1)},
+               "planning_ms": {"median": round(float(np.median(planning)), 1), "p95": round(float(np.percentile(planning, 95)), 1)},
+               "frame": answer["frame"], "outcomes": [str(r.reason) for r in results], "interfaces": interfaces()}
+    print(json.dumps(summary), flush=True)
+    if args.json is not None:
+        args.json.write_text(json.dumps(summary, indent=1))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,123 @@
+"""The pick planner as a ROS 1 node (thesis ch. 6): an RGB-D camera's colour, depth and
+``CameraInfo`` topics in (matched by time stamp), a ``binpick/PlanPick`` action out (goal: a product id
+or its shop photo; result: grasp poses in the robot's base frame with scores), and an overlay image of
+every plan on ``<namespace>/overlay``. Everything but the ROS plumbing is
+:mod:`binpick.picking.node`, shared with the ROS 2 node.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from binpick.picking.camera_info import CameraInfo
+from binpick.picking.node import FrameSynchroniser, PlanRequests, Topics, catalogue, colour_of, depth_of, image_array, image_fields, photo_of
+from binpick.ros import master_uri, require_ros, wait_for_master
+
+
+def stamp_seconds(header) -> float:
+    return header.stamp.secs + 1e-9 * header.stamp.nsecs
+
+
+def pose_stamped(plan, frame: str, stamp):
+    import geometry_msgs.msg
+
+    message = geometry_msgs.msg.PoseStamped()
+    message.header.frame_id, message.header.stamp = frame, stamp
+    message.pose.position.x, message.pose.position.y, message.pose.position.z = plan.position
+    q = message.pose.orientation
+    q.x, q.y, q.z, q.w = plan.orientation
+    return message
+
+
+class PickNode:
+    """Serves ``binpick/PlanPick`` at ``namespace``. Call from a node (``rospy.init_node`` first)."""
+
+    def __init__(self, requests: PlanRequests, camera_to_base: np.ndarray, base_frame: str, namespace: str = "/binpick/plan_pick",
+                 topics: Topics = Topics()) -> None:
+        require_ros()
+        import actionlib
+        import rospy
+        import sensor_msgs.msg
+
+        from binpick.ros.messages import plan_pick_action_types
+
+        self.requests, self.camera_to_base, self.base_frame = requests, camera_to_base, base_frame
+        self.namespace = namespace.rstrip("/")
+        self.types = plan_pick_action_types()
+        frames = requests.frames
+        self.subscribers = [
+            rospy.Subscriber(topics.colour, sensor_msgs.msg.Image, lambda m: frames.add_colour(stamp_seconds(m.header), colour_of(m.encoding, self._pixels(m))),
+                             queue_size=2, buff_size=2**24),
+            rospy.Subscriber(topics.depth, sensor_msgs.msg.Image, lambda m: frames.add_depth(stamp_seconds(m.header), depth_of(m.encoding, self._pixels(m))),
+                             queue_size=2, buff_size=2**24),
+            rospy.Subscriber(topics.info, sensor_msgs.msg.CameraInfo, lambda m: frames.add_info(stamp_seconds(m.header), self._camera(m)), queue_size=2),
+        ]
+        self.overlay = rospy.Publisher(f"{self.namespace}/overlay", sensor_msgs.msg.Image, queue_size=1, latch=True)
+        self.server = actionlib.ActionServer(self.namespace, self.types["PlanPickAction"], self._on_goal, auto_start=False)
+        self.server.start()
+        self.stamps: dict[float, object] = {}
+
+    @staticmethod
+    def _pixels(message) -> np.ndarray:
+        return image_array(message.encoding, message.height, message.width, message.step, message.data, bool(message.is_bigendian))
+
+    def _camera(self, message) -> CameraInfo:
+        return CameraInfo.from_ros(message.K, message.D, message.width, message.height, self.camera_to_base,
+                                   message.distortion_model or "plumb_bob", self.base_frame)
+
+    def _on_goal(self, handle) -> None:
+        import rospy
+
+        goal = handle.get_goal()
+        handle.set_accepted()
+        try:
+            handle.publish_feedback(self.types["PlanPickFeedback"](state="planning"))
+            photo = None
+            if goal.photo.width and goal.photo.height:
+                photo = photo_of(goal.photo.encoding, self._pixels(goal.photo))
+            frame, plans = self.requests.plan(goal.product_id, photo, int(goal.max_grasps))
+            stamp = rospy.Time.from_sec(frame.stamp)
+            result = self.types["PlanPickResult"]()
+            result.grasps = [pose_stamped(p, plans.frame, stamp) for p in plans.grasps]
+            result.scores = [p.score for p in plans.grasps]
+            result.qualities = [p.quality if p.quality is not None else float("nan") for p in plans.grasps]
+            result.widths = [p.width for p in plans.grasps]
+            result.opening = float(self.requests.picker.grasp.gripper.opening)
+            result.plans_json = json.dumps({**plans.to_json(), "stamp": frame.stamp})
+            handle.set_succeeded(result)
+            self._publish_overlay(frame, plans, photo, stamp)
+        except Exception as error:  # noqa: BLE001 - the client gets the reason instead of a timeout
+            handle.set_aborted(text=f"{type(error).__name__}: {error}")
+
+    def _publish_overlay(self, frame, plans, photo, stamp) -> None:
+        import sensor_msgs.msg
+
+        picture = plans.plot(frame.rgb, frame.camera.camera, self.requests.picker.grasp.gripper.opening, photo)
+        message = sensor_msgs.msg.Image(**image_fields(picture, "rgb8"))
+        message.header.stamp = stamp
+        self.overlay.publish(message)
+
+    def stop(self) -> None:
+        self.server.stop()
+        for subscriber in self.subscribers:
+            subscriber.unregister()
+
+
+def serve(picker, camera_to_base: np.ndarray, base_frame: str, namespace: str, topics: Topics, library=None,
+          node_name: str = "binpick_pick_planner", master_timeout: float = 10.0) -> None:
+    """Run the node until ROS shuts down (Ctrl-C or SIGTERM)."""
+    require_ros()
+    import rospy
+
+    wait_for_master(master_uri(), master_timeout)
+    rospy.init_node(node_name, anonymous=True, disable_signals=False)
+    picker.warm_up()
+    requests = PlanRequests(picker, FrameSynchroniser(), catalogue(library) if library is not None else None)
+    node = PickNode(requests, camera_to_base, base_frame, namespace, topics)
+    rospy.loginfo("binpick: planning picks at %s from %s, %s, %s", namespace, topics.colour, topics.depth, topics.info)
+    try:
+        rospy.spin()
+    finally:
+        node.stop()

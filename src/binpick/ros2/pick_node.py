@@ -1,0 +1,132 @@
+"""The pick planner as a ROS 2 node: the ROS 1 node's interface over plain topics.
+
+The same camera topics come in (colour, depth registered to colour, camera_info; matched by stamp).
+ROS 2 actions and services need interface types compiled by rosidl (colcon, a C compiler, the ROS
+build tool chain), which PyPI's wheels do not carry, so the request and answer of ``PlanPick`` travel
+as standard messages on ``<namespace>/...``:
+
+- ``goal`` (``std_msgs/String``, JSON ``{"id", "product_id", "max_grasps"}``) or ``goal_photo``
+  (``sensor_msgs/Image``, the shop photo; ``header.frame_id`` is the request id);
+- ``result`` (``std_msgs/String``, JSON ``{"id", "status", "text", "grasps": [{position, orientation,
+  score, quality, width}], "opening", "plans"}``): the ROS 1 result's fields, same values;
+- ``grasps`` (``geometry_msgs/PoseArray`` in the base frame, best first, for RViz) and ``overlay``.
+"""
+
+from __future__ import annotations
+
+import array
+import json
+
+import numpy as np
+
+from binpick.picking.camera_info import CameraInfo
+from binpick.picking.node import FrameSynchroniser, PlanRequests, catalogue, colour_of, depth_of, image_array, image_fields, photo_of
+from binpick.ros2 import require_ros2
+
+RELIABLE_DEPTH = 10
+
+
+def image_message(array_: np.ndarray, encoding: str, stamp=None, frame_id: str = ""):
+    import sensor_msgs.msg
+
+    fields = image_fields(array_, encoding)
+    message = sensor_msgs.msg.Image(height=fields["height"], width=fields["width"], encoding=encoding,
+                                    is_bigendian=0, step=fields["step"])
+    message.data = array.array("B", fields["data"])  # array.array: no per-byte validation
+    if stamp is not None:
+        message.header.stamp = stamp
+    message.header.frame_id = frame_id
+    return message
+
+
+def pixels(message) -> np.ndarray:
+    return image_array(message.encoding, message.height, message.width, message.step, memoryview(message.data).tobytes(),
+                       bool(message.is_bigendian))
+
+
+def stamp_seconds(header) -> float:
+    return header.stamp.sec + 1e-9 * header.stamp.nanosec
+
+
+def make_node(requests: PlanRequests, camera_to_base: np.ndarray, base_frame: str, namespace: str = "/binpick/plan_pick",
+              colour: str = "/camera/color/image_raw", depth: str = "/camera/aligned_depth_to_color/image_raw",
+              info: str = "/camera/color/camera_info"):
+    """An ``rclpy`` node serving plan requests (``rclpy.init`` first)."""
+    require_ros2()
+    import geometry_msgs.msg
+    import rclpy.node
+    import sensor_msgs.msg
+    import std_msgs.msg
+    from rclpy.qos import qos_profile_sensor_data
+
+    namespace = namespace.rstrip("/")
+    node = rclpy.node.Node("binpick_pick_planner")
+    frames = requests.frames
+
+    def on_info(message) -> None:
+        frames.add_info(stamp_seconds(message.header), CameraInfo.from_ros(
+            message.k, message.d, message.width, message.height, camera_to_base, message.distortion_model or "plumb_bob", base_frame))
+
+    node.create_subscription(sensor_msgs.msg.Image, colour, lambda m: frames.add_colour(stamp_seconds(m.header), colour_of(m.encoding, pixels(m))), qos_profile_sensor_data)
+    node.create_subscription(sensor_msgs.msg.Image, depth, lambda m: frames.add_depth(stamp_seconds(m.header), depth_of(m.encoding, pixels(m))), qos_profile_sensor_data)
+    node.create_subscription(sensor_msgs.msg.CameraInfo, info, on_info, qos_profile_sensor_data)
+    results = node.create_publisher(std_msgs.msg.String, f"{namespace}/result", RELIABLE_DEPTH)
+    poses = node.create_publisher(geometry_msgs.msg.PoseArray, f"{namespace}/grasps", RELIABLE_DEPTH)
+    overlay = node.create_publisher(sensor_msgs.msg.Image, f"{namespace}/overlay", 1)
+
+    def answer(request_id: str, product_id: str, photo, max_grasps: int) -> None:
+        try:
+            frame, plans = requests.plan(product_id, photo, max_grasps)
+        except Exception as error:  # noqa: BLE001 - the client gets the reason instead of a timeout
+            results.publish(std_msgs.msg.String(data=json.dumps({"id": request_id, "status": "aborted", "text": f"{type(error).__name__}: {error}"})))
+            return
+        grasps = [{"position": p.position, "orientation": p.orientation, "score": p.score, "quality": p.quality, "width": p.width}
+                  for p in plans.grasps]
+        results.publish(std_msgs.msg.String(data=json.dumps({"id": request_id, "status": "succeeded", "text": "", "frame": plans.frame,
+                                                             "stamp": frame.stamp, "grasps": grasps,
+                                                             "opening": float(requests.picker.grasp.gripper.opening),
+                                                             "plans": plans.to_json()})))
+        array_message = geometry_msgs.msg.PoseArray()
+        array_message.header.frame_id = plans.frame
+        array_message.header.stamp.sec, array_message.header.stamp.nanosec = int(frame.stamp), int(1e9 * (frame.stamp % 1))
+        for plan in plans.grasps:
+            pose = geometry_msgs.msg.Pose()
+            pose.position.x, pose.position.y, pose.position.z = (float(v) for v in plan.position)
+            pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w = (float(v) for v in plan.orientation)
+            array_message.poses.append(pose)
+        poses.publish(array_message)
+        picture = plans.plot(frame.rgb, frame.camera.camera, requests.picker.grasp.gripper.opening, photo)
+        overlay.publish(image_message(picture, "rgb8", array_message.header.stamp, plans.frame))
+
+    def on_goal(message) -> None:
+        try:
+            goal = json.loads(message.data)
+            request_id, product_id, max_grasps = str(goal.get("id", "")), str(goal.get("product_id", "")), int(goal.get("max_grasps", 0))
+        except (ValueError, AttributeError, TypeError) as error:
+            results.publish(std_msgs.msg.String(data=json.dumps({"id": "", "status": "aborted", "text": f"bad goal: {error}"})))
+            return
+        answer(request_id, product_id, None, max_grasps)
+
+    node.create_subscription(std_msgs.msg.String, f"{namespace}/goal", on_goal, RELIABLE_DEPTH)
+    node.create_subscription(sensor_msgs.msg.Image, f"{namespace}/goal_photo",
+                             lambda m: answer(m.header.frame_id, "", photo_of(m.encoding, pixels(m)), 0), RELIABLE_DEPTH)
+    return node
+
+
+def serve(picker, camera_to_base: np.ndarray, base_frame: str, namespace: str, topics, library=None) -> None:
+    """Run the node until Ctrl-C or SIGTERM."""
+    require_ros2()
+    import rclpy
+
+    rclpy.init()
+    try:
+        picker.warm_up()
+        requests = PlanRequests(picker, FrameSynchroniser(), catalogue(library) if library is not None else None)
+        node = make_node(requests, camera_to_base, base_frame, namespace, topics.colour, topics.depth, topics.info)
+        node.get_logger().info(f"binpick: planning picks at {namespace} from {topics.colour}, {topics.depth}, {topics.info}")
+        rclpy.spin(node)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        if rclpy.ok():
+            rclpy.shutdown()
