@@ -40,6 +40,12 @@ SKIPPED = {
                                                            "the commands above run its pieces",
     "python benchmarks/rod.py finetune --runs runs/rod16": "a benchmark, after the one above",
     "python benchmarks/rod.py generalise --runs runs/rod16": "a benchmark, after the two above",
+    "binpick ros pick-node --camera runs/frame/camera.yaml --master http://127.0.0.1:11311/": "a node that serves until stopped, "
+        "with nothing here to ask it; tests/test_ros.py runs the whole loop through it",
+    "unshare -n sh -c 'ip link set lo up && exec .venv-ros2/bin/binpick ros2 pick-node --camera runs/frame/camera.yaml'":
+        "a node that serves until stopped; tests/test_ros2.py runs the whole loop through it in a namespace",
+    "python benchmarks/plan.py files": "a benchmark (50 orders, each planned twice); tests/test_picking.py runs its pieces",
+    "python benchmarks/plan.py latency": "a benchmark on an idle machine; tests/test_ros.py and test_ros2.py run its loops",
     "python benchmarks/grasp.py eval": "a benchmark (40 bins of held-out products, the shipped grasp model); "
                                        "tests/test_grasping.py runs its pieces",
 }

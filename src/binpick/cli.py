@@ -721,70 +721,71 @@ def ros_bench(
         atomic_write_json(json_out, summary)
 
 
-def _picker_options(camera: Path | None, weights: Path | None, grasp: str, grasp_weights: Path | None):
-    """The extrinsic (from a camera.yaml's camera_to_base; identity without one) and the picker."""
+NodeCamera = Annotated[Path | None, typer.Option("--camera", help="camera.yaml whose camera_to_base places the camera in the robot's "
+                                                                   "base frame (intrinsics come from the camera_info topic)")]
+ColourTopic = Annotated[str, typer.Option(help="sensor_msgs/Image colour topic")]
+DepthTopic = Annotated[str, typer.Option(help="sensor_msgs/Image depth topic, registered to colour (16UC1 mm or 32FC1 m)")]
+InfoTopic = Annotated[str, typer.Option(help="sensor_msgs/CameraInfo of the colour camera")]
+NodeProducts = Annotated[Path | None, typer.Option("--products", help="YAML of your own products (ids goals may name)")]
+NodeWeights = Annotated[Path | None, typer.Option(help="Photo-conditioned detector (default: shipped)")]
+NodeGrasp = Annotated[str, typer.Option(help="Grasp policy: learnt, analytic or fixed")]
+NodeGraspWeights = Annotated[Path | None, typer.Option(help="Grasp-quality weights (default: shipped)")]
+COLOUR, DEPTH, INFO = "/camera/color/image_raw", "/camera/aligned_depth_to_color/image_raw", "/camera/color/camera_info"
+
+
+def _pick_node_setup(camera: Path | None, namespace: str, colour: str, depth: str, info: str, weights: Path | None, grasp: str,
+                     grasp_weights: Path | None):
+    """Checked names, then the extrinsic (a camera.yaml's camera_to_base; identity without one), the
+    picker and the topics: everything a pick node needs before ROS starts."""
     import numpy as np
 
     from binpick.picking import Picker, read_camera_info
+    from binpick.picking.node import Topics
 
+    for name, option in ((namespace, "--namespace"), (colour, "--colour-topic"), (depth, "--depth-topic"), (info, "--info-topic")):
+        _check_namespace(name, option)
     pose, frame = np.eye(4), "camera"
     if camera is not None:
-        info = read_camera_info(camera)
-        pose, frame = info.camera.camera_to_world, info.base_frame
-    return pose, frame, Picker.load(weights, grasp, grasp_weights)
+        calibration = read_camera_info(camera)
+        pose, frame = calibration.camera.camera_to_world, calibration.base_frame
+    return pose, frame, Picker.load(weights, grasp, grasp_weights), Topics(colour, depth, info)
 
 
 @ros_app.command("pick-node")
 def ros_pick_node(
-    camera: Annotated[Path | None, typer.Option(help="camera.yaml whose camera_to_base places the camera in the robot's base frame "
-                                                     "(intrinsics come from the camera_info topic)")] = None,
+    camera: NodeCamera = None,
     namespace: Annotated[str, typer.Option(help="Action namespace of the PlanPick server")] = "/binpick/plan_pick",
-    colour_topic: Annotated[str, typer.Option(help="sensor_msgs/Image colour topic")] = "/camera/color/image_raw",
-    depth_topic: Annotated[str, typer.Option(help="sensor_msgs/Image depth topic, registered to colour (16UC1 mm or 32FC1 m)")] = "/camera/aligned_depth_to_color/image_raw",
-    info_topic: Annotated[str, typer.Option(help="sensor_msgs/CameraInfo of the colour camera")] = "/camera/color/camera_info",
-    products_file: Annotated[Path | None, typer.Option("--products", help="YAML of your own products (ids goals may name)")] = None,
-    weights: Annotated[Path | None, typer.Option(help="Photo-conditioned detector (default: shipped)")] = None,
-    grasp: Annotated[str, typer.Option(help="Grasp policy: learnt, analytic or fixed")] = DEFAULT_POLICY,
-    grasp_weights: Annotated[Path | None, typer.Option(help="Grasp-quality weights (default: shipped)")] = None,
+    colour_topic: ColourTopic = COLOUR, depth_topic: DepthTopic = DEPTH, info_topic: InfoTopic = INFO,
+    products_file: NodeProducts = None, weights: NodeWeights = None, grasp: NodeGrasp = DEFAULT_POLICY,
+    grasp_weights: NodeGraspWeights = None,
     master: MasterOption = None,
     timeout: Annotated[float, typer.Option(help="Seconds to wait for the ROS master")] = 10.0,
 ) -> None:
     """Serve pick planning over ROS 1: camera topics in, a PlanPick action (grasp poses in the base frame) out."""
-    from binpick.picking.node import Topics
-
-    for name, option in ((namespace, "--namespace"), (colour_topic, "--colour-topic"), (depth_topic, "--depth-topic"), (info_topic, "--info-topic")):
-        _check_namespace(name, option)
-    pose, frame, picker = _picker_options(camera, weights, grasp, grasp_weights)
+    pose, frame, picker, topics = _pick_node_setup(camera, namespace, colour_topic, depth_topic, info_topic, weights, grasp, grasp_weights)
     library = product_library(products_file)
     _ros_environment(master, _check_timeout(timeout))
     from binpick.ros.pick_node import serve
 
-    serve(picker, pose, frame, namespace, Topics(colour_topic, depth_topic, info_topic), library)
+    serve(picker, pose, frame, namespace, topics, library)
 
 
 @ros2_app.command("pick-node")
 def ros2_pick_node(
-    camera: Annotated[Path | None, typer.Option(help="camera.yaml whose camera_to_base places the camera in the robot's base frame")] = None,
+    camera: NodeCamera = None,
     namespace: Annotated[str, typer.Option(help="Namespace of the goal/result topics")] = "/binpick/plan_pick",
-    colour_topic: Annotated[str, typer.Option(help="sensor_msgs/Image colour topic")] = "/camera/color/image_raw",
-    depth_topic: Annotated[str, typer.Option(help="sensor_msgs/Image depth topic, registered to colour")] = "/camera/aligned_depth_to_color/image_raw",
-    info_topic: Annotated[str, typer.Option(help="sensor_msgs/CameraInfo of the colour camera")] = "/camera/color/camera_info",
-    products_file: Annotated[Path | None, typer.Option("--products", help="YAML of your own products (ids goals may name)")] = None,
-    weights: Annotated[Path | None, typer.Option(help="Photo-conditioned detector (default: shipped)")] = None,
-    grasp: Annotated[str, typer.Option(help="Grasp policy: learnt, analytic or fixed")] = DEFAULT_POLICY,
-    grasp_weights: Annotated[Path | None, typer.Option(help="Grasp-quality weights (default: shipped)")] = None,
+    colour_topic: ColourTopic = COLOUR, depth_topic: DepthTopic = DEPTH, info_topic: InfoTopic = INFO,
+    products_file: NodeProducts = None, weights: NodeWeights = None, grasp: NodeGrasp = DEFAULT_POLICY,
+    grasp_weights: NodeGraspWeights = None,
 ) -> None:
     """Serve pick planning over ROS 2 (run with .venv-ros2/bin/binpick): camera topics in, grasp poses out."""
-    from binpick.picking.node import Topics
     from binpick.ros2 import require_ros2
 
-    for name, option in ((namespace, "--namespace"), (colour_topic, "--colour-topic"), (depth_topic, "--depth-topic"), (info_topic, "--info-topic")):
-        _check_namespace(name, option)
     require_ros2()
-    pose, frame, picker = _picker_options(camera, weights, grasp, grasp_weights)
+    pose, frame, picker, topics = _pick_node_setup(camera, namespace, colour_topic, depth_topic, info_topic, weights, grasp, grasp_weights)
     from binpick.ros2.pick_node import serve
 
-    serve(picker, pose, frame, namespace, Topics(colour_topic, depth_topic, info_topic), product_library(products_file))
+    serve(picker, pose, frame, namespace, topics, product_library(products_file))
 
 
 @app.command("pick")
