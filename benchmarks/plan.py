@@ -66,7 +66,8 @@ def file_orders(domain: str, orders: int) -> dict:
     """Each bin planned by the simulator pipeline and by `binpick plan` on its files; both executed."""
     from binpick.grasping import PinholeCamera
     from binpick.picking import GraspPlan
-    from binpick.warehouse.export import cut_out, depth_millimetres, export_frame
+    from binpick.grasping.camera import as_camera_depth
+    from binpick.warehouse.export import cut_out, export_frame
     from binpick.warehouse.grasping import Reason
     from binpick.warehouse.pipeline import OrderResult, summarise
 
@@ -95,7 +96,7 @@ def file_orders(domain: str, orders: int) -> dict:
             plans = [GraspPlan(**p) for p in written["plans"]]
             photo = cut_out(*pipeline.photo_and_mask(product))
             camera = PinholeCamera.from_record(scene.camera)
-            for key, depth in (("float", scene.depth), ("millimetres", depth_millimetres(scene.depth) / 1000.0)):
+            for key, depth in (("float", scene.depth), ("millimetres", as_camera_depth(scene.depth))):
                 memory = pipeline.picker.plan(scene.rgb, depth, camera, photo=photo)
                 same_as_memory[key].append([(p.box, p.position) for p in memory] == [(p.box, p.position) for p in plans])
             result = OrderResult(order, product, seed, False, Reason.NO_DETECTION, detections=written["detections"])
@@ -117,7 +118,7 @@ def file_orders(domain: str, orders: int) -> dict:
             "same_outcome": round(sum(a.success == b.success for a, b in zip(sim_results, file_results)) / orders, 4),
             "same_detections_tried": round(sum(same_plans) / orders, 4),
             # the plan from files equals the picker's plan on the frame in memory: with the simulator's
-            # float depth, and with that depth rounded to millimetres as depth.png holds it
+            # float depth, and with that depth in whole millimetres as depth.png holds it (the pipeline's)
             "same_plan_as_memory": {k: round(sum(v) / orders, 4) for k, v in same_as_memory.items()},
             "cli_seconds_median": round(sorted(cli_seconds)[len(cli_seconds) // 2], 2)}
 
@@ -175,12 +176,11 @@ def write(result: dict) -> None:
                 lines.append(f"| {row['domain']} | {row['orders']} | {row['files']['pick_success']:.0%} | "
                              f"{row['simulator']['pick_success']:.0%} | {row['same_outcome']:.0%} | "
                              f"{row['same_plan_as_memory']['float']:.0%} / {row['same_plan_as_memory']['millimetres']:.0%} |")
-        lines += ["", "Both paths run `Picker.plan`; `binpick plan` reads depth.png, which holds the depth in whole millimetres "
-                  "as a camera's 16-bit PNG does. The last column compares the plan from the files with the picker's plan on "
-                  "the frame in memory: with the simulator's float depth the grasp positions differ by under a millimetre "
-                  "(exact comparison); with that depth rounded to millimetres they are the same plan, but for one shifted bin (not "
-                  "traced; re-planning every exported bin from its files in one process gave plan.json exactly, 30 of 30). Where a grasp sits "
-                  "on an edge, a millimetre can decide a lift, hence the odd different outcome. The shifted set-up's low "
+        lines += ["", "Both paths run `Picker.plan` on the same frame: depth in whole millimetres, as a camera's 16-bit frame "
+                  "(and depth.png) holds it; the simulator pipeline rounds its float depth so. The last column compares "
+                  "the plan from the files with the picker's plan on the frame in memory: with the simulator's float depth "
+                  "grasp positions differ by under a millimetre (an exact comparison), with the millimetre depth they are "
+                  "the same plan. The shifted set-up's low "
                   "share is the detector's (issue 16): most of its orders end with no detection or only detections of "
                   "other products (colour mismatch).", ""]
     latency = result.get("latency_ms", {})

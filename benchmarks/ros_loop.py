@@ -235,7 +235,8 @@ def main() -> None:
     from binpick.grasping import GraspPlanner, PinholeCamera
     from binpick.picking import CameraInfo, GraspPlan, write_camera_info
     from binpick.sim import default_library
-    from binpick.warehouse.export import cut_out, depth_millimetres
+    from binpick.grasping.camera import depth_millimetres
+    from binpick.warehouse.export import cut_out
     from binpick.warehouse.grasping import Reason
     from binpick.warehouse.pipeline import OrderResult, PickPipeline
 

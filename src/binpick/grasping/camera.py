@@ -73,6 +73,22 @@ class PinholeCamera:
 MAX_DEPTH = 10.0  # metres: anything farther is not a bin in front of a robot
 
 
+def depth_millimetres(depth: np.ndarray) -> np.ndarray:
+    """Metres -> 16-bit whole millimetres (0: no reading), the ROS / RealSense convention."""
+    depth = np.nan_to_num(np.asarray(depth, dtype=np.float64), nan=0.0, posinf=0.0, neginf=0.0)
+    return np.clip(np.round(depth * 1000.0), 0, 65535).astype(np.uint16)
+
+
+def millimetres_to_metres(raw: np.ndarray) -> np.ndarray:
+    """16-bit millimetres -> metres (float32), exactly as :func:`read_depth` reads a PNG."""
+    return np.asarray(raw).astype(np.float32) / 1000.0
+
+
+def as_camera_depth(depth: np.ndarray) -> np.ndarray:
+    """Depth as a real camera's 16-bit frame holds it: whole millimetres, back in metres."""
+    return millimetres_to_metres(depth_millimetres(depth))
+
+
 def read_depth(path: str | Path) -> np.ndarray:
     """A depth image in metres (float32): a 16-bit PNG in millimetres (the ROS / RealSense convention)
     or a ``.npy`` in metres (read without pickle). Wrong units or empty images are one clear line."""
@@ -99,7 +115,7 @@ def read_depth(path: str | Path) -> np.ndarray:
         if raw.dtype not in (np.uint16, np.int32, np.uint32) or raw.ndim != 2:
             raise InputFileError(f"depth image {str(path)!r} must be a single-channel 16-bit PNG in millimetres "
                                  f"(got {raw.dtype} with shape {raw.shape})")
-        depth = raw.astype(np.float32) / 1000.0
+        depth = millimetres_to_metres(raw)
     if depth.ndim != 2:
         raise InputFileError(f"depth image {str(path)!r} must be 2-D (height x width), got shape {depth.shape}")
     valid = depth[np.isfinite(depth) & (depth > 0)]

@@ -16,6 +16,7 @@ import numpy as np
 from binpick.errors import ConfigError
 from binpick.files import atomic_write, atomic_write_text, ensure_dir
 from binpick.grasping import PinholeCamera
+from binpick.grasping.camera import depth_millimetres
 from binpick.picking.camera_info import CameraInfo, write_camera_info
 
 FILES = ("rgb.png", "depth.png", "camera.yaml", "photo.png", "truth.json")
@@ -25,12 +26,6 @@ def _png(path: Path, array: np.ndarray) -> None:
     from PIL import Image
 
     atomic_write(path, lambda handle: Image.fromarray(array).save(handle, format="PNG"))
-
-
-def depth_millimetres(depth: np.ndarray) -> np.ndarray:
-    """Metres -> 16-bit millimetres (0: no reading), the ROS / RealSense convention."""
-    depth = np.nan_to_num(np.asarray(depth, dtype=np.float64), nan=0.0, posinf=0.0, neginf=0.0)
-    return np.clip(np.round(depth * 1000.0), 0, 65535).astype(np.uint16)
 
 
 def cut_out(photo: np.ndarray, mask: np.ndarray | None) -> np.ndarray:

@@ -29,6 +29,7 @@ from binpick.sim.mjcf import CameraSpec
 from binpick.sim.photos import shop_photo
 from binpick.sim.products import ProductLibrary
 from binpick.grasping import GraspChoice, GraspPlanner, GraspPolicyName, PinholeCamera
+from binpick.grasping.camera import as_camera_depth
 from binpick.picking import GraspPlan, Picker, Plans
 from binpick.picking.colour import photo_mask
 from binpick.warehouse.grasping import Reason, execute_pick, fixed_tips, grasp_point, half_height, order_tote_xml
@@ -184,12 +185,13 @@ class PickPipeline:
         return result
 
     def plan(self, scene: Scene, product_id: str) -> Plans:
-        """The picker's plans for the scene's frame, as a real camera would give it."""
+        """The picker's plans for the scene's frame as a real camera would give it: depth in whole
+        millimetres (a 16-bit frame), so the plan is the one `binpick plan` makes from its files."""
         photo, mask = self.photo_and_mask(product_id)
-        camera = PinholeCamera.from_record(scene.camera)
+        camera, depth = PinholeCamera.from_record(scene.camera), as_camera_depth(scene.depth)
         if self.oracle:
-            return self.picker.plan(scene.rgb, scene.depth, camera, boxes=self.oracle_boxes(scene, product_id))
-        return self.picker.plan(scene.rgb, scene.depth, camera, photo=photo, photo_product_mask=mask)
+            return self.picker.plan(scene.rgb, depth, camera, boxes=self.oracle_boxes(scene, product_id))
+        return self.picker.plan(scene.rgb, depth, camera, photo=photo, photo_product_mask=mask)
 
     def execute(self, world: BinWorld, scene: Scene, plans: list[GraspPlan], result: OrderResult, on_frame=None) -> None:
         """Try the plans in turn in the simulator until the ordered product lands in the order tote
