@@ -179,8 +179,9 @@ def write(result: dict) -> None:
         lines += ["", "Both paths run `Picker.plan` on the same frame: depth in whole millimetres, as a camera's 16-bit frame "
                   "(and depth.png) holds it; the simulator pipeline rounds its float depth so. The last column compares "
                   "the plan from the files with the picker's plan on the frame in memory: with the simulator's float depth "
-                  "grasp positions differ by under a millimetre (an exact comparison), with the millimetre depth they are "
-                  "the same plan. The shifted set-up's low "
+                  "grasp positions differ by under a millimetre (an exact comparison); with the millimetre depth they are "
+                  "the same plan but in one shifted bin (a second in-process call, not traced: the pipeline's own plan for "
+                  "that bin, tried grasp by grasp, was the files' one). The shifted set-up's low "
                   "share is the detector's (issue 16): most of its orders end with no detection or only detections of "
                   "other products (colour mismatch).", ""]
     latency = result.get("latency_ms", {})
