@@ -228,6 +228,8 @@ def main() -> None:
     parser.add_argument("--goal", choices=("id", "photo"), default="photo",
                         help="name the product (the node renders its catalogue photo, once per product) or send its shop photo")
     args = parser.parse_args()
+    if args.ros == 2 and interfaces() != ["lo"]:  # before anything is loaded: refuse at once
+        raise SystemExit(f"ROS 2 runs only inside a namespace with just loopback (unshare -n); here: {interfaces()}")
 
     import numpy as np
 
