@@ -52,6 +52,8 @@ class Ros1:
             ("colour", "/camera/color/image_raw", sensor_msgs.msg.Image),
             ("depth", "/camera/aligned_depth_to_color/image_raw", sensor_msgs.msg.Image),
             ("info", "/camera/color/camera_info", sensor_msgs.msg.CameraInfo))}
+        self.overlays: list[tuple[int, int]] = []  # (width, height) of each overlay image the node published
+        rospy.Subscriber("/binpick/plan_pick/overlay", sensor_msgs.msg.Image, lambda m: self.overlays.append((m.width, m.height)))
         self.client = actionlib.ActionClient("/binpick/plan_pick", self.types["PlanPickAction"])
         deadline = time.monotonic() + timeout
         while not self.client.wait_for_server(rospy.Duration(1.0)):
@@ -156,6 +158,9 @@ class Ros2:
                 self.answered.notify_all()
 
         self.client.create_subscription(std_msgs.msg.String, "/binpick/plan_pick/result", on_result, 10)
+        self.overlays: list[tuple[int, int]] = []
+        self.client.create_subscription(sensor_msgs.msg.Image, "/binpick/plan_pick/overlay",
+                                        lambda m: self.overlays.append((m.width, m.height)), 1)
         self.executor = rclpy.executors.SingleThreadedExecutor()
         self.executor.add_node(self.client)
         self.spinner = threading.Thread(target=self.executor.spin, daemon=True)
@@ -292,13 +297,16 @@ def main() -> None:
                       f"({latencies[-1]:.0f} ms round trip, {planning[-1]:.0f} ms planning)", file=sys.stderr, flush=True)
             finally:
                 world.close()
+        time.sleep(0.5)  # the last overlay follows the last result
+        overlays = list(ros.overlays)
     finally:
         ros.close()
     summary = {"ros": args.ros, "goal": args.goal, "orders": len(results), "placed": sum(r.success for r in results),
                "pick_success": round(sum(r.success for r in results) / max(1, len(results)), 4),
                "latency_ms": {"median": round(float(np.median(latencies)), 1), "p95": round(float(np.percentile(latencies, 95)), 1)},
                "planning_ms": {"median": round(float(np.median(planning)), 1), "p95": round(float(np.percentile(planning, 95)), 1)},
-               "frame": answer["frame"], "outcomes": [str(r.reason) for r in results], "interfaces": interfaces()}
+               "frame": answer["frame"], "outcomes": [str(r.reason) for r in results], "interfaces": interfaces(),
+               "overlays": len(overlays), "overlay_size": list(overlays[-1]) if overlays else None}
     print(json.dumps(summary), flush=True)
     if args.json is not None:
         args.json.write_text(json.dumps(summary, indent=1))

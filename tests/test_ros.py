@@ -64,3 +64,4 @@ def test_a_bin_is_picked_through_the_plan_pick_node():
     summary = json.loads(ran.stdout.strip().splitlines()[-1])
     assert summary["orders"] == 1 and summary["placed"] == 1, summary
     assert summary["frame"] == "world" and summary["latency_ms"]["median"] > 0
+    assert summary["overlays"] >= 1 and summary["overlay_size"] == [416, 416]  # the node's picture of its plan

@@ -42,6 +42,7 @@ def test_a_bin_is_picked_through_the_ros2_node_inside_a_loopback_only_namespace(
     assert summary["interfaces"] == ["lo"]  # DDS had no other address to reach
     assert summary["orders"] == 1 and summary["placed"] == 1, summary
     assert summary["frame"] == "world"
+    assert summary["overlays"] >= 1 and summary["overlay_size"] == [416, 416]  # the node's picture of its plan
 
 
 def test_ros2_refuses_to_run_outside_a_namespace():
