@@ -79,14 +79,14 @@ class Ros1:
         self.publishers["depth"].publish(depth)
         self.publishers["info"].publish(info)
 
-    def plan(self, product_id: str, timeout: float, photo=None) -> dict:
+    def plan(self, product_id: str, timeout: float, photo=None, size=None) -> dict:
         done = threading.Event()
 
         def on_transition(handle) -> None:
             if handle.get_comm_state() == self.actionlib.CommState.DONE:
                 done.set()
 
-        goal = self.types["PlanPickGoal"](product_id=product_id)
+        goal = self.types["PlanPickGoal"](product_id=product_id, size=list(size or []))
         if photo is not None:
             from binpick.picking.node import image_fields
 
@@ -190,13 +190,14 @@ class Ros2:
         self.publishers["depth"].publish(self.image_message(depth_mm, "16UC1", now, frame))
         self.publishers["info"].publish(info)
 
-    def plan(self, product_id: str, timeout: float, photo=None) -> dict:
+    def plan(self, product_id: str, timeout: float, photo=None, size=None) -> dict:
         self.requests += 1
         request = f"r{self.requests}"
         if photo is None:
             self.goal.publish(self.std.String(data=json.dumps({"id": request, "product_id": product_id})))
         else:
-            self.goal_photo.publish(self.image_message(photo, "rgba8" if photo.shape[2] == 4 else "rgb8", frame_id=request))
+            header = json.dumps({"id": request, "size": list(size or [])})
+            self.goal_photo.publish(self.image_message(photo, "rgba8" if photo.shape[2] == 4 else "rgb8", frame_id=header))
         with self.answered:
             if not self.answered.wait_for(lambda: request in self.answers, timeout):
                 raise RuntimeError(f"no plan result within {timeout:g} s")
@@ -242,6 +243,7 @@ def main() -> None:
     from binpick.grasping import GraspPlanner, PinholeCamera
     from binpick.picking import CameraInfo, GraspPlan, write_camera_info
     from binpick.sim import default_library
+    from binpick.sim.products import product_dimensions
     from binpick.grasping.camera import depth_millimetres
     from binpick.warehouse.export import cut_out
     from binpick.warehouse.grasping import Reason
@@ -280,7 +282,9 @@ def main() -> None:
                     pipeline.photo(product)  # rendered before the clock starts: a shop system has its photos
                 time.sleep(0.3)  # the first frame reaches the node before the goal
                 started = time.perf_counter()
-                answer = ros.plan(product, args.timeout, cut_out(*pipeline.photo_and_mask(product)) if args.goal == "photo" else None)
+                photo = cut_out(*pipeline.photo_and_mask(product)) if args.goal == "photo" else None
+                size = product_dimensions(pipeline.library[product]) if args.goal == "photo" else None  # id: the node's catalogue
+                answer = ros.plan(product, args.timeout, photo, size)
                 latencies.append(1000 * (time.perf_counter() - started))
                 stop.set()
                 streamer.join()

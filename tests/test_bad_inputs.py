@@ -265,6 +265,8 @@ CASES: list[tuple[list[str], list[str]]] = [
      ["camera_to_base.rotation", "non-zero quaternion"]),
     (["plan", "--rgb", "{scene_png}", "--depth", "{depth_mm_png}", "--camera", "{camera_yaml}", "--query-box", "50,50,30,30"],
      ["--query-box", "outside the 64x64"]),
+    (["plan", "--rgb", "{scene_png}", "--depth", "{depth_mm_png}", "--camera", "{camera_yaml}", "--photo", "{scene_png}", "--size", "0.1,0.2"],
+     ["--size must be three lengths in metres"]),
     (["plan", "--rgb", "{scene_png}", "--depth", "{depth_mm_png}", "--camera", "{camera_yaml}", "--photo", "{scene_png}", "--out", "p.txt"],
      ["--out must end in .json"]),
     (["plan", "--rgb", "{fake_png}", "--depth", "{depth_mm_png}", "--camera", "{camera_yaml}", "--photo", "{scene_png}"],

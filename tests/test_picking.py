@@ -72,6 +72,11 @@ def test_given_boxes_the_picker_plans_a_grasp_in_the_base_frame():
     assert abs(np.cos(plan.yaw)) > 0.95  # across the block's 4 cm side (along x), not its 10 cm one
     assert plan.width == pytest.approx(0.04, abs=0.008) and plans.frame == "base_link"
     assert json.loads(json.dumps(plans.to_json()))["plans"][0]["orientation"] == plan.orientation
+    # the catalogue's dimensions: a 4 x 10 x 5 cm product fits what depth shows, a 3 x 4 x 2 cm one does not
+    detections = (np.array([box]), np.array([0.9]))
+    assert picker.plan(np.zeros((200, 200, 3), np.uint8), depth, camera, boxes=detections, size=(0.05, 0.1, 0.04)).grasps
+    (small,) = picker.plan(np.zeros((200, 200, 3), np.uint8), depth, camera, boxes=detections, size=(0.03, 0.04, 0.02))
+    assert not small.feasible and small.rejected == {"larger than the ordered product": 1}
 
 
 def test_the_planner_imports_no_simulator():

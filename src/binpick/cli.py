@@ -770,6 +770,17 @@ def ros_pick_node(
     serve(picker, pose, frame, namespace, topics, library)
 
 
+def _dimensions(text: str) -> list[float]:
+    """``L,W,H`` in metres, each in (0, 2]."""
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) != 3 or not all(0.0 < v <= 2.0 for v in values):
+        raise ConfigError(f"--size must be three lengths in metres L,W,H (each in (0, 2]), got {text!r}")
+    return values
+
+
 @ros2_app.command("pick-node")
 def ros2_pick_node(
     camera: NodeCamera = None,
@@ -842,6 +853,8 @@ def plan(
     grasp: Annotated[str, typer.Option(help="Grasp policy: learnt, analytic or fixed")] = DEFAULT_POLICY,
     grasp_weights: Annotated[Path | None, typer.Option(help="Grasp-quality weights for --grasp learnt (default: shipped)")] = None,
     max_grasps: Annotated[int, typer.Option(help="Plan grasps for this many detections (best first)")] = 3,
+    size: Annotated[str | None, typer.Option(help="The product's catalogue dimensions L,W,H in metres: instances clearly "
+                                                  "bigger are not grasped")] = None,
 ) -> None:
     """Plan grasps from one real RGB-D frame: no simulator. Prints the best grasp; writes plan.json."""
     from binpick.config import check_range
@@ -861,15 +874,16 @@ def plan(
     if overlay is not None:
         _check_png_path(overlay, "--overlay")
     box = parse_box(query_box) if query_box is not None else None
+    dimensions = _dimensions(size) if size is not None else None
     colour, metres, info = read_frame(rgb, depth, camera)
     query = read_photo(photo) if photo is not None else None
     if box is not None and (box[0] < 0 or box[1] < 0 or box[0] + box[2] > colour.shape[1] or box[1] + box[3] > colour.shape[0]):
         raise ConfigError(f"--query-box {query_box!r} lies outside the {colour.shape[1]}x{colour.shape[0]} colour image")
     crop = weights if box is not None else None
     picker = Picker.load(None if box is not None else weights, grasp, grasp_weights, crop_detector=crop, max_grasps=max_grasps)
-    plans = picker.plan(colour, metres, info, photo=query, query_box=box)
+    plans = picker.plan(colour, metres, info, photo=query, query_box=box, size=dimensions)
     result = {"inputs": {"rgb": str(rgb), "depth": str(depth), "camera": str(camera),
-                         "photo": None if photo is None else str(photo), "query_box": query_box},
+                         "photo": None if photo is None else str(photo), "query_box": query_box, "size": dimensions},
               "grasp_policy": grasp, **plans.to_json()}
     atomic_write_text(out, json.dumps(result, indent=1))
     if overlay is not None:

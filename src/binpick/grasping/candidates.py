@@ -50,6 +50,15 @@ class Surface:
     def height(self) -> float:
         return self.top - self.support
 
+    def extents(self) -> tuple[float, float]:
+        """The visible top's length along its principal major and minor axes (m; 2nd-98th percentile,
+        so a few stray pixels do not count)."""
+        across = np.array([np.cos(self.minor_yaw), np.sin(self.minor_yaw)])
+        along = np.array([-across[1], across[0]])
+        relative = self.xy - self.centre
+        span = lambda values: float(np.percentile(values, 98) - np.percentile(values, 2))  # noqa: E731
+        return span(relative @ along), span(relative @ across)
+
     def tips_range(self) -> tuple[float, float]:
         """How deep the fingertips may go: at most PALM_REACH under the top (the palm stays above it)
         and clear of what it rests on; at least 1.5 cm under its middle, so the jaws close across its

@@ -35,6 +35,7 @@ class GraspChoice:
     chosen: GraspCandidate | None
     candidates: list[GraspCandidate] = field(default_factory=list)
     reason: str | None = None  # why nothing was chosen
+    surface: Surface | None = None  # what depth shows of the instance (None: nothing)
 
     def rejections(self) -> dict[str, int]:
         """How many candidates were rejected for each reason (the reason's words before any number);
@@ -92,10 +93,10 @@ class GraspPlanner:
         if self.policy is GraspPolicyName.FIXED:
             fixed = min(candidates[1:], key=lambda c: abs(c.yaw - np.pi / 2))  # [0] is the minor axis
             fixed.quality = None
-            return GraspChoice(fixed, candidates)  # today's grasp: tried whatever the checks say
+            return GraspChoice(fixed, candidates, surface=surface)  # today's grasp: tried whatever the checks say
         feasible = [c for c in candidates if c.rejected is None]
         if not feasible:
-            choice = GraspChoice(None, candidates)
+            choice = GraspChoice(None, candidates, surface=surface)
             choice.reason = "no candidate fits: " + ", ".join(f"{n} {k}" for k, n in choice.rejections().items())
             return choice
         if self.policy is GraspPolicyName.ANALYTIC:
@@ -106,4 +107,4 @@ class GraspPlanner:
             for candidate, score in zip(feasible, scores):
                 candidate.quality = float(score)
         best = max(feasible, key=lambda c: c.quality)
-        return GraspChoice(best, candidates)
+        return GraspChoice(best, candidates, surface=surface)

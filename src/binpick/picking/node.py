@@ -143,10 +143,18 @@ class PlanRequests:
     product id into its shop photo (and the photo's product mask, or None), e.g. from a catalogue."""
 
     def __init__(self, picker: Picker, frames: FrameSynchroniser,
-                 photo_for: Callable[[str], tuple[np.ndarray, np.ndarray | None]] | None = None, frame_timeout: float = 5.0) -> None:
+                 photo_for: Callable[[str], tuple[np.ndarray, np.ndarray | None]] | None = None, frame_timeout: float = 5.0,
+                 size_for: Callable[[str], tuple[float, float, float]] | None = None) -> None:
         self.picker, self.frames, self.photo_for, self.frame_timeout = picker, frames, photo_for, frame_timeout
+        self.size_for = size_for
 
-    def plan(self, product_id: str = "", photo: np.ndarray | None = None, max_grasps: int = 0) -> tuple[Frame, Plans]:
+    def plan(self, product_id: str = "", photo: np.ndarray | None = None, max_grasps: int = 0, size=None) -> tuple[Frame, Plans]:
+        """Plans on the latest frame. ``size``: the product's catalogue dimensions (m; none given: the
+        catalogue's for ``product_id``, where the node has one)."""
+        if size is not None and len(size) == 0:
+            size = None
+        if size is None and product_id and self.size_for is not None:
+            size = self.size_for(product_id)
         if photo is None or photo.size == 0:
             if not product_id:
                 raise BinpickError("the request names no product and carries no photo")
@@ -158,8 +166,18 @@ class PlanRequests:
         frame = self.frames.latest(timeout=self.frame_timeout)
         if frame is None:
             raise BinpickError(f"no synchronised colour + depth + camera_info frame within {self.frame_timeout:g} s")
-        plans = self.picker.plan(frame.rgb, frame.depth, frame.camera, photo=photo, max_grasps=max_grasps or None)
+        plans = self.picker.plan(frame.rgb, frame.depth, frame.camera, photo=photo, max_grasps=max_grasps or None, size=size)
         return frame, plans
+
+
+def catalogue_sizes(library):
+    """A product id -> catalogue dimensions lookup over a product library."""
+    def size_for(product_id: str):
+        from binpick.sim.products import product_dimensions
+
+        return product_dimensions(library[product_id])
+
+    return size_for
 
 
 def catalogue(library):

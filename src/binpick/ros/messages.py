@@ -32,6 +32,7 @@ SEPARATOR = "=" * 80
 PICK_GOAL = """string product_id       # a product in the node's catalogue (its shop photo), or empty
 sensor_msgs/Image photo   # or the shop photo itself (rgb8/bgr8); empty: use product_id
 int32 max_grasps          # plan this many grasps at most (0: the node's default)
+float32[] size            # the product's catalogue dimensions (m, 3 numbers); empty: the catalogue's, or no check
 """
 PICK_RESULT = """geometry_msgs/PoseStamped[] grasps  # gripper pose (z along the approach, x across the jaws), best first
 float32[] scores         # detector scores

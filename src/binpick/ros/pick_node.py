@@ -12,7 +12,8 @@ import json
 import numpy as np
 
 from binpick.picking.camera_info import CameraInfo
-from binpick.picking.node import FrameSynchroniser, PlanRequests, Topics, catalogue, colour_of, depth_of, image_array, image_fields, photo_of
+from binpick.picking.node import (FrameSynchroniser, PlanRequests, Topics, catalogue, catalogue_sizes, colour_of, depth_of,
+                                  image_array, image_fields, photo_of)
 from binpick.ros import master_uri, require_ros, wait_for_master
 
 
@@ -77,7 +78,7 @@ class PickNode:
             photo = None
             if goal.photo.width and goal.photo.height:
                 photo = photo_of(goal.photo.encoding, self._pixels(goal.photo))
-            frame, plans = self.requests.plan(goal.product_id, photo, int(goal.max_grasps))
+            frame, plans = self.requests.plan(goal.product_id, photo, int(goal.max_grasps), list(goal.size) or None)
             stamp = rospy.Time.from_sec(frame.stamp)
             result = self.types["PlanPickResult"]()
             result.grasps = [pose_stamped(p, plans.frame, stamp) for p in plans.grasps]
@@ -114,7 +115,8 @@ def serve(picker, camera_to_base: np.ndarray, base_frame: str, namespace: str, t
     wait_for_master(master_uri(), master_timeout)
     rospy.init_node(node_name, anonymous=True, disable_signals=False)
     picker.warm_up()
-    requests = PlanRequests(picker, FrameSynchroniser(), catalogue(library) if library is not None else None)
+    requests = PlanRequests(picker, FrameSynchroniser(), catalogue(library) if library is not None else None,
+                            size_for=catalogue_sizes(library) if library is not None else None)
     node = PickNode(requests, camera_to_base, base_frame, namespace, topics)
     rospy.loginfo("binpick: planning picks at %s from %s, %s, %s", namespace, topics.colour, topics.depth, topics.info)
     try:

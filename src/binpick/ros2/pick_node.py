@@ -5,8 +5,8 @@ ROS 2 actions and services need interface types compiled by rosidl (colcon, a C 
 build tool chain), which PyPI's wheels do not carry, so the request and answer of ``PlanPick`` travel
 as standard messages on ``<namespace>/...``:
 
-- ``goal`` (``std_msgs/String``, JSON ``{"id", "product_id", "max_grasps"}``) or ``goal_photo``
-  (``sensor_msgs/Image``, the shop photo; ``header.frame_id`` is the request id);
+- ``goal`` (``std_msgs/String``, JSON ``{"id", "product_id", "max_grasps", "size"}``) or ``goal_photo``
+  (``sensor_msgs/Image``, the shop photo; ``header.frame_id`` is the request id, or that JSON);
 - ``result`` (``std_msgs/String``, JSON ``{"id", "status", "text", "grasps": [{position, orientation,
   score, quality, width}], "opening", "plans"}``): the ROS 1 result's fields, same values;
 - ``grasps`` (``geometry_msgs/PoseArray`` in the base frame, best first, for RViz) and ``overlay``.
@@ -20,7 +20,8 @@ import json
 import numpy as np
 
 from binpick.picking.camera_info import CameraInfo
-from binpick.picking.node import FrameSynchroniser, PlanRequests, catalogue, colour_of, depth_of, image_array, image_fields, photo_of
+from binpick.picking.node import (FrameSynchroniser, PlanRequests, catalogue, catalogue_sizes, colour_of, depth_of, image_array,
+                                  image_fields, photo_of)
 from binpick.ros2 import require_ros2
 
 RELIABLE_DEPTH = 10
@@ -74,9 +75,9 @@ def make_node(requests: PlanRequests, camera_to_base: np.ndarray, base_frame: st
     poses = node.create_publisher(geometry_msgs.msg.PoseArray, f"{namespace}/grasps", RELIABLE_DEPTH)
     overlay = node.create_publisher(sensor_msgs.msg.Image, f"{namespace}/overlay", 1)
 
-    def answer(request_id: str, product_id: str, photo, max_grasps: int) -> None:
+    def answer(request_id: str, product_id: str, photo, max_grasps: int, size=None) -> None:
         try:
-            frame, plans = requests.plan(product_id, photo, max_grasps)
+            frame, plans = requests.plan(product_id, photo, max_grasps, size)
         except Exception as error:  # noqa: BLE001 - the client gets the reason instead of a timeout
             results.publish(std_msgs.msg.String(data=json.dumps({"id": request_id, "status": "aborted", "text": f"{type(error).__name__}: {error}"})))
             return
@@ -102,14 +103,25 @@ def make_node(requests: PlanRequests, camera_to_base: np.ndarray, base_frame: st
         try:
             goal = json.loads(message.data)
             request_id, product_id, max_grasps = str(goal.get("id", "")), str(goal.get("product_id", "")), int(goal.get("max_grasps", 0))
+            size = [float(v) for v in goal["size"]] if goal.get("size") else None
         except (ValueError, AttributeError, TypeError) as error:
             results.publish(std_msgs.msg.String(data=json.dumps({"id": "", "status": "aborted", "text": f"bad goal: {error}"})))
             return
-        answer(request_id, product_id, None, max_grasps)
+        answer(request_id, product_id, None, max_grasps, size)
 
     node.create_subscription(std_msgs.msg.String, f"{namespace}/goal", on_goal, RELIABLE_DEPTH)
-    node.create_subscription(sensor_msgs.msg.Image, f"{namespace}/goal_photo",
-                             lambda m: answer(m.header.frame_id, "", photo_of(m.encoding, pixels(m)), 0), RELIABLE_DEPTH)
+    def on_goal_photo(message) -> None:
+        request = {"id": message.header.frame_id}
+        if message.header.frame_id.startswith("{"):
+            try:
+                request = json.loads(message.header.frame_id)
+            except ValueError as error:
+                results.publish(std_msgs.msg.String(data=json.dumps({"id": "", "status": "aborted", "text": f"bad goal: {error}"})))
+                return
+        answer(str(request.get("id", "")), str(request.get("product_id", "")), photo_of(message.encoding, pixels(message)),
+               int(request.get("max_grasps", 0)), [float(v) for v in request["size"]] if request.get("size") else None)
+
+    node.create_subscription(sensor_msgs.msg.Image, f"{namespace}/goal_photo", on_goal_photo, RELIABLE_DEPTH)
     return node
 
 
@@ -121,7 +133,8 @@ def serve(picker, camera_to_base: np.ndarray, base_frame: str, namespace: str, t
     rclpy.init()
     try:
         picker.warm_up()
-        requests = PlanRequests(picker, FrameSynchroniser(), catalogue(library) if library is not None else None)
+        requests = PlanRequests(picker, FrameSynchroniser(), catalogue(library) if library is not None else None,
+                            size_for=catalogue_sizes(library) if library is not None else None)
         node = make_node(requests, camera_to_base, base_frame, namespace, topics.colour, topics.depth, topics.info)
         node.get_logger().info(f"binpick: planning picks at {namespace} from {topics.colour}, {topics.depth}, {topics.info}")
         rclpy.spin(node)

@@ -142,6 +142,22 @@ def mesh_extent(path: Path) -> np.ndarray:
     return vertices.max(0) - vertices.min(0)
 
 
+def product_dimensions(product: Product) -> tuple[float, float, float]:
+    """The product's bounding-box sides (m), longest first: what a warehouse catalogue lists per SKU."""
+    if product.shape == "box":
+        sides = 2 * np.asarray(product.size[:3], dtype=float)
+    elif product.shape == "cylinder":
+        sides = np.array([2 * product.size[0], 2 * product.size[0], 2 * product.size[1]])
+    elif product.shape == "sphere":
+        sides = np.full(3, 2 * product.size[0])
+    elif product.mesh is not None:
+        sides = mesh_extent(product.mesh) * product.scale
+    else:
+        raise ConfigError(f"product {product.id!r} has neither a shape nor a mesh: no dimensions")
+    first, second, third = sorted((float(v) for v in sides), reverse=True)
+    return first, second, third
+
+
 def _random_colour(rng: np.random.Generator) -> tuple[float, float, float, float]:
     hue = rng.uniform()
     colour = np.clip(np.abs(np.array([hue * 6 - 3, 2 - abs(hue * 6 - 2), 2 - abs(hue * 6 - 4)])) - [1, 0, 0], 0, 1)

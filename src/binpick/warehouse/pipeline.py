@@ -27,7 +27,7 @@ from binpick.files import atomic_write, atomic_write_text, ensure_dir
 from binpick.sim.bin_scene import BinWorld, Scene
 from binpick.sim.mjcf import CameraSpec
 from binpick.sim.photos import shop_photo
-from binpick.sim.products import ProductLibrary
+from binpick.sim.products import ProductLibrary, product_dimensions
 from binpick.grasping import GraspChoice, GraspPlanner, GraspPolicyName, PinholeCamera
 from binpick.grasping.camera import as_camera_depth
 from binpick.picking import GraspPlan, Picker, Plans
@@ -92,13 +92,14 @@ class PickPipeline:
     ``oracle=True`` takes the ordered product's boxes from the simulator (most visible first) instead of
     the detector: what the grasp alone achieves, to tell detection failures from grasp failures.
     ``domain`` (a :class:`binpick.sim.domain.DomainConfig`) renders the bins in another domain, e.g.
-    the shifted-domain test set's camera, tote and light."""
+    the shifted-domain test set's camera, tote and light. ``size_check`` gives the picker the ordered
+    product's catalogue dimensions, so instances clearly bigger than it are not grasped."""
 
     def __init__(self, detector: DetectorNetwork, library: ProductLibrary, grasp: GraspPlanner | str = "learnt",
                  copies: tuple[int, int] = (3, 6), distractors: tuple[int, int] = (2, 3), max_attempts: int = 3,
                  score_threshold: float | None = None, camera: CameraSpec = CameraSpec(size=416),
                  colour_check: float | None = 0.15, oracle: bool = False, colour_rank: float | None = 0.01,
-                 domain=None) -> None:
+                 domain=None, size_check: bool = True) -> None:
         if detector.spec.query != "photo":
             raise ConfigError("the pick pipeline conditions on shop photos: give a detector trained with query: photo")
         planner = grasp if isinstance(grasp, GraspPlanner) else GraspPlanner.load(grasp)
@@ -106,12 +107,20 @@ class PickPipeline:
                              colour_rank=colour_rank, max_grasps=max_attempts)
         self.detector, self.library, self.grasp = detector, library, planner
         self.copies, self.distractors, self.max_attempts = copies, distractors, max_attempts
-        self.camera, self.oracle, self.domain = camera, oracle, domain
+        self.camera, self.oracle, self.domain, self.size_check = camera, oracle, domain, size_check
         self._photos: dict[str, tuple[np.ndarray, np.ndarray]] = {}
 
     @property
     def score_threshold(self) -> float:
         return self.picker.score_threshold
+
+    @property
+    def colour_check(self) -> float | None:
+        return self.picker.colour_check
+
+    @property
+    def colour_rank(self) -> float | None:
+        return self.picker.colour_rank
 
     def photo(self, product_id: str) -> np.ndarray:
         """The shop's photo of a product: the user's own, or rendered like the training data's."""
@@ -191,7 +200,8 @@ class PickPipeline:
         camera, depth = PinholeCamera.from_record(scene.camera), as_camera_depth(scene.depth)
         if self.oracle:
             return self.picker.plan(scene.rgb, depth, camera, boxes=self.oracle_boxes(scene, product_id))
-        return self.picker.plan(scene.rgb, depth, camera, photo=photo, photo_product_mask=mask)
+        size = product_dimensions(self.library[product_id]) if self.size_check else None
+        return self.picker.plan(scene.rgb, depth, camera, photo=photo, photo_product_mask=mask, size=size)
 
     def execute(self, world: BinWorld, scene: Scene, plans: list[GraspPlan], result: OrderResult, on_frame=None) -> None:
         """Try the plans in turn in the simulator until the ordered product lands in the order tote
