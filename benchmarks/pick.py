@@ -99,7 +99,7 @@ def main() -> None:
               flush=True)
     result.update({"weights": str(args.weights.relative_to(_common.ROOT) if args.weights.is_absolute() else args.weights),
                    "grasp": f"{policy} (binpick.grasping), up to 3 grasps down the ranked detections (detections without a feasible grasp skipped)",
-                   "colour_check": pipeline.colour_check,
+                   "colour_check": pipeline.colour_check, "size_check": pipeline.size_check,
                    "targets": {"oracle.pick_success": 0.92, "seen.pick_success": 0.88, "seen.right_product": 0.97,
                                "held_out.pick_success": 0.75}, "peak_rss_mib": _common.peak_rss_mib(),
                    "load_average": round(os.getloadavg()[0], 2)})
