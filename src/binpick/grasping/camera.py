@@ -73,6 +73,17 @@ class PinholeCamera:
 MAX_DEPTH = 10.0  # metres: anything farther is not a bin in front of a robot
 
 
+def depth_problem(depth: np.ndarray) -> str | None:
+    """What is wrong with a depth image in metres, or None: no valid reading, or a median beyond
+    MAX_DEPTH (millimetres given as metres). Files and ROS frames are checked alike."""
+    valid = depth[np.isfinite(depth) & (depth > 0)]
+    if valid.size == 0:
+        return "has no valid reading (all zero or not finite)"
+    if float(np.median(valid)) > MAX_DEPTH:
+        return f"reads {float(np.median(valid)):.0f} m at its median"
+    return None
+
+
 def depth_millimetres(depth: np.ndarray) -> np.ndarray:
     """Metres -> 16-bit whole millimetres (0: no reading), the ROS / RealSense convention."""
     depth = np.nan_to_num(np.asarray(depth, dtype=np.float64), nan=0.0, posinf=0.0, neginf=0.0)
@@ -118,10 +129,8 @@ def read_depth(path: str | Path) -> np.ndarray:
         depth = millimetres_to_metres(raw)
     if depth.ndim != 2:
         raise InputFileError(f"depth image {str(path)!r} must be 2-D (height x width), got shape {depth.shape}")
-    valid = depth[np.isfinite(depth) & (depth > 0)]
-    if valid.size == 0:
-        raise InputFileError(f"depth image {str(path)!r} has no valid reading (all zero or not finite)")
-    if float(np.median(valid)) > MAX_DEPTH:
-        raise InputFileError(f"depth image {str(path)!r} reads {float(np.median(valid)):.0f} m at its median: "
-                             "give metres in .npy or millimetres in a 16-bit PNG")
+    problem = depth_problem(depth)
+    if problem is not None:
+        hint = "" if "no valid reading" in problem else ": give metres in .npy or millimetres in a 16-bit PNG"
+        raise InputFileError(f"depth image {str(path)!r} {problem}{hint}")
     return depth

@@ -148,6 +148,13 @@ class PlanRequests:
         self.picker, self.frames, self.photo_for, self.frame_timeout = picker, frames, photo_for, frame_timeout
         self.size_for = size_for
 
+    @classmethod
+    def with_catalogue(cls, picker: Picker, library=None) -> PlanRequests:
+        """Requests on a new synchroniser; product ids resolve to photos and sizes in ``library``."""
+        if library is None:
+            return cls(picker, FrameSynchroniser())
+        return cls(picker, FrameSynchroniser(), catalogue(library), size_for=catalogue_sizes(library))
+
     def plan(self, product_id: str = "", photo: np.ndarray | None = None, max_grasps: int = 0, size=None) -> tuple[Frame, Plans]:
         """Plans on the latest frame. ``size``: the product's catalogue dimensions (m; none given: the
         catalogue's for ``product_id``, where the node has one)."""

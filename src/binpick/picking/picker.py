@@ -22,6 +22,7 @@ import numpy as np
 
 from binpick.errors import ConfigError, InputFileError
 from binpick.grasping import GraspChoice, GraspPlanner, PinholeCamera
+from binpick.grasping.camera import depth_problem
 from binpick.picking.camera_info import CameraInfo, matrix_to_quaternion
 from binpick.picking.colour import colour_histogram, colour_similarity, detection_mask, photo_mask
 
@@ -77,10 +78,10 @@ class Plans(list):
     (the base frame's name) and ``timing_ms``."""
 
     def __init__(self, plans: list[GraspPlan], frame: str, timing_ms: dict[str, float], boxes: np.ndarray | None = None,
-                 scores: np.ndarray | None = None) -> None:
+                 scores: np.ndarray | None = None, colour_rejected: int = 0) -> None:
         super().__init__(plans)
         self.frame, self.timing_ms = frame, timing_ms
-        self.colour_rejected = 0  # detections dropped by the colour check
+        self.colour_rejected = colour_rejected  # detections dropped by the colour check
         self.boxes = np.zeros((0, 4)) if boxes is None else np.asarray(boxes, dtype=float).reshape(-1, 4)  # every detection
         self.scores = np.zeros(0) if scores is None else np.asarray(scores, dtype=float)
 
@@ -105,13 +106,17 @@ class Plans(list):
         boxes = np.array([p.box for p in self], dtype=float).reshape(-1, 4)
         photo = None if photo is None else split_photo(photo)[0]
         picture = overlay(rgb, boxes, np.array([p.score for p in self]), query_box, photo, min_score=0.0)
-        jaws = []
-        for number, plan in enumerate(self.grasps, start=1):
-            centre = np.array(plan.position)
-            d = np.array([np.cos(plan.yaw), np.sin(plan.yaw), 0.0]) * opening / 2
-            (a, b), _ = camera.project(np.stack([centre - d, centre + d]))
-            jaws.append((a, b, True, str(number)))
+        jaws = [(*jaw_pixels(camera, plan.position, plan.yaw, opening), True, str(number))
+                for number, plan in enumerate(self.grasps, start=1)]
         return draw_jaws(picture, jaws)
+
+
+def jaw_pixels(camera: PinholeCamera, position, yaw: float, opening: float) -> tuple[np.ndarray, np.ndarray]:
+    """The open fingers' pixels (u, v) of a grasp at ``position`` closing along ``yaw``: its jaw line."""
+    centre = np.asarray(position, dtype=float)
+    reach = np.array([np.cos(yaw), np.sin(yaw), 0.0]) * opening / 2
+    (a, b), _ = camera.project(np.stack([centre - reach, centre + reach]))
+    return a, b
 
 
 def split_photo(photo: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
@@ -141,12 +146,10 @@ def check_frame(rgb: np.ndarray, depth: np.ndarray, camera: PinholeCamera) -> No
     if (camera.width, camera.height) != (rgb.shape[1], rgb.shape[0]):
         raise InputFileError(f"the camera calibration is for {camera.width}x{camera.height} images, the frame is "
                              f"{rgb.shape[1]}x{rgb.shape[0]}")
-    valid = depth[np.isfinite(depth) & (depth > 0)]
-    if valid.size == 0:
-        raise InputFileError("depth image has no valid reading (all zero or not finite)")
-    if float(np.median(valid)) > 10.0:
-        raise InputFileError(f"depth reads {float(np.median(valid)):.0f} m at its median: give depth in metres "
-                             "(16-bit PNGs in millimetres are converted when read)")
+    problem = depth_problem(depth)
+    if problem is not None:
+        hint = "" if "no valid reading" in problem else ": give depth in metres (16-bit PNGs in millimetres are converted when read)"
+        raise InputFileError(f"depth image {problem}{hint}")
 
 
 class Picker:
@@ -238,8 +241,8 @@ class Picker:
 
             query_box = None if query_box is None else np.asarray(query_box, dtype=float)
             model = self._detector_for(query_box)
-            prediction = (predict(model, rgb, query_image=photo, score_threshold=self.candidate_threshold) if query_box is None
-                          else predict(model, rgb, query_box=query_box, score_threshold=self.candidate_threshold))
+            prediction = predict(model, rgb, query_box=query_box, query_image=photo if query_box is None else None,
+                                 score_threshold=self.candidate_threshold)
             found, scores = prediction.boxes, prediction.scores
             timing["detect"] = 1000 * (time.perf_counter() - tick)
             tick = time.perf_counter()
@@ -260,9 +263,7 @@ class Picker:
             plans.append(self.plan_detection(points, info.camera, box, float(score), similarity, size))
         timing["grasp"] = 1000 * (time.perf_counter() - tick)
         timing["total"] = 1000 * (time.perf_counter() - started)
-        result = Plans(plans, info.base_frame, {k: round(v, 2) for k, v in timing.items()}, found, scores)
-        result.colour_rejected = colour_rejected
-        return result
+        return Plans(plans, info.base_frame, {k: round(v, 2) for k, v in timing.items()}, found, scores, colour_rejected)
 
     def plan_detection(self, points: np.ndarray, camera: PinholeCamera, box, score: float,
                        similarity: float | None, size=None) -> GraspPlan:

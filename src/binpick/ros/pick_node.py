@@ -12,8 +12,7 @@ import json
 import numpy as np
 
 from binpick.picking.camera_info import CameraInfo
-from binpick.picking.node import (FrameSynchroniser, PlanRequests, Topics, catalogue, catalogue_sizes, colour_of, depth_of,
-                                  image_array, image_fields, photo_of)
+from binpick.picking.node import PlanRequests, Topics, colour_of, depth_of, image_array, image_fields, photo_of
 from binpick.ros import master_uri, require_ros, wait_for_master
 
 
@@ -115,8 +114,7 @@ def serve(picker, camera_to_base: np.ndarray, base_frame: str, namespace: str, t
     wait_for_master(master_uri(), master_timeout)
     rospy.init_node(node_name, anonymous=True, disable_signals=False)
     picker.warm_up()
-    requests = PlanRequests(picker, FrameSynchroniser(), catalogue(library) if library is not None else None,
-                            size_for=catalogue_sizes(library) if library is not None else None)
+    requests = PlanRequests.with_catalogue(picker, library)
     node = PickNode(requests, camera_to_base, base_frame, namespace, topics)
     rospy.loginfo("binpick: planning picks at %s from %s, %s, %s", namespace, topics.colour, topics.depth, topics.info)
     try:

@@ -20,8 +20,7 @@ import json
 import numpy as np
 
 from binpick.picking.camera_info import CameraInfo
-from binpick.picking.node import (FrameSynchroniser, PlanRequests, catalogue, catalogue_sizes, colour_of, depth_of, image_array,
-                                  image_fields, photo_of)
+from binpick.picking.node import PlanRequests, colour_of, depth_of, image_array, image_fields, photo_of
 from binpick.ros2 import require_ros2
 
 RELIABLE_DEPTH = 10
@@ -133,8 +132,7 @@ def serve(picker, camera_to_base: np.ndarray, base_frame: str, namespace: str, t
     rclpy.init()
     try:
         picker.warm_up()
-        requests = PlanRequests(picker, FrameSynchroniser(), catalogue(library) if library is not None else None,
-                            size_for=catalogue_sizes(library) if library is not None else None)
+        requests = PlanRequests.with_catalogue(picker, library)
         node = make_node(requests, camera_to_base, base_frame, namespace, topics.colour, topics.depth, topics.info)
         node.get_logger().info(f"binpick: planning picks at {namespace} from {topics.colour}, {topics.depth}, {topics.info}")
         rclpy.spin(node)

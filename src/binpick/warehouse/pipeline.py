@@ -31,6 +31,7 @@ from binpick.sim.products import ProductLibrary, product_dimensions
 from binpick.grasping import GraspChoice, GraspPlanner, GraspPolicyName, PinholeCamera
 from binpick.grasping.camera import as_camera_depth
 from binpick.picking import GraspPlan, Picker, Plans
+from binpick.picking.picker import jaw_pixels
 from binpick.picking.colour import photo_mask
 from binpick.warehouse.grasping import Reason, execute_pick, fixed_tips, grasp_point, half_height, order_tote_xml
 
@@ -228,8 +229,7 @@ class PickPipeline:
         """Where the fingertips go. The fixed policy keeps the grasp point and depth it had before the
         planner existed (from the overhead camera), so its rows stay comparable."""
         if self.grasp.policy is GraspPolicyName.FIXED:
-            point = grasp_point(plan.box, scene.depth, self.camera)
-            return fixed_tips(point, half_height(plan.box, point, self.camera))
+            return fixed_policy_tips(plan.box, scene.depth, self.camera)
         return np.asarray(plan.position, dtype=float)
 
     @staticmethod
@@ -256,14 +256,10 @@ class PickPipeline:
 
     def jaws(self, scene: Scene, attempts: list[Attempt]) -> list:
         """Each grasp tried, as its open fingers' pixels: the jaw lines of the order's picture."""
-        camera, reach = PinholeCamera.from_record(scene.camera), self.grasp.gripper.opening / 2
-        lines = []
-        for number, attempt in enumerate((a for a in attempts if a.outcome is not Reason.NO_GRASP), start=1):
-            centre = np.array(attempt.grasp_point)
-            d = np.array([np.cos(attempt.yaw), np.sin(attempt.yaw), 0.0]) * reach
-            (a, b), _ = camera.project(np.stack([centre - d, centre + d]))
-            lines.append((a, b, attempt.outcome is Reason.PLACED, str(number)))
-        return lines
+        camera, opening = PinholeCamera.from_record(scene.camera), self.grasp.gripper.opening
+        tried = (a for a in attempts if a.outcome is not Reason.NO_GRASP)
+        return [(*jaw_pixels(camera, attempt.grasp_point, attempt.yaw, opening), attempt.outcome is Reason.PLACED, str(number))
+                for number, attempt in enumerate(tried, start=1)]
 
 
 def plan_grasp(planner: GraspPlanner, points: np.ndarray, camera: PinholeCamera, box, depth: np.ndarray,
@@ -274,9 +270,15 @@ def plan_grasp(planner: GraspPlanner, points: np.ndarray, camera: PinholeCamera,
     if choice.chosen is None:
         return choice, None
     if planner.policy is GraspPolicyName.FIXED:
-        point = grasp_point(box, depth, overhead)
-        return choice, fixed_tips(point, half_height(box, point, overhead))
+        return choice, fixed_policy_tips(box, depth, overhead)
     return choice, choice.chosen.position
+
+
+def fixed_policy_tips(box, depth: np.ndarray, overhead: CameraSpec) -> np.ndarray:
+    """The fixed policy's fingertips: the grasp point and depth it had before the planner existed
+    (from the overhead camera), so its rows stay comparable."""
+    point = grasp_point(box, depth, overhead)
+    return fixed_tips(point, half_height(box, point, overhead))
 
 
 def fulfil(pipeline: PickPipeline, products: list[str], orders: int, seed: int, out: Path,
