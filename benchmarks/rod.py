@@ -70,6 +70,10 @@ VARIANTS = {
     "rod_photo": ("photo", {}),
     "rod_small": ("crop", {"model.backbone": "small"}),
 }
+# where a row's fine-tuning starts (default: its own pre-training). The photo row starts from the crop
+# row's fine-tuned weights: the same network, and with photos framed on their product it already scores
+# AP50 0.59 on seen products' photos before any photo training (0.35 with whole photos)
+FINETUNE_FROM = {"rod_photo": "finetune_rod"}
 
 
 def stage_trainers(stage: str, runs: Path, overrides: dict, init: dict[str, Path] | None = None,
@@ -131,10 +135,10 @@ def main() -> None:
     elif args.phase == "pretrain":
         joint("pretrain", args.runs, parse_overrides(args.settings), rows=args.only)
     elif args.phase == "finetune":
-        init = {row: run_folder(args.runs, f"pretrain_{row}") for row in VARIANTS if not args.only or row in args.only}
-        missing = [row for row, folder in init.items() if not finished(folder)]
+        init = {row: run_folder(args.runs, FINETUNE_FROM.get(row, f"pretrain_{row}")) for row in VARIANTS if not args.only or row in args.only}
+        missing = [FINETUNE_FROM.get(row, f"pretrain_{row}") for row, folder in init.items() if not finished(folder)]
         if missing:
-            raise SystemExit(f"pre-train first (python benchmarks/rod.py pretrain): no finished run for {', '.join(missing)}")
+            raise SystemExit(f"train these first (python benchmarks/rod.py pretrain | finetune): no finished run of {', '.join(missing)}")
         joint("finetune", args.runs, parse_overrides(args.settings), init, rows=args.only)
     elif args.phase == "generalise":
         report_generalisation(args.runs)
@@ -355,12 +359,13 @@ SHIPPED_SIZE = 320
 
 
 def evaluate_on(detect, data: Path, split: str, targets: str, size: int, only: list[str] | None = None,
-                query: str = "crop") -> dict:
+                query: str = "crop", framed: bool = False) -> dict:
     from binpick.detection.data import RepeatedInstances, TaskDataset
     from binpick.detection.evaluate import collect, summarise
     from binpick.detection.train import loader
 
-    dataset = TaskDataset(RepeatedInstances(data / f"annotations_{split}.json", targets=targets, only_categories=only), size, query)
+    dataset = TaskDataset(RepeatedInstances(data / f"annotations_{split}.json", targets=targets, only_categories=only), size, query,
+                          frame_photos=framed)
     return summarise(collect(detect, loader(dataset, 8, False, 0, 0)), size)
 
 
@@ -398,7 +403,8 @@ def report_generalisation(runs: Path) -> None:
                 metrics = evaluate_on(classical[name], data, split, targets, size, only)
             elif name in models:  # each model at the size it was trained for
                 model = models[name]
-                metrics = evaluate_on(detector_detect(model), data, split, targets, model.image_size, only, model.spec.query)
+                metrics = evaluate_on(detector_detect(model), data, split, targets, model.image_size, only, model.spec.query,
+                                      bool(model.spec.photo_sizes))
             else:
                 continue
             out[row] = keep(metrics)
@@ -428,8 +434,9 @@ def report_generalisation(runs: Path) -> None:
                            "rod_before": "before_rod", "rod_photo_before": "before_rod_photo",
                            "histogram": "histogram", "template": "template"}, DATA, "val", P1)
     result["photo"] = {"seen": result["seen"].get("rod_photo"),
-                       "held_out": keep(evaluate_on(detector_detect(models["finetune_rod_photo"]), DATA, "test", P1, size,
-                                                    query="photo")) if "finetune_rod_photo" in models else None,
+                       "held_out": keep(evaluate_on(detector_detect(models["finetune_rod_photo"]), DATA, "test", P1,
+                                                    models["finetune_rod_photo"].image_size, query="photo",
+                                                    framed=bool(models["finetune_rod_photo"].spec.photo_sizes))) if "finetune_rod_photo" in models else None,
                        "held_out_before": keep(evaluate_on(detector_detect(models["before_rod_photo"]), DATA, "test", P1, 256,
                                                            query="photo")) if "before_rod_photo" in models else None}
     # latency of predict at the shipped size, batch 1, 2 threads (weights do not change the time)
@@ -487,12 +494,17 @@ def plot_curves(folders: dict[str, Path | None]) -> dict[str, list[dict]]:
 
     histories = {name: json.loads((folder / "metrics.json").read_text())["history"]
                  for name, folder in folders.items() if folder is not None and (folder / "metrics.json").is_file()}
+    def offset(name: str) -> int:  # images seen by the runs this one started from
+        if not name.startswith("finetune_"):
+            return 0
+        start = FINETUNE_FROM.get(name.removeprefix("finetune_"), name.replace("finetune_", "pretrain_"))
+        before = histories.get(start, [])
+        return (before[-1].get("images_seen", 0) + offset(start)) if before else 0
+
     drawn = {}
     for name, history in histories.items():
-        before = histories.get(name.replace("finetune_", "pretrain_"), []) if name.startswith("finetune_") else []
-        offset = before[-1].get("images_seen", 0) if before else 0
         label = f"{name} (pickable, bins val)" if name.startswith("finetune_") else f"{name} (all copies, randomised val)"
-        drawn[label] = [{**h, "images_seen": h.get("images_seen", 0) + offset} for h in history]
+        drawn[label] = [{**h, "images_seen": h.get("images_seen", 0) + offset(name)} for h in history]
     IMAGES.mkdir(parents=True, exist_ok=True)
     plot_learning_curves(drawn, IMAGES / "learning_curves.png", "ROD: pre-training, then fine-tuning")
     return histories

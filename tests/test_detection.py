@@ -244,3 +244,53 @@ def test_shipped_weights_load_as_float32_and_predict(tmp_path):
     prediction = predict(model, image, np.array([5, 5, 20, 20], dtype=np.float32), score_threshold=0.0)
     assert len(prediction.boxes) > 0 and np.all(prediction.boxes[:, 2:] > 0)
     assert np.all(prediction.boxes[:, :2] >= -1) and np.all(prediction.boxes[:, 0] + prediction.boxes[:, 2] <= 129)
+
+
+def test_shop_photos_are_framed_on_their_product():
+    from binpick.detection.data import query_photo
+    from binpick.detection.photos import framed_on_product, product_box
+
+    photo = np.full((100, 120, 3), 245, np.uint8)  # a bright, plain studio background
+    photo[30:50, 60:100] = (200, 40, 40)  # the product
+    x1, y1, x2, y2 = product_box(photo)
+    assert 57 <= x1 <= 60 and 98 <= x2 <= 103 and 27 <= y1 <= 30 and 48 <= y2 <= 53  # the product plus a small margin
+    assert framed_on_product(photo).shape[:2] == (y2 - y1, x2 - x1)
+    # a white product on white is found through the cut-out's alpha, not the colours
+    white = np.dstack([np.full((100, 120, 3), 250, np.uint8), np.zeros((100, 120), np.uint8)])
+    white[10:20, 10:40, 3] = 255
+    height, width, channels = framed_on_product(white).shape
+    assert 10 <= height <= 14 and 30 <= width <= 36 and channels == 3
+    assert product_box(np.full((40, 40, 3), 250, np.uint8)) is None  # nothing to frame: the whole photo is kept
+    assert framed_on_product(np.full((40, 40, 3), 250, np.uint8)).shape == (40, 40, 3)
+    whole, framed = query_photo(photo, 32, framed=False), query_photo(photo, 32, framed=True)
+    assert whole.shape == framed.shape == (32, 32, 3)
+    assert (framed[..., 1] < 100).mean() > 0.7 > 0.2 > (whole[..., 1] < 100).mean()  # framed: mostly product
+
+
+def test_photo_sizes_match_the_photo_at_each_size_and_load_from_crop_weights(tmp_path):
+    from binpick.errors import ConfigError
+
+    torch.manual_seed(0)
+    spec = ModelSpec(query="photo", photo_sizes=(0.25, 0.5))
+    model = DetectorNetwork(spec, 64).eval()
+    scene = model.features(torch.rand(2, 3, 64, 64))
+    queries = model.query_features(scene, None, torch.rand(2, 3, 96, 96))
+    # per level, per sample: one kernel per photo size, from the photo resized to 16 and 32 px
+    assert [len(level) for level in queries] == [2, 2, 2] and all(len(sample) == 2 for level in queries for sample in level)
+    assert [tuple(k.shape[1:]) for k in queries[0][0]] == [(2, 2), (4, 4)]
+    out = model(torch.rand(2, 3, 64, 64), None, torch.rand(2, 3, 96, 96))
+    assert out["heatmaps"][0].shape == (2, 1, 8, 8) and float(out["heatmaps"][0].detach().abs().max()) <= 1.0 + 1e-5
+    # in training, photos are normalised by the scenes' running statistics and leave them alone
+    model.train()
+    norm = next(m for m in model.backbone.modules() if isinstance(m, torch.nn.BatchNorm2d))
+    scene = model.features(torch.rand(2, 3, 64, 64))
+    statistics = norm.running_mean.clone()
+    model.query_features(scene, None, torch.rand(2, 3, 96, 96))
+    assert torch.equal(norm.running_mean, statistics) and norm.training
+    # the weights are the crop-query network's (the query kind holds none): fine-tuning starts from them
+    crop = DetectorNetwork(ModelSpec(), 64)
+    model.load_state_dict(crop.state_dict())
+    for bad in (ModelSpec(photo_sizes=(0.1,)), ModelSpec(query="photo", photo_sizes=(1.5,)),
+                ModelSpec(query="photo", method="tdid", photo_sizes=(0.1,))):
+        with pytest.raises(ConfigError, match="photo_sizes"):
+            bad.check()

@@ -98,7 +98,8 @@ def test_the_demo_fulfils_an_order_with_the_shipped_detector(tmp_path):
 def test_the_colour_check_tells_the_ordered_product_from_another_colour():
     from binpick.sim.photos import shop_photo
     from binpick.grasping import PinholeCamera
-    from binpick.picking.colour import colour_histogram, colour_similarity, photo_mask
+    from binpick.detection.photos import photo_mask
+    from binpick.picking.colour import colour_histogram, colour_similarity
 
     library = default_library(procedural=0, shapes=0)
     camera = CameraSpec(size=160)

@@ -82,9 +82,10 @@ class ModelConfig:
     layout: str = "RRR"
     scales: list[float] = field(default_factory=lambda: [0.5, 1.0, 2.0])
     query: str = "crop"
+    photo_sizes: list[float] = field(default_factory=list)  # see ModelSpec.photo_sizes
 
     def spec(self) -> ModelSpec:
-        spec = ModelSpec(self.backbone, self.method, self.layout, tuple(self.scales), self.query)
+        spec = ModelSpec(self.backbone, self.method, self.layout, tuple(self.scales), self.query, tuple(self.photo_sizes))
         spec.check()
         return spec
 

@@ -33,11 +33,13 @@ class Task:
     photo: Path | None = None
 
 
-def read_image(path: Path) -> np.ndarray:
-    """RGB uint8 (H, W, 3); an unreadable or empty file is one clear line."""
+def read_image(path: Path, keep_alpha: bool = False) -> np.ndarray:
+    """RGB uint8 (H, W, 3), or RGBA where the file has transparency and ``keep_alpha``; an
+    unreadable or empty file is one clear line."""
     try:
         with Image.open(path) as image:
-            array = np.asarray(image.convert("RGB"))
+            alpha = keep_alpha and (image.mode in ("RGBA", "LA", "PA") or "transparency" in image.info)
+            array = np.asarray(image.convert("RGBA" if alpha else "RGB"))
     except (OSError, ValueError) as error:
         raise ConfigError(f"cannot read image {str(path)!r}: {str(error).splitlines()[0] if str(error) else type(error).__name__}") from None
     if array.size == 0 or min(array.shape[:2]) < 8:
@@ -195,15 +197,18 @@ class RepeatedInstances:
 class TaskDataset(torch.utils.data.Dataset):
     """Tensors for training and evaluation: the image resized to ``size``, the query (box in that
     image, its crop, or the shop photo) and the boxes to find. ``augment`` applies box-safe flips,
-    zoom and colour jitter."""
+    zoom and colour jitter. ``frame_photos`` crops shop photos to their product (models with
+    ``photo_sizes``, binpick.detection.photos)."""
 
     def __init__(self, source: RepeatedInstances, size: int, query_mode: str = "crop", query_size: int = 96,
-                 augment: bool = False, seed: int = 0, photometric: bool = False) -> None:
+                 augment: bool = False, seed: int = 0, photometric: bool = False, frame_photos: bool = False) -> None:
         if query_mode not in ("crop", "photo"):
             raise ConfigError(f"query must be 'crop' or 'photo', got {query_mode!r}")
         self.source, self.size, self.query_mode, self.query_size = source, size, query_mode, query_size
         self.augment, self.seed, self.epoch, self.photometric = augment, seed, 0, photometric
         self.with_photo = False  # also the shop photo, for joint training of crop and photo queries
+        self.frame_photos = frame_photos
+        self._photos: dict[Path, np.ndarray] = {}  # query-sized photos, read once per category
         if query_mode == "photo":
             missing = [t for t in source.tasks if t.photo is None]
             if missing:
@@ -234,13 +239,18 @@ class TaskDataset(torch.utils.data.Dataset):
         if self.query_mode == "photo" or self.with_photo:
             if task.photo is None:
                 raise ConfigError(f"no shop photo for category {self.source.categories[task.category_id]['name']!r}")
-            photo = np.asarray(Image.fromarray(read_image(task.photo)).resize((self.query_size, self.query_size), Image.BILINEAR))
+            photo = self.photo(task.photo)
         query_image = photo if self.query_mode == "photo" else crop_resize(image, query_box, self.query_size)
         extra = {"photo": to_tensor(photo)} if self.with_photo else {}
         return {**extra, "image": to_tensor(image), "query_box": torch.from_numpy(query_box), "query_image": to_tensor(query_image),
                 "targets": torch.from_numpy(boxes["targets"]), "all": torch.from_numpy(boxes["all"]),
                 "unpickable": torch.from_numpy(boxes["unpickable"]), "image_id": task.image_id,
                 "category_id": task.category_id, "index": index, "query_id": int(query.get("id", -1))}
+
+    def photo(self, path: Path) -> np.ndarray:
+        if path not in self._photos:
+            self._photos[path] = query_photo(read_image(path, keep_alpha=True), self.query_size, self.frame_photos)
+        return self._photos[path]
 
     def _resize(self, image: np.ndarray, query_box: np.ndarray, boxes: dict[str, np.ndarray]):
         height, width = image.shape[:2]
@@ -251,6 +261,15 @@ class TaskDataset(torch.utils.data.Dataset):
 
 def to_tensor(image: np.ndarray) -> torch.Tensor:
     return torch.from_numpy(np.array(image, dtype=np.uint8)).permute(2, 0, 1).float().div(255.0)
+
+
+def query_photo(photo: np.ndarray, size: int, framed: bool) -> np.ndarray:
+    """A shop photo (RGB, or RGBA whose alpha marks the product) as a ``size`` x ``size`` RGB query:
+    framed on its product first for models with ``photo_sizes``."""
+    from binpick.detection.photos import framed_on_product
+
+    photo = framed_on_product(photo) if framed else np.ascontiguousarray(np.asarray(photo)[..., :3])
+    return np.asarray(Image.fromarray(photo).resize((size, size), Image.BILINEAR))
 
 
 def crop_resize(image: np.ndarray, box: np.ndarray, size: int) -> np.ndarray:

@@ -9,7 +9,7 @@ import numpy as np
 import torch
 from PIL import Image
 
-from binpick.detection.data import crop_resize, read_image, to_tensor
+from binpick.detection.data import crop_resize, query_photo, read_image, to_tensor
 from binpick.detection.model import DetectorNetwork
 from binpick.errors import ConfigError
 
@@ -93,8 +93,9 @@ def predict(model: DetectorNetwork, image: np.ndarray | str | Path, query_box: n
     else:
         if model.spec.method == "rod" and model.spec.query == "crop":
             raise ConfigError("this detector finds copies of a box in the image: give --query-box")
-        photo = read_image(Path(query_image)) if isinstance(query_image, (str, Path)) else np.asarray(query_image)
-        query_pixels = np.asarray(Image.fromarray(photo).resize((model.query_size,) * 2, Image.BILINEAR))
+        photo = read_image(Path(query_image), keep_alpha=True) if isinstance(query_image, (str, Path)) else np.asarray(query_image)
+        query_pixels = query_photo(photo, model.query_size, framed=bool(model.spec.photo_sizes))
+        photo = np.ascontiguousarray(photo[..., :3])
     boxes_input = torch.tensor(box_xyxy, dtype=torch.float32)[None] if box_xyxy is not None else None
     model.eval()
     results, heatmaps = model.detect(to_tensor(resized)[None], boxes_input, to_tensor(query_pixels)[None],

@@ -96,15 +96,20 @@ class RODModule(nn.Module):
         self.fuse = nn.Sequential(conv_bn(channels + 1, channels, 1), conv_bn(channels, channels, 3))
 
     def heatmaps(self, features: torch.Tensor, queries: list[torch.Tensor]) -> torch.Tensor:
-        """Eq 5.12 for a batch: (B, 1, H, W). ``queries[b]`` is sample b's query features (C, h, w)."""
+        """Eq 5.12 for a batch: (B, 1, H, W). ``queries[b]`` is sample b's query features (C, h, w),
+        resized to the D scales; or a tuple of them (a photo at several sizes), each used as it is."""
         mean = features.mean(dim=(2, 3), keepdim=True)
         normalised = F.normalize(features - mean, dim=1)
-        kernels = [[F.normalize(k, dim=0) for k in scaled_kernels(query - m, self.scales)]
-                   for query, m in zip(queries, mean.unbind(0))]
-        per_scale = [correlate_batch(normalised, [sample[s] for sample in kernels]) for s in range(len(self.scales))]
+        kernels = [[F.normalize(k, dim=0) for k in self.kernels(query, m)] for query, m in zip(queries, mean.unbind(0))]
+        per_scale = [correlate_batch(normalised, [sample[s] for sample in kernels]) for s in range(len(kernels[0]))]
         return torch.stack(per_scale).amax(0)[:, None].to(features.dtype)
 
-    def forward(self, features: torch.Tensor, queries: list[torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+    def kernels(self, query: torch.Tensor | tuple[torch.Tensor, ...], mean: torch.Tensor) -> list[torch.Tensor]:
+        if isinstance(query, tuple):
+            return [k for q in query for k in scaled_kernels(q - mean, (1.0,))]  # capped at MAX_KERNEL cells
+        return scaled_kernels(query - mean, self.scales)
+
+    def forward(self, features: torch.Tensor, queries: list) -> tuple[torch.Tensor, torch.Tensor]:
         heatmap = self.heatmaps(features, queries)
         return self.fuse(torch.cat([features, heatmap], 1)), heatmap
 

@@ -155,9 +155,11 @@ def make_datasets(config: DetectConfig) -> tuple[TaskDataset, TaskDataset]:
     train_source = RepeatedInstances(data.train, data.images, data.targets, exclude_categories=data.exclude_categories)
     val_source = RepeatedInstances(data.val, data.images, data.targets)
     query_mode = config.model.query
+    framed = bool(config.model.photo_sizes)
     train = TaskDataset(train_source, data.load_size, query_mode, data.query_size, augment=data.augment, seed=config.train.seed,
-                        photometric=data.photometric)
-    val = TaskDataset(val_source, data.image_size, query_mode, data.query_size, augment=False, seed=config.train.seed + 1)
+                        photometric=data.photometric, frame_photos=framed)
+    val = TaskDataset(val_source, data.image_size, query_mode, data.query_size, augment=False, seed=config.train.seed + 1,
+                      frame_photos=framed)
     return train, val
 
 
@@ -242,9 +244,10 @@ class DetectorTrainer:
     def _start_from(self, path: Path) -> None:
         """Weights of a pre-trained detector (same architecture), its anchors included: fine-tuning."""
         pretrained = load_detector(path)
-        if pretrained.spec != self.model.spec:
-            raise ConfigError(f"train.init_from {str(path)!r} is a {pretrained.spec.backbone} {pretrained.spec.method} "
-                              f"{pretrained.spec.query}-query network; this run's model section asks for another")
+        mine, theirs = self.model.spec, pretrained.spec  # the query kind and scales hold no weights
+        if (theirs.backbone, theirs.method, theirs.layout) != (mine.backbone, mine.method, mine.layout):
+            raise ConfigError(f"train.init_from {str(path)!r} is a {theirs.backbone} {theirs.method} {theirs.layout} "
+                              f"network; this run's model section asks for another")
         self.model.load_state_dict(pretrained.state_dict())
 
     def scaled(self, batch: dict) -> dict:
@@ -412,6 +415,10 @@ class JointTraining:
         self.trainers = trainers
         self.train_set = trainers[0].train_set
         self.train_set.with_photo = any(t.model.spec.query == "photo" for t in trainers)
+        framing = {bool(t.model.spec.photo_sizes) for t in trainers if t.model.spec.query == "photo"}
+        if len(framing) > 1:
+            raise ConfigError("joint training needs every photo-query row to frame its photos alike (model.photo_sizes)")
+        self.train_set.frame_photos = framing == {True}
 
     def run(self, callback: RunCallback = SILENT) -> dict[str, dict[str, Any]]:
         import time

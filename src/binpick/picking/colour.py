@@ -28,12 +28,6 @@ def colour_histogram(rgb: np.ndarray, mask: np.ndarray | None = None) -> np.ndar
     return hist / max(float(hist.sum()), 1.0)
 
 
-def photo_mask(photo: np.ndarray) -> np.ndarray:
-    """The product's pixels in a shop photo on a light, plain background: what is not bright and grey."""
-    hsv = cv2.cvtColor(np.ascontiguousarray(photo), cv2.COLOR_RGB2HSV)
-    return ~((hsv[..., 1] < 30) & (hsv[..., 2] > 150))
-
-
 def detection_mask(points: np.ndarray, box_xywh, support: float | None = None) -> np.ndarray:
     """The box's pixels standing above what the products rest on: ``support`` (the bin floor's
     height in the base frame, where known), else the low end (5th percentile) of the heights in

@@ -24,7 +24,8 @@ from binpick.errors import ConfigError, InputFileError
 from binpick.grasping import GraspChoice, GraspPlanner, PinholeCamera
 from binpick.grasping.camera import depth_problem
 from binpick.picking.camera_info import CameraInfo, matrix_to_quaternion
-from binpick.picking.colour import colour_histogram, colour_similarity, detection_mask, photo_mask
+from binpick.detection.photos import photo_mask
+from binpick.picking.colour import colour_histogram, colour_similarity, detection_mask
 
 APPROACH = (0.0, 0.0, -1.0)  # top-down: the gripper moves along the base frame's -z (z up)
 LARGER = "larger than the ordered product"
@@ -241,7 +242,9 @@ class Picker:
 
             query_box = None if query_box is None else np.asarray(query_box, dtype=float)
             model = self._detector_for(query_box)
-            prediction = predict(model, rgb, query_box=query_box, query_image=photo if query_box is None else None,
+            query_image = None if query_box is not None else (  # the product mask travels as alpha, for framing
+                photo if photo_product_mask is None else np.dstack([photo, np.where(photo_product_mask, 255, 0).astype(np.uint8)]))
+            prediction = predict(model, rgb, query_box=query_box, query_image=query_image,
                                  score_threshold=self.candidate_threshold)
             found, scores = prediction.boxes, prediction.scores
             timing["detect"] = 1000 * (time.perf_counter() - tick)

@@ -32,7 +32,7 @@ from binpick.grasping import GraspChoice, GraspPlanner, GraspPolicyName, Pinhole
 from binpick.grasping.camera import as_camera_depth
 from binpick.picking import GraspPlan, Picker, Plans
 from binpick.picking.picker import jaw_pixels
-from binpick.picking.colour import photo_mask
+from binpick.detection.photos import photo_mask
 from binpick.warehouse.grasping import Reason, execute_pick, fixed_tips, grasp_point, half_height, order_tote_xml
 
 GIF_SIZE = 240
