@@ -40,12 +40,12 @@ ALIASES = {"curriculum": "curriculum_whole_area", "no_curriculum": "no_curriculu
 EPISODES = 200
 
 
-def evaluate(policy, goal_area: float, seed: int = 50_000) -> dict:
+def evaluate(policy, goal_area: float, seed: int = 50_000, epsilon: float = 0.0) -> dict:
     env = make("binpick/Arm2D-v0", goal_area=goal_area)
-    result = evaluate_policy(policy, env, episodes=EPISODES, seed=seed)
+    result = evaluate_policy(policy, env, episodes=EPISODES, seed=seed, epsilon=epsilon)
     env.close()
     return {"mean": result.mean_length, "std": result.std_length, "success_rate": result.success_rate,
-            "episodes": EPISODES, "goal_area": goal_area}
+            "episodes": EPISODES, "goal_area": goal_area, "epsilon": epsilon}
 
 
 def main() -> None:
@@ -85,6 +85,9 @@ def main() -> None:
                                                      "run_dir": str(trainer.run_dir.relative_to(_common.ROOT))}
             if key == "curriculum_whole_area":
                 results["curriculum_stages"] = [e for e in metrics["evaluations"]]
+            if key == "dqn":  # Mnih et al. (2015) evaluate with ε = 0.05; greedy above
+                results["dqn_epsilon_greedy"] = evaluate(policy, area, epsilon=0.05) | {
+                    k: results[key][k] for k in ("sim_steps", "wall_seconds", "run_dir")}
         print(key, results[key], flush=True)
     if not args.report_only:
         results["peak_rss_mib"] = round(_common.peak_rss_mib(), 1)
@@ -106,7 +109,8 @@ def main() -> None:
         "| method | goal | ours | thesis |",
         "|---|---|---:|---:|",
         f"| random | fixed | {cell('random')} | 369 ± 341 |",
-        f"| DQN (SB3) | fixed | {cell('dqn')} | 134 ± 99 |",
+        f"| DQN (SB3), greedy | fixed | {cell('dqn')} | 134 ± 99 |",
+        f"| DQN (SB3), ε-greedy (ε = 0.05, Mnih et al. 2015) | fixed | {cell('dqn_epsilon_greedy')} | |",
         f"| A3C, 2 workers | fixed | {cell('a3c')} | 15 ± 3 |",
         f"| random | whole area | {cell('random_whole_area')} | – |",
         f"| A3C + curriculum | whole area | {cell('curriculum_whole_area')} | 25 ± 6 |",

@@ -71,3 +71,12 @@ def test_episodes_must_be_positive():
     env = binpick.make("binpick/Arm2D-v0")
     with pytest.raises(binpick.errors.ConfigError, match="episodes"):
         evaluate_policy(random_policy(env), env, episodes=0)
+
+
+def test_epsilon_greedy_breaks_a_greedy_policy_that_never_succeeds():
+    env = gym.wrappers.TimeLimit(Countdown(), max_episode_steps=200)
+    stuck = evaluate_policy(lambda _obs: 0, env, episodes=20)  # greedy: loops without progress until T
+    explored = evaluate_policy(lambda _obs: 0, env, episodes=20, epsilon=0.5)
+    again = evaluate_policy(lambda _obs: 0, env, episodes=20, epsilon=0.5)
+    assert stuck.success_rate == 0.0 and explored.success_rate == 1.0 and explored.mean_length < 50
+    assert explored.lengths == again.lengths  # seeded

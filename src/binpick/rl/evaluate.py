@@ -80,6 +80,7 @@ def evaluate_policy(
     episodes: int = 100,
     seed: int = 0,
     on_episode: EpisodeCallback | None = None,
+    epsilon: float = 0.0,
 ) -> EvalResult:
     """Run ``episodes`` episodes (episode i reset with ``seed + i``) and measure their lengths.
 
@@ -88,9 +89,18 @@ def evaluate_policy(
 
     An episode ends at the first step whose ``info["is_success"]`` is true (its length is the number
     of actions taken), or when the env terminates or truncates (length T if never successful).
+
+    ``epsilon`` > 0 takes a uniformly random action with that probability (seeded from ``seed``): the
+    ε-greedy evaluation of Mnih et al. (2015), ε = 0.05, which a value-based policy needs where its
+    greedy actions can cycle between two states forever in a deterministic env.
     """
     check_range("episodes", episodes, 1, None, integer=True)
+    check_range("epsilon", epsilon, 0.0, 1.0)
     act = _as_callable(model)
+    if epsilon > 0:
+        greedy, rng, space = act, np.random.default_rng(seed), env.action_space
+        space.seed(seed)
+        act = lambda observation: space.sample() if rng.uniform() < epsilon else greedy(observation)  # noqa: E731
     spec = env.spec
     result = EvalResult(env_id=spec.id if spec else type(env.unwrapped).__name__,
                         max_episode_steps=spec.max_episode_steps if spec else None)
