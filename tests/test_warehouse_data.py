@@ -100,6 +100,30 @@ def test_trial_grasps_pick_a_small_box_and_fail_on_one_wider_than_the_jaws():
     assert outcomes == {"test/small": [True, True], "test/wide": [False, False]}
 
 
+def test_labelling_trials_run_without_the_drop_guards_as_the_pipeline_does():
+    from binpick.warehouse.dataset import label_pickability
+
+    product = Product("test/small", "test", shape="box", size=(0.02, 0.02, 0.02), mass=0.1)
+    world = BinWorld(product, [], max_copies=2, camera=CameraSpec(size=64), gripper=True)
+    seen = []
+
+    class Recorder:  # a policy that notes whether the guards would stop a carried product
+        name = "recorder"
+
+        def attempt(self, sim, slot):
+            seen.append(bool(sim.model.geom_contype[sim.guards].any()))
+            return True
+
+    try:
+        scene = world.scene(2, 0, seed=0)
+        assert world.model.geom_contype[world.guards].all()  # on while the scene settles
+        record = {"annotations": [{"is_target": True, "slot": i.slot, "pickable": {}} for i in scene.instances]}
+        label_pickability(world, scene, record, [Recorder()], np.random.default_rng(0))
+    finally:
+        world.close()
+    assert seen == [False, False]
+
+
 def _tiny(out: Path, **changes) -> GenerateConfig:
     settings = dict(out=str(out), scenes=4, policies=[], workers=1, image_size=64, copies=(2, 3), distractors=(0, 1),
                     scenes_per_world=2, photo_size=32, seed=3)
