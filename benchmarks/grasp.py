@@ -185,11 +185,15 @@ def section(result: dict, path: Path, bins: int) -> None:
                   f"(`python benchmarks/grasp.py pickability`, `{p['data']}`). AP50 against the instances the learnt "
                   "policy picks (higher is better) and against those it cannot pick (lower: the detector prefers what the "
                   "policy can pick):", "",
-                  "| detector | seen: AP50 pickable | seen: AP50 unpickable | held out: AP50 pickable | held out: AP50 unpickable |",
-                  "|---|---|---|---|---|"]
+                  "| detector | seen: AP50 pickable | unpickable | all copies | held out: AP50 pickable | unpickable | all copies |",
+                  "|---|---|---|---|---|---|---|"]
         for label, name in (("before", "shipped (Policy 1 labels)"), ("after", "fine-tuned on learnt-policy labels")):
             lines.append(f"| {name} | {cell(label, 'seen', 'ap50')} | {cell(label, 'seen', 'ap50_unpickable')} | "
-                         f"{cell(label, 'held_out', 'ap50')} | {cell(label, 'held_out', 'ap50_unpickable')} |")
+                         f"{cell(label, 'seen', 'ap50_all')} | {cell(label, 'held_out', 'ap50')} | "
+                         f"{cell(label, 'held_out', 'ap50_unpickable')} | {cell(label, 'held_out', 'ap50_all')} |")
+        lines += ["", "The labels come from trials with the tote's drop guards off, as the pipeline grasps "
+                  "(`warehouse.dataset.trial_ready`); with them on, 45% of instances were labelled pickable instead of 68%, "
+                  "and the fine-tuned detector's AP50 rose on the unpickable instances as much as on the pickable ones."]
     _common.write_section("grasp", "\n".join(lines))
 
 
