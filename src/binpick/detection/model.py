@@ -57,7 +57,8 @@ class ModelSpec:
     scales: tuple[float, ...] = (0.5, 1.0, 2.0)  # D crop scales of the ROD module
     query: str = "crop"  # crop: the known box in the image (§5.3); photo: a shop photo (§6.3)
     # photo queries: the photo framed on its product and matched at these sides, as fractions of the
-    # scene image's side (binpick.detection.photos); empty: the whole photo at D scales (before 0.3)
+    # scene image's side (binpick.detection.photos); empty: the whole photo at the D scales (weights
+    # trained before photos were framed)
     photo_sizes: tuple[float, ...] = ()
 
     def check(self) -> None:

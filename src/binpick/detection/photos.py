@@ -3,8 +3,8 @@
 A shop photo shows the product small on a plain studio background, seen from the side; in the bin the
 same product is a few dozen pixels seen from above. Matched whole, the photo's features are mostly
 background, and at the photo's scale the backbone sees the product far larger than in the bin (the
-crop-trained weights scored AP50 0.35 with whole photos and 0.58 with framed ones resized to an
-instance's size, on binpick's own seen products). So a photo query is cropped to its product first,
+crop-trained weights scored AP50 0.35 with whole photos and 0.59 with framed ones matched at four
+sizes around an instance's, on binpick's own seen products, before any training on photos). So a photo query is cropped to its product first,
 then matched at a few sizes relative to the scene image (``ModelSpec.photo_sizes``).
 """
 
