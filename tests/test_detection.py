@@ -294,3 +294,20 @@ def test_photo_sizes_match_the_photo_at_each_size_and_load_from_crop_weights(tmp
                 ModelSpec(query="photo", method="tdid", photo_sizes=(0.1,))):
         with pytest.raises(ConfigError, match="photo_sizes"):
             bad.check()
+
+
+def test_the_learning_rate_anneals_by_max_minutes_when_that_comes_first(tmp_path):
+    path = make_coco(tmp_path / "toy", images=4, seed=1)
+    config = tmp_path / "rod.yaml"
+    config.write_text(f"""name: toy
+data: {{train: {path}, val: {path}, targets: all, image_size: 64, augment: false}}
+train: {{epochs: 1000, batch_size: 2, lr: 0.002, warmup_steps: 2, max_minutes: 10, workers: 0}}
+""")
+    trainer = DetectorTrainer.new(load_detect_config(config), tmp_path / "runs")
+    trainer.step = 10  # after the warm-up, early in the planned epochs
+    trainer.note_time(0.0)
+    assert trainer.learning_rate() == pytest.approx(0.002, rel=1e-3)
+    trainer.note_time(300.0)  # half the time budget: half-way down the cosine
+    assert trainer.learning_rate() == pytest.approx(0.002 * (0.05 + 0.95 * 0.5), rel=1e-3)
+    trainer.note_time(600.0)
+    assert trainer.learning_rate() == pytest.approx(0.002 * 0.05, rel=1e-3)

