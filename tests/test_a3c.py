@@ -125,9 +125,9 @@ def _check_init_from(source, tmp_path):
 
 
 def test_sb3_curriculum_callback_widens_the_training_envs_goal_area(tmp_path):
-    from binpick.config import from_dict
+    from binpick.config import from_dict, to_dict
     from binpick.rl.config import RLConfig
-    from binpick.rl.train import trainer_for
+    from binpick.rl.train import Trainer, trainer_for
 
     config = from_dict(RLConfig, {
         "name": "curriculum_dqn", "env": "Arm2D", "env_kwargs": {"image_size": 40, "max_episode_steps": 30},
@@ -143,3 +143,43 @@ def test_sb3_curriculum_callback_widens_the_training_envs_goal_area(tmp_path):
     trainer.run()
     assert seen[0] == 0.0 and seen[-1] == 1.0 and seen == sorted(seen)
     assert trainer.env.unwrapped.goal_area == 1.0
+    # the thesis's rule: widen once the training episodes have re-converged; the state resumes
+    converged = from_dict(RLConfig, to_dict(config) | {"name": "converged_dqn", "curriculum": {
+        "advance": "converged", "window": 2, "tolerance": 1.0,
+        "stages": [{"area": 0.0, "hold_steps": 100}, {"area": 1.0, "ramp_steps": 100}]}})
+    trainer = trainer_for(converged, tmp_path)
+    trainer.run()
+    (start,) = trainer.curriculum.advanced_at
+    assert 100 <= start < 300 and trainer.curriculum.goal_area(start + 100) == 1.0
+    assert Trainer.resume(trainer.run_dir).curriculum.advanced_at == [start]
+
+
+def test_curriculum_widens_only_once_the_agent_has_re_converged():
+    """Thesis §3.2: hold an area until the recent average has settled, then ramp to the next."""
+    import pytest
+
+    from binpick.errors import ConfigError
+    from binpick.rl.curriculum import CurriculumProgress
+
+    schedule = CurriculumConfig([CurriculumStage(0.0, 0, 100), CurriculumStage(0.5, 100, 50), CurriculumStage(1.0, 100)],
+                                advance="converged", window=5, tolerance=0.1)
+    progress = CurriculumProgress(schedule)
+    assert progress.goal_area(0) == 0.0
+    assert not progress.record(50, [10] * 10, 0.0)  # settled, but the minimum hold is not over
+    assert not progress.record(120, [40] * 5, 0.0) and progress.goal_area(10_000) == 0.0  # still changing
+    assert progress.record(150, [40] * 5, 0.0) and progress.stage == 1  # two windows of 40: re-converged
+    assert progress.goal_area(200) == 0.25 and progress.goal_area(250) == 0.5  # the ramp from 0 to 0.5
+    assert not progress.record(260, [20] * 10, 0.25)  # episodes of the ramp do not count
+    assert not progress.record(300, [60] * 5 + [20] * 5, 0.5)  # at 0.5 but not settled (60 -> 20)
+    saved = progress.state_dict()
+    resumed = CurriculumProgress(schedule)
+    resumed.load_state_dict(saved)
+    assert resumed.record(310, [20] * 5, 0.5) and resumed.stage == 2 and resumed.advanced_at == [150, 310]
+    assert resumed.goal_area(360) == 0.75 and resumed.goal_area(10**6) == 1.0
+    assert not resumed.record(10**6, [5] * 20, 1.0)  # the last stage holds for the rest of the run
+    fixed = CurriculumProgress(CurriculumConfig([CurriculumStage(0.0, 0, 100), CurriculumStage(1.0, 100)]))
+    assert fixed.goal_area(150) == 0.5 and not fixed.record(150, [1] * 1000, 0.5)  # steps mode ignores episodes
+    with pytest.raises(ConfigError, match="curriculum.advance"):
+        CurriculumConfig([CurriculumStage(0.0)], advance="sometimes")
+    with pytest.raises(ConfigError, match="needs curriculum.stages"):
+        CurriculumConfig(advance="converged")

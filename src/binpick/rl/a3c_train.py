@@ -26,6 +26,7 @@ from binpick.files import atomic_write_json, read_json_object, require_fields
 from binpick.rl.a3c import A3CWorker, ActorCritic, SharedAdam, apply_gradients
 from binpick.runs import SILENT, RunCallback, Task, commit_checkpoint, latest_checkpoint, new_run_dir, removed_on_error
 from binpick.rl.config import RLConfig
+from binpick.rl.curriculum import CurriculumProgress
 from binpick.rl.evaluate import evaluate_policy
 
 FORMAT = "binpick-a3c-checkpoint-1"
@@ -105,6 +106,7 @@ class A3CTrainer:
         self.optimizer = SharedAdam(self.model.parameters(), lr=config.a3c.learning_rate)
         self.steps = 0
         self.metrics: dict[str, Any] = {"evaluations": [], "episodes": 0, "wall_seconds": 0.0}
+        self.curriculum = CurriculumProgress(config.curriculum)
 
     @classmethod
     def new(cls, config: RLConfig, runs_root: Path = Path("runs")) -> A3CTrainer:
@@ -119,6 +121,7 @@ class A3CTrainer:
             trainer = cls(config, run_dir)
             if source is not None:
                 trainer.load_checkpoint(source)
+                trainer.curriculum = CurriculumProgress(config.curriculum)  # this run's own schedule starts here
             return trainer
 
     @classmethod
@@ -133,7 +136,7 @@ class A3CTrainer:
         return self.steps
 
     def goal_area(self, step: int) -> float:
-        scheduled = self.config.curriculum.goal_area(step)
+        scheduled = self.curriculum.goal_area(step)
         return self.base_area if scheduled is None else scheduled
 
     # ------------------------------------------------------------------ checkpoints
@@ -141,7 +144,8 @@ class A3CTrainer:
         def write(folder: Path) -> None:
             tensorfile.save(folder / A3C_FILE, FORMAT, state={"model": self.model.state_dict(), "optimizer": self.optimizer.state_dict()},
                             meta={"observation_shape": list(self.observation_shape), "env": self.config.env})
-            atomic_write_json(folder / "state.json", {"steps": self.steps, "metrics": self.metrics, "env": self.config.env})
+            atomic_write_json(folder / "state.json", {"steps": self.steps, "metrics": self.metrics, "env": self.config.env,
+                                                      "curriculum": self.curriculum.state_dict()})
 
         return commit_checkpoint(self.ckpt_dir, self.steps, write)
 
@@ -162,6 +166,7 @@ class A3CTrainer:
         require_fields(progress["metrics"], {"evaluations": list, "episodes": int, "wall_seconds": (int, float)},
                        f"A3C checkpoint state {str(checkpoint / 'state.json')!r}")
         self.steps, self.metrics = progress["steps"], progress["metrics"]
+        self.curriculum.load_state_dict(progress.get("curriculum") if isinstance(progress.get("curriculum"), dict) else None)
 
     # ------------------------------------------------------------------ evaluation
     def evaluate(self, area: float) -> dict[str, float]:
@@ -210,11 +215,13 @@ class A3CTrainer:
                 except queue.Empty:
                     continue
                 self.steps = counter.value
-                goal_area.value = self.goal_area(self.steps)
                 for length in finished:
                     lengths.append(length)
                     self.metrics["episodes"] += 1
                     writer.add_scalar("episode/length", length, self.steps)
+                if self.curriculum.record(self.steps, finished, area):  # re-converged: the next stage ramps in
+                    writer.add_scalar("curriculum/stage", self.curriculum.stage, self.steps)
+                goal_area.value = self.goal_area(self.steps)
                 writer.add_scalar("loss/policy", policy_loss, self.steps)
                 writer.add_scalar("loss/value", value_loss, self.steps)
                 writer.add_scalar("loss/entropy", entropy, self.steps)
@@ -249,6 +256,7 @@ class A3CTrainer:
                 "sim_steps": self.steps, "episodes": self.metrics["episodes"], "final_goal_area": last["goal_area"],
                 "final_success": last["success_rate"], "final_avg_actions": last["mean_length"],
                 "final_std_actions": last["std_length"], "wall_seconds": round(self.metrics["wall_seconds"], 1),
+                "curriculum_advanced_at": list(self.curriculum.advanced_at),
                 "evaluations": self.metrics["evaluations"]}
         atomic_write_json(self.run_dir / "metrics.json", data)
         plot_learning_curve(self.metrics["evaluations"], self.run_dir / "curves.png", title=self.config.name,

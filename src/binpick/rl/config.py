@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-from binpick.config import check_range, load_config
+from binpick.config import check_choice, check_range, load_config
 from binpick.errors import ConfigError
 
 ALGORITHMS = ("sac", "sb3_sac_her", "a3c", "dqn")
@@ -178,9 +178,26 @@ class CurriculumStage:
 
 @dataclass(frozen=True)
 class CurriculumConfig:
-    """Goal-area curriculum of §3.2 (Fig 3.4); empty = the env's own goal area throughout."""
+    """Goal-area curriculum of §3.2 (Fig 3.4); empty = the env's own goal area throughout.
+
+    ``advance: steps`` follows the stages' ramps and holds in simulator steps. ``advance: converged``
+    is the thesis's rule: a stage's area is held (at least ``hold_steps``) until the training
+    episodes have re-converged there, i.e. the mean length of the last ``window`` episodes is within
+    ``tolerance`` of the ``window`` before; then the next stage ramps in
+    (:class:`binpick.rl.curriculum.CurriculumProgress`).
+    """
 
     stages: list[CurriculumStage] = field(default_factory=list)
+    advance: Literal["steps", "converged"] = "steps"
+    window: int = 200  # episodes per average (advance: converged)
+    tolerance: float = 0.1  # relative change between the two last averages that counts as converged
+
+    def __post_init__(self) -> None:
+        check_choice("curriculum.advance", self.advance, ("steps", "converged"))
+        check_range("curriculum.window", self.window, 1, 1_000_000, integer=True)
+        check_range("curriculum.tolerance", self.tolerance, 0.0, 1.0, low_inclusive=False)
+        if self.advance == "converged" and not self.stages:
+            raise ConfigError("curriculum.advance: converged needs curriculum.stages")
 
     def goal_area(self, step: int) -> float | None:
         """The goal area at a simulator step: piecewise linear ramps with holds, then the last area."""

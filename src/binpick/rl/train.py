@@ -27,6 +27,7 @@ from binpick.files import atomic_write, atomic_write_json, read_json_object, rea
 from binpick.rl.agents import GoalSAC, GPImagination
 from binpick.runs import SILENT, RunCallback, Task, commit_checkpoint, latest_checkpoint, new_run_dir, removed_on_error
 from binpick.rl.config import RLConfig
+from binpick.rl.curriculum import CurriculumProgress, GoalAreaCurriculum
 from binpick.rl.dynamics import GPDynamics
 from binpick.rl.evaluate import evaluate_policy
 from binpick.rl.persistence import (load_algorithm, load_replay, load_saved_policy, save_algorithm, save_policy,
@@ -191,6 +192,7 @@ class Trainer:
         self.config, self.run_dir = config, Path(run_dir)
         self.ckpt_dir = self.run_dir / "checkpoints"
         self.metrics = Metrics()
+        self.curriculum = CurriculumProgress(config.curriculum)  # where the goal-area curriculum stands
         self._started: float | None = None  # perf_counter() minus the wall time of earlier sessions
         self.env = make_env(config)
         self.model = build_model(config, self.env, str(self.run_dir / "tb"))
@@ -234,7 +236,8 @@ class Trainer:
             if demonstrations is not None:
                 atomic_write(folder / "demonstrations.npz", lambda handle: np.savez(handle, **demonstrations.arrays()))
             state = {"metrics": self.metrics.__dict__, "env": self.config.env,
-                     "num_timesteps": int(self.model.num_timesteps), "gp": self.gp.state() if self.gp else None}
+                     "num_timesteps": int(self.model.num_timesteps), "gp": self.gp.state() if self.gp else None,
+                     "curriculum": self.curriculum.state_dict()}
             atomic_write_json(folder / "state.json", state, indent=None)
             if self.gp is not None and self.gp.dynamics.fitted:
                 self.gp.dynamics.save(folder / "gp.safetensors")
@@ -258,6 +261,7 @@ class Trainer:
         except TypeError as error:
             raise InputFileError(f"{where} is damaged ({error})") from None
         require_fields(self.metrics.__dict__, {"evaluations": list, "wall_seconds": (int, float)}, where)
+        self.curriculum.load_state_dict(state.get("curriculum"))
         if (checkpoint / "demonstrations.npz").is_file():
             self._restore_demonstrations(checkpoint / "demonstrations.npz")
         if self.gp is not None and state.get("gp") is not None:
@@ -309,9 +313,7 @@ class Trainer:
         if self.gp is not None:
             callbacks.insert(0, self.gp)
         if self.config.curriculum.stages:
-            from binpick.rl.curriculum import GoalAreaCurriculum
-
-            callbacks.insert(0, GoalAreaCurriculum(self.config.curriculum))
+            callbacks.insert(0, GoalAreaCurriculum(self.config.curriculum, self.curriculum))
         if self.config.demonstrations.episodes and not self.metrics.demo_episodes and not self.model.num_timesteps:
             callback.message(f"{self.config.name}: {self.config.demonstrations.episodes} demonstrations, behaviour cloning")
             self.learn_from_demonstrations()
