@@ -233,7 +233,7 @@ def pickability() -> None:
     for label, path in (("before", shipped), ("after", weights)):
         model = load_detector(path)
         rows[label] = {split: keep(evaluate_on(detector_detect(model), data, split, "pickable:learnt", model.image_size, query="photo",
-                                           framed=bool(model.spec.photo_sizes)))
+                                           framed=model.spec.frames_photos))
                        for split in ("val", "test")}
         print(label, json.dumps({s: {k: rows[label][s][k] for k in ("ap50", "ap50_unpickable")} for s in rows[label]}), flush=True)
     path = _common.RESULTS / "grasp.json"

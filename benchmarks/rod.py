@@ -404,7 +404,7 @@ def report_generalisation(runs: Path) -> None:
             elif name in models:  # each model at the size it was trained for
                 model = models[name]
                 metrics = evaluate_on(detector_detect(model), data, split, targets, model.image_size, only, model.spec.query,
-                                      bool(model.spec.photo_sizes))
+                                      model.spec.frames_photos)
             else:
                 continue
             out[row] = keep(metrics)
@@ -436,7 +436,7 @@ def report_generalisation(runs: Path) -> None:
     result["photo"] = {"seen": result["seen"].get("rod_photo"),
                        "held_out": keep(evaluate_on(detector_detect(models["finetune_rod_photo"]), DATA, "test", P1,
                                                     models["finetune_rod_photo"].image_size, query="photo",
-                                                    framed=bool(models["finetune_rod_photo"].spec.photo_sizes))) if "finetune_rod_photo" in models else None,
+                                                    framed=models["finetune_rod_photo"].spec.frames_photos)) if "finetune_rod_photo" in models else None,
                        "held_out_before": keep(evaluate_on(detector_detect(models["before_rod_photo"]), DATA, "test", P1, 256,
                                                            query="photo")) if "before_rod_photo" in models else None}
     # latency of predict at the shipped size, batch 1, 2 threads (weights do not change the time)

@@ -92,7 +92,7 @@ class Detector:
 
         targets = targets or self.network.trained_config.get("data", {}).get("targets", "all")
         dataset = TaskDataset(RepeatedInstances(data, targets=targets), self.network.image_size, self.query,
-                              self.network.query_size, frame_photos=bool(self.network.spec.photo_sizes))
+                              self.network.query_size, frame_photos=self.network.spec.frames_photos)
         with callback.task("evaluating", len(dataset)) as task:
             metrics = evaluate_model(self.network, dataset, batch_size, progress=lambda n: task.update(advance=n))
         return metrics | {"targets": targets}

@@ -61,6 +61,11 @@ class ModelSpec:
     # trained before photos were framed)
     photo_sizes: tuple[float, ...] = ()
 
+    @property
+    def frames_photos(self) -> bool:
+        """Whether photo queries are framed on their product (weights with ``photo_sizes``)."""
+        return bool(self.photo_sizes)
+
     def check(self) -> None:
         from binpick.errors import ConfigError
 

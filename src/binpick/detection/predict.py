@@ -94,7 +94,7 @@ def predict(model: DetectorNetwork, image: np.ndarray | str | Path, query_box: n
         if model.spec.method == "rod" and model.spec.query == "crop":
             raise ConfigError("this detector finds copies of a box in the image: give --query-box")
         photo = read_image(Path(query_image), keep_alpha=True) if isinstance(query_image, (str, Path)) else np.asarray(query_image)
-        query_pixels = query_photo(photo, model.query_size, framed=bool(model.spec.photo_sizes))
+        query_pixels = query_photo(photo, model.query_size, framed=model.spec.frames_photos)
         photo = np.ascontiguousarray(photo[..., :3])
     boxes_input = torch.tensor(box_xyxy, dtype=torch.float32)[None] if box_xyxy is not None else None
     model.eval()

@@ -423,7 +423,7 @@ class JointTraining:
         self.trainers = trainers
         self.train_set = trainers[0].train_set
         self.train_set.with_photo = any(t.model.spec.query == "photo" for t in trainers)
-        framing = {bool(t.model.spec.photo_sizes) for t in trainers if t.model.spec.query == "photo"}
+        framing = {t.model.spec.frames_photos for t in trainers if t.model.spec.query == "photo"}
         if len(framing) > 1:
             raise ConfigError("joint training needs every photo-query row to frame its photos alike (model.photo_sizes)")
         self.train_set.frame_photos = framing == {True}
