@@ -117,6 +117,11 @@ def main() -> None:
         f"| A3C + curriculum ({curriculum_rule(results)}) | whole area | {cell('curriculum_whole_area')} | 25 ± 6 |",
         f"| A3C, same budget, no curriculum | whole area | {cell('no_curriculum_whole_area')} | did not converge |",
         "",
+        "DQN: γ 0.95 and learning rate 5e-4 (the thesis gives neither). With γ 0.99 and 1e-4 its Q-values were still far "
+        "from converged after 200,000 steps and the greedy policy cycled between two arm poses (965 actions, 4% reach); "
+        "the same happens on the arm's state without any CNN, and goes with a lower γ, a higher learning rate or more "
+        "updates per step (section 'Why greedy DQN cycled on Arm2D' below).",
+        "",
         "Table 3.2 by stage: the curriculum run's last periodic evaluation (20 episodes) at each goal area; "
         "it starts from the single-goal A3C run above (`init_from`), so steps count from there.",
         "",
