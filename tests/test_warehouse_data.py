@@ -110,18 +110,33 @@ def test_labelling_trials_run_without_the_drop_guards_as_the_pipeline_does():
     class Recorder:  # a policy that notes whether the guards would stop a carried product
         name = "recorder"
 
-        def attempt(self, sim, slot):
+        def attempt(self, sim, slot, offset=(0.0, 0.0)):
             seen.append(bool(sim.model.geom_contype[sim.guards].any()))
-            return True
+            offsets.append(offset)
+            return self.holds(offset)
 
+        def __init__(self, name, holds):
+            self.name, self.holds = name, holds
+
+    offsets = []
     try:
         scene = world.scene(2, 0, seed=0)
         assert world.model.geom_contype[world.guards].all()  # on while the scene settles
         record = {"annotations": [{"is_target": True, "slot": i.slot, "pickable": {}} for i in scene.instances]}
-        label_pickability(world, scene, record, [Recorder()], np.random.default_rng(0))
+        label_pickability(world, scene, record, [Recorder("recorder", lambda offset: True)], np.random.default_rng(0))
+        assert seen == [False, False] and offsets == [(0.0, 0.0)] * 2
+        assert all(a["pickable"] == {"recorder": True} and "pickable_rate" not in a for a in record["annotations"])
+        # several grasps per label: the policy's own, then the jaws moved by the jitter; the majority decides
+        offsets.clear()
+        mostly = Recorder("mostly", lambda offset: offset[0] >= 0)  # fails only when moved to -x
+        rarely = Recorder("rarely", lambda offset: offset[1] > 0)  # holds only when moved to +y
+        label_pickability(world, scene, record, [mostly, rarely], np.random.default_rng(0), trials=5, jitter=0.002)
     finally:
         world.close()
-    assert seen == [False, False]
+    assert offsets[:5] == [(0.0, 0.0), (0.002, 0.0), (-0.002, 0.0), (0.0, 0.002), (0.0, -0.002)] and len(offsets) == 20
+    for annotation in record["annotations"]:
+        assert annotation["pickable"] | {} == {"recorder": True, "mostly": True, "rarely": False}
+        assert annotation["pickable_rate"] == {"mostly": 0.8, "rarely": 0.2}
 
 
 def _tiny(out: Path, **changes) -> GenerateConfig:

@@ -53,8 +53,9 @@ GRIPPER_EXTRA = f"""
 class GraspPolicy(Protocol):
     name: str
 
-    def attempt(self, world, slot: int) -> bool:
-        """From the world's current (restored) state, try to pick instance ``slot``; True if held."""
+    def attempt(self, world, slot: int, offset: tuple[float, float] = (0.0, 0.0)) -> bool:
+        """From the world's current (restored) state, try to pick instance ``slot``; True if held.
+        ``offset`` (m, world x and y) shifts the jaws' centre from where the policy puts it."""
 
 
 class Gripper:
@@ -105,16 +106,16 @@ class TopDownGrasp:
             raise ValueError(f"grasp axis must be 'x' or 'y', got {axis!r}")
         self.axis, self.name = axis, axis
 
-    def attempt(self, world, slot: int) -> bool:
+    def attempt(self, world, slot: int, offset: tuple[float, float] = (0.0, 0.0)) -> bool:
         with trial_timestep(world.model):
-            return self._attempt(world, slot)
+            return self._attempt(world, slot, offset)
 
-    def _attempt(self, world, slot: int) -> bool:
+    def _attempt(self, world, slot: int, offset: tuple[float, float]) -> bool:
         centre, top = world.instance_centre_and_top(slot)
         # fingertips a little below the centre (but above the floor), so the jaws close across it
         tips = max(FLOOR_TOP + 0.006, min(centre[2] - 0.01, top - 0.02))
         yaw = 0.0 if self.axis == "x" else np.pi / 2
-        return lift_test(world, slot, (centre[0], centre[1], tips), yaw, top)
+        return lift_test(world, slot, (centre[0] + offset[0], centre[1] + offset[1], tips), yaw, top)
 
 
 def lift_test(world, slot: int, tips, yaw: float, top: float | None = None, carry: bool = False) -> bool:

@@ -43,7 +43,7 @@ class PlannedGrasp:
         boxes = {i.slot: i.bbox for i in scene.instances}
         self._scene = (camera, camera.points(scene.depth), boxes)
 
-    def attempt(self, world, slot: int) -> bool:
+    def attempt(self, world, slot: int, offset: tuple[float, float] = (0.0, 0.0)) -> bool:
         from binpick.sim.gripper import lift_test, trial_timestep
 
         if self._scene is None:
@@ -53,4 +53,5 @@ class PlannedGrasp:
         if chosen is None:
             return False  # nothing feasible: the pipeline would not try it either
         with trial_timestep(world.model):
-            return lift_test(world, slot, chosen.position, chosen.yaw, chosen.top, carry=True)
+            x, y, z = chosen.position
+            return lift_test(world, slot, (x + offset[0], y + offset[1], z), chosen.yaw, chosen.top, carry=True)
