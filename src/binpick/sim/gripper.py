@@ -6,7 +6,7 @@ the scripted policy: above the instance's centre, down, close, lift 15 cm, hold 
 closing along the robot's x-axis it is the thesis's Policy 2, along the y-axis its Policy 1; the
 same object can be pickable by one and not the other, which is what ROD learns to prefer.
 
-Any policy that implements :class:`GraspPolicy` (``name`` and ``attempt(world, slot)``), such as a
+Any policy that implements :class:`GraspPolicy` (``name`` and ``attempt(world, slot, offset)``), such as a
 learnt APRiL policy driving the mocap target, can label data the same way.
 """
 

@@ -351,7 +351,8 @@ def label_pickability(sim, scene, record: dict[str, Any], policies, rng: np.rand
             held = []
             for offset in offsets:
                 sim.restore(scene.state)
-                held.append(bool(policy.attempt(sim, annotation["slot"], offset)))
+                # one grasp: the plain call, so a user's policy without ``offset`` still labels data
+                held.append(bool(policy.attempt(sim, annotation["slot"], offset) if trials > 1 else policy.attempt(sim, annotation["slot"])))
             annotation["pickable"][policy.name] = sum(held) * 2 > len(held)
             if trials > 1:
                 annotation.setdefault("pickable_rate", {})[policy.name] = round(sum(held) / len(held), 3)

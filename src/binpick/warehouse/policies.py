@@ -31,7 +31,7 @@ def make_policies(names: list[str]) -> list:
 
 class PlannedGrasp:
     """The grasp planner as a labelling policy: ``prepare(scene)`` once per scene (depth -> points),
-    then ``attempt(world, slot)`` plans the instance's grasp from its box and executes it."""
+    then ``attempt(world, slot, offset)`` plans the instance's grasp from its box and executes it."""
 
     def __init__(self, name: str) -> None:
         self.name = name
