@@ -335,8 +335,8 @@ def label_pickability(sim, scene, record: dict[str, Any], policies, rng: np.rand
     With ``trials`` > 1 each instance gets that many grasps per policy, the jaws' centre moved by
     up to ``jitter``: the label is the majority and ``pickable_rate`` the share that held. One grasp's
     outcome is not quite a property an image shows: moving Policy y's jaws by 2 mm (under a pixel)
-    changed it for 13 of 126 target instances of binpick's default bins (9 of 73 that held, 4 of 53
-    that did not; 15 worlds, 2 scenes each).
+    changed it for 18 of 168 target instances of binpick's default bins (11 of the 84 that held, 7 of
+    the 84 that did not; 15 worlds, 2 scenes each: ``benchmarks/label_noise.py``).
     """
     targets = [a for a in record["annotations"] if a["is_target"]]
     if not targets:
