@@ -177,6 +177,10 @@ def test_curriculum_widens_only_once_the_agent_has_re_converged():
     assert resumed.record(310, [20] * 5, 0.5) and resumed.stage == 2 and resumed.advanced_at == [150, 310]
     assert resumed.goal_area(360) == 0.75 and resumed.goal_area(10**6) == 1.0
     assert not resumed.record(10**6, [5] * 20, 1.0)  # the last stage holds for the rest of the run
+    from binpick.errors import InputFileError
+
+    with pytest.raises(InputFileError, match="curriculum state is damaged"):
+        CurriculumProgress(schedule).load_state_dict({"stage": "two"})
     fixed = CurriculumProgress(CurriculumConfig([CurriculumStage(0.0, 0, 100), CurriculumStage(1.0, 100)]))
     assert fixed.goal_area(150) == 0.5 and not fixed.record(150, [1] * 1000, 0.5)  # steps mode ignores episodes
     with pytest.raises(ConfigError, match="curriculum.advance"):

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
+from binpick.errors import InputFileError
 from binpick.rl.config import CurriculumConfig
 
 
@@ -77,10 +78,13 @@ class CurriculumProgress:
         """Restore from a checkpoint (a run saved before this state existed starts at stage 0)."""
         if not state:
             return
-        self.stage = min(int(state.get("stage", 0)), max(len(self.schedule.stages) - 1, 0))
-        self.stage_start = int(state.get("stage_start", 0))
-        self.lengths = [int(n) for n in state.get("lengths", [])]
-        self.advanced_at = [int(n) for n in state.get("advanced_at", [])]
+        try:
+            self.stage = min(int(state.get("stage", 0)), max(len(self.schedule.stages) - 1, 0))
+            self.stage_start = int(state.get("stage_start", 0))
+            self.lengths = [int(n) for n in state.get("lengths", [])]
+            self.advanced_at = [int(n) for n in state.get("advanced_at", [])]
+        except (AttributeError, TypeError, ValueError) as error:
+            raise InputFileError(f"checkpoint's curriculum state is damaged ({error})") from None
 
 
 class GoalAreaCurriculum(BaseCallback):
