@@ -78,7 +78,8 @@ def load_detector(path: str | Path) -> DetectorNetwork:
     path = _weights_path(Path(path))
     weights, meta = _read_detector_file(path)
     try:
-        spec = ModelSpec(**{**meta["spec"], "scales": tuple(meta["spec"]["scales"])})
+        spec = ModelSpec(**{**meta["spec"], "scales": tuple(meta["spec"]["scales"]),  # JSON lists -> the spec's tuples
+                            "photo_sizes": tuple(meta["spec"].get("photo_sizes", ()))})
         model = DetectorNetwork(spec, int(meta["image_size"]), int(meta.get("query_size", 96)))
     except (TypeError, KeyError, ValueError) as error:
         raise InputFileError(f"detector weights {str(path)!r} describe no valid network ({error})") from None
