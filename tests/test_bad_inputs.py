@@ -248,6 +248,7 @@ CASES: list[tuple[list[str], list[str]]] = [
     (["pick", "--product", "robosuite/milk", "--grasp-weights", "{root}/missing.safetensors", "--out", "{root}/picks"],
      ["missing.safetensors", "does not exist"]),
     (["data", "generate", "--out", "{root}/gen", "--grasp-trials", "-1"], ["grasp_trials"]),
+    (["data", "generate", "--out", "{root}/gen", "--set", "label_trials=0"], ["label_trials must be in [1, 25]"]),
     (["data", "generate", "--out", "{root}/gen", "--policies", "y,sideways"], ["unknown grasp policy 'sideways'", "analytic"]),
     (["grasp", "train", "--resume", "{root}"], ["is not a run folder"]),
     (["plan", "--rgb", "{scene_png}", "--depth", "{depth_mm_png}", "--camera", "{camera_yaml}"], ["exactly one of --photo", "--query-box"]),
