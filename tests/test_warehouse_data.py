@@ -188,7 +188,7 @@ def test_labels_and_zero_shot_split(tmp_path, monkeypatch):
     assert stats["splits"] == {"test": 2} and stats["labelled_instances"] >= 3
     coco = json.loads((tmp_path / "labelled" / "annotations_test.json").read_text())
     targets = [a for a in coco["annotations"] if a["is_target"]]
-    assert all(set(a["pickable"]) == {"x", "y"} for a in targets)
+    assert all(set(a["pickable"]) == {"x", "y"} and "pickable_rate" not in a for a in targets)  # one grasp per label
     for image in coco["images"]:  # the query is the first instance policy x picked, if any was
         query = next(a for a in coco["annotations"] if a["id"] == image["query_annotation_id"])
         assert query["is_target"] and (image["picked_by"] is None or query["pickable"]["x"])

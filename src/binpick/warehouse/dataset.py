@@ -581,7 +581,8 @@ def to_coco(records: list[dict[str, Any]], library_products: list[dict[str, str]
             coco["annotations"].append({
                 "id": next_id, "image_id": image_id, "category_id": category_ids[a["product"]], "bbox": [x, y, w, h],
                 "area": a["area"], "iscrowd": 0, "instance_id": a["slot"], "visible_fraction": a["visible_fraction"],
-                "is_target": a["is_target"], "is_query": a["is_query"], "pickable": a["pickable"]})
+                "is_target": a["is_target"], "is_query": a["is_query"], "pickable": a["pickable"],
+                **({"pickable_rate": a["pickable_rate"]} if "pickable_rate" in a else {})})  # label_trials > 1
             if a["is_query"]:
                 query_id = next_id
             next_id += 1
