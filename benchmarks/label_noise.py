@@ -26,10 +26,8 @@ JITTER = 0.002
 
 
 def main() -> None:
-    from binpick.sim.bin_scene import BinWorld
     from binpick.sim.gripper import TopDownGrasp
-    from binpick.sim.mjcf import CameraSpec
-    from binpick.warehouse.dataset import GenerateConfig, build_library, label_offsets, trial_ready, world_plan
+    from binpick.warehouse.dataset import GenerateConfig, build_library, label_offsets, trial_ready, world_scene, world_sim
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", default="runs/data/bins_2000")
@@ -43,16 +41,10 @@ def main() -> None:
     offsets = label_offsets(5, JITTER, np.random.default_rng(0))
     outcomes: list[list[bool]] = []
     for world in range(args.worlds):
-        target, distractors, _ = world_plan(config, library, world)
-        products = [library[target]] + [library[d] for d in distractors]
-        sim = BinWorld(products[0], products[1:], max_copies=config.copies[1], camera=CameraSpec(size=config.image_size),
-                       gripper=True, seed=config.seed * 1_000_003 + world, domain=config.domain_config)
+        sim, products, _ = world_sim(config, world, library, gripper=True)
         try:
             for index in range(args.scenes):
-                rng = np.random.default_rng([config.seed, world, index])
-                copies = int(rng.integers(config.copies[0], config.copies[1] + 1))
-                extra = int(rng.integers(config.distractors[0], config.distractors[1] + 1))
-                scene = sim.scene(copies, extra, seed=int(rng.integers(2**31)))
+                scene, _ = world_scene(sim, config, world, index)
                 trial_ready(sim)
                 for instance in (i for i in scene.instances if i.is_target):
                     held = []

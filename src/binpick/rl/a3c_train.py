@@ -166,7 +166,7 @@ class A3CTrainer:
         require_fields(progress["metrics"], {"evaluations": list, "episodes": int, "wall_seconds": (int, float)},
                        f"A3C checkpoint state {str(checkpoint / 'state.json')!r}")
         self.steps, self.metrics = progress["steps"], progress["metrics"]
-        self.curriculum.load_state_dict(progress.get("curriculum") if isinstance(progress.get("curriculum"), dict) else None)
+        self.curriculum.load_state_dict(progress.get("curriculum"))
 
     # ------------------------------------------------------------------ evaluation
     def evaluate(self, area: float) -> dict[str, float]:

@@ -244,25 +244,43 @@ def write_scene(out: Path, files: dict[str, bytes], record: dict[str, Any]) -> N
     atomic_write_json(out / "scenes" / f"{record['index']:06d}.json", record, indent=None)
 
 
-def world_scenes(config: GenerateConfig, world: int, indices: list[int]):
-    """Yield ``(files, record)`` for scenes ``indices`` of one world: encoded images by relative path
-    and the scene's annotations. Writes nothing, so Ray tasks on other machines can run it."""
+def world_sim(config: GenerateConfig, world: int, library: ProductLibrary | None = None, gripper: bool | None = None):
+    """``(sim, products, split)`` of one world: its compiled bin with the ordered product first. The
+    seed comes from ``config.seed`` and ``world``, so the world is the same wherever it is rebuilt."""
     from binpick.sim.bin_scene import BinWorld
-    from binpick.warehouse.policies import make_policies
     from binpick.sim.mjcf import CameraSpec
 
-    if not indices:
-        return
-    library = build_library(config)
+    library = library or build_library(config)
     target, distractors, split = world_plan(config, library, world)
     if config.domain_config.random_products:
         own = {p.id: p for p in random_world_products(config, library, world)}
         products = [own[target]] + [own[d] for d in distractors]
     else:
         products = [library[target]] + [library[d] for d in distractors]
+    gripper = (bool(config.policies) or config.grasp_trials > 0) if gripper is None else gripper
     sim = BinWorld(products[0], products[1:], max_copies=config.copies[1],
                    camera=CameraSpec(size=config.image_size), randomise_lighting=config.randomise,
-                   gripper=bool(config.policies) or config.grasp_trials > 0, seed=config.seed * 1_000_003 + world, domain=config.domain_config)
+                   gripper=gripper, seed=config.seed * 1_000_003 + world, domain=config.domain_config)
+    return sim, products, split
+
+
+def world_scene(sim, config: GenerateConfig, world: int, index: int):
+    """``(scene, rng)``: scene ``index`` of a world's sim, and the generator it drew from (labelling
+    goes on drawing from it)."""
+    rng = np.random.default_rng([config.seed, world, index])
+    copies = int(rng.integers(config.copies[0], config.copies[1] + 1))
+    extra = int(rng.integers(config.distractors[0], config.distractors[1] + 1))
+    return sim.scene(copies, extra, seed=int(rng.integers(2**31))), rng
+
+
+def world_scenes(config: GenerateConfig, world: int, indices: list[int]):
+    """Yield ``(files, record)`` for scenes ``indices`` of one world: encoded images by relative path
+    and the scene's annotations. Writes nothing, so Ray tasks on other machines can run it."""
+    from binpick.warehouse.policies import make_policies
+
+    if not indices:
+        return
+    sim, products, split = world_sim(config, world)
     policies = make_policies(config.policies)
     try:
         photo = {}
@@ -271,10 +289,7 @@ def world_scenes(config: GenerateConfig, world: int, indices: list[int]):
 
             photo = {f"photos/{products[0].name}.png": _png_bytes(shop_photo(products[0], config.photo_size))}
         for index in indices:
-            rng = np.random.default_rng([config.seed, world, index])
-            copies = int(rng.integers(config.copies[0], config.copies[1] + 1))
-            extra = int(rng.integers(config.distractors[0], config.distractors[1] + 1))
-            scene = sim.scene(copies, extra, seed=int(rng.integers(2**31)))
+            scene, rng = world_scene(sim, config, world, index)
             record = scene_record(scene, index, split, config)
             label_pickability(sim, scene, record, policies, rng, config.label_trials, config.label_jitter)
             if config.grasp_trials:
