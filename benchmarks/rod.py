@@ -123,12 +123,16 @@ def parse_overrides(items: list[str] | None) -> dict:
 
 
 def main() -> None:
+    global DATA
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("phase", choices=["train", "pretrain", "finetune", "report", "generalise", "latency"])
     parser.add_argument("--runs", type=Path, default=_common.ROOT / "runs" / "rod")
     parser.add_argument("--only", nargs="*")
     parser.add_argument("--set", dest="settings", action="append", help="KEY=VALUE for every row (e.g. train.device=cuda)")
+    parser.add_argument("--data", type=Path, default=DATA, help="the default-domain bins the seen and held-out rows use "
+                        "(the same scenes labelled otherwise, e.g. runs/data/bins_2000_k5: the majority of five grasps)")
     args = parser.parse_args()
+    DATA = args.data.resolve()
     os.chdir(_common.ROOT)  # configs name the data relative to the repository
     if args.phase == "train":
         train(args.runs, args.only)
@@ -160,7 +164,8 @@ def evaluate(detect, split: str, targets: str, size: int, only: list[str] | None
 
 def keep(metrics: dict) -> dict:
     return {k: None if metrics[k] is None else round(metrics[k], 4)
-            for k in ("ap50", "map", "ap50_all", "map_all", "ap50_unpickable", "map_unpickable")} | {"tasks": metrics["tasks"]}
+            for k in ("ap50", "map", "ap50_all", "map_all", "ap50_unpickable", "map_unpickable", "ap50_certain")
+            if k in metrics} | {"tasks": metrics["tasks"], "ambiguous_instances": metrics.get("ambiguous_instances", 0)}
 
 
 def latency_ms(model, image, query_box, repeats: int = 20) -> float:

@@ -137,6 +137,55 @@ def test_coco_ap_is_one_for_perfect_boxes_and_falls_with_errors():
     assert coco_ap([task | {"boxes": truth, "scores": np.array([0.9, 0.8])}], "unpickable", 128)["ap50"] is None
 
 
+def test_ambiguous_instances_are_neither_hits_nor_false_positives():
+    sure, unsure = np.array([[10, 10, 40, 40]], np.float32), np.array([[60, 60, 90, 100]], np.float32)
+    # the detector ranks the instance whose trial grasps disagreed first
+    task = {"certain": sure, "ambiguous": unsure, "boxes": np.concatenate([unsure, sure]), "scores": np.array([0.9, 0.8])}
+    assert coco_ap([task], "certain", 128)["ap50"] < 0.6  # counted, it is a false positive above the target
+    assert coco_ap([task], "certain", 128, ignore="ambiguous")["ap50"] == pytest.approx(1.0)
+    only_unsure = {**task, "certain": np.zeros((0, 4), np.float32)}
+    assert coco_ap([only_unsure], "certain", 128, ignore="ambiguous")["ap50"] is None
+
+
+def test_a_shop_photo_query_must_find_the_picked_copy_too(tmp_path):
+    from PIL import Image
+
+    path = make_coco(tmp_path / "pick", images=6, pickable=True)
+    coco = json.loads(path.read_text())
+    for annotation in coco["annotations"][::3]:  # as in the warehouse data, the query is mostly a copy the robot held
+        if annotation.get("is_query"):
+            annotation["pickable"]["y"] = True
+    path.write_text(json.dumps(coco))
+    (tmp_path / "pick" / "photos").mkdir()
+    for category in coco["categories"]:
+        Image.new("RGB", (32, 32), (200, 40, 40)).save(tmp_path / "pick" / "photos" / f"{category['name']}.png")
+    source = RepeatedInstances(path, targets="pickable:y")
+    crop, photo = TaskDataset(source, 128, "crop"), TaskDataset(source, 128, "photo")
+    assert 0 < sum(task.query["pickable"]["y"] for task in source.tasks) < len(source)
+    for index, task in enumerate(source.tasks):
+        picked = bool(task.query["pickable"]["y"])
+        assert len(photo[index]["targets"]) == len(crop[index]["targets"]) + picked  # the crop query names its copy
+        assert len(photo[index]["all"]) == len(task.annotations)
+
+
+def test_pickable_rate_between_zero_and_one_marks_an_instance_ambiguous(tmp_path):
+    path = make_coco(tmp_path / "pick", images=4, pickable=True)
+    coco = json.loads(path.read_text())
+    for number, annotation in enumerate(coco["annotations"]):
+        if annotation.get("pickable"):
+            annotation["pickable_rate"] = {"y": 0.6 if number % 2 else float(annotation["pickable"]["y"])}
+    path.write_text(json.dumps(coco))
+    source = RepeatedInstances(path, targets="pickable:y")
+    counts = {"targets": 0, "certain": 0, "ambiguous": 0}
+    for task in source.tasks:
+        boxes = source.boxes(task, task.query)
+        assert len(boxes["certain"]) <= len(boxes["targets"])
+        counts = {k: v + len(boxes[k]) for k, v in counts.items()}
+    assert counts["ambiguous"] > 0 and counts["certain"] < counts["targets"]
+    sample = TaskDataset(source, 64, augment=True)[0]
+    assert {"certain", "ambiguous"} <= set(sample)
+
+
 def test_colour_histogram_finds_a_copy_of_the_same_colour():
     rng = np.random.default_rng(0)
     image = rng.integers(100, 130, (96, 96, 3)).astype(np.uint8)

@@ -5,7 +5,8 @@ other instances of that category, or only those a given grasp policy could pick.
 they hold at least two instances of a category (or, in the pickable setting, a picked instance).
 For plain COCO files a random instance is the query, drawn anew each epoch (§5.4); for binpick's
 warehouse data the instance the robot really picked is the query when targets are the pickable ones
-(§5.4.4). With ``query: photo`` the query is the product's shop photo instead (§6.3).
+(§5.4.4). With ``query: photo`` the query is the product's shop photo instead (§6.3), and the boxes to
+find include the instance that was the query: the photo does not say which copy the robot picked.
 """
 
 from __future__ import annotations
@@ -108,6 +109,13 @@ def pickable_by(annotation: dict[str, Any], policy: str) -> bool | None:
     return None if value is None else bool(value)
 
 
+def ambiguous_for(annotation: dict[str, Any], policy: str) -> bool:
+    """Held in some but not all of its trial grasps (``label_trials`` > 1): a label no image can
+    settle, since a shift of the jaws by under a pixel decides it (benchmarks/label_noise.py)."""
+    rate = (annotation.get("pickable_rate") or {}).get(policy)
+    return rate is not None and 0.0 < float(rate) < 1.0
+
+
 class RepeatedInstances:
     """Tasks of a COCO file. ``targets``: ``all`` or ``pickable:<policy>``."""
 
@@ -177,9 +185,10 @@ class RepeatedInstances:
     def __len__(self) -> int:
         return len(self.tasks)
 
-    def boxes(self, task: Task, query: dict) -> dict[str, np.ndarray]:
-        """Ground truth of a task, xyxy pixels: ``targets`` to find, ``all`` other instances and
-        ``unpickable`` ones (for Tables 5.5/5.6)."""
+    def boxes(self, task: Task, query: dict | None) -> dict[str, np.ndarray]:
+        """Ground truth of a task, xyxy pixels: ``targets`` to find, ``all`` instances but ``query``,
+        ``unpickable`` ones (for Tables 5.5/5.6), and the ``ambiguous`` ones whose trial grasps
+        disagreed with ``certain`` the targets that are not (empty / the targets for one-grasp labels)."""
         others = [a for a in task.annotations if a is not query]
 
         def xyxy(items):
@@ -189,9 +198,12 @@ class RepeatedInstances:
         if self.policy:
             targets = [a for a in others if pickable_by(a, self.policy)]
             unpickable = [a for a in others if pickable_by(a, self.policy) is False]
+            ambiguous = [a for a in others if ambiguous_for(a, self.policy)]
         else:
-            targets, unpickable = others, []
-        return {"targets": xyxy(targets), "all": xyxy(others), "unpickable": xyxy(unpickable)}
+            targets, unpickable, ambiguous = others, [], []
+        certain = [a for a in targets if not any(a is b for b in ambiguous)]
+        return {"targets": xyxy(targets), "all": xyxy(others), "unpickable": xyxy(unpickable),
+                "certain": xyxy(certain), "ambiguous": xyxy(ambiguous)}
 
 
 class TaskDataset(torch.utils.data.Dataset):
@@ -227,7 +239,8 @@ class TaskDataset(torch.utils.data.Dataset):
         task = self.source.tasks[index]
         query = task.query if task.query is not None else task.annotations[rng.integers(len(task.annotations))]
         image = read_image(task.file)
-        boxes = self.source.boxes(task, query)
+        # a shop photo names no instance: every copy is to be found, the one the robot picked included
+        boxes = self.source.boxes(task, None if self.query_mode == "photo" else query)
         qx, qy, qw, qh = query["bbox"]
         query_box = np.array([qx, qy, qx + qw, qy + qh], dtype=np.float32)
         image, query_box, boxes = self._resize(image, query_box, boxes)
@@ -244,7 +257,7 @@ class TaskDataset(torch.utils.data.Dataset):
         extra = {"photo": to_tensor(photo)} if self.with_photo else {}
         return {**extra, "image": to_tensor(image), "query_box": torch.from_numpy(query_box), "query_image": to_tensor(query_image),
                 "targets": torch.from_numpy(boxes["targets"]), "all": torch.from_numpy(boxes["all"]),
-                "unpickable": torch.from_numpy(boxes["unpickable"]), "image_id": task.image_id,
+                **{key: torch.from_numpy(boxes[key]) for key in ("unpickable", "certain", "ambiguous")}, "image_id": task.image_id,
                 "category_id": task.category_id, "index": index, "query_id": int(query.get("id", -1))}
 
     def photo(self, path: Path) -> np.ndarray:
@@ -334,6 +347,6 @@ def camera_effects(image: np.ndarray, rng: np.random.Generator) -> np.ndarray:
 
 def collate(samples: list[dict[str, Any]]) -> dict[str, Any]:
     batch = {key: torch.stack([s[key] for s in samples]) for key in ("image", "query_box", "query_image", "photo") if key in samples[0]}
-    for key in ("targets", "all", "unpickable", "image_id", "category_id", "index", "query_id"):
+    for key in ("targets", "all", "unpickable", "certain", "ambiguous", "image_id", "category_id", "index", "query_id"):
         batch[key] = [s[key] for s in samples]
     return batch

@@ -2,7 +2,9 @@
 
 Every task (an image with one query) becomes one evaluation image whose ground truth is either the
 boxes to find (``targets``), every other instance of the product (``all``, Table 5.6) or the
-unpickable ones (``unpickable``, Table 5.5: lower is better). AP50 and mAP@[.5:.95] come from
+unpickable ones (``unpickable``, Table 5.5: lower is better). Where labels come from several trial
+grasps, ``certain`` scores only the targets every grasp agreed on, with the ambiguous instances as
+COCO crowd regions: a detection on one is neither a hit nor a false positive. AP50 and mAP@[.5:.95] come from
 ``COCOeval``; AP50 by object scale (Fig 5.12) uses its area ranges, with scale = sqrt(box area) /
 image side.
 """
@@ -18,7 +20,7 @@ import numpy as np
 import torch
 
 SCALE_BINS = ((0.0, 0.1), (0.1, 0.15), (0.15, 0.2), (0.2, 0.3), (0.3, 1.0))
-GROUND_TRUTHS = ("targets", "all", "unpickable")
+GROUND_TRUTHS = ("targets", "all", "unpickable", "certain", "ambiguous")
 
 
 def collect(detect: Callable[[dict], list[dict[str, torch.Tensor]]], batches: Iterable[dict], progress=None
@@ -36,9 +38,10 @@ def collect(detect: Callable[[dict], list[dict[str, torch.Tensor]]], batches: It
     return tasks
 
 
-def coco_ap(tasks: list[dict[str, Any]], ground_truth: str, image_size: int, by_scale: bool = False) -> dict[str, Any]:
-    """AP50, mAP (and AP50 per scale bin) of the tasks' detections against one kind of ground truth;
-    None where that ground truth is empty."""
+def coco_ap(tasks: list[dict[str, Any]], ground_truth: str, image_size: int, by_scale: bool = False,
+            ignore: str | None = None) -> dict[str, Any]:
+    """AP50, mAP (and AP50 per scale bin) of the tasks' detections against one kind of ground truth,
+    the boxes of ``ignore`` as crowd regions (ignored); None where that ground truth is empty."""
     from pycocotools.coco import COCO
     from pycocotools.cocoeval import COCOeval
 
@@ -49,12 +52,16 @@ def coco_ap(tasks: list[dict[str, Any]], ground_truth: str, image_size: int, by_
             x1, y1, x2, y2 = [float(v) for v in box]
             annotations.append({"id": len(annotations) + 1, "image_id": number + 1, "category_id": 1,
                                 "bbox": [x1, y1, x2 - x1, y2 - y1], "area": (x2 - x1) * (y2 - y1), "iscrowd": 0})
+        for box in task.get(ignore, ()) if ignore else ():
+            x1, y1, x2, y2 = [float(v) for v in box]
+            annotations.append({"id": len(annotations) + 1, "image_id": number + 1, "category_id": 1,
+                                "bbox": [x1, y1, x2 - x1, y2 - y1], "area": (x2 - x1) * (y2 - y1), "iscrowd": 1})
         for box, score in zip(task["boxes"], task["scores"]):
             x1, y1, x2, y2 = [float(v) for v in box]
             detections.append({"image_id": number + 1, "category_id": 1, "bbox": [x1, y1, x2 - x1, y2 - y1],
                                "score": float(score)})
     empty = {"ap50": None, "map": None, "pr_recall": [], "pr_precision": []}
-    if not annotations:
+    if not any(a["iscrowd"] == 0 for a in annotations):
         return empty | ({"ap50_by_scale": {}} if by_scale else {})
     with contextlib.redirect_stdout(io.StringIO()):
         gt = COCO()
@@ -93,8 +100,11 @@ def summarise(tasks: list[dict[str, Any]], image_size: int) -> dict[str, Any]:
     targets = coco_ap(tasks, "targets", image_size, by_scale=True)
     every = coco_ap(tasks, "all", image_size)
     unpickable = coco_ap(tasks, "unpickable", image_size)
+    ambiguous = sum(len(task.get("ambiguous", ())) for task in tasks)
+    certain = coco_ap(tasks, "certain", image_size, ignore="ambiguous") if ambiguous else {"ap50": None, "map": None}
     return {"tasks": len(tasks), "ap50": targets["ap50"], "map": targets["map"],
             "ap50_by_scale": targets["ap50_by_scale"], "gt_by_scale": targets.get("gt_by_scale", {}),
             "ap50_all": every["ap50"], "map_all": every["map"],
             "ap50_unpickable": unpickable["ap50"], "map_unpickable": unpickable["map"],
+            "ap50_certain": certain["ap50"], "map_certain": certain["map"], "ambiguous_instances": ambiguous,
             "pr": {"recall": targets["pr_recall"], "precision": targets["pr_precision"]}}
