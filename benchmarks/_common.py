@@ -39,6 +39,13 @@ def machine() -> dict:
     }
 
 
+def latest_run(runs: Path, name: str) -> Path | None:
+    """The newest run folder of ``name`` under ``runs`` (finished or not), or None."""
+    folder = Path(runs) / name
+    runs_of = sorted(p for p in folder.glob("*") if (p / "config.yaml").is_file()) if folder.is_dir() else []
+    return runs_of[-1] if runs_of else None
+
+
 def write_result(name: str, payload: dict) -> Path:
     from binpick.files import atomic_write_text
 

@@ -5,7 +5,8 @@ A3C with and without the goal-area curriculum on the same budget.
 
 Each learner trains from its config in configs/ (run folders in runs/bench/) and is then evaluated
 on 200 seeded episodes; the curriculum runs are evaluated on the whole play area, and Table 3.2's
-per-stage figures come from the evaluations at the end of each hold. Thesis: 369±341 / 134±99 /
+per-stage figures come from the evaluations at the end of each hold. A killed run continues where its
+last checkpoint left it when the benchmark is run again with the same settings (--fresh: new runs). Thesis: 369±341 / 134±99 /
 15±3 (Table 3.1); 15 / 42 / 13 / 25±6 at single goal / ¼ / ½ / whole (Table 3.2). Targets:
 A3C <= 20 actions; curriculum <= 25 at the whole area. Long: millions of steps; results are merged
 into results/rl_arm2d.json so parts can be run separately.
@@ -25,9 +26,10 @@ sys.path.insert(0, os.path.dirname(__file__))
 import _common  # noqa: E402
 
 from binpick.envs import make  # noqa: E402
-from binpick.rl.config import load_rl_config  # noqa: E402
+from binpick.rl.config import RLConfig, load_rl_config  # noqa: E402
 from binpick.rl.evaluate import evaluate_policy, random_policy  # noqa: E402
 from binpick.rl.train import load_policy, trainer_for  # noqa: E402
+from binpick.config import load_run_config  # noqa: E402
 from binpick.terminal import RichCallback  # noqa: E402
 
 RUNS = {
@@ -53,6 +55,7 @@ def main() -> None:
     parser.add_argument("--only", nargs="+", default=["random", "a3c", "dqn", "curriculum", "no_curriculum"])
     parser.add_argument("--steps-scale", type=float, default=1.0, help="scale every config's total_timesteps")
     parser.add_argument("--report-only", action="store_true", help="rewrite the docs table from the JSON, run nothing")
+    parser.add_argument("--fresh", action="store_true", help="start new run folders rather than continue the latest with the same config")
     args = parser.parse_args()
     path = _common.RESULTS / "rl_arm2d.json"
     results = json.loads(path.read_text()) if path.exists() else {}
@@ -76,7 +79,7 @@ def main() -> None:
                     sys.exit("the curriculum starts from the single-goal A3C run: run --only a3c first")
                 overrides["init_from"] = str(single_goal)
             config = load_rl_config(_common.ROOT / config_path, overrides)
-            trainer = trainer_for(config, _common.ROOT / "runs" / "bench")
+            trainer = continued(config, args.fresh) or trainer_for(config, _common.ROOT / "runs" / "bench")
             with RichCallback() as callback:
                 metrics = trainer.run(callback)
             policy, _ = load_policy(trainer.run_dir)
@@ -129,6 +132,15 @@ def main() -> None:
         "|---|---:|---:|---:|",
         *stage_rows(results.get("curriculum_stages", [])),
     ]))
+
+
+def continued(config: RLConfig, fresh: bool):
+    """The trainer of the latest run of this very config (it resumes from its last checkpoint), or None."""
+    latest = None if fresh else _common.latest_run(_common.ROOT / "runs" / "bench", config.name)
+    if latest is None or load_run_config(RLConfig, latest) != config:
+        return None
+    print(f"{config.name}: continuing {latest.relative_to(_common.ROOT)}", flush=True)
+    return trainer_for(resume=latest)
 
 
 def curriculum_rule(results: dict) -> str:

@@ -31,10 +31,7 @@ CONFIGS = ["rod_warehouse", "tdid_warehouse", "rod_warehouse_no_lh", "rod_wareho
            "rod_warehouse_ssr", "rod_warehouse_rss", "rod_warehouse_sss"]
 
 
-def run_folder(runs: Path, name: str) -> Path | None:
-    """The newest run of ``name`` (finished or not), or None."""
-    folders = sorted(p for p in (runs / name).glob("*") if (p / "config.yaml").is_file()) if (runs / name).is_dir() else []
-    return folders[-1] if folders else None
+run_folder = _common.latest_run
 
 
 def finished(folder: Path | None) -> bool:
