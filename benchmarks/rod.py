@@ -360,15 +360,23 @@ SHIFTED = _common.ROOT / "runs" / "data" / "shifted"  # binpick data generate --
 SHIPPED_SIZE = 320
 
 
-def evaluate_on(detect, data: Path, split: str, targets: str, size: int, only: list[str] | None = None,
-                query: str = "crop", framed: bool = False) -> dict:
+def collect_on(detect, data: Path, split: str, targets: str, size: int, only: list[str] | None = None,
+               query: str = "crop", framed: bool = False) -> list[dict]:
+    """Every task's detections and ground truths (binpick.detection.evaluate.collect)."""
     from binpick.detection.data import RepeatedInstances, TaskDataset
-    from binpick.detection.evaluate import collect, summarise
+    from binpick.detection.evaluate import collect
     from binpick.detection.train import loader
 
     dataset = TaskDataset(RepeatedInstances(data / f"annotations_{split}.json", targets=targets, only_categories=only), size, query,
                           frame_photos=framed)
-    return summarise(collect(detect, loader(dataset, 8, False, 0, 0)), size)
+    return collect(detect, loader(dataset, 8, False, 0, 0))
+
+
+def evaluate_on(detect, data: Path, split: str, targets: str, size: int, only: list[str] | None = None,
+                query: str = "crop", framed: bool = False) -> dict:
+    from binpick.detection.evaluate import summarise
+
+    return summarise(collect_on(detect, data, split, targets, size, only, query, framed), size)
 
 
 def report_generalisation(runs: Path) -> None:

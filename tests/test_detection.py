@@ -16,7 +16,7 @@ from binpick.detection.backbone import build_backbone
 from binpick.detection.baselines import histogram_matches, template_matches
 from binpick.detection.config import load_detect_config
 from binpick.detection.data import RepeatedInstances, TaskDataset, collate
-from binpick.detection.evaluate import coco_ap
+from binpick.detection.evaluate import coco_ap, copy_scores
 from binpick.detection.losses import LossWeights, assign, gaussian_targets, rod_loss
 from binpick.detection.model import DetectorNetwork, ModelSpec
 from binpick.detection.ops import box_iou, generalized_box_iou, nms
@@ -135,6 +135,15 @@ def test_coco_ap_is_one_for_perfect_boxes_and_falls_with_errors():
     wrong = coco_ap([task | {"boxes": truth[::-1] + [0, 30, 0, 30], "scores": np.array([0.9, 0.8])}], "targets", 128)
     assert wrong["ap50"] < 0.5
     assert coco_ap([task | {"boxes": truth, "scores": np.array([0.9, 0.8])}], "unpickable", 128)["ap50"] is None
+
+
+def test_copy_scores_give_each_labelled_copy_its_best_matching_detection():
+    pickable, unpickable = np.array([[10, 10, 40, 40]], np.float32), np.array([[60, 60, 90, 100], [5, 80, 30, 110]], np.float32)
+    boxes = np.array([[11, 11, 41, 41], [12, 10, 40, 42], [60, 62, 90, 100]], np.float32)
+    task = {"targets": pickable, "unpickable": unpickable, "boxes": boxes, "scores": np.array([0.9, 0.95, 0.3])}
+    labels, scores = copy_scores([task])
+    assert labels.tolist() == [1, 0, 0]
+    assert scores.tolist() == pytest.approx([0.95, 0.3, 0.0])  # the best of two on the first; none on the last
 
 
 def test_ambiguous_instances_are_neither_hits_nor_false_positives():

@@ -95,6 +95,28 @@ def coco_ap(tasks: list[dict[str, Any]], ground_truth: str, image_size: int, by_
     return result
 
 
+def copy_scores(tasks: list[dict[str, Any]]) -> tuple[np.ndarray, np.ndarray]:
+    """Per labelled copy (pickable: 1, unpickable: 0), the best score of a detection on it at IoU 0.5
+    (0 when none): whether a detector prefers what a policy can pick, apart from how well it finds the
+    product at all (AP on unpickable copies rises with both)."""
+    from binpick.detection.ops import box_iou
+
+    labels, scores = [], []
+    for task in tasks:
+        boxes, detected = torch.as_tensor(task["boxes"]).reshape(-1, 4), torch.as_tensor(task["scores"]).reshape(-1)
+        for label, key in ((1, "targets"), (0, "unpickable")):
+            truth = torch.as_tensor(task[key]).reshape(-1, 4)
+            if not len(truth):
+                continue
+            if len(boxes):
+                best = torch.where(box_iou(truth, boxes) >= 0.5, detected[None], torch.zeros(())).max(1).values
+            else:
+                best = torch.zeros(len(truth))
+            labels += [label] * len(truth)
+            scores += best.tolist()
+    return np.array(labels, dtype=np.int64), np.array(scores, dtype=np.float64)
+
+
 def summarise(tasks: list[dict[str, Any]], image_size: int) -> dict[str, Any]:
     """The numbers ``results/rod.json`` keeps, for one model on one data set."""
     targets = coco_ap(tasks, "targets", image_size, by_scale=True)
