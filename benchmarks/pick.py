@@ -2,7 +2,7 @@
 conditioning -> grasp point from depth -> top-down grasp (jaws along y, the policy the detector's
 pickability labels are for) -> order tote.
 
-    python benchmarks/pick.py [--orders 50] [--weights src/binpick/detection/weights/rod_photo_tiny_320.safetensors]
+    python benchmarks/pick.py [--orders 50] [--weights src/binpick/detection/weights/rod_photo_learnt_tiny_320.safetensors]
                               [--grasp learnt|analytic|fixed] [--compare-grasps] [--keep-oracle]
 
 Runs ``--orders`` orders of products the detector saw in training and as many of held-out products
@@ -28,7 +28,7 @@ sys.path.insert(0, os.path.dirname(__file__))
 
 import _common  # noqa: E402
 
-WEIGHTS = _common.ROOT / "src" / "binpick" / "detection" / "weights" / "rod_photo_tiny_320.safetensors"
+WEIGHTS = _common.ROOT / "src" / "binpick" / "detection" / "weights" / "rod_photo_learnt_tiny_320.safetensors"
 SEEDS = {"seen": 10_000, "held_out": 20_000}  # away from the data set's scene seeds
 
 

@@ -46,12 +46,13 @@ def load() -> dict:
 def pipeline_for(domain: str):
     from binpick.cli import DEFAULT_POLICY
     from binpick.detection import Detector
+    from binpick.detection.detector import PICKING
     from binpick.grasping import GraspPlanner
     from binpick.sim import default_library
     from binpick.sim.domain import load_domain
     from binpick.warehouse.pipeline import PickPipeline
 
-    model = Detector.load("rod_photo_tiny_320").network
+    model = Detector.load(PICKING).network
     return PickPipeline(model, default_library(), grasp=GraspPlanner.load(DEFAULT_POLICY),
                         domain=None if domain == "default" else load_domain(domain))
 

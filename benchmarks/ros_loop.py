@@ -240,6 +240,7 @@ def main() -> None:
     import numpy as np
 
     from binpick.detection import Detector
+    from binpick.detection.detector import PICKING
     from binpick.grasping import GraspPlanner, PinholeCamera
     from binpick.picking import CameraInfo, GraspPlan, write_camera_info
     from binpick.sim import default_library
@@ -251,7 +252,7 @@ def main() -> None:
 
     products = [p for p in args.products.split(",") if p]
     # only the world building, settling and execution of the pipeline are used here: the node plans
-    pipeline = PickPipeline(Detector.load("rod_photo_tiny_320").network, default_library(), grasp=GraspPlanner("analytic"))
+    pipeline = PickPipeline(Detector.load(PICKING).network, default_library(), grasp=GraspPlanner("analytic"))
     work = Path(tempfile.mkdtemp(prefix="binpick-ros-loop-"))
     world, rng = pipeline.build_world(products[0], args.seed)
     scene = pipeline.settle(world, rng, args.seed)

@@ -217,6 +217,20 @@ def test_template_matching_finds_an_exact_copy():
     assert torch.allclose(found["boxes"][0], torch.tensor([50.0, 60.0, 64.0, 74.0]), atol=1.5)
 
 
+def test_weights_list_the_products_of_the_runs_they_started_from(tmp_path):
+    from binpick.detection.train import learnt_products
+
+    path = make_coco(tmp_path / "toy", images=2)
+    save_detector(DetectorNetwork(ModelSpec(), 64), tmp_path / "start.safetensors", {"trained_products": ["acme/soap"]})
+    config = tmp_path / "fine.yaml"
+    config.write_text(f"""name: fine
+data: {{train: {path}, val: {path}, targets: all, image_size: 64}}
+train: {{init_from: {tmp_path / 'start.safetensors'}}}
+""")
+    own = sorted(c["name"] for c in json.loads(path.read_text())["categories"])
+    assert learnt_products(load_detect_config(config)) == sorted(own + ["acme/soap"])
+
+
 def test_kmeans_anchors_recover_two_box_sizes():
     sizes = np.r_[np.tile([[10, 20]], (30, 1)), np.tile([[40, 40]], (30, 1))] + np.random.default_rng(0).normal(0, 0.5, (60, 2))
     anchors = kmeans_anchors(sizes, clusters=2)
@@ -296,6 +310,11 @@ def test_shipped_weights_load_as_float32_and_predict(tmp_path):
     assert model.trained_domains == ["default", "random"]  # pre-trained on randomised bins, fine-tuned on the default ones
     photo = load_detector(str(files("binpick.detection") / "weights" / "rod_photo_tiny_320.safetensors"))
     assert photo.spec.query == "photo" and photo.score_threshold == 0.1  # its own calibrated threshold for picking
+    from binpick.detection.detector import PICKING, shipped_weights
+
+    picking = load_detector(shipped_weights(PICKING))  # the pipeline's: fine-tuned on what the learnt grasp policy picks
+    assert picking.spec.query == "photo" and picking.trained_config["data"]["targets"] == "pickable:learnt"
+    assert set(photo.trained_products) <= set(picking.trained_products)  # it started from the Policy 1 photo weights
     assert next(model.parameters()).dtype == torch.float32  # stored as float16, used as float32
     # a synthetic scene: copies of one coloured shape; the prediction is well formed and in the image
     image = np.asarray(Image.open(make_coco(tmp_path, images=1).parent / "images" / "0000.png"))

@@ -601,13 +601,14 @@ def detect_predict(
     """Find the other instances of the query; prints JSON boxes (x, y, w, h) and scores."""
     from binpick.config import check_range
     from binpick.detection import Detector
+    from binpick.detection.detector import PICKING
     from binpick.detection.predict import parse_box
 
     check_range("--min-score", min_score, 0.0, 1.0)
     for path, option in ((out, "--out"), (heatmap, "--heatmap")):
         if path is not None:
             _check_png_path(path, option)
-    detector = Detector.load(weights or ("rod_photo_tiny_320" if query_image is not None else "rod_tiny_320"))
+    detector = Detector.load(weights or (PICKING if query_image is not None else "rod_tiny_320"))
     box = parse_box(query_box) if query_box is not None else None
     prediction = detector.predict(image, box, query_image, min_score=min_score)
     print(json.dumps(prediction.to_json()))
@@ -817,6 +818,7 @@ def pick(
     """Fulfil orders end to end: shop photo -> ROD -> grasp chosen from depth -> grasp -> order tote."""
     from binpick.config import check_range
     from binpick.detection import Detector
+    from binpick.detection.detector import PICKING
     from binpick.grasping import GraspPlanner
     from binpick.warehouse.pipeline import PickPipeline
 
@@ -836,7 +838,7 @@ def pick(
 
         read_image(photo)  # unreadable -> one line now, not mid-run
         library.add(replace(library[products[0]], photo=photo))
-    model = Detector.load(weights or "rod_photo_tiny_320").network
+    model = Detector.load(weights or PICKING).network
     _fulfil(PickPipeline(model, library, grasp=planner), products, orders, seed, run_dir)
 
 
@@ -943,13 +945,14 @@ def demo(
     its training and zero-shot ones, and write an HTML report with each order's detections and GIF."""
     from binpick.config import check_range
     from binpick.detection import Detector
+    from binpick.detection.detector import PICKING
     from binpick.grasping import GraspPlanner
     from binpick.sim import default_library
     from binpick.warehouse.pipeline import PickPipeline
 
     check_range("orders", orders, 1, 1000, integer=True)
     run_dir = ensure_dir(out or Path("runs/demo") / time.strftime("%Y%m%d-%H%M%S"), "--out")
-    model = Detector.load("rod_photo_tiny_320").network
+    model = Detector.load(PICKING).network
     _fulfil(PickPipeline(model, default_library(), grasp=GraspPlanner.load(DEFAULT_POLICY)), list(DEMO_PRODUCTS), orders, seed, run_dir)
 
 

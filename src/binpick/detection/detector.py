@@ -23,11 +23,14 @@ from binpick.detection.predict import Prediction, predict
 from binpick.errors import ConfigError
 from binpick.runs import SILENT, RunCallback
 
-SHIPPED = ("rod_tiny_320", "rod_photo_tiny_320")  # crop query (§5.3) and shop-photo query (§6.3)
+# crop query (§5.3); shop-photo query (§6.3) on what Policy 1 (jaws along y) can pick; the same fine-tuned
+# on what binpick's default grasp policy (learnt) can pick: the one the pick pipeline uses
+SHIPPED = ("rod_tiny_320", "rod_photo_tiny_320", "rod_photo_learnt_tiny_320")
+PICKING = "rod_photo_learnt_tiny_320"
 
 
 def shipped_weights(name: str) -> Path:
-    """The path of weights that ship inside the package, by name (``rod_tiny_320``, ``rod_photo_tiny_320``)."""
+    """The path of weights that ship inside the package, by name (one of ``SHIPPED``)."""
     from importlib.resources import files
 
     stem = name.removesuffix(".safetensors")

@@ -121,6 +121,18 @@ def trained_domains(config: DetectConfig) -> list[str]:
     return sorted(set(domains + [name]))
 
 
+def learnt_products(config: DetectConfig) -> list[str]:
+    """The products a run's weights have learnt: its own training set's, plus those of the weights it
+    was fine-tuned from (a fine-tune on bins that lack a few products has still seen them)."""
+    products = set(trained_products(config.data.train))
+    if config.train.init_from:
+        try:
+            products |= set(_read_detector_file(_weights_path(Path(config.train.init_from)))[1].get("trained_products") or [])
+        except InputFileError:
+            pass
+    return sorted(products)
+
+
 # ---------------------------------------------------------------------- anchors
 def kmeans_anchors(sizes: np.ndarray, clusters: int = 3 * ANCHORS_PER_LEVEL, iterations: int = 50, seed: int = 0) -> np.ndarray:
     """YOLOv3's anchor priors: k-means of box sizes (w, h) under the 1 - IoU distance, smallest first."""
@@ -394,7 +406,7 @@ class DetectorTrainer:
         self.model.cpu()
         try:
             save_detector(self.model, path, {"config": to_dict(self.config),
-                                             "trained_products": trained_products(self.config.data.train),
+                                             "trained_products": learnt_products(self.config),
                                              "trained_domains": trained_domains(self.config)})
         finally:
             self.model.to(self.device)

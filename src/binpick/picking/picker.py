@@ -178,9 +178,10 @@ class Picker:
         """The photo-conditioned detector (default: shipped), the box-conditioned one for ``query_box``
         (default: shipped, loaded when first needed) and the grasp policy (default: learnt, shipped)."""
         from binpick.detection import Detector
+        from binpick.detection.detector import PICKING
 
         planner = GraspPlanner.load(grasp, grasp_weights)
-        network = Detector.load(detector or "rod_photo_tiny_320").network
+        network = Detector.load(detector or PICKING).network
         crop = Detector.load(crop_detector).network if crop_detector is not None else None
         return cls(network, planner, crop, **settings)
 
