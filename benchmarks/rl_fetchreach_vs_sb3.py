@@ -8,8 +8,8 @@ simulator steps. Reported: simulator steps until eval success >= 95%, final succ
 actions. Target: binpick needs <= 1/4 of SB3's simulator steps at the same final success, and <= 1/2 of
 the RL Zoo's TQC+HER (sb3-contrib; the Zoo's FetchReach settings: time feature, normalised
 observations, gamma 0.95, lr 1e-3, net [64, 64], one critic) - the strongest peer a user would pick. It
-runs through SB3 as the Zoo runs it, not binpick's trainer, with the same evaluation (binpick's
-evaluate_policy, 50 episodes from seed 10,000, every 1,000 steps, stop after 3 evaluations >= 95%).
+runs through SB3 as the Zoo runs it, not binpick's trainer, with the same evaluation as the binpick row
+(binpick's evaluate_policy, 50 episodes from seed 10,000, every 500 steps, stop after 3 evaluations >= 95%).
 Writes results/rl_fetchreach_vs_sb3.json and a section of docs/RESULTS.md; run folders go to runs/bench/.
 """
 
@@ -31,7 +31,7 @@ from binpick.terminal import RichCallback  # noqa: E402
 
 CONFIGS = {"sb3_sac_her": "configs/rl_fetchreach_sb3_sac_her.yaml", "binpick": "configs/rl_fetchreach_gp_her.yaml"}
 PEERS = ["tqc_her_zoo"]  # run by this script with SB3 directly, as their users run them
-EVAL_EVERY, EVAL_EPISODES, EVAL_SEED, STOP_AFTER = 1000, 50, 10_000, 3
+EVAL_EVERY, EVAL_EPISODES, EVAL_SEED, STOP_AFTER = 500, 50, 10_000, 3  # binpick's row's protocol (its config's eval)
 
 
 def run_tqc_her_zoo(seed: int, steps: int) -> dict:

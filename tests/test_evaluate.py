@@ -80,3 +80,23 @@ def test_epsilon_greedy_breaks_a_greedy_policy_that_never_succeeds():
     again = evaluate_policy(lambda _obs: 0, env, episodes=20, epsilon=0.5)
     assert stuck.success_rate == 0.0 and explored.success_rate == 1.0 and explored.mean_length < 50
     assert explored.lengths == again.lengths  # seeded
+
+
+def test_sampling_a_stochastic_policy_is_seeded_and_leaves_torch_alone():
+    import torch
+
+    class Softmax:  # greedy: the action that never succeeds; sampled: 1 a third of the time
+        def predict(self, observation, deterministic=True):
+            if deterministic:
+                return 0, None
+            return int(torch.rand(()) < 1 / 3), None
+
+    env = gym.wrappers.TimeLimit(Countdown(), max_episode_steps=200)
+    greedy = evaluate_policy(Softmax(), env, episodes=20)
+    torch.manual_seed(123)
+    before = torch.rand(())
+    torch.manual_seed(123)
+    sampled = evaluate_policy(Softmax(), env, episodes=20, seed=5, deterministic=False)
+    assert torch.rand(()) == before  # the caller's generator is as it was
+    again = evaluate_policy(Softmax(), env, episodes=20, seed=5, deterministic=False)
+    assert greedy.success_rate == 0.0 and sampled.success_rate == 1.0 and sampled.lengths == again.lengths

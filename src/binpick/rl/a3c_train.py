@@ -34,7 +34,8 @@ A3C_FILE = "a3c.safetensors"
 
 
 class _SampledPolicy:
-    """The actor as a policy for :func:`evaluate_policy`; A3C acts by sampling its distribution."""
+    """The actor as a policy: called, it samples its distribution as A3C acted in training; ``predict``
+    is greedy when asked to be (:func:`evaluate_policy` asks unless ``deterministic=False``)."""
 
     def __init__(self, model: ActorCritic, deterministic: bool = False) -> None:
         self.model, self.deterministic = model, deterministic

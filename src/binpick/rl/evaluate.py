@@ -81,6 +81,7 @@ def evaluate_policy(
     seed: int = 0,
     on_episode: EpisodeCallback | None = None,
     epsilon: float = 0.0,
+    deterministic: bool = True,
 ) -> EvalResult:
     """Run ``episodes`` episodes (episode i reset with ``seed + i``) and measure their lengths.
 
@@ -93,10 +94,25 @@ def evaluate_policy(
     ``epsilon`` > 0 takes a uniformly random action with that probability (seeded from ``seed``): the
     ε-greedy evaluation of Mnih et al. (2015), ε = 0.05, which a value-based policy needs where its
     greedy actions can cycle between two states forever in a deterministic env.
+
+    ``deterministic=False`` asks ``predict`` to sample its policy's distribution, as an actor-critic
+    such as A3C acts (Mnih et al. 2016); torch's generator is seeded from ``seed`` for the evaluation and
+    restored after it.
     """
     check_range("episodes", episodes, 1, None, integer=True)
     check_range("epsilon", epsilon, 0.0, 1.0)
-    act = _as_callable(model)
+    act = _as_callable(model, deterministic)
+    if deterministic:
+        return _run_episodes(act, env, episodes, seed, on_episode, epsilon)
+    import torch
+
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        return _run_episodes(act, env, episodes, seed, on_episode, epsilon)
+
+
+def _run_episodes(act: Callable[[Any], Any], env: gym.Env, episodes: int, seed: int, on_episode: EpisodeCallback | None,
+                  epsilon: float) -> EvalResult:
     if epsilon > 0:
         greedy, rng, space = act, np.random.default_rng(seed), env.action_space
         space.seed(seed)
@@ -120,10 +136,10 @@ def evaluate_policy(
     return result
 
 
-def _as_callable(policy: Policy) -> Callable[[Any], Any]:
+def _as_callable(policy: Policy, deterministic: bool = True) -> Callable[[Any], Any]:
     predict = getattr(policy, "predict", None)
     if callable(predict):
-        return lambda observation: predict(observation, deterministic=True)[0]
+        return lambda observation: predict(observation, deterministic=deterministic)[0]
     if callable(policy):
         return policy
     raise TypeError(f"policy must be callable or have a predict() method, got {type(policy).__name__}")
