@@ -187,8 +187,8 @@ class RepeatedInstances:
 
     def boxes(self, task: Task, query: dict | None) -> dict[str, np.ndarray]:
         """Ground truth of a task, xyxy pixels: ``targets`` to find, ``all`` instances but ``query``,
-        ``unpickable`` ones (for Tables 5.5/5.6), and the ``ambiguous`` ones whose trial grasps
-        disagreed with ``certain`` the targets that are not (empty / the targets for one-grasp labels)."""
+        ``unpickable`` ones (for Tables 5.5/5.6), ``ambiguous`` ones (their trial grasps disagreed) and
+        ``certain``: the targets that are not ambiguous (with one grasp per instance: none, and all)."""
         others = [a for a in task.annotations if a is not query]
 
         def xyxy(items):
