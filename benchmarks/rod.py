@@ -459,6 +459,8 @@ def report_generalisation(runs: Path) -> None:
         result["latency_ms"][f"{backbone}_{size}"] = latency_ms(DetectorNetwork(ModelSpec(backbone=backbone), size).eval(), image, box)
     result["latency_target_ms"] = 50
     histories = plot_curves(folders)
+    result["pretraining_images_seen"] = {name: images_seen_in_all(folder) for name, folder in folders.items()
+                                         if name.startswith("pretrain_") and finished(folder)}
     result["learning_curves"] = {name: [(h.get("images_seen"), h.get("ap50")) for h in history if h.get("ap50") is not None]
                                  for name, history in histories.items()}
     result["peak_rss_mib"] = _common.peak_rss_mib()
@@ -520,11 +522,28 @@ def plot_curves(folders: dict[str, Path | None]) -> dict[str, list[dict]]:
     return histories
 
 
+def images_seen_in_all(folder: Path) -> int:
+    """Training images a run's weights have seen: its own and those of the runs it started from
+    (``train.init_from`` naming a run folder or a weights file inside one)."""
+    import json
+
+    import yaml
+
+    history = json.loads((folder / "metrics.json").read_text()).get("history", []) if (folder / "metrics.json").is_file() else []
+    own = history[-1].get("images_seen", 0) if history else 0
+    start = ((yaml.safe_load((folder / "config.yaml").read_text()) or {}).get("train") or {}).get("init_from")
+    if not start:
+        return own
+    start = Path(start) if Path(start).is_absolute() else _common.ROOT / start
+    parent = start if start.is_dir() else start.parent
+    return own + (images_seen_in_all(parent) if (parent / "config.yaml").is_file() else 0)
+
+
 def budget_sentence(result: dict) -> str:
-    """Each pre-training row's images seen (its learning curve's last point): equal budgets make the
+    """Each pre-training row's images seen (with the runs it continued): equal budgets make the
     rows a controlled comparison; where they differ, the table says so."""
     names = {"pretrain_rod": "ROD", "pretrain_rod_no_lh": "ROD w/o L_h", "pretrain_tdid": "TDID", "pretrain_rod_photo": "photo query"}
-    seen = {label: curve[-1][0] for name, label in names.items() if (curve := result.get("learning_curves", {}).get(name))}
+    seen = {label: count for name, label in names.items() if (count := result.get("pretraining_images_seen", {}).get(name))}
     if not seen:
         return ""
     text = "Pre-training images seen: " + ", ".join(f"{label} {count:,}" for label, count in seen.items()) + "."
@@ -573,7 +592,8 @@ def write_generalisation_markdown(result: dict, path: Path) -> None:
               "(— : one grasp per instance)."]
     photo = result["photo"]
     lat = result["latency_ms"]
-    lines += ["", f"Photo query (what the pick pipeline uses), pickable targets: seen {_cell((photo.get('seen') or {}).get('ap50'))} "
+    lines += ["", f"Photo query, targets pickable by Policy 1 (the pick pipeline uses this network fine-tuned on what its "
+              f"learnt grasp policy can pick: `results/grasp.json` → `pickability`): seen {_cell((photo.get('seen') or {}).get('ap50'))} "
               f"(target ≥ 0.75), held-out {_cell((photo.get('held_out') or {}).get('ap50'))} (target ≥ 0.60). The photo row starts "
               "from the crop row's fine-tuned weights (the same network) and is fine-tuned on shop photos framed on their product "
               "and matched at 9–25% of the image side; whole photos through the same weights scored 0.35 on seen products, and "
