@@ -27,7 +27,8 @@ JITTER = 0.002
 
 def main() -> None:
     from binpick.sim.gripper import TopDownGrasp
-    from binpick.warehouse.dataset import GenerateConfig, build_library, label_offsets, trial_ready, world_scene, world_sim
+    from binpick.warehouse.dataset import (GenerateConfig, build_library, grasp_outcomes, label_offsets, trial_ready,
+                                           world_scene, world_sim)
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", default="runs/data/bins_2000")
@@ -46,12 +47,8 @@ def main() -> None:
             for index in range(args.scenes):
                 scene, _ = world_scene(sim, config, world, index)
                 trial_ready(sim)
-                for instance in (i for i in scene.instances if i.is_target):
-                    held = []
-                    for offset in offsets:
-                        sim.restore(scene.state)
-                        held.append(bool(policy.attempt(sim, instance.slot, offset)))
-                    outcomes.append(held)
+                outcomes += [grasp_outcomes(sim, scene.state, policy, instance.slot, offsets)
+                             for instance in scene.instances if instance.is_target]
         finally:
             sim.close()
         print(f"world {world} ({products[0].name}): {len(outcomes)} instances so far", flush=True)

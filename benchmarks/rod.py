@@ -162,7 +162,7 @@ def evaluate(detect, split: str, targets: str, size: int, only: list[str] | None
 def keep(metrics: dict) -> dict:
     return {k: None if metrics[k] is None else round(metrics[k], 4)
             for k in ("ap50", "map", "ap50_all", "map_all", "ap50_unpickable", "map_unpickable", "ap50_certain")
-            if k in metrics} | {"tasks": metrics["tasks"], "ambiguous_instances": metrics.get("ambiguous_instances", 0)}
+            } | {"tasks": metrics["tasks"], "ambiguous_instances": metrics["ambiguous_instances"]}
 
 
 def latency_ms(model, image, query_box, repeats: int = 20) -> float:

@@ -199,9 +199,9 @@ class RepeatedInstances:
             targets = [a for a in others if pickable_by(a, self.policy)]
             unpickable = [a for a in others if pickable_by(a, self.policy) is False]
             ambiguous = [a for a in others if ambiguous_for(a, self.policy)]
+            certain = [a for a in targets if not ambiguous_for(a, self.policy)]
         else:
-            targets, unpickable, ambiguous = others, [], []
-        certain = [a for a in targets if not any(a is b for b in ambiguous)]
+            targets, unpickable, ambiguous, certain = others, [], [], others
         return {"targets": xyxy(targets), "all": xyxy(others), "unpickable": xyxy(unpickable),
                 "certain": xyxy(certain), "ambiguous": xyxy(ambiguous)}
 

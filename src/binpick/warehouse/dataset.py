@@ -342,6 +342,16 @@ def label_offsets(trials: int, jitter: float, rng: np.random.Generator) -> list[
     return (cross + extra)[:trials]
 
 
+def grasp_outcomes(sim, state, policy, slot: int, offsets: list) -> list[bool]:
+    """Whether ``policy``'s grasp on instance ``slot`` held, from the saved ``state``, once per jaws'
+    offset (None: the plain call, so a user's policy without ``offset`` still labels data)."""
+    held = []
+    for offset in offsets:
+        sim.restore(state)
+        held.append(bool(policy.attempt(sim, slot) if offset is None else policy.attempt(sim, slot, offset)))
+    return held
+
+
 def label_pickability(sim, scene, record: dict[str, Any], policies, rng: np.random.Generator,
                       trials: int = 1, jitter: float = 0.002) -> None:
     """Thesis §5.4.4: try target instances in random order until one is picked (the query); then,
@@ -358,16 +368,12 @@ def label_pickability(sim, scene, record: dict[str, Any], policies, rng: np.rand
         return
     trial_ready(sim)
     order = [targets[i] for i in rng.permutation(len(targets))]
-    offsets = label_offsets(trials, jitter, rng) if trials > 1 else [(0.0, 0.0)]
+    offsets = label_offsets(trials, jitter, rng) if trials > 1 else [None]
     for policy in policies:
         if hasattr(policy, "prepare"):  # planned grasps read the scene's depth once
             policy.prepare(scene)
         for annotation in order:
-            held = []
-            for offset in offsets:
-                sim.restore(scene.state)
-                # one grasp: the plain call, so a user's policy without ``offset`` still labels data
-                held.append(bool(policy.attempt(sim, annotation["slot"], offset) if trials > 1 else policy.attempt(sim, annotation["slot"])))
+            held = grasp_outcomes(sim, scene.state, policy, annotation["slot"], offsets)
             annotation["pickable"][policy.name] = sum(held) * 2 > len(held)
             if trials > 1:
                 annotation.setdefault("pickable_rate", {})[policy.name] = round(sum(held) / len(held), 3)
