@@ -16,7 +16,7 @@ from binpick.detection.backbone import build_backbone
 from binpick.detection.baselines import histogram_matches, template_matches
 from binpick.detection.config import load_detect_config
 from binpick.detection.data import RepeatedInstances, TaskDataset, collate
-from binpick.detection.evaluate import coco_ap, copy_scores
+from binpick.detection.evaluate import coco_ap, copy_scores, first_choices
 from binpick.detection.losses import LossWeights, assign, gaussian_targets, rod_loss
 from binpick.detection.model import DetectorNetwork, ModelSpec
 from binpick.detection.ops import box_iou, generalized_box_iou, nms
@@ -144,6 +144,19 @@ def test_copy_scores_give_each_labelled_copy_its_best_matching_detection():
     labels, scores = copy_scores([task])
     assert labels.tolist() == [1, 0, 0]
     assert scores.tolist() == pytest.approx([0.95, 0.3, 0.0])  # the best of two on the first; none on the last
+
+
+def test_first_choices_count_where_the_top_detection_lands_in_contested_bins():
+    pickable, unpickable = np.array([[10, 10, 40, 40]], np.float32), np.array([[60, 60, 90, 100]], np.float32)
+    contested = {"targets": pickable, "unpickable": unpickable}
+    tasks = [contested | {"boxes": np.concatenate([unpickable, pickable]), "scores": np.array([0.9, 0.8])},  # unpickable first
+             contested | {"boxes": np.concatenate([unpickable, pickable]), "scores": np.array([0.2, 0.8])},  # pickable first
+             contested | {"boxes": np.array([[200, 200, 230, 230]], np.float32), "scores": np.array([0.9])},  # neither
+             {"targets": pickable, "unpickable": np.zeros((0, 4), np.float32), "boxes": pickable, "scores": np.array([0.9])}]
+    choices = first_choices(tasks)
+    assert choices["contested_bins"] == 3  # the bin with no unpickable copy does not count
+    assert choices["first_on_pickable"] == pytest.approx(1 / 3, abs=1e-4) and choices["first_on_unpickable"] == pytest.approx(1 / 3, abs=1e-4)
+    assert choices["first_on_other"] == pytest.approx(1 / 3, abs=1e-4)
 
 
 def test_ambiguous_instances_are_neither_hits_nor_false_positives():

@@ -117,6 +117,29 @@ def copy_scores(tasks: list[dict[str, Any]]) -> tuple[np.ndarray, np.ndarray]:
     return np.array(labels, dtype=np.int64), np.array(scores, dtype=np.float64)
 
 
+def first_choices(tasks: list[dict[str, Any]]) -> dict[str, Any]:
+    """Where the top-scoring detection lands in the bins that hold both pickable and unpickable copies:
+    the copy a picker tries first, so the share on pickable copies is the preference that matters for
+    picking (AP on unpickable copies also rises when a detector simply finds more of the product)."""
+    from binpick.detection.ops import box_iou
+
+    counts = {"pickable": 0, "unpickable": 0, "other": 0}
+    for task in tasks:
+        pickable, unpickable = (torch.as_tensor(task[key]).reshape(-1, 4) for key in ("targets", "unpickable"))
+        boxes, scores = torch.as_tensor(task["boxes"]).reshape(-1, 4), torch.as_tensor(task["scores"]).reshape(-1)
+        if not len(pickable) or not len(unpickable):
+            continue
+        if not len(boxes):
+            counts["other"] += 1
+            continue
+        top = boxes[int(scores.argmax())][None]
+        best = {kind: float(box_iou(top, truth).max()) for kind, truth in (("pickable", pickable), ("unpickable", unpickable))}
+        kind = max(best, key=best.get)
+        counts[kind if best[kind] >= 0.5 else "other"] += 1
+    bins = sum(counts.values())
+    return {"contested_bins": bins, **{f"first_on_{kind}": round(n / bins, 4) if bins else None for kind, n in counts.items()}}
+
+
 def summarise(tasks: list[dict[str, Any]], image_size: int) -> dict[str, Any]:
     """The numbers ``results/rod.json`` keeps, for one model on one data set."""
     targets = coco_ap(tasks, "targets", image_size, by_scale=True)
