@@ -431,6 +431,7 @@ def report_generalisation(runs: Path) -> None:
                            "zero_shot": "every other copy of the query's product (the ROD task), pre-trained models",
                            "shifted_domain": "every other copy of the query's product, pre-trained models"},
                "kept_from_earlier_runs": ["policy_pickability", "scale_ablation"]}
+    result["data"]["finetuning"] = {name: finetuning_data(model) for name, model in models.items() if name.startswith("finetune_")}
     # (c) the shifted domain: other camera, tote and light, held-out products; the query is one copy's box
     result["shifted_domain"] = rows({**pretrained, "rod_finetuned": "finetune_rod", "rod_before": "before_rod"}, SHIFTED, "test", "all")
     # (b) held-out categories, default domain, per category (zero-shot)
@@ -506,12 +507,9 @@ def plot_curves(folders: dict[str, Path | None]) -> dict[str, list[dict]]:
 
     histories = {name: json.loads((folder / "metrics.json").read_text())["history"]
                  for name, folder in folders.items() if folder is not None and (folder / "metrics.json").is_file()}
-    def offset(name: str) -> int:  # images seen by the runs this one started from
-        if not name.startswith("finetune_"):
-            return 0
-        start = FINETUNE_FROM.get(name.removeprefix("finetune_"), name.replace("finetune_", "pretrain_"))
-        before = histories.get(start, [])
-        return (before[-1].get("images_seen", 0) + offset(start)) if before else 0
+    def offset(name: str) -> int:  # images seen by the runs this one started from (train.init_from, followed)
+        own = histories[name][-1].get("images_seen", 0) if histories[name] else 0
+        return images_seen_in_all(folders[name]) - own
 
     drawn = {}
     for name, history in histories.items():
@@ -539,6 +537,23 @@ def images_seen_in_all(folder: Path) -> int:
     return own + (images_seen_in_all(parent) if (parent / "config.yaml").is_file() else 0)
 
 
+def finetuning_data(model) -> dict:
+    """The labelled bins a fine-tuned row learnt from (rows may differ: the crop row on a grown set)."""
+    import json
+
+    train = model.trained_config.get("data", {}).get("train")
+    path = _common.ROOT / train if train else None
+    scenes = len(json.loads(path.read_text())["images"]) if path is not None and path.is_file() else None
+    return {"train": train, "scenes": scenes}
+
+
+def finetuning_sentence(result: dict) -> str:
+    names = {"finetune_rod": "ROD (crop query)", "finetune_rod_photo": "photo query"}
+    rows = {label: result["data"].get("finetuning", {}).get(name) for name, label in names.items()}
+    described = [f"{label} `{row['train']}` ({row['scenes']:,} scenes)" for label, row in rows.items() if row and row.get("scenes")]
+    return ("Fine-tuning sets: " + ", ".join(described) + ".") if described else ""
+
+
 def budget_sentence(result: dict) -> str:
     """Each pre-training row's images seen (with the runs it continued): equal budgets make the
     rows a controlled comparison; where they differ, the table says so."""
@@ -562,7 +577,8 @@ def write_generalisation_markdown(result: dict, path: Path) -> None:
              f"`python benchmarks/rod.py pretrain && python benchmarks/rod.py finetune && python benchmarks/rod.py generalise` → "
              f"`{path.relative_to(_common.ROOT)}`. Pre-training: domain-randomised bins (`{result['data']['pretraining']}`), every copy "
              "a target; fine-tuning: the default bins, instances Policy 1 can pick. Every model: the tiny backbone, "
-             f"{result['image_size']} px, rows trained on the same batches (one loader), seed 0. {budget_sentence(result)}", "",
+             f"{result['image_size']} px, rows trained on the same batches (one loader), seed 0. {budget_sentence(result)} "
+             f"{finetuning_sentence(result)}", "",
              "Shifted domain (camera, tote and light outside the training ranges; held-out products can, mug, toy; "
              "the query is one copy's box; targets: every other copy). Target: ROD ≥ 0.60 and ≥ histogram + 0.25:", "",
              "| ROD | ROD w/o L_h | TDID | ROD, small backbone | ROD after fine-tuning | ROD shipped before | template matching | colour histogram |",
