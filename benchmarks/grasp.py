@@ -182,7 +182,8 @@ def section(result: dict, path: Path, bins: int) -> None:
 
         lines += ["", "Pickability under the learnt policy (thesis §6.3): the shipped photo-query ROD, trained on Policy 1 "
                   "(jaws along y) labels, fine-tuned 4 epochs on bins whose instances the learnt policy tried "
-                  f"(`python benchmarks/grasp.py pickability`, `{p['data']}`). AP50 against the instances the learnt "
+                  f"(`python benchmarks/grasp.py pickability`: trained on `{p.get('train')}`, {p.get('train_scenes')} scenes; "
+                  f"measured on the val and test scenes of `{p['data']}`). AP50 against the instances the learnt "
                   "policy picks (higher is better) and against those it cannot pick (lower: the detector prefers what the "
                   "policy can pick):", "",
                   "| detector | seen: AP50 pickable | unpickable | all copies | AUC | first on pickable | held out: AP50 pickable | "
@@ -253,7 +254,12 @@ def pickability() -> None:
               flush=True)
     path = _common.RESULTS / "grasp.json"
     result = json.loads(path.read_text())
-    result["pickability"] = {"targets": "pickable:learnt", "data": "runs/data/bins_learnt", "run": str(run_dir.relative_to(_common.ROOT)),
+    import yaml
+
+    train = (yaml.safe_load((run_dir / "config.yaml").read_text()) or {}).get("data", {}).get("train")
+    result["pickability"] = {"targets": "pickable:learnt", "data": "runs/data/bins_learnt", "train": train,
+                             "train_scenes": len(json.loads((_common.ROOT / train).read_text())["images"]),
+                             "run": str(run_dir.relative_to(_common.ROOT)),
                              **{label: {"seen": rows[label]["val"], "held_out": rows[label]["test"]} for label in rows}}
     _common.write_result("grasp", {k: v for k, v in result.items() if k not in ("benchmark", "machine")})
     section(result, path, result["bins"])
