@@ -212,6 +212,7 @@ def pickability() -> None:
     import json
 
     import torch
+    import yaml
 
     from binpick.detection.config import load_detect_config
     from binpick.detection.train import DetectorTrainer
@@ -254,8 +255,6 @@ def pickability() -> None:
               flush=True)
     path = _common.RESULTS / "grasp.json"
     result = json.loads(path.read_text())
-    import yaml
-
     train = (yaml.safe_load((run_dir / "config.yaml").read_text()) or {}).get("data", {}).get("train")
     result["pickability"] = {"targets": "pickable:learnt", "data": "runs/data/bins_learnt", "train": train,
                              "train_scenes": len(json.loads((_common.ROOT / train).read_text())["images"]),
