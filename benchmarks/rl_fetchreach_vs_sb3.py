@@ -148,8 +148,6 @@ def main() -> None:
     args = parser.parse_args()
     path = _common.RESULTS / "rl_fetchreach_vs_sb3.json"
     previous = __import__("json").loads(path.read_text()) if path.exists() else {}
-    if (previous.get("binpick") or {}).get("config") == CONFIGS["binpick_thesis"]:  # rows measured before binpick_thesis existed
-        previous["binpick_thesis"] = previous.pop("binpick")
     results = {k: previous[k] for k in [*CONFIGS, *PEERS] if k in previous}
     if not args.report_only and args.only in (None, "tqc_her_zoo"):
         import torch

@@ -507,34 +507,35 @@ def plot_curves(folders: dict[str, Path | None]) -> dict[str, list[dict]]:
 
     histories = {name: json.loads((folder / "metrics.json").read_text())["history"]
                  for name, folder in folders.items() if folder is not None and (folder / "metrics.json").is_file()}
-    def offset(name: str) -> int:  # images seen by the runs this one started from (train.init_from, followed)
-        own = histories[name][-1].get("images_seen", 0) if histories[name] else 0
-        return images_seen_in_all(folders[name]) - own
-
     drawn = {}
     for name, history in histories.items():
         label = f"{name} (pickable, bins val)" if name.startswith("finetune_") else f"{name} (all copies, randomised val)"
-        drawn[label] = [{**h, "images_seen": h.get("images_seen", 0) + offset(name)} for h in history]
+        offset = images_seen_before(folders[name])
+        drawn[label] = [{**h, "images_seen": h.get("images_seen", 0) + offset} for h in history]
     IMAGES.mkdir(parents=True, exist_ok=True)
     plot_learning_curves(drawn, IMAGES / "learning_curves.png", "ROD: pre-training, then fine-tuning")
     return histories
 
 
 def images_seen_in_all(folder: Path) -> int:
-    """Training images a run's weights have seen: its own and those of the runs it started from
-    (``train.init_from`` naming a run folder or a weights file inside one)."""
+    """Training images a run's weights have seen: its own and those of the runs it started from."""
     import json
 
+    history = json.loads((folder / "metrics.json").read_text()).get("history", []) if (folder / "metrics.json").is_file() else []
+    return (history[-1].get("images_seen", 0) if history else 0) + images_seen_before(folder)
+
+
+def images_seen_before(folder: Path) -> int:
+    """Training images of the runs a run started from (``train.init_from`` naming a run folder or a
+    weights file inside one, followed back)."""
     import yaml
 
-    history = json.loads((folder / "metrics.json").read_text()).get("history", []) if (folder / "metrics.json").is_file() else []
-    own = history[-1].get("images_seen", 0) if history else 0
     start = ((yaml.safe_load((folder / "config.yaml").read_text()) or {}).get("train") or {}).get("init_from")
     if not start:
-        return own
+        return 0
     start = Path(start) if Path(start).is_absolute() else _common.ROOT / start
     parent = start if start.is_dir() else start.parent
-    return own + (images_seen_in_all(parent) if (parent / "config.yaml").is_file() else 0)
+    return images_seen_in_all(parent) if (parent / "config.yaml").is_file() else 0
 
 
 def finetuning_data(model) -> dict:
