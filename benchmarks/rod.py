@@ -165,7 +165,23 @@ def keep(metrics: dict) -> dict:
             } | {"tasks": metrics["tasks"], "ambiguous_instances": metrics["ambiguous_instances"]}
 
 
-def latency_ms(model, image, query_box, repeats: int = 20) -> float:
+def latency_input():
+    """The image, query box (x, y, w, h) and depth the latency rows time: the first val image's."""
+    import json
+
+    import numpy as np
+
+    from binpick.depth import read_depth
+    from binpick.detection.data import read_image
+
+    first = json.loads((DATA / "annotations_val.json").read_text())
+    image = first["images"][0]
+    query = next(a for a in first["annotations"] if a["image_id"] == image["id"])
+    return read_image(DATA / image["file_name"]), np.array(query["bbox"], dtype=np.float32), read_depth(DATA / image["depth_file"])
+
+
+def latency_ms(model, image, query_box, repeats: int = 20, depth=None) -> float:
+    """Median ms of ``predict`` at batch 1 (``depth``: the image's, for detectors that read it)."""
     import time
 
     import numpy as np
@@ -173,23 +189,19 @@ def latency_ms(model, image, query_box, repeats: int = 20) -> float:
     from binpick.detection.predict import predict
 
     for _ in range(3):
-        predict(model, image, query_box)
+        predict(model, image, query_box, depth=depth)
     times = []
     for _ in range(repeats):
         started = time.perf_counter()
-        predict(model, image, query_box)
+        predict(model, image, query_box, depth=depth)
         times.append(1000 * (time.perf_counter() - started))
     return round(float(np.median(times)), 1)
 
 
 def report(runs: Path) -> None:
-    import json
-
-    import numpy as np
     import torch
 
     from binpick.detection.baselines import histogram_detect, template_detect
-    from binpick.detection.data import read_image
     from binpick.detection.model import DetectorNetwork, ModelSpec
     from binpick.detection.train import detector_detect, load_detector
     from binpick.viz.detection import plot_ap_by_scale, plot_pr_curves
@@ -235,10 +247,7 @@ def report(runs: Path) -> None:
             result["scale_ablation"][layout] = {"ap50": round(metrics["ap50"], 4), "ap50_by_scale": metrics["ap50_by_scale"],
                                                 "gt_by_scale": metrics["gt_by_scale"]}
     # latency: one image, one query, batch 1, 2 threads, fp32 (weights do not change the time)
-    first = json.loads((DATA / "annotations_val.json").read_text())
-    image = read_image(DATA / first["images"][0]["file_name"])
-    query = next(a for a in first["annotations"] if a["image_id"] == first["images"][0]["id"])
-    box = np.array(query["bbox"], dtype=np.float32)
+    image, box, depth = latency_input()
     for key, backbone, side in (("small_256", "tiny", 256), ("small_416", "tiny", 416), ("darknet53_416", "darknet53", 416)):
         model = models.get("rod_warehouse") if key == "small_256" and "rod_warehouse" in models else DetectorNetwork(ModelSpec(backbone=backbone), side).eval()
         result["latency_ms"][key] = latency_ms(model, image, box)
@@ -361,22 +370,23 @@ SHIPPED_SIZE = 320
 
 
 def collect_on(detect, data: Path, split: str, targets: str, size: int, only: list[str] | None = None,
-               query: str = "crop", framed: bool = False) -> list[dict]:
-    """Every task's detections and ground truths (binpick.detection.evaluate.collect)."""
+               query: str = "crop", framed: bool = False, depth: bool = False) -> list[dict]:
+    """Every task's detections and ground truths (binpick.detection.evaluate.collect); ``depth``: the
+    batches hold height maps (for detectors that read depth)."""
     from binpick.detection.data import RepeatedInstances, TaskDataset
     from binpick.detection.evaluate import collect
     from binpick.detection.train import loader
 
     dataset = TaskDataset(RepeatedInstances(data / f"annotations_{split}.json", targets=targets, only_categories=only), size, query,
-                          frame_photos=framed)
+                          frame_photos=framed, depth=depth)
     return collect(detect, loader(dataset, 8, False, 0, 0))
 
 
 def evaluate_on(detect, data: Path, split: str, targets: str, size: int, only: list[str] | None = None,
-                query: str = "crop", framed: bool = False) -> dict:
+                query: str = "crop", framed: bool = False, depth: bool = False) -> dict:
     from binpick.detection.evaluate import summarise
 
-    return summarise(collect_on(detect, data, split, targets, size, only, query, framed), size)
+    return summarise(collect_on(detect, data, split, targets, size, only, query, framed, depth), size)
 
 
 def report_generalisation(runs: Path) -> None:
@@ -385,11 +395,9 @@ def report_generalisation(runs: Path) -> None:
     domain; the photo query; latency at the shipped size; learning curves."""
     import json
 
-    import numpy as np
     import torch
 
     from binpick.detection.baselines import histogram_detect, template_detect
-    from binpick.detection.data import read_image
     from binpick.detection.model import DetectorNetwork, ModelSpec
     from binpick.detection.train import detector_detect, load_detector
     torch.set_num_threads(2)
@@ -414,7 +422,7 @@ def report_generalisation(runs: Path) -> None:
             elif name in models:  # each model at the size it was trained for
                 model = models[name]
                 metrics = evaluate_on(detector_detect(model), data, split, targets, model.image_size, only, model.spec.query,
-                                      model.spec.frames_photos)
+                                      model.spec.frames_photos, model.spec.depth)
             else:
                 continue
             out[row] = keep(metrics)
@@ -447,15 +455,14 @@ def report_generalisation(runs: Path) -> None:
     result["photo"] = {"seen": result["seen"].get("rod_photo"),
                        "held_out": keep(evaluate_on(detector_detect(models["finetune_rod_photo"]), DATA, "test", P1,
                                                     models["finetune_rod_photo"].image_size, query="photo",
-                                                    framed=models["finetune_rod_photo"].spec.frames_photos)) if "finetune_rod_photo" in models else None,
+                                                    framed=models["finetune_rod_photo"].spec.frames_photos,
+                                                    depth=models["finetune_rod_photo"].spec.depth)) if "finetune_rod_photo" in models else None,
                        "held_out_before": keep(evaluate_on(detector_detect(models["before_rod_photo"]), DATA, "test", P1, 256,
                                                            query="photo")) if "before_rod_photo" in models else None}
     # latency of predict at the shipped size, batch 1, 2 threads (weights do not change the time)
-    first = json.loads((DATA / "annotations_val.json").read_text())
-    image = read_image(DATA / first["images"][0]["file_name"])
-    query = next(a for a in first["annotations"] if a["image_id"] == first["images"][0]["id"])
-    box = np.array(query["bbox"], dtype=np.float32)
-    result["latency_ms"] = {"shipped": latency_ms(models.get("finetune_rod") or DetectorNetwork(ModelSpec(), size).eval(), image, box)}
+    image, box, depth = latency_input()
+    result["latency_ms"] = {"shipped": latency_ms(models.get("finetune_rod") or DetectorNetwork(ModelSpec(), size).eval(), image, box,
+                                                  depth=depth)}
     for backbone in ("tiny", "small"):
         result["latency_ms"][f"{backbone}_{size}"] = latency_ms(DetectorNetwork(ModelSpec(backbone=backbone), size).eval(), image, box)
     result["latency_target_ms"] = 50
@@ -474,23 +481,18 @@ def remeasure_latency(runs: Path) -> None:
     measures it at its end, when other jobs may share the cores."""
     import json
 
-    import numpy as np
     import torch
 
-    from binpick.detection.data import read_image
     from binpick.detection.model import DetectorNetwork, ModelSpec
     from binpick.detection.train import load_detector
 
     torch.set_num_threads(2)
     path = _common.RESULTS / "rod.json"
     result = json.loads(path.read_text())
-    first = json.loads((DATA / "annotations_val.json").read_text())
-    image = read_image(DATA / first["images"][0]["file_name"])
-    query = next(a for a in first["annotations"] if a["image_id"] == first["images"][0]["id"])
-    box = np.array(query["bbox"], dtype=np.float32)
+    image, box, depth = latency_input()
     folder = run_folder(runs, "finetune_rod")
     model = load_detector(folder) if finished(folder) else DetectorNetwork(ModelSpec(), SHIPPED_SIZE).eval()
-    result["latency_ms"] = {"shipped": latency_ms(model, image, box), "measured": "alone (benchmarks/rod.py latency)"}
+    result["latency_ms"] = {"shipped": latency_ms(model, image, box, depth=depth), "measured": "alone (benchmarks/rod.py latency)"}
     for backbone in ("tiny", "small"):
         result["latency_ms"][f"{backbone}_{SHIPPED_SIZE}"] = latency_ms(DetectorNetwork(ModelSpec(backbone=backbone), SHIPPED_SIZE).eval(), image, box)
     written = _common.write_result("rod", {k: v for k, v in result.items() if k not in ("benchmark", "machine")})

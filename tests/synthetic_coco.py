@@ -23,17 +23,22 @@ def _draw(draw: ImageDraw.ImageDraw, kind: str, colour, x: int, y: int, size: in
     return [float(box[0]), float(box[1]), float(box[2] - box[0] + 1), float(box[3] - box[1] + 1)]
 
 
-def make_coco(folder: Path, images: int = 12, size: int = 128, seed: int = 0, pickable: bool = False) -> Path:
+def make_coco(folder: Path, images: int = 12, size: int = 128, seed: int = 0, pickable: bool = False,
+              depth: bool = False) -> Path:
     """Each image: 2-4 copies of one shape and one copy of another, on a noisy grey floor, without
     overlaps. With ``pickable``, copies left of the image centre are labelled pickable by policy
-    ``y`` and the first copy is the picked query (the warehouse format)."""
+    ``y`` and the first copy is the picked query (the warehouse format). With ``depth``, a 16-bit
+    depth PNG per image (mm; floor at 800, objects 40 mm tall) named by ``depth_file``."""
     rng = np.random.default_rng(seed)
     folder = Path(folder)
     (folder / "images").mkdir(parents=True, exist_ok=True)
+    if depth:
+        (folder / "depth").mkdir(exist_ok=True)
     names = list(SHAPES)
     coco = {"images": [], "annotations": [], "categories": [{"id": i + 1, "name": n, "supercategory": n} for i, n in enumerate(names)]}
     for index in range(images):
         floor = rng.normal(120, 12, (size, size, 3)).clip(0, 255).astype(np.uint8)
+        heights = np.full((size, size), 800, np.uint16)
         picture = Image.fromarray(floor)
         draw = ImageDraw.Draw(picture)
         target, other = rng.choice(len(names), 2, replace=False)
@@ -46,6 +51,7 @@ def make_coco(folder: Path, images: int = 12, size: int = 128, seed: int = 0, pi
             x = int(cell % 3 * size / 3 + rng.integers(2, size // 3 - object_size - 1))
             y = int(cell // 3 * size / 3 + rng.integers(2, size // 3 - object_size - 1))
             bbox = _draw(draw, kind, colour, x, y, object_size)
+            heights[int(bbox[1]):int(bbox[1] + bbox[3]), int(bbox[0]):int(bbox[0] + bbox[2])] = 760
             annotation = {"id": len(coco["annotations"]) + 1, "image_id": index + 1, "category_id": int(category) + 1,
                           "bbox": bbox, "area": bbox[2] * bbox[3], "iscrowd": 0}
             if pickable and category == target:
@@ -54,6 +60,9 @@ def make_coco(folder: Path, images: int = 12, size: int = 128, seed: int = 0, pi
         file_name = f"images/{index:04d}.png"
         picture.save(folder / file_name)
         coco["images"].append({"id": index + 1, "file_name": file_name, "width": size, "height": size})
+        if depth:
+            Image.fromarray(heights).save(folder / f"depth/{index:04d}.png")
+            coco["images"][-1]["depth_file"] = f"depth/{index:04d}.png"
     path = folder / "annotations.json"
     path.write_text(json.dumps(coco))
     return path

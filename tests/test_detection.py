@@ -401,3 +401,46 @@ train: {{epochs: 1000, batch_size: 2, lr: 0.002, warmup_steps: 2, max_minutes: 1
     assert trainer.learning_rate() == pytest.approx(0.002 * (0.05 + 0.95 * 0.5), rel=1e-3)
     trainer.note_time(600.0)
     assert trainer.learning_rate() == pytest.approx(0.002 * 0.05, rel=1e-3)
+
+
+def test_a_depth_reading_detector_starts_as_its_colour_weights_and_learns_from_depth(tmp_path):
+    from binpick.detection.predict import predict
+
+    path = make_coco(tmp_path / "toy", images=8, seed=2, depth=True)
+    # heights move with the image: augmented samples keep the tall objects inside their boxes
+    dataset = TaskDataset(RepeatedInstances(path), 64, augment=True, depth=True)
+    for epoch in range(3):
+        dataset.set_epoch(epoch)
+        sample = dataset[epoch]
+        heights, inside = sample["depth"][0], torch.zeros(64, 64, dtype=torch.bool)
+        for x1, y1, x2, y2 in sample["all"].round().int().tolist():
+            inside[y1 + 1:y2 - 1, x1 + 1:x2 - 1] = True
+        assert heights[inside].mean() > 0.5 > heights[~inside].mean(), (epoch, heights[inside].mean(), heights[~inside].mean())
+    # colour-only weights load into a depth-reading network whose depth encoder starts at zero: the same boxes
+    torch.manual_seed(0)
+    colour = DetectorNetwork(ModelSpec(), 128).eval()
+    save_detector(colour, tmp_path / "colour.safetensors")
+    config = tmp_path / "rod.yaml"
+    config.write_text(f"""name: toy_depth
+data: {{train: {path}, val: {path}, targets: all, image_size: 128, augment: true, train_sizes: [96, 160]}}
+model: {{depth: true}}
+train: {{epochs: 1, batch_size: 4, lr: 0.002, warmup_steps: 2, eval_every: 1, workers: 0, threads: 2,
+         init_from: {tmp_path / "colour.safetensors"}}}
+""")
+    trainer = DetectorTrainer.new(load_detect_config(config), tmp_path / "runs")
+    batch = collate([trainer.val_set[0], trainer.val_set[1]])
+    trainer.model.eval()
+    with torch.no_grad():
+        theirs = colour(batch["image"], batch["query_box"], batch["query_image"])["raw"]
+        mine = trainer.model(batch["image"], batch["query_box"], batch["query_image"], batch["depth"])["raw"]
+    assert all(torch.allclose(a, b, atol=1e-4) for a, b in zip(mine, theirs))
+    trainer.run()
+    model = load_detector(trainer.run_dir)
+    assert model.spec.depth and any(float(p.detach().abs().sum()) > 0 for p in model.depth_encoder.projections.parameters())
+    image, depth = tmp_path / "toy" / "images" / "0000.png", tmp_path / "toy" / "depth" / "0000.png"
+    box = next(a["bbox"] for a in json.loads(path.read_text())["annotations"] if a["image_id"] == 1)
+    assert len(predict(model, image, np.array(box), depth=depth, score_threshold=0.0).scores) > 0
+    with pytest.raises(ConfigError, match="reads depth"):
+        predict(model, image, np.array(box))
+    with pytest.raises(ConfigError, match="no depth file"):
+        TaskDataset(RepeatedInstances(make_coco(tmp_path / "plain", images=2)), 64, depth=True)

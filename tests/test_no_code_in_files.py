@@ -230,7 +230,7 @@ def test_python_loaders_refuse_crafted_files(tmp_path):
     from binpick.detection import load_detector
     from binpick.errors import BinpickError
     from binpick.files import read_npz
-    from binpick.grasping.camera import read_depth
+    from binpick.depth import read_depth
     from binpick.grasping.quality import GraspQuality
     from binpick.perception import load_perception
     from binpick.rl.a3c_train import load_a3c_policy

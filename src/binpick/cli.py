@@ -594,6 +594,7 @@ def detect_predict(
     weights: Annotated[Path | None, typer.Option(help="Run folder, model.safetensors or a shipped name (default: the shipped model for the query kind)")] = None,
     query_box: Annotated[str | None, typer.Option(help="Known instance x,y,w,h in pixels")] = None,
     query_image: Annotated[Path | None, typer.Option(help="Product photo to look for (photo-conditioned models)")] = None,
+    depth: Annotated[Path | None, typer.Option(help="The scene's depth: 16-bit PNG in mm or .npy in metres (detectors that read depth)")] = None,
     out: Annotated[Path | None, typer.Option(help="Overlay PNG: query blue, detections orange with scores, a legend")] = None,
     heatmap: Annotated[Path | None, typer.Option(help="PNG of the ROD levels' max heatmaps, titled, with a colour bar")] = None,
     min_score: Annotated[float, typer.Option(help="Detections below this score are not printed or drawn")] = 0.3,
@@ -610,7 +611,7 @@ def detect_predict(
             _check_png_path(path, option)
     detector = Detector.load(weights or (PICKING if query_image is not None else "rod_tiny_320"))
     box = parse_box(query_box) if query_box is not None else None
-    prediction = detector.predict(image, box, query_image, min_score=min_score)
+    prediction = detector.predict(image, box, query_image, min_score=min_score, depth=depth)
     print(json.dumps(prediction.to_json()))
     if out is not None:
         _save_png(prediction.plot(), out, "--out")

@@ -83,9 +83,11 @@ class ModelConfig:
     scales: list[float] = field(default_factory=lambda: [0.5, 1.0, 2.0])
     query: str = "crop"
     photo_sizes: list[float] = field(default_factory=list)  # see ModelSpec.photo_sizes
+    depth: bool = False  # see ModelSpec.depth
 
     def spec(self) -> ModelSpec:
-        spec = ModelSpec(self.backbone, self.method, self.layout, tuple(self.scales), self.query, tuple(self.photo_sizes))
+        spec = ModelSpec(self.backbone, self.method, self.layout, tuple(self.scales), self.query, tuple(self.photo_sizes),
+                         self.depth)
         spec.check()
         return spec
 

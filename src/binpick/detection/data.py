@@ -20,6 +20,8 @@ import numpy as np
 import torch
 from PIL import Image
 
+from binpick.depth import read_depth
+from binpick.detection.depth import depth_input
 from binpick.errors import ConfigError
 from binpick.files import read_json
 
@@ -32,6 +34,7 @@ class Task:
     query: dict[str, Any] | None  # the annotation known; None: draw one at random each epoch
     annotations: list[dict[str, Any]]  # every instance of the category in the image
     photo: Path | None = None
+    depth: Path | None = None  # the image's depth (16-bit millimetres), where the data set has one
 
 
 def read_image(path: Path, keep_alpha: bool = False) -> np.ndarray:
@@ -173,14 +176,15 @@ class RepeatedInstances:
         name = self.categories[category]["name"].replace("/", "_")
         photo = self.photos / f"{name}.png"
         photo = photo if photo.is_file() else None
+        depth = self.root / image["depth_file"] if isinstance(image.get("depth_file"), str) else None
         if self.policy:
             query = next((a for a in annotations if a.get("is_query")), None)
             if query is None or all(pickable_by(a, self.policy) is None for a in annotations if a is not query):
                 return None  # nothing picked here, or no labels for this policy
-            return Task(image["id"], file, category, query, annotations, photo)
+            return Task(image["id"], file, category, query, annotations, photo, depth)
         if len(annotations) < 2:
             return None
-        return Task(image["id"], file, category, None, annotations, photo)
+        return Task(image["id"], file, category, None, annotations, photo, depth)
 
     def __len__(self) -> int:
         return len(self.tasks)
@@ -210,22 +214,35 @@ class TaskDataset(torch.utils.data.Dataset):
     """Tensors for training and evaluation: the image resized to ``size``, the query (box in that
     image, its crop, or the shop photo) and the boxes to find. ``augment`` applies box-safe flips,
     zoom and colour jitter. ``frame_photos`` crops shop photos to their product (models with
-    ``photo_sizes``, binpick.detection.photos)."""
+    ``photo_sizes``, binpick.detection.photos). ``depth`` adds each image's height map (models that
+    read depth, binpick.detection.depth), moved by the same flips and zoom."""
 
     def __init__(self, source: RepeatedInstances, size: int, query_mode: str = "crop", query_size: int = 96,
-                 augment: bool = False, seed: int = 0, photometric: bool = False, frame_photos: bool = False) -> None:
+                 augment: bool = False, seed: int = 0, photometric: bool = False, frame_photos: bool = False,
+                 depth: bool = False) -> None:
         if query_mode not in ("crop", "photo"):
             raise ConfigError(f"query must be 'crop' or 'photo', got {query_mode!r}")
         self.source, self.size, self.query_mode, self.query_size = source, size, query_mode, query_size
         self.augment, self.seed, self.epoch, self.photometric = augment, seed, 0, photometric
         self.with_photo = False  # also the shop photo, for joint training of crop and photo queries
         self.frame_photos = frame_photos
+        self.depth = False
+        if depth:
+            self.read_depth()
         self._photos: dict[Path, np.ndarray] = {}  # query-sized photos, read once per category
         if query_mode == "photo":
             missing = [t for t in source.tasks if t.photo is None]
             if missing:
                 raise ConfigError(f"no shop photo for category {source.categories[missing[0].category_id]['name']!r} "
                                   f"in {str(source.photos)!r}")
+
+    def read_depth(self) -> None:
+        """From now on, samples hold each image's height map; every image must have a depth file."""
+        missing = [t for t in self.source.tasks if t.depth is None or not t.depth.is_file()]
+        if missing:
+            raise ConfigError(f"this detector reads depth, but image {str(missing[0].file)!r} has no depth file "
+                              f"({len(missing)} of {len(self.source.tasks)} tasks; COCO images need a depth_file)")
+        self.depth = True
 
     def set_epoch(self, epoch: int) -> None:
         """A new epoch draws new random queries and augmentations (deterministically)."""
@@ -244,8 +261,9 @@ class TaskDataset(torch.utils.data.Dataset):
         qx, qy, qw, qh = query["bbox"]
         query_box = np.array([qx, qy, qx + qw, qy + qh], dtype=np.float32)
         image, query_box, boxes = self._resize(image, query_box, boxes)
+        heights = depth_input(read_depth(task.depth), self.size) if self.depth else None
         if self.augment:
-            image, query_box, boxes = augment(image, query_box, boxes, rng)
+            image, query_box, boxes, heights = augment(image, query_box, boxes, rng, heights)
             if self.photometric:
                 image = camera_effects(image, rng)
         photo = None
@@ -255,6 +273,8 @@ class TaskDataset(torch.utils.data.Dataset):
             photo = self.photo(task.photo)
         query_image = photo if self.query_mode == "photo" else crop_resize(image, query_box, self.query_size)
         extra = {"photo": to_tensor(photo)} if self.with_photo else {}
+        if heights is not None:
+            extra["depth"] = torch.from_numpy(np.ascontiguousarray(heights))[None]
         return {**extra, "image": to_tensor(image), "query_box": torch.from_numpy(query_box), "query_image": to_tensor(query_image),
                 "targets": torch.from_numpy(boxes["targets"]), "all": torch.from_numpy(boxes["all"]),
                 **{key: torch.from_numpy(boxes[key]) for key in ("unpickable", "certain", "ambiguous")}, "image_id": task.image_id,
@@ -293,17 +313,22 @@ def crop_resize(image: np.ndarray, box: np.ndarray, size: int) -> np.ndarray:
     return np.asarray(Image.fromarray(image[y1:y2, x1:x2]).resize((size, size), Image.BILINEAR))
 
 
-def augment(image: np.ndarray, query_box: np.ndarray, boxes: dict[str, np.ndarray], rng: np.random.Generator):
+def augment(image: np.ndarray, query_box: np.ndarray, boxes: dict[str, np.ndarray], rng: np.random.Generator,
+            heights: np.ndarray | None = None):
     """Box-safe augmentation: flips (which keep the robot's x and y axes, so pickability labels stay
-    true), a zoom out by up to 25% onto a grey canvas, and brightness/contrast/saturation jitter."""
+    true), a zoom out by up to 25% onto a grey canvas, and brightness/contrast/saturation jitter.
+    A height map (``heights``, or None) is flipped and zoomed with the image (onto the median
+    surface, 0) and returned fourth. The random draws do not depend on it."""
     size = image.shape[0]
     image = image.astype(np.float32)
     every = {"query": query_box[None], **boxes}
     if rng.uniform() < 0.5:
         image = image[:, ::-1]
+        heights = None if heights is None else heights[:, ::-1]
         every = {k: np.stack([size - v[:, 2], v[:, 1], size - v[:, 0], v[:, 3]], 1) for k, v in every.items()}
     if rng.uniform() < 0.5:
         image = image[::-1]
+        heights = None if heights is None else heights[::-1]
         every = {k: np.stack([v[:, 0], size - v[:, 3], v[:, 2], size - v[:, 1]], 1) for k, v in every.items()}
     if rng.uniform() < 0.5:
         zoom = rng.uniform(0.75, 1.0)
@@ -313,13 +338,19 @@ def augment(image: np.ndarray, query_box: np.ndarray, boxes: dict[str, np.ndarra
         canvas = np.full_like(image, 114.0)
         canvas[oy:oy + inner, ox:ox + inner] = small
         image = canvas
+        if heights is not None:
+            flat = np.zeros_like(heights)
+            flat[oy:oy + inner, ox:ox + inner] = np.asarray(
+                Image.fromarray(np.ascontiguousarray(heights), mode="F").resize((inner, inner), Image.BILINEAR))
+            heights = flat
         every = {k: v * (inner / size) + np.array([ox, oy, ox, oy], dtype=np.float32) for k, v in every.items()}
     grey = image.mean(axis=2, keepdims=True)
     image = grey + (image - grey) * rng.uniform(0.7, 1.3)  # saturation
     image = (image - image.mean()) * rng.uniform(0.8, 1.2) + image.mean() * rng.uniform(0.8, 1.2)  # contrast, brightness
     image = np.clip(image, 0, 255).astype(np.uint8)
     query_box = every.pop("query")[0].astype(np.float32)
-    return np.ascontiguousarray(image), query_box, {k: v.astype(np.float32) for k, v in every.items()}
+    heights = None if heights is None else np.ascontiguousarray(heights, dtype=np.float32)
+    return np.ascontiguousarray(image), query_box, {k: v.astype(np.float32) for k, v in every.items()}, heights
 
 
 def camera_effects(image: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -346,7 +377,7 @@ def camera_effects(image: np.ndarray, rng: np.random.Generator) -> np.ndarray:
 
 
 def collate(samples: list[dict[str, Any]]) -> dict[str, Any]:
-    batch = {key: torch.stack([s[key] for s in samples]) for key in ("image", "query_box", "query_image", "photo") if key in samples[0]}
+    batch = {key: torch.stack([s[key] for s in samples]) for key in ("image", "query_box", "query_image", "photo", "depth") if key in samples[0]}
     for key in ("targets", "all", "unpickable", "certain", "ambiguous", "image_id", "category_id", "index", "query_id"):
         batch[key] = [s[key] for s in samples]
     return batch

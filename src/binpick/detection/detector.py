@@ -78,15 +78,16 @@ class Detector:
 
     # ------------------------------------------------------------------ jobs
     def predict(self, image: np.ndarray | str | Path, query_box=None, query_image: np.ndarray | str | Path | None = None,
-                min_score: float = 0.3) -> Prediction:
-        """Boxes (x, y, w, h) and scores of the other instances; the result plots and saves itself."""
+                min_score: float = 0.3, depth: np.ndarray | str | Path | None = None) -> Prediction:
+        """Boxes (x, y, w, h) and scores of the other instances; the result plots and saves itself.
+        ``depth`` (metres, or a 16-bit PNG in mm) is needed by detectors that read depth."""
         from binpick.config import check_range
 
         check_range("min_score", min_score, 0.0, 1.0)
         box = None if query_box is None else np.asarray(query_box, dtype=np.float32)
         if box is not None and box.shape != (4,):
             raise ConfigError(f"query_box must be x, y, w, h, got {query_box!r}")
-        return predict(self.network, image, box, query_image, score_threshold=min_score)
+        return predict(self.network, image, box, query_image, score_threshold=min_score, depth=depth)
 
     def val(self, data: str | Path, targets: str | None = None, batch_size: int = 8, callback: RunCallback = SILENT) -> dict:
         """COCO AP50 and mAP on an annotations file, against ``targets`` (default: what it was trained on)."""
@@ -95,7 +96,8 @@ class Detector:
 
         targets = targets or self.network.trained_config.get("data", {}).get("targets", "all")
         dataset = TaskDataset(RepeatedInstances(data, targets=targets), self.network.image_size, self.query,
-                              self.network.query_size, frame_photos=self.network.spec.frames_photos)
+                              self.network.query_size, frame_photos=self.network.spec.frames_photos,
+                              depth=self.network.spec.depth)
         with callback.task("evaluating", len(dataset)) as task:
             metrics = evaluate_model(self.network, dataset, batch_size, progress=lambda n: task.update(advance=n))
         return metrics | {"targets": targets}

@@ -18,6 +18,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from binpick.detection.backbone import BACKBONES, build_backbone, conv_bn
+from binpick.detection.depth import DepthEncoder
 from binpick.detection.ops import cxcywh_to_xyxy, nms
 from binpick.detection.rod import RODModule, SkipModule, TDIDModule, crop_features
 
@@ -60,6 +61,7 @@ class ModelSpec:
     # scene image's side (binpick.detection.photos); empty: the whole photo at the D scales (weights
     # trained before photos were framed)
     photo_sizes: tuple[float, ...] = ()
+    depth: bool = False  # also reads the scene's depth (binpick.detection.depth): geometry for pickability
 
     @property
     def frames_photos(self) -> bool:
@@ -81,6 +83,8 @@ class ModelSpec:
             raise ConfigError(f"model.scales must be positive numbers, got {list(self.scales)}")
         if self.photo_sizes and (self.query != "photo" or self.method != "rod"):
             raise ConfigError("model.photo_sizes is for ROD with photo queries (model.query: photo, model.method: rod)")
+        if not isinstance(self.depth, bool):
+            raise ConfigError(f"model.depth must be true or false, got {self.depth!r}")
         if any(not 0 < s <= 1 for s in self.photo_sizes):
             raise ConfigError(f"model.photo_sizes must be fractions of the image side in (0, 1], got {list(self.photo_sizes)}")
 
@@ -103,6 +107,7 @@ class DetectorNetwork(nn.Module):
             else:
                 modules.append(RODModule(c, spec.scales) if letter == "R" else SkipModule(c))
         self.modules_per_level = nn.ModuleList(modules)
+        self.depth_encoder = DepthEncoder(channels) if spec.depth else None
         c1, c2, c3 = channels
         self.top = nn.Sequential(conv_bn(c3, c3 // 2, 1), conv_bn(c3 // 2, c3, 3), conv_bn(c3, c3 // 2, 1))
         self.lateral3 = conv_bn(c3 // 2, c2 // 2, 1)
@@ -138,7 +143,9 @@ class DetectorNetwork(nn.Module):
         return [list(level.unbind(0)) for level in query]
 
     def forward(self, images: torch.Tensor, query_boxes: torch.Tensor | None = None,
-                query_images: torch.Tensor | None = None) -> dict[str, list]:
+                query_images: torch.Tensor | None = None, depth: torch.Tensor | None = None) -> dict[str, list]:
+        """``depth``: (B, 1, H, W) height maps (:func:`binpick.detection.depth.depth_input`), for
+        detectors that read depth (``spec.depth``)."""
         scene = self.features(images)
         queries = self.query_features(scene, query_boxes, query_images)
         fused, heatmaps = [], []
@@ -146,6 +153,12 @@ class DetectorNetwork(nn.Module):
             out, heatmap = module(level, query)
             fused.append(out)
             heatmaps.append(heatmap)
+        if self.depth_encoder is not None:
+            if depth is None:
+                from binpick.errors import ConfigError
+
+                raise ConfigError("this detector reads depth as well as colour: give the scene's depth image")
+            fused = [f + g.to(f.dtype) for f, g in zip(fused, self.depth_encoder(depth.to(images.dtype)))]
         p3 = self.top(fused[2])
         p2 = self.middle(torch.cat([fused[1], F.interpolate(self.lateral3(p3), scale_factor=2.0)], 1))
         p1 = self.bottom(torch.cat([fused[0], F.interpolate(self.lateral2(p2), scale_factor=2.0)], 1))
@@ -172,10 +185,10 @@ class DetectorNetwork(nn.Module):
 
     @torch.no_grad()
     def detect(self, images: torch.Tensor, query_boxes: torch.Tensor | None = None, query_images: torch.Tensor | None = None,
-               score_threshold: float = 0.01, iou_threshold: float = 0.45, max_detections: int = 100
-               ) -> tuple[list[dict[str, torch.Tensor]], list]:
+               score_threshold: float = 0.01, iou_threshold: float = 0.45, max_detections: int = 100,
+               depth: torch.Tensor | None = None) -> tuple[list[dict[str, torch.Tensor]], list]:
         """Boxes and scores after NMS, per image, plus the heatmaps (for pictures like Fig 6.11)."""
-        out = self.forward(images, query_boxes, query_images)
+        out = self.forward(images, query_boxes, query_images, depth)
         boxes, scores = (v.float().cpu() for v in self.decode(out["raw"]))  # NMS is sequential: on the CPU
         results = []
         for b in range(images.shape[0]):

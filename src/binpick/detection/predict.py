@@ -9,7 +9,9 @@ import numpy as np
 import torch
 from PIL import Image
 
+from binpick.depth import read_depth
 from binpick.detection.data import crop_resize, query_photo, read_image, to_tensor
+from binpick.detection.depth import depth_input
 from binpick.detection.model import DetectorNetwork
 from binpick.errors import ConfigError
 
@@ -71,11 +73,22 @@ def check_query_box(box: np.ndarray, width: int, height: int) -> None:
 
 
 def predict(model: DetectorNetwork, image: np.ndarray | str | Path, query_box: np.ndarray | None = None,
-            query_image: np.ndarray | str | Path | None = None, score_threshold: float = 0.1) -> Prediction:
+            query_image: np.ndarray | str | Path | None = None, score_threshold: float = 0.1,
+            depth: np.ndarray | str | Path | None = None) -> Prediction:
     """Run the detector on one image. Give ``query_box`` (x, y, w, h) for a crop query, or
-    ``query_image`` for a shop photo (models trained with ``query: photo``, or TDID)."""
+    ``query_image`` for a shop photo (models trained with ``query: photo``, or TDID). Detectors that
+    read depth (``model.spec.depth``) need the image's ``depth`` (metres, or a 16-bit PNG in mm);
+    others ignore it."""
     if isinstance(image, (str, Path)):
         image = read_image(Path(image))
+    heights = None
+    if model.spec.depth:
+        if depth is None:
+            raise ConfigError("this detector reads depth as well as colour: give the image's depth (--depth)")
+        depth = read_depth(depth) if isinstance(depth, (str, Path)) else np.asarray(depth, dtype=np.float32)
+        if depth.shape != image.shape[:2]:
+            raise ConfigError(f"depth is {depth.shape[1]}x{depth.shape[0]} but the image is {image.shape[1]}x{image.shape[0]}")
+        heights = torch.from_numpy(depth_input(depth, model.image_size))[None, None]
     if (query_box is None) == (query_image is None):
         raise ConfigError("give exactly one of a query box or a query image")
     height, width = image.shape[:2]
@@ -99,7 +112,7 @@ def predict(model: DetectorNetwork, image: np.ndarray | str | Path, query_box: n
     boxes_input = torch.tensor(box_xyxy, dtype=torch.float32)[None] if box_xyxy is not None else None
     model.eval()
     results, heatmaps = model.detect(to_tensor(resized)[None], boxes_input, to_tensor(query_pixels)[None],
-                                     score_threshold=score_threshold)
+                                     score_threshold=score_threshold, depth=heights)
     boxes = results[0]["boxes"].numpy() / scale
     xywh = np.c_[boxes[:, :2], boxes[:, 2:] - boxes[:, :2]] if len(boxes) else np.zeros((0, 4), np.float32)
     return Prediction(xywh, results[0]["scores"].numpy(), [h[0, 0].numpy() for h in heatmaps if h is not None],

@@ -170,9 +170,9 @@ def make_datasets(config: DetectConfig) -> tuple[TaskDataset, TaskDataset]:
     query_mode = config.model.query
     framed = bool(config.model.photo_sizes)
     train = TaskDataset(train_source, data.load_size, query_mode, data.query_size, augment=data.augment, seed=config.train.seed,
-                        photometric=data.photometric, frame_photos=framed)
+                        photometric=data.photometric, frame_photos=framed, depth=config.model.depth)
     val = TaskDataset(val_source, data.image_size, query_mode, data.query_size, augment=False, seed=config.train.seed + 1,
-                      frame_photos=framed)
+                      frame_photos=framed, depth=config.model.depth)
     return train, val
 
 
@@ -185,7 +185,9 @@ def loader(dataset: TaskDataset, batch_size: int, shuffle: bool, workers: int, s
 def detector_detect(model: DetectorNetwork) -> Callable[[dict], list[dict[str, torch.Tensor]]]:
     def detect(batch: dict) -> list[dict[str, torch.Tensor]]:
         device = model.anchors.device
-        results, _ = model.detect(batch["image"].to(device), batch["query_box"].to(device), batch["query_image"].to(device))
+        depth = batch["depth"].to(device) if "depth" in batch else None
+        results, _ = model.detect(batch["image"].to(device), batch["query_box"].to(device), batch["query_image"].to(device),
+                                  depth=depth)
         return [{k: v.cpu() for k, v in r.items()} for r in results]
     return detect
 
@@ -262,7 +264,12 @@ class DetectorTrainer:
         if (theirs.backbone, theirs.method, theirs.layout) != (mine.backbone, mine.method, mine.layout):
             raise ConfigError(f"train.init_from {str(path)!r} is a {theirs.backbone} {theirs.method} {theirs.layout} "
                               f"network; this run's model section asks for another")
-        self.model.load_state_dict(pretrained.state_dict())
+        if theirs.depth and not mine.depth:
+            raise ConfigError(f"train.init_from {str(path)!r} reads depth; set model.depth: true to fine-tune it")
+        # colour-only weights into a depth-reading network: its depth encoder starts at zero (no effect)
+        missing, _ = self.model.load_state_dict(pretrained.state_dict(), strict=not (mine.depth and not theirs.depth))
+        if any(not key.startswith("depth_encoder.") for key in missing):
+            raise ConfigError(f"train.init_from {str(path)!r} lacks tensors of this network ({len(missing)} missing)")
 
     def scaled(self, batch: dict) -> dict:
         """Multi-scale training: the batch resized to a random size in ``data.train_sizes`` (a
@@ -271,6 +278,7 @@ class DetectorTrainer:
         batch = {**batch, "image": batch["image"].to(self.device, non_blocking=True),
                  "query_box": batch["query_box"].to(self.device), "query_image": batch["query_image"].to(self.device),
                  **({"photo": batch["photo"].to(self.device)} if "photo" in batch else {}),
+                 **({"depth": batch["depth"].to(self.device)} if "depth" in batch else {}),
                  "targets": [t.to(self.device) for t in batch["targets"]]}
         if not sizes:
             return batch
@@ -281,6 +289,8 @@ class DetectorTrainer:
             return batch
         factor = size / current
         batch["image"] = torch.nn.functional.interpolate(batch["image"], size=(size, size), mode="bilinear", align_corners=False)
+        if "depth" in batch:
+            batch["depth"] = torch.nn.functional.interpolate(batch["depth"], size=(size, size), mode="bilinear", align_corners=False)
         batch["query_box"] = batch["query_box"] * factor
         batch["targets"] = [t * factor for t in batch["targets"]]
         return batch
@@ -291,7 +301,7 @@ class DetectorTrainer:
         images = batch["image"].contiguous(memory_format=torch.channels_last) if fast else batch["image"]
         with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=fast):
             query_image = batch["photo"] if self.model.spec.query == "photo" and "photo" in batch else batch["query_image"]
-            out = self.model(images, batch["query_box"], query_image)
+            out = self.model(images, batch["query_box"], query_image, batch.get("depth"))
         return {"raw": [r.float() for r in out["raw"]], "heatmaps": [None if h is None else h.float() for h in out["heatmaps"]]}
 
     def learning_rate(self) -> float:
@@ -440,6 +450,8 @@ class JointTraining:
         if len(framing) > 1:
             raise ConfigError("joint training needs every photo-query row to frame its photos alike (model.photo_sizes)")
         self.train_set.frame_photos = framing == {True}
+        if any(t.model.spec.depth for t in trainers):  # the others ignore it
+            self.train_set.read_depth()
 
     def run(self, callback: RunCallback = SILENT) -> dict[str, dict[str, Any]]:
         import time

@@ -21,7 +21,8 @@ from binpick import tensorfile
 from binpick.config import check_range, load_run_config, to_dict
 from binpick.errors import ConfigError, InputFileError
 from binpick.files import atomic_write_text, read_json
-from binpick.grasping.camera import PinholeCamera, read_depth
+from binpick.depth import read_depth
+from binpick.grasping.camera import PinholeCamera
 from binpick.grasping.candidates import Surface, describe, instance_surface
 from binpick.grasping.quality import FEATURES, GraspQuality, GraspQualityNet, MapSpec, grasp_features, height_map
 from binpick.runs import SILENT, RunCallback, commit_checkpoint, latest_checkpoint, new_run_dir

@@ -22,7 +22,7 @@ import numpy as np
 
 from binpick.errors import ConfigError, InputFileError
 from binpick.grasping import GraspChoice, GraspPlanner, PinholeCamera
-from binpick.grasping.camera import depth_problem
+from binpick.depth import depth_problem
 from binpick.picking.camera_info import CameraInfo, matrix_to_quaternion
 from binpick.detection.photos import photo_mask
 from binpick.picking.colour import colour_histogram, colour_similarity, detection_mask
@@ -192,7 +192,8 @@ class Picker:
 
         blank = np.zeros((size, size, 3), np.uint8)
         if self.detector is not None and self.detector.spec.query == "photo":
-            predict(self.detector, blank, query_image=blank[:96, :96], score_threshold=1.0)
+            predict(self.detector, blank, query_image=blank[:96, :96], score_threshold=1.0,
+                    depth=np.full((size, size), 0.8, np.float32))
 
     @property
     def candidate_threshold(self) -> float:
@@ -246,7 +247,7 @@ class Picker:
             query_image = None if query_box is not None else (  # the product mask travels as alpha, for framing
                 photo if photo_product_mask is None else np.dstack([photo, np.where(photo_product_mask, 255, 0).astype(np.uint8)]))
             prediction = predict(model, rgb, query_box=query_box, query_image=query_image,
-                                 score_threshold=self.candidate_threshold)
+                                 score_threshold=self.candidate_threshold, depth=depth)
             found, scores = prediction.boxes, prediction.scores
             timing["detect"] = 1000 * (time.perf_counter() - tick)
             tick = time.perf_counter()

@@ -29,7 +29,7 @@ from binpick.sim.mjcf import CameraSpec
 from binpick.sim.photos import shop_photo
 from binpick.sim.products import ProductLibrary, product_dimensions
 from binpick.grasping import GraspChoice, GraspPlanner, GraspPolicyName, PinholeCamera
-from binpick.grasping.camera import as_camera_depth
+from binpick.depth import as_camera_depth
 from binpick.picking import GraspPlan, Picker, Plans
 from binpick.picking.picker import jaw_pixels
 from binpick.detection.photos import photo_mask
