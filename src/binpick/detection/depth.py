@@ -6,6 +6,9 @@ camera's depth directly. Appearance still decides *which* product a box holds (t
 sees only RGB, so shop photos need no depth); geometry is added to the fused features of every level,
 before the neck decides objectness. The projections start at zero, so a detector fine-tuned with
 depth from RGB-only weights starts as exactly that detector.
+
+Measured on binpick's default bins it did not help: fine-tuned alike, colour alone and colour with
+depth both reach val AP50 0.80 (``benchmarks/rod_seen_gap.py``). It is off by default.
 """
 
 from __future__ import annotations
