@@ -247,7 +247,7 @@ def report(runs: Path) -> None:
             result["scale_ablation"][layout] = {"ap50": round(metrics["ap50"], 4), "ap50_by_scale": metrics["ap50_by_scale"],
                                                 "gt_by_scale": metrics["gt_by_scale"]}
     # latency: one image, one query, batch 1, 2 threads, fp32 (weights do not change the time)
-    image, box, depth = latency_input()
+    image, box, _ = latency_input()  # untrained networks of each size: none reads depth
     for key, backbone, side in (("small_256", "tiny", 256), ("small_416", "tiny", 416), ("darknet53_416", "darknet53", 416)):
         model = models.get("rod_warehouse") if key == "small_256" and "rod_warehouse" in models else DetectorNetwork(ModelSpec(backbone=backbone), side).eval()
         result["latency_ms"][key] = latency_ms(model, image, box)

@@ -35,9 +35,11 @@ def curve(runs: Path) -> dict:
     folder = _common.latest_run(runs, "finetune_rod")
     if folder is None or not (folder / "metrics.json").is_file():
         raise SystemExit(f"no finished finetune_rod run in {runs}: run benchmarks/rod.py finetune --runs {runs} first")
+    import yaml
+
     metrics = json.loads((folder / "metrics.json").read_text())
-    config = (folder / "config.yaml").read_text()
-    return {"run": str(folder.relative_to(_common.ROOT)), "depth": "depth: true" in config,
+    model = (yaml.safe_load((folder / "config.yaml").read_text()) or {}).get("model") or {}
+    return {"run": str(folder.relative_to(_common.ROOT)), "depth": bool(model.get("depth", False)),
             "val_ap50_by_epoch": [round(h["ap50"], 4) for h in metrics["history"] if h.get("ap50") is not None],
             "val_ap50_unpickable_by_epoch": [round(h["ap50_unpickable"], 4) for h in metrics["history"] if h.get("ap50") is not None]}
 

@@ -228,7 +228,7 @@ class TaskDataset(torch.utils.data.Dataset):
         self.frame_photos = frame_photos
         self.depth = False
         if depth:
-            self.read_depth()
+            self.add_depth()
         self._photos: dict[Path, np.ndarray] = {}  # query-sized photos, read once per category
         if query_mode == "photo":
             missing = [t for t in source.tasks if t.photo is None]
@@ -236,7 +236,7 @@ class TaskDataset(torch.utils.data.Dataset):
                 raise ConfigError(f"no shop photo for category {source.categories[missing[0].category_id]['name']!r} "
                                   f"in {str(source.photos)!r}")
 
-    def read_depth(self) -> None:
+    def add_depth(self) -> None:
         """From now on, samples hold each image's height map; every image must have a depth file."""
         missing = [t for t in self.source.tasks if t.depth is None or not t.depth.is_file()]
         if missing:

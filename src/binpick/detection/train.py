@@ -451,7 +451,7 @@ class JointTraining:
             raise ConfigError("joint training needs every photo-query row to frame its photos alike (model.photo_sizes)")
         self.train_set.frame_photos = framing == {True}
         if any(t.model.spec.depth for t in trainers):  # the others ignore it
-            self.train_set.read_depth()
+            self.train_set.add_depth()
 
     def run(self, callback: RunCallback = SILENT) -> dict[str, dict[str, Any]]:
         import time
