@@ -27,13 +27,13 @@ from binpick.terminal import RichCallback  # noqa: E402
 
 CONFIGS = {
     "FetchReach": ["april_fetchreach_w1.0", "april_fetchreach_w1.0_refined", "april_fetchreach_w0.5",
-                   "april_fetchreach_w0.0"],
+                   "april_fetchreach_w0.0", "april_fetchreach_w1.0_two_views"],
     "Reacher": ["reacher_random", "april_reacher_n4_m4", "april_reacher_n4_m4_refined", "april_reacher_n8_unconditioned"],
     "FetchPickAndPlace": ["pickandplace_heuristic", "april_pickandplace_ae_n9_m9", "april_pickandplace_ae_n16_m9",
                           "april_pickandplace_vae_n16_m9", "april_pickandplace_gt_plus_latent_ae",
-                          "april_pickandplace_gt_plus_latent_vae"],
+                          "april_pickandplace_gt_plus_latent_vae", "april_pickandplace_ae_n9_m9_two_views"],
     "FetchReachObstacle": ["april_obstacle_n6_m6", "april_obstacle_n8_m6", "april_obstacle_unconditioned",
-                           "april_obstacle_gt_plus_latent"],
+                           "april_obstacle_gt_plus_latent", "april_obstacle_n8_m6_distilled"],
 }
 # each table's ground-truth row comes from one config; the others train the same state policy again
 GROUND_TRUTH_FROM = {"FetchReach": "april_fetchreach_w1.0", "Reacher": "april_reacher_n4_m4",
@@ -77,7 +77,10 @@ def shared_state_run(results: dict, env: str, name: str, config) -> str | None:
     needs_state_policy = config.policy.mode != "latent" or config.policy.pretrain
     if source is None or name == GROUND_TRUTH_FROM.get(env) or not needs_state_policy or config.policy.state_run:
         return None
-    stages = json.loads((_common.ROOT / source["run_dir"] / "stages.json").read_text())
+    stages_file = _common.ROOT / source["run_dir"] / "stages.json"
+    if not stages_file.is_file():  # the row came from a run folder this machine does not have
+        return None
+    stages = json.loads(stages_file.read_text())
     source_config = load_april_config(_common.ROOT / source["config"])
     if source_config.policy.rl_config != config.policy.rl_config or "policy" not in stages:
         return None

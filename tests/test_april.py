@@ -16,6 +16,7 @@ from stable_baselines3 import SAC
 from binpick.april.finetune import widen_from_semantic
 from binpick.envs import make
 from binpick.errors import ConfigError
+from binpick.files import read_npz
 from binpick.runs import SILENT
 from binpick.rl.wrappers import SemanticState
 
@@ -119,16 +120,49 @@ def _latent_policy_widened_from_the_shared_state_policy(first_run, tmp_path):
     config = tmp_path / "latent.yaml"
     config.write_text(APRIL.format(kind="vae", n=8, m=6, mode="latent", rl=tmp_path / "rl.yaml")
                       .replace("finetune_steps", f"state_run: {state_run}, finetune_steps")
-                      .replace("eval:", "refine: {episodes: 2, epochs: 1}\neval:"))
+                      .replace("eval:", "refine: {episodes: 2, epochs: 1}\neval:")
+                      .replace("image: grey", "image: grey\nenv_kwargs: {views: [workspace, side]}"))
     run = AprilRun.new(load_april_config(config), tmp_path / "runs")
     rows = run.run()["rows"]
-    assert list(rows) == ["pixels_vae_n8_m6_w1_refined"] and not (run.run_dir / "rl").exists()
+    # two cameras: the perception reads both views, stacked as channels, and the row says so
+    assert list(rows) == ["pixels_vae_n8_m6_w1_refined_two_views"] and not (run.run_dir / "rl").exists()
+    assert read_npz(run.run_dir / "data" / "random.npz", "images")["images"].shape[1:] == (64, 64, 2)
     assert run.stages["policy"]["semantic_run"] == state_run
     assert run.stages["finetune"]["widened"] and run.stages["finetune"]["sim_steps"] == 60
     # refine: perception trained further on the state policy's episodes, counted in the row
     assert run.stages["refine"]["sim_episodes"] == 2 and (run.run_dir / "data" / "policy.npz").is_file()
-    assert rows["pixels_vae_n8_m6_w1_refined"]["sim_episodes"] == 2 + 2 + run.sim_episodes["state_policy"] + run.stages["finetune"]["sim_episodes"]
+    assert rows["pixels_vae_n8_m6_w1_refined_two_views"]["sim_episodes"] == 2 + 2 + run.sim_episodes["state_policy"] + run.stages["finetune"]["sim_episodes"]
     assert Policy.load(run.run_dir).model.observation_space.shape == (8,)
+    _latent_policy_distilled_from_the_state_policy(state_run, tmp_path)
+
+
+def _latent_policy_distilled_from_the_state_policy(state_run, tmp_path):
+    """policy.finetune distill (DAgger): the state policy labels the images the student visits."""
+    from binpick.april import AprilRun, load_april_config
+
+    config = tmp_path / "distill.yaml"
+    config.write_text(APRIL.format(kind="ae", n=8, m=6, mode="latent", rl=tmp_path / "rl.yaml")
+                      .replace("finetune_steps: 60", f"state_run: {state_run}, finetune: distill, finetune_steps: 90, "
+                                                     "distill_every: 30, distill_gradient_steps: 40"))
+    run = AprilRun.new(load_april_config(config), tmp_path / "runs")
+    rows = run.run()["rows"]
+    assert list(rows) == ["pixels_ae_n8_m6_w1_distilled"]
+    assert run.stages["finetune"]["labels"] == 90 and run.stages["finetune"]["finetune"] == "distill"
+    history = json.loads((run.run_dir / "distill_history.json").read_text())
+    assert [round_["labels"] for round_ in history] == [30, 60, 90]
+    # a student that starts from random weights (not widened) learns the state policy's actions
+    from binpick.april.finetune import distill_from_state_policy
+    from binpick.april.observations import EncodedObservation
+    from binpick.perception import load_perception, perception_path
+    from binpick.rl.train import load_policy
+
+    perception = load_perception(perception_path(run.run_dir))
+    env = EncodedObservation(run.make_env(), perception.encode, 8, 6)
+    student = SAC("MlpPolicy", env, learning_starts=0, policy_kwargs={"net_arch": [16, 16]}, seed=0, device="cpu")
+    teacher, _ = load_policy(state_run)
+    distill_from_state_policy(student, teacher, env, run)
+    history = json.loads((run.run_dir / "distill_history.json").read_text())
+    assert history[-1]["mse"] < 0.5 * history[0]["mse_before"], "the student's actions move to the state policy's"
 
 
 def test_bad_april_input_is_one_clear_line(tmp_path):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 
 def _drive_gripper_to(env, point: np.ndarray, steps: int) -> list[np.ndarray]:
@@ -71,6 +72,31 @@ def test_obstacle_can_hide_the_goal_from_the_camera(make_env):
     unwrapped.model.body_pos[unwrapped._obstacle_body] = unwrapped.goal + 0.2 * towards_camera
     hidden = red_pixels(unwrapped._get_obs()["image"])
     assert hidden < visible
+
+
+def test_a_second_view_sees_the_goal_the_first_one_loses_behind_the_box(make_env):
+    env = make_env("binpick/FetchReachObstacle-v0", image="rgb", image_size=64, views=["workspace", "side"])
+    assert env.observation_space["image"].shape == (64, 64, 6)
+    env.reset(seed=0)
+    unwrapped = env.unwrapped
+
+    def red_pixels(image):
+        return int(np.sum((image[..., 0] > 150) & (image[..., 1] < 60) & (image[..., 2] < 60)))
+
+    pose = unwrapped.observation_poses[0]
+    azimuth, elevation = np.radians(pose.azimuth), np.radians(pose.elevation)
+    towards_camera = -np.array([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth), np.sin(elevation)])
+    unwrapped.model.body_pos[unwrapped._obstacle_body] = unwrapped.goal + 0.2 * towards_camera
+    image = unwrapped._get_obs()["image"]
+    assert red_pixels(image[..., :3]) == 0, "the box hides the goal from the workspace view"
+    assert red_pixels(image[..., 3:]) > 0, "the side view still sees it"
+
+
+def test_unknown_view_is_one_clear_error(make_env):
+    from binpick.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="views must be one of 'workspace', 'side'"):
+        make_env("binpick/FetchReach-v0", image="rgb", image_size=64, views=["top"])
 
 
 def test_pick_and_place_actions_are_delta_z_and_gripper(make_env):

@@ -62,9 +62,18 @@ class PolicyConfig:
     pretrain: bool = True
     finetune_steps: int = 20_000  # simulator steps with images for latent / state_plus_latent
     learning_starts: int = 1000
+    # how the latent policy learns on φ_enc(I): "sac" (plain SB3 SAC from the widened weights) or
+    # "distill" (DAgger: it acts, the state policy labels each visited image with its action on the
+    # true s̄, the actor regresses onto every label so far), which keeps what the state policy knows
+    finetune: str = "sac"
+    distill_every: int = 500  # distill: simulator steps between regressions (the first round follows the teacher)
+    distill_gradient_steps: int = 300  # distill: actor updates per round, batches of 256
 
     def __post_init__(self) -> None:
         check_choice("policy.mode", self.mode, POLICY_MODES)
+        check_choice("policy.finetune", self.finetune, ["sac", "distill"])
+        check_range("policy.distill_every", self.distill_every, 1, 100_000_000, integer=True)
+        check_range("policy.distill_gradient_steps", self.distill_gradient_steps, 0, 100_000_000, integer=True)
         check_range("policy.finetune_steps", self.finetune_steps, 0, 100_000_000, integer=True)
         check_range("policy.learning_starts", self.learning_starts, 0, 100_000_000, integer=True)
 
@@ -129,6 +138,8 @@ class AprilConfig:
                               f"perception.conditioned == perception.latent (m={m}, n={n}) and omega > 0")
         if self.policy.mode == "state_plus_latent" and m == n:
             raise ConfigError("policy.mode state_plus_latent needs free latent features: perception.conditioned < latent")
+        if self.policy.finetune == "distill" and self.policy.mode == "latent" and not self.policy.pretrain:
+            raise ConfigError("policy.finetune distill learns from the state policy: it needs policy.pretrain: true")
         if self.refine.episodes and self.policy.mode == "latent" and not self.policy.pretrain:
             raise ConfigError("refine rolls the state policy: it needs policy.mode semantic, state_plus_latent, or pretrain: true")
         if self.policy.mode != "latent" or self.policy.pretrain:

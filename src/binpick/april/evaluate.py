@@ -56,12 +56,15 @@ def load_latent_policy(run_dir: Path):
 def row_names(run: AprilRun) -> dict[str, str]:
     """Runtime input -> the results row name (what the row is, e.g. pixels_ae_n6_m6_w1.0)."""
     p = run.config.perception
-    pixels = f"pixels_{p.kind}_n{p.latent}_m{p.conditioned}_w{p.omega:g}" + ("_refined" if run.config.refine.episodes else "")
+    views = run.config.env_kwargs.get("views", ["workspace"])
+    views = [views] if isinstance(views, str) else list(views)
+    cameras = {1: "", 2: "_two_views"}.get(len(views), f"_{len(views)}_views")
+    pixels = f"pixels_{p.kind}_n{p.latent}_m{p.conditioned}_w{p.omega:g}" + ("_refined" if run.config.refine.episodes else "") + cameras
     if run.config.policy.mode == "semantic":
         return {"state": "ground_truth", "pixels": pixels}
     if run.config.policy.mode == "state_plus_latent":
-        return {"pixels": f"ground_truth_plus_latent_{p.kind}_n{p.latent}_m{p.conditioned}"}
-    return {"pixels": pixels}
+        return {"pixels": f"ground_truth_plus_latent_{p.kind}_n{p.latent}_m{p.conditioned}" + cameras}
+    return {"pixels": pixels + ("_distilled" if run.config.policy.finetune == "distill" else "")}
 
 
 def evaluate_rows(run: AprilRun, callback: RunCallback = SILENT) -> dict[str, Any]:

@@ -19,8 +19,10 @@ from stable_baselines3 import SAC
 from stable_baselines3.common.callbacks import BaseCallback
 
 from binpick.april.observations import EncodedObservation
+from binpick.files import atomic_write_json
+from binpick.rl.demonstrations import cloning_loss
 from binpick.rl.persistence import SavedPolicy, save_policy
-from binpick.rl.wrappers import MinActionScale
+from binpick.rl.wrappers import MinActionScale, semantic_part
 from binpick.runs import SILENT, RunCallback, Task
 
 LATENT_POLICY_FILE = "policy_latent.safetensors"  # SAC on φ_enc(I): weights + spaces, no pickle
@@ -111,13 +113,74 @@ def finetune_latent_policy(run: AprilRun, semantic_run: str | None, callback: Ru
                 gamma=settings.gamma, tau=settings.tau, learning_starts=policy.learning_starts, ent_coef=settings.ent_coef,
                 policy_kwargs={"net_arch": list(settings.net_arch)}, seed=config.seed, device="cpu",
                 tensorboard_log=str(run.run_dir / "tb"))
+    semantic = None
     if semantic_run is not None:
         semantic, _ = load_policy(Path(semantic_run))
         widen_from_semantic(semantic, model, env.unwrapped.observation_space["achieved_goal"].shape[0])
-    with callback.task("fine-tune on φ_enc(I)", policy.finetune_steps) as task:
-        report = _Progress(task)
-        if policy.finetune_steps:
-            model.learn(policy.finetune_steps, callback=report, tb_log_name="latent")
+    if policy.finetune == "distill":
+        result = distill_from_state_policy(model, semantic, env, run, callback)
+    else:
+        with callback.task("fine-tune on φ_enc(I)", policy.finetune_steps) as task:
+            report = _Progress(task)
+            if policy.finetune_steps:
+                model.learn(policy.finetune_steps, callback=report, tb_log_name="latent")
+        result = {"sim_episodes": report.episodes, "sim_steps": int(model.num_timesteps)}
     save_policy(model, run.run_dir / LATENT_POLICY_FILE, algorithm="sac", env=config.env, mode=policy.mode)
     env.close()
-    return {"sim_episodes": report.episodes, "sim_steps": int(model.num_timesteps), "widened": semantic_run is not None}
+    return result | {"widened": semantic_run is not None, "finetune": policy.finetune}
+
+
+def distill_from_state_policy(student: SAC, teacher: SavedPolicy | None, env, run: AprilRun,
+                              callback: RunCallback = SILENT) -> dict[str, Any]:
+    """DAgger (Ross et al., 2011) from the state policy: the student acts on φ_enc(I), the teacher
+    labels every visited image with its own action on the true s̄, and the student's actor regresses
+    onto all labels so far. Unlike plain SAC on φ_enc(I), which starts from a critic that knows nothing
+    of images and drags a good widened policy down, this only ever moves towards what the state
+    policy does, on the states the student itself reaches (the arm in front of the goal, say)."""
+    if teacher is None:
+        raise ValueError("distillation needs the state policy (policy.pretrain: true)")
+    policy = run.config.policy
+    encoded = env
+    while not isinstance(encoded, EncodedObservation):
+        encoded = encoded.env
+    rng = np.random.default_rng(run.config.seed + 11)
+    observations: list[np.ndarray] = []
+    labels: list[np.ndarray] = []
+    history: list[dict[str, float]] = []
+    steps = episodes = successes = 0
+    with callback.task("distil the state policy onto φ_enc(I)", policy.finetune_steps) as task:
+        while steps < policy.finetune_steps:
+            observation, _ = env.reset(seed=run.config.collect.seed + 200_000 + episodes)
+            done = success = False
+            while not done and steps < policy.finetune_steps:
+                raw = encoded.last_raw
+                inputs = {"observation": semantic_part(raw, run.gripper), "achieved_goal": raw["achieved_goal"],
+                          "desired_goal": raw["desired_goal"]}
+                label = teacher.predict(inputs, deterministic=True)[0]
+                observations.append(np.asarray(observation, np.float32))
+                labels.append(student.policy.scale_action(np.asarray(label, np.float32)))
+                first_round = steps < policy.distill_every  # DAgger's β = 1 for the first round, then 0
+                action = label if first_round else student.predict(observation, deterministic=True)[0]
+                observation, _, terminated, truncated, info = env.step(action)
+                success = success or bool(info.get("is_success"))
+                done = terminated or truncated
+                steps += 1
+                if steps % policy.distill_every == 0 or steps == policy.finetune_steps:
+                    data, targets = np.stack(observations), np.stack(labels).astype(np.float32)
+                    losses = []
+                    for _ in range(policy.distill_gradient_steps):
+                        batch = rng.integers(0, len(data), size=min(256, len(data)))
+                        loss, _ = cloning_loss(student, data[batch], targets[batch])
+                        student.actor.optimizer.zero_grad()
+                        loss.backward()
+                        student.actor.optimizer.step()
+                        losses.append(float(loss.detach()))
+                    history.append({"sim_steps": steps, "labels": len(data), "mse_before": losses[0] if losses else None,
+                                    "mse": float(np.mean(losses[-50:])) if losses else None,
+                                    "episodes": episodes, "success_so_far": successes / max(1, episodes)})
+                    task.update(steps, status=f"{episodes} episodes · MSE {history[-1]['mse'] or 0:.4f}")
+            episodes += 1
+            successes += int(success)
+    atomic_write_json(run.run_dir / "distill_history.json", history)
+    return {"sim_episodes": episodes, "sim_steps": steps, "labels": len(labels),
+            "final_mse": history[-1]["mse"] if history else None}

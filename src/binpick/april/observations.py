@@ -62,7 +62,10 @@ class EncodedObservation(gym.ObservationWrapper):
         size = state_dim + latent - conditioned if with_state else latent
         self.observation_space = spaces.Box(-np.inf, np.inf, (size,), np.float32)
 
+    last_raw: dict | None = None  # the env's own observation behind the latest one (s̄ for a teacher)
+
     def observation(self, observation):
+        self.last_raw = observation
         latent = self.encode(observation["image"])[0].astype(np.float32)
         if self.with_state:
             return np.concatenate([semantic_state(observation, self.gripper), latent[self.conditioned:]])

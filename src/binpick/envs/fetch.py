@@ -18,7 +18,8 @@ from typing import Any
 import numpy as np
 from gymnasium.utils import EzPickle
 
-from binpick.config import check_bool, check_range, check_vector
+from binpick.config import check_bool, check_choice, check_range, check_vector
+from binpick.errors import ConfigError
 from binpick.envs.goal_env import ImageObservationMixin
 from binpick.sim.camera import CameraPose, check_image_size, import_mujoco
 
@@ -30,6 +31,11 @@ with contextlib.redirect_stderr(io.StringIO()):  # it prints an unrelated Adroit
 # A fixed view of the table from the front-left, just wide enough for the whole goal range (±0.15 m
 # around the gripper's start): at 64 px the 2 cm goal sphere is still 3-4 pixels across (APRiL, ch. 4).
 WORKSPACE_VIEW = CameraPose(lookat=(1.34, 0.75, 0.5), distance=0.75, azimuth=150.0, elevation=-40.0)
+# A second view from the robot's right, nearly level: it sees the goal's height and its distance from
+# the robot, which the workspace view sees only through the sphere's size, and it sees past the arm
+# where the arm hides the goal from the workspace view (``views: [workspace, side]``).
+SIDE_VIEW = CameraPose(lookat=(1.34, 0.75, 0.55), distance=1.0, azimuth=90.0, elevation=-12.0)
+VIEWS = {"workspace": WORKSPACE_VIEW, "side": SIDE_VIEW}
 OBSTACLE_NAME = "obstacle"
 
 
@@ -51,16 +57,22 @@ class _BinpickFetchMixin(ImageObservationMixin):
         render_mode: str | None = None,
         width: int = 480,
         height: int = 480,
+        views: tuple[str, ...] | list[str] = ("workspace",),
     ) -> None:
+        views = tuple(views) if isinstance(views, (list, tuple)) else (views,)
+        if not views or len(set(views)) != len(views):
+            raise ConfigError(f"views: name one or more distinct cameras of {', '.join(VIEWS)}, got {list(views)}")
+        for view in views:
+            check_choice("views", view, list(VIEWS))
         check_image_size("width", width)
         check_image_size("height", height)
         super().__init__(render_mode=render_mode, width=width, height=height)
         EzPickle.__init__(
             self, image=image, image_size=image_size, terminate_on_success=terminate_on_success,
-            render_mode=render_mode, width=width, height=height,
+            render_mode=render_mode, width=width, height=height, views=views,
         )
         self.terminate_on_success = check_bool("terminate_on_success", terminate_on_success)
-        self._init_image_observation(self.model, image, image_size, WORKSPACE_VIEW)
+        self._init_image_observation(self.model, image, image_size, tuple(VIEWS[view] for view in views))
 
     def _prepare_frame(self) -> None:
         self._render_callback()  # moves the target site to the current goal

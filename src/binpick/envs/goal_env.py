@@ -22,10 +22,16 @@ def sparse_goal_reward(achieved_goal: Any, desired_goal: Any, tolerance: float) 
 
 
 class ImageObservationMixin:
-    """Adds an ``image`` entry to a dict observation, rendered by a dedicated off-screen camera,
-    and draws ``render()`` frames (``render_mode="rgb_array"``) with a second, larger camera."""
+    """Adds an ``image`` entry to a dict observation, rendered by dedicated off-screen cameras,
+    and draws ``render()`` frames (``render_mode="rgb_array"``) with another, larger camera.
 
-    _camera: MujocoCamera | None = None
+    With several observation views their frames are stacked along the channel axis, (H, W, C·views):
+    one view cannot tell how far a small object is along its ray, a second one at an angle can.
+    """
+
+    _camera: MujocoCamera | None = None  # the first observation view
+    _extra_cameras: tuple[MujocoCamera, ...] = ()
+    observation_poses: tuple[CameraPose, ...] = ()
     _view: MujocoCamera | None = None
     view_pose: CameraPose  # set by each env class: where a person looks from
 
@@ -40,25 +46,31 @@ class ImageObservationMixin:
     def _prepare_frame(self) -> None:
         """Hook: bring visual-only state (e.g. a goal marker) up to date before drawing."""
 
-    def _init_image_observation(self, model, image: str | None, image_size: int, pose: CameraPose) -> None:
+    def _init_image_observation(self, model, image: str | None, image_size: int,
+                                poses: CameraPose | tuple[CameraPose, ...]) -> None:
         self.image_mode = check_choice("image", image, [None, *IMAGE_MODES])
         self.image_size = check_image_size("image_size", image_size)
-        self._camera = None
+        self.observation_poses = (poses,) if isinstance(poses, CameraPose) else tuple(poses)
+        self._camera, self._extra_cameras = None, ()
         if self.image_mode is None:
             return
         # observations skip multisampling: twice the speed, and a policy does not need smooth edges
-        self._camera = MujocoCamera(model, self.image_size, self.image_mode, pose, multisample=False)
-        channels = 3 if self.image_mode == "rgb" else 1
+        cameras = [MujocoCamera(model, self.image_size, self.image_mode, pose, multisample=False)
+                   for pose in self.observation_poses]
+        self._camera, self._extra_cameras = cameras[0], tuple(cameras[1:])
+        channels = (3 if self.image_mode == "rgb" else 1) * len(cameras)
         image_space = spaces.Box(0, 255, (self.image_size, self.image_size, channels), np.uint8)
         self.observation_space = spaces.Dict({**self.observation_space.spaces, "image": image_space})
 
     def _with_image(self, observation: dict[str, Any], data) -> dict[str, Any]:
         if self._camera is not None:
-            observation["image"] = self._camera.render(data)
+            frames = [camera.render(data) for camera in (self._camera, *self._extra_cameras)]
+            observation["image"] = frames[0] if len(frames) == 1 else np.concatenate(frames, axis=-1)
         return observation
 
     def _close_camera(self) -> None:
-        for camera in (self._camera, self._view):
+        for camera in (self._camera, *self._extra_cameras, self._view):
             if camera is not None:
                 camera.close()
         self._camera = self._view = None
+        self._extra_cameras = ()

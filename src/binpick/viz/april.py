@@ -12,12 +12,13 @@ import numpy as np  # noqa: E402
 
 
 def plot_reconstructions(images: np.ndarray, reconstructions: np.ndarray, path: Path, title: str = "") -> Path:
-    """Inputs on the top row, φ_dec(φ_enc(I)) below."""
+    """Inputs on the top row, φ_dec(φ_enc(I)) below; several views (stacked channels) side by side."""
     count = len(images)
-    figure, axes = plt.subplots(2, count, figsize=(1.6 * count, 3.4), squeeze=False)
+    views = images.shape[-1] // 3 if images.shape[-1] % 3 == 0 else images.shape[-1]
+    figure, axes = plt.subplots(2, count, figsize=(1.6 * count * views ** 0.5, 3.4 / views ** 0.5 + 0.4), squeeze=False)
     for column in range(count):
         for row, batch in enumerate((images, reconstructions)):
-            image = batch[column]
+            image = np.concatenate(np.split(batch[column], views, axis=-1), axis=1)  # (H, W·views, C)
             axes[row, column].imshow(image[..., 0] if image.shape[-1] == 1 else image, cmap="gray", vmin=0, vmax=255)
             axes[row, column].axis("off")
     figure.suptitle(title, fontsize=9)

@@ -1,0 +1,120 @@
+"""Why does an APRiL policy deployed on pixels fail where the same policy on s̄ succeeds? (Table 4.3)
+
+    python benchmarks/april_diagnosis.py RUN_DIR [--episodes 100]
+
+Rolls the run's pixel deployment on the evaluation seeds and records, at every step, φ_enc(I)
+against the true s̄: the goal's error split into the part along the camera ray (depth, which one
+view sees only through the sphere's few-pixel size) and the part across it, the gripper's error,
+and how many pixels of the goal sphere the camera sees (rendered once with the sphere and once
+without it: 0 means the arm hides it). Failed and successful episodes are then compared, so the
+cause is measured rather than guessed. Writes ``results/april_diagnosis.json`` (one key per run).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+
+import numpy as np
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+sys.path.insert(0, os.path.dirname(__file__))
+
+import _common  # noqa: E402
+
+from binpick.april import AprilRun  # noqa: E402
+from binpick.april.evaluate import deployment_env  # noqa: E402
+
+
+def view_directions(poses) -> list[np.ndarray]:
+    """Unit vectors from each camera towards its look-at point (MuJoCo free-camera convention)."""
+    directions = []
+    for pose in poses:
+        azimuth, elevation = np.radians(pose.azimuth), np.radians(pose.elevation)
+        directions.append(np.array([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth),
+                                    np.sin(elevation)]))
+    return directions
+
+
+def visible_goal_pixels(fetch) -> int:
+    """Pixels of the observation image(s) that change when the goal sphere is made invisible."""
+    site = fetch.model.site("target0").id
+    alpha = float(fetch.model.site_rgba[site, 3])
+    fetch._prepare_frame()
+    shown = fetch._with_image({}, fetch.data)["image"].astype(int)
+    fetch.model.site_rgba[site, 3] = 0.0
+    hidden = fetch._with_image({}, fetch.data)["image"].astype(int)
+    fetch.model.site_rgba[site, 3] = alpha
+    return int(np.any(shown != hidden, axis=-1).sum())
+
+
+def diagnose(run: AprilRun, episodes: int) -> dict:
+    env, policy, _ = deployment_env(run, "pixels")
+    fetch = env.unwrapped
+    directions = view_directions(fetch.observation_poses)
+    seed = run.config.eval.seed
+    per_episode = []
+    for episode in range(episodes):
+        observation, _ = env.reset(seed=seed + episode)
+        steps, done, success = [], False, False
+        while not done:
+            raw = fetch._get_obs()
+            truth_goal, truth_grip = raw["desired_goal"], raw["achieved_goal"]
+            goal_error = observation["desired_goal"] - truth_goal
+            along = [abs(float(goal_error @ d)) for d in directions]
+            steps.append({"goal_error": float(np.linalg.norm(goal_error)),
+                          "goal_error_along_ray": min(along),
+                          "goal_error_across_ray": float(np.linalg.norm(goal_error - (goal_error @ directions[0]) * directions[0])),
+                          "gripper_error": float(np.linalg.norm(observation["achieved_goal"] - truth_grip)),
+                          "goal_pixels": visible_goal_pixels(fetch)})
+            action = policy.predict(observation, deterministic=True)[0]
+            observation, _, terminated, truncated, info = env.step(action)
+            success = success or bool(info.get("is_success"))
+            done = terminated or truncated
+        first = steps[0]
+        per_episode.append({"success": success, "length": len(steps),
+                            "start_goal_error": first["goal_error"], "start_goal_pixels": first["goal_pixels"],
+                            "start_goal_error_along_ray": first["goal_error_along_ray"],
+                            "mean_goal_error": float(np.mean([s["goal_error"] for s in steps])),
+                            "mean_gripper_error": float(np.mean([s["gripper_error"] for s in steps])),
+                            "hidden_fraction": float(np.mean([s["goal_pixels"] == 0 for s in steps])),
+                            "last_goal_error": steps[-1]["goal_error"], "last_gripper_error": steps[-1]["gripper_error"]})
+        print(f"episode {episode}: {'ok ' if success else 'FAIL'} length {len(steps)} "
+              f"goal error start {first['goal_error'] * 100:.1f} cm (pixels {first['goal_pixels']}), "
+              f"mean {per_episode[-1]['mean_goal_error'] * 100:.1f} cm, hidden {per_episode[-1]['hidden_fraction']:.0%}",
+              flush=True)
+    env.close()
+
+    def summary(rows: list[dict]) -> dict:
+        if not rows:
+            return {"episodes": 0}
+        keys = [k for k in rows[0] if k not in ("success",)]
+        return {"episodes": len(rows), **{k: round(float(np.median([r[k] for r in rows])), 4) for k in keys}}
+
+    failed = [r for r in per_episode if not r["success"]]
+    succeeded = [r for r in per_episode if r["success"]]
+    return {"run_dir": str(run.run_dir), "episodes": episodes, "success": len(succeeded) / episodes,
+            "median_failed": summary(failed), "median_succeeded": summary(succeeded),
+            "failed_with_goal_hidden_at_start": sum(r["start_goal_pixels"] == 0 for r in failed),
+            "per_episode": per_episode}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("run_dir")
+    parser.add_argument("--episodes", type=int, default=100)
+    args = parser.parse_args()
+    run = AprilRun.resume(args.run_dir)
+    report = diagnose(run, args.episodes)
+    path = _common.RESULTS / "april_diagnosis.json"
+    results = json.loads(path.read_text()) if path.exists() else {}
+    results = {k: v for k, v in results.items() if k not in ("benchmark", "machine")}
+    results[run.config.name] = report
+    _common.write_result("april_diagnosis", results)
+    print(json.dumps({k: v for k, v in report.items() if k != "per_episode"}, indent=1))
+
+
+if __name__ == "__main__":
+    main()
