@@ -3,8 +3,8 @@
     python benchmarks/april_diagnosis.py RUN_DIR [--episodes 100]
 
 Rolls the run's pixel deployment on the evaluation seeds and records, at every step, φ_enc(I)
-against the true s̄: the goal's error split into the part along the camera ray (depth, which one
-view sees only through the sphere's few-pixel size) and the part across it, the gripper's error,
+against the true s̄: the goal's error split into the part along the workspace camera's ray (depth,
+which that view sees only through the sphere's few-pixel size) and the part across it, the gripper's error,
 and how many pixels of the goal sphere the camera sees (rendered once with the sphere and once
 without it: 0 means the arm hides it). Failed and successful episodes are then compared, so the
 cause is measured rather than guessed. Writes ``results/april_diagnosis.json`` (one key per run).
@@ -63,10 +63,10 @@ def diagnose(run: AprilRun, episodes: int) -> dict:
             raw = fetch._get_obs()
             truth_goal, truth_grip = raw["desired_goal"], raw["achieved_goal"]
             goal_error = observation["desired_goal"] - truth_goal
-            along = [abs(float(goal_error @ d)) for d in directions]
+            along = float(goal_error @ directions[0])  # the workspace view's ray, in every run
             steps.append({"goal_error": float(np.linalg.norm(goal_error)),
-                          "goal_error_along_ray": min(along),
-                          "goal_error_across_ray": float(np.linalg.norm(goal_error - (goal_error @ directions[0]) * directions[0])),
+                          "goal_error_along_ray": abs(along),
+                          "goal_error_across_ray": float(np.linalg.norm(goal_error - along * directions[0])),
                           "gripper_error": float(np.linalg.norm(observation["achieved_goal"] - truth_grip)),
                           "goal_pixels": visible_goal_pixels(fetch)})
             action = policy.predict(observation, deterministic=True)[0]
@@ -113,7 +113,34 @@ def main() -> None:
     results = {k: v for k, v in results.items() if k not in ("benchmark", "machine")}
     results[run.config.name] = report
     _common.write_result("april_diagnosis", results)
+    write_report(results)
     print(json.dumps({k: v for k, v in report.items() if k != "per_episode"}, indent=1))
+
+
+def write_report(results: dict) -> None:
+    """docs/RESULTS.md: failed against successful episodes, medians, per run."""
+    lines = ["## Why pixels fail where the state succeeds (APRiL diagnosis)", "",
+             "`python benchmarks/april_diagnosis.py RUN_DIR` → `results/april_diagnosis.json`. The run's pixel deployment on "
+             "its evaluation seeds; per episode the goal's error in φ_enc(I) at the first step and on average, split along "
+             "and across the workspace camera's ray, the gripper's error, and the share of steps at which no pixel of the goal "
+             "sphere is visible (rendered with and without it). Medians over failed / successful episodes.", "",
+             "| run | success | episodes failed | goal error at start, cm | along ray / across, cm | goal error mean, cm | "
+             "gripper error mean, cm | steps with goal hidden | failed with goal hidden at start |",
+             "|---|---:|---:|---|---|---|---|---|---:|"]
+    for name, report in results.items():
+        if not isinstance(report, dict) or "median_failed" not in report:
+            continue
+        failed, ok = report["median_failed"], report["median_succeeded"]
+
+        def pair(key: str, scale: float = 100.0, fmt: str = "{:.1f}") -> str:
+            values = [fmt.format(row[key] * scale) if key in row else "–" for row in (failed, ok)]
+            return " / ".join(values) + " (failed / ok)"
+
+        along = f"{failed.get('start_goal_error_along_ray', 0) * 100:.1f} / {ok.get('start_goal_error_along_ray', 0) * 100:.1f}"
+        lines.append(f"| {name} | {report['success']:.0%} | {failed['episodes']} | {pair('start_goal_error')} | {along} (along, at start) | "
+                     f"{pair('mean_goal_error')} | {pair('mean_gripper_error')} | {pair('hidden_fraction', 100, '{:.0f}%')} | "
+                     f"{report['failed_with_goal_hidden_at_start']} |")
+    _common.write_section("april_diagnosis", "\n".join(lines))
 
 
 if __name__ == "__main__":

@@ -78,16 +78,22 @@ def test_april_pipeline_runs_resumes_and_deploys_from_pixels(tmp_path):
 
     (tmp_path / "rl.yaml").write_text(RL)
     config = tmp_path / "april.yaml"
-    config.write_text(APRIL.format(kind="ae", n=6, m=6, mode="semantic", rl=tmp_path / "rl.yaml"))
+    config.write_text(APRIL.format(kind="ae", n=6, m=6, mode="semantic", rl=tmp_path / "rl.yaml")
+                      .replace("eval:", "refine: {episodes: 2, epochs: 1, act_on: pixels, rounds: 2}\neval:"))
     result = subprocess.run([*CLI, "april", "run", str(config), "--runs", str(tmp_path / "runs")],
                             capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stderr
     (run,) = (tmp_path / "runs" / "tiny_april").iterdir()
     rows = json.loads((run / "results.json").read_text())
-    assert set(rows) == {"ground_truth", "pixels_ae_n6_m6_w1"}
+    pixels = "pixels_ae_n6_m6_w1_refined_on_pixels"
+    assert set(rows) == {"ground_truth", pixels}
     assert all(0 < row["avg_actions"] <= 50 and row["sim_episodes"] >= 2 for row in rows.values())
-    assert rows["pixels_ae_n6_m6_w1"]["sim_episodes"] == rows["ground_truth"]["sim_episodes"] + 2
-    for picture in ("reconstructions.png", "heatmap_ground_truth.png", "heatmap_pixels_ae_n6_m6_w1.png"):
+    # perception refined twice on episodes of the policy acting on φ_enc(I): 2 random + 2 x 2 refine episodes
+    assert rows[pixels]["sim_episodes"] == rows["ground_truth"]["sim_episodes"] + 2 + 4
+    refine = json.loads((run / "stages.json").read_text())["refine"]
+    assert refine["act_on"] == "pixels" and len(refine["success_while_collecting"]) == 2
+    assert len(read_npz(run / "data" / "policy.npz", "images")["images"]) == refine["images"] > 4
+    for picture in ("reconstructions.png", "heatmap_ground_truth.png", f"heatmap_{pixels}.png"):
         assert (run / picture).stat().st_size > 1000
     # a crash during evaluation: the finished stages are not redone
     stages = json.loads((run / "stages.json").read_text())
@@ -175,6 +181,10 @@ def test_bad_april_input_is_one_clear_line(tmp_path):
     bad.write_text(APRIL.format(kind="ae", n=8, m=6, mode="semantic", rl=tmp_path / "rl.yaml"))
     result = subprocess.run([*CLI, "april", "run", str(bad)], capture_output=True, text=True, timeout=120)
     assert result.returncode == 2 and "policy.mode semantic" in result.stderr
+    bad.write_text(APRIL.format(kind="ae", n=8, m=6, mode="latent", rl=tmp_path / "rl.yaml")
+                   .replace("eval:", "refine: {episodes: 2, act_on: actions}\neval:"))
+    result = subprocess.run([*CLI, "april", "run", str(bad)], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2 and "refine.act_on must be one of 'state', 'pixels', got 'actions'" in result.stderr
     result = subprocess.run([*CLI, "april", "eval", str(tmp_path)], capture_output=True, text=True, timeout=120)
     assert result.returncode == 2 and "not an APRiL run folder" in result.stderr
 

@@ -84,12 +84,19 @@ class RefineConfig:
     random policy and any episodes collected using the simulator are used to train the perception
     network"): random walks rarely show the poses a good policy visits."""
 
-    episodes: int = 0  # 0: no refinement
+    episodes: int = 0  # 0: no refinement (per round)
     epochs: int = 10
     action_noise: float = 0.2  # Gaussian noise on the policy's actions, for varied views
+    # what the policy acts on while the images are recorded: the true s̄ ("state"), or, for
+    # policy.mode semantic, φ_enc(I) from the current perception ("pixels"), which visits the states
+    # where perception is wrong and the deployed policy drifts (DAgger for the perception network)
+    act_on: str = "state"
+    rounds: int = 1  # pixels: collect with the latest perception, retrain, repeat
 
     def __post_init__(self) -> None:
         check_range("refine.episodes", self.episodes, 0, 1_000_000, integer=True)
+        check_choice("refine.act_on", self.act_on, ["state", "pixels"])
+        check_range("refine.rounds", self.rounds, 1, 1000, integer=True)
         check_range("refine.epochs", self.epochs, 1, 10_000, integer=True)
         check_range("refine.action_noise", self.action_noise, 0.0, 2.0)
 
@@ -140,6 +147,8 @@ class AprilConfig:
             raise ConfigError("policy.mode state_plus_latent needs free latent features: perception.conditioned < latent")
         if self.policy.finetune == "distill" and self.policy.mode == "latent" and not self.policy.pretrain:
             raise ConfigError("policy.finetune distill learns from the state policy: it needs policy.pretrain: true")
+        if self.refine.episodes and self.refine.act_on == "pixels" and self.policy.mode != "semantic":
+            raise ConfigError("refine.act_on pixels deploys the state policy on φ_enc(I): it needs policy.mode semantic")
         if self.refine.episodes and self.policy.mode == "latent" and not self.policy.pretrain:
             raise ConfigError("refine rolls the state policy: it needs policy.mode semantic, state_plus_latent, or pretrain: true")
         if self.policy.mode != "latent" or self.policy.pretrain:

@@ -58,8 +58,10 @@ def row_names(run: AprilRun) -> dict[str, str]:
     p = run.config.perception
     views = run.config.env_kwargs.get("views", ["workspace"])
     views = [views] if isinstance(views, str) else list(views)
+    refine = run.config.refine
+    refined = ("_refined_on_pixels" if refine.act_on == "pixels" else "_refined") if refine.episodes else ""
     cameras = {1: "", 2: "_two_views"}.get(len(views), f"_{len(views)}_views")
-    pixels = f"pixels_{p.kind}_n{p.latent}_m{p.conditioned}_w{p.omega:g}" + ("_refined" if run.config.refine.episodes else "") + cameras
+    pixels = f"pixels_{p.kind}_n{p.latent}_m{p.conditioned}_w{p.omega:g}" + refined + cameras
     if run.config.policy.mode == "semantic":
         return {"state": "ground_truth", "pixels": pixels}
     if run.config.policy.mode == "state_plus_latent":

@@ -23,7 +23,7 @@ import numpy as np
 import yaml
 
 from binpick.april.config import AprilConfig
-from binpick.april.observations import semantic_state
+from binpick.april.observations import semantic_observation, semantic_state
 from binpick.config import load_run_config, to_dict
 from binpick.errors import ConfigError, InputFileError
 from binpick.files import atomic_write, atomic_write_json, read_json_object, read_npz
@@ -191,8 +191,9 @@ class AprilRun:
         return finetune_latent_policy(self, semantic_run, callback)
 
     def stage_refine(self, callback: RunCallback) -> dict[str, Any]:
-        """Episodes of the state policy (noisy actions, true state in, images recorded), then more
-        perception epochs on random + policy images. Runs before any latent fine-tuning reads φ_enc."""
+        """Episodes of the state policy (noisy actions; acting on the true s̄, or with ``act_on: pixels``
+        on φ_enc(I) of the latest perception), images and true s̄ recorded, then more perception epochs
+        on random + policy images; ``rounds`` times. Runs before any latent fine-tuning reads φ_enc."""
         from binpick.april.finetune import with_action_scale
         from binpick.perception import PERCEPTION_FILE, load_perception, perception_path, save_perception, train_perception
         from binpick.rl.config import load_rl_config
@@ -204,38 +205,50 @@ class AprilRun:
             return {"sim_episodes": 0}
         policy, _ = load_policy(Path(self.stages["policy"]["semantic_run"]))
         env = with_action_scale(self.make_env(), load_rl_config(self.config.policy.rl_config).min_action_scale)
+        goal_dim = env.observation_space["desired_goal"].shape[0]
         rng = np.random.default_rng(self.config.seed + 7)
-        images, states = [], []
-        with callback.task("refine: policy episodes", refine.episodes) as task:
-            for episode in range(refine.episodes):
-                raw, _ = env.reset(seed=self.config.collect.seed + 100_000 + episode)
-                done = False
-                while not done:
+        random = read_npz(self.run_dir / "data" / "random.npz", "APRiL image data")
+        model = load_perception(perception_path(self.run_dir))
+        images, states, rounds, successes = [], [], [], 0
+        for round_ in range(refine.rounds):
+            successes = 0
+            with callback.task(f"refine round {round_ + 1}/{refine.rounds}: policy episodes on {refine.act_on}",
+                               refine.episodes) as task:
+                for episode in range(refine.episodes):
+                    raw, _ = env.reset(seed=self.config.collect.seed + 100_000 + round_ * refine.episodes + episode)
+                    done = success = False
+                    while not done:
+                        images.append(raw["image"])
+                        states.append(semantic_state(raw, self.gripper))
+                        if refine.act_on == "pixels":
+                            inputs = semantic_observation(model.encode(raw["image"])[0], goal_dim)
+                        else:
+                            inputs = {"observation": semantic_part(raw, self.gripper), "achieved_goal": raw["achieved_goal"],
+                                      "desired_goal": raw["desired_goal"]}
+                        action = policy.predict(inputs, deterministic=True)[0]
+                        action = np.clip(action + rng.normal(0, refine.action_noise, action.shape), -1, 1)
+                        raw, _, terminated, truncated, info = env.step(action)
+                        success = success or bool(info.get("is_success"))
+                        done = terminated or truncated
                     images.append(raw["image"])
                     states.append(semantic_state(raw, self.gripper))
-                    inputs = {"observation": semantic_part(raw, self.gripper), "achieved_goal": raw["achieved_goal"],
-                              "desired_goal": raw["desired_goal"]}
-                    action = policy.predict(inputs, deterministic=True)[0]
-                    action = np.clip(action + rng.normal(0, refine.action_noise, action.shape), -1, 1)
-                    raw, _, terminated, truncated, _ = env.step(action)
-                    done = terminated or truncated
-                images.append(raw["image"])
-                states.append(semantic_state(raw, self.gripper))
-                task.update(advance=1, status=f"{len(images):,} images")
+                    successes += int(success)
+                    task.update(advance=1, status=f"{len(images):,} images · {successes}/{episode + 1} reached")
+            atomic_write(self.run_dir / "data" / "policy.npz",
+                         lambda handle: np.savez(handle, images=np.stack(images), states=np.stack(states)))
+            training = self.config.perception_training
+            model, history = train_perception(self.config.perception, np.concatenate([random["images"], np.stack(images)]),
+                                              np.concatenate([random["states"], np.stack(states)]), epochs=refine.epochs,
+                                              batch_size=training.batch_size, learning_rate=training.learning_rate,
+                                              seed=self.config.seed + 1 + round_, callback=callback, initial=model)
+            rounds.append({"round": round_ + 1, "success_while_collecting": successes / refine.episodes,
+                           "images": len(images), "state_mae": history["epochs"][-1]["state_mae"], "history": history})
         env.close()
-        atomic_write(self.run_dir / "data" / "policy.npz",
-                     lambda handle: np.savez(handle, images=np.stack(images), states=np.stack(states)))
-        random = read_npz(self.run_dir / "data" / "random.npz", "APRiL image data")
-        all_images = np.concatenate([random["images"], np.stack(images)])
-        all_states = np.concatenate([random["states"], np.stack(states)])
-        training = self.config.perception_training
-        model, history = train_perception(self.config.perception, all_images, all_states, epochs=refine.epochs,
-                                          batch_size=training.batch_size, learning_rate=training.learning_rate,
-                                          seed=self.config.seed + 1, callback=callback,
-                                          initial=load_perception(perception_path(self.run_dir)))
         save_perception(model, self.run_dir / PERCEPTION_FILE)
-        atomic_write_json(self.run_dir / "refine_history.json", history)
-        return {"sim_episodes": refine.episodes, "images": len(images), "state_mae": history["epochs"][-1]["state_mae"]}
+        atomic_write_json(self.run_dir / "refine_history.json", rounds[-1]["history"] | {"rounds": rounds})
+        return {"sim_episodes": refine.episodes * refine.rounds, "images": len(images), "act_on": refine.act_on,
+                "success_while_collecting": [r["success_while_collecting"] for r in rounds],
+                "state_mae": rounds[-1]["state_mae"]}
 
     def stage_evaluate(self, callback: RunCallback) -> dict[str, Any]:
         from binpick.april.evaluate import evaluate_rows
