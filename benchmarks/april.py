@@ -27,7 +27,8 @@ from binpick.terminal import RichCallback  # noqa: E402
 
 CONFIGS = {
     "FetchReach": ["april_fetchreach_w1.0", "april_fetchreach_w1.0_refined", "april_fetchreach_w0.5",
-                   "april_fetchreach_w0.0", "april_fetchreach_w1.0_two_views"],
+                   "april_fetchreach_w0.0", "april_fetchreach_w1.0_two_views", "april_fetchreach_w1.0_refined_pixels",
+                   "april_fetchreach_w1.0_goals", "april_fetchreach_w1.0_goals_two_views"],
     "Reacher": ["reacher_random", "april_reacher_n4_m4", "april_reacher_n4_m4_refined", "april_reacher_n8_unconditioned"],
     "FetchPickAndPlace": ["pickandplace_heuristic", "april_pickandplace_ae_n9_m9", "april_pickandplace_ae_n16_m9",
                           "april_pickandplace_vae_n16_m9", "april_pickandplace_gt_plus_latent_ae",

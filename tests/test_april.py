@@ -344,3 +344,22 @@ def test_shifted_domain_changes_the_images_but_not_the_physics():
     assert np.allclose(a["observation"], b["observation"]) and np.allclose(a["desired_goal"], b["desired_goal"])
     difference = np.abs(a["image"].astype(float) - b["image"].astype(float)).mean()
     assert difference > 10  # another camera pose, colours, light and noise: a clearly different picture
+
+
+def test_collect_can_redraw_the_goal_so_perception_sees_many(tmp_path):
+    from binpick.april import AprilRun, load_april_config
+
+    (tmp_path / "rl.yaml").write_text(RL)
+    config = tmp_path / "april.yaml"
+    config.write_text(APRIL.format(kind="ae", n=6, m=6, mode="semantic", rl=tmp_path / "rl.yaml")
+                      .replace("episodes: 2}", "episodes: 2, goal_every: 1}", 1).replace("image: grey", "image: rgb"))
+    run = AprilRun.new(load_april_config(config), tmp_path / "runs")
+    run.stage_collect(SILENT)
+    data = np.load(run.run_dir / "data" / "random.npz")
+    goals = np.unique(data["states"][:, 3:].round(5), axis=0)
+    assert len(goals) > 50, "a new goal at every step, not one per episode"
+    # the image shows the goal the state names: the red sphere moves with it
+    red = (data["images"][..., 0] > 150) & (data["images"][..., 1] < 60)
+    assert red.any(axis=(1, 2)).mean() > 0.5 and len({tuple(np.argwhere(r).mean(0).round()) for r in red[:20] if r.any()}) > 5
+    with pytest.raises(ConfigError, match="collect.goal_every"):  # pick and place keeps its own goal
+        load_april_config(config, {"env": "FetchPickAndPlace"})

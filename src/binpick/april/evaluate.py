@@ -61,7 +61,8 @@ def row_names(run: AprilRun) -> dict[str, str]:
     refine = run.config.refine
     refined = ("_refined_on_pixels" if refine.act_on == "pixels" else "_refined") if refine.episodes else ""
     cameras = {1: "", 2: "_two_views"}.get(len(views), f"_{len(views)}_views")
-    pixels = f"pixels_{p.kind}_n{p.latent}_m{p.conditioned}_w{p.omega:g}" + refined + cameras
+    goals = "_goals" if run.config.collect.goal_every else ""  # perception saw a new goal every few steps
+    pixels = f"pixels_{p.kind}_n{p.latent}_m{p.conditioned}_w{p.omega:g}" + goals + refined + cameras
     if run.config.policy.mode == "semantic":
         return {"state": "ground_truth", "pixels": pixels}
     if run.config.policy.mode == "state_plus_latent":

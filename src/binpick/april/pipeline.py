@@ -108,6 +108,8 @@ class AprilRun:
                 states.append(semantic_state(observation, self.gripper))
                 done = False
                 while not done:
+                    if collect.goal_every and steps % collect.goal_every == 0:  # a new goal, drawn only
+                        env.unwrapped.goal = env.unwrapped._sample_goal()
                     observation, _, terminated, truncated, _ = env.step(act())
                     images.append(observation["image"])
                     states.append(semantic_state(observation, self.gripper))
