@@ -361,5 +361,5 @@ def test_collect_can_redraw_the_goal_so_perception_sees_many(tmp_path):
     # the image shows the goal the state names: the red sphere moves with it
     red = (data["images"][..., 0] > 150) & (data["images"][..., 1] < 60)
     assert red.any(axis=(1, 2)).mean() > 0.5 and len({tuple(np.argwhere(r).mean(0).round()) for r in red[:20] if r.any()}) > 5
-    with pytest.raises(ConfigError, match="collect.goal_every"):  # pick and place keeps its own goal
-        load_april_config(config, {"env": "FetchPickAndPlace"})
+    with pytest.raises(ConfigError, match="collect.goal_every"):  # Reacher's target is a body, not drawn
+        load_april_config(config, {"env": "Reacher"})

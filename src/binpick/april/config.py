@@ -25,7 +25,7 @@ class CollectConfig:
     seed: int = 0
     policy: str = "random"  # random | heuristic (pick and place only)
     noise: float = 0.2  # heuristic: Gaussian noise on its moves, so the images cover more states
-    # Fetch reach envs: draw a new goal every this many steps (0: one goal per episode, the env's own).
+    # Fetch envs: draw a new goal every this many steps (0: one goal per episode, the env's own).
     # The goal is only drawn, never touched, so any goal suits any arm pose; 300 episodes show
     # perception 300 goals but 13,000 arm poses, and its goal estimate is what fails on new goals.
     goal_every: int = 0
@@ -139,8 +139,8 @@ class AprilConfig:
                               f"choose one of {', '.join(s.env_id for s in ENVS.values() if s.goal_conditioned)}")
         object.__setattr__(self, "env", spec.env_id)  # frozen: normalised once
         check_choice("image", self.image, ["rgb", "grey"])
-        if self.collect.goal_every and (spec.moves_object or "Fetch" not in spec.env_id):
-            raise ConfigError(f"collect.goal_every redraws the goal of the Fetch reach envs; {self.env} keeps its own")
+        if self.collect.goal_every and "Fetch" not in spec.env_id:
+            raise ConfigError(f"collect.goal_every redraws the goal of the Fetch envs; {self.env} keeps its own")
         if self.collect.policy == "heuristic" and not spec.moves_object:
             raise ConfigError(f"collect.policy heuristic is the pick-and-place script; {self.env} collects with random")
         check_range("image_size", self.image_size, 64, 512, integer=True)
