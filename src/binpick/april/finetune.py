@@ -22,7 +22,7 @@ from binpick.april.observations import EncodedObservation
 from binpick.files import atomic_write_json
 from binpick.rl.demonstrations import cloning_loss
 from binpick.rl.persistence import SavedPolicy, save_policy
-from binpick.rl.wrappers import MinActionScale, semantic_part
+from binpick.rl.wrappers import MinActionScale, semantic_inputs
 from binpick.runs import SILENT, RunCallback, Task
 
 LATENT_POLICY_FILE = "policy_latent.safetensors"  # SAC on φ_enc(I): weights + spaces, no pickle
@@ -153,10 +153,7 @@ def distill_from_state_policy(student: SAC, teacher: SavedPolicy | None, env, ru
             observation, _ = env.reset(seed=run.config.collect.seed + 200_000 + episodes)
             done = success = False
             while not done and steps < policy.finetune_steps:
-                raw = encoded.last_raw
-                inputs = {"observation": semantic_part(raw, run.gripper), "achieved_goal": raw["achieved_goal"],
-                          "desired_goal": raw["desired_goal"]}
-                label = teacher.predict(inputs, deterministic=True)[0]
+                label = teacher.predict(semantic_inputs(encoded.last_raw, run.gripper), deterministic=True)[0]
                 observations.append(np.asarray(observation, np.float32))
                 labels.append(student.policy.scale_action(np.asarray(label, np.float32)))
                 first_round = steps < policy.distill_every  # DAgger's β = 1 for the first round, then 0

@@ -200,7 +200,7 @@ class AprilRun:
         from binpick.perception import PERCEPTION_FILE, load_perception, perception_path, save_perception, train_perception
         from binpick.rl.config import load_rl_config
         from binpick.rl.train import load_policy
-        from binpick.rl.wrappers import semantic_part
+        from binpick.rl.wrappers import semantic_inputs
 
         refine = self.config.refine
         if not refine.episodes:
@@ -211,7 +211,7 @@ class AprilRun:
         rng = np.random.default_rng(self.config.seed + 7)
         random = read_npz(self.run_dir / "data" / "random.npz", "APRiL image data")
         model = load_perception(perception_path(self.run_dir))
-        images, states, rounds, successes = [], [], [], 0
+        images, states, rounds = [], [], []
         for round_ in range(refine.rounds):
             successes = 0
             with callback.task(f"refine round {round_ + 1}/{refine.rounds}: policy episodes on {refine.act_on}",
@@ -225,8 +225,7 @@ class AprilRun:
                         if refine.act_on == "pixels":
                             inputs = semantic_observation(model.encode(raw["image"])[0], goal_dim)
                         else:
-                            inputs = {"observation": semantic_part(raw, self.gripper), "achieved_goal": raw["achieved_goal"],
-                                      "desired_goal": raw["desired_goal"]}
+                            inputs = semantic_inputs(raw, self.gripper)
                         action = policy.predict(inputs, deterministic=True)[0]
                         action = np.clip(action + rng.normal(0, refine.action_noise, action.shape), -1, 1)
                         raw, _, terminated, truncated, info = env.step(action)

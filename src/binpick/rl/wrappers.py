@@ -28,11 +28,16 @@ class SemanticState(gym.ObservationWrapper):
             "achieved_goal": goal_space, "desired_goal": env.observation_space["desired_goal"]})
 
     def observation(self, observation):
-        return {"observation": semantic_part(observation, self.gripper), "achieved_goal": observation["achieved_goal"],
-                "desired_goal": observation["desired_goal"]}
+        return semantic_inputs(observation, self.gripper)
 
     def compute_reward(self, achieved_goal, desired_goal, info):
         return self.env.unwrapped.compute_reward(achieved_goal, desired_goal, info)
+
+
+def semantic_inputs(observation: dict, gripper: bool = False) -> dict:
+    """An env's raw observation as a :class:`SemanticState`-trained policy reads it (s̄ as a dict)."""
+    return {"observation": semantic_part(observation, gripper), "achieved_goal": observation["achieved_goal"],
+            "desired_goal": observation["desired_goal"]}
 
 
 def semantic_part(observation: dict, gripper: bool = False) -> np.ndarray:
