@@ -1,4 +1,5 @@
-"""Shared fixtures: every test runs headless (MUJOCO_GL=egl unless the caller chose otherwise)."""
+"""Shared fixtures: every test runs headless (MUJOCO_GL=egl unless the caller chose otherwise); under
+pytest-xdist (``make test`` runs one worker per core) every worker computes on one thread."""
 
 from __future__ import annotations
 
@@ -6,6 +7,8 @@ import os
 from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
+if os.environ.get("PYTEST_XDIST_WORKER"):  # one test process per core (make test): one thread each, or
+    os.environ.setdefault("OMP_NUM_THREADS", "1")  # torch's threads of two processes fight over 2 cores
 
 import pytest  # noqa: E402
 

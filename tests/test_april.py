@@ -4,6 +4,7 @@ tiny config, resuming it, the deployed Policy object and bad input."""
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 
@@ -187,6 +188,44 @@ def test_bad_april_input_is_one_clear_line(tmp_path):
     assert result.returncode == 2 and "refine.act_on must be one of 'state', 'pixels', got 'actions'" in result.stderr
     result = subprocess.run([*CLI, "april", "eval", str(tmp_path)], capture_output=True, text=True, timeout=120)
     assert result.returncode == 2 and "not an APRiL run folder" in result.stderr
+
+
+def test_state_policy_config_is_checked_before_any_stage(tmp_path):
+    """A state policy for another world, or one that reads privileged state where pixels must stand in
+    for it, is one line before collection starts (no stage runs)."""
+    from binpick.april import AprilRun, load_april_config
+
+    obstacle_rl = RL.replace("env: FetchReach", "env: binpick/FetchReachObstacle-v0")
+    (tmp_path / "rl.yaml").write_text(obstacle_rl)
+    (tmp_path / "teacher.yaml").write_text(obstacle_rl.replace("gp: {enabled: true,", "privileged_state: [obstacle_position]\n"
+                                                                "gp: {enabled: false,"))
+    base = APRIL.replace("env: FetchReach", "env: binpick/FetchReachObstacle-v0")
+    cases = [
+        (base.format(kind="ae", n=6, m=6, mode="semantic", rl=tmp_path / "rl.yaml")
+         .replace("image: grey", "image: grey\nenv_kwargs: {obstacle_on_path: 1.0, views: [workspace]}"),
+         "the state policy trains on env_kwargs {}, this APRiL run's world is {'obstacle_on_path': 1.0}"),
+        (base.format(kind="ae", n=6, m=6, mode="semantic", rl=tmp_path / "teacher.yaml"),
+         "reads privileged_state ['obstacle_position'], which pixels never give"),
+        (base.format(kind="ae", n=8, m=6, mode="latent", rl=tmp_path / "teacher.yaml")
+         .replace("finetune_steps: 60", "pretrain: true, finetune_steps: 60"), "it can only teach"),
+    ]
+    for number, (text, message) in enumerate(cases):
+        config = tmp_path / f"april{number}.yaml"
+        config.write_text(text)
+        run = AprilRun.new(load_april_config(config), tmp_path / "runs")
+        with pytest.raises(ConfigError, match=re.escape(message)):
+            run.run()
+        assert run.stages == {}, "nothing ran"
+    # where it belongs, the teacher that knows where the box is labels the student's images
+    config = tmp_path / "distill.yaml"
+    config.write_text(base.format(kind="ae", n=8, m=6, mode="latent", rl=tmp_path / "teacher.yaml")
+                      .replace("finetune_steps: 60", "pretrain: true, finetune: distill, finetune_steps: 40, "
+                                                     "distill_every: 20, distill_gradient_steps: 5"))
+    run = AprilRun.new(load_april_config(config), tmp_path / "runs")
+    rows = run.run()["rows"]
+    assert list(rows) == ["ground_truth_privileged", "pixels_ae_n8_m6_w1_distilled"]
+    assert rows["ground_truth_privileged"]["sim_episodes"] == run.sim_episodes["state_policy"]
+    assert run.stages["finetune"]["labels"] == 40 and run.stages["finetune"]["widened"] is False
 
 
 def test_scripted_pick_and_place_heuristic_completes_the_task():

@@ -32,6 +32,51 @@ def test_obstacle_is_placed_at_random_and_never_covers_the_goal(make_env):
     assert positions[:, 2].min() > 0.42, "the box floats in the workspace above the table"
 
 
+def _blocks_the_straight_line(observation, unwrapped) -> bool:
+    """Does the box come within 2 cm of the straight line from the gripper to the goal?"""
+    start, goal = observation["achieved_goal"], observation["desired_goal"]
+    line = start + np.linspace(0, 1, 200)[:, None] * (goal - start)
+    return np.max(np.abs(line - unwrapped.obstacle_position) - unwrapped.obstacle_half_size, axis=1).min() < 0.02
+
+
+def test_obstacle_on_path_puts_the_box_in_the_way(make_env):
+    """Placed at random the box is almost never in the way (a policy blind to it loses nothing);
+    obstacle_on_path puts it across the line to the goal where there is room, still clear of both ends."""
+    counts = {}
+    for on_path in (0.0, 1.0):
+        env = make_env("binpick/FetchReachObstacle-v0", obstacle_half_size=0.03, obstacle_on_path=on_path)
+        unwrapped, blocked = env.unwrapped, 0
+        for seed in range(40):
+            observation, _ = env.reset(seed=seed)
+            blocked += _blocks_the_straight_line(observation, unwrapped)
+            assert np.max(np.abs(unwrapped.obstacle_position - observation["desired_goal"])) > unwrapped.obstacle_half_size
+            assert unwrapped.obstacle_contacts() == 0
+        counts[on_path] = blocked
+    assert counts[0.0] <= 4 and counts[1.0] >= 14, counts
+
+
+def test_privileged_state_shows_the_teacher_where_the_box_is(make_env, tmp_path):
+    from binpick.config import load_config
+    from binpick.errors import ConfigError
+    from binpick.rl.config import RLConfig
+    from binpick.rl.wrappers import SemanticState
+
+    env = SemanticState(make_env("binpick/FetchReachObstacle-v0"), privileged=["obstacle_position"])
+    observation, _ = env.reset(seed=3)
+    assert env.observation_space["observation"].shape == (6,)
+    np.testing.assert_allclose(observation["observation"][:3], observation["achieved_goal"])
+    np.testing.assert_allclose(observation["observation"][3:], env.unwrapped.obstacle_position)
+    with pytest.raises(ConfigError, match="has no 'obstacle_position'"):
+        SemanticState(make_env("binpick/FetchReach-v0"), privileged=["obstacle_position"])
+    config = tmp_path / "rl.yaml"
+    for extra, message in (("privileged_state: [obstacle_position]\ngp: {enabled: true}", "gp.enabled: false"),
+                           ("privileged_state: [goal_colour]", "privileged_state must be one of 'obstacle_position'"),
+                           ("privileged_state: obstacle_position", "privileged_state must be a list")):
+        config.write_text(f"env: binpick/FetchReachObstacle-v0\n{extra}\n")
+        with pytest.raises(ConfigError, match=message):
+            load_config(RLConfig, config)
+
+
 def test_arm_collides_with_the_obstacle(make_env):
     env = make_env("binpick/FetchReachObstacle-v0")
     env.reset(seed=1)

@@ -25,11 +25,12 @@ def deployment_env(run: AprilRun, runtime_input: str):
 
     mode = run.config.policy.mode
     scale = load_rl_config(run.config.policy.rl_config).min_action_scale
+    if runtime_input == "state":  # the state policy on the simulator's s̄ (and its privileged state, if any)
+        policy, _ = load_policy(Path(run.stages["policy"]["semantic_run"]))
+        base = GoalRecorder(run.make_env(image=False))
+        return with_action_scale(SemanticState(base, run.gripper, run.teacher_privileged), scale), policy, base
     if mode == "semantic":
         policy, _ = load_policy(Path(run.stages["policy"]["semantic_run"]))
-        if runtime_input == "state":
-            base = GoalRecorder(run.make_env(image=False))
-            return with_action_scale(SemanticState(base, run.gripper), scale), policy, base
         base = GoalRecorder(run.make_env())
         return with_action_scale(PixelsAsSemantic(base, load_perception(perception_path(run.run_dir)).encode, run.gripper), scale), policy, base
     perception = load_perception(perception_path(run.run_dir))
@@ -62,12 +63,16 @@ def row_names(run: AprilRun) -> dict[str, str]:
     refined = ("_refined_on_pixels" if refine.act_on == "pixels" else "_refined") if refine.episodes else ""
     cameras = {1: "", 2: "_two_views"}.get(len(views), f"_{len(views)}_views")
     goals = "_goals" if run.config.collect.goal_every else ""  # perception saw a new goal every few steps
-    pixels = f"pixels_{p.kind}_n{p.latent}_m{p.conditioned}_w{p.omega:g}" + goals + refined + cameras
+    world = "_on_path" if run.config.env_kwargs.get("obstacle_on_path") else ""  # another world: other rows
+    pixels = f"pixels_{p.kind}_n{p.latent}_m{p.conditioned}_w{p.omega:g}" + goals + refined + cameras + world
     if run.config.policy.mode == "semantic":
-        return {"state": "ground_truth", "pixels": pixels}
+        return {"state": "ground_truth" + world, "pixels": pixels}
     if run.config.policy.mode == "state_plus_latent":
-        return {"pixels": f"ground_truth_plus_latent_{p.kind}_n{p.latent}_m{p.conditioned}" + cameras}
-    return {"pixels": pixels + ("_distilled" if run.config.policy.finetune == "distill" else "")}
+        return {"pixels": f"ground_truth_plus_latent_{p.kind}_n{p.latent}_m{p.conditioned}" + cameras + world}
+    rows = {"pixels": pixels + ("_distilled" if run.config.policy.finetune == "distill" else "")}
+    if run.config.policy.pretrain and run.teacher_privileged:  # the teacher itself, on what only it may read
+        rows = {"state": "ground_truth_privileged" + world} | rows
+    return rows
 
 
 def evaluate_rows(run: AprilRun, callback: RunCallback = SILENT) -> dict[str, Any]:

@@ -22,7 +22,7 @@ from binpick.april.observations import EncodedObservation
 from binpick.files import atomic_write_json
 from binpick.rl.demonstrations import cloning_loss
 from binpick.rl.persistence import SavedPolicy, save_policy
-from binpick.rl.wrappers import MinActionScale, semantic_inputs
+from binpick.rl.wrappers import MinActionScale, privileged_values, semantic_inputs
 from binpick.runs import SILENT, RunCallback, Task
 
 LATENT_POLICY_FILE = "policy_latent.safetensors"  # SAC on φ_enc(I): weights + spaces, no pickle
@@ -114,9 +114,12 @@ def finetune_latent_policy(run: AprilRun, semantic_run: str | None, callback: Ru
                 policy_kwargs={"net_arch": list(settings.net_arch)}, seed=config.seed, device="cpu",
                 tensorboard_log=str(run.run_dir / "tb"))
     semantic = None
+    widened = False
     if semantic_run is not None:
         semantic, _ = load_policy(Path(semantic_run))
-        widen_from_semantic(semantic, model, env.unwrapped.observation_space["achieved_goal"].shape[0])
+        if not rl_settings.privileged_state:  # a teacher's extra inputs have no slot in φ_enc(I) to widen into
+            widen_from_semantic(semantic, model, env.unwrapped.observation_space["achieved_goal"].shape[0])
+            widened = True
     if policy.finetune == "distill":
         result = distill_from_state_policy(model, semantic, env, run, callback)
     else:
@@ -127,19 +130,20 @@ def finetune_latent_policy(run: AprilRun, semantic_run: str | None, callback: Ru
         result = {"sim_episodes": report.episodes, "sim_steps": int(model.num_timesteps)}
     save_policy(model, run.run_dir / LATENT_POLICY_FILE, algorithm="sac", env=config.env, mode=policy.mode)
     env.close()
-    return result | {"widened": semantic_run is not None, "finetune": policy.finetune}
+    return result | {"widened": widened, "finetune": policy.finetune}
 
 
 def distill_from_state_policy(student: SAC, teacher: SavedPolicy | None, env, run: AprilRun,
                               callback: RunCallback = SILENT) -> dict[str, Any]:
     """DAgger (Ross et al., 2011) from the state policy: the student acts on φ_enc(I), the teacher
-    labels every visited image with its own action on the true s̄, and the student's actor regresses
+    labels every visited image with its own action on the true s̄ (and any ``privileged_state`` its
+    RL config reads, e.g. where the obstacle is), and the student's actor regresses
     onto all labels so far. Unlike plain SAC on φ_enc(I), which starts from a critic that knows nothing
     of images and drags a good widened policy down, this only ever moves towards what the state
     policy does, on the states the student itself reaches (the arm in front of the goal, say)."""
     if teacher is None:
         raise ValueError("distillation needs the state policy (policy.pretrain: true)")
-    policy = run.config.policy
+    policy, privileged = run.config.policy, run.teacher_privileged
     encoded = env
     while not isinstance(encoded, EncodedObservation):
         encoded = encoded.env
@@ -153,7 +157,8 @@ def distill_from_state_policy(student: SAC, teacher: SavedPolicy | None, env, ru
             observation, _ = env.reset(seed=run.config.collect.seed + 200_000 + episodes)
             done = success = False
             while not done and steps < policy.finetune_steps:
-                label = teacher.predict(semantic_inputs(encoded.last_raw, run.gripper), deterministic=True)[0]
+                state = semantic_inputs(encoded.last_raw, run.gripper, privileged_values(encoded, privileged))
+                label = teacher.predict(state, deterministic=True)[0]
                 observations.append(np.asarray(observation, np.float32))
                 labels.append(student.policy.scale_action(np.asarray(label, np.float32)))
                 first_round = steps < policy.distill_every  # DAgger's β = 1 for the first round, then 0

@@ -30,6 +30,7 @@ from binpick.files import atomic_write, atomic_write_json, read_json_object, rea
 from binpick.runs import SILENT, RunCallback, new_run_dir
 
 STAGES = ("collect", "perception", "policy", "refine", "finetune", "evaluate")
+CAMERA_KWARGS = ("views", "image", "image_size")  # how the world is seen, not what it is
 
 
 class AprilRun:
@@ -63,6 +64,20 @@ class AprilRun:
 
         return needs_gripper(self.config.env)
 
+    def state_policy_settings(self):
+        """The state policy's RL config: that of ``policy.state_run`` if one is shared, else ``policy.rl_config``."""
+        from binpick.rl.config import RLConfig, load_rl_config
+
+        if self.config.policy.state_run is not None:
+            return load_run_config(RLConfig, Path(self.config.policy.state_run))
+        return load_rl_config(self.config.policy.rl_config)
+
+    @property
+    def teacher_privileged(self) -> list[str]:
+        """What the state policy reads beside s̄ (its RL config's ``privileged_state``): simulator
+        state a camera-driven policy never gets, only a teacher for ``finetune: distill``."""
+        return list(self.state_policy_settings().privileged_state)
+
     def _done(self, stage: str, result: dict[str, Any]) -> None:
         self.stages[stage] = result
         atomic_write_json(self.stages_path, self.stages)
@@ -75,8 +90,26 @@ class AprilRun:
             kwargs.update(image=self.config.image, image_size=self.config.image_size)
         return make(self.config.env, **kwargs)
 
+    def check_state_policy_config(self):
+        """The state policy's RL config against this run, before any stage spends minutes: same env and
+        world (env_kwargs but the camera's), and privileged state only where a student distils it."""
+        settings = self.state_policy_settings()
+        if settings.env != self.config.env:
+            raise ConfigError(f"the state policy trains on {settings.env}, this APRiL run is on {self.config.env}")
+        world = {key: value for key, value in self.config.env_kwargs.items() if key not in CAMERA_KWARGS}
+        if world != settings.env_kwargs:
+            raise ConfigError(f"the state policy trains on env_kwargs {settings.env_kwargs}, this APRiL run's world is "
+                              f"{world}: the state policy must learn the world it is deployed in")
+        policy = self.config.policy  # (refine.act_on: pixels needs mode semantic: the config refuses it)
+        if settings.privileged_state and (policy.mode != "latent" or policy.finetune != "distill"):
+            raise ConfigError(f"the state policy reads privileged_state {settings.privileged_state}, which "
+                              "pixels never give: it can only teach (policy.mode: latent, finetune: distill)")
+        return settings
+
     # ------------------------------------------------------------------ the whole pipeline
     def run(self, callback: RunCallback = SILENT) -> dict[str, Any]:
+        if self.config.policy.mode != "latent" or self.config.policy.pretrain:
+            self.check_state_policy_config()
         for stage in STAGES:
             if stage in self.stages:
                 continue
@@ -131,7 +164,7 @@ class AprilRun:
         training = self.config.perception_training
         model, history = train_perception(self.config.perception, images, states, epochs=training.epochs,
                                           batch_size=training.batch_size, learning_rate=training.learning_rate,
-                                          seed=self.config.seed, callback=callback)
+                                          schedule=training.schedule, seed=self.config.seed, callback=callback)
         save_perception(model, self.run_dir / PERCEPTION_FILE)
         atomic_write_json(self.run_dir / "perception_history.json", history)
         rng = np.random.default_rng(self.config.seed)
@@ -163,7 +196,6 @@ class AprilRun:
 
     def _semantic_policy(self, callback: RunCallback) -> dict[str, Any]:
         """Eq 4.8: the policy learns on ground-truth s̄ with the cheap tools of chapter 3 (GP + HER)."""
-        from binpick.rl.config import load_rl_config
         from binpick.rl.train import trainer_for
 
         if self.config.policy.state_run is not None:  # perception variants can share one state policy
@@ -174,9 +206,7 @@ class AprilRun:
             if metrics["env"] != self.config.env:
                 raise ConfigError(f"policy.state_run was trained on {metrics['env']}, this APRiL run is on {self.config.env}")
         else:
-            settings = load_rl_config(self.config.policy.rl_config)
-            if settings.env != self.config.env:
-                raise ConfigError(f"policy.rl_config trains on {settings.env}, this APRiL run is on {self.config.env}")
+            settings = self.check_state_policy_config()
             root = self.run_dir / "rl"
             existing = sorted(root.glob(f"{settings.name}/*/config.yaml"))
             trainer = trainer_for(resume=existing[-1].parent) if existing else trainer_for(settings, root)
@@ -200,11 +230,12 @@ class AprilRun:
         from binpick.perception import PERCEPTION_FILE, load_perception, perception_path, save_perception, train_perception
         from binpick.rl.config import load_rl_config
         from binpick.rl.train import load_policy
-        from binpick.rl.wrappers import semantic_inputs
+        from binpick.rl.wrappers import privileged_values, semantic_inputs
 
         refine = self.config.refine
         if not refine.episodes:
             return {"sim_episodes": 0}
+        privileged = self.teacher_privileged
         policy, _ = load_policy(Path(self.stages["policy"]["semantic_run"]))
         env = with_action_scale(self.make_env(), load_rl_config(self.config.policy.rl_config).min_action_scale)
         goal_dim = env.observation_space["desired_goal"].shape[0]
@@ -225,7 +256,7 @@ class AprilRun:
                         if refine.act_on == "pixels":
                             inputs = semantic_observation(model.encode(raw["image"])[0], goal_dim)
                         else:
-                            inputs = semantic_inputs(raw, self.gripper)
+                            inputs = semantic_inputs(raw, self.gripper, privileged_values(env, privileged))
                         action = policy.predict(inputs, deterministic=True)[0]
                         action = np.clip(action + rng.normal(0, refine.action_noise, action.shape), -1, 1)
                         raw, _, terminated, truncated, info = env.step(action)

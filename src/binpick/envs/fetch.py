@@ -138,12 +138,17 @@ class FetchReachObstacleEnv(FetchReachEnv):
 
     The box never contains the goal (with a margin) and never starts touching the robot, so every
     episode stays solvable; it can block straight paths and occlude the target from the camera.
+    Placed uniformly, it lies within 4 cm of the straight gripper-to-goal line in only ~3% of
+    episodes, so a policy blind to it loses almost nothing; with ``obstacle_on_path`` = p it is put
+    across that line (30-70% of the way, jittered) in a share p of episodes, as the thesis's box
+    "affects exploration and the potential solutions" (its state-only policy: 3.10 -> 8.45 actions).
     """
 
-    def __init__(self, obstacle_half_size: float = 0.05, **kwargs: Any) -> None:
+    def __init__(self, obstacle_half_size: float = 0.05, obstacle_on_path: float = 0.0, **kwargs: Any) -> None:
         self.obstacle_half_size = float(check_range("obstacle_half_size", obstacle_half_size, 0.01, 0.1))
+        self.obstacle_on_path = float(check_range("obstacle_on_path", obstacle_on_path, 0.0, 1.0))
         super().__init__(**kwargs)
-        EzPickle.__init__(self, obstacle_half_size=obstacle_half_size, **kwargs)
+        EzPickle.__init__(self, obstacle_half_size=obstacle_half_size, obstacle_on_path=obstacle_on_path, **kwargs)
 
     def _initialize_simulation(self):
         # Same as MujocoRobotEnv._initialize_simulation, except the model gets the obstacle body.
@@ -190,9 +195,16 @@ class FetchReachObstacleEnv(FetchReachEnv):
         low = centre - self.target_range
         low[2] = max(low[2], self._table_top + half + 0.01)  # static geoms do not collide: keep it off the table
         high = centre + self.target_range
-        for _ in range(200):
-            position = self.np_random.uniform(low, high)
-            if np.max(np.abs(position - goal)) < half + 0.06 or np.max(np.abs(position - gripper)) < half + 0.08:
+        on_path = self.obstacle_on_path > 0 and self.np_random.uniform() < self.obstacle_on_path
+        for attempt in range(200):
+            if on_path and attempt < 100:  # across the straight line to the goal, else anywhere
+                position = gripper + self.np_random.uniform(0.3, 0.7) * (goal - gripper)
+                position = position + self.np_random.uniform(-0.01, 0.01, 3)
+                position[2] = max(position[2], low[2])
+            else:
+                position = self.np_random.uniform(low, high)
+            goal_margin, gripper_margin = (0.02, 0.03) if on_path and attempt < 100 else (0.06, 0.08)
+            if np.max(np.abs(position - goal)) < half + goal_margin or np.max(np.abs(position - gripper)) < half + gripper_margin:
                 continue
             self.model.body_pos[self._obstacle_body] = position
             self._mujoco.mj_forward(self.model, self.data)

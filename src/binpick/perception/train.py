@@ -28,6 +28,7 @@ def train_perception(
     epochs: int = 20,
     batch_size: int = 64,
     learning_rate: float = 1e-3,
+    schedule: str = "constant",
     seed: int = 0,
     callback: RunCallback = SILENT,
     initial: AutoPerception | None = None,
@@ -35,7 +36,10 @@ def train_perception(
     """A network trained on ``images`` (N, H, W, C) uint8 and ``states`` (N, d); returns it and its history.
 
     With ``initial`` training continues from that network (and keeps its state statistics).
+    ``schedule``: ``constant`` learning rate, or ``cosine`` decay to 0 over all epochs.
     """
+    if schedule not in ("constant", "cosine"):
+        raise ConfigError(f"perception schedule must be constant or cosine, got {schedule!r}")
     if len(images) != len(states) or len(images) < 2:
         raise ConfigError(f"perception training needs matching images and states, got {len(images)} and {len(states)}")
     torch.manual_seed(seed)
@@ -51,6 +55,8 @@ def train_perception(
     optimizer = torch.optim.Adam(model.parameters(), lr=learning_rate)
     history: dict[str, Any] = {"epochs": [], "train_images": len(train), "held_out_images": len(held_out)}
     steps_per_epoch = max(1, len(train) // batch_size)
+    decay = (torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=epochs * steps_per_epoch)
+             if schedule == "cosine" else None)
     with callback.task("perception", epochs) as task:
         for epoch in range(epochs):
             model.train()
@@ -62,6 +68,8 @@ def train_perception(
                 optimizer.zero_grad()
                 losses["total"].backward()
                 optimizer.step()
+                if decay is not None:
+                    decay.step()
                 for key in sums:
                     sums[key] += float(losses[key].detach()) / steps_per_epoch
             row = {"epoch": epoch + 1, **sums, **held_out_error(model, images[held_out], states[held_out])}

@@ -234,6 +234,10 @@ class EvalConfig:
         check_range("eval.stop_after_successes", self.stop_after_successes, 0, None, integer=True)
 
 
+# privileged_state names: attributes of the unwrapped env, each a vector
+PRIVILEGED_STATE = {"obstacle_position": "binpick/FetchReachObstacle-v0: the box's centre (x, y, z)"}
+
+
 @dataclass(frozen=True)
 class RLConfig:
     """One training run: env, algorithm, the thesis's additions, evaluation and checkpoints."""
@@ -245,6 +249,9 @@ class RLConfig:
     total_timesteps: int = 20_000  # simulator steps
     seed: int = 0
     semantic_state: bool = True  # policy input (z, g), thesis §3.3.1 (continuous-control envs only)
+    # simulator state beside s̄ that only a teacher may read (e.g. obstacle_position): a state policy
+    # that knows what pixels show but s̄ leaves out, for APRiL's partly-semantic students to imitate
+    privileged_state: list[str] = field(default_factory=list)
     min_action_scale: float | None = None  # thesis: 0.4 for Fetch
     checkpoint_every: int = 2000
     init_from: str | None = None  # a3c: an earlier run folder whose latest checkpoint this run continues
@@ -275,6 +282,11 @@ class RLConfig:
             )
         if self.gp.enabled and (self.algorithm != "sac" or not self.semantic_state):
             raise ConfigError("gp.enabled needs algorithm: sac and semantic_state: true (the GP models z -> z')")
+        for name in self.privileged_state:
+            check_choice("privileged_state", name, list(PRIVILEGED_STATE))
+        if self.privileged_state and (self.algorithm != "sac" or not self.semantic_state or self.gp.enabled):
+            raise ConfigError("privileged_state extends the semantic state: it needs algorithm: sac, semantic_state: true "
+                              "and gp.enabled: false (the GP imagines z alone, so it would drive through the obstacle)")
         spec = env_spec(self.env)
         if self.gp.enabled and spec.moves_object:
             raise ConfigError("gp.enabled: the GP models the gripper alone; pick and place moves an object by contact - "

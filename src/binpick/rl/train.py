@@ -45,7 +45,7 @@ def make_env(config: RLConfig) -> gym.Env:
     """The env exactly as the run trains on it (semantic state, minimum action scale)."""
     env = make(config.env, **config.env_kwargs)
     if config.semantic_state and config.algorithm in ("sac", "sb3_sac_her"):
-        env = SemanticState(env, gripper=needs_gripper(config.env))
+        env = SemanticState(env, gripper=needs_gripper(config.env), privileged=config.privileged_state)
     if config.min_action_scale:
         env = MinActionScale(env, config.min_action_scale)
     return env

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
@@ -18,26 +20,44 @@ class SemanticState(gym.ObservationWrapper):
     the object is the achieved goal, and the policy must also know where its hand is.
     """
 
-    def __init__(self, env: gym.Env, gripper: bool = False) -> None:
+    def __init__(self, env: gym.Env, gripper: bool = False, privileged: Sequence[str] = ()) -> None:
         super().__init__(env)
-        self.gripper = gripper
+        self.gripper, self.privileged = gripper, tuple(privileged)
         goal_space = env.observation_space["achieved_goal"]
-        size = goal_space.shape[0] + (3 if gripper else 0)
+        size = goal_space.shape[0] + (3 if gripper else 0) + len(privileged_values(env, self.privileged))
         self.observation_space = spaces.Dict({
             "observation": spaces.Box(-np.inf, np.inf, (size,), np.float64),
             "achieved_goal": goal_space, "desired_goal": env.observation_space["desired_goal"]})
 
     def observation(self, observation):
-        return semantic_inputs(observation, self.gripper)
+        return semantic_inputs(observation, self.gripper, privileged_values(self.env, self.privileged))
 
     def compute_reward(self, achieved_goal, desired_goal, info):
         return self.env.unwrapped.compute_reward(achieved_goal, desired_goal, info)
 
 
-def semantic_inputs(observation: dict, gripper: bool = False) -> dict:
-    """An env's raw observation as a :class:`SemanticState`-trained policy reads it (s̄ as a dict)."""
-    return {"observation": semantic_part(observation, gripper), "achieved_goal": observation["achieved_goal"],
-            "desired_goal": observation["desired_goal"]}
+def semantic_inputs(observation: dict, gripper: bool = False, privileged: np.ndarray | None = None) -> dict:
+    """An env's raw observation as a :class:`SemanticState`-trained policy reads it (s̄ as a dict);
+    ``privileged`` (see :func:`privileged_values`) follows z in ``observation``."""
+    part = semantic_part(observation, gripper)
+    if privileged is not None and len(privileged):
+        part = np.concatenate([part, np.asarray(privileged, np.float64)])
+    return {"observation": part, "achieved_goal": observation["achieved_goal"], "desired_goal": observation["desired_goal"]}
+
+
+def privileged_values(env: gym.Env, names: Sequence[str]) -> np.ndarray:
+    """The env's own state named in an RL config's ``privileged_state`` (e.g. ``obstacle_position``),
+    one vector; what a teacher in the simulator may read and a camera-driven policy may not."""
+    from binpick.errors import ConfigError
+
+    values = []
+    for name in names:
+        value = getattr(env.unwrapped, name, None)
+        if value is None:
+            raise ConfigError(f"privileged_state: {env.unwrapped.spec.id if env.unwrapped.spec else env.unwrapped} "
+                              f"has no {name!r}")
+        values.append(np.asarray(value, np.float64).ravel())
+    return np.concatenate(values) if values else np.zeros(0)
 
 
 def semantic_part(observation: dict, gripper: bool = False) -> np.ndarray:
