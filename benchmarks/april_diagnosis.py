@@ -1,6 +1,7 @@
 """Why does an APRiL policy deployed on pixels fail where the same policy on s̄ succeeds? (Table 4.3)
 
     python benchmarks/april_diagnosis.py RUN_DIR [--episodes 100]
+    python benchmarks/april_diagnosis.py --obstacle        # is FetchReachObstacle's box in the way at all?
 
 Rolls the run's pixel deployment on the evaluation seeds and records, at every step, φ_enc(I)
 against the true s̄: the goal's error split into the part along the workspace camera's ray (depth,
@@ -125,17 +126,59 @@ def seen_against_new(run: AprilRun, episodes: int, samples: int = 500) -> dict:
             "dimensions": "gripper xyz, goal xyz" if not run.gripper else "gripper xyz, object xyz, goal xyz"}
 
 
+def obstacle_in_the_way(episodes: int = 300) -> dict:
+    """Table 4.4 needs a box that matters: per placement, the share of episodes whose box comes within
+    4 cm (and within 0 cm: crossing) of the straight line from the gripper to the goal, and how a
+    controller that drives straight at the goal, blind to the box, does (success, actions)."""
+    from binpick.envs import make
+
+    worlds = {"at_random": {}, "on_path": {"obstacle_on_path": 1.0, "obstacle_half_size": 0.03}}
+    report = {}
+    for world, kwargs in worlds.items():
+        env = make("binpick/FetchReachObstacle-v0", **kwargs)
+        fetch, near, crossing, successes, lengths = env.unwrapped, 0, 0, 0, []
+        for episode in range(episodes):
+            observation, _ = env.reset(seed=20_000 + episode)
+            start, goal = observation["achieved_goal"], observation["desired_goal"]
+            line = start + np.linspace(0, 1, 200)[:, None] * (goal - start)
+            clearance = np.max(np.abs(line - fetch.obstacle_position) - fetch.obstacle_half_size, axis=1).min()
+            near, crossing = near + int(clearance < 0.04), crossing + int(clearance < 0.0)
+            done, success, steps = False, False, 0
+            while not done:
+                action = np.zeros(4)
+                action[:3] = np.clip((observation["desired_goal"] - observation["achieved_goal"]) / 0.05, -1, 1)
+                observation, _, terminated, truncated, info = env.step(action)
+                steps, success = steps + 1, success or bool(info.get("is_success"))
+                done = terminated or truncated
+            successes, lengths = successes + int(success), lengths + [steps]
+        env.close()
+        report[world] = {"env_kwargs": kwargs, "episodes": episodes, "within_4cm_of_line": near / episodes,
+                         "crossing_line": crossing / episodes, "straight_line_success": successes / episodes,
+                         "straight_line_avg_actions": float(np.mean(lengths))}
+    return report
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("run_dir")
+    parser.add_argument("run_dir", nargs="?")
+    parser.add_argument("--obstacle", action="store_true",
+                        help="is FetchReachObstacle's box in the way: placed at random against obstacle_on_path")
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--perception-only", action="store_true",
                         help="only the seen-against-new perception errors (any APRiL env), added to the run's entry")
     args = parser.parse_args()
-    run = AprilRun.resume(args.run_dir)
     path = _common.RESULTS / "april_diagnosis.json"
     results = json.loads(path.read_text()) if path.exists() else {}
     results = {k: v for k, v in results.items() if k not in ("benchmark", "machine")}
+    if args.obstacle:
+        results["obstacle_in_the_way"] = obstacle_in_the_way(args.episodes * 3)
+        _common.write_result("april_diagnosis", results)
+        write_report(results)
+        print(json.dumps(results["obstacle_in_the_way"], indent=1))
+        return
+    if not args.run_dir:
+        parser.error("give RUN_DIR (or --obstacle)")
+    run = AprilRun.resume(args.run_dir)
     report = results.get(run.config.name, {}) if args.perception_only else diagnose(run, args.episodes)
     report["perception_error"] = seen_against_new(run, args.episodes)
     results[run.config.name] = report
@@ -173,6 +216,16 @@ def write_report(results: dict) -> None:
         if error:
             lines.append(f"| {name} | {error['dimensions']} | {' '.join(f'{v:.1f}' for v in error['training_images_cm'])} | "
                          f"{' '.join(f'{v:.1f}' for v in error['new_episodes_cm'])} |")
+    box = results.get("obstacle_in_the_way")
+    if box:
+        lines += ["", f"Is FetchReachObstacle's box in the way (`--obstacle`; {box['at_random']['episodes']} episodes, seeds 20000+)? "
+                  "Share of episodes whose box comes within 4 cm of / crosses the straight line from the gripper to the goal, "
+                  "and a controller that drives straight at the goal, blind to the box:", "",
+                  "| placement | within 4 cm of the line | crossing it | straight line: success | straight line: actions |",
+                  "|---|---:|---:|---:|---:|"]
+        for world, row in box.items():
+            lines.append(f"| {world} `{row['env_kwargs'] or '{}'}` | {row['within_4cm_of_line']:.0%} | {row['crossing_line']:.0%} | "
+                         f"{row['straight_line_success']:.0%} | {row['straight_line_avg_actions']:.2f} |")
     _common.write_section("april_diagnosis", "\n".join(lines))
 
 

@@ -45,3 +45,16 @@ def train_rl_run(config: dict, root: Path) -> Path:
     assert result.returncode == 0, result.stderr
     (run,) = (root / "runs" / config["name"]).iterdir()
     return run
+
+
+# The longest tests start first, so that with one worker per core (make test) neither waits at the end
+# for a long test the other picked up late.
+LONG_FIRST = ("test_readme.py::test_every_readme_block_runs_on_tiny_settings",
+              "test_april.py::test_april_pipeline_runs_resumes_and_deploys_from_pixels",
+              "test_distributed.py::test_a_killed_worker_is_restarted_and_the_run_finishes",
+              "test_a3c.py::test_a3c_run_with_curriculum_resumes_and_evaluates")
+
+
+def pytest_collection_modifyitems(config, items):
+    rank = {name: index for index, name in enumerate(LONG_FIRST)}
+    items.sort(key=lambda item: rank.get(item.nodeid.split("/")[-1], len(rank)))

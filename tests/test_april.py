@@ -7,6 +7,7 @@ import json
 import re
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -226,6 +227,24 @@ def test_state_policy_config_is_checked_before_any_stage(tmp_path):
     assert list(rows) == ["ground_truth_privileged", "pixels_ae_n8_m6_w1_distilled"]
     assert rows["ground_truth_privileged"]["sim_episodes"] == run.sim_episodes["state_policy"]
     assert run.stages["finetune"]["labels"] == 40 and run.stages["finetune"]["widened"] is False
+
+
+def test_row_names_say_what_differs_from_the_thesis_set_up(tmp_path):
+    """Rows of another world, schedule or teacher never overwrite the thesis-protocol rows."""
+    from binpick.april import AprilRun, load_april_config
+    from binpick.april.evaluate import row_names
+    configs = Path(__file__).resolve().parents[1] / "configs"
+
+    def rows(name: str) -> dict:
+        return row_names(AprilRun(load_april_config(configs / f"{name}.yaml"), tmp_path))
+
+    assert rows("april_obstacle_n6_m6") == {"state": "ground_truth", "pixels": "pixels_ae_n6_m6_w1"}
+    assert rows("april_obstacle_on_path_n6_m6_goals") == {"state": "ground_truth_on_path",
+                                                           "pixels": "pixels_ae_n6_m6_w1_goals_on_path"}
+    assert rows("april_obstacle_on_path_n8_m6_distilled_goals") == {
+        "state": "ground_truth_privileged_on_path", "pixels": "pixels_ae_n8_m6_w1_goals_on_path_distilled"}
+    assert rows("april_pickandplace_ae_n9_m9_goals_two_views_long")["pixels"] == "pixels_ae_n9_m9_w1_goals5_cosine80_two_views"
+    assert rows("april_pickandplace_ae_n9_m9_goals1_two_views_long")["pixels"] == "pixels_ae_n9_m9_w1_goals_cosine80_two_views"
 
 
 def test_scripted_pick_and_place_heuristic_completes_the_task():

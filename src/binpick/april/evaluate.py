@@ -62,9 +62,12 @@ def row_names(run: AprilRun) -> dict[str, str]:
     refine = run.config.refine
     refined = ("_refined_on_pixels" if refine.act_on == "pixels" else "_refined") if refine.episodes else ""
     cameras = {1: "", 2: "_two_views"}.get(len(views), f"_{len(views)}_views")
-    goals = "_goals" if run.config.collect.goal_every else ""  # perception saw a new goal every few steps
+    every = run.config.collect.goal_every  # perception saw a new goal every step (_goals) or every k (_goals{k})
+    goals = "" if not every else "_goals" if every == 1 else f"_goals{every}"
     world = "_on_path" if run.config.env_kwargs.get("obstacle_on_path") else ""  # another world: other rows
-    pixels = f"pixels_{p.kind}_n{p.latent}_m{p.conditioned}_w{p.omega:g}" + goals + refined + cameras + world
+    training = run.config.perception_training  # a longer, decayed schedule: its own rows
+    trained = f"_cosine{training.epochs}" if training.schedule == "cosine" else ""
+    pixels = f"pixels_{p.kind}_n{p.latent}_m{p.conditioned}_w{p.omega:g}" + goals + trained + refined + cameras + world
     if run.config.policy.mode == "semantic":
         return {"state": "ground_truth" + world, "pixels": pixels}
     if run.config.policy.mode == "state_plus_latent":

@@ -272,7 +272,8 @@ class AprilRun:
             model, history = train_perception(self.config.perception, np.concatenate([random["images"], np.stack(images)]),
                                               np.concatenate([random["states"], np.stack(states)]), epochs=refine.epochs,
                                               batch_size=training.batch_size, learning_rate=training.learning_rate,
-                                              seed=self.config.seed + 1 + round_, callback=callback, initial=model)
+                                              schedule=training.schedule, seed=self.config.seed + 1 + round_,
+                                              callback=callback, initial=model)
             rounds.append({"round": round_ + 1, "success_while_collecting": successes / refine.episodes,
                            "images": len(images), "state_mae": history["epochs"][-1]["state_mae"], "history": history})
         env.close()

@@ -138,7 +138,7 @@ class FetchReachObstacleEnv(FetchReachEnv):
 
     The box never contains the goal (with a margin) and never starts touching the robot, so every
     episode stays solvable; it can block straight paths and occlude the target from the camera.
-    Placed uniformly, it lies within 4 cm of the straight gripper-to-goal line in only ~3% of
+    Placed uniformly, it lies within 4 cm of the straight gripper-to-goal line in only 5% of
     episodes, so a policy blind to it loses almost nothing; with ``obstacle_on_path`` = p it is put
     across that line (30-70% of the way, jittered) in a share p of episodes, as the thesis's box
     "affects exploration and the potential solutions" (its state-only policy: 3.10 -> 8.45 actions).
