@@ -210,6 +210,11 @@ def test_state_policy_config_is_checked_before_any_stage(tmp_path):
         (base.format(kind="ae", n=8, m=6, mode="latent", rl=tmp_path / "teacher.yaml")
          .replace("finetune_steps: 60", "pretrain: true, finetune_steps: 60"), "it can only teach"),
     ]
+    with pytest.raises(ConfigError, match="policy.teacher detour is a scripted teacher for binpick/FetchReachObstacle-v0"):
+        config = tmp_path / "detour.yaml"
+        config.write_text(APRIL.format(kind="ae", n=8, m=6, mode="latent", rl=tmp_path / "rl.yaml")
+                          .replace("finetune_steps: 60", "pretrain: false, teacher: detour, finetune: distill"))
+        load_april_config(config)
     for number, (text, message) in enumerate(cases):
         config = tmp_path / f"april{number}.yaml"
         config.write_text(text)
@@ -227,6 +232,14 @@ def test_state_policy_config_is_checked_before_any_stage(tmp_path):
     assert list(rows) == ["ground_truth_privileged", "pixels_ae_n8_m6_w1_distilled"]
     assert rows["ground_truth_privileged"]["sim_episodes"] == run.sim_episodes["state_policy"]
     assert run.stages["finetune"]["labels"] == 40 and run.stages["finetune"]["widened"] is False
+    # or a scripted teacher that knows the box: no state policy at all
+    config.write_text(base.format(kind="ae", n=8, m=6, mode="latent", rl=tmp_path / "rl.yaml")
+                      .replace("finetune_steps: 60", "pretrain: false, teacher: detour, finetune: distill, "
+                                                     "finetune_steps: 20, distill_every: 10, distill_gradient_steps: 2"))
+    run = AprilRun.new(load_april_config(config), tmp_path / "runs")
+    rows = run.run()["rows"]
+    assert list(rows) == ["detour_teacher", "pixels_ae_n8_m6_w1_distilled_from_detour"]
+    assert rows["detour_teacher"]["sim_episodes"] == 0 and run.stages["finetune"]["labels"] == 20
 
 
 def test_row_names_say_what_differs_from_the_thesis_set_up(tmp_path):

@@ -55,6 +55,20 @@ def test_obstacle_on_path_puts_the_box_in_the_way(make_env):
     assert counts[0.0] <= 4 and counts[1.0] >= 14, counts
 
 
+def test_a_teacher_that_knows_the_box_goes_round_it(make_env):
+    """ObstacleDetour (APRiL's scripted teacher) reaches goals behind the box that driving straight
+    at them does not, from the privileged state alone."""
+    from binpick.rl.evaluate import evaluate_policy
+    from binpick.rl.heuristic import ObstacleDetour, ReachController
+    from binpick.rl.wrappers import SemanticState
+
+    env = SemanticState(make_env("binpick/FetchReachObstacle-v0", obstacle_half_size=0.03, obstacle_on_path=1.0),
+                        privileged=["obstacle_position"])
+    detour = evaluate_policy(ObstacleDetour(0.03), env, episodes=30, seed=20_000)
+    straight = evaluate_policy(ReachController(), env, episodes=30, seed=20_000)
+    assert detour.success_rate >= 0.9 and detour.success_rate >= straight.success_rate + 0.1, (detour, straight)
+
+
 def test_privileged_state_shows_the_teacher_where_the_box_is(make_env, tmp_path):
     from binpick.config import load_config
     from binpick.errors import ConfigError

@@ -77,9 +77,13 @@ class PolicyConfig:
     finetune: str = "sac"
     distill_every: int = 500  # distill: simulator steps between regressions (the first round follows the teacher)
     distill_gradient_steps: int = 300  # distill: actor updates per round, batches of 256
+    # who labels the images in distill: the trained "state_policy", or "detour", a scripted teacher
+    # that knows where FetchReachObstacle's box is (binpick.rl.heuristic.ObstacleDetour)
+    teacher: str = "state_policy"
 
     def __post_init__(self) -> None:
         check_choice("policy.mode", self.mode, POLICY_MODES)
+        check_choice("policy.teacher", self.teacher, ["state_policy", "detour"])
         check_choice("policy.finetune", self.finetune, ["sac", "distill"])
         check_range("policy.distill_every", self.distill_every, 1, 100_000_000, integer=True)
         check_range("policy.distill_gradient_steps", self.distill_gradient_steps, 0, 100_000_000, integer=True)
@@ -156,7 +160,12 @@ class AprilConfig:
                               f"perception.conditioned == perception.latent (m={m}, n={n}) and omega > 0")
         if self.policy.mode == "state_plus_latent" and m == n:
             raise ConfigError("policy.mode state_plus_latent needs free latent features: perception.conditioned < latent")
-        if self.policy.finetune == "distill" and self.policy.mode == "latent" and not self.policy.pretrain:
+        detour = self.policy.teacher == "detour"
+        if detour and (self.policy.mode != "latent" or self.policy.finetune != "distill" or self.policy.pretrain
+                       or spec.env_id != "binpick/FetchReachObstacle-v0"):
+            raise ConfigError("policy.teacher detour is a scripted teacher for binpick/FetchReachObstacle-v0 students: "
+                              "it needs policy.mode latent, finetune distill and pretrain: false")
+        if self.policy.finetune == "distill" and self.policy.mode == "latent" and not self.policy.pretrain and not detour:
             raise ConfigError("policy.finetune distill learns from the state policy: it needs policy.pretrain: true")
         if self.refine.episodes and self.refine.act_on == "pixels" and self.policy.mode != "semantic":
             raise ConfigError("refine.act_on pixels deploys the state policy on φ_enc(I): it needs policy.mode semantic")

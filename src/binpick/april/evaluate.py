@@ -26,8 +26,13 @@ def deployment_env(run: AprilRun, runtime_input: str):
     mode = run.config.policy.mode
     scale = load_rl_config(run.config.policy.rl_config).min_action_scale
     if runtime_input == "state":  # the state policy on the simulator's s̄ (and its privileged state, if any)
-        policy, _ = load_policy(Path(run.stages["policy"]["semantic_run"]))
         base = GoalRecorder(run.make_env(image=False))
+        if run.config.policy.teacher == "detour":
+            from binpick.rl.heuristic import ObstacleDetour
+
+            policy = ObstacleDetour(base.unwrapped.obstacle_half_size)
+        else:
+            policy, _ = load_policy(Path(run.stages["policy"]["semantic_run"]))
         return with_action_scale(SemanticState(base, run.gripper, run.teacher_privileged), scale), policy, base
     if mode == "semantic":
         policy, _ = load_policy(Path(run.stages["policy"]["semantic_run"]))
@@ -72,8 +77,11 @@ def row_names(run: AprilRun) -> dict[str, str]:
         return {"state": "ground_truth" + world, "pixels": pixels}
     if run.config.policy.mode == "state_plus_latent":
         return {"pixels": f"ground_truth_plus_latent_{p.kind}_n{p.latent}_m{p.conditioned}" + cameras + world}
-    rows = {"pixels": pixels + ("_distilled" if run.config.policy.finetune == "distill" else "")}
-    if run.config.policy.pretrain and run.teacher_privileged:  # the teacher itself, on what only it may read
+    detour = run.config.policy.teacher == "detour"
+    rows = {"pixels": pixels + ("_distilled" if run.config.policy.finetune == "distill" else "") + ("_from_detour" if detour else "")}
+    if detour:  # the scripted teacher itself, on the box position only it may read
+        rows = {"state": "detour_teacher" + world} | rows
+    elif run.config.policy.pretrain and run.teacher_privileged:  # the teacher itself, on what only it may read
         rows = {"state": "ground_truth_privileged" + world} | rows
     return rows
 

@@ -22,6 +22,7 @@ from binpick.april.observations import EncodedObservation
 from binpick.files import atomic_write_json
 from binpick.rl.demonstrations import cloning_loss
 from binpick.rl.persistence import SavedPolicy, save_policy
+from binpick.rl.heuristic import ObstacleDetour
 from binpick.rl.wrappers import MinActionScale, privileged_values, semantic_inputs
 from binpick.runs import SILENT, RunCallback, Task
 
@@ -121,7 +122,8 @@ def finetune_latent_policy(run: AprilRun, semantic_run: str | None, callback: Ru
             widen_from_semantic(semantic, model, env.unwrapped.observation_space["achieved_goal"].shape[0])
             widened = True
     if policy.finetune == "distill":
-        result = distill_from_state_policy(model, semantic, env, run, callback)
+        teacher = ObstacleDetour(env.unwrapped.obstacle_half_size) if policy.teacher == "detour" else semantic
+        result = distill_from_state_policy(model, teacher, env, run, callback)
     else:
         with callback.task("fine-tune on φ_enc(I)", policy.finetune_steps) as task:
             report = _Progress(task)
@@ -133,7 +135,7 @@ def finetune_latent_policy(run: AprilRun, semantic_run: str | None, callback: Ru
     return result | {"widened": widened, "finetune": policy.finetune}
 
 
-def distill_from_state_policy(student: SAC, teacher: SavedPolicy | None, env, run: AprilRun,
+def distill_from_state_policy(student: SAC, teacher: SavedPolicy | ObstacleDetour | None, env, run: AprilRun,
                               callback: RunCallback = SILENT) -> dict[str, Any]:
     """DAgger (Ross et al., 2011) from the state policy: the student acts on φ_enc(I), the teacher
     labels every visited image with its own action on the true s̄ (and any ``privileged_state`` its

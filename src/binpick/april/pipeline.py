@@ -76,6 +76,8 @@ class AprilRun:
     def teacher_privileged(self) -> list[str]:
         """What the state policy reads beside s̄ (its RL config's ``privileged_state``): simulator
         state a camera-driven policy never gets, only a teacher for ``finetune: distill``."""
+        if self.config.policy.teacher == "detour":
+            return ["obstacle_position"]
         return list(self.state_policy_settings().privileged_state)
 
     def _done(self, stage: str, result: dict[str, Any]) -> None:

