@@ -41,7 +41,8 @@ CONFIGS = {
                            "april_obstacle_n6_m6_goals", "april_obstacle_n8_m6_distilled_goals",
                            "april_obstacle_on_path_n6_m6_goals", "april_obstacle_on_path_n8_m6_distilled_goals",
                            "april_obstacle_on_path_n6_m6_distilled_goals",
-                           "april_obstacle_on_path_n6_m6_distilled_detour", "april_obstacle_on_path_n8_m6_distilled_detour"],
+                           "april_obstacle_on_path_n6_m6_distilled_detour", "april_obstacle_on_path_n8_m6_distilled_detour",
+                           "april_obstacle_on_path_n16_m6_distilled_detour"],
 }
 # each table's ground-truth row comes from one config; the others train the same state policy again
 GROUND_TRUTH_FROM = {"FetchReach": "april_fetchreach_w1.0", "Reacher": "april_reacher_n4_m4",

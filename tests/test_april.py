@@ -222,22 +222,33 @@ def test_state_policy_config_is_checked_before_any_stage(tmp_path):
         with pytest.raises(ConfigError, match=re.escape(message)):
             run.run()
         assert run.stages == {}, "nothing ran"
-    # where it belongs, the teacher that knows where the box is labels the student's images
+
+
+def _distilled_obstacle_run(tmp_path, rl: str, policy: str) -> tuple:
+    """A tiny latent n = 8, m = 6 FetchReachObstacle run distilled from a teacher; (run, its rows)."""
+    from binpick.april import AprilRun, load_april_config
+
     config = tmp_path / "distill.yaml"
-    config.write_text(base.format(kind="ae", n=8, m=6, mode="latent", rl=tmp_path / "teacher.yaml")
-                      .replace("finetune_steps: 60", "pretrain: true, finetune: distill, finetune_steps: 40, "
-                                                     "distill_every: 20, distill_gradient_steps: 5"))
+    config.write_text(APRIL.replace("env: FetchReach", "env: binpick/FetchReachObstacle-v0")
+                      .format(kind="ae", n=8, m=6, mode="latent", rl=tmp_path / rl)
+                      .replace("finetune_steps: 60", f"finetune: distill, {policy}"))
     run = AprilRun.new(load_april_config(config), tmp_path / "runs")
-    rows = run.run()["rows"]
+    return run, run.run()["rows"]
+
+
+def test_teachers_that_know_the_box_label_the_students_images(tmp_path):
+    """A state policy with privileged_state, or the scripted detour, teaches a student that sees pixels only."""
+    obstacle_rl = RL.replace("env: FetchReach", "env: binpick/FetchReachObstacle-v0")
+    (tmp_path / "rl.yaml").write_text(obstacle_rl)
+    (tmp_path / "teacher.yaml").write_text(obstacle_rl.replace("gp: {enabled: true,", "privileged_state: [obstacle_position]\n"
+                                                                "gp: {enabled: false,"))
+    run, rows = _distilled_obstacle_run(tmp_path, "teacher.yaml", "pretrain: true, finetune_steps: 40, distill_every: 20, "
+                                                                  "distill_gradient_steps: 5")
     assert list(rows) == ["ground_truth_privileged", "pixels_ae_n8_m6_w1_distilled"]
     assert rows["ground_truth_privileged"]["sim_episodes"] == run.sim_episodes["state_policy"]
     assert run.stages["finetune"]["labels"] == 40 and run.stages["finetune"]["widened"] is False
-    # or a scripted teacher that knows the box: no state policy at all
-    config.write_text(base.format(kind="ae", n=8, m=6, mode="latent", rl=tmp_path / "rl.yaml")
-                      .replace("finetune_steps: 60", "pretrain: false, teacher: detour, finetune: distill, "
-                                                     "finetune_steps: 20, distill_every: 10, distill_gradient_steps: 2"))
-    run = AprilRun.new(load_april_config(config), tmp_path / "runs")
-    rows = run.run()["rows"]
+    run, rows = _distilled_obstacle_run(tmp_path, "rl.yaml", "pretrain: false, teacher: detour, finetune_steps: 20, "
+                                                             "distill_every: 10, distill_gradient_steps: 2")
     assert list(rows) == ["detour_teacher", "pixels_ae_n8_m6_w1_distilled_from_detour"]
     assert rows["detour_teacher"]["sim_episodes"] == 0 and run.stages["finetune"]["labels"] == 20
 
