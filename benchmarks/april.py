@@ -92,7 +92,8 @@ NOTES = {  # what a reader needs to read a table right
         "n = 8, m = 6 reaches 42% (34.16) and n = m = 6 58% (27.90). So the n = 8 row's lead over the deployed n = m = 6 row "
         "comes from distillation (the student learns on the states it reaches), not from the free features: with a teacher "
         "whose actions depend on the box, the two free features (trained for reconstruction alone) do not carry it well "
-        "enough to imitate, and the student with them does worse. The thesis's central claim is not reproduced here."),
+        "enough to imitate, and the student with them does worse; with 10 free features (n = 16, m = 6) 47% (30.94), still "
+        "below none. The thesis's central claim is not reproduced here."),
     "FetchPickAndPlace": (
         "The heuristic decides from s̄ alone (no finger opening) so that behaviour cloning can copy it. The ground-truth policy "
         "is SAC after behaviour cloning of 300 heuristic episodes, with cloning kept in the actor loss (`configs/"
@@ -109,8 +110,9 @@ NOTES = {  # what a reader needs to read a table right
         "Refining that perception on 2 x 100 episodes of the policy acting on φ_enc(I) (`_refined_on_pixels`, 50% of them "
         "succeeded while collecting with noise) gave 27%. A new goal at every collection step (`_goals_cosine80_two_views`) closed "
         "the gap between training images and new episodes (goal 1.2/2.6/1.5 cm on new episodes, 0.8/1.6/1.6 on training "
-        "images) but reached 22%: first-frame errors no longer rank these rows, and 100 evaluation episodes put about ±5 "
-        "points on each. The goal's error along y (2.6 cm) is now what perception cannot resolve at 64 px."),
+        "images) but reached 22%: first-frame errors no longer rank these rows. 200 more episodes each (`binpick april eval "
+        "RUN --episodes 200 --seed 30000`, `recheck` in the JSON): 28.5% for `_goals5_cosine80_two_views`, 20.5% for "
+        "`_goals_cosine80_two_views`, so the best row is 29-35%. The goal's error along y (2.6 cm) is now what perception cannot resolve at 64 px."),
 }
 IMAGES = _common.ROOT / "docs" / "img" / "april"
 
