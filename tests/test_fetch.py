@@ -34,9 +34,10 @@ def test_obstacle_is_placed_at_random_and_never_covers_the_goal(make_env):
 
 def _blocks_the_straight_line(observation, unwrapped) -> bool:
     """Does the box come within 2 cm of the straight line from the gripper to the goal?"""
-    start, goal = observation["achieved_goal"], observation["desired_goal"]
-    line = start + np.linspace(0, 1, 200)[:, None] * (goal - start)
-    return np.max(np.abs(line - unwrapped.obstacle_position) - unwrapped.obstacle_half_size, axis=1).min() < 0.02
+    from binpick.rl.heuristic import box_clearance
+
+    return box_clearance(observation["achieved_goal"], observation["desired_goal"], unwrapped.obstacle_position,
+                         unwrapped.obstacle_half_size) < 0.02
 
 
 def test_obstacle_on_path_puts_the_box_in_the_way(make_env):

@@ -118,7 +118,7 @@ def finetune_latent_policy(run: AprilRun, semantic_run: str | None, callback: Ru
     widened = False
     if semantic_run is not None:
         semantic, _ = load_policy(Path(semantic_run))
-        if not rl_settings.privileged_state:  # a teacher's extra inputs have no slot in φ_enc(I) to widen into
+        if not run.teacher_privileged:  # a teacher's extra inputs have no slot in φ_enc(I) to widen into
             widen_from_semantic(semantic, model, env.unwrapped.observation_space["achieved_goal"].shape[0])
             widened = True
     if policy.finetune == "distill":

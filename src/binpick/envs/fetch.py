@@ -197,13 +197,14 @@ class FetchReachObstacleEnv(FetchReachEnv):
         high = centre + self.target_range
         on_path = self.obstacle_on_path > 0 and self.np_random.uniform() < self.obstacle_on_path
         for attempt in range(200):
-            if on_path and attempt < 100:  # across the straight line to the goal, else anywhere
+            across = on_path and attempt < 100  # across the straight line to the goal, else anywhere
+            if across:
                 position = gripper + self.np_random.uniform(0.3, 0.7) * (goal - gripper)
                 position = position + self.np_random.uniform(-0.01, 0.01, 3)
                 position[2] = max(position[2], low[2])
             else:
                 position = self.np_random.uniform(low, high)
-            goal_margin, gripper_margin = (0.02, 0.03) if on_path and attempt < 100 else (0.06, 0.08)
+            goal_margin, gripper_margin = (0.02, 0.03) if across else (0.06, 0.08)
             if np.max(np.abs(position - goal)) < half + goal_margin or np.max(np.abs(position - gripper)) < half + gripper_margin:
                 continue
             self.model.body_pos[self._obstacle_body] = position

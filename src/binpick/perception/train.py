@@ -15,6 +15,7 @@ import numpy as np
 import torch
 
 from binpick import tensorfile
+from binpick.config import check_choice
 from binpick.errors import ConfigError, InputFileError
 from binpick.files import require_fields
 from binpick.perception.autoencoder import AutoPerception, PerceptionConfig
@@ -38,8 +39,7 @@ def train_perception(
     With ``initial`` training continues from that network (and keeps its state statistics).
     ``schedule``: ``constant`` learning rate, or ``cosine`` decay to 0 over all epochs.
     """
-    if schedule not in ("constant", "cosine"):
-        raise ConfigError(f"perception schedule must be constant or cosine, got {schedule!r}")
+    check_choice("schedule", schedule, ["constant", "cosine"])
     if len(images) != len(states) or len(images) < 2:
         raise ConfigError(f"perception training needs matching images and states, got {len(images)} and {len(states)}")
     torch.manual_seed(seed)

@@ -57,10 +57,17 @@ class ReachController:
         return action
 
 
+def box_clearance(start: np.ndarray, end: np.ndarray, centre: np.ndarray, half_size: float, samples: int = 200) -> float:
+    """How far the straight segment start -> end passes from a cube's faces (max-norm; negative:
+    through it), on ``samples`` points: whether the obstacle is in the way of a straight reach."""
+    line = np.asarray(start) + np.linspace(0.0, 1.0, samples)[:, None] * (np.asarray(end) - np.asarray(start))
+    return float(np.max(np.abs(line - centre) - half_size, axis=1).min())
+
+
 class ObstacleDetour:
     """A scripted teacher for FetchReachObstacle that knows where the box is: straight at the goal
     when the line there is clear, else up over the box, across above the goal, and down (on the
-    default seeds 20000+ of ``obstacle_on_path: 1.0`` worlds: 95% vs 75% driving straight).
+    default seeds 20000+ of ``obstacle_on_path: 1.0`` worlds: 97% in 6.86 actions, 75% driving straight).
 
     It reads the state a :class:`SemanticState` with ``privileged=["obstacle_position"]`` gives,
     ``observation`` = (z, box centre), and has ``predict`` like a policy, so APRiL's distillation can
@@ -72,8 +79,7 @@ class ObstacleDetour:
         self.half_size, self.clearance, self.rise, self.gain = half_size, clearance, rise, gain
 
     def _blocked(self, start: np.ndarray, end: np.ndarray, box: np.ndarray) -> bool:
-        line = start + np.linspace(0.0, 1.0, 50)[:, None] * (end - start)
-        return bool(np.max(np.abs(line - box) - self.half_size - self.clearance, axis=1).min() < 0)
+        return box_clearance(start, end, box, self.half_size, samples=50) < self.clearance
 
     def __call__(self, observation: dict) -> np.ndarray:
         gripper, box = observation["observation"][:3], observation["observation"][3:6]
