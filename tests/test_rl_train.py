@@ -74,6 +74,10 @@ def test_killed_run_resumes_from_its_last_checkpoint(tmp_path):
         ({"env": "Nope"}, "unknown env id 'Nope'"),
         ({"sac": {"ent_coef": "autox"}}, "sac.ent_coef must be a number, 'auto' or 'auto_<value>'"),
         ({"demonstrations": {"bc_alpha": -1}}, "demonstrations.bc_alpha"),
+        ({"actor_noise": {"goal": -0.1}}, "actor_noise.goal"),
+        ({"actor_noise": {"achieved": [0.01, 0.01]}}, "actor_noise.achieved must have 3 entries"),
+        ({"actor_noise": {"gripper": 0.01}}, "actor_noise.gripper: binpick/FetchReach-v0's semantic state has no gripper"),
+        ({"algorithm": "sb3_sac_her", "actor_noise": {"goal": 0.01}}, "actor_noise perturbs the semantic state"),
     ],
 )
 def test_bad_configs_name_the_key(data, fragment):
@@ -144,3 +148,58 @@ def test_run_stops_after_enough_successful_evaluations(tmp_path):
 def test_dqn_rejects_images_too_small_for_its_cnn():
     with pytest.raises(ConfigError, match="image_size >= 36"):
         from_dict(RLConfig, {"algorithm": "dqn", "env": "Arm2D", "env_kwargs": {"image_size": 32}})
+
+
+def test_actor_noise_reaches_the_actor_and_never_the_critic():
+    """``actor_noise``: in every update the actor reads s̄ plus noise of the configured size, the same
+    noise in both slots that hold the achieved goal, while the critic reads the true s̄ of the same batch."""
+    import numpy as np
+    import torch
+
+    from binpick.rl.train import build_model, make_env
+
+    config = from_dict(RLConfig, {"env": "FetchReach", "total_timesteps": 400, "gp": {"enabled": False},
+                                  "replay": {"capacity_episodes": 300, "start_fraction": 0.01},
+                                  "sac": {"batch_size": 32, "net_arch": [16, 16], "learning_starts": 0},
+                                  "actor_noise": {"achieved": 0.01, "goal": 0.05}}, "cfg.yaml")
+    env = make_env(config)
+    model = build_model(config, env, None)
+    model.perturb_actor_inputs((0.0, 0.01, 0.05), gripper=False)
+    seen: dict[str, list] = {"actor": [], "critic": []}
+    for name, module in (("actor", model.actor), ("critic", model.critic)):
+        module.features_extractor.register_forward_pre_hook(
+            lambda _, inputs, name=name: seen[name].append({k: v.clone() for k, v in inputs[0].items()}))
+    model.learn(400)
+    # one update calls the actor on the batch s and then on s', the critic on s twice: pair the s calls
+    actor = [b for b in seen["actor"] if len(b["observation"]) == 32][0::2]  # (rollouts call it on one s̄)
+    critic = seen["critic"][0::2]
+    assert len(actor) == len(critic) > 100, (len(actor), len(critic))
+    for noisy, true in zip(actor, critic):
+        torch.testing.assert_close(true["observation"], true["achieved_goal"])  # the env's own z, in both slots
+        torch.testing.assert_close(noisy["observation"], noisy["achieved_goal"])  # one perceived z: the same noise
+    gap = torch.cat([a["achieved_goal"] - c["achieved_goal"] for a, c in zip(actor, critic)])
+    goal_gap = torch.cat([a["desired_goal"] - c["desired_goal"] for a, c in zip(actor, critic)])
+    assert 0.009 < float(gap.std()) < 0.011 and 0.045 < float(goal_gap.std()) < 0.055, (gap.std(), goal_gap.std())
+
+    batch = {"observation": torch.zeros(20_000, 3), "achieved_goal": torch.zeros(20_000, 3), "desired_goal": torch.zeros(20_000, 3)}
+    view = model.actor_view(batch)
+    assert np.isclose(float(view["achieved_goal"].std()), 0.01, rtol=0.05)
+    assert np.isclose(float(view["desired_goal"].std()), 0.05, rtol=0.05)
+    torch.testing.assert_close(view["observation"], view["achieved_goal"])
+    model.actor_noise = None
+    assert model.actor_view(batch) is batch
+
+
+def test_actor_noise_leaves_privileged_state_and_moves_the_gripper_alone():
+    import torch
+
+    from binpick.rl.agents import GoalSAC
+
+    model = GoalSAC.__new__(GoalSAC)  # actor_view needs nothing else of the model
+    model.perturb_actor_inputs(([0.02, 0.01, 0.0], 0.0, 0.0), gripper=True)  # per axis: x, y, z
+    batch = {"observation": torch.zeros(5000, 9), "achieved_goal": torch.zeros(5000, 3), "desired_goal": torch.zeros(5000, 3)}
+    view = model.actor_view(batch)
+    spread = view["observation"][:, :3].std(0)
+    assert 0.018 < float(spread[0]) < 0.022 and 0.009 < float(spread[1]) < 0.011 and float(spread[2]) == 0.0
+    assert torch.count_nonzero(view["observation"][:, 3:]) == 0 and torch.count_nonzero(view["achieved_goal"]) == 0
+    assert torch.count_nonzero(batch["observation"]) == 0, "the replay's own batch is left as it was"

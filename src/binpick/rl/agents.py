@@ -37,6 +37,8 @@ class GoalSAC(SAC):
     bc_alpha: float = 0.0  # weight of the RL term against the cloning term (TD3+BC's α)
     bc_likelihood_weight: float = 0.0  # keep fitting σ to the demonstrations (see behaviour_clone)
     bc_q_filter: bool = False  # clone only where the critic prefers the demonstrated action
+    actor_noise: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None  # per-axis std of (gripper, achieved, goal)
+    noisy_gripper: bool = False  # s̄'s observation starts with the gripper position (pick and place)
 
     def keep_cloning(self, demonstrations: DemonstrationSet, alpha: float, likelihood_weight: float = 0.0,
                      q_filter: bool = False) -> None:
@@ -45,11 +47,35 @@ class GoalSAC(SAC):
         self.demonstrations, self.bc_alpha = demonstrations, check_range("demonstrations.bc_alpha", alpha, 0.0, None)
         self.bc_likelihood_weight, self.bc_q_filter = likelihood_weight, bool(q_filter)
 
+    def perturb_actor_inputs(self, noise, gripper: bool) -> None:
+        """Train the actor on s̄ plus Gaussian noise of std ``noise`` = (gripper, achieved, goal), each a
+        number or one per axis, in metres (see :class:`binpick.rl.config.ActorNoiseConfig`); the critic
+        keeps reading the true s̄."""
+        self.actor_noise = tuple(torch.as_tensor(v, dtype=torch.float32) for v in noise)
+        self.noisy_gripper = bool(gripper)
+
+    def actor_view(self, observation: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        """What the actor reads in an update: s̄ as is, or with ``actor_noise``. The achieved goal's
+        noise is the same in ``observation`` and ``achieved_goal`` (one perceived object, two slots)."""
+        if not self.actor_noise:
+            return observation
+        gripper_std, achieved_std, goal_std = self.actor_noise
+        achieved = observation["achieved_goal"]
+        achieved_noise = torch.randn_like(achieved) * achieved_std
+        state = observation["observation"].clone()
+        start = 3 if self.noisy_gripper else 0
+        if self.noisy_gripper:
+            state[:, :3] += torch.randn_like(state[:, :3]) * gripper_std
+        state[:, start:start + achieved.shape[1]] += achieved_noise  # privileged values after it stay true
+        desired = observation["desired_goal"]
+        return {**observation, "observation": state, "achieved_goal": achieved + achieved_noise,
+                "desired_goal": desired + torch.randn_like(desired) * goal_std}
+
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
         buffer = self.replay_buffer
         if isinstance(buffer, EpisodeReplayBuffer) and not buffer.ready:
             return
-        if self.demonstrations is None or not self.bc_alpha:
+        if (self.demonstrations is None or not self.bc_alpha) and not self.actor_noise:
             super().train(gradient_steps, batch_size)
             return
         self._train_with_demonstrations(gradient_steps, batch_size)
@@ -62,7 +88,10 @@ class GoalSAC(SAC):
     def _train_with_demonstrations(self, gradient_steps: int, batch_size: int, update_actor: bool = True) -> None:
         """SB3's SAC update (critic, entropy weight, actor) with the actor loss of TD3+BC:
         α · (ent · log π − Q) / mean|Q| + cloning, so the two terms keep comparable scales
-        (|Q| is at least 1: rewards are −1 per step, a smaller mean only means an untrained critic)."""
+        (|Q| is at least 1: rewards are −1 per step, a smaller mean only means an untrained critic).
+        Without demonstrations the actor loss is the RL term alone. With ``actor_noise`` the actor
+        reads noisy s̄ (its own loss and the next actions of the critic's target); the critic, true s̄."""
+        cloning = self.demonstrations is not None and bool(self.bc_alpha)
         self.policy.set_training_mode(True)
         optimizers = [self.actor.optimizer, self.critic.optimizer]
         if self.ent_coef_optimizer is not None:
@@ -75,7 +104,7 @@ class GoalSAC(SAC):
         for _ in range(gradient_steps):
             data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)
             if update_actor:  # the critic-only warm-up needs no actions of the actor's own here
-                actions_pi, log_prob = self.actor.action_log_prob(data.observations)
+                actions_pi, log_prob = self.actor.action_log_prob(self.actor_view(data.observations))
                 log_prob = log_prob.reshape(-1, 1)
             if self.ent_coef_optimizer is not None and self.log_ent_coef is not None and update_actor:
                 ent_coef = torch.exp(self.log_ent_coef.detach())
@@ -88,7 +117,7 @@ class GoalSAC(SAC):
             else:
                 ent_coef = self.ent_coef_tensor
             with torch.no_grad():
-                next_actions, next_log_prob = self.actor.action_log_prob(data.next_observations)
+                next_actions, next_log_prob = self.actor.action_log_prob(self.actor_view(data.next_observations))
                 next_q = torch.min(torch.cat(self.critic_target(data.next_observations, next_actions), dim=1),
                                    dim=1, keepdim=True).values
                 next_q = next_q - ent_coef * next_log_prob.reshape(-1, 1)
@@ -103,9 +132,12 @@ class GoalSAC(SAC):
                 continue
             q_pi = torch.min(torch.cat(self.critic(data.observations, actions_pi), dim=1), dim=1, keepdim=True).values
             rl_loss = (ent_coef * log_prob - q_pi).mean() / q_pi.abs().mean().detach().clamp(min=1.0)
-            bc_loss, _ = cloning_loss(self, *self.demonstrations.sample(rng, batch_size), self.bc_likelihood_weight,
-                                      self.bc_q_filter)
-            actor_loss = self.bc_alpha * rl_loss + bc_loss
+            if cloning:
+                bc_loss, _ = cloning_loss(self, *self.demonstrations.sample(rng, batch_size), self.bc_likelihood_weight,
+                                          self.bc_q_filter)
+                actor_loss = self.bc_alpha * rl_loss + bc_loss
+            else:
+                bc_loss, actor_loss = torch.zeros(()), rl_loss
             self.actor.optimizer.zero_grad()
             actor_loss.backward()
             self.actor.optimizer.step()

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-from binpick.config import check_choice, check_range, load_config
+from binpick.config import check_choice, check_range, check_vector, load_config
 from binpick.errors import ConfigError
 
 ALGORITHMS = ("sac", "sb3_sac_her", "a3c", "dqn")
@@ -132,6 +132,29 @@ class DemonstrationConfig:
         check_range("demonstrations.likelihood_weight", self.likelihood_weight, 0.0, 100.0)
         check_range("demonstrations.bc_alpha", self.bc_alpha, 0.0, 1000.0)
         check_range("demonstrations.critic_steps", self.critic_steps, 0, 10_000_000, integer=True)
+
+
+@dataclass(frozen=True)
+class ActorNoiseConfig:
+    """Gaussian noise (std in metres: one for all axes, or [x, y, z]) on the semantic state the actor
+    reads in its updates, never on the critic's: a state policy that APRiL will deploy on perceived s̄
+    learns actions that hold up under perception's errors, while its values stay those of the true
+    state (an asymmetric actor-critic). ``achieved`` is z for reach, the object for pick and place."""
+
+    gripper: float | list[float] = 0.0  # pick and place: the gripper position in s̄
+    achieved: float | list[float] = 0.0
+    goal: float | list[float] = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("gripper", "achieved", "goal"):
+            value = getattr(self, name)
+            if isinstance(value, (int, float)) and not isinstance(value, bool):
+                value = [check_range(f"actor_noise.{name}", value, 0.0, 1.0)] * 3
+            object.__setattr__(self, name, check_vector(f"actor_noise.{name}", value, 3, 0.0, 1.0))
+
+    @property
+    def enabled(self) -> bool:
+        return any(any(getattr(self, name)) for name in ("gripper", "achieved", "goal"))
 
 
 @dataclass(frozen=True)
@@ -262,6 +285,7 @@ class RLConfig:
     dqn: DQNConfig = field(default_factory=DQNConfig)
     curriculum: CurriculumConfig = field(default_factory=CurriculumConfig)
     demonstrations: DemonstrationConfig = field(default_factory=DemonstrationConfig)
+    actor_noise: ActorNoiseConfig = field(default_factory=ActorNoiseConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)
 
     def __post_init__(self) -> None:
@@ -288,6 +312,12 @@ class RLConfig:
             raise ConfigError("privileged_state extends the semantic state: it needs algorithm: sac, semantic_state: true "
                               "and gp.enabled: false (the GP imagines z alone, so it would drive through the obstacle)")
         spec = env_spec(self.env)
+        if self.actor_noise.enabled and (self.algorithm != "sac" or not self.semantic_state):
+            raise ConfigError("actor_noise perturbs the semantic state the actor reads: it needs algorithm: sac and "
+                              "semantic_state: true")
+        if any(self.actor_noise.gripper) and not spec.moves_object:
+            raise ConfigError(f"actor_noise.gripper: {self.env}'s semantic state has no gripper position beside z "
+                              "(only pick and place has one); use actor_noise.achieved")
         if self.gp.enabled and spec.moves_object:
             raise ConfigError("gp.enabled: the GP models the gripper alone; pick and place moves an object by contact - "
                               "set gp.enabled: false")

@@ -100,7 +100,8 @@ def cloning_loss(model: SAC, inputs: dict[str, np.ndarray], targets: np.ndarray,
     own, so the policy may outgrow the heuristic. Returns (loss, mean squared error)."""
     tensor, _ = model.policy.obs_to_tensor(inputs)
     target = torch.as_tensor(targets)
-    mean, log_std, _ = model.actor.get_action_dist_params(tensor)
+    view = getattr(model, "actor_view", None)  # GoalSAC with actor_noise: the actor clones from noisy s̄ too
+    mean, log_std, _ = model.actor.get_action_dist_params(view(tensor) if view else tensor)
     squared = ((torch.tanh(mean) - target) ** 2).mean(dim=1)
     per_sample = squared
     if likelihood_weight:

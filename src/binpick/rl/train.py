@@ -196,6 +196,9 @@ class Trainer:
         self._started: float | None = None  # perf_counter() minus the wall time of earlier sessions
         self.env = make_env(config)
         self.model = build_model(config, self.env, str(self.run_dir / "tb"))
+        if config.actor_noise.enabled:
+            noise = config.actor_noise
+            self.model.perturb_actor_inputs((noise.gripper, noise.achieved, noise.goal), needs_gripper(config.env))
         self.gp = None
         if config.gp.enabled:
             dynamics = GPDynamics(config.gp.max_points, config.gp.iterations, seed=config.seed)
