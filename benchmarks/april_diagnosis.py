@@ -2,6 +2,8 @@
 
     python benchmarks/april_diagnosis.py RUN_DIR [--episodes 100]
     python benchmarks/april_diagnosis.py --obstacle        # is FetchReachObstacle's box in the way at all?
+    python benchmarks/april_diagnosis.py RUN_DIR --substitute   # pick and place: which part of φ_enc(I) breaks it?
+    python benchmarks/april_diagnosis.py RUN_DIR --probe-box    # obstacle: do the free latents carry the box?
 
 Rolls the run's pixel deployment on the evaluation seeds and records, at every step, φ_enc(I)
 against the true s̄: the goal's error split into the part along the workspace camera's ray (depth,
@@ -126,6 +128,79 @@ def seen_against_new(run: AprilRun, episodes: int, samples: int = 500) -> dict:
             "dimensions": "gripper xyz, goal xyz" if not run.gripper else "gripper xyz, object xyz, goal xyz"}
 
 
+SUBSTITUTES = {"none": (), "true_goal": ("goal",), "true_gripper": ("gripper",), "true_object": ("object",),
+               "true_gripper_and_object": ("gripper", "object")}
+
+
+def substitute_truth(run: AprilRun, episodes: int) -> dict:
+    """Pick and place deployed on pixels with one part of φ_enc(I) replaced by the simulator's truth
+    (the goal, the gripper, the cube): the part whose truth restores the state policy's success is the
+    one perception gets wrong for it. Also the share of episodes in which the cube is lifted > 2 cm
+    (the policy grasped it) and the median error of the perceived cube while the gripper is within 3 cm."""
+    from binpick.april.observations import semantic_observation, semantic_state
+
+    if not run.gripper:
+        raise SystemExit("--substitute is for pick and place (s̄ = gripper, object, goal)")
+    env, policy, _ = deployment_env(run, "pixels")
+    fetch = env.unwrapped
+    report = {}
+    for name, parts in SUBSTITUTES.items():
+        successes, lifted, lengths, near_errors = 0, 0, [], []
+        for episode in range(episodes):
+            observation, _ = env.reset(seed=run.config.eval.seed + episode)
+            table = fetch._get_obs()["achieved_goal"][2]
+            done, success, lift, steps = False, False, 0.0, 0
+            while not done:
+                true = semantic_state(fetch._get_obs(), True)
+                perceived = np.concatenate([observation["observation"], observation["desired_goal"]])
+                if np.linalg.norm(true[3:6] - true[:3]) < 0.03:
+                    near_errors.append(float(np.linalg.norm(perceived[3:6] - true[3:6])))
+                for part in parts:
+                    index = {"gripper": slice(0, 3), "object": slice(3, 6), "goal": slice(6, 9)}[part]
+                    perceived[index] = true[index]
+                action = policy.predict(semantic_observation(perceived, 3), deterministic=True)[0]
+                observation, _, terminated, truncated, info = env.step(action)
+                lift = max(lift, fetch._get_obs()["achieved_goal"][2] - table)
+                steps, success, done = steps + 1, success or bool(info.get("is_success")), terminated or truncated
+            successes, lifted, lengths = successes + int(success), lifted + int(lift > 0.02), lengths + [steps]
+        report[name] = {"success": successes / episodes, "lifted": lifted / episodes, "avg_actions": float(np.mean(lengths)),
+                        "object_error_near_gripper_cm": round(float(np.median(near_errors)) * 100, 2) if near_errors else None}
+        print(name, json.dumps(report[name]), flush=True)
+    env.close()
+    return {"episodes": episodes, "seed": run.config.eval.seed, "rows": report}
+
+
+def probe_box(run: AprilRun, images: int = 1000) -> dict:
+    """Do φ_enc(I)'s features carry FetchReachObstacle's box? A linear probe (least squares, fit on
+    half of ``images`` reset states, scored on the other half): the box centre's error (cm, mean
+    Euclidean) from the conditioned features alone (s̄: on the path, the box lies between gripper and
+    goal, so s̄ already predicts part of it) against from all of them. Free features that carry the
+    box bring the error down; the run's perception is the deployed one (after any distill_encoder)."""
+    from binpick.perception import load_perception, perception_path
+
+    if "obstacle" not in run.config.env.lower():
+        raise SystemExit("--probe-box is for binpick/FetchReachObstacle-v0 runs")
+    perception = load_perception(perception_path(run.run_dir))
+    env = run.make_env()
+    features, boxes = [], []
+    for index in range(images):
+        observation, _ = env.reset(seed=50_000 + index)
+        features.append(perception.encode(observation["image"])[0])
+        boxes.append(env.unwrapped.obstacle_position.copy())
+    env.close()
+    features, boxes = np.asarray(features, np.float64), np.asarray(boxes, np.float64)
+    half, m = images // 2, perception.config.conditioned
+
+    def error(columns: slice) -> float:
+        design = np.hstack([features[:, columns], np.ones((images, 1))])
+        weights, *_ = np.linalg.lstsq(design[:half], boxes[:half], rcond=None)
+        return round(float(np.linalg.norm(design[half:] @ weights - boxes[half:], axis=1).mean()) * 100, 2)
+
+    spread = round(float(np.linalg.norm(boxes[half:] - boxes[:half].mean(0), axis=1).mean()) * 100, 2)
+    return {"images": images, "latent": perception.config.latent, "conditioned": m,
+            "box_error_cm": {"mean_only": spread, "conditioned": error(slice(0, m)), "all": error(slice(None))}}
+
+
 def obstacle_in_the_way(episodes: int = 300) -> dict:
     """Table 4.4 needs a box that matters: per placement, the share of episodes whose box comes within
     4 cm (and within 0 cm: crossing) of the straight line from the gripper to the goal, and how a
@@ -164,6 +239,10 @@ def main() -> None:
     parser.add_argument("--obstacle", action="store_true",
                         help="is FetchReachObstacle's box in the way: placed at random against obstacle_on_path")
     parser.add_argument("--episodes", type=int, default=100)
+    parser.add_argument("--substitute", action="store_true",
+                        help="pick and place: success with the goal, gripper or cube of φ_enc(I) replaced by the truth")
+    parser.add_argument("--probe-box", action="store_true",
+                        help="obstacle: how well a linear probe finds the box from the conditioned / all latent features")
     parser.add_argument("--perception-only", action="store_true",
                         help="only the seen-against-new perception errors (any APRiL env), added to the run's entry")
     args = parser.parse_args()
@@ -179,8 +258,15 @@ def main() -> None:
     if not args.run_dir:
         parser.error("give RUN_DIR (or --obstacle)")
     run = AprilRun.resume(args.run_dir)
-    report = results.get(run.config.name, {}) if args.perception_only else diagnose(run, args.episodes)
-    report["perception_error"] = seen_against_new(run, args.episodes)
+    if args.substitute or args.probe_box:
+        report = results.get(run.config.name, {})
+        if args.substitute:
+            report["substitute"] = substitute_truth(run, args.episodes)
+        if args.probe_box:
+            report["probe_box"] = probe_box(run, args.episodes * 10)
+    else:
+        report = results.get(run.config.name, {}) if args.perception_only else diagnose(run, args.episodes)
+        report["perception_error"] = seen_against_new(run, args.episodes)
     results[run.config.name] = report
     _common.write_result("april_diagnosis", results)
     write_report(results)
@@ -216,6 +302,28 @@ def write_report(results: dict) -> None:
         if error:
             lines.append(f"| {name} | {error['dimensions']} | {' '.join(f'{v:.1f}' for v in error['training_images_cm'])} | "
                          f"{' '.join(f'{v:.1f}' for v in error['new_episodes_cm'])} |")
+    swapped = {name: report["substitute"] for name, report in results.items()
+               if isinstance(report, dict) and "substitute" in report}
+    if swapped:
+        lines += ["", "Pick and place on pixels with one part of φ_enc(I) replaced by the simulator's truth (`--substitute`): "
+                  "success, share of episodes in which the cube was lifted > 2 cm, and the perceived cube's median error "
+                  "while the gripper is within 3 cm of it:", "",
+                  "| run | episodes | " + " | ".join(SUBSTITUTES) + " |", "|---|---:|" + "---|" * len(SUBSTITUTES)]
+        for name, swap in swapped.items():
+            cells = [f"{row['success']:.0%} (lifted {row['lifted']:.0%}, cube {row['object_error_near_gripper_cm'] or 0:.1f} cm)"
+                     for row in (swap["rows"][key] for key in SUBSTITUTES)]
+            lines.append(f"| {name} | {swap['episodes']} | " + " | ".join(cells) + " |")
+    probed = {name: report["probe_box"] for name, report in results.items()
+              if isinstance(report, dict) and "probe_box" in report}
+    if probed:
+        lines += ["", "Do the latent features carry FetchReachObstacle's box (`--probe-box`)? A linear probe fit on 500 reset "
+                  "images and scored on 500 others: the box centre's mean error (cm) from the training mean alone, from the "
+                  "m conditioned features (s̄; on the path the box lies between gripper and goal) and from all n:", "",
+                  "| run | n | m | mean only | conditioned | all |", "|---|---:|---:|---:|---:|---:|"]
+        for name, probe in probed.items():
+            error = probe["box_error_cm"]
+            lines.append(f"| {name} | {probe['latent']} | {probe['conditioned']} | {error['mean_only']:.2f} | "
+                         f"{error['conditioned']:.2f} | {error['all']:.2f} |")
     box = results.get("obstacle_in_the_way")
     if box:
         lines += ["", f"Is FetchReachObstacle's box in the way (`--obstacle`; {box['at_random']['episodes']} episodes, seeds 20000+)? "

@@ -251,6 +251,19 @@ def test_teachers_that_know_the_box_label_the_students_images(tmp_path):
                                                              "distill_every: 10, distill_gradient_steps: 2")
     assert list(rows) == ["detour_teacher", "pixels_ae_n8_m6_w1_distilled_from_detour"]
     assert rows["detour_teacher"]["sim_episodes"] == 0 and run.stages["finetune"]["labels"] == 20
+    # distill_encoder: the encoder learns from the labels too; the perception stage's own is kept
+    import torch
+
+    from binpick.april.finetune import PRETRAINED_PERCEPTION_FILE
+    from binpick.perception import load_perception
+
+    run, rows = _distilled_obstacle_run(tmp_path, "rl.yaml", "pretrain: false, teacher: detour, finetune_steps: 20, "
+                                                             "distill_every: 10, distill_gradient_steps: 3, distill_encoder: true")
+    assert list(rows) == ["detour_teacher", "pixels_ae_n8_m6_w1_distilled_encoder_from_detour"]
+    before = load_perception(run.run_dir / PRETRAINED_PERCEPTION_FILE).state_dict()
+    after = load_perception(run.run_dir / "perception.safetensors").state_dict()
+    assert not torch.equal(before["to_latent.weight"], after["to_latent.weight"]), "the encoder did not learn"
+    torch.testing.assert_close(before["state_mean"], after["state_mean"])  # s̄'s units stay the perception stage's
 
 
 def test_row_names_say_what_differs_from_the_thesis_set_up(tmp_path):
@@ -269,6 +282,12 @@ def test_row_names_say_what_differs_from_the_thesis_set_up(tmp_path):
         "state": "ground_truth_privileged_on_path", "pixels": "pixels_ae_n8_m6_w1_goals_on_path_distilled"}
     assert rows("april_pickandplace_ae_n9_m9_goals_two_views_long")["pixels"] == "pixels_ae_n9_m9_w1_goals5_cosine80_two_views"
     assert rows("april_pickandplace_ae_n9_m9_goals1_two_views_long")["pixels"] == "pixels_ae_n9_m9_w1_goals_cosine80_two_views"
+    assert rows("april_pickandplace_ae_n9_m9_goals_two_views_long_noise5mm") == {
+        "state": "ground_truth_actor_noise5mm", "pixels": "pixels_ae_n9_m9_w1_goals5_cosine80_two_views_actor_noise5mm"}
+    assert rows("april_obstacle_on_path_n8_m6_foreground_distilled_detour")["pixels"] == \
+        "pixels_ae_n8_m6_w1_fg20_goals_on_path_distilled_from_detour"
+    assert rows("april_obstacle_on_path_n8_m6_distilled_encoder_detour") == {
+        "state": "detour_teacher_on_path", "pixels": "pixels_ae_n8_m6_w1_goals_on_path_distilled_encoder_from_detour"}
 
 
 def test_scripted_pick_and_place_heuristic_completes_the_task():

@@ -65,6 +65,32 @@ def test_cosine_schedule_learns_and_settles():
         train_perception(PerceptionConfig(latent=2, conditioned=2, channels=8), images[:4], states[:4], schedule="step")
 
 
+def test_foreground_weight_counts_small_objects_in_the_reconstruction_loss(tmp_path):
+    """perception.foreground_weight λ: pixels unlike the median training image (here the 6x6 square,
+    1% of the image) weigh 1 + λ in L_recon, so missing the square costs a decoder as much as a
+    sizeable part of the background would, where the plain L1 barely notices it."""
+    images, states = dot_images(200)
+    plain = AutoPerception(PerceptionConfig(latent=2, conditioned=0, omega=0.0, channels=4), (64, 64, 1), 2)
+    weighted = AutoPerception(PerceptionConfig(latent=2, conditioned=0, omega=0.0, channels=4, foreground_weight=50.0),
+                              (64, 64, 1), 2)
+    weighted.load_state_dict(plain.state_dict(), strict=False)  # the same network; only the loss differs
+    weighted.set_background(images)
+    assert float(weighted.background.abs().max()) == 0.0  # the median image: the square is nowhere most of the time
+    with torch.no_grad():
+        error = (plain.decode(plain(images[:8])[0]) - plain._pixels(images[:8])).abs()
+        square = torch.as_tensor(images[:8] > 0).permute(0, 3, 1, 2).float()
+        expected = ((1 + 50 * square) * error).sum() / (1 + 50 * square).sum()
+        torch.testing.assert_close(weighted.loss(images[:8], None)["recon"], expected)
+        torch.testing.assert_close(plain.loss(images[:8], None)["recon"], error.mean())
+    save_perception(weighted, tmp_path / "p.safetensors")
+    loaded = load_perception(tmp_path / "p.safetensors")
+    assert loaded.config.foreground_weight == 50.0 and torch.equal(loaded.background, weighted.background)
+    _, history = train_perception(weighted.config, images, states, epochs=1, batch_size=32)  # sets its background
+    assert history["epochs"][0]["recon"] > 0
+    with pytest.raises(ConfigError, match="perception.foreground_weight"):
+        PerceptionConfig(foreground_weight=-1)
+
+
 def test_bad_perception_input_is_one_clear_error():
     with pytest.raises(ConfigError, match=r"conditioned \(m=9\) must be <= perception.latent \(n=8\)"):
         PerceptionConfig(latent=8, conditioned=9)

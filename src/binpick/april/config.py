@@ -77,6 +77,9 @@ class PolicyConfig:
     finetune: str = "sac"
     distill_every: int = 500  # distill: simulator steps between regressions (the first round follows the teacher)
     distill_gradient_steps: int = 300  # distill: actor updates per round, batches of 256
+    # distill: train the encoder too (action regression + its own L_VP, batches of 64), so the free
+    # features learn what the teacher's actions depend on rather than only what reconstruction needs
+    distill_encoder: bool = False
     # who labels the images in distill: the trained "state_policy", or "detour", a scripted teacher
     # that knows where FetchReachObstacle's box is (binpick.rl.heuristic.ObstacleDetour)
     teacher: str = "state_policy"
@@ -165,6 +168,9 @@ class AprilConfig:
                        or spec.env_id != "binpick/FetchReachObstacle-v0"):
             raise ConfigError("policy.teacher detour is a scripted teacher for binpick/FetchReachObstacle-v0 students: "
                               "it needs policy.mode latent, finetune distill and pretrain: false")
+        if self.policy.distill_encoder and (self.policy.mode != "latent" or self.policy.finetune != "distill"):
+            raise ConfigError("policy.distill_encoder trains the encoder on the teacher's labels: it needs policy.mode "
+                              "latent and finetune distill")
         if self.policy.finetune == "distill" and self.policy.mode == "latent" and not self.policy.pretrain and not detour:
             raise ConfigError("policy.finetune distill learns from the state policy: it needs policy.pretrain: true")
         if self.refine.episodes and self.refine.act_on == "pixels" and self.policy.mode != "semantic":

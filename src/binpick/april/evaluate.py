@@ -72,13 +72,19 @@ def row_names(run: AprilRun) -> dict[str, str]:
     world = "_on_path" if run.config.env_kwargs.get("obstacle_on_path") else ""  # another world: other rows
     training = run.config.perception_training  # a longer, decayed schedule: its own rows
     trained = f"_cosine{training.epochs}" if training.schedule == "cosine" else ""
-    pixels = f"pixels_{p.kind}_n{p.latent}_m{p.conditioned}_w{p.omega:g}" + goals + trained + refined + cameras + world
-    if run.config.policy.mode == "semantic":
-        return {"state": "ground_truth" + world, "pixels": pixels}
+    foreground = f"_fg{p.foreground_weight:g}" if p.foreground_weight else ""  # reconstruction weighted to objects
+    pixels = f"pixels_{p.kind}_n{p.latent}_m{p.conditioned}_w{p.omega:g}" + foreground + goals + trained + refined + cameras + world
+    if run.config.policy.mode == "semantic":  # a state policy whose actor trained on noisy s̄: its own rows
+        noise = run.state_policy_settings().actor_noise  # e.g. _actor_noise5mm: its largest std on a position
+        largest = max(max(noise.gripper), max(noise.achieved), max(noise.goal)) * 1000
+        noisy = f"_actor_noise{largest:g}mm" if noise.enabled else ""
+        return {"state": "ground_truth" + world + noisy, "pixels": pixels + noisy}
     if run.config.policy.mode == "state_plus_latent":
         return {"pixels": f"ground_truth_plus_latent_{p.kind}_n{p.latent}_m{p.conditioned}" + cameras + world}
     detour = run.config.policy.teacher == "detour"
-    rows = {"pixels": pixels + ("_distilled" if run.config.policy.finetune == "distill" else "") + ("_from_detour" if detour else "")}
+    distilled = "" if run.config.policy.finetune != "distill" else "_distilled_encoder" if run.config.policy.distill_encoder \
+        else "_distilled"
+    rows = {"pixels": pixels + distilled + ("_from_detour" if detour else "")}
     if detour:  # the scripted teacher itself, on the box position only it may read
         rows = {"state": "detour_teacher" + world} | rows
     elif run.config.policy.pretrain and run.teacher_privileged:  # the teacher itself, on what only it may read

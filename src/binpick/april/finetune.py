@@ -18,8 +18,8 @@ import torch
 from stable_baselines3 import SAC
 from stable_baselines3.common.callbacks import BaseCallback
 
-from binpick.april.observations import EncodedObservation
-from binpick.files import atomic_write_json
+from binpick.april.observations import EncodedObservation, semantic_state
+from binpick.files import atomic_write, atomic_write_json
 from binpick.rl.demonstrations import cloning_loss
 from binpick.rl.persistence import SavedPolicy, save_policy
 from binpick.rl.heuristic import ObstacleDetour
@@ -27,6 +27,7 @@ from binpick.rl.wrappers import MinActionScale, privileged_values, semantic_inpu
 from binpick.runs import SILENT, RunCallback, Task
 
 LATENT_POLICY_FILE = "policy_latent.safetensors"  # SAC on φ_enc(I): weights + spaces, no pickle
+PRETRAINED_PERCEPTION_FILE = "perception_pretrained.safetensors"  # distill_encoder: the encoder before it
 
 
 def with_action_scale(env, scale: float | None):
@@ -103,7 +104,15 @@ def finetune_latent_policy(run: AprilRun, semantic_run: str | None, callback: Ru
 
     torch.set_num_threads(1)  # small networks, one env: a second thread only competes with other jobs
     config, policy = run.config, run.config.policy
-    perception = load_perception(perception_path(run.run_dir))
+    joint = policy.finetune == "distill" and policy.distill_encoder
+    source = perception_path(run.run_dir)
+    if joint:  # the encoder changes: keep the perception stage's own, and always start from it (resume)
+        pretrained = run.run_dir / PRETRAINED_PERCEPTION_FILE
+        if not pretrained.is_file():
+            data = source.read_bytes()
+            atomic_write(pretrained, lambda handle: handle.write(data))
+        source = pretrained
+    perception = load_perception(source)
     rl_settings = load_rl_config(policy.rl_config)
     env = with_action_scale(EncodedObservation(run.make_env(), perception.encode, perception.config.latent,
                                                perception.config.conditioned, with_state=policy.mode == "state_plus_latent",
@@ -123,7 +132,11 @@ def finetune_latent_policy(run: AprilRun, semantic_run: str | None, callback: Ru
             widened = True
     if policy.finetune == "distill":
         teacher = ObstacleDetour(env.unwrapped.obstacle_half_size) if policy.teacher == "detour" else semantic
-        result = distill_from_state_policy(model, teacher, env, run, callback)
+        result = distill_from_state_policy(model, teacher, env, run, callback, perception if joint else None)
+        if joint:
+            from binpick.perception import save_perception
+
+            save_perception(perception.eval(), perception_path(run.run_dir))
     else:
         with callback.task("fine-tune on φ_enc(I)", policy.finetune_steps) as task:
             report = _Progress(task)
@@ -136,13 +149,16 @@ def finetune_latent_policy(run: AprilRun, semantic_run: str | None, callback: Ru
 
 
 def distill_from_state_policy(student: SAC, teacher: SavedPolicy | ObstacleDetour | None, env, run: AprilRun,
-                              callback: RunCallback = SILENT) -> dict[str, Any]:
+                              callback: RunCallback = SILENT, perception=None) -> dict[str, Any]:
     """DAgger (Ross et al., 2011) from the state policy: the student acts on φ_enc(I), the teacher
     labels every visited image with its own action on the true s̄ (and any ``privileged_state`` its
     RL config reads, e.g. where the obstacle is), and the student's actor regresses
     onto all labels so far. Unlike plain SAC on φ_enc(I), which starts from a critic that knows nothing
     of images and drags a good widened policy down, this only ever moves towards what the state
-    policy does, on the states the student itself reaches (the arm in front of the goal, say)."""
+    policy does, on the states the student itself reaches (the arm in front of the goal, say).
+    With ``perception`` (``distill_encoder``) the encoder learns too: each update regresses the actor
+    on φ_enc of the stored images and adds the encoder's own L_VP, so s̄'s features stay s̄ while the
+    free ones may carry whatever the teacher's actions depend on (the box it reads, say)."""
     if teacher is None:
         raise ValueError("distillation needs the state policy (policy.pretrain: true)")
     policy, privileged = run.config.policy, run.teacher_privileged
@@ -151,6 +167,10 @@ def distill_from_state_policy(student: SAC, teacher: SavedPolicy | ObstacleDetou
         encoded = encoded.env
     rng = np.random.default_rng(run.config.seed + 11)
     observations: list[np.ndarray] = []
+    images: list[np.ndarray] = []
+    states: list[np.ndarray] = []
+    encoder_optimizer = None if perception is None else torch.optim.Adam(
+        perception.parameters(), lr=run.config.perception_training.learning_rate)
     labels: list[np.ndarray] = []
     history: list[dict[str, float]] = []
     steps = episodes = successes = 0
@@ -161,6 +181,9 @@ def distill_from_state_policy(student: SAC, teacher: SavedPolicy | ObstacleDetou
             while not done and steps < policy.finetune_steps:
                 state = semantic_inputs(encoded.last_raw, run.gripper, privileged_values(encoded, privileged))
                 label = teacher.predict(state, deterministic=True)[0]
+                if perception is not None:  # the image and s̄ behind φ_enc(I), for the encoder's updates
+                    images.append(encoded.last_raw["image"])
+                    states.append(semantic_state(encoded.last_raw, run.gripper))
                 observations.append(np.asarray(observation, np.float32))
                 labels.append(student.policy.scale_action(np.asarray(label, np.float32)))
                 first_round = steps < policy.distill_every  # DAgger's β = 1 for the first round, then 0
@@ -173,11 +196,19 @@ def distill_from_state_policy(student: SAC, teacher: SavedPolicy | ObstacleDetou
                     data, targets = np.stack(observations), np.stack(labels).astype(np.float32)
                     losses = []
                     for _ in range(policy.distill_gradient_steps):
-                        batch = rng.integers(0, len(data), size=min(256, len(data)))
-                        loss, _ = cloning_loss(student, data[batch], targets[batch])
+                        if perception is None:
+                            batch = rng.integers(0, len(data), size=min(256, len(data)))
+                            loss, _ = cloning_loss(student, data[batch], targets[batch])
+                        else:
+                            batch = rng.integers(0, len(data), size=min(64, len(data)))
+                            loss = joint_loss(student, perception, np.stack([images[i] for i in batch]),
+                                              np.stack([states[i] for i in batch]), targets[batch])
+                            encoder_optimizer.zero_grad()
                         student.actor.optimizer.zero_grad()
                         loss.backward()
                         student.actor.optimizer.step()
+                        if encoder_optimizer is not None:
+                            encoder_optimizer.step()
                         losses.append(float(loss.detach()))
                     history.append({"sim_steps": steps, "labels": len(data), "mse_before": losses[0] if losses else None,
                                     "mse": float(np.mean(losses[-50:])) if losses else None,
@@ -188,3 +219,11 @@ def distill_from_state_policy(student: SAC, teacher: SavedPolicy | ObstacleDetou
     atomic_write_json(run.run_dir / "distill_history.json", history)
     return {"sim_episodes": episodes, "sim_steps": steps, "labels": len(labels),
             "final_mse": history[-1]["mse"] if history else None}
+
+
+def joint_loss(student: SAC, perception, images: np.ndarray, states: np.ndarray, targets: np.ndarray) -> torch.Tensor:
+    """Action regression of the student on φ_enc(I) (the encoder in the graph) plus the encoder's L_VP."""
+    perception.train()
+    losses = perception.loss(images, states)
+    mean, _, _ = student.actor.get_action_dist_params(perception.features(losses["mu"]))
+    return ((torch.tanh(mean) - torch.as_tensor(targets)) ** 2).mean() + losses["total"]

@@ -36,6 +36,10 @@ class PerceptionConfig:
     omega: float = 1.0  # ω: weight of the conditioning (and, for the VAE, KL) loss
     beta: float = 1e-3  # β: weight of the KL term on the free dimensions (VAE only)
     channels: int = 32  # width of the first convolution; doubles every other layer
+    # λ: L_recon weighs 1 + λ on pixels that differ from the training images' median (the goal, a box,
+    # the arm): over the whole image an L1 lets the decoder leave out objects of a few dozen pixels,
+    # and then no free latent carries them (0: the thesis's plain L1)
+    foreground_weight: float = 0.0
 
     def __post_init__(self) -> None:
         check_choice("perception.kind", self.kind, ["ae", "vae"])
@@ -47,6 +51,7 @@ class PerceptionConfig:
         check_range("perception.omega", self.omega, 0.0, 1e6)
         check_range("perception.beta", self.beta, 0.0, 1e6)
         check_range("perception.channels", self.channels, 1, 512, integer=True)
+        check_range("perception.foreground_weight", self.foreground_weight, 0.0, 1e4)
 
     @property
     def free(self) -> int:
@@ -88,6 +93,8 @@ class AutoPerception(nn.Module):
         self.decoder = nn.Sequential(*decoder)
         self.register_buffer("state_mean", torch.zeros(config.conditioned))
         self.register_buffer("state_std", torch.ones(config.conditioned))
+        if config.foreground_weight:  # the median training image, against which "foreground" is judged
+            self.register_buffer("background", torch.zeros(channels, height, width))
 
     # ------------------------------------------------------------------ data
     def set_state_statistics(self, states: np.ndarray) -> None:
@@ -97,6 +104,12 @@ class AutoPerception(nn.Module):
             part = torch.as_tensor(np.asarray(states)[:, :m], dtype=torch.float32)
             self.state_mean.copy_(part.mean(0))
             self.state_std.copy_(part.std(0).clamp_min(1e-3))
+
+    def set_background(self, images: np.ndarray, sample: int = 2000) -> None:
+        """The per-pixel median of (up to ``sample`` of) the training images, for ``foreground_weight``."""
+        images = np.asarray(images)
+        picked = np.random.default_rng(0).choice(len(images), min(sample, len(images)), replace=False)
+        self.background.copy_(self._pixels(np.median(images[np.sort(picked)], axis=0).astype(np.uint8))[0])
 
     def _pixels(self, images: torch.Tensor | np.ndarray) -> torch.Tensor:
         images = torch.as_tensor(np.asarray(images) if not torch.is_tensor(images) else images)
@@ -127,10 +140,17 @@ class AutoPerception(nn.Module):
         return self.decoder(F.relu(features))
 
     def loss(self, images, states: torch.Tensor | None) -> dict[str, torch.Tensor]:
-        """L_VP = L_recon + ω (L_cond + β KL_free) (Eq 4.1–4.7); per-element means, so sizes do not matter."""
+        """L_VP = L_recon + ω (L_cond + β KL_free) (Eq 4.1–4.7); per-element means, so sizes do not matter.
+        Also gives ``mu``, the encoder's output, for losses on the features themselves."""
         latent, mu, log_sigma = self(images)
         target = self._pixels(images)
-        recon = (self.decode(latent) - target).abs().mean()
+        error = (self.decode(latent) - target).abs()
+        if self.config.foreground_weight:  # a weighted mean: same scale as the plain L1
+            foreground = ((target - self.background).abs().amax(dim=1, keepdim=True) > 0.1).float()
+            weight = (1 + self.config.foreground_weight * foreground).expand_as(error)
+            recon = (weight * error).sum() / weight.sum()
+        else:
+            recon = error.mean()
         m = self.config.conditioned
         cond = torch.zeros(())
         if m and states is not None:
@@ -142,16 +162,19 @@ class AutoPerception(nn.Module):
             kl = 0.5 * (torch.exp(2 * log_sigma) + free_mu ** 2 - 2 * log_sigma - 1).sum(1).mean()
         extra = cond + self.config.beta * kl if self.config.kind == "vae" else cond
         total = recon + self.config.omega * extra
-        return {"total": total, "recon": recon, "cond": cond, "kl": kl}
+        return {"total": total, "recon": recon, "cond": cond, "kl": kl, "mu": mu}
 
     # ------------------------------------------------------------------ deployment
+    def features(self, mu: torch.Tensor) -> torch.Tensor:
+        """μ as a policy reads it (differentiable :meth:`encode`): the conditioned part in s̄'s units."""
+        m = self.config.conditioned
+        return torch.cat([mu[:, :m] * self.state_std + self.state_mean, mu[:, m:]], dim=1)
+
     @torch.no_grad()
     def encode(self, images) -> np.ndarray:
         """φ_enc(I): (B, n) with the conditioned part in the semantic state's units (the VAE gives μ)."""
         _, mu, _ = self(images, sample=False)
-        m = self.config.conditioned
-        semantic = mu[:, :m] * self.state_std + self.state_mean
-        return torch.cat([semantic, mu[:, m:]], dim=1).numpy()
+        return self.features(mu).numpy()
 
     @torch.no_grad()
     def reconstruct(self, images) -> np.ndarray:

@@ -50,6 +50,8 @@ def train_perception(
     if initial is None:
         model = AutoPerception(config, images.shape[1:], states.shape[1])
         model.set_state_statistics(states[train])
+        if config.foreground_weight:
+            model.set_background(images[train])
     else:
         model = initial
     optimizer = torch.optim.Adam(model.parameters(), lr=learning_rate)
