@@ -284,6 +284,8 @@ def test_row_names_say_what_differs_from_the_thesis_set_up(tmp_path):
     assert rows("april_pickandplace_ae_n9_m9_goals1_two_views_long")["pixels"] == "pixels_ae_n9_m9_w1_goals_cosine80_two_views"
     assert rows("april_pickandplace_ae_n9_m9_goals_two_views_long_noise5mm") == {
         "state": "ground_truth_actor_noise5mm", "pixels": "pixels_ae_n9_m9_w1_goals5_cosine80_two_views_actor_noise5mm"}
+    assert rows("april_pickandplace_ae_n10_m10_goals_two_views_long_opening") == {
+        "state": "ground_truth_opening", "pixels": "pixels_ae_n10_m10_w1_goals5_cosine80_two_views_opening"}
     assert rows("april_obstacle_on_path_n8_m6_foreground_distilled_detour")["pixels"] == \
         "pixels_ae_n8_m6_w1_fg20_goals_on_path_distilled_from_detour"
     assert rows("april_obstacle_on_path_n8_m6_distilled_encoder_detour") == {

@@ -174,6 +174,39 @@ def test_pick_and_place_actions_are_delta_z_and_gripper(make_env):
     assert fingers() < opened - 0.01, "a_g = -1 closes the gripper"
 
 
+def test_gripper_opening_puts_the_fingers_into_the_semantic_state(make_env, tmp_path):
+    """RL config gripper_opening: s̄ = (gripper, opening, object, goal); the opening is what the
+    fingers span, so closing on nothing and holding the cube differ in s̄ as they do in the images."""
+    from binpick.april.observations import PixelsAsSemantic, semantic_observation, semantic_state
+    from binpick.config import load_config
+    from binpick.errors import ConfigError
+    from binpick.rl.config import RLConfig
+    from binpick.rl.wrappers import SemanticState
+
+    env = SemanticState(make_env("binpick/FetchPickAndPlace-v0"), gripper=True, opening=True)
+    observation, _ = env.reset(seed=0)
+    assert env.observation_space["observation"].shape == (7,)
+    np.testing.assert_allclose(observation["observation"][4:], observation["achieved_goal"])
+    for _ in range(8):
+        observation, *_ = env.step(np.array([0, 0, 0, 1.0], dtype=np.float32))
+    opened = observation["observation"][3]
+    for _ in range(8):
+        observation, *_ = env.step(np.array([0, 0, 0, -1.0], dtype=np.float32))
+    assert 0.05 < opened < 0.11 and observation["observation"][3] < opened - 0.03, (opened, observation["observation"][3])
+    raw = env.unwrapped._get_obs()
+    state = semantic_state(raw, True, opening=True)
+    assert state.shape == (10,) and np.isclose(state[3], raw["observation"][9:11].sum())
+    again = semantic_observation(state, 3)  # the dict a policy trained on s̄ takes: the object before the goal
+    np.testing.assert_allclose(again["achieved_goal"], raw["achieved_goal"], atol=1e-6)
+    pixels = PixelsAsSemantic(make_env("binpick/FetchPickAndPlace-v0", image="rgb", image_size=64),
+                              lambda image: np.zeros((1, 10)), gripper=True, opening=True)
+    assert pixels.observation_space["observation"].shape == (7,)
+    config = tmp_path / "rl.yaml"
+    config.write_text("env: binpick/FetchReach-v0\ngripper_opening: true\n")
+    with pytest.raises(ConfigError, match="gripper_opening adds the fingers to a pick-and-place semantic state"):
+        load_config(RLConfig, config)
+
+
 def test_fixed_goal_and_noisy_start_for_table_3_3(make_env):
     fixed = make_env("binpick/FetchReach-v0", goal_offset=(0.1, 0.0, 0.05))
     noisy = make_env("binpick/FetchReach-v0", goal_offset=(0.1, 0.0, 0.05), start_noise=0.1)

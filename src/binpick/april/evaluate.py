@@ -33,15 +33,16 @@ def deployment_env(run: AprilRun, runtime_input: str):
             policy = ObstacleDetour(base.unwrapped.obstacle_half_size)
         else:
             policy, _ = load_policy(Path(run.stages["policy"]["semantic_run"]))
-        return with_action_scale(SemanticState(base, run.gripper, run.teacher_privileged), scale), policy, base
+        return with_action_scale(SemanticState(base, run.gripper, run.teacher_privileged, run.opening), scale), policy, base
     if mode == "semantic":
         policy, _ = load_policy(Path(run.stages["policy"]["semantic_run"]))
         base = GoalRecorder(run.make_env())
-        return with_action_scale(PixelsAsSemantic(base, load_perception(perception_path(run.run_dir)).encode, run.gripper), scale), policy, base
+        encode = load_perception(perception_path(run.run_dir)).encode
+        return with_action_scale(PixelsAsSemantic(base, encode, run.gripper, run.opening), scale), policy, base
     perception = load_perception(perception_path(run.run_dir))
     base = GoalRecorder(run.make_env())
     env = EncodedObservation(base, perception.encode, perception.config.latent, perception.config.conditioned,
-                             with_state=mode == "state_plus_latent", gripper=run.gripper)
+                             with_state=mode == "state_plus_latent", gripper=run.gripper, opening=run.opening)
     return with_action_scale(env, scale), load_latent_policy(run.run_dir), base
 
 
@@ -78,7 +79,8 @@ def row_names(run: AprilRun) -> dict[str, str]:
         noise = run.state_policy_settings().actor_noise  # e.g. _actor_noise5mm: its largest std on a position
         largest = max(max(noise.gripper), max(noise.achieved), max(noise.goal)) * 1000
         noisy = f"_actor_noise{largest:g}mm" if noise.enabled else ""
-        return {"state": "ground_truth" + world + noisy, "pixels": pixels + noisy}
+        opening = "_opening" if run.opening else ""  # s̄ with the fingers' opening: another state policy
+        return {"state": "ground_truth" + world + opening + noisy, "pixels": pixels + opening + noisy}
     if run.config.policy.mode == "state_plus_latent":
         return {"pixels": f"ground_truth_plus_latent_{p.kind}_n{p.latent}_m{p.conditioned}" + cameras + world}
     detour = run.config.policy.teacher == "detour"

@@ -116,7 +116,7 @@ def finetune_latent_policy(run: AprilRun, semantic_run: str | None, callback: Ru
     rl_settings = load_rl_config(policy.rl_config)
     env = with_action_scale(EncodedObservation(run.make_env(), perception.encode, perception.config.latent,
                                                perception.config.conditioned, with_state=policy.mode == "state_plus_latent",
-                                               gripper=run.gripper),
+                                               gripper=run.gripper, opening=run.opening),
                             rl_settings.min_action_scale)
     settings = rl_settings.sac
     model = SAC("MlpPolicy", env, learning_rate=settings.learning_rate, batch_size=settings.batch_size,
@@ -179,11 +179,11 @@ def distill_from_state_policy(student: SAC, teacher: SavedPolicy | ObstacleDetou
             observation, _ = env.reset(seed=run.config.collect.seed + 200_000 + episodes)
             done = success = False
             while not done and steps < policy.finetune_steps:
-                state = semantic_inputs(encoded.last_raw, run.gripper, privileged_values(encoded, privileged))
+                state = semantic_inputs(encoded.last_raw, run.gripper, privileged_values(encoded, privileged), run.opening)
                 label = teacher.predict(state, deterministic=True)[0]
                 if perception is not None:  # the image and s̄ behind φ_enc(I), for the encoder's updates
                     images.append(encoded.last_raw["image"])
-                    states.append(semantic_state(encoded.last_raw, run.gripper))
+                    states.append(semantic_state(encoded.last_raw, run.gripper, run.opening))
                 observations.append(np.asarray(observation, np.float32))
                 labels.append(student.policy.scale_action(np.asarray(label, np.float32)))
                 first_round = steps < policy.distill_every  # DAgger's β = 1 for the first round, then 0

@@ -14,12 +14,13 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from binpick.rl.wrappers import semantic_part
+from binpick.rl.wrappers import gripper_dims, semantic_part
 
 
-def semantic_state(observation: dict, gripper: bool = False) -> np.ndarray:
-    """s̄ = (z, g) for the reach envs; (gripper, object, goal) for pick and place (``gripper``)."""
-    return np.concatenate([semantic_part(observation, gripper), observation["desired_goal"]]).astype(np.float32)
+def semantic_state(observation: dict, gripper: bool = False, opening: bool = False) -> np.ndarray:
+    """s̄ = (z, g) for the reach envs; (gripper, object, goal) for pick and place (``gripper``), with
+    ``opening`` (gripper, fingers' opening, object, goal)."""
+    return np.concatenate([semantic_part(observation, gripper, opening), observation["desired_goal"]]).astype(np.float32)
 
 
 def semantic_observation(state: np.ndarray, goal_dim: int) -> dict[str, np.ndarray]:
@@ -33,12 +34,13 @@ def semantic_observation(state: np.ndarray, goal_dim: int) -> dict[str, np.ndarr
 class PixelsAsSemantic(gym.ObservationWrapper):
     """Deployment for m = n (Eq 4.8): the policy gets φ_enc(I) where it was trained on s̄."""
 
-    def __init__(self, env: gym.Env, encode: Callable[[np.ndarray], np.ndarray], gripper: bool = False) -> None:
+    def __init__(self, env: gym.Env, encode: Callable[[np.ndarray], np.ndarray], gripper: bool = False,
+                 opening: bool = False) -> None:
         super().__init__(env)
         goal_space = env.observation_space["achieved_goal"]
         self.goal_dim = goal_space.shape[0]
         self.encode = encode
-        size = self.goal_dim + (3 if gripper else 0)
+        size = self.goal_dim + gripper_dims(gripper, opening)
         self.observation_space = spaces.Dict({"observation": spaces.Box(-np.inf, np.inf, (size,), np.float64),
                                               "achieved_goal": goal_space,
                                               "desired_goal": env.observation_space["desired_goal"]})
@@ -55,10 +57,11 @@ class EncodedObservation(gym.ObservationWrapper):
     """
 
     def __init__(self, env: gym.Env, encode: Callable[[np.ndarray], np.ndarray], latent: int, conditioned: int,
-                 with_state: bool = False, gripper: bool = False) -> None:
+                 with_state: bool = False, gripper: bool = False, opening: bool = False) -> None:
         super().__init__(env)
         self.encode, self.conditioned, self.with_state, self.gripper = encode, conditioned, with_state, gripper
-        state_dim = 2 * env.observation_space["achieved_goal"].shape[0] + (3 if gripper else 0)
+        self.opening = opening
+        state_dim = 2 * env.observation_space["achieved_goal"].shape[0] + gripper_dims(gripper, opening)
         size = state_dim + latent - conditioned if with_state else latent
         self.observation_space = spaces.Box(-np.inf, np.inf, (size,), np.float32)
 
@@ -68,7 +71,7 @@ class EncodedObservation(gym.ObservationWrapper):
         self.last_raw = observation
         latent = self.encode(observation["image"])[0].astype(np.float32)
         if self.with_state:
-            return np.concatenate([semantic_state(observation, self.gripper), latent[self.conditioned:]])
+            return np.concatenate([semantic_state(observation, self.gripper, self.opening), latent[self.conditioned:]])
         return latent
 
 

@@ -64,6 +64,13 @@ class AprilRun:
 
         return needs_gripper(self.config.env)
 
+    @property
+    def opening(self) -> bool:
+        """s̄ also holds the fingers' opening: the state policy's RL config says ``gripper_opening``."""
+        if self.config.policy.mode == "latent" and not self.config.policy.pretrain:
+            return False  # no state policy (a scripted teacher or none): s̄ as the env defines it
+        return self.state_policy_settings().gripper_opening
+
     def state_policy_settings(self):
         """The state policy's RL config: that of ``policy.state_run`` if one is shared, else ``policy.rl_config``."""
         from binpick.rl.config import RLConfig, load_rl_config
@@ -140,14 +147,14 @@ class AprilRun:
             for episode in range(collect.episodes):
                 observation, _ = env.reset(seed=collect.seed + episode)
                 images.append(observation["image"])
-                states.append(semantic_state(observation, self.gripper))
+                states.append(semantic_state(observation, self.gripper, self.opening))
                 done = False
                 while not done:
                     if collect.goal_every and steps % collect.goal_every == 0:  # a new goal, drawn only
                         env.unwrapped.goal = env.unwrapped._sample_goal()
                     observation, _, terminated, truncated, _ = env.step(act())
                     images.append(observation["image"])
-                    states.append(semantic_state(observation, self.gripper))
+                    states.append(semantic_state(observation, self.gripper, self.opening))
                     steps += 1
                     done = terminated or truncated
                 task.update(advance=1, status=f"{len(images):,} images")
@@ -254,11 +261,11 @@ class AprilRun:
                     done = success = False
                     while not done:
                         images.append(raw["image"])
-                        states.append(semantic_state(raw, self.gripper))
+                        states.append(semantic_state(raw, self.gripper, self.opening))
                         if refine.act_on == "pixels":
                             inputs = semantic_observation(model.encode(raw["image"])[0], goal_dim)
                         else:
-                            inputs = semantic_inputs(raw, self.gripper, privileged_values(env, privileged))
+                            inputs = semantic_inputs(raw, self.gripper, privileged_values(env, privileged), self.opening)
                         action = policy.predict(inputs, deterministic=True)[0]
                         action = np.clip(action + rng.normal(0, refine.action_noise, action.shape), -1, 1)
                         raw, _, terminated, truncated, info = env.step(action)

@@ -114,11 +114,11 @@ def transfer(run_dir: Path, out: Path, real_episodes: int = 25, eval_episodes: i
         done = False
         while not done:
             images.append(raw["image"])
-            states.append(semantic_state(raw, run.gripper))
+            states.append(semantic_state(raw, run.gripper, run.opening))
             raw, _, terminated, truncated, _ = env.step(env.action_space.sample())
             done = terminated or truncated
         images.append(raw["image"])
-        states.append(semantic_state(raw, run.gripper))
+        states.append(semantic_state(raw, run.gripper, run.opening))
     env.close()
     training = run.config.perception_training
     model, history = train_perception(run.config.perception, np.stack(images), np.stack(states), epochs=epochs,

@@ -38,7 +38,7 @@ class GoalSAC(SAC):
     bc_likelihood_weight: float = 0.0  # keep fitting σ to the demonstrations (see behaviour_clone)
     bc_q_filter: bool = False  # clone only where the critic prefers the demonstrated action
     actor_noise: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None  # per-axis std of (gripper, achieved, goal)
-    noisy_gripper: bool = False  # s̄'s observation starts with the gripper position (pick and place)
+    noisy_gripper: int = 0  # how many numbers of s̄'s observation describe the hand (0, 3, or 4 with the opening)
 
     def keep_cloning(self, demonstrations: DemonstrationSet, alpha: float, likelihood_weight: float = 0.0,
                      q_filter: bool = False) -> None:
@@ -47,12 +47,13 @@ class GoalSAC(SAC):
         self.demonstrations, self.bc_alpha = demonstrations, check_range("demonstrations.bc_alpha", alpha, 0.0, None)
         self.bc_likelihood_weight, self.bc_q_filter = likelihood_weight, bool(q_filter)
 
-    def perturb_actor_inputs(self, noise, gripper: bool) -> None:
+    def perturb_actor_inputs(self, noise, gripper: int) -> None:
         """Train the actor on s̄ plus Gaussian noise of std ``noise`` = (gripper, achieved, goal), each a
         number or one per axis, in metres (see :class:`binpick.rl.config.ActorNoiseConfig`); the critic
-        keeps reading the true s̄."""
+        keeps reading the true s̄. ``gripper``: how many numbers before the achieved goal describe the
+        hand (3: its position, noised; a 4th, the fingers' opening, is left as it is)."""
         self.actor_noise = tuple(torch.as_tensor(v, dtype=torch.float32) for v in noise)
-        self.noisy_gripper = bool(gripper)
+        self.noisy_gripper = 3 if gripper is True else int(gripper)
 
     def actor_view(self, observation: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
         """What the actor reads in an update: s̄ as is, or with ``actor_noise``. The achieved goal's
@@ -63,7 +64,7 @@ class GoalSAC(SAC):
         achieved = observation["achieved_goal"]
         achieved_noise = torch.randn_like(achieved) * achieved_std
         state = observation["observation"].clone()
-        start = 3 if self.noisy_gripper else 0
+        start = self.noisy_gripper
         if self.noisy_gripper:
             state[:, :3] += torch.randn_like(state[:, :3]) * gripper_std
         state[:, start:start + achieved.shape[1]] += achieved_noise  # privileged values after it stay true

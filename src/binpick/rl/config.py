@@ -275,6 +275,10 @@ class RLConfig:
     # simulator state beside s̄ that only a teacher may read (e.g. obstacle_position): a state policy
     # that knows what pixels show but s̄ leaves out, for APRiL's partly-semantic students to imitate
     privileged_state: list[str] = field(default_factory=list)
+    # pick and place: s̄ also holds the fingers' opening (after the gripper's position). Without it
+    # "just closed on the cube" and "holding it" are the same s̄, and the policy tells them apart by
+    # sub-millimetre drifts that perception from pixels cannot see
+    gripper_opening: bool = False
     min_action_scale: float | None = None  # thesis: 0.4 for Fetch
     checkpoint_every: int = 2000
     init_from: str | None = None  # a3c: an earlier run folder whose latest checkpoint this run continues
@@ -315,6 +319,9 @@ class RLConfig:
         if self.actor_noise.enabled and (self.algorithm != "sac" or not self.semantic_state):
             raise ConfigError("actor_noise perturbs the semantic state the actor reads: it needs algorithm: sac and "
                               "semantic_state: true")
+        if self.gripper_opening and (not spec.moves_object or not self.semantic_state or self.algorithm != "sac"):
+            raise ConfigError(f"gripper_opening adds the fingers to a pick-and-place semantic state: it needs algorithm: "
+                              f"sac, semantic_state: true and an env that moves an object ({self.env} given)")
         if any(self.actor_noise.gripper) and not spec.moves_object:
             raise ConfigError(f"actor_noise.gripper: {self.env}'s semantic state has no gripper position beside z "
                               "(only pick and place has one); use actor_noise.achieved")

@@ -33,7 +33,7 @@ from binpick.rl.evaluate import evaluate_policy
 from binpick.rl.persistence import (load_algorithm, load_replay, load_saved_policy, save_algorithm, save_policy,
                                     save_replay)
 from binpick.rl.replay import EpisodeReplayBuffer
-from binpick.rl.wrappers import MinActionScale, SemanticState, needs_gripper
+from binpick.rl.wrappers import MinActionScale, SemanticState, gripper_dims, needs_gripper
 
 
 def next_multiple(steps: int, every: int) -> int:
@@ -45,7 +45,8 @@ def make_env(config: RLConfig) -> gym.Env:
     """The env exactly as the run trains on it (semantic state, minimum action scale)."""
     env = make(config.env, **config.env_kwargs)
     if config.semantic_state and config.algorithm in ("sac", "sb3_sac_her"):
-        env = SemanticState(env, gripper=needs_gripper(config.env), privileged=config.privileged_state)
+        env = SemanticState(env, gripper=needs_gripper(config.env), privileged=config.privileged_state,
+                            opening=config.gripper_opening)
     if config.min_action_scale:
         env = MinActionScale(env, config.min_action_scale)
     return env
@@ -198,7 +199,8 @@ class Trainer:
         self.model = build_model(config, self.env, str(self.run_dir / "tb"))
         if config.actor_noise.enabled:
             noise = config.actor_noise
-            self.model.perturb_actor_inputs((noise.gripper, noise.achieved, noise.goal), needs_gripper(config.env))
+            self.model.perturb_actor_inputs((noise.gripper, noise.achieved, noise.goal),
+                                            gripper_dims(needs_gripper(config.env), config.gripper_opening))
         self.gp = None
         if config.gp.enabled:
             dynamics = GPDynamics(config.gp.max_points, config.gp.iterations, seed=config.seed)

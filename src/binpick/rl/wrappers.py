@@ -20,26 +20,27 @@ class SemanticState(gym.ObservationWrapper):
     the object is the achieved goal, and the policy must also know where its hand is.
     """
 
-    def __init__(self, env: gym.Env, gripper: bool = False, privileged: Sequence[str] = ()) -> None:
+    def __init__(self, env: gym.Env, gripper: bool = False, privileged: Sequence[str] = (), opening: bool = False) -> None:
         super().__init__(env)
-        self.gripper, self.privileged = gripper, tuple(privileged)
+        self.gripper, self.privileged, self.opening = gripper, tuple(privileged), bool(opening)
         goal_space = env.observation_space["achieved_goal"]
-        size = goal_space.shape[0] + (3 if gripper else 0) + len(privileged_values(env, self.privileged))
+        size = goal_space.shape[0] + gripper_dims(gripper, opening) + len(privileged_values(env, self.privileged))
         self.observation_space = spaces.Dict({
             "observation": spaces.Box(-np.inf, np.inf, (size,), np.float64),
             "achieved_goal": goal_space, "desired_goal": env.observation_space["desired_goal"]})
 
     def observation(self, observation):
-        return semantic_inputs(observation, self.gripper, privileged_values(self.env, self.privileged))
+        return semantic_inputs(observation, self.gripper, privileged_values(self.env, self.privileged), self.opening)
 
     def compute_reward(self, achieved_goal, desired_goal, info):
         return self.env.unwrapped.compute_reward(achieved_goal, desired_goal, info)
 
 
-def semantic_inputs(observation: dict, gripper: bool = False, privileged: np.ndarray | None = None) -> dict:
+def semantic_inputs(observation: dict, gripper: bool = False, privileged: np.ndarray | None = None,
+                    opening: bool = False) -> dict:
     """An env's raw observation as a :class:`SemanticState`-trained policy reads it (s̄ as a dict);
     ``privileged`` (see :func:`privileged_values`) follows z in ``observation``."""
-    part = semantic_part(observation, gripper)
+    part = semantic_part(observation, gripper, opening)
     if privileged is not None and len(privileged):
         part = np.concatenate([part, np.asarray(privileged, np.float64)])
     return {"observation": part, "achieved_goal": observation["achieved_goal"], "desired_goal": observation["desired_goal"]}
@@ -60,12 +61,21 @@ def privileged_values(env: gym.Env, names: Sequence[str]) -> np.ndarray:
     return np.concatenate(values) if values else np.zeros(0)
 
 
-def semantic_part(observation: dict, gripper: bool = False) -> np.ndarray:
-    """What :class:`SemanticState` puts in ``observation``: z, or (gripper position, object position)."""
+def semantic_part(observation: dict, gripper: bool = False, opening: bool = False) -> np.ndarray:
+    """What :class:`SemanticState` puts in ``observation``: z, or (gripper position, object position),
+    or with ``opening`` (gripper position, the fingers' opening, object position)."""
     achieved = np.asarray(observation["achieved_goal"], np.float64)
     if gripper:
-        return np.concatenate([np.asarray(observation["observation"], np.float64)[:3], achieved])
+        raw = np.asarray(observation["observation"], np.float64)
+        hand = np.concatenate([raw[:3], [raw[9:11].sum()]]) if opening else raw[:3]  # Fetch: finger joints 9, 10
+        return np.concatenate([hand, achieved])
     return achieved.copy()
+
+
+def gripper_dims(gripper: bool, opening: bool = False) -> int:
+    """How many numbers of s̄ describe the hand before the achieved goal: none for reach (z is the
+    achieved goal), its position for pick and place, and with ``opening`` the fingers' opening too."""
+    return (3 + int(bool(opening))) if gripper else 0
 
 
 def needs_gripper(env_id: str) -> bool:
