@@ -39,7 +39,8 @@ CONFIGS = {
                           "april_pickandplace_ae_n9_m9_goals_two_views_long_distilled",
                           "april_pickandplace_ae_n9_m9_goals_two_views_long_noise10mm",
                           "april_pickandplace_ae_n9_m9_goals_two_views_long_noise5mm",
-                          "april_pickandplace_ae_n9_m9_goals_two_views_long_noise2.5mm"],
+                          "april_pickandplace_ae_n9_m9_goals_two_views_long_noise2.5mm",
+                          "april_pickandplace_ae_n10_m10_goals_two_views_long_opening"],
     "FetchReachObstacle": ["april_obstacle_n6_m6", "april_obstacle_n8_m6", "april_obstacle_unconditioned",
                            "april_obstacle_gt_plus_latent", "april_obstacle_n8_m6_distilled",
                            "april_obstacle_n6_m6_goals", "april_obstacle_n8_m6_distilled_goals",
@@ -48,7 +49,9 @@ CONFIGS = {
                            "april_obstacle_on_path_n6_m6_distilled_detour", "april_obstacle_on_path_n8_m6_distilled_detour",
                            "april_obstacle_on_path_n16_m6_distilled_detour",
                            "april_obstacle_on_path_n8_m6_distilled_encoder_detour",
-                           "april_obstacle_on_path_n6_m6_distilled_encoder_detour"],
+                           "april_obstacle_on_path_n6_m6_distilled_encoder_detour",
+                           "april_obstacle_on_path_n8_m6_foreground_distilled_detour",
+                           "april_obstacle_on_path_n6_m6_foreground_distilled_detour"],
 }
 # each table's ground-truth row comes from one config; the others train the same state policy again
 GROUND_TRUTH_FROM = {"FetchReach": "april_fetchreach_w1.0", "Reacher": "april_reacher_n4_m4",
@@ -99,7 +102,19 @@ NOTES = {  # what a reader needs to read a table right
         "comes from distillation (the student learns on the states it reaches), not from the free features: with a teacher "
         "whose actions depend on the box, the two free features (trained for reconstruction alone) do not carry it well "
         "enough to imitate, and the student with them does worse; with 10 free features (n = 16, m = 6) 47% (30.94), still "
-        "below none. The thesis's central claim is not reproduced here."),
+        "below none. The thesis's central claim is not reproduced here. Why (`april_diagnosis.py RUN --probe-box`, "
+        "2026-12-01): a probe for the box centre on 500 held-out reset images does no better from all n features than "
+        "from the m = 6 conditioned ones (linear: 10.26 vs 10.02 cm for n = 8, 9.56 vs 10.12 for n = 16; 10 nearest "
+        "neighbours: 9.52 vs 9.55; the mean alone 12.96), and the decoder drew the arm but neither box nor goal: the "
+        "free features carry nothing of the box. Two attempts to put it there: the encoder trained on the teacher's labels "
+        "too (`distill_encoder`, rows `_distilled_encoder`): n = 8 52% (28.19), n = m = 6 58% (26.76); and the "
+        "reconstruction weighted 21x on pixels unlike the median image (`foreground_weight: 20`, rows `_fg20`), after "
+        "which the decoder draws the box: n = 8 52% (30.05), n = m = 6 44% (32.36). Both lift n = 8 from 42% to 52%; "
+        "only the `_fg20` pair has n = 8 below n = m = 6 (by 2.31 actions, 8 points: within what 100 episodes tell apart), "
+        "both above the thesis's 20.83 / 28.55 (by 9.22 / 3.81), and the probe still finds no box in the free features "
+        "(9.71 / 10.34 cm linear), so we do not count it as the thesis's effect. What might: far more "
+        "free-feature capacity aimed at the box (an object-centric or spatial latent), or training perception on images "
+        "the student's own episodes reach."),
     "FetchPickAndPlace": (
         "The heuristic decides from s̄ alone (no finger opening) so that behaviour cloning can copy it. The ground-truth policy "
         "is SAC after behaviour cloning of 300 heuristic episodes, with cloning kept in the actor loss (`configs/"
@@ -118,7 +133,19 @@ NOTES = {  # what a reader needs to read a table right
         "the gap between training images and new episodes (goal 1.2/2.6/1.5 cm on new episodes, 0.8/1.6/1.6 on training "
         "images) but reached 22%: first-frame errors no longer rank these rows. 200 more episodes each (`binpick april eval "
         "RUN --episodes 200 --seed 30000`, `recheck` in the JSON): 28.5% for `_goals5_cosine80_two_views`, 20.5% for "
-        "`_goals_cosine80_two_views`, so the best row is 29-35%. The goal's error along y (2.6 cm) is now what perception cannot resolve at 64 px."),
+        "`_goals_cosine80_two_views`, so the best row is 29-35%. "
+        "**Why (2026-12-01, `april_diagnosis.py RUN --substitute`, 40 episodes each):** not the goal. Deployed on pixels "
+        "with the true goal in place of φ_enc(I)'s the `_cosine80` row reaches 25% (30% without), with the true gripper "
+        "22.5%, with the true cube 82.5% and with both 87.5%. The cube is lifted in 15% "
+        "of the episodes: the arm closes on it and then holds it on the table until the episode ends. On the true state "
+        "the policy closes, waits ~10 steps and lifts once the gripper has crept up a fraction of a millimetre: s̄ has no "
+        "finger opening, so just closed and holding are the same s̄, and the cue it learnt is far below perception's "
+        "error (the perceived cube is off by 0.65 cm while the gripper is within 3 cm). Attempts: an actor trained on "
+        "noisy s̄ (`actor_noise`, rows `_actor_noise{σ}`): 10 mm breaks the state policy itself (23% on the true state, "
+        "20% on pixels), 5 mm 72% / 44%, 2.5 mm 98% / 37%; DAgger of the state policy onto φ_enc(I) "
+        "(`_distilled`) 15%. The fix is in s̄: `gripper_opening: true` adds the fingers' opening (m = n = 10, rows "
+        "`_opening`, same images and perception schedule, collected again to record the opening): the state policy "
+        "reaches 100% in 17.80 actions (95% after 10,000 steps) and from pixels **80% (36.95 actions; 76.5%, 36.73 on 200 more episodes, seeds 30000+)**: the cube is found and lifted, and the policy no longer waits for a cue perception cannot see."),
 }
 IMAGES = _common.ROOT / "docs" / "img" / "april"
 

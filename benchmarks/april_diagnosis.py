@@ -196,9 +196,16 @@ def probe_box(run: AprilRun, images: int = 1000) -> dict:
         weights, *_ = np.linalg.lstsq(design[:half], boxes[:half], rcond=None)
         return round(float(np.linalg.norm(design[half:] @ weights - boxes[half:], axis=1).mean()) * 100, 2)
 
+    def neighbours(columns: slice, k: int = 10) -> float:  # a code the decoder reads non-linearly
+        scaled = features[:, columns] / features[:half, columns].std(0).clip(1e-6)
+        distances = np.linalg.norm(scaled[half:, None] - scaled[None, :half], axis=2)
+        nearest = np.argsort(distances, axis=1)[:, :k]
+        return round(float(np.linalg.norm(boxes[:half][nearest].mean(1) - boxes[half:], axis=1).mean()) * 100, 2)
+
     spread = round(float(np.linalg.norm(boxes[half:] - boxes[:half].mean(0), axis=1).mean()) * 100, 2)
     return {"images": images, "latent": perception.config.latent, "conditioned": m,
-            "box_error_cm": {"mean_only": spread, "conditioned": error(slice(0, m)), "all": error(slice(None))}}
+            "box_error_cm": {"mean_only": spread, "conditioned": error(slice(0, m)), "all": error(slice(None))},
+            "box_error_knn_cm": {"conditioned": neighbours(slice(0, m)), "all": neighbours(slice(None))}}
 
 
 def obstacle_in_the_way(episodes: int = 300) -> dict:
@@ -318,12 +325,16 @@ def write_report(results: dict) -> None:
     if probed:
         lines += ["", "Do the latent features carry FetchReachObstacle's box (`--probe-box`)? A linear probe fit on 500 reset "
                   "images and scored on 500 others: the box centre's mean error (cm) from the training mean alone, from the "
-                  "m conditioned features (s̄; on the path the box lies between gripper and goal) and from all n:", "",
-                  "| run | n | m | mean only | conditioned | all |", "|---|---:|---:|---:|---:|---:|"]
+                  "m conditioned features (s̄; on the path the box lies between gripper and goal) and from all n; then the "
+                  "same with 10 nearest neighbours (standardised features), for a code that is not linear:", "",
+                  "| run | n | m | mean only | conditioned | all | conditioned (k-NN) | all (k-NN) |",
+                  "|---|---:|---:|---:|---:|---:|---:|---:|"]
         for name, probe in probed.items():
             error = probe["box_error_cm"]
+            knn = probe.get("box_error_knn_cm", {})
             lines.append(f"| {name} | {probe['latent']} | {probe['conditioned']} | {error['mean_only']:.2f} | "
-                         f"{error['conditioned']:.2f} | {error['all']:.2f} |")
+                         f"{error['conditioned']:.2f} | {error['all']:.2f} | {knn.get('conditioned', float('nan')):.2f} | "
+                         f"{knn.get('all', float('nan')):.2f} |")
     box = results.get("obstacle_in_the_way")
     if box:
         lines += ["", f"Is FetchReachObstacle's box in the way (`--obstacle`; {box['at_random']['episodes']} episodes, seeds 20000+)? "
