@@ -16,6 +16,7 @@ from its own latest checkpoint).
 from __future__ import annotations
 
 import time
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -64,7 +65,7 @@ class AprilRun:
 
         return needs_gripper(self.config.env)
 
-    @property
+    @cached_property  # read in every collection step: the RL config is loaded once
     def opening(self) -> bool:
         """s̄ also holds the fingers' opening: the state policy's RL config says ``gripper_opening``."""
         if self.config.policy.mode == "latent" and not self.config.policy.pretrain:
