@@ -164,7 +164,7 @@ def test_actor_noise_reaches_the_actor_and_never_the_critic():
                                   "actor_noise": {"achieved": 0.01, "goal": 0.05}}, "cfg.yaml")
     env = make_env(config)
     model = build_model(config, env, None)
-    model.perturb_actor_inputs((0.0, 0.01, 0.05), gripper=False)
+    model.perturb_actor_inputs((0.0, 0.01, 0.05), gripper=0)
     seen: dict[str, list] = {"actor": [], "critic": []}
     for name, module in (("actor", model.actor), ("critic", model.critic)):
         module.features_extractor.register_forward_pre_hook(
@@ -196,7 +196,7 @@ def test_actor_noise_leaves_privileged_state_and_moves_the_gripper_alone():
     from binpick.rl.agents import GoalSAC
 
     model = GoalSAC.__new__(GoalSAC)  # actor_view needs nothing else of the model
-    model.perturb_actor_inputs(([0.02, 0.01, 0.0], 0.0, 0.0), gripper=True)  # per axis: x, y, z
+    model.perturb_actor_inputs(([0.02, 0.01, 0.0], 0.0, 0.0), gripper=3)  # per axis: x, y, z
     batch = {"observation": torch.zeros(5000, 9), "achieved_goal": torch.zeros(5000, 3), "desired_goal": torch.zeros(5000, 3)}
     view = model.actor_view(batch)
     spread = view["observation"][:, :3].std(0)

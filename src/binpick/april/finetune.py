@@ -19,7 +19,7 @@ from stable_baselines3 import SAC
 from stable_baselines3.common.callbacks import BaseCallback
 
 from binpick.april.observations import EncodedObservation, semantic_state
-from binpick.files import atomic_write, atomic_write_json
+from binpick.files import atomic_write_bytes, atomic_write_json
 from binpick.rl.demonstrations import cloning_loss
 from binpick.rl.persistence import SavedPolicy, save_policy
 from binpick.rl.heuristic import ObstacleDetour
@@ -109,8 +109,7 @@ def finetune_latent_policy(run: AprilRun, semantic_run: str | None, callback: Ru
     if joint:  # the encoder changes: keep the perception stage's own, and always start from it (resume)
         pretrained = run.run_dir / PRETRAINED_PERCEPTION_FILE
         if not pretrained.is_file():
-            data = source.read_bytes()
-            atomic_write(pretrained, lambda handle: handle.write(data))
+            atomic_write_bytes(pretrained, source.read_bytes())
         source = pretrained
     perception = load_perception(source)
     rl_settings = load_rl_config(policy.rl_config)

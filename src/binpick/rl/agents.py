@@ -51,9 +51,10 @@ class GoalSAC(SAC):
         """Train the actor on s̄ plus Gaussian noise of std ``noise`` = (gripper, achieved, goal), each a
         number or one per axis, in metres (see :class:`binpick.rl.config.ActorNoiseConfig`); the critic
         keeps reading the true s̄. ``gripper``: how many numbers before the achieved goal describe the
-        hand (3: its position, noised; a 4th, the fingers' opening, is left as it is)."""
+        hand (:func:`binpick.rl.wrappers.gripper_dims`: 3, its position, noised; a 4th, the fingers'
+        opening, is left as it is)."""
         self.actor_noise = tuple(torch.as_tensor(v, dtype=torch.float32) for v in noise)
-        self.noisy_gripper = 3 if gripper is True else int(gripper)
+        self.noisy_gripper = int(gripper)
 
     def actor_view(self, observation: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
         """What the actor reads in an update: s̄ as is, or with ``actor_noise``. The achieved goal's
@@ -65,7 +66,7 @@ class GoalSAC(SAC):
         achieved_noise = torch.randn_like(achieved) * achieved_std
         state = observation["observation"].clone()
         start = self.noisy_gripper
-        if self.noisy_gripper:
+        if start:
             state[:, :3] += torch.randn_like(state[:, :3]) * gripper_std
         state[:, start:start + achieved.shape[1]] += achieved_noise  # privileged values after it stay true
         desired = observation["desired_goal"]
