@@ -55,6 +55,17 @@ LONG_FIRST = ("test_readme.py::test_every_readme_block_runs_on_tiny_settings",
               "test_a3c.py::test_a3c_run_with_curriculum_resumes_and_evaluates")
 
 
+@pytest.fixture(autouse=True)
+def _one_torch_thread_per_worker():
+    """A trainer run in-process (``detect train``, ``grasp train``) sets torch's thread count from its
+    config; under one worker per core that count must not outlive the test and oversubscribe the rest."""
+    yield
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        import torch
+
+        torch.set_num_threads(1)
+
+
 def pytest_collection_modifyitems(config, items):
     rank = {name: index for index, name in enumerate(LONG_FIRST)}
     items.sort(key=lambda item: rank.get(item.nodeid.split("/")[-1], len(rank)))

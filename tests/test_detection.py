@@ -257,7 +257,7 @@ def test_training_learns_the_toy_set_resumes_and_predicts(tmp_path):
     # fp32: in bfloat16 this 16-image toy run is chaotic (0.03 to 0.3 AP50 for numerically equal models)
     config.write_text(f"""name: toy
 data: {{train: {path}, val: {path}, targets: all, image_size: 128, augment: false}}
-train: {{epochs: 2, batch_size: 4, lr: 0.002, warmup_steps: 4, eval_every: 2, workers: 0, threads: 2, fast_cpu: false}}
+train: {{epochs: 2, batch_size: 4, lr: 0.002, warmup_steps: 4, eval_every: 2, workers: 0, threads: 1, fast_cpu: false}}
 """)
     trainer = DetectorTrainer.new(load_detect_config(config), tmp_path / "runs")
     trainer.run()
@@ -424,7 +424,7 @@ def test_a_depth_reading_detector_starts_as_its_colour_weights_and_learns_from_d
     config.write_text(f"""name: toy_depth
 data: {{train: {path}, val: {path}, targets: all, image_size: 128, augment: true, train_sizes: [96, 160]}}
 model: {{depth: true}}
-train: {{epochs: 1, batch_size: 4, lr: 0.002, warmup_steps: 2, eval_every: 1, workers: 0, threads: 2,
+train: {{epochs: 1, batch_size: 4, lr: 0.002, warmup_steps: 2, eval_every: 1, workers: 0, threads: 1,
          init_from: {tmp_path / "colour.safetensors"}}}
 """)
     trainer = DetectorTrainer.new(load_detect_config(config), tmp_path / "runs")

@@ -73,9 +73,9 @@ TINY: list[tuple[str, str]] = [
     (r"^(binpick rl train configs/\S+.*)$", r"\1 " + " ".join(f"--set {k}={v}" for k, v in TINY_RL.items())),
     (r"^(binpick april run configs/\S+.*)$", r"\1 --set collect.episodes=2 --set perception_training.epochs=1 "
                                             r"--set eval.episodes=1 --set policy.rl_config=tiny_rl.yaml"),
-    (r"^(binpick grasp train configs/\S+.*)$", r"\1 --set epochs=1 --set batch_size=2"),
+    (r"^(binpick grasp train configs/\S+.*)$", r"\1 --set epochs=1 --set batch_size=2 --set threads=1"),
     (r"^(binpick detect train configs/\S+.*)$", r"\1 --set train.epochs=1 --set train.batch_size=4 --set train.workers=0 "
-                                               r"--set data.image_size=128"),
+                                               r"--set train.threads=1 --set data.image_size=128"),
 ]
 
 
