@@ -37,8 +37,13 @@ RUNS = {
     "dqn": ("configs/rl_arm2d_dqn.yaml", 0.0),
     "curriculum_whole_area": ("configs/rl_arm2d_curriculum.yaml", 1.0),  # init_from the "a3c" run
     "no_curriculum_whole_area": ("configs/rl_arm2d_no_curriculum.yaml", 1.0),
+    # the same with a3c.encoder: keypoints (issue 19), each training its own single-goal start
+    "curriculum_keypoints_whole_area": ("configs/rl_arm2d_curriculum_keypoints.yaml", 1.0),
+    "no_curriculum_keypoints_whole_area": ("configs/rl_arm2d_no_curriculum_keypoints.yaml", 1.0),
 }
-ALIASES = {"curriculum": "curriculum_whole_area", "no_curriculum": "no_curriculum_whole_area"}
+ALIASES = {"curriculum": "curriculum_whole_area", "no_curriculum": "no_curriculum_whole_area",
+           "curriculum_keypoints": "curriculum_keypoints_whole_area",
+           "no_curriculum_keypoints": "no_curriculum_keypoints_whole_area"}
 EPISODES = 200
 
 
@@ -86,8 +91,8 @@ def main() -> None:
             results[key] = evaluate(policy, area) | {"sim_steps": metrics["sim_steps"],
                                                      "wall_seconds": metrics["wall_seconds"],
                                                      "run_dir": str(trainer.run_dir.relative_to(_common.ROOT))}
-            if key == "curriculum_whole_area":
-                results["curriculum_stages"] = [e for e in metrics["evaluations"]]
+            if key.startswith("curriculum"):
+                results[key.replace("whole_area", "stages")] = [e for e in metrics["evaluations"]]
                 results[key] |= {"advance": config.curriculum.advance, "advanced_at": metrics.get("curriculum_advanced_at", [])}
             if config.algorithm == "a3c":  # an actor-critic acts by sampling its policy (Mnih et al. 2016); greedy above
                 results[f"{key}_sampled"] = evaluate(policy, area, deterministic=False) | {
@@ -96,9 +101,8 @@ def main() -> None:
                 results["dqn_epsilon_greedy"] = evaluate(policy, area, epsilon=0.05) | {
                     k: results[key][k] for k in ("sim_steps", "wall_seconds", "run_dir")}
         print(key, results[key], flush=True)
-    if not args.report_only:
         results["peak_rss_mib"] = round(_common.peak_rss_mib(), 1)
-        _common.write_result("rl_arm2d", results)
+        _common.write_result("rl_arm2d", results)  # after each row: a later crash loses nothing measured
 
     def cell(key: str) -> str:
         row = results.get(key)

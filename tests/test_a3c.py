@@ -187,3 +187,45 @@ def test_curriculum_widens_only_once_the_agent_has_re_converged():
         CurriculumConfig([CurriculumStage(0.0)], advance="sometimes")
     with pytest.raises(ConfigError, match="needs curriculum.stages"):
         CurriculumConfig(advance="converged")
+
+
+def test_keypoints_read_where_a_feature_fires_anywhere_in_the_picture():
+    """SpatialSoftmax gives a channel's peak position in [-1, 1] wherever the peak is: what the
+    curriculum needs (a goal learnt in one place is found in every place)."""
+    from binpick.rl.a3c import SpatialSoftmax
+
+    maps = torch.zeros(2, 1, 32, 32)
+    maps[0, 0, 4, 27] = 50.0  # row 4, column 27
+    maps[1, 0, 30, 1] = 50.0
+    xy = SpatialSoftmax()(maps)
+    expected = torch.tensor([[27 / 31 * 2 - 1, 4 / 31 * 2 - 1], [1 / 31 * 2 - 1, 30 / 31 * 2 - 1]])
+    assert torch.allclose(xy, expected, atol=1e-3)
+    model = ActorCritic((64, 64, 3), 6, encoder="keypoints")
+    logits, values = model(torch.zeros(3, 64, 64, 3, dtype=torch.uint8))
+    assert logits.shape == (3, 6) and values.shape == (3,)
+    assert model.hidden[0].in_features == 64  # 32 maps x (x, y): nothing tied to a place in the picture
+
+
+def test_a3c_encoder_is_saved_with_the_weights_and_a_mismatch_is_one_line(tmp_path):
+    import pytest
+    import yaml
+
+    from binpick.config import from_dict
+    from binpick.errors import ConfigError
+    from binpick.rl.a3c_train import load_a3c_policy
+    from binpick.rl.config import RLConfig
+    from binpick.rl.train import trainer_for
+    from binpick.runs import latest_checkpoint
+
+    settings = yaml.safe_load(A3C_RUN.format(steps=40)) | {"a3c": {"workers": 1, "n_steps": 5, "encoder": "keypoints"}}
+    trainer = trainer_for(from_dict(RLConfig, settings), tmp_path / "runs")
+    trainer.save_checkpoint()
+    checkpoint = latest_checkpoint(trainer.run_dir / "checkpoints")
+    policy = load_a3c_policy(checkpoint)
+    assert policy.model.encoder == "keypoints"
+    assert all(torch.equal(policy.model.state_dict()[k], v) for k, v in trainer.model.state_dict().items())
+    flattened = settings | {"a3c": {"workers": 1, "n_steps": 5}, "init_from": str(trainer.run_dir)}
+    with pytest.raises(ConfigError, match="a3c.encoder 'keypoints'"):
+        trainer_for(from_dict(RLConfig, flattened), tmp_path / "other")
+    with pytest.raises(ConfigError, match="a3c.encoder"):
+        from_dict(RLConfig, settings | {"a3c": {"encoder": "pixels"}})

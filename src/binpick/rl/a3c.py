@@ -22,18 +22,50 @@ import torch
 import torch.nn as nn
 
 
-class ActorCritic(nn.Module):
-    """Shared convolutional trunk with a policy head (logits) and a value head (thesis §3.1.2)."""
+ENCODERS = ("flatten", "keypoints")
 
-    def __init__(self, observation_shape: tuple[int, int, int], actions: int) -> None:
+
+class SpatialSoftmax(nn.Module):
+    """Each channel's expected (x, y) under its softmax over the image, in [-1, 1] (Levine et al. 2016):
+    a feature that fires on the goal gives the goal's coordinates wherever it is, where a flattened
+    map gives a separate weight to every place (issue 19: trained on goals in a quarter of the play
+    area, a flattened trunk located goals elsewhere 12x worse than inside; this one as well as inside)."""
+
+    def forward(self, maps: torch.Tensor) -> torch.Tensor:
+        batch, channels, height, width = maps.shape
+        weights = torch.softmax(maps.flatten(2), -1).view(batch, channels, height, width)
+        xs = torch.linspace(-1.0, 1.0, width, device=maps.device)
+        ys = torch.linspace(-1.0, 1.0, height, device=maps.device)
+        return torch.cat([(weights.sum(2) * xs).sum(-1), (weights.sum(3) * ys).sum(-1)], 1)
+
+
+class ActorCritic(nn.Module):
+    """Shared convolutional trunk with a policy head (logits) and a value head (thesis §3.1.2).
+
+    ``encoder="flatten"`` (the thesis-style default) flattens the last feature map; ``"keypoints"``
+    keeps 32x32 maps and reads each channel's expected position (:class:`SpatialSoftmax`), so what is
+    learnt about a goal in one place holds in every place: the curriculum's widening needs it."""
+
+    def __init__(self, observation_shape: tuple[int, int, int], actions: int, encoder: str = "flatten") -> None:
         super().__init__()
+        if encoder not in ENCODERS:
+            raise ValueError(f"encoder must be one of {ENCODERS}, got {encoder!r}")
+        self.encoder = encoder
         height, width, channels = observation_shape
-        self.trunk = nn.Sequential(
-            nn.Conv2d(channels, 16, 5, stride=2, padding=2), nn.ReLU(),
-            nn.Conv2d(16, 32, 5, stride=2, padding=2), nn.ReLU(),
-            nn.Conv2d(32, 32, 3, stride=2, padding=1), nn.ReLU(),
-            nn.Flatten(),
-        )
+        if encoder == "flatten":
+            self.trunk = nn.Sequential(
+                nn.Conv2d(channels, 16, 5, stride=2, padding=2), nn.ReLU(),
+                nn.Conv2d(16, 32, 5, stride=2, padding=2), nn.ReLU(),
+                nn.Conv2d(32, 32, 3, stride=2, padding=1), nn.ReLU(),
+                nn.Flatten(),
+            )
+        else:
+            self.trunk = nn.Sequential(
+                nn.Conv2d(channels, 16, 5, stride=2, padding=2), nn.ReLU(),
+                nn.Conv2d(16, 32, 3, stride=1, padding=1), nn.ReLU(),
+                nn.Conv2d(32, 32, 3, stride=1, padding=1),
+                SpatialSoftmax(),
+            )
         with torch.no_grad():
             features = self.trunk(torch.zeros(1, channels, height, width)).shape[1]
         self.hidden = nn.Sequential(nn.Linear(features, 256), nn.ReLU())
@@ -85,9 +117,9 @@ class A3CWorker:
 
     def __init__(self, make_env: Callable[[], gym.Env], observation_shape, actions: int, seed: int,
                  n_steps: int = 20, gamma: float = 0.99, entropy_beta: float = 0.01, value_coef: float = 0.5,
-                 max_grad_norm: float = 40.0, reward_scale: float = 0.01) -> None:
+                 max_grad_norm: float = 40.0, reward_scale: float = 0.01, encoder: str = "flatten") -> None:
         self.env = make_env()
-        self.model = ActorCritic(observation_shape, actions)
+        self.model = ActorCritic(observation_shape, actions, encoder)
         self.n_steps, self.gamma = n_steps, gamma
         self.entropy_beta, self.value_coef, self.max_grad_norm = entropy_beta, value_coef, max_grad_norm
         # binpick's -1-per-step reward gives returns near -1/(1-γ); scaling by (1-γ) keeps the critic's

@@ -61,7 +61,8 @@ def _worker(rank: int, config: RLConfig, model: ActorCritic, optimizer: SharedAd
     env_shape = _make_env(config).observation_space.shape
     worker = A3CWorker(lambda: _make_env(config), env_shape, 6, seed=config.seed * 1000 + rank * 7919 + counter.value,
                        n_steps=a3c.n_steps, gamma=a3c.gamma, entropy_beta=a3c.entropy_beta,
-                       value_coef=a3c.value_coef, max_grad_norm=a3c.max_grad_norm, reward_scale=a3c.reward_scale)
+                       value_coef=a3c.value_coef, max_grad_norm=a3c.max_grad_norm, reward_scale=a3c.reward_scale,
+                       encoder=a3c.encoder)
     area = -1.0
     while not stop.is_set() and counter.value < config.total_timesteps:
         if goal_area.value != area and worker._episode_steps == 0:  # change the area between episodes only
@@ -102,7 +103,7 @@ class A3CTrainer:
         self.base_area = float(env.unwrapped.goal_area)
         env.close()
         torch.manual_seed(config.seed)
-        self.model = ActorCritic(self.observation_shape, 6)
+        self.model = ActorCritic(self.observation_shape, 6, self.config.a3c.encoder)
         self.model.share_memory()
         self.optimizer = SharedAdam(self.model.parameters(), lr=config.a3c.learning_rate)
         self.steps = 0
@@ -144,7 +145,8 @@ class A3CTrainer:
     def save_checkpoint(self) -> Path:
         def write(folder: Path) -> None:
             tensorfile.save(folder / A3C_FILE, FORMAT, state={"model": self.model.state_dict(), "optimizer": self.optimizer.state_dict()},
-                            meta={"observation_shape": list(self.observation_shape), "env": self.config.env})
+                            meta={"observation_shape": list(self.observation_shape), "env": self.config.env,
+                                  "encoder": self.config.a3c.encoder})
             atomic_write_json(folder / "state.json", {"steps": self.steps, "metrics": self.metrics, "env": self.config.env,
                                                       "curriculum": self.curriculum.state_dict()})
 
@@ -158,6 +160,9 @@ class A3CTrainer:
         if tuple(meta["observation_shape"]) != tuple(self.observation_shape):
             raise ConfigError(f"checkpoint {checkpoint} sees observations of shape {tuple(meta['observation_shape'])}, "
                               f"this run's env gives {tuple(self.observation_shape)}")
+        if str(meta.get("encoder", "flatten")) != self.config.a3c.encoder:
+            raise ConfigError(f"checkpoint {checkpoint} has a3c.encoder {meta.get('encoder', 'flatten')!r}, "
+                              f"this run's config says {self.config.a3c.encoder!r}")
         tensorfile.restore({"model": self.model, "optimizer": self.optimizer}, state, f"A3C checkpoint {checkpoint}")
         for group in self.optimizer.state.values():  # load_state_dict replaces tensors: share them again
             for value in group.values():
@@ -289,7 +294,7 @@ def load_a3c_policy(checkpoint: Path) -> _SampledPolicy:
     """A trained A3C actor as a policy (samples its action distribution, as it acted in training)."""
     state, meta = read_a3c_checkpoint(checkpoint)
     try:
-        model = ActorCritic(tuple(int(v) for v in meta["observation_shape"]), 6)
+        model = ActorCritic(tuple(int(v) for v in meta["observation_shape"]), 6, str(meta.get("encoder", "flatten")))
         model.load_state_dict(state["model"])
     except (TypeError, ValueError, RuntimeError) as error:
         raise InputFileError(f"A3C checkpoint {checkpoint} is damaged ({str(error).splitlines()[0][:120]})") from None

@@ -101,8 +101,10 @@ class A3CConfig:
     value_coef: float = 0.5
     max_grad_norm: float = 40.0
     reward_scale: float = 0.01  # keeps value targets in [-1, 0] for the -1-per-step reward
+    encoder: str = "flatten"  # "keypoints": expected positions of feature maps (goals anywhere; see rl/a3c.py)
 
     def __post_init__(self) -> None:
+        check_choice("a3c.encoder", self.encoder, ["flatten", "keypoints"])
         check_range("a3c.reward_scale", self.reward_scale, 0.0, 1e6, low_inclusive=False)
         check_range("a3c.workers", self.workers, 1, 256, integer=True)
         check_range("a3c.n_steps", self.n_steps, 1, 10_000, integer=True)
