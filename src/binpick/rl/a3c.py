@@ -29,7 +29,8 @@ class SpatialSoftmax(nn.Module):
     """Each channel's expected (x, y) under its softmax over the image, in [-1, 1] (Levine et al. 2016):
     a feature that fires on the goal gives the goal's coordinates wherever it is, where a flattened
     map gives a separate weight to every place (issue 19: trained on goals in a quarter of the play
-    area, a flattened trunk located goals elsewhere 12x worse than inside; this one as well as inside)."""
+    area, a flattened trunk located goals elsewhere over 10x worse than inside; this one about as well:
+    benchmarks/a3c_encoder_probe.py)."""
 
     def forward(self, maps: torch.Tensor) -> torch.Tensor:
         batch, channels, height, width = maps.shape
@@ -43,7 +44,7 @@ class ActorCritic(nn.Module):
     """Shared convolutional trunk with a policy head (logits) and a value head (thesis §3.1.2).
 
     ``encoder="flatten"`` (the thesis-style default) flattens the last feature map; ``"keypoints"``
-    keeps 32x32 maps and reads each channel's expected position (:class:`SpatialSoftmax`), so what is
+    keeps half-resolution maps and reads each channel's expected position (:class:`SpatialSoftmax`), so what is
     learnt about a goal in one place holds in every place: the curriculum's widening needs it."""
 
     def __init__(self, observation_shape: tuple[int, int, int], actions: int, encoder: str = "flatten") -> None:
