@@ -40,10 +40,15 @@ RUNS = {
     # the same with a3c.encoder: keypoints (issue 19), each training its own single-goal start
     "curriculum_keypoints_whole_area": ("configs/rl_arm2d_curriculum_keypoints.yaml", 1.0),
     "no_curriculum_keypoints_whole_area": ("configs/rl_arm2d_no_curriculum_keypoints.yaml", 1.0),
+    # ... plus the auxiliary state loss (a3c.state_weight)
+    "curriculum_keypoints_state_whole_area": ("configs/rl_arm2d_curriculum_keypoints_state.yaml", 1.0),
+    "no_curriculum_keypoints_state_whole_area": ("configs/rl_arm2d_no_curriculum_keypoints_state.yaml", 1.0),
 }
 ALIASES = {"curriculum": "curriculum_whole_area", "no_curriculum": "no_curriculum_whole_area",
            "curriculum_keypoints": "curriculum_keypoints_whole_area",
-           "no_curriculum_keypoints": "no_curriculum_keypoints_whole_area"}
+           "no_curriculum_keypoints": "no_curriculum_keypoints_whole_area",
+           "curriculum_keypoints_state": "curriculum_keypoints_state_whole_area",
+           "no_curriculum_keypoints_state": "no_curriculum_keypoints_state_whole_area"}
 EPISODES = 200
 
 
@@ -140,6 +145,12 @@ def main() -> None:
         f"| A3C, keypoints trunk, same budget, no curriculum, greedy | whole area | {cell('no_curriculum_keypoints_whole_area')} | |",
         f"| A3C, keypoints trunk, same budget, no curriculum, sampling | whole area | "
         f"{cell('no_curriculum_keypoints_whole_area_sampled')} | |",
+        f"| A3C, keypoints + state loss, + curriculum, greedy | whole area | {cell('curriculum_keypoints_state_whole_area')} | 25 ± 6 |",
+        f"| A3C, keypoints + state loss, + curriculum, sampling | whole area | "
+        f"{cell('curriculum_keypoints_state_whole_area_sampled')} | |",
+        f"| A3C, keypoints + state loss, no curriculum, greedy | whole area | {cell('no_curriculum_keypoints_state_whole_area')} | |",
+        f"| A3C, keypoints + state loss, no curriculum, sampling | whole area | "
+        f"{cell('no_curriculum_keypoints_state_whole_area_sampled')} | |",
         "",
         "DQN: γ 0.95 and learning rate 5e-4 (the thesis gives neither). With γ 0.99 and 1e-4 its Q-values were still far "
         "from converged after 200,000 steps and the greedy policy cycled between two arm poses (965 actions, 4% reach); "

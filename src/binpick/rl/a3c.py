@@ -47,7 +47,8 @@ class ActorCritic(nn.Module):
     keeps half-resolution maps and reads each channel's expected position (:class:`SpatialSoftmax`), so what is
     learnt about a goal in one place holds in every place: the curriculum's widening needs it."""
 
-    def __init__(self, observation_shape: tuple[int, int, int], actions: int, encoder: str = "flatten") -> None:
+    def __init__(self, observation_shape: tuple[int, int, int], actions: int, encoder: str = "flatten",
+                 state_size: int = 0) -> None:
         super().__init__()
         if encoder not in ENCODERS:
             raise ValueError(f"encoder must be one of {ENCODERS}, got {encoder!r}")
@@ -72,12 +73,18 @@ class ActorCritic(nn.Module):
         self.hidden = nn.Sequential(nn.Linear(features, 256), nn.ReLU())
         self.policy = nn.Linear(256, actions)
         self.value = nn.Linear(256, 1)
+        # optional auxiliary head: the semantic state (info["state"]) read from the same features
+        self.state_size = int(state_size)
+        self.state = nn.Linear(256, self.state_size) if self.state_size else None
 
     def forward(self, images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """uint8 (B, H, W, C) images -> (logits (B, A), values (B,))."""
-        x = images.permute(0, 3, 1, 2).float() / 255.0
-        hidden = self.hidden(self.trunk(x))
+        hidden = self.features(images)
         return self.policy(hidden), self.value(hidden).squeeze(-1)
+
+    def features(self, images: torch.Tensor) -> torch.Tensor:
+        """uint8 (B, H, W, C) images -> the (B, 256) features the heads read."""
+        return self.hidden(self.trunk(images.permute(0, 3, 1, 2).float() / 255.0))
 
     @torch.no_grad()
     def act(self, image: np.ndarray, deterministic: bool = False) -> int:
@@ -111,6 +118,7 @@ class RolloutStats:
     policy_loss: float = 0.0
     value_loss: float = 0.0
     entropy: float = 0.0
+    state_loss: float = 0.0
 
 
 class A3CWorker:
@@ -118,9 +126,11 @@ class A3CWorker:
 
     def __init__(self, make_env: Callable[[], gym.Env], observation_shape, actions: int, seed: int,
                  n_steps: int = 20, gamma: float = 0.99, entropy_beta: float = 0.01, value_coef: float = 0.5,
-                 max_grad_norm: float = 40.0, reward_scale: float = 0.01, encoder: str = "flatten") -> None:
+                 max_grad_norm: float = 40.0, reward_scale: float = 0.01, encoder: str = "flatten",
+                 state_weight: float = 0.0, state_size: int = 0) -> None:
         self.env = make_env()
-        self.model = ActorCritic(observation_shape, actions, encoder)
+        self.model = ActorCritic(observation_shape, actions, encoder, state_size if state_weight > 0 else 0)
+        self.state_weight = state_weight
         self.n_steps, self.gamma = n_steps, gamma
         self.entropy_beta, self.value_coef, self.max_grad_norm = entropy_beta, value_coef, max_grad_norm
         # binpick's -1-per-step reward gives returns near -1/(1-γ); scaling by (1-γ) keeps the critic's
@@ -129,24 +139,28 @@ class A3CWorker:
         self.seed = seed
         self._episode = 0
         self._episode_steps = 0
-        self.observation, _ = self.env.reset(seed=seed)
+        self.observation, info = self.env.reset(seed=seed)
+        self.semantic = info.get("state")
         torch.manual_seed(seed)
 
     def reset_env(self) -> None:
         self._episode += 1
         self._episode_steps = 0
-        self.observation, _ = self.env.reset(seed=self.seed + 100_003 * self._episode)
+        self.observation, info = self.env.reset(seed=self.seed + 100_003 * self._episode)
+        self.semantic = info.get("state")
 
     def compute_gradients(self, weights: dict[str, torch.Tensor]) -> tuple[list[torch.Tensor], RolloutStats]:
         """Play up to n_steps with ``weights`` and return the A3C gradients (Eq 3.5-3.7)."""
         self.model.load_state_dict(weights)
         stats = RolloutStats()
-        images, actions, rewards = [], [], []
+        images, actions, rewards, semantic = [], [], [], []
         done = False
         for _ in range(self.n_steps):
             images.append(self.observation)
+            semantic.append(self.semantic)
             action = self.model.act(self.observation)
             self.observation, reward, terminated, truncated, info = self.env.step(action)
+            self.semantic = info.get("state")
             actions.append(action)
             rewards.append(reward * self.reward_scale)
             self._episode_steps += 1
@@ -160,7 +174,8 @@ class A3CWorker:
                 break
         else:
             bootstrap_image = self.observation
-        logits, values = self.model(torch.from_numpy(np.stack(images)))
+        hidden = self.model.features(torch.from_numpy(np.stack(images)))
+        logits, values = self.model.policy(hidden), self.model.value(hidden).squeeze(-1)
         with torch.no_grad():
             running = 0.0 if done else float(self.model(torch.from_numpy(np.array(bootstrap_image[None])))[1])
         returns = torch.zeros(len(rewards))
@@ -172,8 +187,15 @@ class A3CWorker:
         value_loss = advantages.pow(2).mean()
         entropy = distribution.entropy().mean()
         policy_loss = -(distribution.log_prob(torch.as_tensor(actions)) * advantages.detach()).mean() - self.entropy_beta * entropy
+        loss = policy_loss + self.value_coef * value_loss
+        if self.state_weight > 0:  # auxiliary: the features must also say where the arm and goal are
+            if any(value is None for value in semantic):
+                raise ValueError("a3c.state_weight needs an env that returns its semantic state in info['state']")
+            target = torch.as_tensor(np.stack(semantic), dtype=torch.float32)
+            stats.state_loss = float((state_loss := (self.model.state(hidden) - target).pow(2).mean()).detach())
+            loss = loss + self.state_weight * state_loss
         self.model.zero_grad()
-        (policy_loss + self.value_coef * value_loss).backward()
+        loss.backward()
         nn.utils.clip_grad_norm_(self.model.parameters(), self.max_grad_norm)
         stats.policy_loss, stats.value_loss = float(policy_loss.detach()), float(value_loss.detach())
         stats.entropy = float(entropy.detach())

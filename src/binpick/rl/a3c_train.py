@@ -54,6 +54,20 @@ def _make_env(config: RLConfig):
     return make(config.env, **config.env_kwargs)
 
 
+def _state_size(config: RLConfig) -> int:
+    """Length of the env's semantic state (info["state"]) when the auxiliary state loss is on, else 0."""
+    if config.a3c.state_weight == 0:
+        return 0
+    env = _make_env(config)
+    try:
+        state = env.reset(seed=0)[1].get("state")
+    finally:
+        env.close()
+    if state is None:
+        raise ConfigError(f"a3c.state_weight needs an env that returns its semantic state in info['state']; {config.env} does not")
+    return int(np.asarray(state).size)
+
+
 def _worker(rank: int, config: RLConfig, model: ActorCritic, optimizer: SharedAdam, counter, goal_area,
             stats_queue, stop) -> None:
     torch.set_num_threads(1)
@@ -62,7 +76,7 @@ def _worker(rank: int, config: RLConfig, model: ActorCritic, optimizer: SharedAd
     worker = A3CWorker(lambda: _make_env(config), env_shape, 6, seed=config.seed * 1000 + rank * 7919 + counter.value,
                        n_steps=a3c.n_steps, gamma=a3c.gamma, entropy_beta=a3c.entropy_beta,
                        value_coef=a3c.value_coef, max_grad_norm=a3c.max_grad_norm, reward_scale=a3c.reward_scale,
-                       encoder=a3c.encoder)
+                       encoder=a3c.encoder, state_weight=a3c.state_weight, state_size=_state_size(config))
     area = -1.0
     while not stop.is_set() and counter.value < config.total_timesteps:
         if goal_area.value != area and worker._episode_steps == 0:  # change the area between episodes only
@@ -74,7 +88,7 @@ def _worker(rank: int, config: RLConfig, model: ActorCritic, optimizer: SharedAd
         with counter.get_lock():
             counter.value += stats.steps
         stats_queue.put((rank, stats.finished_lengths, stats.finished_successes, stats.policy_loss,
-                         stats.value_loss, stats.entropy, area))
+                         stats.value_loss, stats.entropy, stats.state_loss, area))
 
 
 def _source_checkpoint(config: RLConfig) -> Path:
@@ -103,7 +117,8 @@ class A3CTrainer:
         self.base_area = float(env.unwrapped.goal_area)
         env.close()
         torch.manual_seed(config.seed)
-        self.model = ActorCritic(self.observation_shape, 6, self.config.a3c.encoder)
+        self.state_size = _state_size(config)
+        self.model = ActorCritic(self.observation_shape, 6, self.config.a3c.encoder, self.state_size)
         self.model.share_memory()
         self.optimizer = SharedAdam(self.model.parameters(), lr=config.a3c.learning_rate)
         self.steps = 0
@@ -146,7 +161,7 @@ class A3CTrainer:
         def write(folder: Path) -> None:
             tensorfile.save(folder / A3C_FILE, FORMAT, state={"model": self.model.state_dict(), "optimizer": self.optimizer.state_dict()},
                             meta={"observation_shape": list(self.observation_shape), "env": self.config.env,
-                                  "encoder": self.config.a3c.encoder})
+                                  "encoder": self.config.a3c.encoder, "state_size": self.state_size})
             atomic_write_json(folder / "state.json", {"steps": self.steps, "metrics": self.metrics, "env": self.config.env,
                                                       "curriculum": self.curriculum.state_dict()})
 
@@ -163,6 +178,9 @@ class A3CTrainer:
         if str(meta.get("encoder", "flatten")) != self.config.a3c.encoder:
             raise ConfigError(f"checkpoint {checkpoint} has a3c.encoder {meta.get('encoder', 'flatten')!r}, "
                               f"this run's config says {self.config.a3c.encoder!r}")
+        if int(meta.get("state_size", 0)) != self.state_size:
+            raise ConfigError(f"checkpoint {checkpoint} was trained {'with' if meta.get('state_size') else 'without'} "
+                              f"the auxiliary state head, this run's config (a3c.state_weight) says otherwise")
         tensorfile.restore({"model": self.model, "optimizer": self.optimizer}, state, f"A3C checkpoint {checkpoint}")
         for group in self.optimizer.state.values():  # load_state_dict replaces tensors: share them again
             for value in group.values():
@@ -217,7 +235,7 @@ class A3CTrainer:
         try:
             while any(w.is_alive() for w in workers) and self.steps < self.config.total_timesteps:
                 try:
-                    rank, finished, successes, policy_loss, value_loss, entropy, area = stats_queue.get(timeout=1.0)
+                    rank, finished, successes, policy_loss, value_loss, entropy, state_loss, area = stats_queue.get(timeout=1.0)
                 except queue.Empty:
                     continue
                 self.steps = counter.value
@@ -231,6 +249,8 @@ class A3CTrainer:
                 writer.add_scalar("loss/policy", policy_loss, self.steps)
                 writer.add_scalar("loss/value", value_loss, self.steps)
                 writer.add_scalar("loss/entropy", entropy, self.steps)
+                if self.state_size:
+                    writer.add_scalar("loss/state", state_loss, self.steps)
                 writer.add_scalar("curriculum/goal_area", goal_area.value, self.steps)
                 recent = f"last 100 episodes {np.mean(lengths[-100:]):.1f} actions" if lengths else ""
                 task.update(self.steps, status=f"area {goal_area.value:.2f} · {recent}")
@@ -294,7 +314,8 @@ def load_a3c_policy(checkpoint: Path) -> _SampledPolicy:
     """A trained A3C actor as a policy (samples its action distribution, as it acted in training)."""
     state, meta = read_a3c_checkpoint(checkpoint)
     try:
-        model = ActorCritic(tuple(int(v) for v in meta["observation_shape"]), 6, str(meta.get("encoder", "flatten")))
+        model = ActorCritic(tuple(int(v) for v in meta["observation_shape"]), 6, str(meta.get("encoder", "flatten")),
+                            int(meta.get("state_size", 0)))
         model.load_state_dict(state["model"])
     except (TypeError, ValueError, RuntimeError) as error:
         raise InputFileError(f"A3C checkpoint {checkpoint} is damaged ({str(error).splitlines()[0][:120]})") from None

@@ -102,9 +102,11 @@ class A3CConfig:
     max_grad_norm: float = 40.0
     reward_scale: float = 0.01  # keeps value targets in [-1, 0] for the -1-per-step reward
     encoder: str = "flatten"  # "keypoints": expected positions of feature maps (goals anywhere; see rl/a3c.py)
+    state_weight: float = 0.0  # > 0: auxiliary loss, the features also regress the env's info["state"]
 
     def __post_init__(self) -> None:
         check_choice("a3c.encoder", self.encoder, ["flatten", "keypoints"])
+        check_range("a3c.state_weight", self.state_weight, 0.0, 1e6)
         check_range("a3c.reward_scale", self.reward_scale, 0.0, 1e6, low_inclusive=False)
         check_range("a3c.workers", self.workers, 1, 256, integer=True)
         check_range("a3c.n_steps", self.n_steps, 1, 10_000, integer=True)
