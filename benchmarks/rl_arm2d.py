@@ -117,7 +117,7 @@ def main() -> None:
     def cell(key: str) -> str:
         row = results.get(key)
         if row is None:
-            return "not run yet"
+            return "not run to the end yet"
         budget = f", after {row['sim_steps']:,} steps" if "sim_steps" in row else ""
         return f"{row['mean']:.1f} ± {row['std']:.1f} ({row['success_rate']:.0%} reach{budget})"
 
