@@ -55,16 +55,11 @@ def pictures(area: float, count: int, seed: int) -> tuple[torch.Tensor, torch.Te
 
 def errors(model: nn.Module, head: nn.Module, images: torch.Tensor, targets: torch.Tensor) -> dict:
     with torch.no_grad():
-        predicted = head(features(model, images))
+        predicted = head(model.features(images))
     goal = (predicted[:, :2] - targets[:, :2]).norm(dim=1)
     end = (predicted[:, 2:] - targets[:, 2:]).norm(dim=1)
     return {"goal_error": round(float(goal.mean()), 4), "end_point_error": round(float(end.mean()), 4),
             "goal_within_tolerance": round(float((goal <= TOLERANCE).float().mean()), 3)}
-
-
-def features(model: ActorCritic, images: torch.Tensor) -> torch.Tensor:
-    """The 256 features the policy and value heads of A3C read."""
-    return model.hidden(model.trunk(images.permute(0, 3, 1, 2).float() / 255.0))
 
 
 def probe(encoder: str, steps: int, data: dict) -> dict:
@@ -75,7 +70,7 @@ def probe(encoder: str, steps: int, data: dict) -> dict:
     started = time.perf_counter()
     for _ in range(steps):
         batch = torch.randint(0, len(images), (64,))
-        loss = (head(features(model, images[batch])) - targets[batch]).abs().mean()
+        loss = (head(model.features(images[batch])) - targets[batch]).abs().mean()
         optimiser.zero_grad()
         loss.backward()
         optimiser.step()
@@ -95,7 +90,7 @@ def probe_run(run: Path) -> dict:
     model = load_a3c_policy(checkpoint).model
     (train, train_targets), (test, test_targets) = pictures(1.0, 3000, 10), pictures(1.0, 1000, 11)
     with torch.no_grad():
-        fit, held_out = features(model, train).numpy(), features(model, test).numpy()
+        fit, held_out = model.features(train).numpy(), model.features(test).numpy()
     weights = np.linalg.lstsq(np.c_[fit, np.ones(len(fit))], train_targets.numpy(), rcond=1e-6)[0]
     predicted, truth = np.c_[held_out, np.ones(len(held_out))] @ weights, test_targets.numpy()
     goal = np.linalg.norm(predicted[:, :2] - truth[:, :2], axis=1)

@@ -76,7 +76,7 @@ def _worker(rank: int, config: RLConfig, model: ActorCritic, optimizer: SharedAd
     worker = A3CWorker(lambda: _make_env(config), env_shape, 6, seed=config.seed * 1000 + rank * 7919 + counter.value,
                        n_steps=a3c.n_steps, gamma=a3c.gamma, entropy_beta=a3c.entropy_beta,
                        value_coef=a3c.value_coef, max_grad_norm=a3c.max_grad_norm, reward_scale=a3c.reward_scale,
-                       encoder=a3c.encoder, state_weight=a3c.state_weight, state_size=_state_size(config))
+                       encoder=a3c.encoder, state_weight=a3c.state_weight, state_size=model.state_size)
     area = -1.0
     while not stop.is_set() and counter.value < config.total_timesteps:
         if goal_area.value != area and worker._episode_steps == 0:  # change the area between episodes only
