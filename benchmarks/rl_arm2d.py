@@ -26,6 +26,7 @@ sys.path.insert(0, os.path.dirname(__file__))
 import _common  # noqa: E402
 
 from binpick.envs import make  # noqa: E402
+from binpick.rl.a3c_train import make_env as make_a3c_env  # noqa: E402
 from binpick.rl.config import RLConfig, load_rl_config  # noqa: E402
 from binpick.rl.evaluate import evaluate_policy, random_policy  # noqa: E402
 from binpick.rl.train import load_policy, trainer_for  # noqa: E402
@@ -43,17 +44,27 @@ RUNS = {
     # ... plus the auxiliary state loss (a3c.state_weight)
     "curriculum_keypoints_state_whole_area": ("configs/rl_arm2d_curriculum_keypoints_state.yaml", 1.0),
     "no_curriculum_keypoints_state_whole_area": ("configs/rl_arm2d_no_curriculum_keypoints_state.yaml", 1.0),
+    # the same learner on the arm's semantic state instead of pixels (a3c.encoder: state): perception taken away
+    "curriculum_state_whole_area": ("configs/rl_arm2d_curriculum_state.yaml", 1.0),
+    "no_curriculum_state_whole_area": ("configs/rl_arm2d_no_curriculum_state.yaml", 1.0),
 }
 ALIASES = {"curriculum": "curriculum_whole_area", "no_curriculum": "no_curriculum_whole_area",
            "curriculum_keypoints": "curriculum_keypoints_whole_area",
            "no_curriculum_keypoints": "no_curriculum_keypoints_whole_area",
            "curriculum_keypoints_state": "curriculum_keypoints_state_whole_area",
-           "no_curriculum_keypoints_state": "no_curriculum_keypoints_state_whole_area"}
+           "no_curriculum_keypoints_state": "no_curriculum_keypoints_state_whole_area",
+           "curriculum_state": "curriculum_state_whole_area", "no_curriculum_state": "no_curriculum_state_whole_area"}
 EPISODES = 200
 
 
-def evaluate(policy, goal_area: float, seed: int = 50_000, epsilon: float = 0.0, deterministic: bool = True) -> dict:
-    env = make("binpick/Arm2D-v0", goal_area=goal_area)
+def evaluate(policy, goal_area: float, seed: int = 50_000, epsilon: float = 0.0, deterministic: bool = True,
+             config: RLConfig | None = None) -> dict:
+    """200 seeded episodes at ``goal_area``; an A3C run's config gives its own env (pixels or state)."""
+    if config is not None and config.algorithm == "a3c":
+        env = make_a3c_env(config)
+        env.unwrapped.set_goal_area(goal_area)
+    else:
+        env = make("binpick/Arm2D-v0", goal_area=goal_area)
     result = evaluate_policy(policy, env, episodes=EPISODES, seed=seed, epsilon=epsilon, deterministic=deterministic)
     env.close()
     return {"mean": result.mean_length, "std": result.std_length, "success_rate": result.success_rate,
@@ -94,14 +105,14 @@ def main() -> None:
             with RichCallback() as callback:
                 metrics = trainer.run(callback)
             policy, _ = load_policy(trainer.run_dir)
-            results[key] = evaluate(policy, area) | {"sim_steps": metrics["sim_steps"],
+            results[key] = evaluate(policy, area, config=config) | {"sim_steps": metrics["sim_steps"],
                                                      "wall_seconds": metrics["wall_seconds"],
                                                      "run_dir": str(trainer.run_dir.relative_to(_common.ROOT))}
             if key.startswith("curriculum"):
                 results[key.replace("whole_area", "stages")] = [e for e in metrics["evaluations"]]
                 results[key] |= {"advance": config.curriculum.advance, "advanced_at": metrics.get("curriculum_advanced_at", [])}
             if config.algorithm == "a3c":  # an actor-critic acts by sampling its policy (Mnih et al. 2016); greedy above
-                results[f"{key}_sampled"] = evaluate(policy, area, deterministic=False) | {
+                results[f"{key}_sampled"] = evaluate(policy, area, deterministic=False, config=config) | {
                     k: results[key][k] for k in ("sim_steps", "wall_seconds", "run_dir")}
             if key == "dqn":  # Mnih et al. (2015) evaluate with ε = 0.05; greedy above
                 results["dqn_epsilon_greedy"] = evaluate(policy, area, epsilon=0.05) | {

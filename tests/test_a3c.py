@@ -8,6 +8,7 @@ import sys
 
 import gymnasium as gym
 import numpy as np
+import pytest
 import torch
 from gymnasium import spaces
 
@@ -265,3 +266,62 @@ def test_auxiliary_state_loss_teaches_the_features_where_arm_and_goal_are(tmp_pa
     for _ in range(300):
         apply_gradients(model, optimizer, aux.compute_gradients(model.state_dict())[0])
     assert end_point_error(model) < 0.85 * before, (before, end_point_error(model))  # 0.554 -> 0.408 measured
+
+
+class SignPicksTheAction(gym.Env):
+    """A two-number state; action 0 is right when its first number is positive, action 1 otherwise."""
+
+    observation_space = spaces.Box(-1.0, 1.0, (2,), np.float64)
+    action_space = spaces.Discrete(6)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.sign = 1.0 if self.np_random.random() < 0.5 else -1.0
+        return np.array([self.sign, 0.5]), {"is_success": False}
+
+    def step(self, action):
+        success = int(action) == (0 if self.sign > 0 else 1)
+        return np.array([self.sign, 0.5]), 0.0 if success else -1.0, success, False, {"is_success": success}
+
+
+def test_state_encoder_learns_an_action_that_depends_on_the_state_vector():
+    """a3c.encoder: state (perception taken away, issue 19): the same worker and losses on a vector."""
+    torch.manual_seed(0)
+    model = ActorCritic((2,), 6, encoder="state")
+    model.share_memory()
+    optimizer = SharedAdam(model.parameters(), lr=3e-3)
+    worker = A3CWorker(lambda: gym.wrappers.TimeLimit(SignPicksTheAction(), 20), (2,), 6, seed=0, reward_scale=0.1,
+                       encoder="state")
+    states = torch.tensor([[1.0, 0.5], [-1.0, 0.5]], dtype=torch.float64)
+    for _ in range(300):
+        apply_gradients(model, optimizer, worker.compute_gradients(model.state_dict())[0])
+    right = torch.softmax(model(states)[0], -1)[[0, 1], [0, 1]]
+    assert (right > 0.8).all(), right
+    with pytest.raises(ValueError, match="flat vector"):
+        ActorCritic((16, 16, 3), 6, encoder="state")
+
+
+def test_state_encoder_runs_on_arm2d_state_and_mismatched_configs_are_one_line(tmp_path):
+    import yaml
+
+    from binpick.config import from_dict
+    from binpick.errors import ConfigError
+    from binpick.rl.a3c_train import load_a3c_policy
+    from binpick.rl.config import RLConfig
+    from binpick.rl.train import trainer_for
+    from binpick.runs import latest_checkpoint
+
+    settings = yaml.safe_load(A3C_RUN.format(steps=40))
+    state_run = settings | {"env_kwargs": {"goal_conditioned": True, "image": None, "tolerance": 0.2},
+                            "a3c": {"workers": 1, "n_steps": 5, "encoder": "state"}}
+    trainer = trainer_for(from_dict(RLConfig, state_run), tmp_path / "runs")
+    metrics = trainer.run()
+    assert trainer.observation_shape == (12,) and metrics["sim_steps"] >= 40  # cos, sin, end point, achieved, desired
+    policy = load_a3c_policy(latest_checkpoint(trainer.run_dir / "checkpoints"))
+    assert policy.model.encoder == "state" and 0 <= policy(np.zeros(12)) < 6
+    with pytest.raises(ConfigError, match="a3c.encoder 'state' learns from Arm2D's state vector"):
+        from_dict(RLConfig, settings | {"a3c": {"encoder": "state"}})
+    with pytest.raises(ConfigError, match="image encoders need"):
+        from_dict(RLConfig, state_run | {"a3c": {"encoder": "keypoints"}})
+    with pytest.raises(ConfigError, match="image: null"):
+        trainer_for(from_dict(RLConfig, state_run | {"env_kwargs": {"goal_conditioned": True}}), tmp_path / "r2")

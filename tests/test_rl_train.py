@@ -124,7 +124,7 @@ eval: {every: 300, episodes: 2}
 
 
 def test_algorithm_and_env_must_fit_together():
-    with pytest.raises(ConfigError, match="a3c learns from images with discrete actions"):
+    with pytest.raises(ConfigError, match="a3c learns with discrete actions"):
         from_dict(RLConfig, {"algorithm": "a3c", "env": "FetchReach"})
     with pytest.raises(ConfigError, match="Arm2D takes a3c or dqn"):
         from_dict(RLConfig, {"algorithm": "sac", "env": "Arm2D"})

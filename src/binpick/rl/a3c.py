@@ -1,4 +1,5 @@
-"""Asynchronous advantage actor-critic (thesis §3.1.2, Eq 3.4-3.7) for pixel observations.
+"""Asynchronous advantage actor-critic (thesis §3.1.2, Eq 3.4-3.7) for pixel observations (or, with
+``encoder="state"``, for the env's semantic state vector: the same learner with perception taken away).
 
 n worker processes each own an env and a local copy of the network. A worker repeatedly copies the
 global weights, plays up to ``n_steps`` actions, and computes gradients of
@@ -22,7 +23,7 @@ import torch
 import torch.nn as nn
 
 
-ENCODERS = ("flatten", "keypoints")
+ENCODERS = ("flatten", "keypoints", "state")
 
 
 class SpatialSoftmax(nn.Module):
@@ -45,7 +46,9 @@ class ActorCritic(nn.Module):
 
     ``encoder="flatten"`` (the thesis-style default) flattens the last feature map; ``"keypoints"``
     keeps half-resolution maps and reads each channel's expected position (:class:`SpatialSoftmax`), so what is
-    learnt about a goal in one place holds in every place: the curriculum's widening needs it."""
+    learnt about a goal in one place holds in every place: the curriculum's widening needs it. ``"state"``
+    takes a flat float vector (B, D) instead of images: it measures what the learner does when
+    perception is perfect (issue 19)."""
 
     def __init__(self, observation_shape: tuple[int, int, int], actions: int, encoder: str = "flatten",
                  state_size: int = 0) -> None:
@@ -53,8 +56,14 @@ class ActorCritic(nn.Module):
         if encoder not in ENCODERS:
             raise ValueError(f"encoder must be one of {ENCODERS}, got {encoder!r}")
         self.encoder = encoder
-        height, width, channels = observation_shape
-        if encoder == "flatten":
+        if encoder == "state":
+            if len(observation_shape) != 1:
+                raise ValueError(f"encoder 'state' needs a flat vector observation, got shape {tuple(observation_shape)}")
+            self.trunk = nn.Sequential(nn.Linear(int(observation_shape[0]), 256), nn.ReLU())
+        elif len(observation_shape) != 3:
+            raise ValueError(f"encoder {encoder!r} needs (H, W, C) images, got shape {tuple(observation_shape)}")
+        elif encoder == "flatten":
+            height, width, channels = observation_shape
             self.trunk = nn.Sequential(
                 nn.Conv2d(channels, 16, 5, stride=2, padding=2), nn.ReLU(),
                 nn.Conv2d(16, 32, 5, stride=2, padding=2), nn.ReLU(),
@@ -62,6 +71,7 @@ class ActorCritic(nn.Module):
                 nn.Flatten(),
             )
         else:
+            height, width, channels = observation_shape
             self.trunk = nn.Sequential(
                 nn.Conv2d(channels, 16, 5, stride=2, padding=2), nn.ReLU(),
                 nn.Conv2d(16, 32, 3, stride=1, padding=1), nn.ReLU(),
@@ -69,7 +79,7 @@ class ActorCritic(nn.Module):
                 SpatialSoftmax(),
             )
         with torch.no_grad():
-            features = self.trunk(torch.zeros(1, channels, height, width)).shape[1]
+            features = self.trunk(self._prepare(torch.zeros(1, *observation_shape, dtype=torch.uint8))).shape[1]
         self.hidden = nn.Sequential(nn.Linear(features, 256), nn.ReLU())
         self.policy = nn.Linear(256, actions)
         self.value = nn.Linear(256, 1)
@@ -83,8 +93,13 @@ class ActorCritic(nn.Module):
         return self.policy(hidden), self.value(hidden).squeeze(-1)
 
     def features(self, images: torch.Tensor) -> torch.Tensor:
-        """uint8 (B, H, W, C) images -> the (B, 256) features the heads read."""
-        return self.hidden(self.trunk(images.permute(0, 3, 1, 2).float() / 255.0))
+        """uint8 (B, H, W, C) images (or (B, D) state vectors) -> the (B, 256) features the heads read."""
+        return self.hidden(self.trunk(self._prepare(images)))
+
+    def _prepare(self, observations: torch.Tensor) -> torch.Tensor:
+        if self.encoder == "state":
+            return observations.float()
+        return observations.permute(0, 3, 1, 2).float() / 255.0
 
     @torch.no_grad()
     def act(self, image: np.ndarray, deterministic: bool = False) -> int:

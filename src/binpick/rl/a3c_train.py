@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 import torch
 import torch.multiprocessing as mp
@@ -48,17 +49,39 @@ class _SampledPolicy:
         return self.model.act(observation, deterministic=deterministic or self.deterministic), None
 
 
-def _make_env(config: RLConfig):
+def make_env(config: RLConfig) -> gym.Env:
+    """The run's env; for ``a3c.encoder: state`` a goal env's dict observation is flattened into one vector."""
+    from gymnasium import spaces
+    from gymnasium.wrappers import FlattenObservation
+
     from binpick.envs import make
 
-    return make(config.env, **config.env_kwargs)
+    env = make(config.env, **config.env_kwargs)
+    space = env.observation_space
+    if config.a3c.encoder == "state":
+        if isinstance(space, spaces.Dict):
+            pictures = [key for key, sub in space.spaces.items() if len(sub.shape) != 1]
+            if pictures:
+                env.close()
+                raise ConfigError(f"a3c.encoder 'state' needs vector observations; {config.env}'s {pictures} are not "
+                                  f"(for Arm2D set env_kwargs: {{goal_conditioned: true, image: null}})")
+            env = FlattenObservation(env)
+        elif len(space.shape) != 1:
+            env.close()
+            raise ConfigError(f"a3c.encoder 'state' needs vector observations; {config.env} gives shape {space.shape} "
+                              f"(for Arm2D set env_kwargs: {{goal_conditioned: true, image: null}})")
+    elif len(space.shape or ()) != 3:
+        env.close()
+        raise ConfigError(f"a3c.encoder {config.a3c.encoder!r} needs image observations; {config.env} gives "
+                          f"{type(space).__name__} (use a3c.encoder: state for vector observations)")
+    return env
 
 
 def _state_size(config: RLConfig) -> int:
     """Length of the env's semantic state (info["state"]) when the auxiliary state loss is on, else 0."""
     if config.a3c.state_weight == 0:
         return 0
-    env = _make_env(config)
+    env = make_env(config)
     try:
         state = env.reset(seed=0)[1].get("state")
     finally:
@@ -72,8 +95,8 @@ def _worker(rank: int, config: RLConfig, model: ActorCritic, optimizer: SharedAd
             stats_queue, stop) -> None:
     torch.set_num_threads(1)
     a3c = config.a3c
-    env_shape = _make_env(config).observation_space.shape
-    worker = A3CWorker(lambda: _make_env(config), env_shape, 6, seed=config.seed * 1000 + rank * 7919 + counter.value,
+    env_shape = make_env(config).observation_space.shape
+    worker = A3CWorker(lambda: make_env(config), env_shape, 6, seed=config.seed * 1000 + rank * 7919 + counter.value,
                        n_steps=a3c.n_steps, gamma=a3c.gamma, entropy_beta=a3c.entropy_beta,
                        value_coef=a3c.value_coef, max_grad_norm=a3c.max_grad_norm, reward_scale=a3c.reward_scale,
                        encoder=a3c.encoder, state_weight=a3c.state_weight, state_size=model.state_size)
@@ -112,7 +135,7 @@ class A3CTrainer:
     def __init__(self, config: RLConfig, run_dir: Path) -> None:
         self.config, self.run_dir = config, Path(run_dir)
         self.ckpt_dir = self.run_dir / "checkpoints"
-        env = _make_env(config)
+        env = make_env(config)
         self.observation_shape = env.observation_space.shape
         self.base_area = float(env.unwrapped.goal_area)
         env.close()
@@ -194,7 +217,7 @@ class A3CTrainer:
 
     # ------------------------------------------------------------------ evaluation
     def evaluate(self, area: float) -> dict[str, float]:
-        env = _make_env(self.config)
+        env = make_env(self.config)
         env.unwrapped.set_goal_area(area)
         result = evaluate_policy(_SampledPolicy(self.model), env, episodes=self.config.eval.episodes,
                                  seed=self.config.eval.seed)

@@ -101,11 +101,12 @@ class A3CConfig:
     value_coef: float = 0.5
     max_grad_norm: float = 40.0
     reward_scale: float = 0.01  # keeps value targets in [-1, 0] for the -1-per-step reward
-    encoder: str = "flatten"  # "keypoints": expected positions of feature maps (goals anywhere; see rl/a3c.py)
+    encoder: str = "flatten"  # "keypoints": expected positions of feature maps (goals anywhere; see rl/a3c.py);
+    # "state": an MLP on the env's vector observation (a goal env's dict is flattened): perception taken away
     state_weight: float = 0.0  # > 0: auxiliary loss, the features also regress the env's info["state"]
 
     def __post_init__(self) -> None:
-        check_choice("a3c.encoder", self.encoder, ["flatten", "keypoints"])
+        check_choice("a3c.encoder", self.encoder, ["flatten", "keypoints", "state"])
         check_range("a3c.state_weight", self.state_weight, 0.0, 1e6)
         check_range("a3c.reward_scale", self.reward_scale, 0.0, 1e6, low_inclusive=False)
         check_range("a3c.workers", self.workers, 1, 256, integer=True)
@@ -335,9 +336,14 @@ class RLConfig:
         if self.demonstrations.episodes and (self.algorithm != "sac" or not spec.moves_object):
             raise ConfigError("demonstrations come from the scripted pick-and-place heuristic: algorithm sac on "
                               "binpick/FetchPickAndPlace-v0 only")
-        discrete = spec.discrete_actions and not self.env_kwargs.get("goal_conditioned", False)
-        if self.algorithm in ("a3c", "dqn") and not discrete:
-            raise ConfigError(f"algorithm {self.algorithm} learns from images with discrete actions: use env binpick/Arm2D-v0")
+        goal_conditioned = self.env_kwargs.get("goal_conditioned", False)
+        if self.algorithm in ("a3c", "dqn") and not spec.discrete_actions:
+            raise ConfigError(f"algorithm {self.algorithm} learns with discrete actions: use env binpick/Arm2D-v0")
+        if self.algorithm == "dqn" and goal_conditioned:
+            raise ConfigError("algorithm dqn learns from Arm2D's images: remove env_kwargs.goal_conditioned")
+        if self.algorithm == "a3c" and goal_conditioned != (self.a3c.encoder == "state"):
+            raise ConfigError("a3c.encoder 'state' learns from Arm2D's state vector (env_kwargs: {goal_conditioned: true, "
+                              "image: null}); the image encoders need env_kwargs.goal_conditioned unset")
         if self.algorithm in ("sac", "sb3_sac_her") and spec.discrete_actions:
             raise ConfigError(f"algorithm {self.algorithm} needs continuous actions; Arm2D takes a3c or dqn")
         if self.algorithm == "dqn" and self.env_kwargs.get("image_size", 64) < 36:
