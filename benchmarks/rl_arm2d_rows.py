@@ -1,0 +1,49 @@
+"""Evaluate A3C run folders made outside benchmarks/rl_arm2d.py (for example a benchmark run continued
+further) on the same 200 seeded whole-area episodes, greedy and sampling, and merge them into
+results/rl_arm2d.json under the keys given.
+
+    python benchmarks/rl_arm2d_rows.py KEY=RUN_DIR [KEY=RUN_DIR ...] [--note TEXT]
+
+Issue 19's 2M-step state rows came from the two 1M state runs (entropy 0.01) copied to runs/explore,
+``total_timesteps: 2000000`` set in each copy's config.yaml and ``binpick rl train --resume COPY``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+
+sys.path.insert(0, os.path.dirname(__file__))
+
+import _common  # noqa: E402
+import rl_arm2d  # noqa: E402
+
+from binpick.rl.train import load_policy  # noqa: E402
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("rows", nargs="+", help="KEY=RUN_DIR")
+    parser.add_argument("--note", default="", help="how the run was made, stored with its rows")
+    args = parser.parse_args()
+    rows = {}
+    for item in args.rows:
+        key, _, run = item.partition("=")
+        if not key or not run:
+            sys.exit(f"{item!r}: expected KEY=RUN_DIR")
+        policy, config = load_policy(_common.ROOT / run)
+        metrics = json.loads((_common.ROOT / run / "metrics.json").read_text())
+        extra = {"sim_steps": metrics["sim_steps"], "wall_seconds": metrics["wall_seconds"], "run_dir": run,
+                 **({"note": args.note} if args.note else {})}
+        rows[key] = rl_arm2d.evaluate(policy, 1.0, config=config) | extra
+        rows[f"{key}_sampled"] = rl_arm2d.evaluate(policy, 1.0, deterministic=False, config=config) | extra
+        print(key, f"greedy {rows[key]['mean']:.1f}, sampling {rows[f'{key}_sampled']['mean']:.1f}", flush=True)
+    path = _common.RESULTS / "rl_arm2d.json"
+    results = (json.loads(path.read_text()) if path.exists() else {}) | rows
+    _common.write_result("rl_arm2d", {k: v for k, v in results.items() if k not in ("benchmark", "machine")})
+
+
+if __name__ == "__main__":
+    main()
