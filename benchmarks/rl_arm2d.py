@@ -28,10 +28,9 @@ sys.path.insert(0, os.path.dirname(__file__))
 import _common  # noqa: E402
 
 from binpick.envs import make  # noqa: E402
-from binpick.rl.a3c_train import make_env as make_a3c_env  # noqa: E402
 from binpick.rl.config import RLConfig, load_rl_config  # noqa: E402
 from binpick.rl.evaluate import evaluate_policy, random_policy  # noqa: E402
-from binpick.rl.train import load_policy, trainer_for  # noqa: E402
+from binpick.rl.train import load_policy, make_env as make_run_env, trainer_for  # noqa: E402
 from binpick.config import load_run_config  # noqa: E402
 from binpick.terminal import RichCallback  # noqa: E402
 
@@ -71,7 +70,7 @@ def evaluate(policy, goal_area: float, seed: int = 50_000, epsilon: float = 0.0,
              config: RLConfig | None = None) -> dict:
     """200 seeded episodes at ``goal_area``; an A3C run's config gives its own env (pixels or state)."""
     if config is not None and config.algorithm == "a3c":
-        env = make_a3c_env(config)
+        env = make_run_env(config)
         env.unwrapped.set_goal_area(goal_area)
     else:
         env = make("binpick/Arm2D-v0", goal_area=goal_area)

@@ -319,6 +319,10 @@ def test_state_encoder_runs_on_arm2d_state_and_mismatched_configs_are_one_line(t
     assert trainer.observation_shape == (12,) and metrics["sim_steps"] >= 40  # cos, sin, end point, achieved, desired
     policy = load_a3c_policy(latest_checkpoint(trainer.run_dir / "checkpoints"))
     assert policy.model.encoder == "state" and 0 <= policy(np.zeros(12)) < 6
+    from binpick.rl.train import make_env  # what `binpick rl eval` plays the run on: the same flattened state
+
+    env = make_env(trainer.config)
+    assert env.observation_space.shape == (12,) and 0 <= policy(env.reset(seed=0)[0]) < 6
     with pytest.raises(ConfigError, match="a3c.encoder 'state' learns from Arm2D's state vector"):
         from_dict(RLConfig, settings | {"a3c": {"encoder": "state"}})
     with pytest.raises(ConfigError, match="image encoders need"):

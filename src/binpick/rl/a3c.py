@@ -50,7 +50,7 @@ class ActorCritic(nn.Module):
     takes a flat float vector (B, D) instead of images: it measures what the learner does when
     perception is perfect (issue 19)."""
 
-    def __init__(self, observation_shape: tuple[int, int, int], actions: int, encoder: str = "flatten",
+    def __init__(self, observation_shape: tuple[int, ...], actions: int, encoder: str = "flatten",
                  state_size: int = 0) -> None:
         super().__init__()
         if encoder not in ENCODERS:

@@ -42,7 +42,11 @@ def next_multiple(steps: int, every: int) -> int:
 
 
 def make_env(config: RLConfig) -> gym.Env:
-    """The env exactly as the run trains on it (semantic state, minimum action scale)."""
+    """The env exactly as the run trains on it (semantic state, minimum action scale; A3C's flattened state)."""
+    if config.algorithm == "a3c":
+        from binpick.rl.a3c_train import make_env as make_a3c_env
+
+        return make_a3c_env(config)
     env = make(config.env, **config.env_kwargs)
     if config.semantic_state and config.algorithm in ("sac", "sb3_sac_her"):
         env = SemanticState(env, gripper=needs_gripper(config.env), privileged=config.privileged_state,
