@@ -80,6 +80,17 @@ def evaluate(policy, goal_area: float, seed: int = 50_000, epsilon: float = 0.0,
             "episodes": EPISODES, "goal_area": goal_area, "epsilon": epsilon, "deterministic": deterministic}
 
 
+def merge_rows(rows: dict) -> dict:
+    """Merge measured rows into results/rl_arm2d.json as the file is now, after each row: a later crash
+    loses nothing measured, and two arms run at once (one process each) do not overwrite each other's rows.
+    Returns the merged results."""
+    path = _common.RESULTS / "rl_arm2d.json"
+    results = (json.loads(path.read_text()) if path.exists() else {}) | rows
+    results["peak_rss_mib"] = round(max(_common.peak_rss_mib(), results.get("peak_rss_mib", 0.0)), 1)
+    _common.write_result("rl_arm2d", {k: v for k, v in results.items() if k not in ("benchmark", "machine")})
+    return results
+
+
 def shortest_path(goal_area: float, seed: int = 50_000) -> dict:
     """Fewest actions from each evaluation episode's start to the goal: every pose the six actions can
     reach is the start's joint angles plus multiples of π/8 (16³ poses), so the shortest path is the
@@ -152,11 +163,7 @@ def main() -> None:
                     k: results[key][k] for k in ("sim_steps", "wall_seconds", "run_dir")}
         print(key, results[key], flush=True)
         measured |= {k: v for k, v in results.items() if k == key or k.startswith((f"{key}_", key.replace("whole_area", "stages")))}
-        # after each row, merged into the file as it is now: a later crash loses nothing measured, and
-        # two arms run at once (one process each) do not overwrite each other's rows
-        results = (json.loads(path.read_text()) if path.exists() else {}) | measured
-        results["peak_rss_mib"] = round(max(_common.peak_rss_mib(), results.get("peak_rss_mib", 0.0)), 1)
-        _common.write_result("rl_arm2d", {k: v for k, v in results.items() if k not in ("benchmark", "machine")})
+        results = merge_rows(measured)
 
     def cell(key: str) -> str:
         row = results.get(key)

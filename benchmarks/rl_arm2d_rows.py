@@ -40,9 +40,7 @@ def main() -> None:
         rows[key] = rl_arm2d.evaluate(policy, 1.0, config=config) | extra
         rows[f"{key}_sampled"] = rl_arm2d.evaluate(policy, 1.0, deterministic=False, config=config) | extra
         print(key, f"greedy {rows[key]['mean']:.1f}, sampling {rows[f'{key}_sampled']['mean']:.1f}", flush=True)
-    path = _common.RESULTS / "rl_arm2d.json"
-    results = (json.loads(path.read_text()) if path.exists() else {}) | rows
-    _common.write_result("rl_arm2d", {k: v for k, v in results.items() if k not in ("benchmark", "machine")})
+    rl_arm2d.merge_rows(rows)
 
 
 if __name__ == "__main__":

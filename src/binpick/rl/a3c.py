@@ -63,7 +63,7 @@ class ActorCritic(nn.Module):
         elif len(observation_shape) != 3:
             raise ValueError(f"encoder {encoder!r} needs (H, W, C) images, got shape {tuple(observation_shape)}")
         elif encoder == "flatten":
-            height, width, channels = observation_shape
+            channels = observation_shape[2]
             self.trunk = nn.Sequential(
                 nn.Conv2d(channels, 16, 5, stride=2, padding=2), nn.ReLU(),
                 nn.Conv2d(16, 32, 5, stride=2, padding=2), nn.ReLU(),
@@ -71,7 +71,7 @@ class ActorCritic(nn.Module):
                 nn.Flatten(),
             )
         else:
-            height, width, channels = observation_shape
+            channels = observation_shape[2]
             self.trunk = nn.Sequential(
                 nn.Conv2d(channels, 16, 5, stride=2, padding=2), nn.ReLU(),
                 nn.Conv2d(16, 32, 3, stride=1, padding=1), nn.ReLU(),

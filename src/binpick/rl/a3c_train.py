@@ -59,17 +59,14 @@ def make_env(config: RLConfig) -> gym.Env:
     env = make(config.env, **config.env_kwargs)
     space = env.observation_space
     if config.a3c.encoder == "state":
-        if isinstance(space, spaces.Dict):
-            pictures = [key for key, sub in space.spaces.items() if len(sub.shape) != 1]
-            if pictures:
-                env.close()
-                raise ConfigError(f"a3c.encoder 'state' needs vector observations; {config.env}'s {pictures} are not "
-                                  f"(for Arm2D set env_kwargs: {{goal_conditioned: true, image: null}})")
-            env = FlattenObservation(env)
-        elif len(space.shape) != 1:
+        parts = space.spaces if isinstance(space, spaces.Dict) else {"observation": space}
+        not_vectors = [key for key, part in parts.items() if len(part.shape or ()) != 1]
+        if not_vectors:
             env.close()
-            raise ConfigError(f"a3c.encoder 'state' needs vector observations; {config.env} gives shape {space.shape} "
+            raise ConfigError(f"a3c.encoder 'state' needs vector observations; {config.env}'s {not_vectors} are not "
                               f"(for Arm2D set env_kwargs: {{goal_conditioned: true, image: null}})")
+        if isinstance(space, spaces.Dict):
+            env = FlattenObservation(env)
     elif len(space.shape or ()) != 3:
         env.close()
         raise ConfigError(f"a3c.encoder {config.a3c.encoder!r} needs image observations; {config.env} gives "
