@@ -244,6 +244,33 @@ train: {{init_from: {tmp_path / 'start.safetensors'}}}
     assert learnt_products(load_detect_config(config)) == sorted(own + ["acme/soap"])
 
 
+def test_train_and_val_files_that_share_generated_scenes_are_refused(tmp_path):
+    from binpick.detection.data import check_disjoint
+
+    def with_seeds(folder, seeds):
+        path = make_coco(folder, images=len(seeds))
+        coco = json.loads(path.read_text())
+        for image, seed in zip(coco["images"], seeds):
+            image["seed"] = seed  # the generator's scene seed: one seed and world make the same scene
+        path.write_text(json.dumps(coco))
+        return RepeatedInstances(path)
+
+    train = with_seeds(tmp_path / "a", [11, 12, 13, 14])
+    other = with_seeds(tmp_path / "b", [21, 22, 23])
+    check_disjoint(train, other)  # other scenes: fine
+    check_disjoint(train, train)  # one file for both on purpose: an overfitting check
+    shared = with_seeds(tmp_path / "c", [14, 31, 32])
+    with pytest.raises(ConfigError, match=r"share 1 of 3 val scenes .*another --seed"):
+        check_disjoint(train, shared)
+    # evaluating weights on scenes their training set held says so
+    from binpick.detection.detector import Detector
+
+    save_detector(DetectorNetwork(ModelSpec(), 64), tmp_path / "w.safetensors",
+                  {"config": {"data": {"train": str(train.path), "targets": "all"}}})
+    assert Detector.load(tmp_path / "w.safetensors").val(shared.path)["scenes_trained_on"] == 1
+    assert Detector.load(tmp_path / "w.safetensors").val(other.path)["scenes_trained_on"] == 0
+
+
 def test_kmeans_anchors_recover_two_box_sizes():
     sizes = np.r_[np.tile([[10, 20]], (30, 1)), np.tile([[40, 40]], (30, 1))] + np.random.default_rng(0).normal(0, 0.5, (60, 2))
     anchors = kmeans_anchors(sizes, clusters=2)

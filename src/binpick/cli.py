@@ -580,6 +580,9 @@ def detect_eval(
     table.add_row("all instances", _fmt(metrics["ap50_all"]), _fmt(metrics["map_all"]))
     table.add_row("unpickable (lower is better)", _fmt(metrics["ap50_unpickable"]), _fmt(metrics["map_unpickable"]))
     console.print(table)
+    if metrics.get("scenes_trained_on"):
+        console.print(f"[yellow]warning:[/] {metrics['scenes_trained_on']} of these scenes were in the weights' training set "
+                      "(data sets made with one generator --seed share scenes): these figures are not held out")
     if out is not None:
         from binpick.viz.detection import plot_pr_curves
 

@@ -146,7 +146,9 @@ class RepeatedInstances:
             if a.get("iscrowd", 0):
                 continue
             by_image.setdefault(a["image_id"], {}).setdefault(a["category_id"], []).append(a)
+        self.path = path
         self.tasks: list[Task] = []
+        self.scene_seeds: set[int] = set()  # the generator's seed of every scene that gives a task
         for image in coco["images"]:
             for category, annotations in sorted(by_image.get(image["id"], {}).items()):
                 if category in excluded or (only is not None and category not in only):
@@ -154,6 +156,8 @@ class RepeatedInstances:
                 task = self._task(image, category, annotations)
                 if task is not None:
                     self.tasks.append(task)
+                    if isinstance(image.get("seed"), int):
+                        self.scene_seeds.add(image["seed"])
         if not self.tasks:
             raise ConfigError(f"{path}: no image holds two or more instances of a category"
                               f"{' with a picked query' if self.policy else ''} (after exclusions)")
@@ -208,6 +212,19 @@ class RepeatedInstances:
             targets, unpickable, ambiguous, certain = others, [], [], others
         return {"targets": xyxy(targets), "all": xyxy(others), "unpickable": xyxy(unpickable),
                 "certain": xyxy(certain), "ambiguous": xyxy(ambiguous)}
+
+
+def check_disjoint(train: RepeatedInstances, val: RepeatedInstances) -> None:
+    """Val must not score scenes the model trained on. The generator makes the same scene from the
+    same seed and world in every data set made with one ``--seed``, and which worlds go to val depends
+    on the split rule, so the train split of one such set can hold the val scenes of another."""
+    if train.path.resolve() == val.path.resolve():
+        return  # one file for both on purpose (an overfitting check)
+    shared = train.scene_seeds & val.scene_seeds
+    if shared:
+        raise ConfigError(f"data.train ({train.path}) and data.val ({val.path}) share {len(shared)} of "
+                          f"{len(val.scene_seeds)} val scenes (made from the same generator seed and world): val would "
+                          "score images the model trained on; generate one of the sets with another --seed")
 
 
 class TaskDataset(torch.utils.data.Dataset):

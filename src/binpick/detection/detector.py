@@ -95,12 +95,27 @@ class Detector:
         from binpick.detection.train import evaluate_model
 
         targets = targets or self.network.trained_config.get("data", {}).get("targets", "all")
-        dataset = TaskDataset(RepeatedInstances(data, targets=targets), self.network.image_size, self.query,
+        source = RepeatedInstances(data, targets=targets)
+        dataset = TaskDataset(source, self.network.image_size, self.query,
                               self.network.query_size, frame_photos=self.network.spec.frames_photos,
                               depth=self.network.spec.depth)
         with callback.task("evaluating", len(dataset)) as task:
             metrics = evaluate_model(self.network, dataset, batch_size, progress=lambda n: task.update(advance=n))
-        return metrics | {"targets": targets}
+        return metrics | {"targets": targets, "scenes_trained_on": self.scenes_trained_on(source)}
+
+    def scenes_trained_on(self, source) -> int | None:
+        """How many of ``source``'s scenes the last training set (still on disk) also held: data sets
+        made with one generator ``--seed`` share scenes across their splits. None: unknown."""
+        from binpick.detection.data import RepeatedInstances
+        from binpick.errors import BinpickError
+
+        train = self.network.trained_config.get("data", {}).get("train")
+        if not isinstance(train, str) or not Path(train).is_file() or not source.scene_seeds:
+            return None
+        try:
+            return len(RepeatedInstances(train).scene_seeds & source.scene_seeds)
+        except BinpickError:
+            return None
 
     @classmethod
     def train(cls, config: str | Path, runs: str | Path = "runs", callback: RunCallback = SILENT, **overrides: Any) -> Detector:

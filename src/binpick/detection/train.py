@@ -19,7 +19,7 @@ import yaml
 from binpick import tensorfile
 from binpick.config import load_run_config, to_dict
 from binpick.detection.config import DetectConfig
-from binpick.detection.data import RepeatedInstances, TaskDataset, collate, trained_products
+from binpick.detection.data import RepeatedInstances, TaskDataset, check_disjoint, collate, trained_products
 from binpick.detection.evaluate import collect, summarise
 from binpick.detection.losses import rod_loss
 from binpick.detection.model import ANCHORS_PER_LEVEL, DetectorNetwork, ModelSpec
@@ -167,6 +167,7 @@ def make_datasets(config: DetectConfig) -> tuple[TaskDataset, TaskDataset]:
     data = config.data
     train_source = RepeatedInstances(data.train, data.images, data.targets, exclude_categories=data.exclude_categories)
     val_source = RepeatedInstances(data.val, data.images, data.targets)
+    check_disjoint(train_source, val_source)
     query_mode = config.model.query
     framed = bool(config.model.photo_sizes)
     train = TaskDataset(train_source, data.load_size, query_mode, data.query_size, augment=data.augment, seed=config.train.seed,
