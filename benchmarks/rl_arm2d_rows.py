@@ -11,16 +11,12 @@ Issue 19's 2M-step state rows came from the two 1M state runs (entropy 0.01) cop
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 
 sys.path.insert(0, os.path.dirname(__file__))
 
-import _common  # noqa: E402
 import rl_arm2d  # noqa: E402
-
-from binpick.rl.train import load_policy  # noqa: E402
 
 
 def main() -> None:
@@ -29,12 +25,7 @@ def main() -> None:
     parser.add_argument("--note", default="", help="how the run was made, stored with its rows")
     args = parser.parse_args()
     rows = {}
-    for item in args.rows:
-        key, _, run = item.partition("=")
-        if not key or not run:
-            sys.exit(f"{item!r}: expected KEY=RUN_DIR")
-        policy, config = load_policy(_common.ROOT / run)
-        metrics = json.loads((_common.ROOT / run / "metrics.json").read_text())
+    for key, run, policy, config, metrics in rl_arm2d.keyed_runs(args.rows):
         extra = {"sim_steps": metrics["sim_steps"], "wall_seconds": metrics["wall_seconds"], "run_dir": run,
                  **({"note": args.note} if args.note else {})}
         rows[key] = rl_arm2d.evaluate(policy, 1.0, config=config) | extra
