@@ -58,6 +58,7 @@ TINY: list[tuple[str, str]] = [
     (r"--scenes 20000\b", "--scenes 32"),  # randomised: 16 worlds of 2 below, two of them val
     (r"--scenes-per-world 16\b", "--scenes-per-world 2"),
     (r"--scenes 120\b", "--scenes 4"),
+    (r"--scenes 6000\b", "--scenes 16"),  # the larger fine-tuning set: two worlds
     (r"--scenes 2000\b", "--scenes 24"),  # 3 worlds of 8: one each for val, test and train (split_rule=random)
     (r"--policies x,y", "--policies y"),  # the one the rod_* configs and `data show --policy y` read
     (r"--scenes 400\b", "--scenes 6 --scenes-per-world 1 --val-fraction 0.34"),
