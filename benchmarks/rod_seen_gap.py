@@ -130,14 +130,14 @@ def decomposition(weights: str, annotations: Path = ONE_GRASP) -> dict:
     import torch
 
     from binpick.detection.data import RepeatedInstances, TaskDataset
-    from binpick.detection.detector import shipped_weights
+    from binpick.detection.detector import Detector
     from binpick.detection.evaluate import coco_ap, collect, copy_scores
     from binpick.detection.ops import box_iou
-    from binpick.detection.train import detector_detect, load_detector, loader
+    from binpick.detection.train import detector_detect, loader
 
     torch.set_num_threads(2)
-    path = Path(weights) if Path(weights).is_file() else shipped_weights(weights)
-    model = load_detector(path).eval()
+    detector = Detector.load(weights)  # a shipped name or a file
+    model, path = detector.network.eval(), detector.source
     size = model.image_size
     source = RepeatedInstances(annotations, targets="pickable:y")
     with torch.no_grad():
@@ -198,15 +198,14 @@ def input_sizes(weights: str, annotations: Path, sizes: tuple[int, ...] = (288, 
     import torch
 
     from binpick.detection.data import RepeatedInstances, TaskDataset
-    from binpick.detection.detector import shipped_weights
-    from binpick.detection.train import evaluate_model, load_detector
+    from binpick.detection.detector import Detector
+    from binpick.detection.train import evaluate_model
 
     torch.set_num_threads(2)
-    path = Path(weights) if Path(weights).is_file() else shipped_weights(weights)
     source = RepeatedInstances(annotations, targets="pickable:y")
     rows = {}
     for size in sizes:
-        model = load_detector(path).eval()
+        model = Detector.load(weights).network.eval()
         model.image_size = size  # anchors are in pixels and training saw 256-384 px: the same network
         metrics = evaluate_model(model, TaskDataset(source, size))
         rows[str(size)] = {k: round(metrics[k], 4) for k in ("ap50", "ap50_all", "ap50_unpickable")}
