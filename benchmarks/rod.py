@@ -422,7 +422,7 @@ def report_generalisation(runs: Path) -> None:
             elif name in models:  # each model at the size it was trained for
                 model = models[name]
                 metrics = evaluate_on(detector_detect(model), data, split, targets, model.image_size, only, model.spec.query,
-                                      model.spec.frames_photos, model.spec.depth)
+                                      model.spec.frames_photos, model.spec.reads_depth)
             else:
                 continue
             out[row] = keep(metrics)
@@ -456,7 +456,7 @@ def report_generalisation(runs: Path) -> None:
                        "held_out": keep(evaluate_on(detector_detect(models["finetune_rod_photo"]), DATA, "test", P1,
                                                     models["finetune_rod_photo"].image_size, query="photo",
                                                     framed=models["finetune_rod_photo"].spec.frames_photos,
-                                                    depth=models["finetune_rod_photo"].spec.depth)) if "finetune_rod_photo" in models else None,
+                                                    depth=models["finetune_rod_photo"].spec.reads_depth)) if "finetune_rod_photo" in models else None,
                        "held_out_before": keep(evaluate_on(detector_detect(models["before_rod_photo"]), DATA, "test", P1, 256,
                                                            query="photo")) if "before_rod_photo" in models else None}
     # latency of predict at the shipped size, batch 1, 2 threads (weights do not change the time)

@@ -141,7 +141,7 @@ def decomposition(weights: str, annotations: Path = ONE_GRASP) -> dict:
     size = model.image_size
     source = RepeatedInstances(annotations, targets="pickable:y")
     with torch.no_grad():
-        tasks = collect(detector_detect(model), loader(TaskDataset(source, size), 8, False, 0, 0))
+        tasks = collect(detector_detect(model), loader(TaskDataset(source, size, depth=model.spec.reads_depth), 8, False, 0, 0))
 
     def ap50(items) -> float:
         return round(coco_ap(items, "targets", size)["ap50"], 4)
@@ -207,7 +207,7 @@ def input_sizes(weights: str, annotations: Path, sizes: tuple[int, ...] = (288, 
     for size in sizes:
         model = Detector.load(weights).network.eval()
         model.image_size = size  # anchors are in pixels and training saw 256-384 px: the same network
-        metrics = evaluate_model(model, TaskDataset(source, size))
+        metrics = evaluate_model(model, TaskDataset(source, size, depth=model.spec.reads_depth))
         rows[str(size)] = {k: round(metrics[k], 4) for k in ("ap50", "ap50_all", "ap50_unpickable")}
     return {"data": str(Path(annotations)), "tasks": len(source), "by_size": rows}
 

@@ -24,10 +24,11 @@ def _draw(draw: ImageDraw.ImageDraw, kind: str, colour, x: int, y: int, size: in
 
 
 def make_coco(folder: Path, images: int = 12, size: int = 128, seed: int = 0, pickable: bool = False,
-              depth: bool = False) -> Path:
+              depth: bool = False, pickable_rule: str = "left") -> Path:
     """Each image: 2-4 copies of one shape and one copy of another, on a noisy grey floor, without
     overlaps. With ``pickable``, copies left of the image centre are labelled pickable by policy
-    ``y`` and the first copy is the picked query (the warehouse format). With ``depth``, a 16-bit
+    ``y`` and the first copy is the picked query (the warehouse format); ``pickable_rule="small"``
+    labels the copies smaller than the middle of the size range instead (a window shows it). With ``depth``, a 16-bit
     depth PNG per image (mm; floor at 800, objects 40 mm tall) named by ``depth_file``."""
     rng = np.random.default_rng(seed)
     folder = Path(folder)
@@ -55,7 +56,8 @@ def make_coco(folder: Path, images: int = 12, size: int = 128, seed: int = 0, pi
             annotation = {"id": len(coco["annotations"]) + 1, "image_id": index + 1, "category_id": int(category) + 1,
                           "bbox": bbox, "area": bbox[2] * bbox[3], "iscrowd": 0}
             if pickable and category == target:
-                annotation |= {"is_query": k == 0, "pickable": {"y": bool(bbox[0] + bbox[2] / 2 < size / 2)}}
+                picked = object_size < (size // 6 + size // 4) / 2 if pickable_rule == "small" else bbox[0] + bbox[2] / 2 < size / 2
+                annotation |= {"is_query": k == 0, "pickable": {"y": bool(picked)}}
             coco["annotations"].append(annotation)
         file_name = f"images/{index:04d}.png"
         picture.save(folder / file_name)

@@ -75,6 +75,7 @@ TINY: list[tuple[str, str]] = [
     (r"^(binpick april run configs/\S+.*)$", r"\1 --set collect.episodes=2 --set perception_training.epochs=1 "
                                             r"--set eval.episodes=1 --set policy.rl_config=tiny_rl.yaml"),
     (r"^(binpick grasp train configs/\S+.*)$", r"\1 --set epochs=1 --set batch_size=2 --set threads=1"),
+    (r"^(binpick detect pickability configs/\S+.*)$", r"\1 --set epochs=1 --set width=4 --set threads=1"),
     (r"^(binpick detect train configs/\S+.*)$", r"\1 --set train.epochs=1 --set train.batch_size=4 --set train.workers=0 "
                                                r"--set train.threads=1 --set data.image_size=128"),
 ]

@@ -534,6 +534,28 @@ def detect_train(
     console.print(f"val AP50 {_fmt(final.get('ap50'))}, mAP {_fmt(final.get('map'))}; wrote {trainer.run_dir / 'model.safetensors'}")
 
 
+@detect_app.command("pickability")
+def detect_pickability(
+    config: Annotated[Path | None, typer.Argument(help="YAML config (see configs/pickability_crop.yaml)")] = None,
+    resume: Annotated[Path | None, typer.Option(help="Run folder to continue from its latest checkpoint")] = None,
+    runs: Annotated[Path, typer.Option(help="Where new run folders go")] = Path("runs"),
+    settings: ConfigSetOption = None,
+) -> None:
+    """Teach a detector a second look at each detection (will the policy pick this copy?): windows cut
+    once, a checkpoint each epoch, TensorBoard, the best val ROC AUC kept; model.safetensors in
+    runs/<name>/<time>/ is the detector with its pickability head."""
+    from binpick.config import load_config
+    from binpick.detection.pickability_training import PickabilityConfig, PickabilityTrainer
+
+    trainer = start_or_resume(PickabilityTrainer, config, resume, runs,
+                              lambda path, overrides: load_config(PickabilityConfig, path, overrides),
+                              parse_settings(settings), where=lambda job: f" at epoch {job.epoch}")
+    with progress() as callback:
+        metrics = trainer.run(callback)
+    console.print(f"best val ROC AUC {_fmt(metrics['best_val_auc'])}; wrote {trainer.run_dir / 'model.safetensors'} "
+                  f"(binpick detect eval {trainer.run_dir} --data ...)")
+
+
 @grasp_app.command("train")
 def grasp_train(
     config: Annotated[Path | None, typer.Argument(help="YAML config (see configs/grasp_quality.yaml)")] = None,
@@ -564,13 +586,14 @@ def detect_eval(
     data: Annotated[Path, typer.Option(help="COCO annotations file (e.g. runs/data/bins_2000/annotations_test.json)")],
     targets: Annotated[str | None, typer.Option(help="all | pickable:<policy> (default: as trained)")] = None,
     out: Annotated[Path | None, typer.Option(help="Write the metrics JSON and a PR-curve PNG here (a folder)")] = None,
+    pickability: Annotated[bool, typer.Option(help="Re-score with the weights' pickability head, if they hold one")] = True,
 ) -> None:
     """AP50 and mAP@[.5:.95] (pycocotools) against the targets, all instances and unpickable ones."""
     from binpick.detection import Detector
 
     if out is not None:
         ensure_dir(out, "--out")
-    detector = Detector.load(run)
+    detector = Detector.load(run, pickability=pickability)
     with progress() as callback:
         metrics = detector.val(data, targets, callback=callback)
     table = Table(title=f"{run} on {data} ({metrics['tasks']} tasks, targets {metrics['targets']})")
@@ -581,8 +604,8 @@ def detect_eval(
     table.add_row("unpickable (lower is better)", _fmt(metrics["ap50_unpickable"]), _fmt(metrics["map_unpickable"]))
     console.print(table)
     if metrics.get("scenes_trained_on"):
-        console.print(f"[yellow]warning:[/] {metrics['scenes_trained_on']} of these scenes were in the weights' training set "
-                      "(data sets made with one generator --seed share scenes): these figures are not held out")
+        console.print(f"warning: {metrics['scenes_trained_on']} of these scenes were in the weights' training set "
+                      "(data sets made with one generator --seed share scenes): these figures are not held out", style="yellow")
     if out is not None:
         from binpick.viz.detection import plot_pr_curves
 
@@ -601,6 +624,7 @@ def detect_predict(
     out: Annotated[Path | None, typer.Option(help="Overlay PNG: query blue, detections orange with scores, a legend")] = None,
     heatmap: Annotated[Path | None, typer.Option(help="PNG of the ROD levels' max heatmaps, titled, with a colour bar")] = None,
     min_score: Annotated[float, typer.Option(help="Detections below this score are not printed or drawn")] = 0.3,
+    pickability: Annotated[bool, typer.Option(help="Re-score with the weights' pickability head, if they hold one (it needs --depth)")] = True,
 ) -> None:
     """Find the other instances of the query; prints JSON boxes (x, y, w, h) and scores."""
     from binpick.config import check_range
@@ -612,9 +636,15 @@ def detect_predict(
     for path, option in ((out, "--out"), (heatmap, "--heatmap")):
         if path is not None:
             _check_png_path(path, option)
-    detector = Detector.load(weights or (PICKING if query_image is not None else "rod_tiny_320"))
+    detector = Detector.load(weights or (PICKING if query_image is not None else "rod_tiny_320"), pickability=pickability)
     box = parse_box(query_box) if query_box is not None else None
-    prediction = detector.predict(image, box, query_image, min_score=min_score, depth=depth)
+    import warnings
+
+    with warnings.catch_warnings(record=True) as notes:
+        warnings.simplefilter("always")
+        prediction = detector.predict(image, box, query_image, min_score=min_score, depth=depth)
+    for note in notes:
+        console.print(f"note: {note.message}", style="yellow")
     print(json.dumps(prediction.to_json()))
     if out is not None:
         _save_png(prediction.plot(), out, "--out")

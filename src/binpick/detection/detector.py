@@ -47,14 +47,17 @@ class Detector:
         self.network, self.source, self.metrics = network, source, metrics
 
     @classmethod
-    def load(cls, weights: str | Path = "rod_tiny_320") -> Detector:
-        """A shipped name, a ``.safetensors`` (or older ``.pt``) file, or a run folder."""
+    def load(cls, weights: str | Path = "rod_tiny_320", pickability: bool = True) -> Detector:
+        """A shipped name, a ``.safetensors`` (or older ``.pt``) file, or a run folder. ``pickability=False``
+        leaves out a pickability head the weights hold (binpick.detection.pickability): the detector's
+        own ranking, from colour alone."""
         from binpick.detection.train import load_detector
 
         path = Path(weights)
         if not path.exists() and str(weights).removesuffix(".safetensors") in SHIPPED:
             path = shipped_weights(str(weights))
-        return cls(load_detector(path), path)
+        network = load_detector(path)
+        return cls(network if pickability else network.without_pickability(), path)
 
     # ------------------------------------------------------------------ what it is
     @property
@@ -74,7 +77,7 @@ class Detector:
     def __repr__(self) -> str:
         spec = self.network.spec
         return (f"Detector({spec.method} {spec.layout}, {spec.backbone} backbone, {self.network.image_size} px, "
-                f"{spec.query} query, from {self.source})")
+                f"{spec.query} query{', pickability head' if spec.pickability else ''}, from {self.source})")
 
     # ------------------------------------------------------------------ jobs
     def predict(self, image: np.ndarray | str | Path, query_box=None, query_image: np.ndarray | str | Path | None = None,
@@ -98,7 +101,7 @@ class Detector:
         source = RepeatedInstances(data, targets=targets)
         dataset = TaskDataset(source, self.network.image_size, self.query,
                               self.network.query_size, frame_photos=self.network.spec.frames_photos,
-                              depth=self.network.spec.depth)
+                              depth=self.network.spec.reads_depth)
         with callback.task("evaluating", len(dataset)) as task:
             metrics = evaluate_model(self.network, dataset, batch_size, progress=lambda n: task.update(advance=n))
         return metrics | {"targets": targets, "scenes_trained_on": self.scenes_trained_on(source)}

@@ -19,6 +19,7 @@ from torch import nn
 
 from binpick.detection.backbone import BACKBONES, build_backbone, conv_bn
 from binpick.detection.depth import DepthEncoder
+from binpick.detection.pickability import PickabilityHead
 from binpick.detection.ops import cxcywh_to_xyxy, nms
 from binpick.detection.rod import RODModule, SkipModule, TDIDModule, crop_features
 
@@ -62,6 +63,14 @@ class ModelSpec:
     # trained before photos were framed)
     photo_sizes: tuple[float, ...] = ()
     depth: bool = False  # also reads the scene's depth (binpick.detection.depth): geometry for pickability
+    # a second look at each detection (binpick.detection.pickability): "" none, "rgb" colour, "rgbd" with depth
+    pickability: str = ""
+    pickability_width: int = 32  # channels of the head's first convolution
+
+    @property
+    def reads_depth(self) -> bool:
+        """Whether the network needs the scene's depth: its depth encoder or its pickability head."""
+        return self.depth or self.pickability == "rgbd"
 
     @property
     def frames_photos(self) -> bool:
@@ -85,6 +94,8 @@ class ModelSpec:
             raise ConfigError("model.photo_sizes is for ROD with photo queries (model.query: photo, model.method: rod)")
         if not isinstance(self.depth, bool):
             raise ConfigError(f"model.depth must be true or false, got {self.depth!r}")
+        if self.pickability not in ("", "rgb", "rgbd"):
+            raise ConfigError(f"model.pickability must be '', 'rgb' or 'rgbd', got {self.pickability!r}")
         if any(not 0 < s <= 1 for s in self.photo_sizes):
             raise ConfigError(f"model.photo_sizes must be fractions of the image side in (0, 1], got {list(self.photo_sizes)}")
 
@@ -108,6 +119,7 @@ class DetectorNetwork(nn.Module):
                 modules.append(RODModule(c, spec.scales) if letter == "R" else SkipModule(c))
         self.modules_per_level = nn.ModuleList(modules)
         self.depth_encoder = DepthEncoder(channels) if spec.depth else None
+        self.pickability = PickabilityHead(spec.pickability == "rgbd", spec.pickability_width) if spec.pickability else None
         c1, c2, c3 = channels
         self.top = nn.Sequential(conv_bn(c3, c3 // 2, 1), conv_bn(c3 // 2, c3, 3), conv_bn(c3, c3 // 2, 1))
         self.lateral3 = conv_bn(c3 // 2, c2 // 2, 1)
@@ -199,4 +211,35 @@ class DetectorNetwork(nn.Module):
             kept_boxes, kept_scores = kept_boxes[best], kept_scores[best]
             order = nms(kept_boxes, kept_scores, iou_threshold)[:max_detections]
             results.append({"boxes": kept_boxes[order], "scores": kept_scores[order]})
+        if self.pickability is not None:
+            results = self.rescore(images, depth, results, score_threshold)
         return results, out["heatmaps"]
+
+    def without_pickability(self) -> DetectorNetwork:
+        """This network with its pickability head switched off (the same module objects, shared):
+        the detector's own ranking, and no depth needed unless its features read depth."""
+        import copy
+        from dataclasses import replace
+
+        plain = copy.copy(self)
+        plain._modules = dict(self._modules)  # nn.Module keeps children here: a copy of the dict, not of them
+        plain.pickability = None
+        plain.spec = replace(self.spec, pickability="")
+        return plain
+
+    def rescore(self, images: torch.Tensor, depth: torch.Tensor | None, results: list[dict[str, torch.Tensor]],
+                score_threshold: float) -> list[dict[str, torch.Tensor]]:
+        """Each detection's score times the pickability head's probability that the policy picks that
+        copy, best first, those still above ``score_threshold`` kept."""
+        if self.spec.pickability == "rgbd" and depth is None:
+            from binpick.errors import ConfigError
+
+            raise ConfigError("this detector's pickability head reads depth: give the scene's depth image")
+        probabilities = self.pickability.probabilities(images, depth, [r["boxes"].to(images.device) for r in results])
+        rescored = []
+        for result, p in zip(results, probabilities):
+            scores = result["scores"] * p
+            order = scores.argsort(descending=True)
+            order = order[scores[order] > score_threshold]
+            rescored.append({"boxes": result["boxes"][order], "scores": scores[order]})
+        return rescored

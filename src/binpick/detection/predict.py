@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -77,14 +78,20 @@ def predict(model: DetectorNetwork, image: np.ndarray | str | Path, query_box: n
             depth: np.ndarray | str | Path | None = None) -> Prediction:
     """Run the detector on one image. Give ``query_box`` (x, y, w, h) for a crop query, or
     ``query_image`` for a shop photo (models trained with ``query: photo``, or TDID). Detectors that
-    read depth (``model.spec.depth``) need the image's ``depth`` (metres, or a 16-bit PNG in mm);
-    others ignore it."""
+    read depth (``model.spec.depth``) need the image's ``depth`` (metres, or a 16-bit PNG in mm); a
+    pickability head that reads depth re-scores the detections only where it is given (a warning says
+    when it is not); others ignore it."""
     if isinstance(image, (str, Path)):
         image = read_image(Path(image))
     heights = None
-    if model.spec.depth:
-        if depth is None:
-            raise ConfigError("this detector reads depth as well as colour: give the image's depth (--depth)")
+    if model.spec.depth and depth is None:
+        raise ConfigError("this detector reads depth as well as colour: give the image's depth (--depth)")
+    if model.spec.pickability == "rgbd" and depth is None:
+        # finding copies needs colour only; judging which the policy picks needs depth: without it, say so
+        warnings.warn("no depth given: scores are the detector's own, without its pickability head "
+                      "(give the image's depth, --depth, to re-score them)", stacklevel=2)
+        model = model.without_pickability()
+    if model.spec.reads_depth:
         depth = read_depth(depth) if isinstance(depth, (str, Path)) else np.asarray(depth, dtype=np.float32)
         if depth.shape != image.shape[:2]:
             raise ConfigError(f"depth is {depth.shape[1]}x{depth.shape[0]} but the image is {image.shape[1]}x{image.shape[0]}")

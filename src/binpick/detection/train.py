@@ -268,7 +268,9 @@ class DetectorTrainer:
         if theirs.depth and not mine.depth:
             raise ConfigError(f"train.init_from {str(path)!r} reads depth; set model.depth: true to fine-tune it")
         # colour-only weights into a depth-reading network: its depth encoder starts at zero (no effect)
-        missing, _ = self.model.load_state_dict(pretrained.state_dict(), strict=not (mine.depth and not theirs.depth))
+        # a pickability head is a second stage of its own (binpick detect pickability): not carried into fine-tuning
+        weights = {k: v for k, v in pretrained.state_dict().items() if not k.startswith("pickability.")}
+        missing, _ = self.model.load_state_dict(weights, strict=not (mine.depth and not theirs.depth))
         if any(not key.startswith("depth_encoder.") for key in missing):
             raise ConfigError(f"train.init_from {str(path)!r} lacks tensors of this network ({len(missing)} missing)")
 

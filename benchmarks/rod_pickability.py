@@ -1,0 +1,151 @@
+"""The crop-query detector with and without its pickability head (issue 16: ``seen.rod.ap50``).
+
+    binpick detect pickability configs/pickability_crop.yaml --runs runs/pick16
+    python benchmarks/rod_pickability.py --weights runs/pick16/pickability_crop/<time>/model.safetensors \
+        --data runs/data/bins_2000/annotations_val.json --data runs/data/bins_fresh_seed16/annotations_val.json
+
+The same detections scored twice: as the detector ranks them, and each times the head's probability
+that Policy 1 picks that copy (:mod:`binpick.detection.pickability`). Per ``--data`` file (the first is
+the val set of ``seen.rod.ap50``): AP50 against the copies Policy 1 picked, AP50 on the unpickable ones
+(lower is better), ROC AUC of the score between the two; then the held-out categories (bins_2000's
+test split, pickable targets) and ``predict``'s latency at batch 1 with the head. With ``--ship`` the
+weights become ``rod_tiny_320``: results/rod.json's ``seen.rod`` and ``latency_ms.shipped`` are then
+this detector's, the detector-only figures kept beside them as ``seen.rod_detector_only``.
+
+Writes results/rod_pickability.json and its section of docs/RESULTS.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+
+sys.path.insert(0, os.path.dirname(__file__))
+
+import _common  # noqa: E402
+
+SEEN = _common.ROOT / "runs" / "data" / "bins_2000" / "annotations_val.json"
+HELD_OUT = _common.ROOT / "runs" / "data" / "bins_2000" / "annotations_test.json"
+P1 = "pickable:y"
+
+
+def scores_on(network, annotations: Path) -> dict:
+    """AP50 (targets, unpickable copies) and ROC AUC of the copy scores, on one annotations file."""
+    import torch
+
+    from binpick.detection.data import RepeatedInstances, TaskDataset
+    from binpick.detection.evaluate import collect, copy_scores, summarise
+    from binpick.detection.pickability import roc_auc
+    from binpick.detection.train import detector_detect, loader
+
+    source = RepeatedInstances(annotations, targets=P1)
+    dataset = TaskDataset(source, network.image_size, network.spec.query, network.query_size, depth=network.spec.reads_depth)
+    with torch.no_grad():
+        tasks = collect(detector_detect(network), loader(dataset, 8, False, 0, 0))
+    metrics = summarise(tasks, network.image_size)
+    labels, scores = copy_scores(tasks)
+    return {"ap50": round(metrics["ap50"], 4), "ap50_all": round(metrics["ap50_all"], 4),
+            "ap50_unpickable": round(metrics["ap50_unpickable"], 4), "map": round(metrics["map"], 4),
+            "pickable_auc": round(roc_auc(labels, scores), 4), "tasks": metrics["tasks"]}
+
+
+def shown(file: Path) -> str:
+    file = Path(file).resolve()
+    return str(file.relative_to(_common.ROOT)) if file.is_relative_to(_common.ROOT) else str(file)
+
+
+def section(result: dict) -> str:
+    lines = ["## The crop query with a second look at each detection (issue 16)", "",
+             f"`python benchmarks/rod_pickability.py` → `results/rod_pickability.json`. Weights: `{result['weights']}` "
+             f"(head trained by `binpick detect pickability configs/pickability_crop.yaml`: {result['head']['train_windows']} windows "
+             f"of labelled copies, best val ROC AUC {result['head']['val_auc']}). The same detections, scored by the detector alone "
+             "and times the head's probability that Policy 1 (jaws along y) picks the copy:", "",
+             "| data | tasks | AP50 detector / with head | AP50 on unpickable copies (lower is better) | ROC AUC pickable vs not |",
+             "|---|---:|---|---|---|"]
+    for row in result["sets"]:
+        plain, head = row["detector_only"], row["with_head"]
+        lines.append(f"| `{row['data']}` ({row['role']}) | {head['tasks']} | {plain['ap50']} / **{head['ap50']}** | "
+                     f"{plain['ap50_unpickable']} / {head['ap50_unpickable']} | {plain['pickable_auc']} / {head['pickable_auc']} |")
+    lines += ["", f"Latency of `predict`, batch 1, 2 threads, 320 px: {result['latency_ms']['detector_only']} ms without the head, "
+              f"**{result['latency_ms']['with_head']} ms** with it (target ≤ 50).", "",
+              "Seen-product target (`seen.rod.ap50`, the first row): ≥ 0.85; the thesis's Table 5.4 ROD 0.9056."]
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--weights", required=True, help="detector weights with a pickability head (.safetensors or a run folder)")
+    parser.add_argument("--data", type=Path, action="append", help="annotations to score (repeatable; the first: seen.rod.ap50's)")
+    parser.add_argument("--ship", action="store_true", help="copy the weights to the package as rod_tiny_320 and update results/rod.json")
+    args = parser.parse_args()
+    import torch
+
+    from binpick.detection.detector import Detector
+
+    torch.set_num_threads(2)
+    detector = Detector.load(args.weights)
+    network = detector.network.eval()
+    if network.pickability is None:
+        raise SystemExit(f"{args.weights} has no pickability head (binpick detect pickability makes one)")
+    plain = network.without_pickability()
+    files = args.data or [SEEN]
+    result = {"weights": shown(detector.source), "targets": "pickable by Policy 1 (jaws along y)",
+              "head": {"val_auc": (network_meta := read_meta(detector.source)).get("val_auc"),
+                       "train_windows": network_meta.get("train_windows"), "trained_on": network_meta.get("train")},
+              "sets": []}
+    for index, file in enumerate([*files, HELD_OUT]):
+        if not Path(file).is_file():
+            print(f"skipping {file}: not on disk", flush=True)
+            continue
+        role = "held-out categories" if file == HELD_OUT else ("seen.rod.ap50's val set" if index == 0 else "seen products")
+        row = {"data": shown(file), "role": role, "detector_only": scores_on(plain, file), "with_head": scores_on(network, file)}
+        print(json.dumps(row), flush=True)
+        result["sets"].append(row)
+    sys.path.insert(0, str(_common.ROOT / "benchmarks"))
+    from rod import latency_input, latency_ms
+
+    image, box, depth = latency_input()
+    result["latency_ms"] = {"with_head": latency_ms(network, image, box, depth=depth), "detector_only": latency_ms(plain, image, box)}
+    result["target"] = 0.85
+    result["peak_rss_mib"] = round(_common.peak_rss_mib(), 1)
+    _common.write_result("rod_pickability", result)
+    _common.write_section("rod_pickability", section(result))
+    if args.ship:
+        ship(detector.source, result)
+    print(json.dumps({k: result[k] for k in ("sets", "latency_ms")}, indent=1))
+
+
+def read_meta(path: Path) -> dict:
+    from binpick.detection.train import _read_detector_file, _weights_path
+
+    return _read_detector_file(_weights_path(Path(path)))[1].get("pickability") or {}
+
+
+def ship(source: Path, result: dict) -> None:
+    """The weights become the package's rod_tiny_320; rod.json's seen row and latency say so."""
+    import shutil
+
+    from binpick.detection.train import _weights_path
+
+    target = _common.ROOT / "src" / "binpick" / "detection" / "weights" / "rod_tiny_320.safetensors"
+    shutil.copyfile(_weights_path(Path(source)), target)
+    rod = json.loads((_common.RESULTS / "rod.json").read_text())
+    first = result["sets"][0]
+    if first["data"] != shown(SEEN):
+        raise SystemExit(f"--ship needs {shown(SEEN)} as the first --data (the set of seen.rod.ap50)")
+    rod["seen"]["rod_detector_only"] = rod["seen"].get("rod_detector_only") or rod["seen"]["rod"]
+    rod["seen"]["rod"] = {**rod["seen"]["rod"], **first["with_head"], "pickability_head": True,
+                          "measured": "benchmarks/rod_pickability.py (the shipped rod_tiny_320: detector and pickability head)"}
+    rod["latency_ms"]["shipped"] = result["latency_ms"]["with_head"]
+    rod["latency_ms"]["shipped_detector_only"] = result["latency_ms"]["detector_only"]
+    from binpick.files import atomic_write_text
+
+    atomic_write_text(_common.RESULTS / "rod.json", json.dumps(rod, indent=2) + "\n")
+    print(f"shipped {target}; results/rod.json seen.rod.ap50 = {rod['seen']['rod']['ap50']}", flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,180 @@
+"""A second look at each detection: will the policy pick this copy? (issue 16; thesis §5.4.4, §6.3)
+
+ROD finds the copies of a product well (97% of the pickable ones at IoU 0.5 on binpick's default
+bins) but ranks pickable against unpickable copies with a ROC AUC of only 0.87: whether Policy 1's jaws
+can close on a copy turns on its outline and pose and on its neighbours, details a 320 px one-stage
+detector shares with everything else it must do. So, as two-stage detectors re-score their proposals,
+a small network looks again at each detection: a window around it (its neighbours and where the fingers
+go, a fixed share of the image so widths keep their meaning), colour and the height map, the box drawn
+as a mask; it says how likely the policy is to pick that copy, and the detection's score is multiplied
+by it. It learns from the same one-grasp labels the detector learns from (:func:`train_pickability`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+WINDOW = 0.31  # the window's side as a share of the image's side (about 13 cm of binpick's default bin)
+CROP = 64  # the window resampled to CROP x CROP pixels
+JITTER = 0.12  # training boxes moved and resized by up to this share of their size: detections are not exact
+
+
+def roi_windows(images: torch.Tensor, heights: torch.Tensor | None, boxes: torch.Tensor, owner: torch.Tensor,
+                crop: int = CROP) -> torch.Tensor:
+    """(N, C, crop, crop) windows centred on ``boxes`` (x1, y1, x2, y2 in the images' pixels) of
+    ``images[owner]`` (B, 3, S, S in [0, 1]): RGB, the height map where given, then the box as a 0/1 mask.
+    Outside the image reads as zero."""
+    size = images.shape[-1]
+    planes = images if heights is None else torch.cat([images, heights.to(images.dtype)], 1)
+    n = len(boxes)
+    if n == 0:
+        return planes.new_zeros((0, planes.shape[1] + 1, crop, crop))
+    centre = (boxes[:, :2] + boxes[:, 2:]) / 2
+    half = WINDOW * size / 2
+    # affine_grid's output spans [-1, 1]; the window spans centre ± half, in normalised input coordinates
+    theta = planes.new_zeros((n, 2, 3))
+    theta[:, 0, 0] = theta[:, 1, 1] = half / (size / 2)
+    theta[:, :, 2] = centre / (size / 2) - 1
+    grid = F.affine_grid(theta, [n, 1, crop, crop], align_corners=False)
+    windows = F.grid_sample(planes[owner], grid, mode="bilinear", padding_mode="zeros", align_corners=False)
+    pixels = (grid + 1) * (size / 2)  # (N, crop, crop, 2): each output pixel's x, y in the image
+    inside = ((pixels[..., 0] >= boxes[:, None, None, 0]) & (pixels[..., 0] <= boxes[:, None, None, 2])
+              & (pixels[..., 1] >= boxes[:, None, None, 1]) & (pixels[..., 1] <= boxes[:, None, None, 3]))
+    return torch.cat([windows, inside[:, None].to(windows.dtype)], 1)
+
+
+def _block(c_in: int, c_out: int) -> nn.Sequential:
+    return nn.Sequential(nn.Conv2d(c_in, c_out, 3, 2, 1, bias=False), nn.BatchNorm2d(c_out), nn.ReLU(inplace=True),
+                         nn.Conv2d(c_out, c_out, 3, 1, 1, bias=False), nn.BatchNorm2d(c_out), nn.ReLU(inplace=True))
+
+
+class PickabilityHead(nn.Module):
+    """Windows (:func:`roi_windows`) -> the logit that the policy picks the copy in the box."""
+
+    def __init__(self, depth: bool = True, width: int = 32) -> None:
+        super().__init__()
+        self.depth = depth
+        channels = 3 + int(depth) + 1
+        self.features = nn.Sequential(_block(channels, width), _block(width, 2 * width), _block(2 * width, 4 * width),
+                                      _block(4 * width, 4 * width))
+        side = CROP // 16
+        self.classify = nn.Sequential(nn.Flatten(), nn.Linear(4 * width * side * side, 128), nn.ReLU(inplace=True),
+                                      nn.Dropout(0.2), nn.Linear(128, 1))
+
+    def forward(self, windows: torch.Tensor) -> torch.Tensor:
+        return self.classify(self.features(windows))[:, 0]
+
+    @torch.no_grad()
+    def probabilities(self, images: torch.Tensor, heights: torch.Tensor | None, boxes: list[torch.Tensor]) -> list[torch.Tensor]:
+        """Per image, the probability that each of its boxes (x1, y1, x2, y2) holds a copy the policy picks."""
+        counts = [len(b) for b in boxes]
+        if not sum(counts):
+            return [torch.zeros(0) for _ in boxes]
+        owner = torch.repeat_interleave(torch.arange(len(boxes)), torch.tensor(counts))
+        windows = roi_windows(images.float(), heights.float() if self.depth and heights is not None else None,
+                              torch.cat(boxes).float().to(images.device), owner.to(images.device))
+        return list(torch.sigmoid(self(windows)).cpu().split(counts))
+
+
+# ---------------------------------------------------------------------- learning it
+def labelled_windows(dataset, progress: Callable[[int], None] | None = None, jittered: int = 1,
+                     seed: int = 0, proposals: Callable[[dict], torch.Tensor] | None = None
+                     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Windows of every labelled copy of a :class:`~binpick.detection.data.TaskDataset` (targets:
+    picked, 1; unpickable: 0; the query copy left out), each once as labelled and ``jittered`` more
+    times moved by up to JITTER; with ``proposals`` (sample -> boxes x1, y1, x2, y2: the detector's own
+    detections) also a window per proposal, 1 where it overlaps a picked copy at IoU >= 0.5, else 0 --
+    what the head will be shown, misplaced boxes and other objects included. Colour and mask are stored
+    as uint8, heights as float16: (N, 3 + 1, ...) uint8, (N, 1, ...) float16 (empty without depth), labels (N,)."""
+    from binpick.detection.ops import box_iou
+
+    rng = np.random.default_rng(seed)
+    colour, height, labels = [], [], []
+    for index in range(len(dataset)):
+        sample = dataset[index]
+        targets = sample["targets"].reshape(-1, 4)
+        boxes = torch.cat([targets, sample["unpickable"].reshape(-1, 4)])
+        label = torch.cat([torch.ones(len(targets)), torch.zeros(len(sample["unpickable"].reshape(-1, 4)))])
+        if len(boxes):
+            variants = [boxes]
+            for _ in range(jittered):
+                size = boxes[:, 2:] - boxes[:, :2]
+                shift = torch.from_numpy(rng.uniform(-JITTER, JITTER, (len(boxes), 4))).float() * size.repeat(1, 2)
+                variants.append(boxes + shift)
+            label = label.repeat(len(variants))
+            if proposals is not None:
+                found = proposals(sample).reshape(-1, 4).float()
+                hit = (box_iou(found, targets).max(1).values >= 0.5) if len(targets) and len(found) else torch.zeros(len(found), dtype=torch.bool)
+                variants.append(found)
+                label = torch.cat([label, hit.float()])
+            boxes = torch.cat(variants)
+            heights = sample["depth"][None] if "depth" in sample else None
+            windows = roi_windows(sample["image"][None], heights, boxes, torch.zeros(len(boxes), dtype=torch.long))
+            colour.append((torch.cat([windows[:, :3], windows[:, -1:]], 1) * 255).round().to(torch.uint8))
+            height.append(windows[:, 3:-1].half())
+            labels.append(label)
+        if progress is not None:
+            progress(1)
+    if not labels:
+        return torch.zeros((0, 4, CROP, CROP), dtype=torch.uint8), torch.zeros((0, 0, CROP, CROP), dtype=torch.float16), torch.zeros(0)
+    return torch.cat(colour), torch.cat(height), torch.cat(labels)
+
+
+def assemble(colour: torch.Tensor, height: torch.Tensor, depth: bool) -> torch.Tensor:
+    """Stored windows back into the head's input: RGB, heights (when the head reads them), mask."""
+    planes = colour.float() / 255
+    parts = [planes[:, :3]] + ([height.float()] if depth else []) + [planes[:, 3:]]
+    return torch.cat(parts, 1)
+
+
+def head_auc(head: PickabilityHead, colour: torch.Tensor, height: torch.Tensor, labels: torch.Tensor,
+             batch: int = 512) -> float:
+    """ROC AUC of the head's scores on stored windows (pickable against unpickable copies)."""
+    head.eval()
+    with torch.no_grad():
+        scores = torch.cat([head(assemble(colour[i:i + batch], height[i:i + batch], head.depth))
+                            for i in range(0, len(labels), batch)]) if len(labels) else torch.zeros(0)
+    return roc_auc(labels.numpy() > 0.5, scores.numpy())
+
+
+def roc_auc(positive: np.ndarray, scores: np.ndarray) -> float:
+    """Area under the ROC curve: the chance that a random positive outscores a random negative (ties
+    count half); 0.5 where one class is missing."""
+    positive, scores = np.asarray(positive, dtype=bool), np.asarray(scores, dtype=float)
+    n_pos, n_neg = int(positive.sum()), int((~positive).sum())
+    if not n_pos or not n_neg:
+        return 0.5
+    values, inverse, counts = np.unique(scores, return_inverse=True, return_counts=True)
+    average_rank = np.cumsum(counts) - (counts - 1) / 2  # 1-based ranks, ties averaged
+    ranks = average_rank[inverse]
+    return float((ranks[positive].sum() - n_pos * (n_pos + 1) / 2) / (n_pos * n_neg))
+
+
+def train_epoch(head: PickabilityHead, optimiser: torch.optim.Optimizer, schedule, colour: torch.Tensor,
+                height: torch.Tensor, labels: torch.Tensor, generator: torch.Generator, batch: int = 128,
+                progress: Callable[[int], None] | None = None) -> float:
+    """One pass in random order with mirror flips (jaws along y stay along y); the mean loss."""
+    head.train()
+    order = torch.randperm(len(labels), generator=generator)
+    losses = []
+    for start in range(0, len(order) - batch + 1, batch):
+        idx = order[start:start + batch]
+        x = assemble(colour[idx], height[idx], head.depth)
+        flip = torch.rand(len(idx), generator=generator) < 0.5
+        x[flip] = x[flip].flip(3)
+        flip = torch.rand(len(idx), generator=generator) < 0.5
+        x[flip] = x[flip].flip(2)
+        loss = F.binary_cross_entropy_with_logits(head(x), labels[idx])
+        optimiser.zero_grad()
+        loss.backward()
+        optimiser.step()
+        schedule.step()
+        losses.append(loss.item())
+        if progress is not None:
+            progress(len(idx))
+    return float(np.mean(losses)) if losses else float("nan")

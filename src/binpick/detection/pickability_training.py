@@ -1,0 +1,232 @@
+"""Teaching a detector's pickability head (:mod:`binpick.detection.pickability`), top to bottom.
+
+The detector stays as it is; the head learns, from windows around every labelled copy of the training
+files (the copies a policy picked: 1, those it could not: 0; boxes moved a little, as detections are),
+which copies the policy picks. A run folder ``runs/<name>/<time>/`` holds ``config.yaml``, the windows
+cut once (``windows.safetensors``: a resumed run does not cut them again), TensorBoard events, a
+checkpoint per epoch, ``metrics.json`` and ``model.safetensors``: the detector with the head of the best
+val ROC AUC inside, which ``binpick detect eval/predict``, ``Detector.load`` and the pipeline read.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from binpick import tensorfile
+from binpick.config import check_range, load_run_config, to_dict
+from binpick.detection.data import RepeatedInstances, TaskDataset, check_disjoint
+from binpick.detection.model import DetectorNetwork
+from binpick.detection.pickability import PickabilityHead, head_auc, labelled_windows, train_epoch
+from binpick.errors import ConfigError
+from binpick.files import atomic_write_text
+from binpick.runs import SILENT, RunCallback, commit_checkpoint, latest_checkpoint, new_run_dir
+
+CHECKPOINT_FORMAT = "binpick-pickability-checkpoint-1"
+WINDOWS_FORMAT = "binpick-pickability-windows-1"
+
+
+@dataclass(frozen=True)
+class PickabilityConfig:
+    detector: str = "rod_tiny_320"  # the weights whose detections it re-scores: a shipped name, a file or a run folder
+    train: list[str] = field(default_factory=lambda: ["runs/data/bins_2000/annotations_train.json"])  # COCO files
+    val: str = "runs/data/bins_2000/annotations_val.json"
+    name: str = "pickability"
+    targets: str = "pickable:y"  # the policy whose picks it learns (as the detector's data.targets)
+    depth: bool = True  # read the height map as well as colour
+    width: int = 32  # channels of the first convolution
+    epochs: int = 8
+    batch_size: int = 128
+    lr: float = 0.001  # the peak of a cosine schedule with one epoch of warm-up
+    weight_decay: float = 0.0001
+    jittered: int = 1  # extra copies of each window with the box moved (detections are not exact)
+    proposals: int = 0  # also the detector's own best detections per training image (score >= 0.05), labelled by IoU
+    threads: int = 2
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if not self.train or not all(isinstance(f, str) for f in self.train):
+            raise ConfigError(f"train must be a list of COCO files, got {self.train!r}")
+        if not self.targets.startswith("pickable:"):
+            raise ConfigError(f"targets must be pickable:<policy> (pickability needs labels), got {self.targets!r}")
+        check_range("width", self.width, 4, 256, integer=True)
+        check_range("epochs", self.epochs, 1, 10_000, integer=True)
+        check_range("batch_size", self.batch_size, 2, 65_536, integer=True)
+        check_range("lr", self.lr, 0.0, 1.0, low_inclusive=False)
+        check_range("weight_decay", self.weight_decay, 0.0, 1.0)
+        check_range("jittered", self.jittered, 0, 16, integer=True)
+        check_range("proposals", self.proposals, 0, 100, integer=True)
+        check_range("threads", self.threads, 1, 256, integer=True)
+
+
+def _learning_rate(config: PickabilityConfig, step: int, per_epoch: int) -> float:
+    """Linear warm-up over the first epoch, then a cosine down to zero: a pure function of the step,
+    so a resumed run continues the same schedule."""
+    total = config.epochs * per_epoch
+    if step < per_epoch:
+        return config.lr * (step + 1) / per_epoch
+    return config.lr * 0.5 * (1 + math.cos(math.pi * (step - per_epoch) / max(1, total - per_epoch)))
+
+
+class _Schedule:
+    def __init__(self, optimiser: torch.optim.Optimizer, config: PickabilityConfig, per_epoch: int, step: int) -> None:
+        self.optimiser, self.config, self.per_epoch, self.step_count = optimiser, config, per_epoch, step
+        self._apply()
+
+    def _apply(self) -> None:
+        for group in self.optimiser.param_groups:
+            group["lr"] = _learning_rate(self.config, self.step_count, self.per_epoch)
+
+    def step(self) -> None:
+        self.step_count += 1
+        self._apply()
+
+
+class PickabilityTrainer:
+    """One training run of a detector's pickability head (see the module docstring)."""
+
+    def __init__(self, config: PickabilityConfig, run_dir: Path) -> None:
+        from binpick.detection.detector import Detector
+
+        self.config, self.run_dir = config, Path(run_dir)
+        detector = Detector.load(config.detector)
+        self.detector_source = detector.source
+        self.network: DetectorNetwork = detector.network
+        torch.manual_seed(config.seed)
+        kind = "rgbd" if config.depth else "rgb"
+        self.network.spec = replace(self.network.spec, pickability=kind, pickability_width=config.width)
+        self.network.pickability = PickabilityHead(config.depth, config.width)
+        self.head = self.network.pickability
+        self.optimiser = torch.optim.AdamW(self.head.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+        self.epoch, self.best_auc, self.history = 0, -1.0, []
+        checkpoint = latest_checkpoint(self.run_dir / "checkpoints")
+        if checkpoint is not None:
+            _, meta, state = tensorfile.load(checkpoint / "state.safetensors", CHECKPOINT_FORMAT, "pickability checkpoint")
+            self.head.load_state_dict(state["head"])
+            self.optimiser.load_state_dict(state["optimiser"])
+            self.epoch, self.best_auc, self.history = int(meta["epoch"]), float(meta["best_auc"]), list(meta["history"])
+
+    @classmethod
+    def new(cls, config: PickabilityConfig, runs: Path = Path("runs")) -> PickabilityTrainer:
+        import yaml
+
+        for file in [*config.train, config.val]:
+            if not Path(file).is_file():
+                raise ConfigError(f"annotations file {file!r} does not exist (binpick data generate makes them)")
+        return cls(config, new_run_dir(Path(runs), config.name, yaml.safe_dump(to_dict(config), sort_keys=False)))
+
+    @classmethod
+    def resume(cls, run_dir: Path) -> PickabilityTrainer:
+        return cls(load_run_config(PickabilityConfig, run_dir), Path(run_dir))
+
+    # ------------------------------------------------------------------ data
+    def _sources(self) -> tuple[list[RepeatedInstances], RepeatedInstances]:
+        config = self.config
+        val = RepeatedInstances(config.val, targets=config.targets)
+        train = [RepeatedInstances(f, targets=config.targets) for f in config.train]
+        for source in train:
+            check_disjoint(source, val)
+        return train, val
+
+    def _windows(self, callback: RunCallback) -> dict[str, torch.Tensor]:
+        """Windows of the training and val copies: cut once per run, then read from the run folder."""
+        path = self.run_dir / "windows.safetensors"
+        if path.is_file():
+            tensors, _, _ = tensorfile.load(path, WINDOWS_FORMAT, "pickability windows")
+            return tensors
+        train, val = self._sources()
+        size, parts = self.network.image_size, {}
+        proposals = self._proposals if self.config.proposals else None
+        for split, sources, jittered in (("train", train, self.config.jittered), ("val", [val], 0)):
+            sets = [TaskDataset(source, size, self.network.spec.query, self.network.query_size,
+                                depth=self.config.depth or self.network.spec.depth) for source in sources]
+            with callback.task(f"cutting {split} windows", sum(len(s) for s in sets)) as task:
+                cut = [labelled_windows(s, lambda n: task.update(advance=n), jittered, self.config.seed,
+                                        proposals if split == "train" else None) for s in sets]
+            for i, name in enumerate(("colour", "height", "labels")):
+                parts[f"{split}_{name}"] = torch.cat([c[i] for c in cut])
+        if not len(parts["train_labels"]) or not len(parts["val_labels"]):
+            raise ConfigError(f"no copies labelled {self.config.targets} in the train or val files: "
+                              "generate them with that policy (binpick data generate --policies ...)")
+        tensorfile.save(path, WINDOWS_FORMAT, tensors=parts, meta={"train": self.config.train, "val": self.config.val})
+        return parts
+
+    @torch.no_grad()
+    def _proposals(self, sample: dict) -> torch.Tensor:
+        """The detector's own best detections on a sample, its head switched off."""
+        head, self.network.pickability = self.network.pickability, None
+        try:
+            self.network.eval()
+            depth = sample["depth"][None] if self.network.spec.depth else None
+            results, _ = self.network.detect(sample["image"][None], sample["query_box"][None], sample["query_image"][None],
+                                             score_threshold=0.05, depth=depth)
+        finally:
+            self.network.pickability = head
+        return results[0]["boxes"][:self.config.proposals]
+
+    # ------------------------------------------------------------------ the loop
+    def run(self, callback: RunCallback = SILENT) -> dict[str, Any]:
+        from torch.utils.tensorboard import SummaryWriter
+
+        config = self.config
+        torch.set_num_threads(config.threads)
+        windows = self._windows(callback)
+        labels = windows["train_labels"]
+        self.train_windows = len(labels)
+        callback.message(f"{len(labels)} training windows ({labels.mean().item():.0%} pickable), "
+                         f"{len(windows['val_labels'])} val copies")
+        per_epoch = max(1, len(labels) // config.batch_size)
+        schedule = _Schedule(self.optimiser, config, per_epoch, self.epoch * per_epoch)
+        writer = SummaryWriter(str(self.run_dir / "tb"))
+        try:
+            with callback.task(f"pickability head ({len(labels)} windows)", config.epochs, self.epoch) as task:
+                while self.epoch < config.epochs:
+                    generator = torch.Generator().manual_seed(config.seed * 10_007 + self.epoch)
+                    loss = train_epoch(self.head, self.optimiser, schedule, windows["train_colour"], windows["train_height"],
+                                       labels, generator, config.batch_size)
+                    self.epoch += 1
+                    auc = head_auc(self.head, windows["val_colour"], windows["val_height"], windows["val_labels"])
+                    row = {"epoch": self.epoch, "loss": loss, "val_auc": round(auc, 4)}
+                    self.history.append(row)
+                    writer.add_scalar("train/loss", loss, self.epoch)
+                    writer.add_scalar("val/roc_auc", auc, self.epoch)
+                    if auc > self.best_auc:
+                        self.best_auc = auc
+                        self._save(self.run_dir / "best.safetensors")
+                    self._checkpoint()
+                    task.update(self.epoch, status=f"loss {loss:.3f} val AUC {auc:.3f}")
+        finally:
+            writer.close()
+        best = self.run_dir / "best.safetensors"
+        if best.is_file():  # kept: a resumed finished run writes the same model again
+            copy = self.run_dir / "model.safetensors.tmp"
+            shutil.copyfile(best, copy)
+            copy.replace(self.run_dir / "model.safetensors")
+        else:
+            self._save(self.run_dir / "model.safetensors")
+        metrics = {"name": config.name, "epochs": self.epoch, "best_val_auc": round(self.best_auc, 4), "history": self.history}
+        atomic_write_text(self.run_dir / "metrics.json", json.dumps(metrics, indent=2))
+        return metrics
+
+    def _save(self, path: Path) -> None:
+        from binpick.detection.train import _read_detector_file, _weights_path, save_detector
+
+        _, meta = _read_detector_file(_weights_path(self.detector_source))
+        extra = {k: v for k, v in meta.items() if k not in ("spec", "image_size", "query_size")}
+        extra["pickability"] = {"detector": str(self.config.detector), "train": self.config.train, "val": self.config.val,
+                                "targets": self.config.targets, "epoch": self.epoch, "val_auc": round(self.best_auc, 4),
+                                "train_windows": getattr(self, "train_windows", None)}
+        self.head.eval()
+        save_detector(self.network, path, extra, half=True)
+
+    def _checkpoint(self) -> None:
+        state = {"head": self.head.state_dict(), "optimiser": self.optimiser.state_dict()}
+        meta = {"epoch": self.epoch, "best_auc": self.best_auc, "history": self.history}
+        commit_checkpoint(self.run_dir / "checkpoints", self.epoch,
+                          lambda folder: tensorfile.save(folder / "state.safetensors", CHECKPOINT_FORMAT, meta=meta, state=state))

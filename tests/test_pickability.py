@@ -1,0 +1,90 @@
+"""The detector's second look (binpick.detection.pickability): windows cut where the boxes are, a head
+that learns which copies a policy picks, resumes, ships inside the detector and re-scores its boxes."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from binpick.detection.detector import Detector
+from binpick.detection.model import DetectorNetwork, ModelSpec
+from binpick.detection.pickability import CROP, WINDOW, roc_auc, roi_windows
+from binpick.detection.pickability_training import PickabilityConfig, PickabilityTrainer
+from binpick.detection.train import save_detector
+from binpick.errors import ConfigError
+from synthetic_coco import make_coco
+
+
+def test_windows_are_centred_on_the_box_with_its_mask_and_zeros_outside_the_image():
+    size = 128
+    image = torch.zeros(1, 3, size, size)
+    image[0, 0, 60:70, 40:50] = 1.0  # a red patch
+    heights = torch.zeros(1, 1, size, size)
+    heights[0, 0, 60:70, 40:50] = 2.0
+    boxes = torch.tensor([[40.0, 60.0, 50.0, 70.0], [0.0, 0.0, 10.0, 10.0]])
+    windows = roi_windows(image, heights, boxes, torch.tensor([0, 0]))
+    assert windows.shape == (2, 5, CROP, CROP)
+    middle = CROP // 2
+    assert windows[0, 0, middle, middle] > 0.9 and windows[0, 3, middle, middle] > 1.8  # colour and height at the centre
+    mask = windows[0, 4] > 0.5
+    side = WINDOW * size  # pixels of the image the window spans
+    assert abs(mask.sum().item() - (10 * CROP / side) ** 2) < 3 * 10 * CROP / side  # the 10 x 10 box, resampled
+    assert windows[1, :3, :middle - 2, :middle - 2].abs().max() == 0  # beyond the image's corner: zeros
+    assert roi_windows(image, None, boxes, torch.tensor([0, 0])).shape == (2, 4, CROP, CROP)
+
+
+def test_roc_auc_counts_ties_half():
+    assert roc_auc(np.array([1, 1, 0, 0]), np.array([0.9, 0.8, 0.2, 0.1])) == 1.0
+    assert roc_auc(np.array([1, 0]), np.array([0.5, 0.5])) == 0.5
+    assert roc_auc(np.array([1, 0, 1, 0]), np.array([0.1, 0.9, 0.4, 0.3])) == 0.25
+
+
+@pytest.mark.slow
+def test_the_head_learns_which_copies_are_picked_resumes_and_rescores_the_detector(tmp_path):
+    train = make_coco(tmp_path / "train", images=40, seed=3, pickable=True, depth=True, pickable_rule="small")
+    val = make_coco(tmp_path / "val", images=12, seed=4, pickable=True, depth=True, pickable_rule="small")
+    torch.manual_seed(0)
+    save_detector(DetectorNetwork(ModelSpec(), 128), tmp_path / "detector.safetensors")
+    config = PickabilityConfig(detector=str(tmp_path / "detector.safetensors"), train=[str(train)], val=str(val),
+                               epochs=2, batch_size=16, lr=0.003, width=8, jittered=2, proposals=5, threads=1)
+    trainer = PickabilityTrainer.new(config, tmp_path / "runs")
+    trainer.run()
+    assert trainer.epoch == 2 and (trainer.run_dir / "windows.safetensors").is_file()
+    # resume: the same run folder, more epochs, from epoch 2's checkpoint and the windows cut once
+    text = (trainer.run_dir / "config.yaml").read_text().replace("epochs: 2", "epochs: 12")
+    (trainer.run_dir / "config.yaml").write_text(text)
+    resumed = PickabilityTrainer.resume(trainer.run_dir)
+    assert resumed.epoch == 2
+    metrics = resumed.run()
+    assert metrics["epochs"] == 12
+    assert metrics["best_val_auc"] > 0.85, metrics["history"]  # the small copies are told from the large
+    # the detector with its head: the same boxes, each score times the head's probability
+    detector = Detector.load(trainer.run_dir / "model.safetensors")
+    assert detector.network.spec.pickability == "rgbd"
+    plain = Detector.load(tmp_path / "detector.safetensors").network
+    image, depth = tmp_path / "val" / "images" / "0000.png", tmp_path / "val" / "depth" / "0000.png"
+    box = next(a["bbox"] for a in json.loads(val.read_text())["annotations"] if a["image_id"] == 1)
+    from binpick.detection.predict import predict
+
+    mine = predict(detector.network, image, np.array(box), depth=depth, score_threshold=0.0)
+    theirs = predict(plain, image, np.array(box), score_threshold=0.0)
+    assert len(mine.scores) and len(mine.scores) == len(theirs.scores)
+    assert np.all(mine.scores <= theirs.scores.max() + 1e-6) and np.all(np.diff(mine.scores) <= 1e-7)
+    with pytest.warns(UserWarning, match="without its pickability head"):  # no depth: the detector's own scores
+        alone = predict(detector.network, image, np.array(box), score_threshold=0.0)
+    assert np.allclose(alone.scores, theirs.scores)
+    with pytest.raises(ConfigError, match="pickability head reads depth"):  # the network itself insists
+        detector.network.detect(torch.zeros(1, 3, 128, 128), torch.tensor([[10.0, 10, 40, 40]]), torch.zeros(1, 3, 96, 96),
+                                score_threshold=0.0)
+    # left out on request: the detector's own ranking, from colour alone
+    without = Detector.load(trainer.run_dir / "model.safetensors", pickability=False)
+    again = without.predict(image, box, min_score=0.0)
+    assert np.allclose(again.scores, theirs.scores)  # (boxes of equal scores may come in another order)
+    assert np.allclose(np.sort(again.boxes, axis=0), np.sort(theirs.boxes, axis=0))
+    assert detector.network.pickability is not None  # switching it off made a copy
+    assert detector.val(val, targets="pickable:y")["tasks"] == 12
+    with pytest.raises(ConfigError, match="targets must be pickable"):
+        PickabilityConfig(targets="all")
