@@ -41,7 +41,12 @@ def roi_windows(images: torch.Tensor, heights: torch.Tensor | None, boxes: torch
     theta[:, 0, 0] = theta[:, 1, 1] = half / (size / 2)
     theta[:, :, 2] = centre / (size / 2) - 1
     grid = F.affine_grid(theta, [n, 1, crop, crop], align_corners=False)
-    windows = F.grid_sample(planes[owner], grid, mode="bilinear", padding_mode="zeros", align_corners=False)
+    # per image, its planes expanded (a view) rather than indexed (a copy of the whole image per box: 30x slower)
+    windows = planes.new_zeros((n, planes.shape[1], crop, crop))
+    for image in owner.unique().tolist():
+        mine = (owner == image).nonzero()[:, 0]
+        source = planes[image:image + 1].expand(len(mine), -1, -1, -1)
+        windows[mine] = F.grid_sample(source, grid[mine], mode="bilinear", padding_mode="zeros", align_corners=False)
     pixels = (grid + 1) * (size / 2)  # (N, crop, crop, 2): each output pixel's x, y in the image
     inside = ((pixels[..., 0] >= boxes[:, None, None, 0]) & (pixels[..., 0] <= boxes[:, None, None, 2])
               & (pixels[..., 1] >= boxes[:, None, None, 1]) & (pixels[..., 1] <= boxes[:, None, None, 3]))
