@@ -146,6 +146,7 @@ def ship(source: Path, result: dict) -> None:
                           "measured": "benchmarks/rod_pickability.py (the shipped rod_tiny_320: detector and pickability head)"}
     rod["latency_ms"]["shipped"] = result["latency_ms"]["with_head"]
     rod["latency_ms"]["shipped_detector_only"] = result["latency_ms"]["detector_only"]
+    rod["latency_ms"]["measured"] = "benchmarks/rod_pickability.py --ship, both in one run (tiny_320 and small_320: benchmarks/rod.py latency)"
     from binpick.files import atomic_write_text
 
     path = atomic_write_text(_common.RESULTS / "rod.json", json.dumps(rod, indent=2) + "\n")

@@ -60,6 +60,7 @@ def world(tmp_path_factory) -> dict[str, str]:
     put("notmapping.yaml", "- a\n- b\n")
     put("rl.yaml", yaml.safe_dump(TINY_RL))
     put("grasp.yaml", yaml.safe_dump({"data": str(root), "epochs": 0}))
+    put("pickability.yaml", yaml.safe_dump({"train": [str(root / "missing.json")], "val": str(root / "missing.json"), "targets": "all"}))
     put("random.safetensors", os.urandom(256))
 
     # COCO files: one good, the rest damaged in one field each
@@ -278,6 +279,9 @@ CASES: list[tuple[list[str], list[str]]] = [
     (["data", "export", "{root}", "--out", "{root}/export"], ["is not a binpick data set"]),
     (["data", "export", "{bins_24}", "--scene", "99", "--out", "{root}/export"], ["scene 99 is not in"]),
     (["grasp", "train", "{root}/missing.yaml"], ["missing.yaml"]),
+    (["detect", "pickability", "{pickability_yaml}"], ["targets must be pickable"]),
+    (["detect", "pickability", "{pickability_yaml}", "--set", "targets=pickable:y"], ["missing.json", "does not exist"]),
+    (["detect", "pickability", "--resume", "{root}"], ["is not a run folder"]),
     (["grasp", "train", "{grasp_yaml}"], ["epochs must be in"]),
     (["grasp", "train", "{grasp_yaml}", "--set", "epochs=3"], ["is not a data set folder"]),
     (["data", "generate", "--out", "{root}/gen", "--copies", "5,2"], ["copies"]),

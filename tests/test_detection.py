@@ -346,7 +346,8 @@ def test_shipped_weights_load_as_float32_and_predict(tmp_path):
     path = files("binpick.detection") / "weights" / "rod_tiny_320.safetensors"
     assert path.stat().st_size < 15e6  # fp16, within the shipping budget
     model = load_detector(str(path))
-    assert model.spec == ModelSpec() and model.image_size == 320 and model.trained_config["data"]["targets"] == "pickable:y"
+    # the detector with its pickability head (binpick detect pickability), which reads depth
+    assert model.spec == ModelSpec(pickability="rgbd") and model.image_size == 320 and model.trained_config["data"]["targets"] == "pickable:y"
     assert model.trained_domains == ["default", "random"]  # pre-trained on randomised bins, fine-tuned on the default ones
     photo = load_detector(str(files("binpick.detection") / "weights" / "rod_photo_tiny_320.safetensors"))
     assert photo.spec.query == "photo" and photo.score_threshold == 0.1  # its own calibrated threshold for picking
@@ -358,7 +359,8 @@ def test_shipped_weights_load_as_float32_and_predict(tmp_path):
     assert next(model.parameters()).dtype == torch.float32  # stored as float16, used as float32
     # a synthetic scene: copies of one coloured shape; the prediction is well formed and in the image
     image = np.asarray(Image.open(make_coco(tmp_path, images=1).parent / "images" / "0000.png"))
-    prediction = predict(model, image, np.array([5, 5, 20, 20], dtype=np.float32), score_threshold=0.0)
+    flat = np.full(image.shape[:2], 0.8, np.float32)  # a depth image: the head re-scores
+    prediction = predict(model, image, np.array([5, 5, 20, 20], dtype=np.float32), score_threshold=0.0, depth=flat)
     assert len(prediction.boxes) > 0 and np.all(prediction.boxes[:, 2:] > 0)
     assert np.all(prediction.boxes[:, :2] >= -1) and np.all(prediction.boxes[:, 0] + prediction.boxes[:, 2] <= 129)
 
