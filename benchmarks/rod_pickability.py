@@ -38,7 +38,7 @@ def scores_on(network, annotations: Path) -> dict:
 
     from binpick.detection.data import RepeatedInstances, TaskDataset
     from binpick.detection.evaluate import collect, copy_scores, summarise
-    from binpick.detection.pickability import roc_auc
+    from binpick.metrics import roc_auc
     from binpick.detection.train import detector_detect, loader
 
     source = RepeatedInstances(annotations, targets=P1)
@@ -97,9 +97,9 @@ def main() -> None:
         raise SystemExit(f"{args.weights} has no pickability head (binpick detect pickability makes one)")
     plain = network.without_pickability()
     files = args.data or [SEEN]
+    head = read_meta(detector.source)
     result = {"weights": shown(detector.source), "targets": "pickable by Policy 1 (jaws along y)",
-              "head": {"val_auc": (network_meta := read_meta(detector.source)).get("val_auc"),
-                       "train_windows": network_meta.get("train_windows"), "trained_on": network_meta.get("train")},
+              "head": {"val_auc": head.get("val_auc"), "train_windows": head.get("train_windows"), "trained_on": head.get("train")},
               "sets": []}
     for index, file in enumerate([*files, HELD_OUT]):
         if not Path(file).is_file():
@@ -109,8 +109,7 @@ def main() -> None:
         row = {"data": shown(file), "role": role, "detector_only": scores_on(plain, file), "with_head": scores_on(network, file)}
         print(json.dumps(row), flush=True)
         result["sets"].append(row)
-    sys.path.insert(0, str(_common.ROOT / "benchmarks"))
-    from rod import latency_input, latency_ms
+    from rod import latency_input, latency_ms  # benchmarks/ is on the path (above)
 
     image, box, depth = latency_input()
     result["latency_ms"] = {"with_head": latency_ms(network, image, box, depth=depth), "detector_only": latency_ms(plain, image, box)}

@@ -169,7 +169,7 @@ def decomposition(weights: str, annotations: Path = ONE_GRASP) -> dict:
     found = sum(int((box_iou(torch.as_tensor(t["targets"]).reshape(-1, 4), torch.as_tensor(t["boxes"]).reshape(-1, 4))
                      .max(1).values >= 0.5).sum()) if len(t["targets"]) and len(t["boxes"]) else 0 for t in tasks)
     labels, scores = copy_scores(tasks)
-    from binpick.grasping.training import roc_auc
+    from binpick.metrics import roc_auc
 
     names = {i: c["name"] for i, c in source.categories.items()}
     by_family = {}

@@ -11,10 +11,11 @@ import torch
 
 from binpick.detection.detector import Detector
 from binpick.detection.model import DetectorNetwork, ModelSpec
-from binpick.detection.pickability import CROP, WINDOW, roc_auc, roi_windows
+from binpick.detection.pickability import CROP, WINDOW, roi_windows
 from binpick.detection.pickability_training import PickabilityConfig, PickabilityTrainer
 from binpick.detection.train import save_detector
 from binpick.errors import ConfigError
+from binpick.metrics import roc_auc
 from synthetic_coco import make_coco
 
 

@@ -19,6 +19,8 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from binpick.metrics import roc_auc
+
 WINDOW = 0.31  # the window's side as a share of the image's side (about 13 cm of binpick's default bin)
 CROP = 64  # the window resampled to CROP x CROP pixels
 JITTER = 0.12  # training boxes moved and resized by up to this share of their size: detections are not exact
@@ -102,9 +104,9 @@ def labelled_windows(dataset, progress: Callable[[int], None] | None = None, jit
     colour, height, labels = [], [], []
     for index in range(len(dataset)):
         sample = dataset[index]
-        targets = sample["targets"].reshape(-1, 4)
-        boxes = torch.cat([targets, sample["unpickable"].reshape(-1, 4)])
-        label = torch.cat([torch.ones(len(targets)), torch.zeros(len(sample["unpickable"].reshape(-1, 4)))])
+        targets, unpickable = sample["targets"].reshape(-1, 4), sample["unpickable"].reshape(-1, 4)
+        boxes = torch.cat([targets, unpickable])
+        label = torch.cat([torch.ones(len(targets)), torch.zeros(len(unpickable))])
         if len(boxes):
             variants = [boxes]
             for _ in range(jittered):
@@ -144,20 +146,8 @@ def head_auc(head: PickabilityHead, colour: torch.Tensor, height: torch.Tensor, 
     with torch.no_grad():
         scores = torch.cat([head(assemble(colour[i:i + batch], height[i:i + batch], head.depth))
                             for i in range(0, len(labels), batch)]) if len(labels) else torch.zeros(0)
-    return roc_auc(labels.numpy() > 0.5, scores.numpy())
-
-
-def roc_auc(positive: np.ndarray, scores: np.ndarray) -> float:
-    """Area under the ROC curve: the chance that a random positive outscores a random negative (ties
-    count half); 0.5 where one class is missing."""
-    positive, scores = np.asarray(positive, dtype=bool), np.asarray(scores, dtype=float)
-    n_pos, n_neg = int(positive.sum()), int((~positive).sum())
-    if not n_pos or not n_neg:
-        return 0.5
-    values, inverse, counts = np.unique(scores, return_inverse=True, return_counts=True)
-    average_rank = np.cumsum(counts) - (counts - 1) / 2  # 1-based ranks, ties averaged
-    ranks = average_rank[inverse]
-    return float((ranks[positive].sum() - n_pos * (n_pos + 1) / 2) / (n_pos * n_neg))
+    auc = roc_auc(labels.numpy(), scores.numpy())
+    return 0.5 if auc is None else auc  # one class: no ranking to speak of
 
 
 def train_epoch(head: PickabilityHead, optimiser: torch.optim.Optimizer, schedule, colour: torch.Tensor,

@@ -95,8 +95,12 @@ class PickabilityTrainer:
         from binpick.detection.detector import Detector
 
         self.config, self.run_dir = config, Path(run_dir)
+        from binpick.detection.train import _read_detector_file, _weights_path
+
         detector = Detector.load(config.detector)
-        self.detector_source = detector.source
+        # what the saved detector says about itself (config, products, domains), carried into every save
+        self.detector_meta = {k: v for k, v in _read_detector_file(_weights_path(detector.source))[1].items()
+                              if k not in ("spec", "image_size", "query_size")}
         self.network: DetectorNetwork = detector.network
         torch.manual_seed(config.seed)
         kind = "rgbd" if config.depth else "rgb"
@@ -215,10 +219,9 @@ class PickabilityTrainer:
         return metrics
 
     def _save(self, path: Path) -> None:
-        from binpick.detection.train import _read_detector_file, _weights_path, save_detector
+        from binpick.detection.train import save_detector
 
-        _, meta = _read_detector_file(_weights_path(self.detector_source))
-        extra = {k: v for k, v in meta.items() if k not in ("spec", "image_size", "query_size")}
+        extra = dict(self.detector_meta)
         extra["pickability"] = {"detector": str(self.config.detector), "train": self.config.train, "val": self.config.val,
                                 "targets": self.config.targets, "epoch": self.epoch, "val_auc": round(self.best_auc, 4),
                                 "train_windows": getattr(self, "train_windows", None)}

@@ -21,6 +21,7 @@ from binpick import tensorfile
 from binpick.config import check_range, load_run_config, to_dict
 from binpick.errors import ConfigError, InputFileError
 from binpick.files import atomic_write_text, read_json
+from binpick.metrics import roc_auc
 from binpick.depth import read_depth
 from binpick.grasping.camera import PinholeCamera
 from binpick.grasping.candidates import Surface, describe, instance_surface
@@ -95,25 +96,6 @@ def load_trials(data: str | Path, split: str, spec: MapSpec = MapSpec()) -> Tria
     size = spec.size
     return TrialSet(np.array(maps, dtype=np.float32).reshape(-1, size, size), np.array(features, dtype=np.float32).reshape(-1, FEATURES),
                     np.array(labels, dtype=np.float32), products)
-
-
-def roc_auc(labels: np.ndarray, scores: np.ndarray) -> float | None:
-    """Area under the ROC curve (the Mann-Whitney statistic, ties counted half); None with one class."""
-    labels, scores = np.asarray(labels) > 0.5, np.asarray(scores, dtype=float)
-    positives, negatives = int(labels.sum()), int((~labels).sum())
-    if positives == 0 or negatives == 0:
-        return None
-    order = np.argsort(scores, kind="mergesort")
-    ranks = np.empty(len(scores))
-    sorted_scores = scores[order]
-    i = 0
-    while i < len(scores):  # average ranks over ties
-        j = i
-        while j + 1 < len(scores) and sorted_scores[j + 1] == sorted_scores[i]:
-            j += 1
-        ranks[order[i:j + 1]] = (i + j) / 2 + 1
-        i = j + 1
-    return float((ranks[labels].sum() - positives * (positives + 1) / 2) / (positives * negatives))
 
 
 class QualityTrainer:
