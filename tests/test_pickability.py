@@ -11,7 +11,7 @@ import torch
 
 from binpick.detection.detector import Detector
 from binpick.detection.model import DetectorNetwork, ModelSpec
-from binpick.detection.pickability import CROP, WINDOW, roi_windows
+from binpick.detection.pickability import CROP, WINDOW, PickabilityHead, head_auc, query_crops, roi_windows, train_epoch
 from binpick.detection.pickability_training import PickabilityConfig, PickabilityTrainer
 from binpick.detection.train import save_detector
 from binpick.errors import ConfigError
@@ -37,6 +37,22 @@ def test_windows_are_centred_on_the_box_with_its_mask_and_zeros_outside_the_imag
     assert roi_windows(image, None, boxes, torch.tensor([0, 0])).shape == (2, 4, CROP, CROP)
 
 
+def test_windows_of_other_products_are_negatives_that_only_the_query_can_explain(tmp_path):
+    from binpick.detection.data import RepeatedInstances, TaskDataset
+    from binpick.detection.pickability import labelled_windows
+
+    coco = make_coco(tmp_path / "data", images=4, seed=5, pickable=True, depth=True)
+    dataset = TaskDataset(RepeatedInstances(coco, targets="pickable:y"), 128, depth=True)
+    copies = labelled_windows(dataset, jittered=0)
+    sample = dataset[0]
+    assert len(sample["other_products"]) == 1  # make_coco puts one copy of another shape in each image
+    both = labelled_windows(dataset, jittered=0, distractors=True)
+    others = sum(len(dataset[i]["other_products"]) for i in range(len(dataset)))
+    assert len(both["labels"]) == len(copies["labels"]) + others
+    assert both["labels"].sum() == copies["labels"].sum()  # every added window is a negative
+    assert len(both["queries"]) == len(dataset) and int(both["owner"].max()) == len(dataset) - 1
+
+
 def test_roc_auc_counts_ties_half():
     assert roc_auc(np.array([1, 1, 0, 0]), np.array([0.9, 0.8, 0.2, 0.1])) == 1.0
     assert roc_auc(np.array([1, 0]), np.array([0.5, 0.5])) == 0.5
@@ -50,7 +66,8 @@ def test_the_head_learns_which_copies_are_picked_resumes_and_rescores_the_detect
     torch.manual_seed(0)
     save_detector(DetectorNetwork(ModelSpec(), 128), tmp_path / "detector.safetensors")
     config = PickabilityConfig(detector=str(tmp_path / "detector.safetensors"), train=[str(train)], val=str(val),
-                               epochs=2, batch_size=16, lr=0.003, width=8, jittered=2, proposals=5, threads=1)
+                               epochs=2, batch_size=16, lr=0.003, width=8, jittered=2, proposals=5, threads=1, query=True,
+                               distractors=True)
     trainer = PickabilityTrainer.new(config, tmp_path / "runs")
     trainer.run()
     assert trainer.epoch == 2 and (trainer.run_dir / "windows.safetensors").is_file()
@@ -64,7 +81,7 @@ def test_the_head_learns_which_copies_are_picked_resumes_and_rescores_the_detect
     assert metrics["best_val_auc"] > 0.85, metrics["history"]  # the small copies are told from the large
     # the detector with its head: the same boxes, each score times the head's probability
     detector = Detector.load(trainer.run_dir / "model.safetensors")
-    assert detector.network.spec.pickability == "rgbd"
+    assert detector.network.spec.pickability == "rgbd" and detector.network.spec.pickability_query
     plain = Detector.load(tmp_path / "detector.safetensors").network
     image, depth = tmp_path / "val" / "images" / "0000.png", tmp_path / "val" / "depth" / "0000.png"
     box = next(a["bbox"] for a in json.loads(val.read_text())["annotations"] if a["image_id"] == 1)
@@ -87,5 +104,74 @@ def test_the_head_learns_which_copies_are_picked_resumes_and_rescores_the_detect
     assert np.allclose(np.sort(again.boxes, axis=0), np.sort(theirs.boxes, axis=0))
     assert detector.network.pickability is not None  # switching it off made a copy
     assert detector.val(val, targets="pickable:y")["tasks"] == 12
+    # another run can start from this head (a warm start), and refuses a head of another kind
+    from dataclasses import replace
+
+    warm = PickabilityTrainer.new(replace(config, init=str(trainer.run_dir / "model.safetensors")), tmp_path / "runs")
+    trained = detector.network.pickability.state_dict()
+    assert all(torch.allclose(v.float(), trained[k].float(), atol=1e-2) for k, v in warm.head.state_dict().items())
+    with pytest.raises(ConfigError, match="not of this config's kind"):
+        PickabilityTrainer.new(replace(config, init=str(trainer.run_dir / "model.safetensors"), query=False), tmp_path / "runs")
+    with pytest.raises(ConfigError, match="holds no pickability head"):
+        PickabilityTrainer.new(replace(config, init=str(tmp_path / "detector.safetensors")), tmp_path / "runs")
     with pytest.raises(ConfigError, match="targets must be pickable"):
         PickabilityConfig(targets="all")
+
+
+def _coloured(colours: torch.Tensor, channels: int) -> torch.Tensor:
+    """Windows (or query crops) with a square of the given palette colour at their centre."""
+    palette = torch.tensor([[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0], [1.0, 1.0, 0]])
+    x = torch.zeros(len(colours), channels, CROP, CROP)
+    x[:, :3, 24:40, 24:40] = palette[colours][:, :, None, None]
+    if channels == 5:
+        x[:, 4, 24:40, 24:40] = 1.0  # the box mask
+    return x
+
+
+def test_a_head_that_sees_the_query_tells_the_ordered_product_from_others_and_one_without_cannot():
+    generator = torch.Generator().manual_seed(0)
+    n = 512
+    window_colour = torch.randint(0, 4, (n,), generator=generator)
+    query_colour = torch.randint(0, 4, (n,), generator=generator)
+    windows = _coloured(window_colour, 5)
+    stored = {"colour": (torch.cat([windows[:, :3], windows[:, 4:]], 1) * 255).to(torch.uint8),
+              "height": torch.zeros(n, 1, CROP, CROP, dtype=torch.float16),
+              "labels": (window_colour == query_colour).float(),  # a copy of the ordered product or not
+              "queries": (_coloured(query_colour, 3) * 255).to(torch.uint8), "owner": torch.arange(n, dtype=torch.int32)}
+    aucs = {}
+    for query in (True, False):
+        torch.manual_seed(0)
+        head = PickabilityHead(depth=True, width=8, query=query)
+        optimiser = torch.optim.Adam(head.parameters(), lr=0.003)
+        schedule = torch.optim.lr_scheduler.LambdaLR(optimiser, lambda step: 1.0)
+        for epoch in range(6):
+            train_epoch(head, optimiser, schedule, stored, torch.Generator().manual_seed(epoch), batch=32)
+        aucs[query] = head_auc(head, stored)
+    assert aucs[True] > 0.95 and aucs[False] < 0.7, aucs  # only the query says which colour was ordered
+    with pytest.raises(ValueError, match="give the query crops"):
+        PickabilityHead(width=8, query=True)(torch.zeros(1, 5, CROP, CROP))
+
+
+def test_query_crops_cut_the_query_box_or_resize_the_photo():
+    image = torch.zeros(1, 3, 128, 128)
+    image[0, 1, 32:64, 64:96] = 1.0  # a green square: the query box
+    crop = query_crops(image, torch.tensor([[64.0, 32.0, 96.0, 64.0]]), None)
+    assert crop.shape == (1, 3, CROP, CROP) and crop[0, 1, 4:-4, 4:-4].min() > 0.99 and crop[0, 0].max() == 0
+    photo = torch.rand(1, 3, 96, 96)
+    assert query_crops(image, None, photo).shape == (1, 3, CROP, CROP)
+
+
+@pytest.mark.parametrize("query_mode", ["crop", "photo"])
+def test_rescoring_reranks_every_detection_and_keeps_them_all(query_mode):
+    torch.manual_seed(0)
+    network = DetectorNetwork(ModelSpec(query=query_mode, pickability="rgbd", pickability_query=True), 128).eval()
+    images, depth = torch.rand(1, 3, 128, 128), torch.rand(1, 1, 128, 128)
+    boxes, photos = torch.tensor([[10.0, 10, 40, 40]]), torch.rand(1, 3, 96, 96)
+    everything, _ = network.without_pickability().detect(images, boxes, photos, score_threshold=0.0)
+    threshold = float(everything[0]["scores"].median())  # about half the detector's boxes pass it
+    mine, _ = network.detect(images, boxes, photos, score_threshold=threshold, depth=depth)
+    theirs, _ = network.without_pickability().detect(images, boxes, photos, score_threshold=threshold)
+    assert len(theirs[0]["scores"]) > 0 and (mine[0]["scores"] < threshold).any()  # re-scored below it, still there
+    assert len(mine[0]["scores"]) == len(theirs[0]["scores"])  # the head re-ranks; the detector decides what was found
+    assert torch.all(mine[0]["scores"][:-1] >= mine[0]["scores"][1:])
+    assert mine[0]["scores"].max() <= theirs[0]["scores"].max()

@@ -12,7 +12,7 @@ find include the instance that was the query: the photo does not say which copy 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -35,6 +35,7 @@ class Task:
     annotations: list[dict[str, Any]]  # every instance of the category in the image
     photo: Path | None = None
     depth: Path | None = None  # the image's depth (16-bit millimetres), where the data set has one
+    others: list[dict[str, Any]] = field(default_factory=list)  # instances of other products in the image
 
 
 def read_image(path: Path, keep_alpha: bool = False) -> np.ndarray:
@@ -153,7 +154,8 @@ class RepeatedInstances:
             for category, annotations in sorted(by_image.get(image["id"], {}).items()):
                 if category in excluded or (only is not None and category not in only):
                     continue
-                task = self._task(image, category, annotations)
+                others = [a for c, items in by_image[image["id"]].items() if c != category for a in items]
+                task = self._task(image, category, annotations, others)
                 if task is not None:
                     self.tasks.append(task)
                     if isinstance(image.get("seed"), int):
@@ -175,7 +177,7 @@ class RepeatedInstances:
             raise ConfigError(f"unknown category {unknown[0]!r}; known: {', '.join(sorted(k for k in known if k)[:20])}")
         return ids
 
-    def _task(self, image: dict, category: int, annotations: list[dict]) -> Task | None:
+    def _task(self, image: dict, category: int, annotations: list[dict], others: list[dict]) -> Task | None:
         file = self.root / image["file_name"]
         name = self.categories[category]["name"].replace("/", "_")
         photo = self.photos / f"{name}.png"
@@ -185,10 +187,10 @@ class RepeatedInstances:
             query = next((a for a in annotations if a.get("is_query")), None)
             if query is None or all(pickable_by(a, self.policy) is None for a in annotations if a is not query):
                 return None  # nothing picked here, or no labels for this policy
-            return Task(image["id"], file, category, query, annotations, photo, depth)
+            return Task(image["id"], file, category, query, annotations, photo, depth, others)
         if len(annotations) < 2:
             return None
-        return Task(image["id"], file, category, None, annotations, photo, depth)
+        return Task(image["id"], file, category, None, annotations, photo, depth, others)
 
     def __len__(self) -> int:
         return len(self.tasks)
@@ -196,7 +198,8 @@ class RepeatedInstances:
     def boxes(self, task: Task, query: dict | None) -> dict[str, np.ndarray]:
         """Ground truth of a task, xyxy pixels: ``targets`` to find, ``all`` instances but ``query``,
         ``unpickable`` ones (for Tables 5.5/5.6), ``ambiguous`` ones (their trial grasps disagreed) and
-        ``certain``: the targets that are not ambiguous (with one grasp per instance: none, and all)."""
+        ``certain``: the targets that are not ambiguous (with one grasp per instance: none, and all);
+        ``other_products``: the instances of other products in the image."""
         others = [a for a in task.annotations if a is not query]
 
         def xyxy(items):
@@ -211,7 +214,7 @@ class RepeatedInstances:
         else:
             targets, unpickable, ambiguous, certain = others, [], [], others
         return {"targets": xyxy(targets), "all": xyxy(others), "unpickable": xyxy(unpickable),
-                "certain": xyxy(certain), "ambiguous": xyxy(ambiguous)}
+                "certain": xyxy(certain), "ambiguous": xyxy(ambiguous), "other_products": xyxy(task.others)}
 
 
 def check_disjoint(train: RepeatedInstances, val: RepeatedInstances) -> None:
@@ -294,7 +297,7 @@ class TaskDataset(torch.utils.data.Dataset):
             extra["depth"] = torch.from_numpy(np.ascontiguousarray(heights))[None]
         return {**extra, "image": to_tensor(image), "query_box": torch.from_numpy(query_box), "query_image": to_tensor(query_image),
                 "targets": torch.from_numpy(boxes["targets"]), "all": torch.from_numpy(boxes["all"]),
-                **{key: torch.from_numpy(boxes[key]) for key in ("unpickable", "certain", "ambiguous")}, "image_id": task.image_id,
+                **{key: torch.from_numpy(boxes[key]) for key in ("unpickable", "certain", "ambiguous", "other_products")}, "image_id": task.image_id,
                 "category_id": task.category_id, "index": index, "query_id": int(query.get("id", -1))}
 
     def photo(self, path: Path) -> np.ndarray:
@@ -395,6 +398,6 @@ def camera_effects(image: np.ndarray, rng: np.random.Generator) -> np.ndarray:
 
 def collate(samples: list[dict[str, Any]]) -> dict[str, Any]:
     batch = {key: torch.stack([s[key] for s in samples]) for key in ("image", "query_box", "query_image", "photo", "depth") if key in samples[0]}
-    for key in ("targets", "all", "unpickable", "certain", "ambiguous", "image_id", "category_id", "index", "query_id"):
+    for key in ("targets", "all", "unpickable", "certain", "ambiguous", "other_products", "image_id", "category_id", "index", "query_id"):
         batch[key] = [s[key] for s in samples]
     return batch

@@ -76,8 +76,9 @@ class Detector:
 
     def __repr__(self) -> str:
         spec = self.network.spec
+        head = (", pickability head" + (" that sees the query" if spec.pickability_query else "")) if spec.pickability else ""
         return (f"Detector({spec.method} {spec.layout}, {spec.backbone} backbone, {self.network.image_size} px, "
-                f"{spec.query} query{', pickability head' if spec.pickability else ''}, from {self.source})")
+                f"{spec.query} query{head}, from {self.source})")
 
     # ------------------------------------------------------------------ jobs
     def predict(self, image: np.ndarray | str | Path, query_box=None, query_image: np.ndarray | str | Path | None = None,

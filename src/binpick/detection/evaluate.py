@@ -20,12 +20,12 @@ import numpy as np
 import torch
 
 SCALE_BINS = ((0.0, 0.1), (0.1, 0.15), (0.15, 0.2), (0.2, 0.3), (0.3, 1.0))
-GROUND_TRUTHS = ("targets", "all", "unpickable", "certain", "ambiguous")
+GROUND_TRUTHS = ("targets", "all", "unpickable", "certain", "ambiguous", "other_products")
 
 
 def collect(detect: Callable[[dict], list[dict[str, torch.Tensor]]], batches: Iterable[dict], progress=None
             ) -> list[dict[str, Any]]:
-    """Run ``detect`` over batches; keep each task's detections and its three ground truths."""
+    """Run ``detect`` over batches; keep each task's detections and its ground truths (GROUND_TRUTHS)."""
     tasks = []
     for batch in batches:
         results = detect(batch)

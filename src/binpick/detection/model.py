@@ -19,7 +19,7 @@ from torch import nn
 
 from binpick.detection.backbone import BACKBONES, build_backbone, conv_bn
 from binpick.detection.depth import DepthEncoder
-from binpick.detection.pickability import PickabilityHead
+from binpick.detection.pickability import PickabilityHead, query_crops
 from binpick.detection.ops import cxcywh_to_xyxy, nms
 from binpick.detection.rod import RODModule, SkipModule, TDIDModule, crop_features
 
@@ -66,6 +66,7 @@ class ModelSpec:
     # a second look at each detection (binpick.detection.pickability): "" none, "rgb" colour, "rgbd" with depth
     pickability: str = ""
     pickability_width: int = 32  # channels of the head's first convolution
+    pickability_query: bool = False  # the head also compares each window with the query (other products score low)
 
     @property
     def reads_depth(self) -> bool:
@@ -96,6 +97,8 @@ class ModelSpec:
             raise ConfigError(f"model.depth must be true or false, got {self.depth!r}")
         if self.pickability not in ("", "rgb", "rgbd"):
             raise ConfigError(f"model.pickability must be '', 'rgb' or 'rgbd', got {self.pickability!r}")
+        if not isinstance(self.pickability_query, bool):
+            raise ConfigError(f"model.pickability_query must be true or false, got {self.pickability_query!r}")
         if any(not 0 < s <= 1 for s in self.photo_sizes):
             raise ConfigError(f"model.photo_sizes must be fractions of the image side in (0, 1], got {list(self.photo_sizes)}")
 
@@ -119,7 +122,8 @@ class DetectorNetwork(nn.Module):
                 modules.append(RODModule(c, spec.scales) if letter == "R" else SkipModule(c))
         self.modules_per_level = nn.ModuleList(modules)
         self.depth_encoder = DepthEncoder(channels) if spec.depth else None
-        self.pickability = PickabilityHead(spec.pickability == "rgbd", spec.pickability_width) if spec.pickability else None
+        self.pickability = (PickabilityHead(spec.pickability == "rgbd", spec.pickability_width, spec.pickability_query)
+                            if spec.pickability else None)
         c1, c2, c3 = channels
         self.top = nn.Sequential(conv_bn(c3, c3 // 2, 1), conv_bn(c3 // 2, c3, 3), conv_bn(c3, c3 // 2, 1))
         self.lateral3 = conv_bn(c3 // 2, c2 // 2, 1)
@@ -212,7 +216,7 @@ class DetectorNetwork(nn.Module):
             order = nms(kept_boxes, kept_scores, iou_threshold)[:max_detections]
             results.append({"boxes": kept_boxes[order], "scores": kept_scores[order]})
         if self.pickability is not None:
-            results = self.rescore(images, depth, results, score_threshold)
+            results = self.rescore(images, depth, results, query_boxes, query_images)
         return results, out["heatmaps"]
 
     def without_pickability(self) -> DetectorNetwork:
@@ -224,22 +228,26 @@ class DetectorNetwork(nn.Module):
         plain = copy.copy(self)
         plain._modules = dict(self._modules)  # nn.Module keeps children here: a copy of the dict, not of them
         plain.pickability = None
-        plain.spec = replace(self.spec, pickability="")
+        plain.spec = replace(self.spec, pickability="", pickability_query=False)
         return plain
 
     def rescore(self, images: torch.Tensor, depth: torch.Tensor | None, results: list[dict[str, torch.Tensor]],
-                score_threshold: float) -> list[dict[str, torch.Tensor]]:
+                query_boxes: torch.Tensor | None = None, query_images: torch.Tensor | None = None) -> list[dict[str, torch.Tensor]]:
         """Each detection's score times the pickability head's probability that the policy picks that
-        copy, best first, those still above ``score_threshold`` kept."""
+        copy, best first. Every detection stays: the head re-ranks, the detector's threshold decides
+        what was found (a copy the head doubts still counts towards recall; dropping those products
+        under the threshold cost 0.01 AP50 on the seen val tasks)."""
         if self.spec.pickability == "rgbd" and depth is None:
             from binpick.errors import ConfigError
 
             raise ConfigError("this detector's pickability head reads depth: give the scene's depth image")
-        probabilities = self.pickability.probabilities(images, depth, [r["boxes"].to(images.device) for r in results])
+        queries = None
+        if self.spec.pickability_query:
+            queries = query_crops(images, query_boxes, query_images if self.spec.query == "photo" else None)
+        probabilities = self.pickability.probabilities(images, depth, [r["boxes"].to(images.device) for r in results], queries)
         rescored = []
         for result, p in zip(results, probabilities):
             scores = result["scores"] * p
             order = scores.argsort(descending=True)
-            order = order[scores[order] > score_threshold]
             rescored.append({"boxes": result["boxes"][order], "scores": scores[order]})
         return rescored

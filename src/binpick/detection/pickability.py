@@ -7,7 +7,17 @@ detector shares with everything else it must do. So, as two-stage detectors re-s
 a small network looks again at each detection: a window around it (its neighbours and where the fingers
 go, a fixed share of the image so widths keep their meaning), colour and the height map, the box drawn
 as a mask; it says how likely the policy is to pick that copy, and the detection's score is multiplied
-by it. It learns from the same one-grasp labels the detector learns from (:func:`train_pickability`).
+by it. It learns from the same one-grasp labels the detector learns from
+(:class:`~binpick.detection.pickability_training.PickabilityTrainer`).
+
+A head that also sees the query (``query=True``: the query's crop, or the shop photo, beside the
+window) answers a sharper question -- is this a copy *of the ordered product* that the policy picks? --
+and so also lowers the detector's confident boxes on other products and on background, which cost
+the shipped detector as much AP50 as its boxes on unpickable copies (``benchmarks/rod_pickability.py``).
+It learns that from the detector's own detections on the training images (``proposals``, labelled 1
+where they cover a copy the policy picked) and from a window on every other product in each image
+(``distractors``, 0), where only the query can tell. The head only re-ranks: which boxes exist is the
+detector's decision (its score threshold), so a copy it is unsure of still counts towards recall.
 """
 
 from __future__ import annotations
@@ -55,58 +65,97 @@ def roi_windows(images: torch.Tensor, heights: torch.Tensor | None, boxes: torch
     return torch.cat([windows, inside[:, None].to(windows.dtype)], 1)
 
 
+def query_crops(images: torch.Tensor, query_boxes: torch.Tensor | None, query_images: torch.Tensor | None,
+                crop: int = CROP) -> torch.Tensor:
+    """(B, 3, crop, crop): what the head compares each window with -- the shop photo where the
+    detector is queried with one, else the query box cut from its image."""
+    if query_images is not None:
+        return F.interpolate(query_images.float(), size=(crop, crop), mode="bilinear", align_corners=False)
+    size = images.shape[-1]
+    boxes = query_boxes.float()
+    theta = images.new_zeros((len(boxes), 2, 3)).float()
+    theta[:, 0, 0] = (boxes[:, 2] - boxes[:, 0]) / size
+    theta[:, 1, 1] = (boxes[:, 3] - boxes[:, 1]) / size
+    theta[:, :, 2] = (boxes[:, :2] + boxes[:, 2:]) / size - 1
+    grid = F.affine_grid(theta, [len(boxes), 3, crop, crop], align_corners=False)
+    return F.grid_sample(images.float(), grid, mode="bilinear", padding_mode="zeros", align_corners=False)
+
+
 def _block(c_in: int, c_out: int) -> nn.Sequential:
     return nn.Sequential(nn.Conv2d(c_in, c_out, 3, 2, 1, bias=False), nn.BatchNorm2d(c_out), nn.ReLU(inplace=True),
                          nn.Conv2d(c_out, c_out, 3, 1, 1, bias=False), nn.BatchNorm2d(c_out), nn.ReLU(inplace=True))
 
 
-class PickabilityHead(nn.Module):
-    """Windows (:func:`roi_windows`) -> the logit that the policy picks the copy in the box."""
+def _encoder(channels: int, width: int) -> nn.Sequential:
+    return nn.Sequential(_block(channels, width), _block(width, 2 * width), _block(2 * width, 4 * width),
+                         _block(4 * width, 4 * width))
 
-    def __init__(self, depth: bool = True, width: int = 32) -> None:
+
+class PickabilityHead(nn.Module):
+    """Windows (:func:`roi_windows`), and with ``query`` the query's crops (:func:`query_crops`) ->
+    the logit that the box holds a copy (of the query's product) the policy picks."""
+
+    def __init__(self, depth: bool = True, width: int = 32, query: bool = False) -> None:
         super().__init__()
-        self.depth = depth
-        channels = 3 + int(depth) + 1
-        self.features = nn.Sequential(_block(channels, width), _block(width, 2 * width), _block(2 * width, 4 * width),
-                                      _block(4 * width, 4 * width))
-        side = CROP // 16
-        self.classify = nn.Sequential(nn.Flatten(), nn.Linear(4 * width * side * side, 128), nn.ReLU(inplace=True),
+        self.depth, self.query = depth, query
+        self.features = _encoder(3 + int(depth) + 1, width)
+        # the query as one vector; the window's features meet it per position (product and itself)
+        self.query_features = _encoder(3, width) if query else None
+        side, planes = CROP // 16, 4 * width * (3 if query else 1)
+        self.classify = nn.Sequential(nn.Flatten(), nn.Linear(planes * side * side, 128), nn.ReLU(inplace=True),
                                       nn.Dropout(0.2), nn.Linear(128, 1))
 
-    def forward(self, windows: torch.Tensor) -> torch.Tensor:
-        return self.classify(self.features(windows))[:, 0]
+    def forward(self, windows: torch.Tensor, queries: torch.Tensor | None = None, owner: torch.Tensor | None = None) -> torch.Tensor:
+        """Logits per window; ``queries``: one per window, or with ``owner`` (the query of each window)
+        fewer, each encoded once."""
+        features = self.features(windows)
+        if self.query_features is not None:
+            if queries is None:
+                raise ValueError("this pickability head compares each window with the query: give the query crops")
+            q = self.query_features(queries).mean((2, 3))
+            q = (q if owner is None else q[owner])[:, :, None, None].expand_as(features)
+            features = torch.cat([features, features * q, q], 1)
+        return self.classify(features)[:, 0]
 
     @torch.no_grad()
-    def probabilities(self, images: torch.Tensor, heights: torch.Tensor | None, boxes: list[torch.Tensor]) -> list[torch.Tensor]:
-        """Per image, the probability that each of its boxes (x1, y1, x2, y2) holds a copy the policy picks."""
+    def probabilities(self, images: torch.Tensor, heights: torch.Tensor | None, boxes: list[torch.Tensor],
+                      queries: torch.Tensor | None = None) -> list[torch.Tensor]:
+        """Per image, the probability that each of its boxes (x1, y1, x2, y2) holds a copy the policy
+        picks; ``queries``: per image its query crop (:func:`query_crops`), for a head that reads one."""
         counts = [len(b) for b in boxes]
         if not sum(counts):
             return [torch.zeros(0) for _ in boxes]
-        owner = torch.repeat_interleave(torch.arange(len(boxes)), torch.tensor(counts))
+        owner = torch.repeat_interleave(torch.arange(len(boxes)), torch.tensor(counts)).to(images.device)
         windows = roi_windows(images.float(), heights.float() if self.depth and heights is not None else None,
-                              torch.cat(boxes).float().to(images.device), owner.to(images.device))
-        return list(torch.sigmoid(self(windows)).cpu().split(counts))
+                              torch.cat(boxes).float().to(images.device), owner)
+        queries = queries.float() if self.query and queries is not None else None
+        return list(torch.sigmoid(self(windows, queries, owner)).cpu().split(counts))
 
 
 # ---------------------------------------------------------------------- learning it
 def labelled_windows(dataset, progress: Callable[[int], None] | None = None, jittered: int = 1,
-                     seed: int = 0, proposals: Callable[[dict], torch.Tensor] | None = None
-                     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+                     seed: int = 0, proposals: Callable[[dict], torch.Tensor] | None = None,
+                     distractors: bool = False) -> dict[str, torch.Tensor]:
     """Windows of every labelled copy of a :class:`~binpick.detection.data.TaskDataset` (targets:
-    picked, 1; unpickable: 0; the query copy left out), each once as labelled and ``jittered`` more
-    times moved by up to JITTER; with ``proposals`` (sample -> boxes x1, y1, x2, y2: the detector's own
+    picked, 1; unpickable: 0; the query copy left out) -- with ``distractors`` also of every instance
+    of another product in the image (0: only the query tells them apart) --, each once as labelled and
+    ``jittered`` more times moved by up to JITTER; with ``proposals`` (sample -> boxes x1, y1, x2, y2: the detector's own
     detections) also a window per proposal, 1 where it overlaps a picked copy at IoU >= 0.5, else 0 --
-    what the head will be shown, misplaced boxes and other objects included. Colour and mask are stored
-    as uint8, heights as float16: (N, 3 + 1, ...) uint8, (N, 1, ...) float16 (empty without depth), labels (N,)."""
+    what the head will be shown: misplaced boxes, other products and background included.
+
+    Returns ``colour`` (N, 3 + 1 mask, ...) uint8, ``height`` (N, 1, ...) float16 (empty without
+    depth), ``labels`` (N,), and the query crop of each task once: ``queries`` (T, 3, ...) uint8 with
+    ``owner`` (N,), the task of each window."""
     from binpick.detection.ops import box_iou
 
     rng = np.random.default_rng(seed)
-    colour, height, labels = [], [], []
+    colour, height, labels, queries, owner = [], [], [], [], []
     for index in range(len(dataset)):
         sample = dataset[index]
         targets, unpickable = sample["targets"].reshape(-1, 4), sample["unpickable"].reshape(-1, 4)
-        boxes = torch.cat([targets, unpickable])
-        label = torch.cat([torch.ones(len(targets)), torch.zeros(len(unpickable))])
+        negatives = torch.cat([unpickable, sample["other_products"].reshape(-1, 4)]) if distractors else unpickable
+        boxes = torch.cat([targets, negatives])
+        label = torch.cat([torch.ones(len(targets)), torch.zeros(len(negatives))])
         if len(boxes):
             variants = [boxes]
             for _ in range(jittered):
@@ -125,11 +174,26 @@ def labelled_windows(dataset, progress: Callable[[int], None] | None = None, jit
             colour.append((torch.cat([windows[:, :3], windows[:, -1:]], 1) * 255).round().to(torch.uint8))
             height.append(windows[:, 3:-1].half())
             labels.append(label)
+            photo = sample["query_image"][None] if dataset.query_mode == "photo" else None
+            crop = query_crops(sample["image"][None], sample["query_box"][None], photo)
+            owner.append(torch.full((len(boxes),), len(queries), dtype=torch.int32))
+            queries.append((crop.clamp(0, 1) * 255).round().to(torch.uint8))
         if progress is not None:
             progress(1)
     if not labels:
-        return torch.zeros((0, 4, CROP, CROP), dtype=torch.uint8), torch.zeros((0, 0, CROP, CROP), dtype=torch.float16), torch.zeros(0)
-    return torch.cat(colour), torch.cat(height), torch.cat(labels)
+        return {"colour": torch.zeros((0, 4, CROP, CROP), dtype=torch.uint8), "height": torch.zeros((0, 0, CROP, CROP), dtype=torch.float16),
+                "labels": torch.zeros(0), "queries": torch.zeros((0, 3, CROP, CROP), dtype=torch.uint8),
+                "owner": torch.zeros(0, dtype=torch.int32)}
+    return {"colour": torch.cat(colour), "height": torch.cat(height), "labels": torch.cat(labels),
+            "queries": torch.cat(queries), "owner": torch.cat(owner)}
+
+
+def join_windows(parts: list[dict[str, torch.Tensor]]) -> dict[str, torch.Tensor]:
+    """Several :func:`labelled_windows` results as one (each window still pointing at its own query)."""
+    offsets = np.cumsum([0] + [len(p["queries"]) for p in parts[:-1]])
+    joined = {key: torch.cat([p[key] for p in parts]) for key in ("colour", "height", "labels", "queries")}
+    joined["owner"] = torch.cat([p["owner"] + int(o) for p, o in zip(parts, offsets)])
+    return joined
 
 
 def assemble(colour: torch.Tensor, height: torch.Tensor, depth: bool) -> torch.Tensor:
@@ -139,32 +203,38 @@ def assemble(colour: torch.Tensor, height: torch.Tensor, depth: bool) -> torch.T
     return torch.cat(parts, 1)
 
 
-def head_auc(head: PickabilityHead, colour: torch.Tensor, height: torch.Tensor, labels: torch.Tensor,
-             batch: int = 512) -> float:
-    """ROC AUC of the head's scores on stored windows (pickable against unpickable copies)."""
+def _queries(head: PickabilityHead, windows: dict[str, torch.Tensor], idx: torch.Tensor) -> torch.Tensor | None:
+    return windows["queries"][windows["owner"][idx].long()].float() / 255 if head.query else None
+
+
+def head_auc(head: PickabilityHead, windows: dict[str, torch.Tensor], batch: int = 512) -> float:
+    """ROC AUC of the head's scores on stored windows (:func:`labelled_windows`): picked copies
+    against the rest."""
     head.eval()
+    labels = windows["labels"]
     with torch.no_grad():
-        scores = torch.cat([head(assemble(colour[i:i + batch], height[i:i + batch], head.depth))
+        scores = torch.cat([head(assemble(windows["colour"][i:i + batch], windows["height"][i:i + batch], head.depth),
+                                 _queries(head, windows, torch.arange(i, min(i + batch, len(labels)))))
                             for i in range(0, len(labels), batch)]) if len(labels) else torch.zeros(0)
     auc = roc_auc(labels.numpy(), scores.numpy())
     return 0.5 if auc is None else auc  # one class: no ranking to speak of
 
 
-def train_epoch(head: PickabilityHead, optimiser: torch.optim.Optimizer, schedule, colour: torch.Tensor,
-                height: torch.Tensor, labels: torch.Tensor, generator: torch.Generator, batch: int = 128,
-                progress: Callable[[int], None] | None = None) -> float:
+def train_epoch(head: PickabilityHead, optimiser: torch.optim.Optimizer, schedule, windows: dict[str, torch.Tensor],
+                generator: torch.Generator, batch: int = 128, progress: Callable[[int], None] | None = None) -> float:
     """One pass in random order with mirror flips (jaws along y stay along y); the mean loss."""
     head.train()
+    labels = windows["labels"]
     order = torch.randperm(len(labels), generator=generator)
     losses = []
     for start in range(0, len(order) - batch + 1, batch):
         idx = order[start:start + batch]
-        x = assemble(colour[idx], height[idx], head.depth)
+        x = assemble(windows["colour"][idx], windows["height"][idx], head.depth)
         flip = torch.rand(len(idx), generator=generator) < 0.5
         x[flip] = x[flip].flip(3)
         flip = torch.rand(len(idx), generator=generator) < 0.5
         x[flip] = x[flip].flip(2)
-        loss = F.binary_cross_entropy_with_logits(head(x), labels[idx])
+        loss = F.binary_cross_entropy_with_logits(head(x, _queries(head, windows, idx)), labels[idx])
         optimiser.zero_grad()
         loss.backward()
         optimiser.step()

@@ -2,10 +2,12 @@
 
 The detector stays as it is; the head learns, from windows around every labelled copy of the training
 files (the copies a policy picked: 1, those it could not: 0; boxes moved a little, as detections are),
-which copies the policy picks. A run folder ``runs/<name>/<time>/`` holds ``config.yaml``, the windows
-cut once (``windows.safetensors``: a resumed run does not cut them again), TensorBoard events, a
-checkpoint per epoch, ``metrics.json`` and ``model.safetensors``: the detector with the head of the best
-val ROC AUC inside, which ``binpick detect eval/predict``, ``Detector.load`` and the pipeline read.
+which copies the policy picks; with ``query`` it also sees the query and learns from the detector's own
+detections (``proposals``) which boxes hold a picked copy of the ordered product. A run folder
+``runs/<name>/<time>/`` holds ``config.yaml``, the windows cut once (``windows.safetensors``: a resumed
+run does not cut them again), TensorBoard events, a checkpoint per epoch, ``metrics.json`` and
+``model.safetensors``: the detector with the head of the best val ROC AUC inside, which
+``binpick detect eval/predict``, ``Detector.load`` and the pipeline read.
 """
 
 from __future__ import annotations
@@ -23,13 +25,13 @@ from binpick import tensorfile
 from binpick.config import check_range, load_run_config, to_dict
 from binpick.detection.data import RepeatedInstances, TaskDataset, check_disjoint
 from binpick.detection.model import DetectorNetwork
-from binpick.detection.pickability import PickabilityHead, head_auc, labelled_windows, train_epoch
+from binpick.detection.pickability import PickabilityHead, head_auc, join_windows, labelled_windows, train_epoch
 from binpick.errors import ConfigError
 from binpick.files import atomic_write_text
 from binpick.runs import SILENT, RunCallback, commit_checkpoint, latest_checkpoint, new_run_dir
 
 CHECKPOINT_FORMAT = "binpick-pickability-checkpoint-1"
-WINDOWS_FORMAT = "binpick-pickability-windows-1"
+WINDOWS_FORMAT = "binpick-pickability-windows-2"
 
 
 @dataclass(frozen=True)
@@ -41,12 +43,15 @@ class PickabilityConfig:
     targets: str = "pickable:y"  # the policy whose picks it learns (as the detector's data.targets)
     depth: bool = True  # read the height map as well as colour
     width: int = 32  # channels of the first convolution
+    query: bool = False  # also compare each window with the query: copies of other products score low
+    distractors: bool = False  # also windows of the other products in each image, labelled 0 (for a head with query)
+    init: str = ""  # start from the head inside this detector file (same kind and width), e.g. a shorter run's
     epochs: int = 8
     batch_size: int = 128
     lr: float = 0.001  # the peak of a cosine schedule with one epoch of warm-up
     weight_decay: float = 0.0001
     jittered: int = 1  # extra copies of each window with the box moved (detections are not exact)
-    proposals: int = 0  # also the detector's own best detections per training image (score >= 0.05), labelled by IoU
+    proposals: int = 0  # also the detector's own best detections per image (score >= 0.05), labelled by IoU (train and val)
     threads: int = 2
     seed: int = 0
 
@@ -104,17 +109,41 @@ class PickabilityTrainer:
         self.network: DetectorNetwork = detector.network
         torch.manual_seed(config.seed)
         kind = "rgbd" if config.depth else "rgb"
-        self.network.spec = replace(self.network.spec, pickability=kind, pickability_width=config.width)
-        self.network.pickability = PickabilityHead(config.depth, config.width)
+        self.network.spec = replace(self.network.spec, pickability=kind, pickability_width=config.width,
+                                    pickability_query=config.query)
+        self.network.pickability = PickabilityHead(config.depth, config.width, config.query)
         self.head = self.network.pickability
         self.optimiser = torch.optim.AdamW(self.head.parameters(), lr=config.lr, weight_decay=config.weight_decay)
         self.epoch, self.best_auc, self.history = 0, -1.0, []
         checkpoint = latest_checkpoint(self.run_dir / "checkpoints")
+        if checkpoint is None and config.init:
+            self._start_from(config.init)
         if checkpoint is not None:
             _, meta, state = tensorfile.load(checkpoint / "state.safetensors", CHECKPOINT_FORMAT, "pickability checkpoint")
             self.head.load_state_dict(state["head"])
             self.optimiser.load_state_dict(state["optimiser"])
             self.epoch, self.best_auc, self.history = int(meta["epoch"]), float(meta["best_auc"]), list(meta["history"])
+
+    def _start_from(self, weights: str) -> None:
+        """The head of another detector as the starting point (the same kind and width): a file, a
+        run folder (its model, or the best head so far of a run still going or stopped), or a folder of
+        runs (its newest)."""
+        from binpick.detection.detector import Detector
+
+        path = Path(weights)
+        if path.is_dir():
+            runs = [path] + sorted((p for p in path.iterdir() if p.is_dir()), reverse=True)
+            found = [run / name for run in runs for name in ("model.safetensors", "best.safetensors") if (run / name).is_file()]
+            if not found:
+                raise ConfigError(f"init: no model.safetensors or best.safetensors in {weights} or the runs inside it")
+            path = found[0]
+        other = Detector.load(path).network.pickability
+        if other is None:
+            raise ConfigError(f"init: {weights} holds no pickability head")
+        try:
+            self.head.load_state_dict(other.state_dict())
+        except RuntimeError:
+            raise ConfigError(f"init: the head in {weights} is not of this config's kind (depth, query, width)") from None
 
     @classmethod
     def new(cls, config: PickabilityConfig, runs: Path = Path("runs")) -> PickabilityTrainer:
@@ -123,6 +152,8 @@ class PickabilityTrainer:
         for file in [*config.train, config.val]:
             if not Path(file).is_file():
                 raise ConfigError(f"annotations file {file!r} does not exist (binpick data generate makes them)")
+        if config.init and not Path(config.init).exists():
+            raise ConfigError(f"init: {config.init!r} does not exist (a detector file, a run folder or a folder of runs)")
         return cls(config, new_run_dir(Path(runs), config.name, yaml.safe_dump(to_dict(config), sort_keys=False)))
 
     @classmethod
@@ -151,10 +182,9 @@ class PickabilityTrainer:
             sets = [TaskDataset(source, size, self.network.spec.query, self.network.query_size,
                                 depth=self.config.depth or self.network.spec.depth) for source in sources]
             with callback.task(f"cutting {split} windows", sum(len(s) for s in sets)) as task:
-                cut = [labelled_windows(s, lambda n: task.update(advance=n), jittered, self.config.seed,
-                                        proposals if split == "train" else None) for s in sets]
-            for i, name in enumerate(("colour", "height", "labels")):
-                parts[f"{split}_{name}"] = torch.cat([c[i] for c in cut])
+                cut = join_windows([labelled_windows(s, lambda n: task.update(advance=n), jittered, self.config.seed, proposals,
+                                                     self.config.distractors) for s in sets])
+            parts.update({f"{split}_{name}": tensor for name, tensor in cut.items()})
         if not len(parts["train_labels"]) or not len(parts["val_labels"]):
             raise ConfigError(f"no copies labelled {self.config.targets} in the train or val files: "
                               "generate them with that policy (binpick data generate --policies ...)")
@@ -181,10 +211,14 @@ class PickabilityTrainer:
         config = self.config
         torch.set_num_threads(config.threads)
         windows = self._windows(callback)
+
+        def split(name: str) -> dict[str, torch.Tensor]:
+            return {key[len(name) + 1:]: value for key, value in windows.items() if key.startswith(name + "_")}
+
         labels = windows["train_labels"]
         self.train_windows = len(labels)
         callback.message(f"{len(labels)} training windows ({labels.mean().item():.0%} pickable), "
-                         f"{len(windows['val_labels'])} val copies")
+                         f"{len(windows['val_labels'])} val windows")
         per_epoch = max(1, len(labels) // config.batch_size)
         schedule = _Schedule(self.optimiser, config, per_epoch, self.epoch * per_epoch)
         writer = SummaryWriter(str(self.run_dir / "tb"))
@@ -192,10 +226,9 @@ class PickabilityTrainer:
             with callback.task(f"pickability head ({len(labels)} windows)", config.epochs, self.epoch) as task:
                 while self.epoch < config.epochs:
                     generator = torch.Generator().manual_seed(config.seed * 10_007 + self.epoch)
-                    loss = train_epoch(self.head, self.optimiser, schedule, windows["train_colour"], windows["train_height"],
-                                       labels, generator, config.batch_size)
+                    loss = train_epoch(self.head, self.optimiser, schedule, split("train"), generator, config.batch_size)
                     self.epoch += 1
-                    auc = head_auc(self.head, windows["val_colour"], windows["val_height"], windows["val_labels"])
+                    auc = head_auc(self.head, split("val"))
                     row = {"epoch": self.epoch, "loss": loss, "val_auc": round(auc, 4)}
                     self.history.append(row)
                     writer.add_scalar("train/loss", loss, self.epoch)
@@ -223,7 +256,8 @@ class PickabilityTrainer:
 
         extra = dict(self.detector_meta)
         extra["pickability"] = {"detector": str(self.config.detector), "train": self.config.train, "val": self.config.val,
-                                "targets": self.config.targets, "epoch": self.epoch, "val_auc": round(self.best_auc, 4),
+                                "targets": self.config.targets, "query": self.config.query, "proposals": self.config.proposals,
+                                "distractors": self.config.distractors, "init": self.config.init, "epoch": self.epoch, "val_auc": round(self.best_auc, 4),
                                 "train_windows": getattr(self, "train_windows", None)}
         self.head.eval()
         save_detector(self.network, path, extra, half=True)

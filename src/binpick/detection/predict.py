@@ -120,7 +120,9 @@ def predict(model: DetectorNetwork, image: np.ndarray | str | Path, query_box: n
     model.eval()
     results, heatmaps = model.detect(to_tensor(resized)[None], boxes_input, to_tensor(query_pixels)[None],
                                      score_threshold=score_threshold, depth=heights)
-    boxes = results[0]["boxes"].numpy() / scale
+    # a pickability head re-ranks every detection; what is shown is what still scores above the threshold
+    keep = (results[0]["scores"] > score_threshold).numpy()
+    boxes, scores = results[0]["boxes"].numpy()[keep] / scale, results[0]["scores"].numpy()[keep]
     xywh = np.c_[boxes[:, :2], boxes[:, 2:] - boxes[:, :2]] if len(boxes) else np.zeros((0, 4), np.float32)
-    return Prediction(xywh, results[0]["scores"].numpy(), [h[0, 0].numpy() for h in heatmaps if h is not None],
+    return Prediction(xywh, scores, [h[0, 0].numpy() for h in heatmaps if h is not None],
                       image, query_box, None if query_image is None else photo, score_threshold)
