@@ -346,8 +346,8 @@ def test_shipped_weights_load_as_float32_and_predict(tmp_path):
     path = files("binpick.detection") / "weights" / "rod_tiny_320.safetensors"
     assert path.stat().st_size < 15e6  # fp16, within the shipping budget
     model = load_detector(str(path))
-    # the detector with its pickability head (binpick detect pickability), which reads depth
-    assert model.spec == ModelSpec(pickability="rgbd") and model.image_size == 320 and model.trained_config["data"]["targets"] == "pickable:y"
+    # the detector with its pickability head (binpick detect pickability), which reads depth and the query
+    assert model.spec == ModelSpec(pickability="rgbd", pickability_query=True) and model.image_size == 320 and model.trained_config["data"]["targets"] == "pickable:y"
     assert model.trained_domains == ["default", "random"]  # pre-trained on randomised bins, fine-tuned on the default ones
     photo = load_detector(str(files("binpick.detection") / "weights" / "rod_photo_tiny_320.safetensors"))
     assert photo.spec.query == "photo" and photo.score_threshold == 0.1  # its own calibrated threshold for picking
