@@ -140,14 +140,15 @@ def main() -> None:
     if network.pickability is None:
         raise SystemExit(f"{args.weights} has no pickability head (binpick detect pickability makes one)")
     plain = network.without_pickability()
-    other = Detector.load(args.compare).network.eval() if args.compare else None
+    compared = Detector.load(args.compare) if args.compare else None
+    other = compared.network.eval() if compared is not None else None
     files = args.data or [SEEN]
     head = read_meta(detector.source)
     result = {"weights": shown(detector.source), "targets": "pickable by Policy 1 (jaws along y)",
               "head": {"val_auc": head.get("val_auc"), "train_windows": head.get("train_windows"), "trained_on": head.get("train")},
               "query": bool(network.spec.pickability_query), "sets": []}
     if other is not None:
-        result["compared"] = {"weights": args.compare, "query": bool(other.spec.pickability_query), **read_meta(Detector.load(args.compare).source)}
+        result["compared"] = {"weights": args.compare, "query": bool(other.spec.pickability_query), **read_meta(compared.source)}
     for index, file in enumerate([*files, HELD_OUT]):
         if not Path(file).is_file():
             print(f"skipping {file}: not on disk", flush=True)
