@@ -365,6 +365,30 @@ def test_shipped_weights_load_as_float32_and_predict(tmp_path):
     assert np.all(prediction.boxes[:, :2] >= -1) and np.all(prediction.boxes[:, 0] + prediction.boxes[:, 2] <= 129)
 
 
+def test_the_inference_copy_detects_what_the_network_does_and_cannot_be_trained_or_saved(tmp_path):
+    from binpick.detection.detector import Detector, shipped_weights
+
+    torch.manual_seed(0)
+    detector = Detector.load(shipped_weights("rod_tiny_320"))
+    network, fast = detector.network, detector.inference_network
+    assert fast is detector.inference_network and fast is not network  # made once, a copy
+    assert not any(isinstance(m, torch.nn.BatchNorm2d) for m in fast.modules())  # folded into the convolutions
+    images, heights = torch.rand(2, 3, 320, 320), torch.rand(2, 1, 320, 320)
+    query = torch.tensor([[40.0, 50.0, 90.0, 110.0], [150.0, 160.0, 210.0, 200.0]])
+    with torch.no_grad():
+        raw, raw_fast = network(images, query)["raw"], fast(images, query)["raw"]
+        assert all(torch.allclose(a, b, atol=1e-3) for a, b in zip(raw, raw_fast))
+        mine, theirs = network.detect(images, query, depth=heights)[0], fast.detect(images, query, depth=heights)[0]
+    for a, b in zip(mine, theirs):  # the pickability head re-scores them alike
+        assert torch.allclose(a["scores"], b["scores"], atol=1e-4) and torch.allclose(a["boxes"], b["boxes"], atol=1e-2)
+    with pytest.raises(RuntimeError, match="inference copy"):
+        fast.train()
+    with pytest.raises(ValueError, match="cannot be saved"):
+        save_detector(fast, tmp_path / "fast.safetensors")
+    network.train()  # the network it came from still trains
+    assert network.training and not fast.training
+
+
 def test_shop_photos_are_framed_on_their_product():
     from binpick.detection.data import query_photo
     from binpick.detection.photos import framed_on_product, product_box

@@ -102,7 +102,7 @@ def test_bad_domain_and_cluster_address_are_one_line(tmp_path):
 
 
 def test_batched_fft_correlation_equals_one_convolution_per_sample():
-    from binpick.detection.rod import correlate_batch
+    from binpick.detection.rod import correlate_batch, correlate_scales
 
     torch.manual_seed(0)
     features = torch.randn(3, 8, 13, 17)
@@ -111,6 +111,14 @@ def test_batched_fft_correlation_equals_one_convolution_per_sample():
     for b, kernel in enumerate(kernels):
         direct = F.conv2d(features[b:b + 1], kernel[None], padding="same")[0, 0] / (kernel.shape[1] * kernel.shape[2])
         assert torch.allclose(got[b], direct, atol=1e-5)
+    # several kernels per sample, of other sizes, share each sample's transform: still one convolution each
+    per_sample = [[kernel, torch.randn(8, 9, 3)] for kernel in kernels]
+    got = correlate_scales(features, per_sample)
+    assert got.shape == (3, 2, 13, 17)
+    for b, sample in enumerate(per_sample):
+        for d, kernel in enumerate(sample):
+            direct = F.conv2d(features[b:b + 1], kernel[None], padding="same")[0, 0] / (kernel.shape[1] * kernel.shape[2])
+            assert torch.allclose(got[b, d], direct, atol=1e-5)
 
 
 def test_batched_loss_assigns_what_the_per_image_rule_assigns():

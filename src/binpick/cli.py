@@ -872,7 +872,7 @@ def pick(
 
         read_image(photo)  # unreadable -> one line now, not mid-run
         library.add(replace(library[products[0]], photo=photo))
-    model = Detector.load(weights or PICKING).network
+    model = Detector.load(weights or PICKING).inference_network
     _fulfil(PickPipeline(model, library, grasp=planner), products, orders, seed, run_dir)
 
 
@@ -986,7 +986,7 @@ def demo(
 
     check_range("orders", orders, 1, 1000, integer=True)
     run_dir = ensure_dir(out or Path("runs/demo") / time.strftime("%Y%m%d-%H%M%S"), "--out")
-    model = Detector.load(PICKING).network
+    model = Detector.load(PICKING).inference_network
     _fulfil(PickPipeline(model, default_library(), grasp=GraspPlanner.load(DEFAULT_POLICY)), list(DEMO_PRODUCTS), orders, seed, run_dir)
 
 

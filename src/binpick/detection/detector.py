@@ -45,6 +45,16 @@ class Detector:
 
     def __init__(self, network: DetectorNetwork, source: Path | None = None, metrics: dict[str, Any] | None = None) -> None:
         self.network, self.source, self.metrics = network, source, metrics
+        self._inference: DetectorNetwork | None = None
+
+    @property
+    def inference_network(self) -> DetectorNetwork:
+        """``network`` for prediction only (:meth:`DetectorNetwork.for_inference`: batch norms folded,
+        ~1.5x faster at batch 1 on a CPU, the same detections), made on first use. Train and save
+        ``network``; a change to it after this was made is not seen here."""
+        if self._inference is None:
+            self._inference = self.network.for_inference()
+        return self._inference
 
     @classmethod
     def load(cls, weights: str | Path = "rod_tiny_320", pickability: bool = True) -> Detector:
@@ -91,7 +101,7 @@ class Detector:
         box = None if query_box is None else np.asarray(query_box, dtype=np.float32)
         if box is not None and box.shape != (4,):
             raise ConfigError(f"query_box must be x, y, w, h, got {query_box!r}")
-        return predict(self.network, image, box, query_image, score_threshold=min_score, depth=depth)
+        return predict(self.inference_network, image, box, query_image, score_threshold=min_score, depth=depth)
 
     def val(self, data: str | Path, targets: str | None = None, batch_size: int = 8, callback: RunCallback = SILENT) -> dict:
         """COCO AP50 and mAP on an annotations file, against ``targets`` (default: what it was trained on)."""

@@ -112,6 +112,7 @@ class DetectorNetwork(nn.Module):
         self.trained_products: list[str] | None = None  # products its training set asked it to find, when known
         self.trained_domains: list[str] = ["default"]  # scene domains of its training data (binpick.sim.domain)
         self.score_threshold: float | None = None  # the score above which its detections are kept, when chosen for it
+        self.inference_only = False  # a copy with batch norms folded (for_inference): no training, no saving
         self.backbone = build_backbone(spec.backbone)
         channels = BACKBONES[spec.backbone].channels
         modules = []
@@ -136,6 +137,18 @@ class DetectorNetwork(nn.Module):
             nn.init.constant_(head[-1].bias, 0.0)
             head[-1].bias.data[4::5] = -4.0
         self.register_buffer("anchors", torch.tensor(DEFAULT_ANCHORS, dtype=torch.float32).view(3, ANCHORS_PER_LEVEL, 2) * image_size)
+
+    def for_inference(self) -> DetectorNetwork:
+        """A copy for prediction only, ~1.5x faster at batch 1 on a CPU (binpick.detection.inference):
+        batch norms folded into the convolutions, channels-last weights."""
+        from binpick.detection.inference import inference_copy
+
+        return inference_copy(self)
+
+    def train(self, mode: bool = True) -> DetectorNetwork:
+        if mode and self.inference_only:
+            raise RuntimeError("this is an inference copy of a detector (its batch norms are folded): train the network it was made from")
+        return super().train(mode)
 
     # ------------------------------------------------------------------ forward
     def features(self, images: torch.Tensor) -> list[torch.Tensor]:

@@ -83,8 +83,24 @@ def _fft_correlate(features: torch.Tensor, weight: torch.Tensor, sum_channels: b
 def correlate_batch(features: torch.Tensor, kernels: list[torch.Tensor]) -> torch.Tensor:
     """Mean cosine similarity of each sample's kernel (C, h, w) at every position of its features
     (B, C, H, W), both already normalised per position, in one call: (B, H, W)."""
-    weight, areas = _framed(kernels)
-    return _fft_correlate(features, weight, sum_channels=True) / areas.float()[:, None, None]
+    return correlate_scales(features, [[k] for k in kernels])[:, 0]
+
+
+def correlate_scales(features: torch.Tensor, kernels: list[list[torch.Tensor]]) -> torch.Tensor:
+    """:func:`correlate_batch` for D kernels per sample (``kernels[b]``: its D kernels (C, h, w)),
+    all in one frame, so each sample's features are transformed once, not once per scale (the
+    transforms were two thirds of the ROD modules' time at inference): (B, D, H, W)."""
+    batch, scales = len(kernels), len(kernels[0])
+    weight, areas = _framed([k for sample in kernels for k in sample])  # (B·D, C, k_h, k_w)
+    height, width = features.shape[2:]
+    kh, kw = weight.shape[2:]
+    size = (height + kh - 1, width + kw - 1)
+    with torch.autocast(features.device.type, enabled=False):  # transforms in float32 whatever the caller's autocast
+        scene = torch.fft.rfft2(features.float(), s=size)[:, None]  # (B, 1, C, ...)
+        query = torch.fft.rfft2(weight.float(), s=size).view(batch, scales, *weight.shape[1:2], *scene.shape[-2:])
+        out = torch.fft.irfft2((scene * query.conj()).sum(2), s=size)
+    out = torch.roll(out, shifts=(kh // 2, kw // 2), dims=(-2, -1))[..., :height, :width]
+    return out / areas.float().view(batch, scales, 1, 1)
 
 
 class RODModule(nn.Module):
@@ -101,8 +117,7 @@ class RODModule(nn.Module):
         mean = features.mean(dim=(2, 3), keepdim=True)
         normalised = F.normalize(features - mean, dim=1)
         kernels = [[F.normalize(k, dim=0) for k in self.kernels(query, m)] for query, m in zip(queries, mean.unbind(0))]
-        per_scale = [correlate_batch(normalised, [sample[s] for sample in kernels]) for s in range(len(kernels[0]))]
-        return torch.stack(per_scale).amax(0)[:, None].to(features.dtype)
+        return correlate_scales(normalised, kernels).amax(1, keepdim=True).to(features.dtype)
 
     def kernels(self, query: torch.Tensor | tuple[torch.Tensor, ...], mean: torch.Tensor) -> list[torch.Tensor]:
         if isinstance(query, tuple):

@@ -39,6 +39,8 @@ def save_detector(model: DetectorNetwork, path: Path, extra: dict[str, Any] | No
     """Write weights (safetensors) and what rebuilds the network (JSON) atomically: a crash leaves the
     previous file or the new one. ``half`` stores float16 weights (half the size; loading turns them
     back into float32). ``extra`` must be JSON data (config, products trained on, ...)."""
+    if model.inference_only:
+        raise ValueError("an inference copy of a detector (batch norms folded) cannot be saved: save the network it was made from")
     weights = model.state_dict()
     if half:
         weights = {k: v.half() if v.is_floating_point() and k != "anchors" else v for k, v in weights.items()}

@@ -181,8 +181,8 @@ class Picker:
         from binpick.detection.detector import PICKING
 
         planner = GraspPlanner.load(grasp, grasp_weights)
-        network = Detector.load(detector or PICKING).network
-        crop = Detector.load(crop_detector).network if crop_detector is not None else None
+        network = Detector.load(detector or PICKING).inference_network
+        crop = Detector.load(crop_detector).inference_network if crop_detector is not None else None
         return cls(network, planner, crop, **settings)
 
     def warm_up(self, size: int = 320) -> None:
@@ -210,7 +210,7 @@ class Picker:
         if self.crop_detector is None:
             from binpick.detection import Detector
 
-            self.crop_detector = Detector.load("rod_tiny_320").network
+            self.crop_detector = Detector.load("rod_tiny_320").inference_network
         return self.crop_detector
 
     def plan(self, rgb: np.ndarray, depth: np.ndarray, camera: CameraInfo | PinholeCamera, photo: np.ndarray | None = None,
