@@ -51,6 +51,9 @@ def test_windows_of_other_products_are_negatives_that_only_the_query_can_explain
     assert len(both["labels"]) == len(copies["labels"]) + others
     assert both["labels"].sum() == copies["labels"].sum()  # every added window is a negative
     assert len(both["queries"]) == len(dataset) and int(both["owner"].max()) == len(dataset) - 1
+    # which windows hold a copy of the query's product, picked or not: all but the distractors
+    assert torch.equal(copies["same"], torch.ones(len(copies["labels"])))
+    assert both["same"].sum() == len(copies["labels"]) and bool((both["labels"] <= both["same"]).all())
 
 
 def test_roc_auc_counts_ties_half():
@@ -116,6 +119,16 @@ def test_the_head_learns_which_copies_are_picked_resumes_and_rescores_the_detect
         PickabilityTrainer.new(replace(config, init=str(tmp_path / "detector.safetensors")), tmp_path / "runs")
     with pytest.raises(ConfigError, match="targets must be pickable"):
         PickabilityConfig(targets="all")
+    # a factorised head starts from a head that sees the query: its `same` question from it, `pick` afresh
+    factorised = PickabilityTrainer.new(replace(config, init=str(trainer.run_dir / "model.safetensors"), factorised=True), tmp_path / "runs")
+    assert factorised.head.pick is not None and factorised.network.spec.pickability_factorised
+    assert all(torch.allclose(v.float(), trained[k].float(), atol=1e-2) for k, v in factorised.head.state_dict().items() if not k.startswith("pick."))
+    factorised.run()  # its windows say which hold the query's product; the saved detector rebuilds the factorised head
+    loaded = Detector.load(factorised.run_dir)
+    assert loaded.network.spec.pickability_factorised and loaded.network.pickability.pick is not None
+    assert len(loaded.predict(image, box, min_score=0.0, depth=depth).scores) == len(theirs.scores)
+    with pytest.raises(ConfigError, match="factorised needs query"):
+        PickabilityConfig(factorised=True)
 
 
 def _coloured(colours: torch.Tensor, channels: int) -> torch.Tensor:
@@ -150,6 +163,39 @@ def test_a_head_that_sees_the_query_tells_the_ordered_product_from_others_and_on
     assert aucs[True] > 0.95 and aucs[False] < 0.7, aucs  # only the query says which colour was ordered
     with pytest.raises(ValueError, match="give the query crops"):
         PickabilityHead(width=8, query=True)(torch.zeros(1, 5, CROP, CROP))
+
+
+def test_a_factorised_head_answers_picks_it_from_the_window_and_same_product_from_the_query():
+    from binpick.detection.pickability import product_logit
+
+    a, b = torch.linspace(-30, 30, 61), torch.linspace(30, -30, 61)
+    assert torch.allclose(torch.sigmoid(product_logit(a, b)), torch.sigmoid(a) * torch.sigmoid(b), atol=1e-6)
+    generator = torch.Generator().manual_seed(0)
+    n = 512
+    window_colour = torch.randint(0, 4, (n,), generator=generator)
+    query_colour = torch.randint(0, 4, (n,), generator=generator)
+    picks = torch.rand(n, generator=generator) < 0.6  # what the policy did: seen in the window's height plane
+    windows = _coloured(window_colour, 5)
+    windows[:, 3] = picks[:, None, None].float()
+    same = (window_colour == query_colour).float()
+    stored = {"colour": (torch.cat([windows[:, :3], windows[:, 4:]], 1) * 255).to(torch.uint8),
+              "height": windows[:, 3:4].half(), "labels": same * picks.float(), "same": same,
+              "queries": (_coloured(query_colour, 3) * 255).to(torch.uint8), "owner": torch.arange(n, dtype=torch.int32)}
+    torch.manual_seed(0)
+    head = PickabilityHead(depth=True, width=8, query=True, factorised=True)
+    optimiser = torch.optim.Adam(head.parameters(), lr=0.001)
+    schedule = torch.optim.lr_scheduler.LambdaLR(optimiser, lambda step: 1.0)
+    for epoch in range(6):
+        train_epoch(head, optimiser, schedule, stored, torch.Generator().manual_seed(epoch), batch=32)
+    assert head_auc(head, stored) > 0.95  # the product answers the whole question
+    head.eval()
+    with torch.no_grad():
+        pick, same_logit = head.parts(windows, _coloured(query_colour, 3))
+    copies = same > 0.5
+    assert roc_auc(picks[copies].numpy(), pick[copies].numpy()) > 0.95  # `pick` learnt pickability, on copies only
+    assert roc_auc(same.numpy(), same_logit.numpy()) > 0.95  # `same` learnt the product, from the query
+    with pytest.raises(ValueError, match="needs query=True"):
+        PickabilityHead(width=8, factorised=True)
 
 
 def test_query_crops_cut_the_query_box_or_resize_the_photo():

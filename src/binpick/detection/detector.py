@@ -86,7 +86,8 @@ class Detector:
 
     def __repr__(self) -> str:
         spec = self.network.spec
-        head = (", pickability head" + (" that sees the query" if spec.pickability_query else "")) if spec.pickability else ""
+        sees = " that sees the query" + (" (factorised)" if spec.pickability_factorised else "") if spec.pickability_query else ""
+        head = f", pickability head{sees}" if spec.pickability else ""
         return (f"Detector({spec.method} {spec.layout}, {spec.backbone} backbone, {self.network.image_size} px, "
                 f"{spec.query} query{head}, from {self.source})")
 

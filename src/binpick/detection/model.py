@@ -67,6 +67,7 @@ class ModelSpec:
     pickability: str = ""
     pickability_width: int = 32  # channels of the head's first convolution
     pickability_query: bool = False  # the head also compares each window with the query (other products score low)
+    pickability_factorised: bool = False  # ... as two questions: picks it (window alone) x same product (window and query)
 
     @property
     def reads_depth(self) -> bool:
@@ -99,6 +100,8 @@ class ModelSpec:
             raise ConfigError(f"model.pickability must be '', 'rgb' or 'rgbd', got {self.pickability!r}")
         if not isinstance(self.pickability_query, bool):
             raise ConfigError(f"model.pickability_query must be true or false, got {self.pickability_query!r}")
+        if self.pickability_factorised and not self.pickability_query:
+            raise ConfigError("model.pickability_factorised needs model.pickability_query: true (its second question is about the query)")
         if any(not 0 < s <= 1 for s in self.photo_sizes):
             raise ConfigError(f"model.photo_sizes must be fractions of the image side in (0, 1], got {list(self.photo_sizes)}")
 
@@ -123,7 +126,8 @@ class DetectorNetwork(nn.Module):
                 modules.append(RODModule(c, spec.scales) if letter == "R" else SkipModule(c))
         self.modules_per_level = nn.ModuleList(modules)
         self.depth_encoder = DepthEncoder(channels) if spec.depth else None
-        self.pickability = (PickabilityHead(spec.pickability == "rgbd", spec.pickability_width, spec.pickability_query)
+        self.pickability = (PickabilityHead(spec.pickability == "rgbd", spec.pickability_width, spec.pickability_query,
+                                            spec.pickability_factorised)
                             if spec.pickability else None)
         c1, c2, c3 = channels
         self.top = nn.Sequential(conv_bn(c3, c3 // 2, 1), conv_bn(c3 // 2, c3, 3), conv_bn(c3, c3 // 2, 1))
@@ -241,7 +245,7 @@ class DetectorNetwork(nn.Module):
         plain = copy.copy(self)
         plain._modules = dict(self._modules)  # nn.Module keeps children here: a copy of the dict, not of them
         plain.pickability = None
-        plain.spec = replace(self.spec, pickability="", pickability_query=False)
+        plain.spec = replace(self.spec, pickability="", pickability_query=False, pickability_factorised=False)
         return plain
 
     def rescore(self, images: torch.Tensor, depth: torch.Tensor | None, results: list[dict[str, torch.Tensor]],

@@ -45,6 +45,7 @@ class PickabilityConfig:
     width: int = 32  # channels of the first convolution
     query: bool = False  # also compare each window with the query: copies of other products score low
     distractors: bool = False  # also windows of the other products in each image, labelled 0 (for a head with query)
+    factorised: bool = False  # with query: p = picks it (window alone) x same product (window and query), each on its own labels
     init: str = ""  # start from the head inside this detector file (same kind and width), e.g. a shorter run's
     epochs: int = 8
     batch_size: int = 128
@@ -68,6 +69,8 @@ class PickabilityConfig:
         check_range("jittered", self.jittered, 0, 16, integer=True)
         check_range("proposals", self.proposals, 0, 100, integer=True)
         check_range("threads", self.threads, 1, 256, integer=True)
+        if self.factorised and not self.query:
+            raise ConfigError("factorised needs query: true (its second question is whether the window holds the query's product)")
 
 
 def _learning_rate(config: PickabilityConfig, step: int, per_epoch: int) -> float:
@@ -110,8 +113,8 @@ class PickabilityTrainer:
         torch.manual_seed(config.seed)
         kind = "rgbd" if config.depth else "rgb"
         self.network.spec = replace(self.network.spec, pickability=kind, pickability_width=config.width,
-                                    pickability_query=config.query)
-        self.network.pickability = PickabilityHead(config.depth, config.width, config.query)
+                                    pickability_query=config.query, pickability_factorised=config.factorised)
+        self.network.pickability = PickabilityHead(config.depth, config.width, config.query, config.factorised)
         self.head = self.network.pickability
         self.optimiser = torch.optim.AdamW(self.head.parameters(), lr=config.lr, weight_decay=config.weight_decay)
         self.epoch, self.best_auc, self.history = 0, -1.0, []
@@ -140,10 +143,12 @@ class PickabilityTrainer:
         other = Detector.load(path).network.pickability
         if other is None:
             raise ConfigError(f"init: {weights} holds no pickability head")
-        try:
-            self.head.load_state_dict(other.state_dict())
+        try:  # a factorised head may start from a query head: its `same` question from that head, `pick` afresh
+            missing, unexpected = self.head.load_state_dict(other.state_dict(), strict=False)
         except RuntimeError:
-            raise ConfigError(f"init: the head in {weights} is not of this config's kind (depth, query, width)") from None
+            missing, unexpected = ["(shapes differ)"], []
+        if unexpected or any(not key.startswith("pick.") for key in missing):
+            raise ConfigError(f"init: the head in {weights} is not of this config's kind (depth, query, width)")
 
     @classmethod
     def new(cls, config: PickabilityConfig, runs: Path = Path("runs")) -> PickabilityTrainer:
@@ -215,6 +220,10 @@ class PickabilityTrainer:
         def split(name: str) -> dict[str, torch.Tensor]:
             return {key[len(name) + 1:]: value for key, value in windows.items() if key.startswith(name + "_")}
 
+        if config.factorised and "train_same" not in windows:
+            raise ConfigError(f"{self.run_dir / 'windows.safetensors'} was cut before windows said which hold the query's product: "
+                              "delete it to cut them again (a factorised head needs that label)")
+
         labels = windows["train_labels"]
         self.train_windows = len(labels)
         callback.message(f"{len(labels)} training windows ({labels.mean().item():.0%} pickable), "
@@ -257,7 +266,7 @@ class PickabilityTrainer:
         extra = dict(self.detector_meta)
         extra["pickability"] = {"detector": str(self.config.detector), "train": self.config.train, "val": self.config.val,
                                 "targets": self.config.targets, "query": self.config.query, "proposals": self.config.proposals,
-                                "distractors": self.config.distractors, "init": self.config.init, "epoch": self.epoch, "val_auc": round(self.best_auc, 4),
+                                "distractors": self.config.distractors, "factorised": self.config.factorised, "init": self.config.init, "epoch": self.epoch, "val_auc": round(self.best_auc, 4),
                                 "train_windows": getattr(self, "train_windows", None)}
         self.head.eval()
         save_detector(self.network, path, extra, half=True)
