@@ -185,7 +185,6 @@ def labelled_windows(dataset, progress: Callable[[int], None] | None = None, jit
     depth), ``labels`` (N,), ``same`` (N,): 1 where the window holds a copy of the query's product,
     picked or not (a proposal: IoU >= 0.5 with one), and the query crop of each task once: ``queries``
     (T, 3, ...) uint8 with ``owner`` (N,), the task of each window."""
-    from binpick.detection.ops import box_iou
 
     rng = np.random.default_rng(seed)
     colour, height, labels, same, queries, owner = [], [], [], [], [], []
@@ -205,9 +204,7 @@ def labelled_windows(dataset, progress: Callable[[int], None] | None = None, jit
             label, copy = label.repeat(len(variants)), copy.repeat(len(variants))
             if proposals is not None:
                 found = proposals(sample).reshape(-1, 4).float()
-                hit = (box_iou(found, targets).max(1).values >= 0.5) if len(targets) and len(found) else torch.zeros(len(found), dtype=torch.bool)
-                copies = torch.cat([targets, unpickable])
-                on_copy = (box_iou(found, copies).max(1).values >= 0.5) if len(copies) and len(found) else torch.zeros(len(found), dtype=torch.bool)
+                hit, on_copy = _covers(found, targets), _covers(found, torch.cat([targets, unpickable]))
                 variants.append(found)
                 label, copy = torch.cat([label, hit.float()]), torch.cat([copy, on_copy.float()])
             boxes = torch.cat(variants)
@@ -229,6 +226,15 @@ def labelled_windows(dataset, progress: Callable[[int], None] | None = None, jit
                 "owner": torch.zeros(0, dtype=torch.int32)}
     return {"colour": torch.cat(colour), "height": torch.cat(height), "labels": torch.cat(labels), "same": torch.cat(same),
             "queries": torch.cat(queries), "owner": torch.cat(owner)}
+
+
+def _covers(found: torch.Tensor, boxes: torch.Tensor) -> torch.Tensor:
+    """Which ``found`` boxes overlap one of ``boxes`` at IoU >= 0.5 (x1, y1, x2, y2)."""
+    from binpick.detection.ops import box_iou
+
+    if not len(found) or not len(boxes):
+        return torch.zeros(len(found), dtype=torch.bool)
+    return box_iou(found, boxes).max(1).values >= 0.5
 
 
 def join_windows(parts: list[dict[str, torch.Tensor]]) -> dict[str, torch.Tensor]:
