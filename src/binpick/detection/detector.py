@@ -50,7 +50,7 @@ class Detector:
     @property
     def inference_network(self) -> DetectorNetwork:
         """``network`` for prediction only (:meth:`DetectorNetwork.for_inference`: batch norms folded,
-        ~1.5x faster at batch 1 on a CPU, the same detections), made on first use. Train and save
+        ~1.2x faster predict at batch 1 on a CPU, the same detections), made on first use. Train and save
         ``network``; a change to it after this was made is not seen here."""
         if self._inference is None:
             self._inference = self.network.for_inference()

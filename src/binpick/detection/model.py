@@ -143,7 +143,7 @@ class DetectorNetwork(nn.Module):
         self.register_buffer("anchors", torch.tensor(DEFAULT_ANCHORS, dtype=torch.float32).view(3, ANCHORS_PER_LEVEL, 2) * image_size)
 
     def for_inference(self) -> DetectorNetwork:
-        """A copy for prediction only, ~1.5x faster at batch 1 on a CPU (binpick.detection.inference):
+        """A copy for prediction only, ~1.2x faster predict at batch 1 on a CPU (binpick.detection.inference):
         batch norms folded into the convolutions, channels-last weights."""
         from binpick.detection.inference import inference_copy
 
