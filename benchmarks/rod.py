@@ -516,9 +516,10 @@ def remeasure_latency(runs: Path) -> None:
     """``latency_ms`` of results/rod.json again, alone (run it on an idle machine): the shipped
     detector (``rod_tiny_320``) as ``Detector.predict`` runs it (its inference copy: batch norms
     folded), with its pickability head and without, the same network unfolded, and untrained tiny
-    and small networks, all timed in turns."""
+    and small networks, all timed in turns, in five blocks (``shipped_blocks``: each block's median)."""
     import json
 
+    import numpy as np
     import torch
 
     from binpick.detection.detector import Detector
@@ -534,11 +535,17 @@ def remeasure_latency(runs: Path) -> None:
               "shipped_unfolded": (shipped.network, True)}
     for backbone in ("tiny", "small"):
         models[f"{backbone}_{SHIPPED_SIZE}"] = (DetectorNetwork(ModelSpec(backbone=backbone), SHIPPED_SIZE).eval().for_inference(), False)
-    gflops_before = machine_gflops()
-    result["latency_ms"] = interleaved_latency_ms(models, image, box, depth)
-    result["latency_ms"]["machine_gflops"] = round((gflops_before + machine_gflops()) / 2, 1)
-    result["latency_ms"]["measured"] = ("benchmarks/rod.py latency: median of 60 turns, 2 threads, batch 1; shipped = rod_tiny_320 "
-                                        "through Detector.predict (batch norms folded), with its pickability head and the scene's depth")
+    # five blocks of turns a few seconds apart: each figure is the median of the blocks' medians, and
+    # the shipped detector's block medians are kept, to show how far the machine drifted meanwhile
+    blocks, speeds = [], []
+    for _ in range(5):
+        speeds.append(machine_gflops())
+        blocks.append(interleaved_latency_ms(models, image, box, depth, repeats=30))
+    result["latency_ms"] = {name: round(float(np.median([block[name] for block in blocks])), 1) for name in models}
+    result["latency_ms"]["shipped_blocks"] = [block["shipped"] for block in blocks]
+    result["latency_ms"]["machine_gflops"] = round(float(np.median(speeds)), 1)
+    result["latency_ms"]["measured"] = ("benchmarks/rod.py latency: median of 5 blocks of 30 turns each, 2 threads, batch 1; shipped = "
+                                        "rod_tiny_320 through Detector.predict (batch norms folded), with its pickability head and the scene's depth")
     written = _common.write_result("rod", {k: v for k, v in result.items() if k not in ("benchmark", "machine")})
     write_generalisation_markdown(result, written)
     print(result["latency_ms"], flush=True)
@@ -666,9 +673,9 @@ def write_generalisation_markdown(result: dict, path: Path) -> None:
               f"`predict` latency, batch 1, 2 CPU cores, {result['image_size']} px: shipped model **{lat['shipped']} ms** with its "
               f"pickability head (target ≤ 50), {lat.get('shipped_detector_only')} ms without it, {lat.get('shipped_unfolded')} ms "
               f"before its batch norms are folded; untrained tiny {lat.get('tiny_' + str(result['image_size']))} ms, "
-              f"small {lat.get('small_' + str(result['image_size']))} ms (`python benchmarks/rod.py latency`; the machine's "
-              f"matrix products ran at {lat.get('machine_gflops')} GFLOP/s meanwhile — this virtual machine's speed drifts "
-              "by about 2x from day to day).", "",
+              f"small {lat.get('small_' + str(result['image_size']))} ms (`python benchmarks/rod.py latency`: medians of five blocks, "
+              f"the shipped detector's blocks {lat.get('shipped_blocks')} ms; the machine's matrix products ran at "
+              f"{lat.get('machine_gflops')} GFLOP/s meanwhile — this virtual machine's speed drifts by up to 2x from hour to hour).", "",
               "![learning curves](img/rod/learning_curves.png)", "",
               "Kept from the earlier bins-only models (12 epochs on `bins_2000`, 256 px; not retrained here):", ""]
     lines += pickability_and_scale_tables(result)
