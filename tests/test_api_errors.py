@@ -63,3 +63,12 @@ def test_make_rejects_bad_parameters(env_id, kwargs, fragment):
     with pytest.raises(BinpickError) as error:
         binpick.make(env_id, **kwargs)
     assert fragment in str(error.value)
+
+
+def test_an_empty_setting_for_a_text_field_says_how_to_write_an_empty_string():
+    from binpick.config import apply_overrides, from_dict
+    from binpick.detection.pickability_training import PickabilityConfig
+
+    data = apply_overrides({"val": "d.json", "init": "runs/x"}, {"init": None})  # --set init=
+    with pytest.raises(ConfigError, match=r"init must be a string, got nothing .*init: ''"):
+        from_dict(PickabilityConfig, data, where="cfg")

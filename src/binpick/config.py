@@ -162,6 +162,8 @@ def _convert(hint: Any, value: Any, where: str) -> Any:
             raise ConfigError(f"{where} must be a number, got {value!r}")
         return float(value)
     if hint is str:
+        if value is None:  # YAML's empty value, and --set KEY= on the command line
+            raise ConfigError(f"{where} must be a string, got nothing (for an empty string write {where.split('.')[-1]}: '' in YAML, --set 'KEY=\"\"' on the command line)")
         if not isinstance(value, str):
             raise ConfigError(f"{where} must be a string, got {value!r}")
         return value
