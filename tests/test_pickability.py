@@ -221,3 +221,27 @@ def test_rescoring_reranks_every_detection_and_keeps_them_all(query_mode):
     assert len(mine[0]["scores"]) == len(theirs[0]["scores"])  # the head re-ranks; the detector decides what was found
     assert torch.all(mine[0]["scores"][:-1] >= mine[0]["scores"][1:])
     assert mine[0]["scores"].max() <= theirs[0]["scores"].max()
+
+
+def test_a_photo_detector_s_head_learns_from_photos_framed_as_predict_frames_them(tmp_path):
+    """Proposals and the head's queries come from the trainer's tasks: for a detector that frames
+    shop photos on their product (``photo_sizes``), training must frame them too, or the head learns
+    on queries it never sees at ``predict``."""
+    from binpick.detection.pickability_training import PickabilityTrainer
+
+    train_file = make_coco(tmp_path / "train", images=4, seed=5, pickable=True, depth=True)
+    val_file = make_coco(tmp_path / "val", images=4, seed=6, pickable=True, depth=True)
+    from PIL import Image
+
+    for data in (train_file, val_file):  # a shop photo per product, for the photo detector's tasks
+        (data.parent / "photos").mkdir(exist_ok=True)
+        for category in json.loads(data.read_text())["categories"]:
+            Image.new("RGB", (32, 32), (200, 40, 40)).save(data.parent / "photos" / f"{category['name']}.png")
+    framing = ModelSpec(query="photo", photo_sizes=(0.1, 0.2))
+    for spec, framed in ((framing, True), (ModelSpec(), False)):
+        path = tmp_path / f"detector_{framed}.safetensors"
+        save_detector(DetectorNetwork(spec, 128), path)
+        config = PickabilityConfig(detector=str(path), train=[str(train_file)], val=str(val_file), epochs=1, width=8, threads=1)
+        trainer = PickabilityTrainer(config, tmp_path / f"run_{framed}")
+        train, _ = trainer._sources()
+        assert trainer.task_set(train[0]).frame_photos is framed

@@ -181,11 +181,10 @@ class PickabilityTrainer:
             tensors, _, _ = tensorfile.load(path, WINDOWS_FORMAT, "pickability windows")
             return tensors
         train, val = self._sources()
-        size, parts = self.network.image_size, {}
+        parts = {}
         proposals = self._proposals if self.config.proposals else None
         for split, sources, jittered in (("train", train, self.config.jittered), ("val", [val], 0)):
-            sets = [TaskDataset(source, size, self.network.spec.query, self.network.query_size,
-                                depth=self.config.depth or self.network.spec.depth) for source in sources]
+            sets = [self.task_set(source) for source in sources]
             with callback.task(f"cutting {split} windows", sum(len(s) for s in sets)) as task:
                 cut = join_windows([labelled_windows(s, lambda n: task.update(advance=n), jittered, self.config.seed, proposals,
                                                      self.config.distractors) for s in sets])
@@ -195,6 +194,13 @@ class PickabilityTrainer:
                               "generate them with that policy (binpick data generate --policies ...)")
         tensorfile.save(path, WINDOWS_FORMAT, tensors=parts, meta={"train": self.config.train, "val": self.config.val})
         return parts
+
+    def task_set(self, source) -> TaskDataset:
+        """One data file's tasks as this detector sees them at ``predict``: its image size and query
+        kind, shop photos framed on their product where it frames them (its proposals and the head's
+        queries come from these), the height map where the head or detector reads it."""
+        return TaskDataset(source, self.network.image_size, self.network.spec.query, self.network.query_size,
+                           depth=self.config.depth or self.network.spec.depth, frame_photos=self.network.spec.frames_photos)
 
     @torch.no_grad()
     def _proposals(self, sample: dict) -> torch.Tensor:
