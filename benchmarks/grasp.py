@@ -7,6 +7,8 @@
     binpick data generate --out runs/data/bins_learnt --scenes 1000 --policies learnt --workers 2 \
         --held-out can,mug,toy --set split_rule=random                         # pickability by the learnt policy
     python benchmarks/grasp.py pickability                                     # fine-tunes ROD on it, before/after
+    binpick detect pickability configs/pickability_photo_learnt.yaml --runs runs/grasp   # a second look, learnt labels
+    python benchmarks/grasp.py pickability --head newest                       # ... and with that head
 
 ``eval`` reports (a) the model's ROC AUC on the held-out categories' trials (test split: products it
 never trained on), next to the analytic score's; (b) top-1 success: in new bins of held-out products,
@@ -189,11 +191,25 @@ def section(result: dict, path: Path, bins: int) -> None:
                   "| detector | seen: AP50 pickable | unpickable | all copies | AUC | first on pickable | held out: AP50 pickable | "
                   "unpickable | all copies | AUC | first on pickable |",
                   "|---|---|---|---|---|---|---|---|---|---|---|"]
-        for label, name in (("before", "shipped (Policy 1 labels)"), ("after", "fine-tuned on learnt-policy labels")):
+        named = [("before", "shipped (Policy 1 labels)"), ("after", "fine-tuned on learnt-policy labels")]
+        heads = [label for label in p if label.startswith("head_")]
+        for label in heads:
+            sees = "the window and the shop photo" if p[label]["query"] else "the window alone"
+            named.append((label, f"fine-tuned + a pickability head on learnt-policy labels that sees {sees}"
+                                 f"{' (shipped)' if p[label]['shipped'] else ''}"))
+        for label, name in named:
             lines.append(f"| {name} | {cell(label, 'seen', 'ap50')} | {cell(label, 'seen', 'ap50_unpickable')} | "
                          f"{cell(label, 'seen', 'ap50_all')} | {cell(label, 'seen', 'pickable_auc')} | {cell(label, 'seen', 'first_on_pickable')} | "
                          f"{cell(label, 'held_out', 'ap50')} | {cell(label, 'held_out', 'ap50_unpickable')} | {cell(label, 'held_out', 'ap50_all')} | "
                          f"{cell(label, 'held_out', 'pickable_auc')} | {cell(label, 'held_out', 'first_on_pickable')} |")
+        for label in heads:
+            h, after = p[label], p["after"]
+            change = ", ".join(f"{name} AP50 {after[split]['ap50']:.3f} → {h[split]['ap50']:.3f}, unpickable "
+                               f"{after[split]['ap50_unpickable']:.3f} → {h[split]['ap50_unpickable']:.3f}"
+                               for split, name in (("seen", "seen"), ("held_out", "held out")))
+            lines += ["", f"The head that sees {'the window and the shop photo' if h['query'] else 'the window alone'} (run "
+                          f"`{h['run']}`, `{h['weights']}`; proposals {h['proposals']}, distractors {h['distractors']}; "
+                          f"{'shipped' if h['shipped'] else 'not shipped'}), against the fine-tune alone: {change}."]
         lines += ["", "AUC: per labelled copy, the best score of a detection on it (0 if none), pickable against unpickable "
                   "copies: how far the detector prefers what the policy can pick, apart from how well it finds the product at "
                   "all; AP50 on the unpickable copies rises with both. First on pickable: in the bins holding both pickable and "
@@ -205,10 +221,14 @@ def section(result: dict, path: Path, bins: int) -> None:
     _common.write_section("grasp", "\n".join(lines))
 
 
-def pickability() -> None:
+def pickability(heads_given: list[str] | None = None) -> None:
     """Thesis §6.3 with binpick's new policy: the shipped photo-query ROD (trained on Policy 1 labels)
     fine-tuned on pickability by the learnt grasp policy; AP against the instances it can pick and
-    against those it cannot, before and after, on seen (val) and held-out (test) products."""
+    against those it cannot, before and after, on seen (val) and held-out (test) products. The
+    fine-tuned weights are its run's (``runs/grasp/rod_finetune_photo_learnt``, trained here if no run
+    folder exists and none shipped) or, without that folder, the shipped ``rod_photo_learnt_tiny_320``
+    (that run's weights in float16). ``heads_given``: runs of ``configs/pickability_photo_learnt.yaml``
+    (or ``newest``): the fine-tuned detector with a second look at each detection, a row each."""
     import json
 
     import torch
@@ -220,15 +240,20 @@ def pickability() -> None:
 
     torch.set_num_threads(2)
     name = "rod_finetune_photo_learnt"
+    weights_dir = _common.ROOT / "src" / "binpick" / "detection" / "weights"
     folder = run_folder(RUNS, name)
-    if finished(folder):
-        run_dir = folder
+    if folder is None and (weights_dir / "rod_photo_learnt_tiny_320.safetensors").is_file():
+        run_dir, weights = None, weights_dir / "rod_photo_learnt_tiny_320.safetensors"
     else:
-        trainer = DetectorTrainer.resume(folder) if folder is not None else DetectorTrainer.new(
-            load_detect_config(_common.ROOT / "configs" / f"{name}.yaml"), RUNS)
-        with RichCallback() as callback:
-            trainer.run(callback)
-        run_dir = trainer.run_dir
+        if finished(folder):
+            run_dir = folder
+        else:
+            trainer = DetectorTrainer.resume(folder) if folder is not None else DetectorTrainer.new(
+                load_detect_config(_common.ROOT / "configs" / f"{name}.yaml"), RUNS)
+            with RichCallback() as callback:
+                trainer.run(callback)
+            run_dir = trainer.run_dir
+        weights = run_dir / ("best.safetensors" if (run_dir / "best.safetensors").is_file() else "model.safetensors")
     from rod import collect_on, keep  # the detector benchmark's evaluation (pycocotools, same tasks)
 
     from binpick.detection.evaluate import copy_scores, first_choices, summarise
@@ -237,7 +262,7 @@ def pickability() -> None:
 
     def measured(model, split: str) -> dict:
         tasks = collect_on(detector_detect(model), data, split, "pickable:learnt", model.image_size, query="photo",
-                           framed=model.spec.frames_photos)
+                           framed=model.spec.frames_photos, depth=model.spec.reads_depth)
         labels, scores = copy_scores(tasks)
         return keep(summarise(tasks, model.image_size)) | {
             "pickable_auc": round(roc_auc(labels, scores), 4), "copies": len(labels), "pickable_share": round(float(labels.mean()), 4),
@@ -245,21 +270,49 @@ def pickability() -> None:
             "mean_score_unpickable": round(float(scores[labels == 0].mean()), 4)} | first_choices(tasks)
 
     data = _common.ROOT / "runs" / "data" / "bins_learnt"
-    shipped = _common.ROOT / "src" / "binpick" / "detection" / "weights" / "rod_photo_tiny_320.safetensors"
-    weights = run_dir / ("best.safetensors" if (run_dir / "best.safetensors").is_file() else "model.safetensors")
+    shipped = weights_dir / "rod_photo_tiny_320.safetensors"
     rows = {}
-    for label, path in (("before", shipped), ("after", weights)):
+    measure = [("before", shipped), ("after", weights)]
+    heads = {}  # row label -> (run folder, weights file)
+    for given in heads_given or []:
+        head_dir = run_folder(RUNS, "pickability_photo_learnt") if given == "newest" else Path(given)
+        found = [head_dir / n for n in ("model.safetensors", "best.safetensors") if head_dir is not None and (head_dir / n).is_file()]
+        if not found:
+            raise SystemExit(f"no run of configs/pickability_photo_learnt.yaml with weights at {given}: "
+                             "binpick detect pickability configs/pickability_photo_learnt.yaml --runs runs/grasp")
+        label = "head_" + head_dir.resolve().parent.name  # the run's config name
+        heads[label] = (head_dir.resolve(), found[0])  # the finished run's head, or the best so far of one stopped
+        measure.append((label, found[0]))
+    for label, path in measure:
         model = load_detector(path)
+        if label == "after" and model.pickability is not None:
+            model = model.without_pickability()  # the fine-tune alone (the shipped file also holds its head, a row below)
         rows[label] = {split: measured(model, split) for split in ("val", "test")}
         print(label, json.dumps({s: {k: rows[label][s][k] for k in ("ap50", "ap50_unpickable", "pickable_auc", "first_on_pickable")} for s in rows[label]}),
               flush=True)
     path = _common.RESULTS / "grasp.json"
     result = json.loads(path.read_text())
-    train = (yaml.safe_load((run_dir / "config.yaml").read_text()) or {}).get("data", {}).get("train")
-    result["pickability"] = {"targets": "pickable:learnt", "data": "runs/data/bins_learnt", "train": train,
-                             "train_scenes": len(json.loads((_common.ROOT / train).read_text())["images"]),
-                             "run": str(run_dir.relative_to(_common.ROOT)),
+    earlier = result.get("pickability") or {}
+    if run_dir is not None:
+        train = (yaml.safe_load((run_dir / "config.yaml").read_text()) or {}).get("data", {}).get("train")
+        train_facts = {"train": train, "train_scenes": len(json.loads((_common.ROOT / train).read_text())["images"]),
+                       "run": str(run_dir.relative_to(_common.ROOT))}
+    else:  # the shipped fine-tune: its run's facts as recorded when it was measured from the run
+        train_facts = {k: earlier[k] for k in ("train", "train_scenes", "run") if k in earlier}
+    result["pickability"] = {"targets": "pickable:learnt", "data": "runs/data/bins_learnt", **train_facts,
+                             "after_weights": str(weights.relative_to(_common.ROOT)),
                              **{label: {"seen": rows[label]["val"], "held_out": rows[label]["test"]} for label in rows}}
+    import hashlib
+
+    def digest(file: Path) -> str:
+        return hashlib.sha256(file.read_bytes()).hexdigest()
+
+    for label, (head_dir, file) in heads.items():
+        config = yaml.safe_load((head_dir / "config.yaml").read_text()) or {}
+        result["pickability"][label] |= {"run": str(head_dir.relative_to(_common.ROOT)), "weights": file.name,
+                                         "query": bool(config.get("query")), "distractors": bool(config.get("distractors")),
+                                         "proposals": config.get("proposals"), "train": config.get("train"),
+                                         "shipped": digest(file) == digest(weights_dir / "rod_photo_learnt_tiny_320.safetensors")}
     _common.write_result("grasp", {k: v for k, v in result.items() if k not in ("benchmark", "machine")})
     section(result, path, result["bins"])
 
@@ -270,12 +323,14 @@ def main() -> None:
     parser.add_argument("--data", type=Path, default=DATA)
     parser.add_argument("--epochs", type=int, default=40)
     parser.add_argument("--bins", type=int, default=40)
+    parser.add_argument("--head", action="append", help="pickability: also the fine-tuned detector with a pickability head, a run "
+                                                        "of configs/pickability_photo_learnt.yaml (a folder, or 'newest' under runs/grasp); repeatable")
     args = parser.parse_args()
     os.chdir(_common.ROOT)
     if args.phase == "train":
         train(args.data, args.epochs)
     elif args.phase == "pickability":
-        pickability()
+        pickability(args.head)
     else:
         evaluate(args.data, args.bins)
 

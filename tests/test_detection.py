@@ -355,6 +355,8 @@ def test_shipped_weights_load_as_float32_and_predict(tmp_path):
 
     picking = load_detector(shipped_weights(PICKING))  # the pipeline's: fine-tuned on what the learnt grasp policy picks
     assert picking.spec.query == "photo" and picking.trained_config["data"]["targets"] == "pickable:learnt"
+    # with a second look at each detection that sees the window and depth, not the photo (which misleads it on held-out products)
+    assert picking.spec.pickability == "rgbd" and not picking.spec.pickability_query
     assert set(photo.trained_products) <= set(picking.trained_products)  # it started from the Policy 1 photo weights
     assert next(model.parameters()).dtype == torch.float32  # stored as float16, used as float32
     # a synthetic scene: copies of one coloured shape; the prediction is well formed and in the image
