@@ -221,6 +221,16 @@ def test_rescoring_reranks_every_detection_and_keeps_them_all(query_mode):
     assert len(mine[0]["scores"]) == len(theirs[0]["scores"])  # the head re-ranks; the detector decides what was found
     assert torch.all(mine[0]["scores"][:-1] >= mine[0]["scores"][1:])
     assert mine[0]["scores"].max() <= theirs[0]["scores"].max()
+    # predict, as the picker calls it, keeps them too: a head that doubts every box (as one learnt on
+    # default bins does under another camera) must not leave the picker without candidates
+    from binpick.detection.predict import predict
+
+    torch.nn.init.constant_(network.pickability.classify[-1].bias, -20.0)
+    picture = (images[0].permute(1, 2, 0) * 255).to(torch.uint8).numpy()
+    query = dict(query_box=np.array([10.0, 10, 30, 30])) if query_mode == "crop" else dict(query_image=(photos[0].permute(1, 2, 0) * 255).to(torch.uint8).numpy())
+    doubted = predict(network, picture, **query, score_threshold=threshold, depth=depth[0, 0].numpy() * 0.05 + 0.8)
+    plain = predict(network.without_pickability(), picture, **query, score_threshold=threshold)
+    assert len(plain.scores) > 0 and len(doubted.scores) == len(plain.scores) and doubted.scores.max() < 1e-6
 
 
 def test_a_photo_detector_s_head_learns_from_photos_framed_as_predict_frames_them(tmp_path):

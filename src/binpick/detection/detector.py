@@ -94,8 +94,9 @@ class Detector:
     # ------------------------------------------------------------------ jobs
     def predict(self, image: np.ndarray | str | Path, query_box=None, query_image: np.ndarray | str | Path | None = None,
                 min_score: float = 0.3, depth: np.ndarray | str | Path | None = None) -> Prediction:
-        """Boxes (x, y, w, h) and scores of the other instances; the result plots and saves itself.
-        ``depth`` (metres, or a 16-bit PNG in mm) is needed by detectors that read depth."""
+        """Boxes (x, y, w, h) and scores of the other instances the detector scores at least
+        ``min_score`` (a pickability head then re-scores them, and may score them lower); the result
+        plots and saves itself. ``depth`` (metres, or a 16-bit PNG in mm) is needed by detectors that read depth."""
         from binpick.config import check_range
 
         check_range("min_score", min_score, 0.0, 1.0)
