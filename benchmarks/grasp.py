@@ -7,8 +7,9 @@
     binpick data generate --out runs/data/bins_learnt --scenes 1000 --policies learnt --workers 2 \
         --held-out can,mug,toy --set split_rule=random                         # pickability by the learnt policy
     python benchmarks/grasp.py pickability                                     # fine-tunes ROD on it, before/after
-    binpick detect pickability configs/pickability_photo_learnt.yaml --runs runs/grasp   # a second look, learnt labels
-    python benchmarks/grasp.py pickability --head newest                       # ... and with that head
+    binpick detect pickability configs/pickability_photo_learnt_window.yaml --runs runs/grasp   # the shipped second look
+    binpick detect pickability configs/pickability_photo_learnt.yaml --runs runs/grasp   # one that also sees the photo
+    python benchmarks/grasp.py pickability --head RUN [--head RUN]             # ... a row per head
 
 ``eval`` reports (a) the model's ROC AUC on the held-out categories' trials (test split: products it
 never trained on), next to the analytic score's; (b) top-1 success: in new bins of held-out products,
