@@ -645,7 +645,7 @@ def detect_predict(
         prediction = detector.predict(image, box, query_image, min_score=min_score, depth=depth)
     for note in notes:
         console.print(f"note: {note.message}", style="yellow")
-    print(json.dumps(prediction.to_json()))
+    print(json.dumps(prediction.to_json(min_score)))  # as drawn: what still scores min_score after a head's second look
     if out is not None:
         _save_png(prediction.plot(), out, "--out")
     if heatmap is not None:

@@ -27,9 +27,10 @@ class Prediction:
     query_image: np.ndarray | None = None  # the shop photo, when the query was one (RGB uint8)
     min_score: float = 0.0  # the threshold it was made with
 
-    def to_json(self) -> list[dict]:
+    def to_json(self, min_score: float = 0.0) -> list[dict]:
+        """The detections scoring at least ``min_score`` (after a pickability head's re-scoring)."""
         return [{"bbox": [round(float(v), 1) for v in box], "score": round(float(score), 4)}
-                for box, score in zip(self.boxes, self.scores)]
+                for box, score in zip(self.boxes, self.scores) if score >= min_score]
 
     def plot(self, min_score: float | None = None) -> np.ndarray:
         """The image with the detections (orange, with scores), the query and a legend (RGB array)."""
