@@ -584,7 +584,8 @@ def remeasure_latency(runs: Path) -> None:
     # every measurement is kept: on this drifting machine one figure alone says little
     result["latency_ms"]["history"] = history + [{"utc": time.strftime("%Y-%m-%dT%H:%M", time.gmtime()), "shipped": result["latency_ms"]["shipped"],
                                                   "shipped_detector_only": result["latency_ms"]["shipped_detector_only"],
-                                                  "machine_gflops": result["latency_ms"]["machine_gflops"]}]
+                                                  "machine_gflops": result["latency_ms"]["machine_gflops"],
+                                                  "one_core_busy": result["latency_ms"]["shipped_one_core_busy"]}]
     result["latency_ms"]["measured"] = ("benchmarks/rod.py latency: median of 5 blocks of 30 turns each, 2 threads, batch 1; shipped = "
                                         "rod_tiny_320 through Detector.predict (batch norms folded), with its pickability head and the scene's depth")
     written = _common.write_result("rod", {k: v for k, v in result.items() if k not in ("benchmark", "machine")})
@@ -675,11 +676,13 @@ def latency_history(lat: dict) -> list[str]:
 
 
 def busy_core_sentence(lat: dict) -> list[str]:
-    busy = lat.get("shipped_one_core_busy")
+    busy = [h["one_core_busy"] for h in lat.get("history") or [] if h.get("one_core_busy")] or (
+        [lat["shipped_one_core_busy"]] if lat.get("shipped_one_core_busy") else [])
     if not busy:
         return []
+    figures = "; ".join(f"{b['threads_2']} ms on 2 threads and {b['threads_1']} ms on 1" for b in busy)
     return [f"With another process keeping one of the two cores busy (a robot computer's other nodes), the shipped "
-            f"detector's `predict` takes {busy['threads_2']} ms on 2 threads and {busy['threads_1']} ms on 1: each of "
+            f"detector's `predict` took {figures} (each measurement above that has one): each of "
             "its hundreds of parallel steps waits for the thread that shares a core. On a busy machine give binpick fewer "
             "threads than cores: `OMP_NUM_THREADS=1 binpick ...` (any command, the pick nodes too), `torch.set_num_threads(1)` in Python."]
 
