@@ -194,9 +194,12 @@ def section(result: dict, path: Path, bins: int) -> None:
                   "|---|---|---|---|---|---|---|---|---|---|---|"]
         named = [("before", "shipped (Policy 1 labels)"), ("after", "fine-tuned on learnt-policy labels")]
         heads = [label for label in p if label.startswith("head_")]
+
+        def sees(head: dict) -> str:
+            return "the window and the shop photo" if head["query"] else "the window alone"
+
         for label in heads:
-            sees = "the window and the shop photo" if p[label]["query"] else "the window alone"
-            named.append((label, f"fine-tuned + a pickability head on learnt-policy labels that sees {sees}"
+            named.append((label, f"fine-tuned + a pickability head on learnt-policy labels that sees {sees(p[label])}"
                                  f"{' (shipped)' if p[label]['shipped'] else ''}"))
         for label, name in named:
             lines.append(f"| {name} | {cell(label, 'seen', 'ap50')} | {cell(label, 'seen', 'ap50_unpickable')} | "
@@ -208,7 +211,7 @@ def section(result: dict, path: Path, bins: int) -> None:
             change = ", ".join(f"{name} AP50 {after[split]['ap50']:.3f} → {h[split]['ap50']:.3f}, unpickable "
                                f"{after[split]['ap50_unpickable']:.3f} → {h[split]['ap50_unpickable']:.3f}"
                                for split, name in (("seen", "seen"), ("held_out", "held out")))
-            lines += ["", f"The head that sees {'the window and the shop photo' if h['query'] else 'the window alone'} (run "
+            lines += ["", f"The head that sees {sees(h)} (run "
                           f"`{h['run']}`, `{h['weights']}`; proposals {h['proposals']}, distractors {h['distractors']}; "
                           f"{'shipped' if h['shipped'] else 'not shipped'}), against the fine-tune alone: {change}."]
         lines += ["", "AUC: per labelled copy, the best score of a detection on it (0 if none), pickable against unpickable "
@@ -226,9 +229,9 @@ def pickability(heads_given: list[str] | None = None) -> None:
     """Thesis §6.3 with binpick's new policy: the shipped photo-query ROD (trained on Policy 1 labels)
     fine-tuned on pickability by the learnt grasp policy; AP against the instances it can pick and
     against those it cannot, before and after, on seen (val) and held-out (test) products. The
-    fine-tuned weights are its run's (``runs/grasp/rod_finetune_photo_learnt``, trained here if no run
-    folder exists and none shipped) or, without that folder, the shipped ``rod_photo_learnt_tiny_320``
-    (that run's weights in float16). ``heads_given``: runs of ``configs/pickability_photo_learnt.yaml``
+    fine-tuned weights are its run's (``runs/grasp/rod_finetune_photo_learnt``, finished here if it
+    stopped) or, without that folder, the shipped ``rod_photo_learnt_tiny_320`` (that run's weights in
+    float16; its head switched off). ``heads_given``: runs of ``configs/pickability_photo_learnt.yaml``
     (or ``newest``): the fine-tuned detector with a second look at each detection, a row each."""
     import json
 
@@ -241,10 +244,12 @@ def pickability(heads_given: list[str] | None = None) -> None:
 
     torch.set_num_threads(2)
     name = "rod_finetune_photo_learnt"
-    weights_dir = _common.ROOT / "src" / "binpick" / "detection" / "weights"
+    from binpick.detection.detector import PICKING, shipped_weights
+
+    picking = shipped_weights(PICKING)
     folder = run_folder(RUNS, name)
-    if folder is None and (weights_dir / "rod_photo_learnt_tiny_320.safetensors").is_file():
-        run_dir, weights = None, weights_dir / "rod_photo_learnt_tiny_320.safetensors"
+    if folder is None:
+        run_dir, weights = None, picking
     else:
         if finished(folder):
             run_dir = folder
@@ -271,7 +276,7 @@ def pickability(heads_given: list[str] | None = None) -> None:
             "mean_score_unpickable": round(float(scores[labels == 0].mean()), 4)} | first_choices(tasks)
 
     data = _common.ROOT / "runs" / "data" / "bins_learnt"
-    shipped = weights_dir / "rod_photo_tiny_320.safetensors"
+    shipped = shipped_weights("rod_photo_tiny_320")
     rows = {}
     measure = [("before", shipped), ("after", weights)]
     heads = {}  # row label -> (run folder, weights file)
@@ -308,12 +313,13 @@ def pickability(heads_given: list[str] | None = None) -> None:
     def digest(file: Path) -> str:
         return hashlib.sha256(file.read_bytes()).hexdigest()
 
+    picking_digest = digest(picking)
     for label, (head_dir, file) in heads.items():
         config = yaml.safe_load((head_dir / "config.yaml").read_text()) or {}
         result["pickability"][label] |= {"run": str(head_dir.relative_to(_common.ROOT)), "weights": file.name,
                                          "query": bool(config.get("query")), "distractors": bool(config.get("distractors")),
                                          "proposals": config.get("proposals"), "train": config.get("train"),
-                                         "shipped": digest(file) == digest(weights_dir / "rod_photo_learnt_tiny_320.safetensors")}
+                                         "shipped": digest(file) == picking_digest}
     _common.write_result("grasp", {k: v for k, v in result.items() if k not in ("benchmark", "machine")})
     section(result, path, result["bins"])
 

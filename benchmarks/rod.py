@@ -575,8 +575,7 @@ def remeasure_latency(runs: Path) -> None:
         speeds.append(machine_gflops())
         blocks.append(interleaved_latency_ms(models, image, box, depth, repeats=30))
     earlier = result.get("latency_ms") or {}
-    history = earlier.get("history") or ([{"utc": "2026-12-01T23:07", "shipped": earlier["shipped"], "shipped_detector_only": earlier.get("shipped_detector_only"),
-                                           "machine_gflops": earlier.get("machine_gflops")}] if "shipped" in earlier else [])
+    history = earlier.get("history") or []
     result["latency_ms"] = {name: round(float(np.median([block[name] for block in blocks])), 1) for name in models}
     result["latency_ms"]["shipped_blocks"] = [block["shipped"] for block in blocks]
     result["latency_ms"]["shipped_one_core_busy"] = busy_core_latency_ms(fast, image, box, depth)
@@ -676,8 +675,7 @@ def latency_history(lat: dict) -> list[str]:
 
 
 def busy_core_sentence(lat: dict) -> list[str]:
-    busy = [h["one_core_busy"] for h in lat.get("history") or [] if h.get("one_core_busy")] or (
-        [lat["shipped_one_core_busy"]] if lat.get("shipped_one_core_busy") else [])
+    busy = [h["one_core_busy"] for h in lat.get("history") or [] if h.get("one_core_busy")]
     if not busy:
         return []
     figures = "; ".join(f"{b['threads_2']} ms on 2 threads and {b['threads_1']} ms on 1" for b in busy)
