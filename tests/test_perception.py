@@ -103,3 +103,60 @@ def test_bad_perception_input_is_one_clear_error():
         AutoPerception(PerceptionConfig(channels=4), (48, 48, 1), 6)
     with pytest.raises(ConfigError, match="no perception checkpoint"):
         load_perception("/nonexistent/perception.pt")
+
+
+def keypoint_perception(seed: int) -> AutoPerception:
+    torch.manual_seed(seed)
+    return AutoPerception(PerceptionConfig(latent=4, conditioned=2, channels=8, free_features="keypoints"), (64, 64, 3), 2)
+
+
+def test_free_keypoint_sits_where_the_conditioned_part_leaves_pixels_unexplained(tmp_path):
+    """perception.free_features: keypoints -- the n − m free dimensions are the expected (x, y) of a heat
+    map over what the decoder cannot draw from the conditioned part alone. With the decoder's drawing
+    flat (an untrained one) a square anywhere on a background of the same grey is all that is left
+    unexplained, and the keypoint lands on it, in the image's [-1, 1] coordinates (x right, y down)."""
+    rng = np.random.default_rng(0)
+    for seed in range(3):
+        model = keypoint_perception(seed)
+        with torch.no_grad():
+            grey = float(model._draw(torch.zeros(1, 2), None).mean())
+        centres = rng.uniform(0.15, 0.85, size=(40, 2))
+        images = np.full((40, 64, 64, 3), round(grey * 255), np.uint8)
+        for image, (x, y) in zip(images, centres):
+            column, row = int(x * 64), int(y * 64)
+            image[row - 3:row + 3, column - 3:column + 3] = (20, 40, 200)
+        free = model.encode(images)[:, 2:]
+        assert np.abs(free - (centres * 2 - 1)).mean() < 0.05, (seed, np.abs(free - (centres * 2 - 1)).mean())
+    save_perception(model, tmp_path / "p.safetensors")
+    np.testing.assert_allclose(load_perception(tmp_path / "p.safetensors").encode(images), model.encode(images), atol=1e-6)
+
+
+def test_free_keypoint_is_drawn_where_it_points_and_the_conditioned_part_draws_alone():
+    """The decoder draws a blob at each free keypoint: moving the keypoint changes the picture near its
+    old and new places and hardly elsewhere; and L_VP adds the conditioned part's own reconstruction,
+    so that what it leaves out is what s̄ does not place."""
+    model = keypoint_perception(0)
+    conditioned = torch.zeros(1, 2)
+    with torch.no_grad():
+        left = model.decode(torch.cat([conditioned, torch.tensor([[-0.5, 0.0]])], dim=1))
+        right = model.decode(torch.cat([conditioned, torch.tensor([[0.5, 0.0]])], dim=1))
+    change = (left - right).abs().mean(dim=(0, 1))  # (64, 64)
+    near = torch.zeros(64, 64, dtype=torch.bool)
+    near[22:42, 6:26] = near[22:42, 38:58] = True  # 10 px around (16, 32) and (48, 32)
+    assert change[near].mean() > 5 * change[~near].mean(), (change[near].mean(), change[~near].mean())
+    images, states = dot_images(8)
+    images = np.repeat(images, 3, axis=-1)
+    losses = model.loss(images, states)
+    target = model._pixels(images)
+    with torch.no_grad():
+        alone = (model._draw(losses["mu"][:, :2], None) - target).abs().mean()
+    torch.testing.assert_close(losses["total"].detach(), (losses["recon"] + losses["cond"] + alone).detach())
+
+
+def test_free_keypoints_need_an_ae_and_pairs():
+    with pytest.raises(ConfigError, match="perception.free_features"):
+        PerceptionConfig(free_features="grid")
+    with pytest.raises(ConfigError, match="kind: ae"):
+        PerceptionConfig(kind="vae", latent=8, conditioned=6, free_features="keypoints")
+    with pytest.raises(ConfigError, match="n − m must be an even number >= 2, got 1"):
+        PerceptionConfig(latent=7, conditioned=6, free_features="keypoints")

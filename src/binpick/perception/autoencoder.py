@@ -9,6 +9,15 @@ conditioned part is μ^{1:m} itself, and the KL term (weight β) covers only the
 The semantic state is standardised inside the network (mean/std of the training data are buffers),
 so one ω suits positions in metres and in pixels alike; :meth:`AutoPerception.encode` returns the
 conditioned part in the semantic state's own units, ready for a policy trained on s̄.
+
+``free_features: keypoints`` (AE only; not the thesis's) reads the n − m free dimensions as the
+expected image positions (x, y) of (n − m)/2 heat maps -- a spatial soft-argmax -- instead of a slice
+of the fully connected layer: the free part then carries *where* something is, the same way wherever
+it is. The heat maps look at what the decoder cannot draw from the conditioned part alone (which
+L_VP also asks it to draw as well as it can), and the decoder draws a blob at each keypoint, so the
+free features go to what s̄ does not place. With the thesis's flattening layer the free dimensions of
+FetchReachObstacle carried nothing of the box (a linear probe found it no better from them than from
+s̄); with keypoints they carry part of it (docs/RESULTS.md, Table 4.4).
 """
 
 from __future__ import annotations
@@ -24,6 +33,8 @@ from binpick.config import check_choice, check_range
 from binpick.errors import ConfigError
 
 LAYERS = 6  # stride-2 convolutions in the encoder, transposed ones in the decoder (thesis §4.3.1)
+DRAW_AT = LAYERS - 2  # free keypoints enter the decoder before its last two layers (16 x 16 for 64 px)
+BLOB_SIGMA = 0.1  # the drawn blob's width, in the image's [-1, 1] units (0.8 cells at 16 x 16)
 
 
 @dataclass(frozen=True)
@@ -40,6 +51,9 @@ class PerceptionConfig:
     # the arm): over the whole image an L1 lets the decoder leave out objects of a few dozen pixels,
     # and then no free latent carries them (0: the thesis's plain L1)
     foreground_weight: float = 0.0
+    # how the n − m free dimensions are read: "dense" (the thesis's fully connected layer) or
+    # "keypoints" (expected (x, y) of (n − m)/2 heat maps in [-1, 1]; AE only)
+    free_features: str = "dense"
 
     def __post_init__(self) -> None:
         check_choice("perception.kind", self.kind, ["ae", "vae"])
@@ -52,6 +66,14 @@ class PerceptionConfig:
         check_range("perception.beta", self.beta, 0.0, 1e6)
         check_range("perception.channels", self.channels, 1, 512, integer=True)
         check_range("perception.foreground_weight", self.foreground_weight, 0.0, 1e4)
+        check_choice("perception.free_features", self.free_features, ["dense", "keypoints"])
+        if self.free_features == "keypoints":
+            if self.kind != "ae":
+                raise ConfigError("perception.free_features: keypoints is for kind: ae (a VAE's σ has no "
+                                  "meaning for a heat map's expected position)")
+            if self.free < 2 or self.free % 2:
+                raise ConfigError(f"perception.free_features: keypoints reads (x, y) pairs: n − m must be an even "
+                                  f"number >= 2, got {self.free}")
 
     @property
     def free(self) -> int:
@@ -84,10 +106,30 @@ class AutoPerception(nn.Module):
         self.side = height // 2 ** LAYERS
         flat = widths[-1] * self.side * self.side
         n, free = config.latent, config.free
-        self.to_latent = nn.Linear(flat, n + (free if config.kind == "vae" else 0))  # μ (n) and log σ (n − m)
-        self.from_latent = nn.Linear(n, flat)
+        if config.free_features == "keypoints":  # the fully connected layer gives only the m conditioned ones
+            self.to_latent = nn.Linear(flat, config.conditioned)
+            c = config.channels
+            edge = {"padding_mode": "replicate"}  # zero padding would light every map up along the border
+            self.heat_maps = nn.Sequential(  # at half resolution; dilations see an object a few pixels wide whole
+                nn.Conv2d(channels, c, 5, stride=2, padding=2, **edge), nn.ReLU(),  # sees what s̄ leaves out
+                nn.Conv2d(c, c, 3, padding=1, **edge), nn.ReLU(),
+                nn.Conv2d(c, c, 3, padding=2, dilation=2, **edge), nn.ReLU(),
+                nn.Conv2d(c, free // 2, 1),
+            )
+            with torch.no_grad():  # positive weights: at first each map peaks where most is left unexplained
+                for layer in self.heat_maps:
+                    if isinstance(layer, nn.Conv2d):
+                        layer.weight.abs_()
+            self.sharpness = nn.Parameter(torch.tensor(float(np.log(3.0))))  # log of the softmax's inverse temperature
+            side = (height + 1) // 2
+            self.register_buffer("cell_centres", (torch.arange(side, dtype=torch.float32) + 0.5) / side * 2 - 1)
+        else:
+            self.to_latent = nn.Linear(flat, n + (free if config.kind == "vae" else 0))  # μ (n) and log σ (n − m)
+        self.from_latent = nn.Linear(config.conditioned if config.free_features == "keypoints" else n, flat)
         decoder = []
-        for width_in, width_out in zip(widths[::-1], [*widths[::-1][1:], channels]):
+        for layer, (width_in, width_out) in enumerate(zip(widths[::-1], [*widths[::-1][1:], channels])):
+            if layer == DRAW_AT and config.free_features == "keypoints":
+                width_in += free // 2  # a blob at each keypoint joins the decoder at 1/4 resolution
             decoder += [nn.ConvTranspose2d(width_in, width_out, 4, stride=2, padding=1), nn.ReLU()]
         decoder[-1] = nn.Sigmoid()
         self.decoder = nn.Sequential(*decoder)
@@ -123,7 +165,10 @@ class AutoPerception(nn.Module):
     # ------------------------------------------------------------------ network
     def forward(self, images, sample: bool = True) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """(latent s used by the decoder, μ, log σ of the free part) for a batch of uint8 images."""
-        output = self.to_latent(self.encoder(self._pixels(images)))
+        pixels = self._pixels(images)
+        output = self.to_latent(self.encoder(pixels))
+        if self.config.free_features == "keypoints":
+            output = torch.cat([output, self._keypoints(pixels, output)], dim=1)
         n, m = self.config.latent, self.config.conditioned
         mu = output[:, :n]
         if self.config.kind == "ae":
@@ -135,22 +180,59 @@ class AutoPerception(nn.Module):
             latent = torch.cat([mu[:, :m], mu[:, m:] + noise], dim=1)  # σ only on the free part (Fig 4.4)
         return latent, mu, log_sigma
 
+    def _keypoints(self, pixels: torch.Tensor, conditioned: torch.Tensor) -> torch.Tensor:
+        """(B, n − m): x1, y1, x2, y2, ... the expected position of each heat map (image right / down, [-1, 1]).
+
+        The heat maps see what the decoder cannot draw from the conditioned part alone (no blobs, no
+        gradient through it), not the image: shown the image, a keypoint settles on the most salient
+        thing, often one s̄ already places, and the free features repeat s̄."""
+        with torch.no_grad():
+            unexplained = (pixels - self._draw(conditioned, None)).abs()
+        maps = self.heat_maps(unexplained)
+        b, k, h, w = maps.shape
+        logits = maps.view(b, k, h * w)
+        # standardised over the image, then sharpened: from the first step each keypoint sits on what its
+        # map responds to most and moves with it (a near-uniform softmax would pin every one to the centre)
+        logits = (logits - logits.mean(-1, keepdim=True)) / (logits.std(-1, keepdim=True) + 1e-6)
+        weights = F.softmax(logits * self.sharpness.exp(), -1).view(b, k, h, w)
+        xs = (weights.sum(2) * self.cell_centres).sum(-1)
+        ys = (weights.sum(3) * self.cell_centres).sum(-1)
+        return torch.stack([xs, ys], -1).view(b, 2 * k)
+
     def decode(self, latent: torch.Tensor) -> torch.Tensor:
-        features = self.from_latent(latent).view(len(latent), -1, self.side, self.side)
-        return self.decoder(F.relu(features))
+        if self.config.free_features != "keypoints":
+            features = F.relu(self.from_latent(latent).view(len(latent), -1, self.side, self.side))
+            return self.decoder(features)
+        m = self.config.conditioned
+        return self._draw(latent[:, :m], latent[:, m:])
+
+    def _draw(self, conditioned: torch.Tensor, points: torch.Tensor | None) -> torch.Tensor:
+        """The keypoint decoder: the conditioned part through the fully connected layer, and a blob at
+        each free keypoint (none when ``points`` is None): the free part is drawn only where it points."""
+        free, latent = self.config.free, conditioned
+        features = F.relu(self.from_latent(latent).view(len(latent), -1, self.side, self.side))
+        # a Gaussian blob at each free keypoint, drawn where the decoder can paint around it with its
+        # convolutions (as landmark autoencoders do): a coordinate read by a fully connected layer
+        # would have to be learnt anew for every place the object can be
+        split = 2 * DRAW_AT
+        hidden = self.decoder[:split](features)
+        side = hidden.shape[-1]
+        centres = (torch.arange(side, dtype=latent.dtype) + 0.5) / side * 2 - 1
+        if points is None:
+            blobs = torch.zeros(len(latent), free // 2, side, side)
+        else:
+            points = points.reshape(len(latent), -1, 2)
+            dx = (centres.view(1, 1, side) - points[..., :1]) ** 2  # (B, K, W)
+            dy = (centres.view(1, 1, side) - points[..., 1:]) ** 2  # (B, K, H)
+            blobs = torch.exp(-(dy[..., :, None] + dx[..., None, :]) / (2 * BLOB_SIGMA ** 2))
+        return self.decoder[split:](torch.cat([hidden, blobs], dim=1))
 
     def loss(self, images, states: torch.Tensor | None) -> dict[str, torch.Tensor]:
         """L_VP = L_recon + ω (L_cond + β KL_free) (Eq 4.1–4.7); per-element means, so sizes do not matter.
         Also gives ``mu``, the encoder's output, for losses on the features themselves."""
         latent, mu, log_sigma = self(images)
         target = self._pixels(images)
-        error = (self.decode(latent) - target).abs()
-        if self.config.foreground_weight:  # a weighted mean: same scale as the plain L1
-            foreground = ((target - self.background).abs().amax(dim=1, keepdim=True) > 0.1).float()
-            weight = (1 + self.config.foreground_weight * foreground).expand_as(error)
-            recon = (weight * error).sum() / weight.sum()
-        else:
-            recon = error.mean()
+        recon = self._reconstruction_error(self.decode(latent), target)
         m = self.config.conditioned
         cond = torch.zeros(())
         if m and states is not None:
@@ -162,7 +244,19 @@ class AutoPerception(nn.Module):
             kl = 0.5 * (torch.exp(2 * log_sigma) + free_mu ** 2 - 2 * log_sigma - 1).sum(1).mean()
         extra = cond + self.config.beta * kl if self.config.kind == "vae" else cond
         total = recon + self.config.omega * extra
+        if self.config.free_features == "keypoints":  # the conditioned part alone must draw what it can,
+            # so that what it leaves out -- what the keypoints look at -- is what s̄ does not place
+            total = total + self._reconstruction_error(self._draw(latent[:, :m], None), target)
         return {"total": total, "recon": recon, "cond": cond, "kl": kl, "mu": mu}
+
+    def _reconstruction_error(self, drawn: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+        """L_recon: the mean L1, or with ``foreground_weight`` λ weighted 1 + λ off the median image."""
+        error = (drawn - target).abs()
+        if not self.config.foreground_weight:
+            return error.mean()
+        foreground = ((target - self.background).abs().amax(dim=1, keepdim=True) > 0.1).float()
+        weight = (1 + self.config.foreground_weight * foreground).expand_as(error)
+        return (weight * error).sum() / weight.sum()  # a weighted mean: same scale as the plain L1
 
     # ------------------------------------------------------------------ deployment
     def features(self, mu: torch.Tensor) -> torch.Tensor:
