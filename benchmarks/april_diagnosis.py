@@ -4,6 +4,7 @@
     python benchmarks/april_diagnosis.py --obstacle        # is FetchReachObstacle's box in the way at all?
     python benchmarks/april_diagnosis.py RUN_DIR --substitute   # pick and place: which part of φ_enc(I) breaks it?
     python benchmarks/april_diagnosis.py RUN_DIR --probe-box    # obstacle: do the free latents carry the box?
+    python benchmarks/april_diagnosis.py RUN_DIR --distill-ceiling   # obstacle: students that read the truth
 
 Rolls the run's pixel deployment on the evaluation seeds and records, at every step, φ_enc(I)
 against the true s̄: the goal's error split into the part along the workspace camera's ray (depth,
@@ -65,12 +66,14 @@ def diagnose(run: AprilRun, episodes: int) -> dict:
         while not done:
             raw = fetch._get_obs()
             truth_goal, truth_grip = raw["desired_goal"], raw["achieved_goal"]
-            goal_error = observation["desired_goal"] - truth_goal
+            seen = observation if isinstance(observation, dict) else \
+                {"achieved_goal": observation[:3], "desired_goal": observation[3:6]}  # φ_enc(I): s̄ = (z, g) first
+            goal_error = seen["desired_goal"] - truth_goal
             along = float(goal_error @ directions[0])  # the workspace view's ray, in every run
             steps.append({"goal_error": float(np.linalg.norm(goal_error)),
                           "goal_error_along_ray": abs(along),
                           "goal_error_across_ray": float(np.linalg.norm(goal_error - along * directions[0])),
-                          "gripper_error": float(np.linalg.norm(observation["achieved_goal"] - truth_grip)),
+                          "gripper_error": float(np.linalg.norm(seen["achieved_goal"] - truth_grip)),
                           "goal_pixels": visible_goal_pixels(fetch)})
             action = policy.predict(observation, deterministic=True)[0]
             observation, _, terminated, truncated, info = env.step(action)
@@ -182,12 +185,16 @@ def probe_box(run: AprilRun, images: int = 1000) -> dict:
         raise SystemExit("--probe-box is for binpick/FetchReachObstacle-v0 runs")
     perception = load_perception(perception_path(run.run_dir))
     env = run.make_env()
-    features, boxes = [], []
+    features, boxes, pictures = [], [], []
     for index in range(images):
         observation, _ = env.reset(seed=50_000 + index)
         features.append(perception.encode(observation["image"])[0])
         boxes.append(env.unwrapped.obstacle_position.copy())
+        if index < 8:
+            pictures.append(observation["image"])
     env.close()
+    if perception.config.free_features == "keypoints":
+        show_free_keypoints(run, perception, np.stack(pictures))
     features, boxes = np.asarray(features, np.float64), np.asarray(boxes, np.float64)
     half, m = images // 2, perception.config.conditioned
 
@@ -206,6 +213,70 @@ def probe_box(run: AprilRun, images: int = 1000) -> dict:
     return {"images": images, "latent": perception.config.latent, "conditioned": m,
             "box_error_cm": {"mean_only": spread, "conditioned": error(slice(0, m)), "all": error(slice(None))},
             "box_error_knn_cm": {"conditioned": neighbours(slice(0, m)), "all": neighbours(slice(None))}}
+
+
+def show_free_keypoints(run: AprilRun, perception, images: np.ndarray) -> None:
+    """docs/img/april/<run>_free_keypoints.png: reset images with each free keypoint ringed (top) and the
+    decoder's reconstruction (bottom), 4x enlarged: where the free features look."""
+    from PIL import Image, ImageDraw
+
+    scale, m = 4, perception.config.conditioned
+    points, drawn = perception.encode(images)[:, m:], perception.reconstruct(images)
+    columns = []
+    for image, point, reconstruction in zip(images, points, drawn):
+        picture = Image.fromarray(image).resize((image.shape[1] * scale, image.shape[0] * scale), Image.NEAREST)
+        pen = ImageDraw.Draw(picture)
+        for x, y in point.reshape(-1, 2):
+            u, v = (x + 1) / 2 * picture.width, (y + 1) / 2 * picture.height
+            pen.ellipse([u - 7, v - 7, u + 7, v + 7], outline=(255, 0, 255), width=3)
+        below = Image.fromarray(reconstruction).resize(picture.size, Image.NEAREST)
+        columns.append(np.concatenate([np.asarray(picture), np.asarray(below)], axis=0))
+    folder = _common.ROOT / "docs" / "img" / "april"
+    folder.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(np.concatenate(columns, axis=1)).save(folder / f"{run.config.name}_free_keypoints.png")
+
+
+def distill_ceiling(run: AprilRun, steps: int | None = None) -> dict:
+    """What would perfect perception give a student distilled from the run's teacher? Students that
+    read the true s̄, and the true s̄ plus the box centre, learn by the run's own DAgger (steps, rounds,
+    network, seeds) and are evaluated on its evaluation seeds: the ceiling of the n = m = 6 row and of
+    a row whose free features carried the box exactly. ``steps``: DAgger's simulator steps instead of the run's."""
+    from dataclasses import replace
+
+    from stable_baselines3 import SAC
+
+    from binpick.april.finetune import distill_from_state_policy, with_action_scale
+    from binpick.april.observations import EncodedObservation
+    from binpick.rl.config import load_rl_config
+    from binpick.rl.evaluate import evaluate_policy
+    from binpick.rl.heuristic import ObstacleDetour
+
+    if steps is not None:
+        run = AprilRun(replace(run.config, policy=replace(run.config.policy, finetune_steps=steps)), run.run_dir)
+    policy = run.config.policy
+    if policy.teacher != "detour" or policy.finetune != "distill":
+        raise SystemExit("--distill-ceiling is for runs distilled from the detour teacher (policy.teacher: detour)")
+    rl_settings = load_rl_config(policy.rl_config)
+    report = {}
+    for name, box in (("state_plus_box", True), ("state", False)):
+        env = run.make_env()
+        fetch = env.unwrapped
+        truth = (lambda image: np.concatenate([np.zeros(6), fetch.obstacle_position])[None]) if box else \
+            (lambda image: np.zeros((1, 6)))
+        env = with_action_scale(EncodedObservation(env, truth, 9 if box else 6, 6, with_state=True),
+                                rl_settings.min_action_scale)
+        settings = rl_settings.sac
+        student = SAC("MlpPolicy", env, learning_rate=settings.learning_rate, batch_size=settings.batch_size,
+                      gamma=settings.gamma, tau=settings.tau, learning_starts=policy.learning_starts,
+                      ent_coef=settings.ent_coef, policy_kwargs={"net_arch": list(settings.net_arch)},
+                      seed=run.config.seed, device="cpu")
+        distilled = distill_from_state_policy(student, ObstacleDetour(fetch.obstacle_half_size), env, run)
+        result = evaluate_policy(student, env, episodes=run.config.eval.episodes, seed=run.config.eval.seed)
+        env.close()
+        report[name] = {"avg_actions": round(result.mean_length, 2), "success": result.success_rate,
+                        "final_mse": distilled["final_mse"], "sim_steps": distilled["sim_steps"]}
+        print(name, report[name], flush=True)
+    return report
 
 
 def obstacle_in_the_way(episodes: int = 300) -> dict:
@@ -250,6 +321,9 @@ def main() -> None:
                         help="pick and place: success with the goal, gripper or cube of φ_enc(I) replaced by the truth")
     parser.add_argument("--probe-box", action="store_true",
                         help="obstacle: how well a linear probe finds the box from the conditioned / all latent features")
+    parser.add_argument("--distill-ceiling", action="store_true",
+                        help="obstacle, detour teacher: students distilled onto the true s̄ / s̄ + box, the ceiling")
+    parser.add_argument("--steps", type=int, help="--distill-ceiling: DAgger steps instead of the run's")
     parser.add_argument("--perception-only", action="store_true",
                         help="only the seen-against-new perception errors (any APRiL env), added to the run's entry")
     args = parser.parse_args()
@@ -265,8 +339,11 @@ def main() -> None:
     if not args.run_dir:
         parser.error("give RUN_DIR (or --obstacle)")
     run = AprilRun.resume(args.run_dir)
-    if args.substitute or args.probe_box:
+    if args.substitute or args.probe_box or args.distill_ceiling:
         report = results.get(run.config.name, {})
+        if args.distill_ceiling:
+            key = "distill_ceiling" if args.steps is None else f"distill_ceiling_{args.steps}_steps"
+            report[key] = distill_ceiling(run, args.steps)
         if args.substitute:
             report["substitute"] = substitute_truth(run, args.episodes)
         if args.probe_box:
@@ -335,6 +412,20 @@ def write_report(results: dict) -> None:
             lines.append(f"| {name} | {probe['latent']} | {probe['conditioned']} | {error['mean_only']:.2f} | "
                          f"{error['conditioned']:.2f} | {error['all']:.2f} | {knn.get('conditioned', float('nan')):.2f} | "
                          f"{knn.get('all', float('nan')):.2f} |")
+    ceilings = [(name, key, report[key]) for name, report in results.items() if isinstance(report, dict)
+                for key in sorted(report) if key.startswith("distill_ceiling")]
+    if ceilings:
+        lines += ["", "What would perfect perception give a student distilled from the detour teacher (`--distill-ceiling`)? "
+                  "Students that read the simulator's s̄, or s̄ and the box centre, in place of φ_enc(I), learn by the run's "
+                  "own DAgger (network, rounds, seeds; `--steps` for a longer one) and play its 100 evaluation episodes "
+                  "(the teacher: 97%, 6.86 actions; driving straight, blind to the box: 75%, 16.70):", "",
+                  "| run's DAgger | steps | student reads s̄: success | actions | s̄ and the box: success | actions |",
+                  "|---|---:|---:|---:|---:|---:|"]
+        for name, key, ceiling in ceilings:
+            state, boxed = ceiling.get("state", {}), ceiling.get("state_plus_box", {})
+            cells = [f"{row['success']:.0%} | {row['avg_actions']:.2f}" if row else "– | –" for row in (state, boxed)]
+            steps = (boxed or state).get("sim_steps", 0)
+            lines.append(f"| {name} | {steps:,} | " + " | ".join(cells) + " |")
     box = results.get("obstacle_in_the_way")
     if box:
         lines += ["", f"Is FetchReachObstacle's box in the way (`--obstacle`; {box['at_random']['episodes']} episodes, seeds 20000+)? "

@@ -74,7 +74,8 @@ def row_names(run: AprilRun) -> dict[str, str]:
     training = run.config.perception_training  # a longer, decayed schedule: its own rows
     trained = f"_cosine{training.epochs}" if training.schedule == "cosine" else ""
     foreground = f"_fg{p.foreground_weight:g}" if p.foreground_weight else ""  # reconstruction weighted to objects
-    pixels = f"pixels_{p.kind}_n{p.latent}_m{p.conditioned}_w{p.omega:g}" + foreground + goals + trained + refined + cameras + world
+    spatial = "_kp" if p.free_features == "keypoints" else ""  # free features read as keypoints
+    pixels = f"pixels_{p.kind}_n{p.latent}_m{p.conditioned}_w{p.omega:g}" + spatial + foreground + goals + trained + refined + cameras + world
     if run.config.policy.mode == "semantic":  # a state policy whose actor trained on noisy s̄: its own rows
         noise = run.state_policy_settings().actor_noise  # e.g. _actor_noise5mm: its largest std on a position
         largest = max(max(noise.gripper), max(noise.achieved), max(noise.goal)) * 1000
@@ -86,7 +87,9 @@ def row_names(run: AprilRun) -> dict[str, str]:
     detour = run.config.policy.teacher == "detour"
     distilled = "" if run.config.policy.finetune != "distill" else "_distilled_encoder" if run.config.policy.distill_encoder \
         else "_distilled"
-    rows = {"pixels": pixels + distilled + ("_from_detour" if detour else "")}
+    steps = run.config.policy.finetune_steps  # a longer DAgger than the 10,000 steps of the first rows: its own
+    longer = f"_{steps // 1000}k" if distilled and detour and steps > 10_000 else ""
+    rows = {"pixels": pixels + distilled + longer + ("_from_detour" if detour else "")}
     if detour:  # the scripted teacher itself, on the box position only it may read
         rows = {"state": "detour_teacher" + world} | rows
     elif run.config.policy.pretrain and run.teacher_privileged:  # the teacher itself, on what only it may read
