@@ -183,7 +183,12 @@ def merge(env: str, rows: dict) -> dict:
     path = _common.RESULTS / "april.json"
     results = json.loads(path.read_text()) if path.exists() else {}
     results = {key: value for key, value in results.items() if key not in ("benchmark", "machine")}
-    results.setdefault(env, {}).update(rows)
+    table = results.setdefault(env, {})
+    for row, values in rows.items():  # a recheck of the same run survives a rerun without --recheck
+        kept = table.get(row, {})
+        if "recheck" in kept and "recheck" not in values and kept.get("run_dir") == values.get("run_dir"):
+            values = values | {"recheck": kept["recheck"]}
+        table[row] = values
     results["peak_rss_mib"] = max(results.get("peak_rss_mib", 0.0), round(_common.peak_rss_mib(), 1))
     _common.write_result("april", results)
     return results
