@@ -243,9 +243,7 @@ def distill_ceiling(run: AprilRun, steps: int | None = None) -> dict:
     a row whose free features carried the box exactly. ``steps``: DAgger's simulator steps instead of the run's."""
     from dataclasses import replace
 
-    from stable_baselines3 import SAC
-
-    from binpick.april.finetune import distill_from_state_policy, with_action_scale
+    from binpick.april.finetune import distill_from_state_policy, latent_sac, with_action_scale
     from binpick.april.observations import EncodedObservation
     from binpick.rl.config import load_rl_config
     from binpick.rl.evaluate import evaluate_policy
@@ -265,11 +263,7 @@ def distill_ceiling(run: AprilRun, steps: int | None = None) -> dict:
             (lambda image: np.zeros((1, 6)))
         env = with_action_scale(EncodedObservation(env, truth, 9 if box else 6, 6, with_state=True),
                                 rl_settings.min_action_scale)
-        settings = rl_settings.sac
-        student = SAC("MlpPolicy", env, learning_rate=settings.learning_rate, batch_size=settings.batch_size,
-                      gamma=settings.gamma, tau=settings.tau, learning_starts=policy.learning_starts,
-                      ent_coef=settings.ent_coef, policy_kwargs={"net_arch": list(settings.net_arch)},
-                      seed=run.config.seed, device="cpu")
+        student = latent_sac(run, env, rl_settings)
         distilled = distill_from_state_policy(student, ObstacleDetour(fetch.obstacle_half_size), env, run)
         result = evaluate_policy(student, env, episodes=run.config.eval.episodes, seed=run.config.eval.seed)
         env.close()

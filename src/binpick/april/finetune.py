@@ -96,6 +96,15 @@ class _Progress(BaseCallback):
         return True
 
 
+def latent_sac(run: AprilRun, env, rl_settings, tensorboard_log: str | None = None) -> SAC:
+    """The SAC a latent policy learns with: the state policy's RL config's SAC settings, the run's seed."""
+    settings = rl_settings.sac
+    return SAC("MlpPolicy", env, learning_rate=settings.learning_rate, batch_size=settings.batch_size,
+               gamma=settings.gamma, tau=settings.tau, learning_starts=run.config.policy.learning_starts,
+               ent_coef=settings.ent_coef, policy_kwargs={"net_arch": list(settings.net_arch)}, seed=run.config.seed,
+               device="cpu", tensorboard_log=tensorboard_log)
+
+
 def finetune_latent_policy(run: AprilRun, semantic_run: str | None, callback: RunCallback = SILENT) -> dict[str, Any]:
     """Train (or fine-tune) SAC on encoded images; saves ``policy_latent.safetensors`` in the run folder."""
     from binpick.perception import load_perception, perception_path
@@ -117,11 +126,7 @@ def finetune_latent_policy(run: AprilRun, semantic_run: str | None, callback: Ru
                                                perception.config.conditioned, with_state=policy.mode == "state_plus_latent",
                                                gripper=run.gripper, opening=run.opening),
                             rl_settings.min_action_scale)
-    settings = rl_settings.sac
-    model = SAC("MlpPolicy", env, learning_rate=settings.learning_rate, batch_size=settings.batch_size,
-                gamma=settings.gamma, tau=settings.tau, learning_starts=policy.learning_starts, ent_coef=settings.ent_coef,
-                policy_kwargs={"net_arch": list(settings.net_arch)}, seed=config.seed, device="cpu",
-                tensorboard_log=str(run.run_dir / "tb"))
+    model = latent_sac(run, env, rl_settings, tensorboard_log=str(run.run_dir / "tb"))
     semantic = None
     widened = False
     if semantic_run is not None:

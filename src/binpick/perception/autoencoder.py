@@ -165,30 +165,33 @@ class AutoPerception(nn.Module):
     # ------------------------------------------------------------------ network
     def forward(self, images, sample: bool = True) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """(latent s used by the decoder, μ, log σ of the free part) for a batch of uint8 images."""
-        pixels = self._pixels(images)
+        return self._encode(self._pixels(images), sample)[:3]
+
+    def _encode(self, pixels: torch.Tensor, sample: bool = True):
+        """:meth:`forward`, and for free keypoints also the conditioned part's own drawing (else None)."""
         output = self.to_latent(self.encoder(pixels))
+        alone = None
         if self.config.free_features == "keypoints":
-            output = torch.cat([output, self._keypoints(pixels, output)], dim=1)
+            alone = self._draw(output, None)
+            output = torch.cat([output, self._keypoints(pixels - alone.detach())], dim=1)
         n, m = self.config.latent, self.config.conditioned
         mu = output[:, :n]
         if self.config.kind == "ae":
-            return mu, mu, output[:, n:]
+            return mu, mu, output[:, n:], alone
         log_sigma = output[:, n:].clamp(-10, 4)
         latent = mu
         if sample and self.training:
             noise = torch.randn_like(log_sigma) * log_sigma.exp()
             latent = torch.cat([mu[:, :m], mu[:, m:] + noise], dim=1)  # σ only on the free part (Fig 4.4)
-        return latent, mu, log_sigma
+        return latent, mu, log_sigma, alone
 
-    def _keypoints(self, pixels: torch.Tensor, conditioned: torch.Tensor) -> torch.Tensor:
+    def _keypoints(self, unexplained: torch.Tensor) -> torch.Tensor:
         """(B, n − m): x1, y1, x2, y2, ... the expected position of each heat map (image right / down, [-1, 1]).
 
-        The heat maps see what the decoder cannot draw from the conditioned part alone (no blobs, no
-        gradient through it), not the image: shown the image, a keypoint settles on the most salient
-        thing, often one s̄ already places, and the free features repeat s̄."""
-        with torch.no_grad():
-            unexplained = (pixels - self._draw(conditioned, None)).abs()
-        maps = self.heat_maps(unexplained)
+        The heat maps see what the decoder cannot draw from the conditioned part alone (the image less
+        that drawing, no gradient through it), not the image: shown the image, a keypoint settles on the
+        most salient thing, often one s̄ already places, and the free features repeat s̄."""
+        maps = self.heat_maps(unexplained.abs())
         b, k, h, w = maps.shape
         logits = maps.view(b, k, h * w)
         # standardised over the image, then sharpened: from the first step each keypoint sits on what its
@@ -230,8 +233,8 @@ class AutoPerception(nn.Module):
     def loss(self, images, states: torch.Tensor | None) -> dict[str, torch.Tensor]:
         """L_VP = L_recon + ω (L_cond + β KL_free) (Eq 4.1–4.7); per-element means, so sizes do not matter.
         Also gives ``mu``, the encoder's output, for losses on the features themselves."""
-        latent, mu, log_sigma = self(images)
         target = self._pixels(images)
+        latent, mu, log_sigma, alone = self._encode(target)
         recon = self._reconstruction_error(self.decode(latent), target)
         m = self.config.conditioned
         cond = torch.zeros(())
@@ -246,7 +249,7 @@ class AutoPerception(nn.Module):
         total = recon + self.config.omega * extra
         if self.config.free_features == "keypoints":  # the conditioned part alone must draw what it can,
             # so that what it leaves out -- what the keypoints look at -- is what s̄ does not place
-            total = total + self._reconstruction_error(self._draw(latent[:, :m], None), target)
+            total = total + self._reconstruction_error(alone, target)
         return {"total": total, "recon": recon, "cond": cond, "kl": kl, "mu": mu}
 
     def _reconstruction_error(self, drawn: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
