@@ -698,12 +698,12 @@ def ros_master(port: Annotated[int, typer.Option(min=1, max=65535, help="Port on
         raise KeyboardInterrupt
 
     signal.signal(signal.SIGTERM, stop)  # `kill` of this command must not leave rosmaster listening
-    with RosMaster(port) as master:
-        console.print(f"ROS master at {master.uri} (Ctrl-C to stop)")
-        try:
+    try:  # a stop while rosmaster still starts is as clean as one later (RosMaster stops its child either way)
+        with RosMaster(port) as master:
+            console.print(f"ROS master at {master.uri} (Ctrl-C to stop)")
             master.process.wait()
-        except KeyboardInterrupt:
-            pass
+    except KeyboardInterrupt:
+        pass
 
 
 @ros_app.command("serve")

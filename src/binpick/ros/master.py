@@ -44,6 +44,13 @@ class RosMaster:
         self.process = subprocess.Popen([sys.executable, "-c", "import rosmaster; rosmaster.rosmaster_main()", "--core",
                                          "-p", str(self.port), "-w", "2"], env=self.environment,
                                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, preexec_fn=_die_with_parent)
+        try:
+            self._wait_until_it_answers(timeout)
+        except BaseException:  # Ctrl-C or SIGTERM while it starts, too: no master outlives its owner
+            self.stop()
+            raise
+
+    def _wait_until_it_answers(self, timeout: float) -> None:
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             if self.process.poll() is not None:
@@ -53,7 +60,6 @@ class RosMaster:
                 return
             except OSError:
                 time.sleep(0.05)
-        self.stop()
         raise BinpickError(f"rosmaster did not answer on {self.uri} within {timeout:.0f} s")
 
     def stop(self) -> None:
