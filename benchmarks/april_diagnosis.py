@@ -55,14 +55,21 @@ def visible_goal_pixels(fetch) -> int:
 
 
 def diagnose(run: AprilRun, episodes: int) -> dict:
+    from binpick.rl.heuristic import ObstacleDetour, box_clearance
+
     env, policy, _ = deployment_env(run, "pixels")
     fetch = env.unwrapped
     directions = view_directions(fetch.observation_poses)
     seed = run.config.eval.seed
     per_episode = []
+    obstacle = hasattr(fetch, "obstacle_position")
     for episode in range(episodes):
         observation, _ = env.reset(seed=seed + episode)
-        steps, done, success = [], False, False
+        steps, done, success, touched = [], False, False, False
+        if obstacle:  # is the box in the detour teacher's way at the start (it would go round)?
+            start = fetch._get_obs()
+            blocked = box_clearance(start["achieved_goal"], start["desired_goal"], fetch.obstacle_position,
+                                    fetch.obstacle_half_size) < ObstacleDetour(fetch.obstacle_half_size).clearance
         while not done:
             raw = fetch._get_obs()
             truth_goal, truth_grip = raw["desired_goal"], raw["achieved_goal"]
@@ -78,6 +85,7 @@ def diagnose(run: AprilRun, episodes: int) -> dict:
             action = policy.predict(observation, deterministic=True)[0]
             observation, _, terminated, truncated, info = env.step(action)
             success = success or bool(info.get("is_success"))
+            touched = touched or (obstacle and fetch.obstacle_contacts() > 0)
             done = terminated or truncated
         first = steps[0]
         per_episode.append({"success": success, "length": len(steps),
@@ -86,7 +94,8 @@ def diagnose(run: AprilRun, episodes: int) -> dict:
                             "mean_goal_error": float(np.mean([s["goal_error"] for s in steps])),
                             "mean_gripper_error": float(np.mean([s["gripper_error"] for s in steps])),
                             "hidden_fraction": float(np.mean([s["goal_pixels"] == 0 for s in steps])),
-                            "last_goal_error": steps[-1]["goal_error"], "last_gripper_error": steps[-1]["gripper_error"]})
+                            "last_goal_error": steps[-1]["goal_error"], "last_gripper_error": steps[-1]["gripper_error"],
+                            **({"blocked": bool(blocked), "touched_box": bool(touched)} if obstacle else {})})
         print(f"episode {episode}: {'ok ' if success else 'FAIL'} length {len(steps)} "
               f"goal error start {first['goal_error'] * 100:.1f} cm (pixels {first['goal_pixels']}), "
               f"mean {per_episode[-1]['mean_goal_error'] * 100:.1f} cm, hidden {per_episode[-1]['hidden_fraction']:.0%}",
@@ -96,15 +105,25 @@ def diagnose(run: AprilRun, episodes: int) -> dict:
     def summary(rows: list[dict]) -> dict:
         if not rows:
             return {"episodes": 0}
-        keys = [k for k in rows[0] if k not in ("success",)]
+        keys = [k for k in rows[0] if k not in ("success", "blocked", "touched_box")]
         return {"episodes": len(rows), **{k: round(float(np.median([r[k] for r in rows])), 4) for k in keys}}
 
     failed = [r for r in per_episode if not r["success"]]
     succeeded = [r for r in per_episode if r["success"]]
-    return {"run_dir": str(run.run_dir), "episodes": episodes, "success": len(succeeded) / episodes,
-            "median_failed": summary(failed), "median_succeeded": summary(succeeded),
-            "failed_with_goal_hidden_at_start": sum(r["start_goal_pixels"] == 0 for r in failed),
-            "per_episode": per_episode}
+    report = {"run_dir": str(run.run_dir), "episodes": episodes, "success": len(succeeded) / episodes,
+              "median_failed": summary(failed), "median_succeeded": summary(succeeded),
+              "failed_with_goal_hidden_at_start": sum(r["start_goal_pixels"] == 0 for r in failed)}
+    if obstacle:  # where the box was in the way and where not: does the student go round, and does it arrive?
+        report["by_blocked"] = {
+            label: {"episodes": len(rows), "success": round(float(np.mean([r["success"] for r in rows])), 3),
+                    "avg_actions": round(float(np.mean([r["length"] for r in rows])), 2),
+                    "touched_box": round(float(np.mean([r["touched_box"] for r in rows])), 3),
+                    "median_mean_goal_error_cm": round(float(np.median([r["mean_goal_error"] for r in rows])) * 100, 2),
+                    "median_mean_gripper_error_cm": round(float(np.median([r["mean_gripper_error"] for r in rows])) * 100, 2),
+                    "median_goal_hidden_fraction": round(float(np.median([r["hidden_fraction"] for r in rows])), 3)}
+            for label, rows in (("blocked", [r for r in per_episode if r["blocked"]]),
+                                ("clear", [r for r in per_episode if not r["blocked"]])) if rows}
+    return report | {"per_episode": per_episode}
 
 
 def seen_against_new(run: AprilRun, episodes: int, samples: int = 500) -> dict:
@@ -118,13 +137,14 @@ def seen_against_new(run: AprilRun, episodes: int, samples: int = 500) -> dict:
     perception = load_perception(perception_path(run.run_dir))
     data = read_npz(run.run_dir / "data" / "random.npz", "APRiL image data")
     picked = np.random.default_rng(0).choice(len(data["images"]), min(samples, len(data["images"])), replace=False)
-    seen = np.concatenate([perception.encode(data["images"][picked[i:i + 100]]) for i in range(0, len(picked), 100)])
+    m = perception.config.conditioned  # s̄'s part of φ_enc(I); free features (n > m) have no truth to match
+    seen = np.concatenate([perception.encode(data["images"][picked[i:i + 100]])[:, :m] for i in range(0, len(picked), 100)])
     seen_error = np.abs(seen - data["states"][picked]).mean(0)
     env = run.make_env()
     new_error = []
     for episode in range(episodes):
         observation, _ = env.reset(seed=run.config.eval.seed + episode)
-        new_error.append(np.abs(perception.encode(observation["image"])[0] - semantic_state(observation, run.gripper)))
+        new_error.append(np.abs(perception.encode(observation["image"])[0, :m] - semantic_state(observation, run.gripper)))
     env.close()
     return {"training_images_cm": [round(float(v) * 100, 2) for v in seen_error],
             "new_episodes_cm": [round(float(v) * 100, 2) for v in np.mean(new_error, 0)],
@@ -180,16 +200,21 @@ def probe_box(run: AprilRun, images: int = 1000) -> dict:
     goal, so s̄ already predicts part of it) against from all of them. Free features that carry the
     box bring the error down; the run's perception is the deployed one (after any distill_encoder)."""
     from binpick.perception import load_perception, perception_path
+    from binpick.rl.heuristic import ObstacleDetour, box_clearance
 
     if "obstacle" not in run.config.env.lower():
         raise SystemExit("--probe-box is for binpick/FetchReachObstacle-v0 runs")
     perception = load_perception(perception_path(run.run_dir))
     env = run.make_env()
-    features, boxes, pictures = [], [], []
+    features, boxes, pictures, blocked, truths = [], [], [], [], []
     for index in range(images):
         observation, _ = env.reset(seed=50_000 + index)
         features.append(perception.encode(observation["image"])[0])
         boxes.append(env.unwrapped.obstacle_position.copy())
+        clearance = box_clearance(observation["achieved_goal"], observation["desired_goal"], boxes[-1],
+                                  env.unwrapped.obstacle_half_size)
+        blocked.append(clearance < ObstacleDetour(env.unwrapped.obstacle_half_size).clearance)
+        truths.append(np.concatenate([observation["achieved_goal"], observation["desired_goal"], boxes[-1]]))
         if index < 8:
             pictures.append(observation["image"])
     env.close()
@@ -203,16 +228,27 @@ def probe_box(run: AprilRun, images: int = 1000) -> dict:
         weights, *_ = np.linalg.lstsq(design[:half], boxes[:half], rcond=None)
         return round(float(np.linalg.norm(design[half:] @ weights - boxes[half:], axis=1).mean()) * 100, 2)
 
-    def neighbours(columns: slice, k: int = 10) -> float:  # a code the decoder reads non-linearly
-        scaled = features[:, columns] / features[:half, columns].std(0).clip(1e-6)
-        distances = np.linalg.norm(scaled[half:, None] - scaled[None, :half], axis=2)
-        nearest = np.argsort(distances, axis=1)[:, :k]
-        return round(float(np.linalg.norm(boxes[:half][nearest].mean(1) - boxes[half:], axis=1).mean()) * 100, 2)
+    def nearest(inputs: np.ndarray, k: int = 10) -> np.ndarray:
+        """Each held-out image's k nearest training images (standardised inputs): a code read non-linearly."""
+        scaled = inputs / inputs[:half].std(0).clip(1e-6)
+        return np.argsort(np.linalg.norm(scaled[half:, None] - scaled[None, :half], axis=2), axis=1)[:, :k]
 
+    def neighbours(columns: slice) -> float:
+        guess = boxes[:half][nearest(features[:, columns])].mean(1)
+        return round(float(np.linalg.norm(guess - boxes[half:], axis=1).mean()) * 100, 2)
+
+    def blocked_from(inputs: np.ndarray) -> float:  # the detour teacher's own decision: go round or straight
+        vote = blocked[:half][nearest(inputs)].mean(1) > 0.5
+        return round(float((vote == blocked[half:]).mean()), 3)
+
+    blocked, truths = np.asarray(blocked), np.asarray(truths, np.float64)
     spread = round(float(np.linalg.norm(boxes[half:] - boxes[:half].mean(0), axis=1).mean()) * 100, 2)
     return {"images": images, "latent": perception.config.latent, "conditioned": m,
             "box_error_cm": {"mean_only": spread, "conditioned": error(slice(0, m)), "all": error(slice(None))},
-            "box_error_knn_cm": {"conditioned": neighbours(slice(0, m)), "all": neighbours(slice(None))}}
+            "box_error_knn_cm": {"conditioned": neighbours(slice(0, m)), "all": neighbours(slice(None))},
+            "blocked_share": round(float(blocked[half:].mean()), 3),
+            "blocked_knn_accuracy": {"conditioned": blocked_from(features[:, :m]), "all": blocked_from(features),
+                                     "true_state": blocked_from(truths[:, :6]), "true_state_and_box": blocked_from(truths)}}
 
 
 def show_free_keypoints(run: AprilRun, perception, images: np.ndarray) -> None:
@@ -236,11 +272,68 @@ def show_free_keypoints(run: AprilRun, perception, images: np.ndarray) -> None:
     Image.fromarray(np.concatenate(columns, axis=1)).save(folder / f"{run.config.name}_free_keypoints.png")
 
 
-def distill_ceiling(run: AprilRun, steps: int | None = None) -> dict:
+class NoisyBox:
+    """The box centre as a perception off by ``sigma`` metres would give it: one Gaussian offset per
+    episode (perception errs the same way on the same scene), drawn anew when the box moves (a reset)."""
+
+    def __init__(self, fetch, sigma: float, seed: int = 0) -> None:
+        self.fetch, self.sigma, self.rng = fetch, sigma, np.random.default_rng(seed)
+        self.box, self.offset = None, np.zeros(3)
+
+    def __call__(self, image) -> np.ndarray:
+        box = self.fetch.obstacle_position
+        if self.box is None or not np.array_equal(box, self.box):
+            self.box, self.offset = box.copy(), self.rng.normal(0.0, self.sigma, 3)
+        return np.concatenate([np.zeros(6), box + self.offset])[None]
+
+
+class BoxInView:
+    """Where the box centre lies in the workspace camera's image, (x, y) in [-1, 1]: what a free keypoint
+    that sat exactly on the box would give (n = 8, m = 6), depth left out as one view leaves it out."""
+
+    def __init__(self, fetch) -> None:
+        self.fetch, pose = fetch, fetch.observation_poses[0]
+        self.forward = view_directions([pose])[0]
+        self.eye = np.asarray(pose.lookat) - pose.distance * self.forward
+        self.right = np.cross(self.forward, [0.0, 0.0, 1.0])
+        self.right /= np.linalg.norm(self.right)
+        self.up = np.cross(self.right, self.forward)
+        self.focal = 1.0 / np.tan(np.radians(fetch.model.vis.global_.fovy) / 2)
+
+    def __call__(self, image) -> np.ndarray:
+        ray = self.fetch.obstacle_position - self.eye
+        depth = ray @ self.forward
+        return np.concatenate([np.zeros(6), self.focal * np.array([ray @ self.right, -(ray @ self.up)]) / depth])[None]
+
+
+class GoalOff:
+    """A truth student's input with s̄'s goal off by a Gaussian offset of ``sigma`` metres per axis, drawn
+    once per episode (perception's goal error is mostly a per-scene bias): s̄ as φ_enc(I) gives it."""
+
+    def __init__(self, encoded, inner, sigma: float, seed: int = 0) -> None:
+        self.encoded, self.inner, self.sigma, self.rng = encoded, inner, sigma, np.random.default_rng(seed + 1)
+        self.goal, self.offset = None, np.zeros(3)
+
+    def __call__(self, image) -> np.ndarray:
+        from binpick.april.observations import semantic_state
+
+        raw = self.encoded.last_raw  # the observation being encoded
+        if self.goal is None or not np.array_equal(raw["desired_goal"], self.goal):
+            self.goal, self.offset = raw["desired_goal"].copy(), self.rng.normal(0.0, self.sigma, 3)
+        features = np.array(self.inner(image), np.float64)
+        features[0, :6] = semantic_state(raw) + np.concatenate([np.zeros(3), self.offset])
+        return features
+
+
+def distill_ceiling(run: AprilRun, steps: int | None = None, box_noise_cm: float | None = None,
+                    box_in_view: bool = False, goal_noise_cm: float | None = None) -> dict:
     """What would perfect perception give a student distilled from the run's teacher? Students that
     read the true s̄, and the true s̄ plus the box centre, learn by the run's own DAgger (steps, rounds,
     network, seeds) and are evaluated on its evaluation seeds: the ceiling of the n = m = 6 row and of
-    a row whose free features carried the box exactly. ``steps``: DAgger's simulator steps instead of the run's."""
+    a row whose free features carried the box exactly. ``steps``: DAgger's simulator steps instead of the run's;
+    ``box_noise_cm``: instead, a student reads the box off by that much (per axis, per episode), as perception would;
+    ``box_in_view``: instead, one reads the box's exact place in the workspace image (x, y), as a keypoint would;
+    ``goal_noise_cm``: the students read s̄'s goal off by that much (per axis, per episode), as φ_enc(I) does."""
     from dataclasses import replace
 
     from binpick.april.finetune import distill_from_state_policy, latent_sac, with_action_scale
@@ -256,13 +349,22 @@ def distill_ceiling(run: AprilRun, steps: int | None = None) -> dict:
         raise SystemExit("--distill-ceiling is for runs distilled from the detour teacher (policy.teacher: detour)")
     rl_settings = load_rl_config(policy.rl_config)
     report = {}
-    for name, box in (("state_plus_box", True), ("state", False)):
+    students = [("state_plus_box", 0.0), ("state", None)]
+    if box_noise_cm is not None:
+        students = [(f"state_plus_box_off_{box_noise_cm:g}cm", box_noise_cm / 100)]
+    if box_in_view:
+        students = [("state_plus_box_in_view", "view")] + ([("state", None)] if goal_noise_cm is not None else [])
+    for name, noise in students:
         env = run.make_env()
         fetch = env.unwrapped
-        truth = (lambda image: np.concatenate([np.zeros(6), fetch.obstacle_position])[None]) if box else \
-            (lambda image: np.zeros((1, 6)))
-        env = with_action_scale(EncodedObservation(env, truth, 9 if box else 6, 6, with_state=True),
-                                rl_settings.min_action_scale)
+        truth = BoxInView(fetch) if noise == "view" else NoisyBox(fetch, noise, seed=run.config.seed) \
+            if noise is not None else (lambda image: np.zeros((1, 6)))
+        latent = {"view": 8, None: 6}.get(noise, 9)
+        encoded = EncodedObservation(env, truth, latent, 6, with_state=goal_noise_cm is None)
+        if goal_noise_cm is not None:  # s̄ itself from the wrapper, off where φ_enc(I) is off
+            encoded.encode = GoalOff(encoded, truth, goal_noise_cm / 100, seed=run.config.seed)
+            name = f"{name}_goal_off_{goal_noise_cm:g}cm"
+        env = with_action_scale(encoded, rl_settings.min_action_scale)
         student = latent_sac(run, env, rl_settings)
         distilled = distill_from_state_policy(student, ObstacleDetour(fetch.obstacle_half_size), env, run)
         result = evaluate_policy(student, env, episodes=run.config.eval.episodes, seed=run.config.eval.seed)
@@ -305,6 +407,11 @@ def obstacle_in_the_way(episodes: int = 300) -> dict:
     return report
 
 
+def read_results(path) -> dict:
+    results = json.loads(path.read_text()) if path.exists() else {}
+    return {k: v for k, v in results.items() if k not in ("benchmark", "machine")}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("run_dir", nargs="?")
@@ -318,12 +425,17 @@ def main() -> None:
     parser.add_argument("--distill-ceiling", action="store_true",
                         help="obstacle, detour teacher: students distilled onto the true s̄ / s̄ + box, the ceiling")
     parser.add_argument("--steps", type=int, help="--distill-ceiling: DAgger steps instead of the run's")
+    parser.add_argument("--box-noise", type=float, metavar="CM",
+                        help="--distill-ceiling: instead, one student reading the box off by CM per axis (per episode)")
+    parser.add_argument("--box-in-view", action="store_true",
+                        help="--distill-ceiling: instead, one student reading the box's exact (x, y) in the workspace image")
+    parser.add_argument("--goal-noise", type=float, metavar="CM",
+                        help="--distill-ceiling --box-in-view: that student and a blind one read s̄'s goal off by CM per axis")
     parser.add_argument("--perception-only", action="store_true",
                         help="only the seen-against-new perception errors (any APRiL env), added to the run's entry")
     args = parser.parse_args()
     path = _common.RESULTS / "april_diagnosis.json"
-    results = json.loads(path.read_text()) if path.exists() else {}
-    results = {k: v for k, v in results.items() if k not in ("benchmark", "machine")}
+    results = read_results(path)
     if args.obstacle:
         results["obstacle_in_the_way"] = obstacle_in_the_way(args.episodes * 3)
         _common.write_result("april_diagnosis", results)
@@ -337,7 +449,8 @@ def main() -> None:
         report = results.get(run.config.name, {})
         if args.distill_ceiling:
             key = "distill_ceiling" if args.steps is None else f"distill_ceiling_{args.steps}_steps"
-            report[key] = distill_ceiling(run, args.steps)
+            report[key] = report.get(key, {}) | distill_ceiling(run, args.steps, args.box_noise, args.box_in_view,
+                                                                args.goal_noise)
         if args.substitute:
             report["substitute"] = substitute_truth(run, args.episodes)
         if args.probe_box:
@@ -345,10 +458,27 @@ def main() -> None:
     else:
         report = results.get(run.config.name, {}) if args.perception_only else diagnose(run, args.episodes)
         report["perception_error"] = seen_against_new(run, args.episodes)
-    results[run.config.name] = report
+    results = read_results(path)  # again: another diagnosis may have written while this one ran
+    kept = results.get(run.config.name, {})
+    for key in [key for key in report if key.startswith("distill_ceiling")]:  # students another run added stay
+        report[key] = kept.get(key, {}) | report[key]
+    results[run.config.name] = kept | report
     _common.write_result("april_diagnosis", results)
     write_report(results)
     print(json.dumps({k: v for k, v in report.items() if k != "per_episode"}, indent=1))
+
+
+def what_it_reads(student: str) -> str:
+    """A --distill-ceiling student's name in words: what it reads of the box (and of the goal)."""
+    student, _, goal = student.partition("_goal_off_")
+    box = {"state": "nothing (blind)", "state_plus_box": "its centre", "state_plus_box_in_view": "its (x, y) in the image"}
+    read = box.get(student) or f"centre off by {student.removeprefix('state_plus_box_off_')} per axis"
+    return read + (f"; s̄'s goal off by {goal} per axis" if goal else "")
+
+
+def reports_with(results: dict, key: str) -> dict:
+    """{run: its report[key]} for the runs whose diagnosis has ``key``."""
+    return {name: report[key] for name, report in results.items() if isinstance(report, dict) and key in report}
 
 
 def write_report(results: dict) -> None:
@@ -380,8 +510,21 @@ def write_report(results: dict) -> None:
         if error:
             lines.append(f"| {name} | {error['dimensions']} | {' '.join(f'{v:.1f}' for v in error['training_images_cm'])} | "
                          f"{' '.join(f'{v:.1f}' for v in error['new_episodes_cm'])} |")
-    swapped = {name: report["substitute"] for name, report in results.items()
-               if isinstance(report, dict) and "substitute" in report}
+    split = reports_with(results, "by_blocked")
+    if split:
+        lines += ["", "FetchReachObstacle, the same episodes split by whether the box starts in the detour teacher's way "
+                  "(the straight line to the goal passes within 3 cm of it): success, actions, share of episodes in which "
+                  "the arm touched the box, and medians of the goal's and gripper's mean error in φ_enc(I) and of the share "
+                  "of steps with the goal hidden:", "",
+                  "| run | box in the way? | episodes | success | actions | touched the box | goal error, cm | "
+                  "gripper error, cm | goal hidden |", "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
+        for name, halves in split.items():
+            for label, row in halves.items():
+                lines.append(f"| {name} | {'in the way' if label == 'blocked' else 'clear'} | {row['episodes']} | "
+                             f"{row['success']:.0%} | {row['avg_actions']:.2f} | {row['touched_box']:.0%} | "
+                             f"{row['median_mean_goal_error_cm']:.2f} | {row['median_mean_gripper_error_cm']:.2f} | "
+                             f"{row['median_goal_hidden_fraction']:.0%} |")
+    swapped = reports_with(results, "substitute")
     if swapped:
         lines += ["", "Pick and place on pixels with one part of φ_enc(I) replaced by the simulator's truth (`--substitute`): "
                   "success, share of episodes in which the cube was lifted > 2 cm, and the perceived cube's median error "
@@ -391,8 +534,7 @@ def write_report(results: dict) -> None:
             cells = [f"{row['success']:.0%} (lifted {row['lifted']:.0%}, cube {row['object_error_near_gripper_cm'] or 0:.1f} cm)"
                      for row in (swap["rows"][key] for key in SUBSTITUTES)]
             lines.append(f"| {name} | {swap['episodes']} | " + " | ".join(cells) + " |")
-    probed = {name: report["probe_box"] for name, report in results.items()
-              if isinstance(report, dict) and "probe_box" in report}
+    probed = reports_with(results, "probe_box")
     if probed:
         lines += ["", "Do the latent features carry FetchReachObstacle's box (`--probe-box`)? A linear probe fit on 500 reset "
                   "images and scored on 500 others: the box centre's mean error (cm) from the training mean alone, from the "
@@ -406,13 +548,23 @@ def write_report(results: dict) -> None:
             lines.append(f"| {name} | {probe['latent']} | {probe['conditioned']} | {error['mean_only']:.2f} | "
                          f"{error['conditioned']:.2f} | {error['all']:.2f} | {knn.get('conditioned', float('nan')):.2f} | "
                          f"{knn.get('all', float('nan')):.2f} |")
+        decided = {name: probe for name, probe in probed.items() if "blocked_knn_accuracy" in probe}
+        if decided:
+            lines += ["", "Can the features tell the teacher's decision, go round or straight (box within 3 cm of the "
+                      "straight line)? 10 nearest neighbours on the same 500 / 500 images, accuracy; beside it the same "
+                      "from the simulator's s̄, and s̄ and box centre:", "",
+                      "| run | in the way | conditioned | all | true s̄ | true s̄ and box |", "|---|---:|---:|---:|---:|---:|"]
+            for name, probe in decided.items():
+                accuracy = probe["blocked_knn_accuracy"]
+                lines.append(f"| {name} | {probe['blocked_share']:.0%} | {accuracy['conditioned']:.0%} | {accuracy['all']:.0%} | "
+                             f"{accuracy['true_state']:.0%} | {accuracy['true_state_and_box']:.0%} |")
     ceilings = [(name, key, report[key]) for name, report in results.items() if isinstance(report, dict)
                 for key in sorted(report) if key.startswith("distill_ceiling")]
     if ceilings:
         lines += ["", "What would perfect perception give a student distilled from the detour teacher (`--distill-ceiling`)? "
                   "Students that read the simulator's s̄, or s̄ and the box centre, in place of φ_enc(I), learn by the run's "
                   "own DAgger (network, rounds, seeds; `--steps` for a longer one) and play its 100 evaluation episodes "
-                  "(the teacher: 97%, 6.86 actions; driving straight, blind to the box: 75%, 16.70):", "",
+                  "(the teacher on `obstacle_on_path: 1.0`: 97%, 6.86 actions; on 0.5: 99%, 4.38):", "",
                   "| run's DAgger | steps | student reads s̄: success | actions | s̄ and the box: success | actions |",
                   "|---|---:|---:|---:|---:|---:|"]
         for name, key, ceiling in ceilings:
@@ -420,6 +572,19 @@ def write_report(results: dict) -> None:
             cells = [f"{row['success']:.0%} | {row['avg_actions']:.2f}" if row else "– | –" for row in (state, boxed)]
             steps = (boxed or state).get("sim_steps", 0)
             lines.append(f"| {name} | {steps:,} | " + " | ".join(cells) + " |")
+        partial = [(name, student, row) for name, key, ceiling in ceilings for student, row in ceiling.items()
+                   if student not in ("state", "state_plus_box")]
+        if partial:
+            lines += ["", "The box as perception would give it: a student reading s̄ and the box centre off by a Gaussian "
+                      "offset of CM per axis, drawn once per episode (`--box-noise CM`), or s̄ and the box centre's exact "
+                      "(x, y) in the workspace image, what a free keypoint on the box gives, n = 8, m = 6 "
+                      "(`--box-in-view`), with s̄'s goal off by CM per axis per episode as φ_enc(I)'s is "
+                      "(`--goal-noise CM`); same DAgger:", "",
+                      "| run's DAgger | steps | what the student reads of the box | success | actions |",
+                      "|---|---:|---|---:|---:|"]
+            for name, student, row in partial:
+                lines.append(f"| {name} | {row['sim_steps']:,} | {what_it_reads(student)} | {row['success']:.0%} | "
+                             f"{row['avg_actions']:.2f} |")
     box = results.get("obstacle_in_the_way")
     if box:
         lines += ["", f"Is FetchReachObstacle's box in the way (`--obstacle`; {box['at_random']['episodes']} episodes, seeds 20000+)? "

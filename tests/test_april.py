@@ -294,6 +294,10 @@ def test_row_names_say_what_differs_from_the_thesis_set_up(tmp_path):
         "pixels_ae_n8_m6_w1_kp_goals_on_path_distilled_from_detour"
     assert rows("april_obstacle_on_path_n6_m6_distilled_detour_40k")["pixels"] == \
         "pixels_ae_n6_m6_w1_goals_on_path_distilled_40k_from_detour"
+    assert rows("april_obstacle_on_path0.5_n8_m6_keypoints_distilled_detour_40k") == {  # the box on the path half the time
+        "state": "detour_teacher_on_path0.5", "pixels": "pixels_ae_n8_m6_w1_kp_goals_cosine80_on_path0.5_distilled_40k_from_detour"}
+    assert rows("april_obstacle_on_path0.5_n6_m6_distilled_detour_40k_seed1")["pixels"] == \
+        "pixels_ae_n6_m6_w1_goals_cosine80_on_path0.5_seed1_distilled_40k_from_detour"
 
 
 def test_scripted_pick_and_place_heuristic_completes_the_task():

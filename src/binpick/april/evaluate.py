@@ -70,12 +70,15 @@ def row_names(run: AprilRun) -> dict[str, str]:
     cameras = {1: "", 2: "_two_views"}.get(len(views), f"_{len(views)}_views")
     every = run.config.collect.goal_every  # perception saw a new goal every step (_goals) or every k (_goals{k})
     goals = "" if not every else "_goals" if every == 1 else f"_goals{every}"
-    world = "_on_path" if run.config.env_kwargs.get("obstacle_on_path") else ""  # another world: other rows
+    on_path = run.config.env_kwargs.get("obstacle_on_path")  # another world: other rows (_on_path: always, else its share)
+    world = "" if not on_path else "_on_path" if on_path == 1.0 else f"_on_path{on_path:g}"
     training = run.config.perception_training  # a longer, decayed schedule: its own rows
     trained = f"_cosine{training.epochs}" if training.schedule == "cosine" else ""
     foreground = f"_fg{p.foreground_weight:g}" if p.foreground_weight else ""  # reconstruction weighted to objects
     spatial = "_kp" if p.free_features == "keypoints" else ""  # free features read as keypoints
-    pixels = f"pixels_{p.kind}_n{p.latent}_m{p.conditioned}_w{p.omega:g}" + spatial + foreground + goals + trained + refined + cameras + world
+    replicate = f"_seed{run.config.seed}" if run.config.seed else ""  # the same row trained from another seed
+    pixels = f"pixels_{p.kind}_n{p.latent}_m{p.conditioned}_w{p.omega:g}" + spatial + foreground + goals + trained + refined \
+        + cameras + world + replicate
     if run.config.policy.mode == "semantic":  # a state policy whose actor trained on noisy s̄: its own rows
         noise = run.state_policy_settings().actor_noise  # e.g. _actor_noise5mm: its largest std on a position
         largest = max(max(noise.gripper), max(noise.achieved), max(noise.goal)) * 1000
