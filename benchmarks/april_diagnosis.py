@@ -63,6 +63,8 @@ def diagnose(run: AprilRun, episodes: int) -> dict:
     seed = run.config.eval.seed
     per_episode = []
     obstacle = hasattr(fetch, "obstacle_position")
+    m = run.config.perception.conditioned  # a free keypoint against where the box really is in the image
+    box_in_view = BoxInView(fetch) if obstacle and run.config.perception.free_features == "keypoints" else None
     for episode in range(episodes):
         observation, _ = env.reset(seed=seed + episode)
         steps, done, success, touched = [], False, False, False
@@ -81,7 +83,9 @@ def diagnose(run: AprilRun, episodes: int) -> dict:
                           "goal_error_along_ray": abs(along),
                           "goal_error_across_ray": float(np.linalg.norm(goal_error - along * directions[0])),
                           "gripper_error": float(np.linalg.norm(seen["achieved_goal"] - truth_grip)),
-                          "goal_pixels": visible_goal_pixels(fetch)})
+                          "goal_pixels": visible_goal_pixels(fetch),
+                          **({"keypoint_error": float(np.linalg.norm(observation[m:m + 2] - box_in_view(None)[0, 6:]))}
+                             if box_in_view else {})})
             action = policy.predict(observation, deterministic=True)[0]
             observation, _, terminated, truncated, info = env.step(action)
             success = success or bool(info.get("is_success"))
@@ -95,7 +99,9 @@ def diagnose(run: AprilRun, episodes: int) -> dict:
                             "mean_gripper_error": float(np.mean([s["gripper_error"] for s in steps])),
                             "hidden_fraction": float(np.mean([s["goal_pixels"] == 0 for s in steps])),
                             "last_goal_error": steps[-1]["goal_error"], "last_gripper_error": steps[-1]["gripper_error"],
-                            **({"blocked": bool(blocked), "touched_box": bool(touched)} if obstacle else {})})
+                            **({"blocked": bool(blocked), "touched_box": bool(touched)} if obstacle else {}),
+                            **({"mean_keypoint_error": float(np.mean([s["keypoint_error"] for s in steps]))}
+                               if box_in_view else {})})
         print(f"episode {episode}: {'ok ' if success else 'FAIL'} length {len(steps)} "
               f"goal error start {first['goal_error'] * 100:.1f} cm (pixels {first['goal_pixels']}), "
               f"mean {per_episode[-1]['mean_goal_error'] * 100:.1f} cm, hidden {per_episode[-1]['hidden_fraction']:.0%}",
@@ -120,7 +126,9 @@ def diagnose(run: AprilRun, episodes: int) -> dict:
                     "touched_box": round(float(np.mean([r["touched_box"] for r in rows])), 3),
                     "median_mean_goal_error_cm": round(float(np.median([r["mean_goal_error"] for r in rows])) * 100, 2),
                     "median_mean_gripper_error_cm": round(float(np.median([r["mean_gripper_error"] for r in rows])) * 100, 2),
-                    "median_goal_hidden_fraction": round(float(np.median([r["hidden_fraction"] for r in rows])), 3)}
+                    "median_goal_hidden_fraction": round(float(np.median([r["hidden_fraction"] for r in rows])), 3),
+                    **({"median_mean_keypoint_error": round(float(np.median([r["mean_keypoint_error"] for r in rows])), 3)}
+                       if box_in_view else {})}
             for label, rows in (("blocked", [r for r in per_episode if r["blocked"]]),
                                 ("clear", [r for r in per_episode if not r["blocked"]])) if rows}
     return report | {"per_episode": per_episode}
@@ -515,15 +523,17 @@ def write_report(results: dict) -> None:
         lines += ["", "FetchReachObstacle, the same episodes split by whether the box starts in the detour teacher's way "
                   "(the straight line to the goal passes within 3 cm of it): success, actions, share of episodes in which "
                   "the arm touched the box, and medians of the goal's and gripper's mean error in φ_enc(I) and of the share "
-                  "of steps with the goal hidden:", "",
+                  "of steps with the goal hidden; for free keypoints, how far the keypoint is from the box's true place "
+                  "in the image (image width = 2):", "",
                   "| run | box in the way? | episodes | success | actions | touched the box | goal error, cm | "
-                  "gripper error, cm | goal hidden |", "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
+                  "gripper error, cm | goal hidden | keypoint off the box |", "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
         for name, halves in split.items():
             for label, row in halves.items():
                 lines.append(f"| {name} | {'in the way' if label == 'blocked' else 'clear'} | {row['episodes']} | "
                              f"{row['success']:.0%} | {row['avg_actions']:.2f} | {row['touched_box']:.0%} | "
                              f"{row['median_mean_goal_error_cm']:.2f} | {row['median_mean_gripper_error_cm']:.2f} | "
-                             f"{row['median_goal_hidden_fraction']:.0%} |")
+                             f"{row['median_goal_hidden_fraction']:.0%} | "
+                             + (f"{row['median_mean_keypoint_error']:.3f} |" if "median_mean_keypoint_error" in row else "– |"))
     swapped = reports_with(results, "substitute")
     if swapped:
         lines += ["", "Pick and place on pixels with one part of φ_enc(I) replaced by the simulator's truth (`--substitute`): "
