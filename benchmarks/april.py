@@ -169,8 +169,10 @@ NOTES = {  # what a reader needs to read a table right
         "students with the goal off by 2 cm per axis, once per episode (`--goal-noise 2`), fall to 87% (12.56) blind and "
         "83% (12.15) with the exact keypoint: the box's gain is gone, and at the pixel rows' level. Off by 1 cm: 93% (9.51) blind, 88% (9.42) with the keypoint; "
         "off by 0.5 cm: 96% (8.10) and 95% (6.95), the gain back to 1.2 actions. "
-        "What would close it: the goal read to ≲ 0.5 cm per axis from pixels (a second view, a larger image), "
-        "where the truth students' lead is 1.2 actions (2.8 with the exact goal)."),
+        "What would close it: the goal read to ≲ 0.5 cm per axis from pixels, where the truth students' lead is 1.2 "
+        "actions (2.8 with the exact goal). A second view alone does not get there (Fetch Reach `_two_views`: 1.3 / 1.7 / "
+        "1.7 cm on new episodes); the goal read as a keypoint, as the box now is (~1.4 px from its true image place), or a "
+        "larger image might."),
     "FetchPickAndPlace": (
         "The heuristic decides from s̄ alone (no finger opening) so that behaviour cloning can copy it. The ground-truth policy "
         "is SAC after behaviour cloning of 300 heuristic episodes, with cloning kept in the actor loss (`configs/"
