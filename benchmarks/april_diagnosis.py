@@ -54,9 +54,15 @@ def visible_goal_pixels(fetch) -> int:
     return int(np.any(shown != hidden, axis=-1).sum())
 
 
-def diagnose(run: AprilRun, episodes: int) -> dict:
+def in_the_way(fetch, start: np.ndarray, goal: np.ndarray) -> bool:
+    """Would the detour teacher go round: the straight line start -> goal passes within its clearance of the box."""
     from binpick.rl.heuristic import ObstacleDetour, box_clearance
 
+    clearance = box_clearance(start, goal, fetch.obstacle_position, fetch.obstacle_half_size)
+    return bool(clearance < ObstacleDetour(fetch.obstacle_half_size).clearance)
+
+
+def diagnose(run: AprilRun, episodes: int) -> dict:
     env, policy, _ = deployment_env(run, "pixels")
     fetch = env.unwrapped
     directions = view_directions(fetch.observation_poses)
@@ -70,8 +76,7 @@ def diagnose(run: AprilRun, episodes: int) -> dict:
         steps, done, success, touched = [], False, False, False
         if obstacle:  # is the box in the detour teacher's way at the start (it would go round)?
             start = fetch._get_obs()
-            blocked = box_clearance(start["achieved_goal"], start["desired_goal"], fetch.obstacle_position,
-                                    fetch.obstacle_half_size) < ObstacleDetour(fetch.obstacle_half_size).clearance
+            blocked = in_the_way(fetch, start["achieved_goal"], start["desired_goal"])
         while not done:
             raw = fetch._get_obs()
             truth_goal, truth_grip = raw["desired_goal"], raw["achieved_goal"]
@@ -99,7 +104,7 @@ def diagnose(run: AprilRun, episodes: int) -> dict:
                             "mean_gripper_error": float(np.mean([s["gripper_error"] for s in steps])),
                             "hidden_fraction": float(np.mean([s["goal_pixels"] == 0 for s in steps])),
                             "last_goal_error": steps[-1]["goal_error"], "last_gripper_error": steps[-1]["gripper_error"],
-                            **({"blocked": bool(blocked), "touched_box": bool(touched)} if obstacle else {}),
+                            **({"blocked": blocked, "touched_box": bool(touched)} if obstacle else {}),
                             **({"mean_keypoint_error": float(np.mean([s["keypoint_error"] for s in steps]))}
                                if box_in_view else {})})
         print(f"episode {episode}: {'ok ' if success else 'FAIL'} length {len(steps)} "
@@ -208,7 +213,6 @@ def probe_box(run: AprilRun, images: int = 1000) -> dict:
     goal, so s̄ already predicts part of it) against from all of them. Free features that carry the
     box bring the error down; the run's perception is the deployed one (after any distill_encoder)."""
     from binpick.perception import load_perception, perception_path
-    from binpick.rl.heuristic import ObstacleDetour, box_clearance
 
     if "obstacle" not in run.config.env.lower():
         raise SystemExit("--probe-box is for binpick/FetchReachObstacle-v0 runs")
@@ -219,9 +223,7 @@ def probe_box(run: AprilRun, images: int = 1000) -> dict:
         observation, _ = env.reset(seed=50_000 + index)
         features.append(perception.encode(observation["image"])[0])
         boxes.append(env.unwrapped.obstacle_position.copy())
-        clearance = box_clearance(observation["achieved_goal"], observation["desired_goal"], boxes[-1],
-                                  env.unwrapped.obstacle_half_size)
-        blocked.append(clearance < ObstacleDetour(env.unwrapped.obstacle_half_size).clearance)
+        blocked.append(in_the_way(env.unwrapped, observation["achieved_goal"], observation["desired_goal"]))
         truths.append(np.concatenate([observation["achieved_goal"], observation["desired_goal"], boxes[-1]]))
         if index < 8:
             pictures.append(observation["image"])
@@ -357,20 +359,20 @@ def distill_ceiling(run: AprilRun, steps: int | None = None, box_noise_cm: float
         raise SystemExit("--distill-ceiling is for runs distilled from the detour teacher (policy.teacher: detour)")
     rl_settings = load_rl_config(policy.rl_config)
     report = {}
-    students = [("state_plus_box", 0.0), ("state", None)]
+    seed = run.config.seed
+    blind = ("state", 6, lambda fetch: lambda image: np.zeros((1, 6)))  # (name, n, what it reads beside s̄)
+    students = [("state_plus_box", 9, lambda fetch: NoisyBox(fetch, 0.0, seed)), blind]
     if box_noise_cm is not None:
-        students = [(f"state_plus_box_off_{box_noise_cm:g}cm", box_noise_cm / 100)]
+        students = [(f"state_plus_box_off_{box_noise_cm:g}cm", 9, lambda fetch: NoisyBox(fetch, box_noise_cm / 100, seed))]
     if box_in_view:
-        students = [("state_plus_box_in_view", "view")] + ([("state", None)] if goal_noise_cm is not None else [])
-    for name, noise in students:
+        students = [("state_plus_box_in_view", 8, BoxInView)] + ([blind] if goal_noise_cm is not None else [])
+    for name, latent, reads in students:
         env = run.make_env()
         fetch = env.unwrapped
-        truth = BoxInView(fetch) if noise == "view" else NoisyBox(fetch, noise, seed=run.config.seed) \
-            if noise is not None else (lambda image: np.zeros((1, 6)))
-        latent = {"view": 8, None: 6}.get(noise, 9)
+        truth = reads(fetch)
         encoded = EncodedObservation(env, truth, latent, 6, with_state=goal_noise_cm is None)
         if goal_noise_cm is not None:  # s̄ itself from the wrapper, off where φ_enc(I) is off
-            encoded.encode = GoalOff(encoded, truth, goal_noise_cm / 100, seed=run.config.seed)
+            encoded.encode = GoalOff(encoded, truth, goal_noise_cm / 100, seed=seed)
             name = f"{name}_goal_off_{goal_noise_cm:g}cm"
         env = with_action_scale(encoded, rl_settings.min_action_scale)
         student = latent_sac(run, env, rl_settings)
@@ -457,8 +459,7 @@ def main() -> None:
         report = results.get(run.config.name, {})
         if args.distill_ceiling:
             key = "distill_ceiling" if args.steps is None else f"distill_ceiling_{args.steps}_steps"
-            report[key] = report.get(key, {}) | distill_ceiling(run, args.steps, args.box_noise, args.box_in_view,
-                                                                args.goal_noise)
+            report[key] = distill_ceiling(run, args.steps, args.box_noise, args.box_in_view, args.goal_noise)
         if args.substitute:
             report["substitute"] = substitute_truth(run, args.episodes)
         if args.probe_box:
