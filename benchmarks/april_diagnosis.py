@@ -32,16 +32,6 @@ from binpick.april import AprilRun  # noqa: E402
 from binpick.april.evaluate import deployment_env  # noqa: E402
 
 
-def view_directions(poses) -> list[np.ndarray]:
-    """Unit vectors from each camera towards its look-at point (MuJoCo free-camera convention)."""
-    directions = []
-    for pose in poses:
-        azimuth, elevation = np.radians(pose.azimuth), np.radians(pose.elevation)
-        directions.append(np.array([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth),
-                                    np.sin(elevation)]))
-    return directions
-
-
 def visible_goal_pixels(fetch) -> int:
     """Pixels of the observation image(s) that change when the goal sphere is made invisible."""
     site = fetch.model.site("target0").id
@@ -65,7 +55,7 @@ def in_the_way(fetch, start: np.ndarray, goal: np.ndarray) -> bool:
 def diagnose(run: AprilRun, episodes: int) -> dict:
     env, policy, _ = deployment_env(run, "pixels")
     fetch = env.unwrapped
-    directions = view_directions(fetch.observation_poses)
+    directions = [pose.forward for pose in fetch.observation_poses]
     seed = run.config.eval.seed
     per_episode = []
     obstacle = hasattr(fetch, "obstacle_position")
@@ -302,18 +292,11 @@ class BoxInView:
     that sat exactly on the box would give (n = 8, m = 6), depth left out as one view leaves it out."""
 
     def __init__(self, fetch) -> None:
-        self.fetch, pose = fetch, fetch.observation_poses[0]
-        self.forward = view_directions([pose])[0]
-        self.eye = np.asarray(pose.lookat) - pose.distance * self.forward
-        self.right = np.cross(self.forward, [0.0, 0.0, 1.0])
-        self.right /= np.linalg.norm(self.right)
-        self.up = np.cross(self.right, self.forward)
-        self.focal = 1.0 / np.tan(np.radians(fetch.model.vis.global_.fovy) / 2)
+        self.fetch = fetch
 
     def __call__(self, image) -> np.ndarray:
-        ray = self.fetch.obstacle_position - self.eye
-        depth = ray @ self.forward
-        return np.concatenate([np.zeros(6), self.focal * np.array([ray @ self.right, -(ray @ self.up)]) / depth])[None]
+        place = self.fetch.observation_poses[0].project(self.fetch.obstacle_position, self.fetch.model.vis.global_.fovy)
+        return np.concatenate([np.zeros(6), place[0]])[None]
 
 
 class GoalOff:

@@ -152,6 +152,31 @@ def test_a_second_view_sees_the_goal_the_first_one_loses_behind_the_box(make_env
     assert red_pixels(image[..., 3:]) > 0, "the side view still sees it"
 
 
+def test_in_views_places_the_goal_where_each_camera_draws_it(make_env):
+    """``in_views`` projects world points with the observation cameras' poses: the goal sphere's pixels
+    (those that change when it is hidden) are centred where it says, in both stacked views, to a
+    fraction of a pixel (perception.goal_keypoints learns to sit there)."""
+    env = make_env("binpick/FetchReach-v0", image="rgb", image_size=64, views=["workspace", "side"])
+    unwrapped = env.unwrapped
+    site = unwrapped.model.site("target0").id
+    errors = []
+    for seed in range(4):
+        observation, _ = env.reset(seed=seed)
+        shown = observation["image"].astype(int)
+        alpha = float(unwrapped.model.site_rgba[site, 3])
+        unwrapped.model.site_rgba[site, 3] = 0.0
+        hidden = unwrapped._get_obs()["image"].astype(int)
+        unwrapped.model.site_rgba[site, 3] = alpha
+        places = unwrapped.in_views(observation["desired_goal"][None])
+        assert places.shape == (1, 4)
+        for view, place in enumerate(places[0].reshape(2, 2)):
+            rows, columns = np.nonzero(np.abs(shown - hidden)[..., 3 * view:3 * view + 3].sum(-1) > 30)
+            assert len(rows) >= 3, (seed, view)
+            drawn = (np.array([columns.mean(), rows.mean()]) + 0.5) / 64 * 2 - 1
+            errors.append(np.abs(drawn - place).max())
+    assert max(errors) < 0.03, errors  # 1 px is 0.031 image units
+
+
 def test_unknown_view_is_one_clear_error(make_env):
     from binpick.errors import ConfigError
 

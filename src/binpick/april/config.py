@@ -157,6 +157,13 @@ class AprilConfig:
         check_range("image_size", self.image_size, 64, 512, integer=True)
         if self.image_size % 64:
             raise ConfigError(f"image_size must be a multiple of 64 (6 stride-2 layers), got {self.image_size}")
+        keypoints = self.perception.goal_keypoints
+        if keypoints:
+            views = self.env_kwargs.get("views", ["workspace"])
+            views = [views] if isinstance(views, str) else list(views)
+            if "Fetch" not in spec.env_id or keypoints != len(views):
+                raise ConfigError(f"perception.goal_keypoints: one per camera view of a Fetch env ({len(views)} in "
+                                  f"env_kwargs.views here), got {keypoints}")
         m, n = self.perception.conditioned, self.perception.latent
         if self.policy.mode == "semantic" and (m != n or self.perception.omega == 0):
             raise ConfigError(f"policy.mode semantic deploys on the conditioned latent alone: it needs "

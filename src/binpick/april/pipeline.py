@@ -174,7 +174,8 @@ class AprilRun:
         training = self.config.perception_training
         model, history = train_perception(self.config.perception, images, states, epochs=training.epochs,
                                           batch_size=training.batch_size, learning_rate=training.learning_rate,
-                                          schedule=training.schedule, seed=self.config.seed, callback=callback)
+                                          schedule=training.schedule, seed=self.config.seed, callback=callback,
+                                          points=self.goal_in_views(states))
         save_perception(model, self.run_dir / PERCEPTION_FILE)
         atomic_write_json(self.run_dir / "perception_history.json", history)
         rng = np.random.default_rng(self.config.seed)
@@ -183,6 +184,18 @@ class AprilRun:
                              title=f"{self.config.name}: input (top) / reconstruction (bottom)")
         last = history["epochs"][-1]
         return {"recon": last["recon"], "state_mae": last["state_mae"], "epochs": len(history["epochs"])}
+
+    def goal_in_views(self, states: np.ndarray) -> np.ndarray | None:
+        """Where s̄'s goal (its last dimensions) lies in each camera view, for ``perception.goal_keypoints``
+        (None without them): the cameras' poses are known in the simulator, so no collection stores it."""
+        if not self.config.perception.goal_keypoints:
+            return None
+        env = self.make_env()
+        try:
+            goal_dim = env.observation_space["desired_goal"].shape[0]
+            return env.unwrapped.in_views(np.asarray(states)[:, -goal_dim:])
+        finally:
+            env.close()
 
     def stage_policy(self, callback: RunCallback) -> dict[str, Any]:
         policy = self.config.policy
@@ -279,11 +292,12 @@ class AprilRun:
             atomic_write(self.run_dir / "data" / "policy.npz",
                          lambda handle: np.savez(handle, images=np.stack(images), states=np.stack(states)))
             training = self.config.perception_training
+            every_state = np.concatenate([random["states"], np.stack(states)])
             model, history = train_perception(self.config.perception, np.concatenate([random["images"], np.stack(images)]),
-                                              np.concatenate([random["states"], np.stack(states)]), epochs=refine.epochs,
+                                              every_state, epochs=refine.epochs,
                                               batch_size=training.batch_size, learning_rate=training.learning_rate,
                                               schedule=training.schedule, seed=self.config.seed + 1 + round_,
-                                              callback=callback, initial=model)
+                                              callback=callback, initial=model, points=self.goal_in_views(every_state))
             rounds.append({"round": round_ + 1, "success_while_collecting": successes / refine.episodes,
                            "images": len(images), "state_mae": history["epochs"][-1]["state_mae"], "history": history})
         env.close()

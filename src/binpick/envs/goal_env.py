@@ -62,6 +62,12 @@ class ImageObservationMixin:
         image_space = spaces.Box(0, 255, (self.image_size, self.image_size, channels), np.uint8)
         self.observation_space = spaces.Dict({**self.observation_space.spaces, "image": image_space})
 
+    def in_views(self, points: np.ndarray) -> np.ndarray:
+        """World points (N, 3) -> where each observation view shows them, (N, 2 · views): x, y per view in
+        [-1, 1] (x right, y down), in the order the views' frames are stacked."""
+        fovy = float(self.model.vis.global_.fovy)
+        return np.concatenate([pose.project(points, fovy) for pose in self.observation_poses], axis=-1)
+
     def _with_image(self, observation: dict[str, Any], data) -> dict[str, Any]:
         if self._camera is not None:
             frames = [camera.render(data) for camera in (self._camera, *self._extra_cameras)]

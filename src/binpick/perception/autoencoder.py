@@ -18,6 +18,16 @@ L_VP also asks it to draw as well as it can), and the decoder draws a blob at ea
 free features go to what s̄ does not place. With the thesis's flattening layer the free dimensions of
 FetchReachObstacle carried nothing of the box (a linear probe found it no better from them than from
 s̄); with keypoints they carry part of it (docs/RESULTS.md, Table 4.4).
+
+``goal_keypoints: K`` (not the thesis's either) adds to the conditioned part what a small MLP
+reads from the expected positions of K heat maps over the image itself, one per stacked camera view:
+the fully connected layer gives every place in the picture its own weights and reads a goal sphere
+a few pixels wide only to ~2 cm per axis in FetchReachObstacle, where a student needs ~0.5 cm to
+gain from knowing the box (benchmarks/april_diagnosis.py --goal-noise); a soft-argmax finds a small
+object to a fraction of a pixel wherever it is. Given where s̄'s goal lies in each view (``points``,
+projected with the cameras' poses) L_cond also asks each keypoint to sit there -- s̄ itself, in the
+image's coordinates: left to find the goal through the MLP alone the maps spread over the whole
+arm. At deployment only the image is read.
 """
 
 from __future__ import annotations
@@ -54,6 +64,10 @@ class PerceptionConfig:
     # how the n − m free dimensions are read: "dense" (the thesis's fully connected layer) or
     # "keypoints" (expected (x, y) of (n − m)/2 heat maps in [-1, 1]; AE only)
     free_features: str = "dense"
+    # K: heat maps over the image whose expected (x, y), through a small MLP, add to the conditioned
+    # part; one per camera view, each trained to sit on s̄'s goal in its view (0: the fully connected
+    # layer alone, as in the thesis)
+    goal_keypoints: int = 0
 
     def __post_init__(self) -> None:
         check_choice("perception.kind", self.kind, ["ae", "vae"])
@@ -67,6 +81,10 @@ class PerceptionConfig:
         check_range("perception.channels", self.channels, 1, 512, integer=True)
         check_range("perception.foreground_weight", self.foreground_weight, 0.0, 1e4)
         check_choice("perception.free_features", self.free_features, ["dense", "keypoints"])
+        check_range("perception.goal_keypoints", self.goal_keypoints, 0, 64, integer=True)
+        if self.goal_keypoints and not self.conditioned:
+            raise ConfigError("perception.goal_keypoints needs a conditioned part (perception.conditioned "
+                              "m >= 1): the keypoints are read into it")
         if self.free_features == "keypoints":
             if self.kind != "ae":
                 raise ConfigError("perception.free_features: keypoints is for kind: ae (a VAE's σ has no "
@@ -78,6 +96,22 @@ class PerceptionConfig:
     @property
     def free(self) -> int:
         return self.latent - self.conditioned
+
+
+def _heat_map_net(channels: int, width: int, maps: int) -> nn.Sequential:
+    """Heat maps at half resolution; the dilations see an object a few pixels wide whole."""
+    edge = {"padding_mode": "replicate"}  # zero padding would light every map up along the border
+    net = nn.Sequential(
+        nn.Conv2d(channels, width, 5, stride=2, padding=2, **edge), nn.ReLU(),
+        nn.Conv2d(width, width, 3, padding=1, **edge), nn.ReLU(),
+        nn.Conv2d(width, width, 3, padding=2, dilation=2, **edge), nn.ReLU(),
+        nn.Conv2d(width, maps, 1),
+    )
+    with torch.no_grad():  # positive weights: at first each map peaks where the input is strongest
+        for layer in net:
+            if isinstance(layer, nn.Conv2d):
+                layer.weight.abs_()
+    return net
 
 
 def _widths(base: int) -> list[int]:
@@ -106,23 +140,19 @@ class AutoPerception(nn.Module):
         self.side = height // 2 ** LAYERS
         flat = widths[-1] * self.side * self.side
         n, free = config.latent, config.free
+        if config.free_features == "keypoints" or config.goal_keypoints:
+            side = (height + 1) // 2  # the heat maps' resolution
+            self.register_buffer("cell_centres", (torch.arange(side, dtype=torch.float32) + 0.5) / side * 2 - 1)
+        if config.goal_keypoints:
+            k = config.goal_keypoints
+            self.goal_maps = _heat_map_net(channels, config.channels, k)  # sees the image: what s̄ places
+            self.goal_sharpness = nn.Parameter(torch.tensor(float(np.log(3.0))))
+            self.from_points = nn.Sequential(nn.Linear(2 * k, 64), nn.ReLU(), nn.Linear(64, 64), nn.ReLU(),
+                                             nn.Linear(64, config.conditioned))  # image places -> s̄ (perspective)
         if config.free_features == "keypoints":  # the fully connected layer gives only the m conditioned ones
             self.to_latent = nn.Linear(flat, config.conditioned)
-            c = config.channels
-            edge = {"padding_mode": "replicate"}  # zero padding would light every map up along the border
-            self.heat_maps = nn.Sequential(  # at half resolution; dilations see an object a few pixels wide whole
-                nn.Conv2d(channels, c, 5, stride=2, padding=2, **edge), nn.ReLU(),  # sees what s̄ leaves out
-                nn.Conv2d(c, c, 3, padding=1, **edge), nn.ReLU(),
-                nn.Conv2d(c, c, 3, padding=2, dilation=2, **edge), nn.ReLU(),
-                nn.Conv2d(c, free // 2, 1),
-            )
-            with torch.no_grad():  # positive weights: at first each map peaks where most is left unexplained
-                for layer in self.heat_maps:
-                    if isinstance(layer, nn.Conv2d):
-                        layer.weight.abs_()
+            self.heat_maps = _heat_map_net(channels, config.channels, free // 2)  # sees what s̄ leaves out
             self.sharpness = nn.Parameter(torch.tensor(float(np.log(3.0))))  # log of the softmax's inverse temperature
-            side = (height + 1) // 2
-            self.register_buffer("cell_centres", (torch.arange(side, dtype=torch.float32) + 0.5) / side * 2 - 1)
         else:
             self.to_latent = nn.Linear(flat, n + (free if config.kind == "vae" else 0))  # μ (n) and log σ (n − m)
         self.from_latent = nn.Linear(config.conditioned if config.free_features == "keypoints" else n, flat)
@@ -168,8 +198,13 @@ class AutoPerception(nn.Module):
         return self._encode(self._pixels(images), sample)[:3]
 
     def _encode(self, pixels: torch.Tensor, sample: bool = True):
-        """:meth:`forward`, and for free keypoints also the conditioned part's own drawing (else None)."""
+        """:meth:`forward`, then for free keypoints the conditioned part's own drawing and for goal
+        keypoints their places (each None when there are none)."""
         output = self.to_latent(self.encoder(pixels))
+        points = None
+        if self.config.goal_keypoints:
+            m, points = self.config.conditioned, self.goal_points(pixels)
+            output = torch.cat([output[:, :m] + self.from_points(points), output[:, m:]], dim=1)
         alone = None
         if self.config.free_features == "keypoints":
             alone = self._draw(output, None)
@@ -177,13 +212,13 @@ class AutoPerception(nn.Module):
         n, m = self.config.latent, self.config.conditioned
         mu = output[:, :n]
         if self.config.kind == "ae":
-            return mu, mu, output[:, n:], alone
+            return mu, mu, output[:, n:], alone, points
         log_sigma = output[:, n:].clamp(-10, 4)
         latent = mu
         if sample and self.training:
             noise = torch.randn_like(log_sigma) * log_sigma.exp()
             latent = torch.cat([mu[:, :m], mu[:, m:] + noise], dim=1)  # σ only on the free part (Fig 4.4)
-        return latent, mu, log_sigma, alone
+        return latent, mu, log_sigma, alone, points
 
     def _keypoints(self, unexplained: torch.Tensor) -> torch.Tensor:
         """(B, n − m): x1, y1, x2, y2, ... the expected position of each heat map (image right / down, [-1, 1]).
@@ -191,13 +226,19 @@ class AutoPerception(nn.Module):
         The heat maps see what the decoder cannot draw from the conditioned part alone (the image less
         that drawing, no gradient through it), not the image: shown the image, a keypoint settles on the
         most salient thing, often one s̄ already places, and the free features repeat s̄."""
-        maps = self.heat_maps(unexplained.abs())
+        return self._soft_argmax(self.heat_maps(unexplained.abs()), self.sharpness)
+
+    def goal_points(self, pixels: torch.Tensor) -> torch.Tensor:
+        """(B, 2K): the expected (x, y) of each ``goal_keypoints`` heat map over the image."""
+        return self._soft_argmax(self.goal_maps(pixels), self.goal_sharpness)
+
+    def _soft_argmax(self, maps: torch.Tensor, sharpness: torch.Tensor) -> torch.Tensor:
         b, k, h, w = maps.shape
         logits = maps.view(b, k, h * w)
         # standardised over the image, then sharpened: from the first step each keypoint sits on what its
         # map responds to most and moves with it (a near-uniform softmax would pin every one to the centre)
         logits = (logits - logits.mean(-1, keepdim=True)) / (logits.std(-1, keepdim=True) + 1e-6)
-        weights = F.softmax(logits * self.sharpness.exp(), -1).view(b, k, h, w)
+        weights = F.softmax(logits * sharpness.exp(), -1).view(b, k, h, w)
         xs = (weights.sum(2) * self.cell_centres).sum(-1)
         ys = (weights.sum(3) * self.cell_centres).sum(-1)
         return torch.stack([xs, ys], -1).view(b, 2 * k)
@@ -230,17 +271,24 @@ class AutoPerception(nn.Module):
             blobs = torch.exp(-(dy[..., :, None] + dx[..., None, :]) / (2 * BLOB_SIGMA ** 2))
         return self.decoder[split:](torch.cat([hidden, blobs], dim=1))
 
-    def loss(self, images, states: torch.Tensor | None) -> dict[str, torch.Tensor]:
+    def loss(self, images, states: torch.Tensor | None, points=None) -> dict[str, torch.Tensor]:
         """L_VP = L_recon + ω (L_cond + β KL_free) (Eq 4.1–4.7); per-element means, so sizes do not matter.
-        Also gives ``mu``, the encoder's output, for losses on the features themselves."""
+        ``points`` (B, 2K): where s̄'s goal lies in each view, for ``goal_keypoints`` (L_cond gains their
+        L1 to the keypoints). Also gives ``mu``, the encoder's output, for losses on the features themselves."""
         target = self._pixels(images)
-        latent, mu, log_sigma, alone = self._encode(target)
+        latent, mu, log_sigma, alone, found = self._encode(target)
         recon = self._reconstruction_error(self.decode(latent), target)
         m = self.config.conditioned
         cond = torch.zeros(())
         if m and states is not None:
             normalised = (torch.as_tensor(states, dtype=torch.float32)[:, :m] - self.state_mean) / self.state_std
             cond = (mu[:, :m] - normalised).abs().mean()
+        if points is not None and self.config.goal_keypoints:
+            points = torch.as_tensor(points, dtype=torch.float32)
+            if points.shape[1:] != (2 * self.config.goal_keypoints,):
+                raise ConfigError(f"perception.goal_keypoints: {self.config.goal_keypoints} keypoints need the goal's "
+                                  f"(x, y) in as many views, got {points.shape[1]} coordinates")
+            cond = cond + (found - points).abs().mean()
         kl = torch.zeros(())
         if self.config.kind == "vae" and self.config.free:
             free_mu = mu[:, m:]

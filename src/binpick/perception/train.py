@@ -33,15 +33,20 @@ def train_perception(
     seed: int = 0,
     callback: RunCallback = SILENT,
     initial: AutoPerception | None = None,
+    points: np.ndarray | None = None,
 ) -> tuple[AutoPerception, dict[str, Any]]:
     """A network trained on ``images`` (N, H, W, C) uint8 and ``states`` (N, d); returns it and its history.
 
     With ``initial`` training continues from that network (and keeps its state statistics).
     ``schedule``: ``constant`` learning rate, or ``cosine`` decay to 0 over all epochs.
+    ``points`` (N, 2K): where s̄'s goal lies in each view, for ``goal_keypoints`` (:meth:`AutoPerception.loss`).
     """
     check_choice("schedule", schedule, ["constant", "cosine"])
     if len(images) != len(states) or len(images) < 2:
         raise ConfigError(f"perception training needs matching images and states, got {len(images)} and {len(states)}")
+    if points is not None and len(points) != len(images):
+        raise ConfigError(f"perception training needs the goal's place in view for every image, got {len(points)} "
+                          f"for {len(images)}")
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     order = rng.permutation(len(images))
@@ -66,7 +71,7 @@ def train_perception(
             sums = {"total": 0.0, "recon": 0.0, "cond": 0.0, "kl": 0.0}
             for step in range(steps_per_epoch):
                 batch = shuffled[step * batch_size:(step + 1) * batch_size]
-                losses = model.loss(images[batch], states[batch])
+                losses = model.loss(images[batch], states[batch], None if points is None else points[batch])
                 optimizer.zero_grad()
                 losses["total"].backward()
                 optimizer.step()
@@ -74,24 +79,34 @@ def train_perception(
                     decay.step()
                 for key in sums:
                     sums[key] += float(losses[key].detach()) / steps_per_epoch
-            row = {"epoch": epoch + 1, **sums, **held_out_error(model, images[held_out], states[held_out])}
+            row = {"epoch": epoch + 1, **sums, **held_out_error(model, images[held_out], states[held_out],
+                                                                None if points is None else points[held_out])}
             history["epochs"].append(row)
             status = f"L_recon {sums['recon']:.4f}"
             if row["state_mae"] is not None:
                 status += f" · held-out s̄ error {row['state_mae']:.4f}"
+            if row.get("goal_point_mae") is not None:
+                status += f" · goal keypoints {row['goal_point_mae']:.4f}"
             task.update(epoch + 1, status=status)
             callback.message(f"perception epoch {epoch + 1}/{epochs}: {status}")
     return model, history
 
 
-def held_out_error(model: AutoPerception, images: np.ndarray, states: np.ndarray) -> dict[str, float | None]:
+def held_out_error(model: AutoPerception, images: np.ndarray, states: np.ndarray,
+                   points: np.ndarray | None = None) -> dict[str, float | None]:
     """Mean absolute error of φ_enc(I)^{1:m} against s̄ on images the network did not train on
-    (None when nothing is conditioned, m = 0: JSON has no NaN)."""
+    (None when nothing is conditioned, m = 0: JSON has no NaN); with ``points`` also the goal
+    keypoints' (image units, [-1, 1])."""
     m = model.config.conditioned
     if not m:
         return {"state_mae": None}
     predicted = np.concatenate([model.encode(images[i:i + 256]) for i in range(0, len(images), 256)])
-    return {"state_mae": float(np.abs(predicted[:, :m] - states[:, :m]).mean())}
+    errors = {"state_mae": float(np.abs(predicted[:, :m] - states[:, :m]).mean())}
+    if points is not None and model.config.goal_keypoints:
+        with torch.no_grad():
+            found = torch.cat([model.goal_points(model._pixels(images[i:i + 256])) for i in range(0, len(images), 256)])
+        errors["goal_point_mae"] = float(np.abs(found.numpy() - points).mean())
+    return errors
 
 
 FORMAT = "binpick-perception-1"

@@ -49,6 +49,23 @@ class CameraPose:
     azimuth: float
     elevation: float
 
+    @property
+    def forward(self) -> np.ndarray:
+        """The unit vector from the camera towards its look-at point (MuJoCo's free-camera convention)."""
+        azimuth, elevation = np.radians(self.azimuth), np.radians(self.elevation)
+        return np.array([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth), np.sin(elevation)])
+
+    def project(self, points: np.ndarray, fovy_degrees: float) -> np.ndarray:
+        """World points (N, 3) -> where a square frame shows them, (N, 2) as (x right, y down) in [-1, 1]."""
+        forward = self.forward
+        eye = np.asarray(self.lookat) - self.distance * forward
+        right = np.cross(forward, [0.0, 0.0, 1.0])
+        right /= np.linalg.norm(right)
+        up = np.cross(right, forward)
+        rays = np.asarray(points, np.float64).reshape(-1, 3) - eye
+        focal = 1.0 / np.tan(np.radians(fovy_degrees) / 2)
+        return focal * np.stack([rays @ right, -(rays @ up)], axis=-1) / (rays @ forward)[:, None]
+
 
 class MujocoCamera:
     """Renders RGB or grey frames of a MuJoCo model from a fixed free-camera pose.
