@@ -65,7 +65,10 @@ CONFIGS = {
                            "april_obstacle_on_path0.5_n8_m6_keypoints_distilled_detour_40k_seed1",
                            "april_obstacle_on_path0.5_n6_m6_two_views_distilled_detour_40k",
                            "april_obstacle_on_path0.5_n6_m6_goalkp_two_views_distilled_detour_40k",
-                           "april_obstacle_on_path0.5_n8_m6_goalkp_keypoints_two_views_distilled_detour_40k"],
+                           "april_obstacle_on_path0.5_n8_m6_goalkp_keypoints_two_views_distilled_detour_40k",
+                           "april_obstacle_on_path0.5_n8_m6_goalkp_keypoints_ws_two_views_distilled_detour_40k",
+                           "april_obstacle_on_path0.5_n6_m6_goalkp_two_views_distilled_detour_40k_seed1",
+                           "april_obstacle_on_path0.5_n8_m6_goalkp_keypoints_ws_two_views_distilled_detour_40k_seed1"],
 }
 # each table's ground-truth row comes from one config; the others train the same state policy again
 GROUND_TRUTH_FROM = {"FetchReach": "april_fetchreach_w1.0", "Reacher": "april_reacher_n4_m4",

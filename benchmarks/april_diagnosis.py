@@ -60,7 +60,7 @@ def diagnose(run: AprilRun, episodes: int) -> dict:
     per_episode = []
     obstacle = hasattr(fetch, "obstacle_position")
     m = run.config.perception.conditioned  # a free keypoint against where the box really is in the image
-    box_in_view = BoxInView(fetch) if obstacle and run.config.perception.free_features == "keypoints" else None
+    box_in_view = obstacle and run.config.perception.free_features == "keypoints"
     for episode in range(episodes):
         observation, _ = env.reset(seed=seed + episode)
         steps, done, success, touched = [], False, False, False
@@ -79,8 +79,7 @@ def diagnose(run: AprilRun, episodes: int) -> dict:
                           "goal_error_across_ray": float(np.linalg.norm(goal_error - along * directions[0])),
                           "gripper_error": float(np.linalg.norm(seen["achieved_goal"] - truth_grip)),
                           "goal_pixels": visible_goal_pixels(fetch),
-                          **({"keypoint_error": float(np.linalg.norm(observation[m:m + 2] - box_in_view(None)[0, 6:]))}
-                             if box_in_view else {})})
+                          **({"keypoint_error": keypoint_off_box(fetch, observation[m:m + 2])} if box_in_view else {})})
             action = policy.predict(observation, deterministic=True)[0]
             observation, _, terminated, truncated, info = env.step(action)
             success = success or bool(info.get("is_success"))
@@ -218,8 +217,8 @@ def probe_box(run: AprilRun, images: int = 1000) -> dict:
         if index < 8:
             pictures.append(observation["image"])
     env.close()
-    if perception.config.free_features == "keypoints":
-        show_free_keypoints(run, perception, np.stack(pictures))
+    if perception.config.free_features == "keypoints" or perception.config.goal_keypoints:
+        show_keypoints(run, perception, np.stack(pictures))
     features, boxes = np.asarray(features, np.float64), np.asarray(boxes, np.float64)
     half, m = images // 2, perception.config.conditioned
 
@@ -251,25 +250,40 @@ def probe_box(run: AprilRun, images: int = 1000) -> dict:
                                      "true_state": blocked_from(truths[:, :6]), "true_state_and_box": blocked_from(truths)}}
 
 
-def show_free_keypoints(run: AprilRun, perception, images: np.ndarray) -> None:
-    """docs/img/april/<run>_free_keypoints.png: reset images with each free keypoint ringed (top) and the
-    decoder's reconstruction (bottom), 4x enlarged: where the free features look."""
+def show_keypoints(run: AprilRun, perception, images: np.ndarray) -> None:
+    """docs/img/april/<run>_free_keypoints.png (or _goal_keypoints.png without free ones): reset images with
+    each free keypoint ringed in magenta and each view's goal keypoint in cyan (top) and the decoder's
+    reconstruction (bottom), 4x enlarged, the stacked views side by side: where the keypoints look. A free
+    keypoint's place is one for all stacked views: it is ringed in each."""
+    import torch
     from PIL import Image, ImageDraw
 
     scale, m = 4, perception.config.conditioned
-    points, drawn = perception.encode(images)[:, m:], perception.reconstruct(images)
+    per_view = 3 if run.config.image == "rgb" else 1
+    free = perception.encode(images)[:, m:] if perception.config.free_features == "keypoints" else np.zeros((len(images), 0))
+    goal = np.zeros((len(images), 0))
+    if perception.config.goal_keypoints:
+        with torch.no_grad():
+            goal = perception.goal_points(perception._pixels(images)).numpy()
+    drawn = perception.reconstruct(images)
     columns = []
-    for image, point, reconstruction in zip(images, points, drawn):
-        picture = Image.fromarray(image).resize((image.shape[1] * scale, image.shape[0] * scale), Image.NEAREST)
-        pen = ImageDraw.Draw(picture)
-        for x, y in point.reshape(-1, 2):
-            u, v = (x + 1) / 2 * picture.width, (y + 1) / 2 * picture.height
-            pen.ellipse([u - 7, v - 7, u + 7, v + 7], outline=(255, 0, 255), width=3)
-        below = Image.fromarray(reconstruction).resize(picture.size, Image.NEAREST)
-        columns.append(np.concatenate([np.asarray(picture), np.asarray(below)], axis=0))
+    for image, free_points, goal_points, reconstruction in zip(images, free, goal, drawn):
+        for view in range(image.shape[-1] // per_view):
+            channels = slice(view * per_view, (view + 1) * per_view)
+            picture = Image.fromarray(image[..., channels].squeeze()).convert("RGB")
+            picture = picture.resize((image.shape[1] * scale, image.shape[0] * scale), Image.NEAREST)
+            pen = ImageDraw.Draw(picture)
+            rings = [(point, (255, 0, 255)) for point in free_points.reshape(-1, 2)]
+            rings += [(goal_points.reshape(-1, 2)[view], (0, 255, 255))] if len(goal_points) else []
+            for (x, y), colour in rings:
+                u, v = (x + 1) / 2 * picture.width, (y + 1) / 2 * picture.height
+                pen.ellipse([u - 7, v - 7, u + 7, v + 7], outline=colour, width=3)
+            below = Image.fromarray(reconstruction[..., channels].squeeze()).convert("RGB").resize(picture.size, Image.NEAREST)
+            columns.append(np.concatenate([np.asarray(picture), np.asarray(below)], axis=0))
     folder = _common.ROOT / "docs" / "img" / "april"
     folder.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(np.concatenate(columns, axis=1)).save(folder / f"{run.config.name}_free_keypoints.png")
+    kind = "free" if perception.config.free_features == "keypoints" else "goal"
+    Image.fromarray(np.concatenate(columns, axis=1)).save(folder / f"{run.config.name}_{kind}_keypoints.png")
 
 
 class NoisyBox:
@@ -285,6 +299,13 @@ class NoisyBox:
         if self.box is None or not np.array_equal(box, self.box):
             self.box, self.offset = box.copy(), self.rng.normal(0.0, self.sigma, 3)
         return np.concatenate([np.zeros(6), box + self.offset])[None]
+
+
+def keypoint_off_box(fetch, point: np.ndarray) -> float:
+    """How far a free keypoint (x, y) is from the box centre's place in the image, in the nearest of the
+    stacked views (one place serves them all), in image units ([-1, 1] across)."""
+    places = fetch.in_views(fetch.obstacle_position[None])[0].reshape(-1, 2)
+    return float(np.linalg.norm(places - point, axis=1).min())
 
 
 class BoxInView:

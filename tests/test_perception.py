@@ -195,3 +195,24 @@ def test_goal_keypoints_are_checked_against_the_conditioning_and_the_views():
     images, states = dot_images(4)
     with pytest.raises(ConfigError, match="2 keypoints need the goal's"):
         model.loss(images, states, points=np.zeros((4, 2), np.float32))
+
+
+def test_free_keypoints_can_be_kept_to_the_first_view():
+    """perception.free_keypoint_channels: with stacked views the free heat maps see only the first view's
+    channels, so a large thing in the second view (the side view's arm) cannot hold the keypoint."""
+    torch.manual_seed(0)
+    config = PerceptionConfig(latent=4, conditioned=2, channels=8, free_features="keypoints", free_keypoint_channels=3)
+    model = AutoPerception(config, (64, 64, 6), 2)
+    with torch.no_grad():
+        grey = round(float(model._draw(torch.zeros(1, 2), None).mean()) * 255)
+    images = np.full((2, 64, 64, 6), grey, np.uint8)
+    images[:, 40:46, 10:16, :3] = (20, 40, 200)  # the box, in the first view
+    images[1, 5:35, 30:60, 3:] = (250, 250, 250)  # something large, in the second view only
+    free = model.encode(images)[:, 2:]
+    np.testing.assert_allclose(free[0], free[1], atol=1e-5)
+    assert np.abs(free[0] - np.array([13, 43]) / 64 * 2 + 1).max() < 0.1, free[0]
+    with pytest.raises(ConfigError, match="free_keypoint_channels .* needs perception.free_features: keypoints"):
+        PerceptionConfig(free_keypoint_channels=3)
+    with pytest.raises(ConfigError, match=r"free_keypoint_channels \(9\) exceeds the images' 6 channels"):
+        AutoPerception(PerceptionConfig(latent=4, conditioned=2, free_features="keypoints", free_keypoint_channels=9),
+                       (64, 64, 6), 2)

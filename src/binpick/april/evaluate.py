@@ -76,6 +76,7 @@ def row_names(run: AprilRun) -> dict[str, str]:
     trained = f"_cosine{training.epochs}" if training.schedule == "cosine" else ""
     foreground = f"_fg{p.foreground_weight:g}" if p.foreground_weight else ""  # reconstruction weighted to objects
     spatial = "_kp" if p.free_features == "keypoints" else ""  # free features read as keypoints
+    spatial += f"_on{p.free_keypoint_channels}ch" if p.free_keypoint_channels else ""  # ... in the first channels only
     spatial = ("_goalkp" if p.goal_keypoints else "") + spatial  # s̄'s goal read through keypoints too
     replicate = f"_seed{run.config.seed}" if run.config.seed else ""  # the same row trained from another seed
     pixels = f"pixels_{p.kind}_n{p.latent}_m{p.conditioned}_w{p.omega:g}" + spatial + foreground + goals + trained + refined \

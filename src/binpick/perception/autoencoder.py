@@ -68,6 +68,9 @@ class PerceptionConfig:
     # part; one per camera view, each trained to sit on s̄'s goal in its view (0: the fully connected
     # layer alone, as in the thesis)
     goal_keypoints: int = 0
+    # free keypoints look at the first this-many image channels only (0: all): with stacked views, the
+    # first view's (e.g. 3 for RGB), where the other view holds something large that s̄ draws poorly
+    free_keypoint_channels: int = 0
 
     def __post_init__(self) -> None:
         check_choice("perception.kind", self.kind, ["ae", "vae"])
@@ -82,6 +85,10 @@ class PerceptionConfig:
         check_range("perception.foreground_weight", self.foreground_weight, 0.0, 1e4)
         check_choice("perception.free_features", self.free_features, ["dense", "keypoints"])
         check_range("perception.goal_keypoints", self.goal_keypoints, 0, 64, integer=True)
+        check_range("perception.free_keypoint_channels", self.free_keypoint_channels, 0, 64, integer=True)
+        if self.free_keypoint_channels and self.free_features != "keypoints":
+            raise ConfigError("perception.free_keypoint_channels chooses what free keypoints look at: it needs "
+                              "perception.free_features: keypoints")
         if self.goal_keypoints and not self.conditioned:
             raise ConfigError("perception.goal_keypoints needs a conditioned part (perception.conditioned "
                               "m >= 1): the keypoints are read into it")
@@ -151,7 +158,11 @@ class AutoPerception(nn.Module):
                                              nn.Linear(64, config.conditioned))  # image places -> s̄ (perspective)
         if config.free_features == "keypoints":  # the fully connected layer gives only the m conditioned ones
             self.to_latent = nn.Linear(flat, config.conditioned)
-            self.heat_maps = _heat_map_net(channels, config.channels, free // 2)  # sees what s̄ leaves out
+            if config.free_keypoint_channels > channels:
+                raise ConfigError(f"perception.free_keypoint_channels ({config.free_keypoint_channels}) exceeds the "
+                                  f"images' {channels} channels")
+            self.seen_by_free = config.free_keypoint_channels or channels
+            self.heat_maps = _heat_map_net(self.seen_by_free, config.channels, free // 2)  # sees what s̄ leaves out
             self.sharpness = nn.Parameter(torch.tensor(float(np.log(3.0))))  # log of the softmax's inverse temperature
         else:
             self.to_latent = nn.Linear(flat, n + (free if config.kind == "vae" else 0))  # μ (n) and log σ (n − m)
@@ -208,7 +219,8 @@ class AutoPerception(nn.Module):
         alone = None
         if self.config.free_features == "keypoints":
             alone = self._draw(output, None)
-            output = torch.cat([output, self._keypoints(pixels - alone.detach())], dim=1)
+            unexplained = (pixels - alone.detach())[:, :self.seen_by_free]
+            output = torch.cat([output, self._keypoints(unexplained)], dim=1)
         n, m = self.config.latent, self.config.conditioned
         mu = output[:, :n]
         if self.config.kind == "ae":
