@@ -60,7 +60,7 @@ def diagnose(run: AprilRun, episodes: int) -> dict:
     per_episode = []
     obstacle = hasattr(fetch, "obstacle_position")
     m = run.config.perception.conditioned  # a free keypoint against where the box really is in the image
-    box_in_view = obstacle and run.config.perception.free_features == "keypoints"
+    free_keypoint = obstacle and run.config.perception.free_features == "keypoints"
     for episode in range(episodes):
         observation, _ = env.reset(seed=seed + episode)
         steps, done, success, touched = [], False, False, False
@@ -79,7 +79,7 @@ def diagnose(run: AprilRun, episodes: int) -> dict:
                           "goal_error_across_ray": float(np.linalg.norm(goal_error - along * directions[0])),
                           "gripper_error": float(np.linalg.norm(seen["achieved_goal"] - truth_grip)),
                           "goal_pixels": visible_goal_pixels(fetch),
-                          **({"keypoint_error": keypoint_off_box(fetch, observation[m:m + 2])} if box_in_view else {})})
+                          **({"keypoint_error": keypoint_off_box(fetch, observation[m:m + 2])} if free_keypoint else {})})
             action = policy.predict(observation, deterministic=True)[0]
             observation, _, terminated, truncated, info = env.step(action)
             success = success or bool(info.get("is_success"))
@@ -95,7 +95,7 @@ def diagnose(run: AprilRun, episodes: int) -> dict:
                             "last_goal_error": steps[-1]["goal_error"], "last_gripper_error": steps[-1]["gripper_error"],
                             **({"blocked": blocked, "touched_box": bool(touched)} if obstacle else {}),
                             **({"mean_keypoint_error": float(np.mean([s["keypoint_error"] for s in steps]))}
-                               if box_in_view else {})})
+                               if free_keypoint else {})})
         print(f"episode {episode}: {'ok ' if success else 'FAIL'} length {len(steps)} "
               f"goal error start {first['goal_error'] * 100:.1f} cm (pixels {first['goal_pixels']}), "
               f"mean {per_episode[-1]['mean_goal_error'] * 100:.1f} cm, hidden {per_episode[-1]['hidden_fraction']:.0%}",
@@ -122,7 +122,7 @@ def diagnose(run: AprilRun, episodes: int) -> dict:
                     "median_mean_gripper_error_cm": round(float(np.median([r["mean_gripper_error"] for r in rows])) * 100, 2),
                     "median_goal_hidden_fraction": round(float(np.median([r["hidden_fraction"] for r in rows])), 3),
                     **({"median_mean_keypoint_error": round(float(np.median([r["mean_keypoint_error"] for r in rows])), 3)}
-                       if box_in_view else {})}
+                       if free_keypoint else {})}
             for label, rows in (("blocked", [r for r in per_episode if r["blocked"]]),
                                 ("clear", [r for r in per_episode if not r["blocked"]])) if rows}
     return report | {"per_episode": per_episode}
