@@ -126,9 +126,7 @@ def test_obstacle_can_hide_the_goal_from_the_camera(make_env):
     visible = red_pixels(observation["image"])
     assert visible > 0, "the goal is visible when nothing is in the way"
     # put the box between the camera and the goal: on the line from the goal towards the camera
-    camera = unwrapped._camera._camera
-    azimuth, elevation = np.radians(camera.azimuth), np.radians(camera.elevation)
-    towards_camera = -np.array([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth), np.sin(elevation)])
+    towards_camera = -unwrapped.observation_poses[0].forward
     unwrapped.model.body_pos[unwrapped._obstacle_body] = unwrapped.goal + 0.2 * towards_camera
     hidden = red_pixels(unwrapped._get_obs()["image"])
     assert hidden < visible
@@ -143,9 +141,7 @@ def test_a_second_view_sees_the_goal_the_first_one_loses_behind_the_box(make_env
     def red_pixels(image):
         return int(np.sum((image[..., 0] > 150) & (image[..., 1] < 60) & (image[..., 2] < 60)))
 
-    pose = unwrapped.observation_poses[0]
-    azimuth, elevation = np.radians(pose.azimuth), np.radians(pose.elevation)
-    towards_camera = -np.array([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth), np.sin(elevation)])
+    towards_camera = -unwrapped.observation_poses[0].forward
     unwrapped.model.body_pos[unwrapped._obstacle_body] = unwrapped.goal + 0.2 * towards_camera
     image = unwrapped._get_obs()["image"]
     assert red_pixels(image[..., :3]) == 0, "the box hides the goal from the workspace view"

@@ -159,8 +159,7 @@ class AprilConfig:
             raise ConfigError(f"image_size must be a multiple of 64 (6 stride-2 layers), got {self.image_size}")
         keypoints = self.perception.goal_keypoints
         if keypoints:
-            views = self.env_kwargs.get("views", ["workspace"])
-            views = [views] if isinstance(views, str) else list(views)
+            views = self.views
             if "Fetch" not in spec.env_id or keypoints != len(views):
                 raise ConfigError(f"perception.goal_keypoints: one per camera view of a Fetch env ({len(views)} in "
                                   f"env_kwargs.views here), got {keypoints}")
@@ -187,6 +186,13 @@ class AprilConfig:
         if self.policy.mode != "latent" or self.policy.pretrain:
             if not Path(self.policy.rl_config).is_file():
                 raise ConfigError(f"policy.rl_config: no such file {self.policy.rl_config!r}")
+
+
+    @property
+    def views(self) -> list[str]:
+        """The observation cameras (``env_kwargs.views``; the Fetch envs' default is the workspace view)."""
+        views = self.env_kwargs.get("views", ["workspace"])
+        return [views] if isinstance(views, str) else list(views)
 
 
 def load_april_config(path: str | Path, overrides: dict | None = None) -> AprilConfig:

@@ -63,8 +63,7 @@ def load_latent_policy(run_dir: Path):
 def row_names(run: AprilRun) -> dict[str, str]:
     """Runtime input -> the results row name (what the row is, e.g. pixels_ae_n6_m6_w1.0)."""
     p = run.config.perception
-    views = run.config.env_kwargs.get("views", ["workspace"])
-    views = [views] if isinstance(views, str) else list(views)
+    views = run.config.views
     refine = run.config.refine
     refined = ("_refined_on_pixels" if refine.act_on == "pixels" else "_refined") if refine.episodes else ""
     cameras = {1: "", 2: "_two_views"}.get(len(views), f"_{len(views)}_views")

@@ -100,12 +100,13 @@ def held_out_error(model: AutoPerception, images: np.ndarray, states: np.ndarray
     m = model.config.conditioned
     if not m:
         return {"state_mae": None}
-    predicted = np.concatenate([model.encode(images[i:i + 256]) for i in range(0, len(images), 256)])
+    with torch.no_grad():  # one pass gives φ_enc(I) and, with goal keypoints, their places
+        passes = [model._encode(model._pixels(images[i:i + 256]), sample=False) for i in range(0, len(images), 256)]
+        predicted = model.features(torch.cat([mu for _, mu, *_ in passes])).numpy()
     errors = {"state_mae": float(np.abs(predicted[:, :m] - states[:, :m]).mean())}
     if points is not None and model.config.goal_keypoints:
-        with torch.no_grad():
-            found = torch.cat([model.goal_points(model._pixels(images[i:i + 256])) for i in range(0, len(images), 256)])
-        errors["goal_point_mae"] = float(np.abs(found.numpy() - points).mean())
+        found = torch.cat([places for *_, places in passes]).numpy()
+        errors["goal_point_mae"] = float(np.abs(found - points).mean())
     return errors
 
 
