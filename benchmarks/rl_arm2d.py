@@ -53,6 +53,9 @@ RUNS = {
     "no_curriculum_state_entropy_whole_area": ("configs/rl_arm2d_no_curriculum_state_entropy.yaml", 1.0),
     "curriculum_keypoints_state_entropy_whole_area": ("configs/rl_arm2d_curriculum_keypoints_state_entropy.yaml", 1.0),
     "no_curriculum_keypoints_state_entropy_whole_area": ("configs/rl_arm2d_no_curriculum_keypoints_state_entropy.yaml", 1.0),
+    # the auxiliary head regresses angles as cos/sin (no jump at ±π), weight 1, 32 px pictures, 2M steps
+    "curriculum_keypoints_continuous_whole_area": ("configs/rl_arm2d_curriculum_keypoints_continuous.yaml", 1.0),
+    "no_curriculum_keypoints_continuous_whole_area": ("configs/rl_arm2d_no_curriculum_keypoints_continuous.yaml", 1.0),
 }
 ALIASES = {"curriculum": "curriculum_whole_area", "no_curriculum": "no_curriculum_whole_area",
            "curriculum_keypoints": "curriculum_keypoints_whole_area",
@@ -62,7 +65,9 @@ ALIASES = {"curriculum": "curriculum_whole_area", "no_curriculum": "no_curriculu
            "curriculum_state": "curriculum_state_whole_area", "no_curriculum_state": "no_curriculum_state_whole_area",
            **{name: f"{name}_whole_area" for name in ("curriculum_state_entropy", "no_curriculum_state_entropy",
                                                       "curriculum_keypoints_state_entropy",
-                                                      "no_curriculum_keypoints_state_entropy")}}
+                                                      "no_curriculum_keypoints_state_entropy",
+                                                      "curriculum_keypoints_continuous",
+                                                      "no_curriculum_keypoints_continuous")}}
 EPISODES = 200
 
 

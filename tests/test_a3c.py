@@ -237,6 +237,13 @@ def test_a3c_encoder_is_saved_with_the_weights_and_a_mismatch_is_one_line(tmp_pa
     assert trainer.state_size == 7 and load_a3c_policy(latest_checkpoint(trainer.run_dir / "checkpoints")).model.state_size == 7
     with pytest.raises(ConfigError, match="auxiliary state head"):
         trainer_for(from_dict(RLConfig, settings | {"init_from": str(trainer.run_dir)}), tmp_path / "other2")
+    # a3c.state_key names the info entry the head regresses: Arm2D's continuous state is 10 long
+    continuous = auxiliary | {"a3c": auxiliary["a3c"] | {"state_key": "state_continuous"}}
+    assert trainer_for(from_dict(RLConfig, continuous), tmp_path / "continuous").state_size == 10
+    with pytest.raises(ConfigError, match=r"info\['nowhere'\]"):
+        trainer_for(from_dict(RLConfig, auxiliary | {"a3c": auxiliary["a3c"] | {"state_key": "nowhere"}}), tmp_path / "bad")
+    with pytest.raises(ConfigError, match="a3c.state_key"):
+        from_dict(RLConfig, settings | {"a3c": {"state_key": ""}})
 
 
 def test_auxiliary_state_loss_teaches_the_features_where_arm_and_goal_are(tmp_path):
@@ -250,6 +257,9 @@ def test_auxiliary_state_loss_teaches_the_features_where_arm_and_goal_are(tmp_pa
 
     plain = worker(0.0)
     assert plain.model.state is None and plain.compute_gradients(plain.model.state_dict())[1].state_loss == 0.0
+    continuous = A3CWorker(lambda: make("Arm2D", image_size=32, goal_area=1.0), (32, 32, 3), 6, seed=3, n_steps=5,
+                           state_weight=1.0, state_size=10, state_key="state_continuous")  # regresses that entry
+    assert continuous.semantic.shape == (10,) and continuous.compute_gradients(continuous.model.state_dict())[1].state_loss > 0
     env = make("Arm2D", image_size=32, goal_area=1.0)
     pictures, states = zip(*((image, info["state"]) for image, info in (env.reset(seed=s) for s in range(200))))
     pictures, states = torch.from_numpy(np.stack(pictures)), torch.as_tensor(np.stack(states), dtype=torch.float32)

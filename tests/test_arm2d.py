@@ -37,6 +37,22 @@ def test_end_point_is_forward_kinematics(make_env):
     np.testing.assert_allclose(unwrapped.end_point, [l1 + l3, l2], atol=1e-12)
 
 
+def test_continuous_state_has_each_angle_as_cos_and_sin_and_no_jump_at_pi(make_env):
+    """info["state_continuous"] (A3C's auxiliary target, issue 19): the semantic state without the ±π wrap."""
+    env = make_env("binpick/Arm2D-v0")
+    _, info = env.reset(seed=4)
+    angles, rest = info["state"][:3], info["state"][3:]
+    np.testing.assert_allclose(info["state_continuous"], np.r_[np.cos(angles), np.sin(angles), rest], atol=1e-12)
+    arm = env.unwrapped
+    arm.angles = np.array([math.pi - 1e-3, 0.0, 0.0])
+    before_state, before_continuous = arm.state.copy(), arm.state_continuous.copy()
+    env.step(0)  # joint 0 turns past π and wraps to about -7π/8
+    env.step(1)  # and back
+    arm.angles = np.array([-math.pi + 1e-3, 0.0, 0.0])  # 2e-3 rad from where it was, on the other side of the wrap
+    assert abs(arm.state[0] - before_state[0]) > 6.0
+    assert np.abs(arm.state_continuous - before_continuous).max() < 3e-3
+
+
 def test_random_start_configurations_and_never_start_on_goal(make_env):
     env = make_env("binpick/Arm2D-v0")
     starts = np.array([env.reset(seed=s)[1]["state"][:3] for s in range(50)])

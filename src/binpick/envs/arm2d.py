@@ -123,6 +123,14 @@ class Arm2DEnv(gym.Env):
         return np.concatenate([self.angles, self.end_point, self.goal])
 
     @property
+    def state_continuous(self) -> np.ndarray:
+        """The semantic state with each joint angle as its cosine and sine (3 + 3), end point, goal: a
+        regression target without the jump at ±π. A network regressing the raw angles spends its loss on
+        that jump (issue 19: from 64 px images at A3C's learning rate, 6,000 updates left the end point
+        0.34 off with raw angles, 0.10 with this)."""
+        return np.concatenate([np.cos(self.angles), np.sin(self.angles), self.end_point, self.goal])
+
+    @property
     def compute_reward(self):
         """HER's reward function ``(achieved, desired, info) -> reward``, with ``goal_conditioned=True``
         only: tools such as SB3's env checker take any env with ``compute_reward`` for a goal env,
@@ -173,7 +181,8 @@ class Arm2DEnv(gym.Env):
 
     def _info(self) -> dict[str, Any]:
         distance = float(np.linalg.norm(self.end_point - self.goal))
-        return {"is_success": distance <= self.tolerance, "distance": distance, "state": self.state}
+        return {"is_success": distance <= self.tolerance, "distance": distance, "state": self.state,
+                "state_continuous": self.state_continuous}
 
     def _observation(self):
         if not self.goal_conditioned:

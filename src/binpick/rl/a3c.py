@@ -83,7 +83,7 @@ class ActorCritic(nn.Module):
         self.hidden = nn.Sequential(nn.Linear(features, 256), nn.ReLU())
         self.policy = nn.Linear(256, actions)
         self.value = nn.Linear(256, 1)
-        # optional auxiliary head: the semantic state (info["state"]) read from the same features
+        # optional auxiliary head: the semantic state (info[state_key]) read from the same features
         self.state_size = int(state_size)
         self.state = nn.Linear(256, self.state_size) if self.state_size else None
 
@@ -142,10 +142,10 @@ class A3CWorker:
     def __init__(self, make_env: Callable[[], gym.Env], observation_shape, actions: int, seed: int,
                  n_steps: int = 20, gamma: float = 0.99, entropy_beta: float = 0.01, value_coef: float = 0.5,
                  max_grad_norm: float = 40.0, reward_scale: float = 0.01, encoder: str = "flatten",
-                 state_weight: float = 0.0, state_size: int = 0) -> None:
+                 state_weight: float = 0.0, state_size: int = 0, state_key: str = "state") -> None:
         self.env = make_env()
         self.model = ActorCritic(observation_shape, actions, encoder, state_size if state_weight > 0 else 0)
-        self.state_weight = state_weight
+        self.state_weight, self.state_key = state_weight, state_key
         self.n_steps, self.gamma = n_steps, gamma
         self.entropy_beta, self.value_coef, self.max_grad_norm = entropy_beta, value_coef, max_grad_norm
         # binpick's -1-per-step reward gives returns near -1/(1-γ); scaling by (1-γ) keeps the critic's
@@ -155,14 +155,14 @@ class A3CWorker:
         self._episode = 0
         self._episode_steps = 0
         self.observation, info = self.env.reset(seed=seed)
-        self.semantic = info.get("state")
+        self.semantic = info.get(self.state_key)
         torch.manual_seed(seed)
 
     def reset_env(self) -> None:
         self._episode += 1
         self._episode_steps = 0
         self.observation, info = self.env.reset(seed=self.seed + 100_003 * self._episode)
-        self.semantic = info.get("state")
+        self.semantic = info.get(self.state_key)
 
     def compute_gradients(self, weights: dict[str, torch.Tensor]) -> tuple[list[torch.Tensor], RolloutStats]:
         """Play up to n_steps with ``weights`` and return the A3C gradients (Eq 3.5-3.7)."""
@@ -175,7 +175,7 @@ class A3CWorker:
             semantic.append(self.semantic)
             action = self.model.act(self.observation)
             self.observation, reward, terminated, truncated, info = self.env.step(action)
-            self.semantic = info.get("state")
+            self.semantic = info.get(self.state_key)
             actions.append(action)
             rewards.append(reward * self.reward_scale)
             self._episode_steps += 1
@@ -205,7 +205,7 @@ class A3CWorker:
         loss = policy_loss + self.value_coef * value_loss
         if self.state_weight > 0:  # auxiliary: the features must also say where the arm and goal are
             if any(value is None for value in semantic):
-                raise ValueError("a3c.state_weight needs an env that returns its semantic state in info['state']")
+                raise ValueError(f"a3c.state_weight needs an env that returns its semantic state in info[{self.state_key!r}]")
             target = torch.as_tensor(np.stack(semantic), dtype=torch.float32)
             stats.state_loss = float((state_loss := (self.model.state(hidden) - target).pow(2).mean()).detach())
             loss = loss + self.state_weight * state_loss

@@ -75,16 +75,17 @@ def make_env(config: RLConfig) -> gym.Env:
 
 
 def _state_size(config: RLConfig) -> int:
-    """Length of the env's semantic state (info["state"]) when the auxiliary state loss is on, else 0."""
+    """Length of the env's semantic state (info[a3c.state_key]) when the auxiliary state loss is on, else 0."""
     if config.a3c.state_weight == 0:
         return 0
     env = make_env(config)
     try:
-        state = env.reset(seed=0)[1].get("state")
+        state = env.reset(seed=0)[1].get(config.a3c.state_key)
     finally:
         env.close()
     if state is None:
-        raise ConfigError(f"a3c.state_weight needs an env that returns its semantic state in info['state']; {config.env} does not")
+        raise ConfigError(f"a3c.state_weight needs an env that returns its semantic state in info[{config.a3c.state_key!r}] "
+                          f"(a3c.state_key); {config.env} does not")
     return int(np.asarray(state).size)
 
 
@@ -96,7 +97,8 @@ def _worker(rank: int, config: RLConfig, model: ActorCritic, optimizer: SharedAd
     worker = A3CWorker(lambda: make_env(config), env_shape, 6, seed=config.seed * 1000 + rank * 7919 + counter.value,
                        n_steps=a3c.n_steps, gamma=a3c.gamma, entropy_beta=a3c.entropy_beta,
                        value_coef=a3c.value_coef, max_grad_norm=a3c.max_grad_norm, reward_scale=a3c.reward_scale,
-                       encoder=a3c.encoder, state_weight=a3c.state_weight, state_size=model.state_size)
+                       encoder=a3c.encoder, state_weight=a3c.state_weight, state_size=model.state_size,
+                       state_key=a3c.state_key)
     area = -1.0
     while not stop.is_set() and counter.value < config.total_timesteps:
         if goal_area.value != area and worker._episode_steps == 0:  # change the area between episodes only

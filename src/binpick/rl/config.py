@@ -103,11 +103,14 @@ class A3CConfig:
     reward_scale: float = 0.01  # keeps value targets in [-1, 0] for the -1-per-step reward
     encoder: str = "flatten"  # "keypoints": expected positions of feature maps (goals anywhere; see rl/a3c.py);
     # "state": an MLP on the env's vector observation (a goal env's dict is flattened): perception taken away
-    state_weight: float = 0.0  # > 0: auxiliary loss, the features also regress the env's info["state"]
+    state_weight: float = 0.0  # > 0: auxiliary loss, the features also regress the env's info[state_key]
+    state_key: str = "state"  # which info entry; Arm2D's "state_continuous" has cos/sin for the joint angles
 
     def __post_init__(self) -> None:
         check_choice("a3c.encoder", self.encoder, ["flatten", "keypoints", "state"])
         check_range("a3c.state_weight", self.state_weight, 0.0, 1e6)
+        if not isinstance(self.state_key, str) or not self.state_key:
+            raise ConfigError(f"a3c.state_key must be the name of an info entry, got {self.state_key!r}")
         check_range("a3c.reward_scale", self.reward_scale, 0.0, 1e6, low_inclusive=False)
         check_range("a3c.workers", self.workers, 1, 256, integer=True)
         check_range("a3c.n_steps", self.n_steps, 1, 10_000, integer=True)
