@@ -56,6 +56,9 @@ RUNS = {
     # the auxiliary head regresses angles as cos/sin (no jump at ±π), weight 1, 32 px pictures, 2M steps
     "curriculum_keypoints_continuous_whole_area": ("configs/rl_arm2d_curriculum_keypoints_continuous.yaml", 1.0),
     "no_curriculum_keypoints_continuous_whole_area": ("configs/rl_arm2d_no_curriculum_keypoints_continuous.yaml", 1.0),
+    # ... whose network first learns to read the state off rendered pictures (a3c.pretrain_*), then RL from pixels
+    "curriculum_keypoints_pretrained_whole_area": ("configs/rl_arm2d_curriculum_keypoints_pretrained.yaml", 1.0),
+    "no_curriculum_keypoints_pretrained_whole_area": ("configs/rl_arm2d_no_curriculum_keypoints_pretrained.yaml", 1.0),
 }
 ALIASES = {"curriculum": "curriculum_whole_area", "no_curriculum": "no_curriculum_whole_area",
            "curriculum_keypoints": "curriculum_keypoints_whole_area",
@@ -67,7 +70,9 @@ ALIASES = {"curriculum": "curriculum_whole_area", "no_curriculum": "no_curriculu
                                                       "curriculum_keypoints_state_entropy",
                                                       "no_curriculum_keypoints_state_entropy",
                                                       "curriculum_keypoints_continuous",
-                                                      "no_curriculum_keypoints_continuous")}}
+                                                      "no_curriculum_keypoints_continuous",
+                                                      "curriculum_keypoints_pretrained",
+                                                      "no_curriculum_keypoints_pretrained")}}
 EPISODES = 200
 
 
@@ -252,6 +257,11 @@ def main() -> None:
         f"{cell('no_curriculum_keypoints_state_entropy_whole_area')} | |",
         f"| A3C, keypoints + state loss, entropy bonus 0.01, no curriculum, sampling | whole area | "
         f"{cell('no_curriculum_keypoints_state_entropy_whole_area_sampled')} | |",
+        f"| A3C from 32 px, state loss on cos/sin, network first taught to read the state (pretrained), + curriculum, "
+        f"sampling | whole area | {cell('curriculum_keypoints_pretrained_1m_sampled')} | 25 ± 6 |",
+        f"| the same, + curriculum, greedy | whole area | {cell('curriculum_keypoints_pretrained_1m')} | |",
+        f"| the same, no curriculum, sampling | whole area | {cell('no_curriculum_keypoints_pretrained_1m_sampled')} | |",
+        f"| the same, no curriculum, greedy | whole area | {cell('no_curriculum_keypoints_pretrained_1m')} | |",
         f"| shortest path on the arm's action lattice (exhaustive search, not a learner) | whole area | "
         f"{cell('shortest_path_whole_area')} | |",
         "",

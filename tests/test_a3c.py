@@ -339,3 +339,32 @@ def test_state_encoder_runs_on_arm2d_state_and_mismatched_configs_are_one_line(t
         from_dict(RLConfig, state_run | {"a3c": {"encoder": "keypoints"}})
     with pytest.raises(ConfigError, match="image: null"):
         trainer_for(from_dict(RLConfig, state_run | {"env_kwargs": {"goal_conditioned": True}}), tmp_path / "r2")
+
+
+def test_perception_pretraining_reads_the_state_before_rl_and_is_not_redone_on_resume(tmp_path):
+    """a3c.pretrain_pictures (issue 19): the trunk and state head learn info[state_key] from rendered pictures
+    before any RL step; the run records it, checkpoints it, and a resumed run keeps the weights it has."""
+    import yaml
+
+    from binpick.config import from_dict
+    from binpick.errors import ConfigError
+    from binpick.rl.config import RLConfig
+    from binpick.rl.train import trainer_for
+
+    settings = yaml.safe_load(A3C_RUN.format(steps=20)) | {
+        "a3c": {"workers": 1, "n_steps": 5, "encoder": "keypoints", "state_weight": 1.0, "state_key": "state_continuous",
+                "pretrain_pictures": 1000, "pretrain_epochs": 6}}
+    torch.manual_seed(0)
+    trainer = trainer_for(from_dict(RLConfig, settings), tmp_path / "runs")
+    metrics = trainer.run()
+    pretrain = metrics["pretrain"]
+    assert pretrain["pictures"] == 1000 and pretrain["held_out_error"] < 0.8 * pretrain["untrained_error"], pretrain  # 0.44 vs 0.62
+    resumed = trainer_for(resume=trainer.run_dir)
+    assert resumed.metrics["pretrain"] == pretrain
+    weights = {k: v.clone() for k, v in resumed.model.state_dict().items()}
+    resumed.run()  # at its budget already: evaluates nothing new, trains nothing, does not pretrain again
+    assert all(torch.equal(weights[k], v) for k, v in resumed.model.state_dict().items())
+    for bad, message in [({"state_weight": 0.0}, "needs the auxiliary state head"),
+                         ({"encoder": "state"}, "has none"), ({"pretrain_epochs": 0}, "a3c.pretrain_epochs")]:
+        with pytest.raises(ConfigError, match=message):
+            from_dict(RLConfig, settings | {"a3c": settings["a3c"] | bad})

@@ -227,6 +227,8 @@ class A3CTrainer:
     # ------------------------------------------------------------------ training
     def run(self, callback: RunCallback = SILENT) -> dict[str, Any]:
         torch.set_num_threads(1)  # the workers need the cores; evaluation is one small forward pass a step
+        if self.config.a3c.pretrain_pictures and self.steps == 0 and "pretrain" not in self.metrics:
+            self._pretrain(callback)
         if self.steps < self.config.total_timesteps:
             with callback.task(self.config.name, self.config.total_timesteps, self.steps) as task:
                 self._train(task)
@@ -235,6 +237,18 @@ class A3CTrainer:
             evaluations.append(self.evaluate(self.goal_area(self.steps)))
             self.save_checkpoint()
         return self.write_outputs()
+
+    def _pretrain(self, callback: RunCallback) -> None:
+        """Perception first (:mod:`binpick.rl.a3c_pretrain`); checkpointed, so a resumed run does not redo it."""
+        from binpick.rl.a3c_pretrain import pretrain_perception
+
+        a3c = self.config.a3c
+        started = time.perf_counter()
+        with callback.task(f"{self.config.name}: perception", a3c.pretrain_epochs) as task:
+            result = pretrain_perception(self.model, lambda: make_env(self.config), a3c.state_key, a3c.pretrain_pictures,
+                                         a3c.pretrain_epochs, a3c.pretrain_learning_rate, self.config.seed + 777_777, task)
+        self.metrics["pretrain"] = result.as_dict() | {"wall_seconds": round(time.perf_counter() - started, 1)}
+        self.save_checkpoint()
 
     def _train(self, task: Task) -> None:
         """Worker processes until ``total_timesteps``, evaluating and checkpointing on the way."""
@@ -305,6 +319,7 @@ class A3CTrainer:
                 "final_success": last["success_rate"], "final_avg_actions": last["mean_length"],
                 "final_std_actions": last["std_length"], "wall_seconds": round(self.metrics["wall_seconds"], 1),
                 "curriculum_advanced_at": list(self.curriculum.advanced_at),
+                **({"pretrain": self.metrics["pretrain"]} if "pretrain" in self.metrics else {}),
                 "evaluations": self.metrics["evaluations"]}
         atomic_write_json(self.run_dir / "metrics.json", data)
         plot_learning_curve(self.metrics["evaluations"], self.run_dir / "curves.png", title=self.config.name,

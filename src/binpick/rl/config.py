@@ -105,12 +105,22 @@ class A3CConfig:
     # "state": an MLP on the env's vector observation (a goal env's dict is flattened): perception taken away
     state_weight: float = 0.0  # > 0: auxiliary loss, the features also regress the env's info[state_key]
     state_key: str = "state"  # which info entry; Arm2D's "state_continuous" has cos/sin for the joint angles
+    pretrain_pictures: int = 0  # > 0: before RL, fit trunk and state head to the state on this many pictures
+    pretrain_epochs: int = 10
+    pretrain_learning_rate: float = 1e-3
 
     def __post_init__(self) -> None:
         check_choice("a3c.encoder", self.encoder, ["flatten", "keypoints", "state"])
         check_range("a3c.state_weight", self.state_weight, 0.0, 1e6)
         if not isinstance(self.state_key, str) or not self.state_key:
             raise ConfigError(f"a3c.state_key must be the name of an info entry, got {self.state_key!r}")
+        check_range("a3c.pretrain_pictures", self.pretrain_pictures, 0, 10_000_000, integer=True)
+        check_range("a3c.pretrain_epochs", self.pretrain_epochs, 1, 10_000, integer=True)
+        check_range("a3c.pretrain_learning_rate", self.pretrain_learning_rate, 0.0, 1.0, low_inclusive=False)
+        if self.pretrain_pictures and self.state_weight == 0:
+            raise ConfigError("a3c.pretrain_pictures needs the auxiliary state head: set a3c.state_weight > 0")
+        if self.pretrain_pictures and self.encoder == "state":
+            raise ConfigError("a3c.pretrain_pictures teaches a picture trunk to read the state; a3c.encoder 'state' has none")
         check_range("a3c.reward_scale", self.reward_scale, 0.0, 1e6, low_inclusive=False)
         check_range("a3c.workers", self.workers, 1, 256, integer=True)
         check_range("a3c.n_steps", self.n_steps, 1, 10_000, integer=True)
