@@ -60,7 +60,9 @@ def test_cosine_schedule_learns_and_settles():
     errors = [row["state_mae"] for row in history["epochs"]]
     baseline = float(np.abs(states - states.mean(0)).mean())
     assert errors[-1] < 0.4 * baseline, (errors, baseline)
-    assert abs(errors[-1] - errors[-2]) < 0.1 * abs(errors[0] - errors[1]), errors
+    # settled: the last epoch moves the error a tenth as much as the largest epoch did (on some CPUs the first
+    # epochs sit on a plateau, so the first epoch's move is no yardstick)
+    assert abs(errors[-1] - errors[-2]) < 0.1 * np.abs(np.diff(errors)).max(), errors
     with pytest.raises(ConfigError, match="schedule"):
         train_perception(PerceptionConfig(latent=2, conditioned=2, channels=8), images[:4], states[:4], schedule="step")
 
