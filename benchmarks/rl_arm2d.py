@@ -259,10 +259,10 @@ def main() -> None:
         f"| A3C, keypoints + state loss, entropy bonus 0.01, no curriculum, sampling | whole area | "
         f"{cell('no_curriculum_keypoints_state_entropy_whole_area_sampled')} | |",
         f"| A3C from 32 px, state loss on cos/sin, network first taught to read the state (pretrained), + curriculum, "
-        f"sampling | whole area | {cell('curriculum_keypoints_pretrained_1m_sampled')} | 25 ± 6 |",
-        f"| the same, + curriculum, greedy | whole area | {cell('curriculum_keypoints_pretrained_1m')} | |",
-        f"| the same, no curriculum, sampling | whole area | {cell('no_curriculum_keypoints_pretrained_1m_sampled')} | |",
-        f"| the same, no curriculum, greedy | whole area | {cell('no_curriculum_keypoints_pretrained_1m')} | |",
+        f"sampling | whole area | {cell('curriculum_keypoints_pretrained_600k_sampled')} | 25 ± 6 |",
+        f"| the same, + curriculum, greedy | whole area | {cell('curriculum_keypoints_pretrained_600k')} | |",
+        f"| the same, no curriculum, sampling | whole area | {cell('no_curriculum_keypoints_pretrained_600k_sampled')} | |",
+        f"| the same, no curriculum, greedy | whole area | {cell('no_curriculum_keypoints_pretrained_600k')} | |",
         f"| shortest path on the arm's action lattice (exhaustive search, not a learner) | whole area | "
         f"{cell('shortest_path_whole_area')} | |",
         "",
@@ -410,7 +410,7 @@ def april_paragraph(results: dict) -> list[str]:
 
 def pretrained_paragraph(results: dict) -> list[str]:
     """What the end-to-end pixel rows with a pretrained perception say, from their numbers (issue 19)."""
-    row, control = results.get("curriculum_keypoints_pretrained_1m_sampled"), results.get("no_curriculum_keypoints_pretrained_1m_sampled")
+    row, control = results.get("curriculum_keypoints_pretrained_600k_sampled"), results.get("no_curriculum_keypoints_pretrained_600k_sampled")
     if not row or not control:
         return []
     state, state_control = results["curriculum_state_entropy_whole_area_sampled"], results["no_curriculum_state_entropy_whole_area_sampled"]
@@ -430,13 +430,16 @@ def pretrained_paragraph(results: dict) -> list[str]:
         f"({pretrain.get('epochs', 0)} epochs at 1e-3: {pretrain.get('untrained_error', float('nan')):.3f} → "
         f"{pretrain.get('held_out_error', float('nan')):.3f} RMS a component on held-out pictures, "
         f"{pretrain.get('wall_seconds', 0) / 60:.0f} min), then learn from the pictures alone, the auxiliary loss "
-        "still on. After 1M steps, sampling: curriculum "
+        f"still on. Both were stopped at {row['sim_steps']:,} and {control['sim_steps']:,} steps of their 2M (the "
+        f"session's time; the curriculum had widened the goal area to {row.get('trained_goal_area', 1.0):.2f} of the "
+        "play area), and evaluated there on the whole area, sampling: curriculum "
         f"{row['mean']:.1f} ± {row['std']:.1f} ({row['success_rate']:.0%} reach), no curriculum {control['mean']:.1f} ± "
-        f"{control['std']:.1f} ({control['success_rate']:.0%}); the state learner took {state['mean']:.1f} and "
-        f"{state_control['mean']:.1f} after 1M, the earlier pixel runs {pixels['mean']:.1f} (keypoints + raw state loss, "
-        f"curriculum) and {pixels_control['mean']:.1f} (flattened trunk, no curriculum). The thesis reports its 25 after "
-        "1,000,000 episodes (§3.3: \"for the 1,000,000 episodes it took to achieve the final result in Section 3.2\"); "
-        "1M steps here are ~10,000 episodes.",
+        f"{control['std']:.1f} ({control['success_rate']:.0%}); greedy {results['curriculum_keypoints_pretrained_600k']['mean']:.1f} "
+        f"and {results['no_curriculum_keypoints_pretrained_600k']['mean']:.1f}. For scale, after 1M steps the state learner "
+        f"took {state['mean']:.1f} and {state_control['mean']:.1f} sampling, the earlier pixel runs {pixels['mean']:.1f} "
+        f"(keypoints + raw state loss, curriculum) and {pixels_control['mean']:.1f} (flattened trunk, no curriculum). "
+        "The thesis reports its 25 after 1,000,000 episodes (§3.3: \"for the 1,000,000 episodes it took to achieve the "
+        "final result in Section 3.2\"); 1M steps here are ~10,000 episodes.",
         "",
     ]
 

@@ -28,7 +28,8 @@ def main() -> None:
     for key, run, policy, config, metrics in rl_arm2d.keyed_runs(args.rows):
         extra = {"sim_steps": metrics["sim_steps"], "wall_seconds": metrics["wall_seconds"], "run_dir": run,
                  **({"note": args.note} if args.note else {}),
-                 **({"pretrain": metrics["pretrain"]} if "pretrain" in metrics else {})}
+                 **({"pretrain": metrics["pretrain"]} if "pretrain" in metrics else {}),
+                 "trained_goal_area": metrics["final_goal_area"]}  # where a curriculum had got to
         rows[key] = rl_arm2d.evaluate(policy, 1.0, config=config) | extra
         rows[f"{key}_sampled"] = rl_arm2d.evaluate(policy, 1.0, deterministic=False, config=config) | extra
         print(key, f"greedy {rows[key]['mean']:.1f}, sampling {rows[f'{key}_sampled']['mean']:.1f}", flush=True)
