@@ -128,7 +128,7 @@ class Arm2DEnv(gym.Env):
         regression target without the jump at ±π. A network regressing the raw angles spends its loss on
         that jump (issue 19: from 64 px images at A3C's learning rate, 6,000 updates left the end point
         0.34 off with raw angles, 0.10 with this)."""
-        return np.concatenate([np.cos(self.angles), np.sin(self.angles), self.end_point, self.goal])
+        return _continuous(self.state)
 
     @property
     def compute_reward(self):
@@ -180,9 +180,10 @@ class Arm2DEnv(gym.Env):
         return self.fixed_goal.copy()  # only for regions almost wholly out of reach
 
     def _info(self) -> dict[str, Any]:
-        distance = float(np.linalg.norm(self.end_point - self.goal))
-        return {"is_success": distance <= self.tolerance, "distance": distance, "state": self.state,
-                "state_continuous": self.state_continuous}
+        state = self.state  # one forward kinematics for the distance and both states
+        distance = float(np.linalg.norm(state[3:5] - self.goal))
+        return {"is_success": distance <= self.tolerance, "distance": distance, "state": state,
+                "state_continuous": _continuous(state)}
 
     def _observation(self):
         if not self.goal_conditioned:
@@ -221,3 +222,8 @@ class Arm2DEnv(gym.Env):
             draw.ellipse([x - joint_radius, y - joint_radius, x + joint_radius, y + joint_radius], fill=(235, 235, 235))
         picture = picture.resize((size, size), Image.Resampling.BOX)
         return to_mode(np.array(picture, dtype=np.uint8), mode)  # writable: learners may wrap it in-place
+
+
+def _continuous(state: np.ndarray) -> np.ndarray:
+    """Arm2D's state (angles, end point, goal) with each angle as its cosine and sine."""
+    return np.concatenate([np.cos(state[:3]), np.sin(state[:3]), state[3:]])

@@ -30,10 +30,6 @@ class PretrainResult:
     held_out_error: float  # root mean square error per state component on held-out pictures, after
     untrained_error: float  # ... and before
 
-    def as_dict(self) -> dict[str, float | int]:
-        return {"pictures": self.pictures, "epochs": self.epochs, "held_out_error": self.held_out_error,
-                "untrained_error": self.untrained_error}
-
 
 def render_states(make_env: Callable[[], gym.Env], state_key: str, count: int, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
     """``count`` pictures of random poses with goals anywhere in the play area, and their ``info[state_key]``."""

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import queue
 import time
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -247,7 +248,7 @@ class A3CTrainer:
         with callback.task(f"{self.config.name}: perception", a3c.pretrain_epochs) as task:
             result = pretrain_perception(self.model, lambda: make_env(self.config), a3c.state_key, a3c.pretrain_pictures,
                                          a3c.pretrain_epochs, a3c.pretrain_learning_rate, self.config.seed + 777_777, task)
-        self.metrics["pretrain"] = result.as_dict() | {"wall_seconds": round(time.perf_counter() - started, 1)}
+        self.metrics["pretrain"] = asdict(result) | {"wall_seconds": round(time.perf_counter() - started, 1)}
         self.save_checkpoint()
 
     def _train(self, task: Task) -> None:
