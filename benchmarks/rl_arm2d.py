@@ -59,6 +59,9 @@ RUNS = {
     # ... whose network first learns to read the state off rendered pictures (a3c.pretrain_*), then RL from pixels
     "curriculum_keypoints_pretrained_whole_area": ("configs/rl_arm2d_curriculum_keypoints_pretrained.yaml", 1.0),
     "no_curriculum_keypoints_pretrained_whole_area": ("configs/rl_arm2d_no_curriculum_keypoints_pretrained.yaml", 1.0),
+    # ... whose policy reads an MLP on the state its auxiliary head reads (a3c.policy_input: state_estimate)
+    "curriculum_keypoints_bottleneck_whole_area": ("configs/rl_arm2d_curriculum_keypoints_bottleneck.yaml", 1.0),
+    "no_curriculum_keypoints_bottleneck_whole_area": ("configs/rl_arm2d_no_curriculum_keypoints_bottleneck.yaml", 1.0),
 }
 ALIASES = {"curriculum": "curriculum_whole_area", "no_curriculum": "no_curriculum_whole_area",
            "curriculum_keypoints": "curriculum_keypoints_whole_area",
@@ -72,7 +75,9 @@ ALIASES = {"curriculum": "curriculum_whole_area", "no_curriculum": "no_curriculu
                                                       "curriculum_keypoints_continuous",
                                                       "no_curriculum_keypoints_continuous",
                                                       "curriculum_keypoints_pretrained",
-                                                      "no_curriculum_keypoints_pretrained")}}
+                                                      "no_curriculum_keypoints_pretrained",
+                                                      "curriculum_keypoints_bottleneck",
+                                                      "no_curriculum_keypoints_bottleneck")}}
 EPISODES = 200
 
 
@@ -259,10 +264,10 @@ def main() -> None:
         f"| A3C, keypoints + state loss, entropy bonus 0.01, no curriculum, sampling | whole area | "
         f"{cell('no_curriculum_keypoints_state_entropy_whole_area_sampled')} | |",
         f"| A3C from 32 px, state loss on cos/sin, network first taught to read the state (pretrained), + curriculum, "
-        f"sampling | whole area | {cell('curriculum_keypoints_pretrained_600k_sampled')} | 25 ± 6 |",
-        f"| the same, + curriculum, greedy | whole area | {cell('curriculum_keypoints_pretrained_600k')} | |",
-        f"| the same, no curriculum, sampling | whole area | {cell('no_curriculum_keypoints_pretrained_600k_sampled')} | |",
-        f"| the same, no curriculum, greedy | whole area | {cell('no_curriculum_keypoints_pretrained_600k')} | |",
+        f"sampling | whole area | {cell('curriculum_keypoints_pretrained_whole_area_sampled')} | 25 ± 6 |",
+        f"| the same, + curriculum, greedy | whole area | {cell('curriculum_keypoints_pretrained_whole_area')} | |",
+        f"| the same, no curriculum, sampling | whole area | {cell('no_curriculum_keypoints_pretrained_whole_area_sampled')} | |",
+        f"| the same, no curriculum, greedy | whole area | {cell('no_curriculum_keypoints_pretrained_whole_area')} | |",
         f"| shortest path on the arm's action lattice (exhaustive search, not a learner) | whole area | "
         f"{cell('shortest_path_whole_area')} | |",
         "",
@@ -366,6 +371,12 @@ def main() -> None:
         "| goal area | ours | after steps | thesis |",
         "|---|---:|---:|---:|",
         *stage_rows(results.get("curriculum_keypoints_state_entropy_stages", [])),
+        "",
+        "And from 32 px pictures with the perception pretrained to read the state (cos/sin), the same schedule:",
+        "",
+        "| goal area | ours | after steps | thesis |",
+        "|---|---:|---:|---:|",
+        *stage_rows(results.get("curriculum_keypoints_pretrained_stages", [])),
     ]))
 
 
@@ -410,7 +421,7 @@ def april_paragraph(results: dict) -> list[str]:
 
 def pretrained_paragraph(results: dict) -> list[str]:
     """What the end-to-end pixel rows with a pretrained perception say, from their numbers (issue 19)."""
-    row, control = results.get("curriculum_keypoints_pretrained_600k_sampled"), results.get("no_curriculum_keypoints_pretrained_600k_sampled")
+    row, control = results.get("curriculum_keypoints_pretrained_whole_area_sampled"), results.get("no_curriculum_keypoints_pretrained_whole_area_sampled")
     if not row or not control:
         return []
     state, state_control = results["curriculum_state_entropy_whole_area_sampled"], results["no_curriculum_state_entropy_whole_area_sampled"]
@@ -434,8 +445,8 @@ def pretrained_paragraph(results: dict) -> list[str]:
         f"session's time; the curriculum had widened the goal area to {row.get('trained_goal_area', 1.0):.2f} of the "
         "play area), and evaluated there on the whole area, sampling: curriculum "
         f"{row['mean']:.1f} ± {row['std']:.1f} ({row['success_rate']:.0%} reach), no curriculum {control['mean']:.1f} ± "
-        f"{control['std']:.1f} ({control['success_rate']:.0%}); greedy {results['curriculum_keypoints_pretrained_600k']['mean']:.1f} "
-        f"and {results['no_curriculum_keypoints_pretrained_600k']['mean']:.1f}. For scale, after 1M steps the state learner "
+        f"{control['std']:.1f} ({control['success_rate']:.0%}); greedy {results['curriculum_keypoints_pretrained_whole_area']['mean']:.1f} "
+        f"and {results['no_curriculum_keypoints_pretrained_whole_area']['mean']:.1f}. For scale, after 1M steps the state learner "
         f"took {state['mean']:.1f} and {state_control['mean']:.1f} sampling, the earlier pixel runs {pixels['mean']:.1f} "
         f"(keypoints + raw state loss, curriculum) and {pixels_control['mean']:.1f} (flattened trunk, no curriculum). "
         "The thesis reports its 25 after 1,000,000 episodes (§3.3: \"for the 1,000,000 episodes it took to achieve the "

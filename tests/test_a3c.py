@@ -368,3 +368,54 @@ def test_perception_pretraining_reads_the_state_before_rl_and_is_not_redone_on_r
                          ({"encoder": "state"}, "has none"), ({"pretrain_epochs": 0}, "a3c.pretrain_epochs")]:
         with pytest.raises(ConfigError, match=message):
             from_dict(RLConfig, settings | {"a3c": settings["a3c"] | bad})
+
+
+def test_state_estimate_bottleneck_acts_on_the_read_state_and_is_saved_with_the_weights(tmp_path):
+    """a3c.policy_input: state_estimate (issue 19): the policy and value see the picture only through the state
+    the auxiliary head reads off it, so two pictures read as the same state get the same action probabilities."""
+    import yaml
+
+    from binpick.envs import make
+
+    from binpick.config import from_dict
+    from binpick.errors import ConfigError
+    from binpick.rl.a3c_train import load_a3c_policy
+    from binpick.rl.config import RLConfig
+    from binpick.rl.train import trainer_for
+    from binpick.runs import latest_checkpoint
+
+    torch.manual_seed(0)
+    pictures = torch.randint(0, 256, (4, 32, 32, 3), dtype=torch.uint8)
+    bottleneck, plain = ActorCritic((32, 32, 3), 6, "keypoints", 10, "state_estimate"), ActorCritic((32, 32, 3), 6, "keypoints", 10)
+    with torch.no_grad():
+        for model in (bottleneck, plain):
+            model.state.weight.zero_()  # every picture now reads as the same state (the head's bias)
+        logits, values = bottleneck(pictures)
+        assert torch.allclose(logits, logits[:1].expand_as(logits)) and torch.allclose(values, values[:1].expand_as(values))
+        logits, _ = plain(pictures)  # without the bottleneck the heads still see the pictures
+        assert not torch.allclose(logits, logits[:1].expand_as(logits))
+    # a worker's update reaches the controller MLP (the trunk it always reaches through the auxiliary loss)
+    worker = A3CWorker(lambda: make("Arm2D", image_size=32, goal_area=1.0), (32, 32, 3), 6, seed=3, n_steps=5,
+                       encoder="keypoints", state_weight=1.0, state_size=10, state_key="state_continuous",
+                       policy_input="state_estimate")
+    model = ActorCritic((32, 32, 3), 6, "keypoints", 10, "state_estimate")
+    gradients = dict(zip((name for name, _ in model.named_parameters()), worker.compute_gradients(model.state_dict())[0]))
+    assert gradients["controller.0.weight"].abs().sum() > 0 and gradients["trunk.0.weight"].abs().sum() > 0
+    with pytest.raises(ValueError, match="needs state_size"):
+        ActorCritic((32, 32, 3), 6, "keypoints", 0, "state_estimate")
+    # saved with the weights; a run without it cannot continue from them; bad configs are one line
+    settings = yaml.safe_load(A3C_RUN.format(steps=40)) | {
+        "env_kwargs": {"image_size": 32},
+        "a3c": {"workers": 1, "n_steps": 5, "encoder": "keypoints", "state_weight": 1.0, "state_key": "state_continuous",
+                "policy_input": "state_estimate"}}
+    trainer = trainer_for(from_dict(RLConfig, settings), tmp_path / "runs")
+    trainer.save_checkpoint()
+    policy = load_a3c_policy(latest_checkpoint(trainer.run_dir / "checkpoints"))
+    assert policy.model.policy_input == "state_estimate"
+    assert all(torch.equal(policy.model.state_dict()[k], v) for k, v in trainer.model.state_dict().items())
+    plain_run = settings | {"a3c": settings["a3c"] | {"policy_input": "features"}, "init_from": str(trainer.run_dir)}
+    with pytest.raises(ConfigError, match="a3c.policy_input 'state_estimate'"):
+        trainer_for(from_dict(RLConfig, plain_run), tmp_path / "other")
+    for bad, message in [({"state_weight": 0.0}, "set a3c.state_weight > 0"), ({"policy_input": "state"}, "a3c.policy_input")]:
+        with pytest.raises(ConfigError, match=message):
+            from_dict(RLConfig, settings | {"a3c": settings["a3c"] | bad})

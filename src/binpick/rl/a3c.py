@@ -24,6 +24,7 @@ import torch.nn as nn
 
 
 ENCODERS = ("flatten", "keypoints", "state")
+POLICY_INPUTS = ("features", "state_estimate")
 
 
 class SpatialSoftmax(nn.Module):
@@ -48,13 +49,23 @@ class ActorCritic(nn.Module):
     keeps half-resolution maps and reads each channel's expected position (:class:`SpatialSoftmax`), so what is
     learnt about a goal in one place holds in every place: the curriculum's widening needs it. ``"state"``
     takes a flat float vector (B, D) instead of images: it measures what the learner does when
-    perception is perfect (issue 19)."""
+    perception is perfect (issue 19).
+
+    ``policy_input="state_estimate"`` puts a semantic bottleneck between perception and control (APRiL's
+    idea, thesis ch. 4, inside A3C): the policy and value heads read an MLP on the state the auxiliary head
+    reads off the picture, the very network the state learner uses on the true state, instead of the
+    256 features that also had to encode that state linearly. Trained end to end; needs ``state_size``."""
 
     def __init__(self, observation_shape: tuple[int, ...], actions: int, encoder: str = "flatten",
-                 state_size: int = 0) -> None:
+                 state_size: int = 0, policy_input: str = "features") -> None:
         super().__init__()
         if encoder not in ENCODERS:
             raise ValueError(f"encoder must be one of {ENCODERS}, got {encoder!r}")
+        if policy_input not in POLICY_INPUTS:
+            raise ValueError(f"policy_input must be one of {POLICY_INPUTS}, got {policy_input!r}")
+        if policy_input == "state_estimate" and not state_size:
+            raise ValueError("policy_input 'state_estimate' reads the auxiliary state head: it needs state_size > 0")
+        self.policy_input = policy_input
         self.encoder = encoder
         if encoder == "state":
             if len(observation_shape) != 1:
@@ -86,11 +97,17 @@ class ActorCritic(nn.Module):
         # optional auxiliary head: the semantic state (info[state_key]) read from the same features
         self.state_size = int(state_size)
         self.state = nn.Linear(256, self.state_size) if self.state_size else None
+        self.controller = (nn.Sequential(nn.Linear(self.state_size, 256), nn.ReLU())
+                           if policy_input == "state_estimate" else None)
 
     def forward(self, images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """uint8 (B, H, W, C) images -> (logits (B, A), values (B,))."""
-        hidden = self.features(images)
-        return self.policy(hidden), self.value(hidden).squeeze(-1)
+        return self.heads(self.features(images))
+
+    def heads(self, hidden: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(B, 256) features -> (logits, values), through the state estimate when there is a bottleneck."""
+        control = hidden if self.controller is None else self.controller(self.state(hidden))
+        return self.policy(control), self.value(control).squeeze(-1)
 
     def features(self, images: torch.Tensor) -> torch.Tensor:
         """uint8 (B, H, W, C) images (or (B, D) state vectors) -> the (B, 256) features the heads read."""
@@ -142,9 +159,10 @@ class A3CWorker:
     def __init__(self, make_env: Callable[[], gym.Env], observation_shape, actions: int, seed: int,
                  n_steps: int = 20, gamma: float = 0.99, entropy_beta: float = 0.01, value_coef: float = 0.5,
                  max_grad_norm: float = 40.0, reward_scale: float = 0.01, encoder: str = "flatten",
-                 state_weight: float = 0.0, state_size: int = 0, state_key: str = "state") -> None:
+                 state_weight: float = 0.0, state_size: int = 0, state_key: str = "state",
+                 policy_input: str = "features") -> None:
         self.env = make_env()
-        self.model = ActorCritic(observation_shape, actions, encoder, state_size if state_weight > 0 else 0)
+        self.model = ActorCritic(observation_shape, actions, encoder, state_size if state_weight > 0 else 0, policy_input)
         self.state_weight, self.state_key = state_weight, state_key
         self.n_steps, self.gamma = n_steps, gamma
         self.entropy_beta, self.value_coef, self.max_grad_norm = entropy_beta, value_coef, max_grad_norm
@@ -190,7 +208,7 @@ class A3CWorker:
         else:
             bootstrap_image = self.observation
         hidden = self.model.features(torch.from_numpy(np.stack(images)))
-        logits, values = self.model.policy(hidden), self.model.value(hidden).squeeze(-1)
+        logits, values = self.model.heads(hidden)
         with torch.no_grad():
             running = 0.0 if done else float(self.model(torch.from_numpy(np.array(bootstrap_image[None])))[1])
         returns = torch.zeros(len(rewards))

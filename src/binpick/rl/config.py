@@ -108,6 +108,7 @@ class A3CConfig:
     pretrain_pictures: int = 0  # > 0: before RL, fit trunk and state head to the state on this many pictures
     pretrain_epochs: int = 10
     pretrain_learning_rate: float = 1e-3
+    policy_input: str = "features"  # "state_estimate": policy and value read an MLP on the state head's output
 
     def __post_init__(self) -> None:
         check_choice("a3c.encoder", self.encoder, ["flatten", "keypoints", "state"])
@@ -119,6 +120,11 @@ class A3CConfig:
         check_range("a3c.pretrain_learning_rate", self.pretrain_learning_rate, 0.0, 1.0, low_inclusive=False)
         if self.pretrain_pictures and self.state_weight == 0:
             raise ConfigError("a3c.pretrain_pictures needs the auxiliary state head: set a3c.state_weight > 0")
+        check_choice("a3c.policy_input", self.policy_input, ["features", "state_estimate"])
+        if self.policy_input == "state_estimate" and self.state_weight == 0:
+            raise ConfigError("a3c.policy_input 'state_estimate' reads the auxiliary state head: set a3c.state_weight > 0")
+        if self.policy_input == "state_estimate" and self.encoder == "state":
+            raise ConfigError("a3c.policy_input 'state_estimate' estimates the state from pictures; a3c.encoder 'state' has it already")
         if self.pretrain_pictures and self.encoder == "state":
             raise ConfigError("a3c.pretrain_pictures teaches a picture trunk to read the state; a3c.encoder 'state' has none")
         check_range("a3c.reward_scale", self.reward_scale, 0.0, 1e6, low_inclusive=False)
