@@ -419,3 +419,26 @@ def test_state_estimate_bottleneck_acts_on_the_read_state_and_is_saved_with_the_
     for bad, message in [({"state_weight": 0.0}, "set a3c.state_weight > 0"), ({"policy_input": "state"}, "a3c.policy_input")]:
         with pytest.raises(ConfigError, match=message):
             from_dict(RLConfig, settings | {"a3c": settings["a3c"] | bad})
+
+
+def test_state_noise_perturbs_each_step_reproducibly_and_only_state_vectors():
+    """a3c.state_noise (issue 19): the state learner given a picture reader's error, fresh each step, seeded by
+    reset; the env underneath (goal, start) is the same as without it."""
+    from binpick.config import from_dict
+    from binpick.errors import ConfigError
+    from binpick.rl.a3c_train import make_env
+    from binpick.rl.config import RLConfig
+
+    settings = {"name": "noisy", "env": "binpick/Arm2D-v0", "env_kwargs": {"goal_conditioned": True, "image": None},
+                "algorithm": "a3c", "total_timesteps": 10, "a3c": {"encoder": "state", "state_noise": 0.05}}
+    noisy, clean = make_env(from_dict(RLConfig, settings)), make_env(from_dict(RLConfig, settings | {"a3c": {"encoder": "state"}}))
+    errors = []
+    for seed in range(50):
+        first, second, truth = noisy.reset(seed=seed)[0], noisy.reset(seed=seed)[0], clean.reset(seed=seed)[0]
+        assert np.array_equal(first, second)  # same seed, same noise
+        errors.append(first - truth)
+        stepped, truth = noisy.step(0)[0], clean.step(0)[0]
+        assert not np.allclose(stepped - truth, errors[-1])  # fresh noise each step
+    assert 0.04 < np.std(errors) < 0.06 and abs(np.mean(errors)) < 0.01
+    with pytest.raises(ConfigError, match="a3c.state_noise"):
+        from_dict(RLConfig, settings | {"env_kwargs": {}, "a3c": {"encoder": "keypoints", "state_noise": 0.05}})

@@ -56,6 +56,7 @@ def make_env(config: RLConfig) -> gym.Env:
     from gymnasium.wrappers import FlattenObservation
 
     from binpick.envs import make
+    from binpick.rl.wrappers import GaussianObservationNoise
 
     env = make(config.env, **config.env_kwargs)
     space = env.observation_space
@@ -68,6 +69,8 @@ def make_env(config: RLConfig) -> gym.Env:
                               f"(for Arm2D set env_kwargs: {{goal_conditioned: true, image: null}})")
         if isinstance(space, spaces.Dict):
             env = FlattenObservation(env)
+        if config.a3c.state_noise:
+            env = GaussianObservationNoise(env, config.a3c.state_noise)
     elif len(space.shape or ()) != 3:
         env.close()
         raise ConfigError(f"a3c.encoder {config.a3c.encoder!r} needs image observations; {config.env} gives "

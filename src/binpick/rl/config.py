@@ -109,6 +109,7 @@ class A3CConfig:
     pretrain_epochs: int = 10
     pretrain_learning_rate: float = 1e-3
     policy_input: str = "features"  # "state_estimate": policy and value read an MLP on the state head's output
+    state_noise: float = 0.0  # encoder "state": Gaussian noise (std) on every component, each step, as a reading's error
 
     def __post_init__(self) -> None:
         check_choice("a3c.encoder", self.encoder, ["flatten", "keypoints", "state"])
@@ -125,6 +126,9 @@ class A3CConfig:
             raise ConfigError("a3c.policy_input 'state_estimate' reads the auxiliary state head: set a3c.state_weight > 0")
         if self.policy_input == "state_estimate" and self.encoder == "state":
             raise ConfigError("a3c.policy_input 'state_estimate' estimates the state from pictures; a3c.encoder 'state' has it already")
+        check_range("a3c.state_noise", self.state_noise, 0.0, 1e3)
+        if self.state_noise and self.encoder != "state":
+            raise ConfigError("a3c.state_noise perturbs the state vector of a3c.encoder 'state'; pictures have none")
         if self.pretrain_pictures and self.encoder == "state":
             raise ConfigError("a3c.pretrain_pictures teaches a picture trunk to read the state; a3c.encoder 'state' has none")
         check_range("a3c.reward_scale", self.reward_scale, 0.0, 1e6, low_inclusive=False)

@@ -109,3 +109,24 @@ def scale_up_small_action(action, high, scale: float) -> np.ndarray:
         action = action.copy()
         action[:3] *= scale / relative
     return action
+
+
+class GaussianObservationNoise(gym.ObservationWrapper):
+    """Adds independent Gaussian noise (``std``) to every component of a vector observation, fresh each step.
+
+    Why (issue 19): a learner on the true state stands in for one on a state read off pictures only if the
+    reading's error does not matter; with the noise set to the reading's error it measures whether it does.
+    Its own generator, seeded from reset's seed, so the env's goals and starts stay as without noise."""
+
+    def __init__(self, env: gym.Env, std: float) -> None:
+        super().__init__(env)
+        self.std = check_range("state_noise", std, 0.0, 1e3)
+        self.rng = np.random.default_rng()
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        if seed is not None:
+            self.rng = np.random.default_rng(seed + 7_777)
+        return super().reset(seed=seed, options=options)
+
+    def observation(self, observation):
+        return observation + self.rng.normal(0.0, self.std, np.shape(observation))
