@@ -403,6 +403,15 @@ def test_state_estimate_bottleneck_acts_on_the_read_state_and_is_saved_with_the_
     assert gradients["controller.0.weight"].abs().sum() > 0 and gradients["trunk.0.weight"].abs().sum() > 0
     with pytest.raises(ValueError, match="needs state_size"):
         ActorCritic((32, 32, 3), 6, "keypoints", 0, "state_estimate")
+    # a3c.detach_perception: the policy's and value's losses stop at the state estimate; the trunk learns from
+    # the auxiliary loss alone
+    for policy_input in ("state_estimate", "features"):
+        detached = ActorCritic((32, 32, 3), 6, "keypoints", 10, policy_input, detach_perception=True)
+        logits, values = detached(pictures)
+        (logits.sum() + values.sum()).backward()
+        assert detached.trunk[0].weight.grad is None and detached.policy.weight.grad.abs().sum() > 0
+        detached.state(detached.features(pictures)).sum().backward()
+        assert detached.trunk[0].weight.grad.abs().sum() > 0
     # saved with the weights; a run without it cannot continue from them; bad configs are one line
     settings = yaml.safe_load(A3C_RUN.format(steps=40)) | {
         "env_kwargs": {"image_size": 32},
@@ -416,7 +425,8 @@ def test_state_estimate_bottleneck_acts_on_the_read_state_and_is_saved_with_the_
     plain_run = settings | {"a3c": settings["a3c"] | {"policy_input": "features"}, "init_from": str(trainer.run_dir)}
     with pytest.raises(ConfigError, match="a3c.policy_input 'state_estimate'"):
         trainer_for(from_dict(RLConfig, plain_run), tmp_path / "other")
-    for bad, message in [({"state_weight": 0.0}, "set a3c.state_weight > 0"), ({"policy_input": "state"}, "a3c.policy_input")]:
+    for bad, message in [({"state_weight": 0.0}, "set a3c.state_weight > 0"), ({"policy_input": "state"}, "a3c.policy_input"),
+                         ({"detach_perception": "yes"}, "a3c.detach_perception must be true or false")]:
         with pytest.raises(ConfigError, match=message):
             from_dict(RLConfig, settings | {"a3c": settings["a3c"] | bad})
 

@@ -54,11 +54,14 @@ class ActorCritic(nn.Module):
     ``policy_input="state_estimate"`` puts a semantic bottleneck between perception and control (APRiL's
     idea, thesis ch. 4, inside A3C): the policy and value heads read an MLP on the state the auxiliary head
     reads off the picture, the very network the state learner uses on the true state, instead of the
-    256 features that also had to encode that state linearly. Trained end to end; needs ``state_size``."""
+    256 features that also had to encode that state linearly. Trained end to end; needs ``state_size``.
+    ``detach_perception`` stops the policy's and value's gradients at what they read, so only the auxiliary
+    state loss trains the perception (APRiL's split: perception learns the state, the policy acts on it)."""
 
     def __init__(self, observation_shape: tuple[int, ...], actions: int, encoder: str = "flatten",
-                 state_size: int = 0, policy_input: str = "features") -> None:
+                 state_size: int = 0, policy_input: str = "features", detach_perception: bool = False) -> None:
         super().__init__()
+        self.detach_perception = bool(detach_perception)
         if encoder not in ENCODERS:
             raise ValueError(f"encoder must be one of {ENCODERS}, got {encoder!r}")
         if policy_input not in POLICY_INPUTS:
@@ -106,7 +109,11 @@ class ActorCritic(nn.Module):
 
     def heads(self, hidden: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(B, 256) features -> (logits, values), through the state estimate when there is a bottleneck."""
-        control = hidden if self.controller is None else self.controller(self.state(hidden))
+        control = hidden if self.controller is None else self.state(hidden)
+        if self.detach_perception:
+            control = control.detach()
+        if self.controller is not None:
+            control = self.controller(control)
         return self.policy(control), self.value(control).squeeze(-1)
 
     def features(self, images: torch.Tensor) -> torch.Tensor:
@@ -160,9 +167,10 @@ class A3CWorker:
                  n_steps: int = 20, gamma: float = 0.99, entropy_beta: float = 0.01, value_coef: float = 0.5,
                  max_grad_norm: float = 40.0, reward_scale: float = 0.01, encoder: str = "flatten",
                  state_weight: float = 0.0, state_size: int = 0, state_key: str = "state",
-                 policy_input: str = "features") -> None:
+                 policy_input: str = "features", detach_perception: bool = False) -> None:
         self.env = make_env()
-        self.model = ActorCritic(observation_shape, actions, encoder, state_size if state_weight > 0 else 0, policy_input)
+        self.model = ActorCritic(observation_shape, actions, encoder, state_size if state_weight > 0 else 0, policy_input,
+                                 detach_perception)
         self.state_weight, self.state_key = state_weight, state_key
         self.n_steps, self.gamma = n_steps, gamma
         self.entropy_beta, self.value_coef, self.max_grad_norm = entropy_beta, value_coef, max_grad_norm

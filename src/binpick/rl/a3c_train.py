@@ -102,7 +102,7 @@ def _worker(rank: int, config: RLConfig, model: ActorCritic, optimizer: SharedAd
                        n_steps=a3c.n_steps, gamma=a3c.gamma, entropy_beta=a3c.entropy_beta,
                        value_coef=a3c.value_coef, max_grad_norm=a3c.max_grad_norm, reward_scale=a3c.reward_scale,
                        encoder=a3c.encoder, state_weight=a3c.state_weight, state_size=model.state_size,
-                       state_key=a3c.state_key, policy_input=a3c.policy_input)
+                       state_key=a3c.state_key, policy_input=a3c.policy_input, detach_perception=a3c.detach_perception)
     area = -1.0
     while not stop.is_set() and counter.value < config.total_timesteps:
         if goal_area.value != area and worker._episode_steps == 0:  # change the area between episodes only
@@ -144,7 +144,8 @@ class A3CTrainer:
         env.close()
         torch.manual_seed(config.seed)
         self.state_size = _state_size(config)
-        self.model = ActorCritic(self.observation_shape, 6, self.config.a3c.encoder, self.state_size, self.config.a3c.policy_input)
+        self.model = ActorCritic(self.observation_shape, 6, self.config.a3c.encoder, self.state_size, self.config.a3c.policy_input,
+                                 self.config.a3c.detach_perception)
         self.model.share_memory()
         self.optimizer = SharedAdam(self.model.parameters(), lr=config.a3c.learning_rate)
         self.steps = 0

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-from binpick.config import check_choice, check_range, check_vector, load_config
+from binpick.config import check_bool, check_choice, check_range, check_vector, load_config
 from binpick.errors import ConfigError
 
 ALGORITHMS = ("sac", "sb3_sac_her", "a3c", "dqn")
@@ -109,6 +109,7 @@ class A3CConfig:
     pretrain_epochs: int = 10
     pretrain_learning_rate: float = 1e-3
     policy_input: str = "features"  # "state_estimate": policy and value read an MLP on the state head's output
+    detach_perception: bool = False  # True: the RL losses stop at what the heads read; only the state loss trains the trunk
     state_noise: float = 0.0  # encoder "state": Gaussian noise (std) on every component, each step, as a reading's error
 
     def __post_init__(self) -> None:
@@ -127,6 +128,9 @@ class A3CConfig:
         if self.policy_input == "state_estimate" and self.encoder == "state":
             raise ConfigError("a3c.policy_input 'state_estimate' estimates the state from pictures; a3c.encoder 'state' has it already")
         check_range("a3c.state_noise", self.state_noise, 0.0, 1e3)
+        check_bool("a3c.detach_perception", self.detach_perception)
+        if self.detach_perception and self.state_weight == 0:
+            raise ConfigError("a3c.detach_perception leaves the trunk to the auxiliary state loss alone: set a3c.state_weight > 0")
         if self.state_noise and self.encoder != "state":
             raise ConfigError("a3c.state_noise perturbs the state vector of a3c.encoder 'state'; pictures have none")
         if self.pretrain_pictures and self.encoder == "state":
