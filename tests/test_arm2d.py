@@ -99,3 +99,18 @@ def test_image_shows_goal_in_red_and_moves_with_the_arm(make_env):
     assert red.sum() > 3
     second, *_ = env.step(0)
     assert not np.array_equal(first, second)
+
+
+def test_place_goal_moves_only_the_goal_and_redraws_it():
+    """Pictures with the goal next to the tip, for perception pretraining (issue 19)."""
+    from binpick.envs import make
+
+    env = make("Arm2D", image_size=32, goal_area=1.0)
+    image, info = env.reset(seed=4)
+    arm = env.unwrapped
+    angles = arm.angles.copy()
+    moved, moved_info = arm.place_goal(arm.end_point + [0.03, 0.0])
+    assert np.array_equal(arm.angles, angles) and moved_info["is_success"] and abs(moved_info["distance"] - 0.03) < 1e-9
+    assert np.allclose(moved_info["state_continuous"][8:], arm.end_point + [0.03, 0.0]) and not np.array_equal(moved, image)
+    with pytest.raises(ValueError, match="two finite numbers"):
+        arm.place_goal([0.0, np.nan])

@@ -94,6 +94,15 @@ class Arm2DEnv(gym.Env):
         """Change the fraction of the play area goals are drawn from (0 = the fixed goal, 1 = all)."""
         self.goal_area = float(check_range("goal_area", goal_area, 0.0, 1.0))
 
+    def place_goal(self, goal: np.ndarray) -> tuple[Any, dict[str, Any]]:
+        """Move the goal, keeping the arm's pose; returns the new (observation, info). For pictures of the
+        goal close to the end point, where episodes end but random poses seldom put it (issue 19)."""
+        goal = np.asarray(goal, dtype=float)
+        if goal.shape != (2,) or not np.isfinite(goal).all():
+            raise ValueError(f"a goal is two finite numbers, got {goal!r}")
+        self.goal = goal.copy()
+        return self._observation(), self._info()
+
     def goal_region(self) -> tuple[np.ndarray, np.ndarray]:
         """Corners (low, high) of the rectangle goals are sampled from; it contains the fixed goal.
 

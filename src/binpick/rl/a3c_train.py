@@ -8,6 +8,7 @@ checkpoints atomically and plots. Workers run :class:`~binpick.rl.a3c.A3CWorker`
 
 from __future__ import annotations
 
+import multiprocessing
 import queue
 import time
 from dataclasses import asdict
@@ -103,8 +104,10 @@ def _worker(rank: int, config: RLConfig, model: ActorCritic, optimizer: SharedAd
                        value_coef=a3c.value_coef, max_grad_norm=a3c.max_grad_norm, reward_scale=a3c.reward_scale,
                        encoder=a3c.encoder, state_weight=a3c.state_weight, state_size=model.state_size,
                        state_key=a3c.state_key, policy_input=a3c.policy_input, detach_perception=a3c.detach_perception)
-    area = -1.0
+    area, trainer = -1.0, multiprocessing.parent_process()
     while not stop.is_set() and counter.value < config.total_timesteps:
+        if trainer is not None and not trainer.is_alive():  # killed (daemon workers outlive a SIGKILL): nobody saves this
+            return
         if goal_area.value != area and worker._episode_steps == 0:  # change the area between episodes only
             area = goal_area.value
             worker.env.unwrapped.set_goal_area(area)
@@ -255,7 +258,8 @@ class A3CTrainer:
         started = time.perf_counter()
         with callback.task(f"{self.config.name}: perception", a3c.pretrain_epochs) as task:
             result = pretrain_perception(self.model, lambda: make_env(self.config), a3c.state_key, a3c.pretrain_pictures,
-                                         a3c.pretrain_epochs, a3c.pretrain_learning_rate, self.config.seed + 777_777, task)
+                                         a3c.pretrain_epochs, a3c.pretrain_learning_rate, self.config.seed + 777_777, task,
+                                         near_goal=a3c.pretrain_near_goal)
         self.metrics["pretrain"] = asdict(result) | {"wall_seconds": round(time.perf_counter() - started, 1)}
         self.save_checkpoint()
 

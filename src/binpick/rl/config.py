@@ -108,6 +108,7 @@ class A3CConfig:
     pretrain_pictures: int = 0  # > 0: before RL, fit trunk and state head to the state on this many pictures
     pretrain_epochs: int = 10
     pretrain_learning_rate: float = 1e-3
+    pretrain_near_goal: float = 0.0  # fraction of pretraining pictures with the goal next to the end point
     policy_input: str = "features"  # "state_estimate": policy and value read an MLP on the state head's output
     detach_perception: bool = False  # True: the RL losses stop at what the heads read; only the state loss trains the trunk
     state_noise: float = 0.0  # encoder "state": Gaussian noise (std) on every component, each step, as a reading's error
@@ -120,6 +121,7 @@ class A3CConfig:
         check_range("a3c.pretrain_pictures", self.pretrain_pictures, 0, 10_000_000, integer=True)
         check_range("a3c.pretrain_epochs", self.pretrain_epochs, 1, 10_000, integer=True)
         check_range("a3c.pretrain_learning_rate", self.pretrain_learning_rate, 0.0, 1.0, low_inclusive=False)
+        check_range("a3c.pretrain_near_goal", self.pretrain_near_goal, 0.0, 1.0)
         if self.pretrain_pictures and self.state_weight == 0:
             raise ConfigError("a3c.pretrain_pictures needs the auxiliary state head: set a3c.state_weight > 0")
         check_choice("a3c.policy_input", self.policy_input, ["features", "state_estimate"])
