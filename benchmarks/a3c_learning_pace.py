@@ -24,6 +24,7 @@ sys.path.insert(0, os.path.dirname(__file__))
 import _common  # noqa: E402
 
 IMAGE = _common.ROOT / "docs" / "img" / "a3c_learning_pace.png"
+MIN_EPISODES = 10  # a bucket with fewer is the run's unfinished last one
 
 
 def curve(run: Path, bucket: int, until: int) -> dict:
@@ -48,7 +49,7 @@ def curve(run: Path, bucket: int, until: int) -> dict:
             "buckets": [{"from": index * bucket, "to": (index + 1) * bucket, "episodes": len(values),
                          "mean_length": sum(values) / len(values),
                          **({"state_loss": sum(losses[index]) / len(losses[index])} if losses.get(index) else {})}
-                        for index, values in sorted(lengths.items())]}
+                        for index, values in sorted(lengths.items()) if len(values) >= MIN_EPISODES]}
 
 
 def plot(curves: dict) -> None:
