@@ -451,9 +451,9 @@ def pretrained_paragraph(results: dict) -> list[str]:
         f"{row['std']:.1f} actions sampling on the 200 whole-area episodes ({row['success_rate']:.0%} reach), greedy "
         f"{greedy['mean']:.1f}; after the same 1M steps the state learner took {state['mean']:.1f} sampling, the "
         f"earlier pixel runs {pixels['mean']:.1f} (keypoints + raw state loss) and {flattened['mean']:.1f} (flattened "
-        "trunk). Better than every earlier pixel run, far from the state learner. The run was paused at ~1.23M of its "
-        "2M steps and its no-curriculum control at ~0.63M, to give the cores to the measurement of where the lag "
-        "starts (section 'A3C's pace on Arm2D's single goal' below); both resume with `python benchmarks/rl_arm2d.py "
+        "trunk). Better than every earlier pixel run, far from the state learner. The run was stopped with its last "
+        "checkpoint at 1,200,009 of its 2M steps and its no-curriculum control at 600,010, to give the cores to the "
+        "measurement of where the lag starts (section 'A3C's pace on Arm2D's single goal' below); both resume with `python benchmarks/rl_arm2d.py "
         "--only curriculum_keypoints_pretrained` and `--only no_curriculum_keypoints_pretrained`. The thesis reports "
         "its 25 after 1,000,000 episodes (§3.3: \"for the 1,000,000 episodes it took to achieve the final result in "
         "Section 3.2\"); 1M steps here are ~10,000 episodes.",
