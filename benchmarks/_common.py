@@ -46,6 +46,17 @@ def latest_run(runs: Path, name: str) -> Path | None:
     return runs_of[-1] if runs_of else None
 
 
+def keyed_run_dirs(items: list[str]) -> list[tuple[str, Path]]:
+    """``KEY=RUN_DIR`` arguments (run folders relative to the repository) -> (key, folder); a bad one is one line."""
+    pairs = []
+    for item in items:
+        key, _, run = item.partition("=")
+        if not key or not run:
+            sys.exit(f"{item!r}: expected KEY=RUN_DIR")
+        pairs.append((key, ROOT / run))
+    return pairs
+
+
 def write_result(name: str, payload: dict) -> Path:
     from binpick.files import atomic_write_text
 

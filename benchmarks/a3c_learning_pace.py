@@ -92,12 +92,7 @@ def main() -> None:
     parser.add_argument("--until", type=int, default=400_000)
     parser.add_argument("--note", default="", help="a paragraph for docs/RESULTS.md: what the runs are, what they show")
     args = parser.parse_args()
-    curves = {}
-    for item in args.runs:
-        key, _, run = item.partition("=")
-        if not key or not run:
-            sys.exit(f"{item!r}: expected KEY=RUN_DIR")
-        curves[key] = curve(_common.ROOT / run, args.bucket, args.until)
+    curves = {key: curve(run, args.bucket, args.until) for key, run in _common.keyed_run_dirs(args.runs)}
     _common.write_result("a3c_learning_pace", {"bucket": args.bucket, "until": args.until, "runs": curves,
                                                "note": args.note, "peak_rss_mib": round(_common.peak_rss_mib(), 1)})
     plot(curves)

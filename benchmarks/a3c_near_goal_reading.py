@@ -89,12 +89,7 @@ def main() -> None:
     parser.add_argument("runs", nargs="+", help="KEY=RUN_DIR (an A3C run with the auxiliary state head)")
     parser.add_argument("--pictures", type=int, default=4000)
     args = parser.parse_args()
-    measured = {}
-    for item in args.runs:
-        key, _, run = item.partition("=")
-        if not key or not run:
-            sys.exit(f"{item!r}: expected KEY=RUN_DIR")
-        measured[key] = measure(_common.ROOT / run, args.pictures)
+    measured = {key: measure(run, args.pictures) for key, run in _common.keyed_run_dirs(args.runs)}
     _common.write_result("a3c_near_goal_reading", {"runs": measured, "peak_rss_mib": round(_common.peak_rss_mib(), 1)})
     rows = ["| run | tip-goal distance | pictures | end point | goal | tip-to-goal (p90) | reads 'there' |",
             "|---|---|---:|---:|---:|---:|---:|"]

@@ -109,12 +109,10 @@ def merge_rows(rows: dict) -> dict:
 def keyed_runs(items: list[str]) -> list[tuple]:
     """``KEY=RUN_DIR`` arguments -> (key, run, policy, config, its metrics.json); a bad one is one line."""
     runs = []
-    for item in items:
-        key, _, run = item.partition("=")
-        if not key or not run:
-            sys.exit(f"{item!r}: expected KEY=RUN_DIR")
-        policy, config = load_policy(_common.ROOT / run)
-        runs.append((key, run, policy, config, json.loads((_common.ROOT / run / "metrics.json").read_text())))
+    for key, folder in _common.keyed_run_dirs(items):
+        policy, config = load_policy(folder)
+        run = str(folder.relative_to(_common.ROOT)) if folder.is_relative_to(_common.ROOT) else str(folder)
+        runs.append((key, run, policy, config, json.loads((folder / "metrics.json").read_text())))
     return runs
 
 
