@@ -374,7 +374,8 @@ def main() -> None:
         "|---|---:|---:|---:|",
         *stage_rows(results.get("curriculum_keypoints_state_entropy_stages", [])),
         "",
-        "And from 32 px pictures with the perception pretrained to read the state (cos/sin), the same schedule:",
+        "And from 32 px pictures with the perception pretrained to read the state (cos/sin), the same schedule "
+        "(filled in when the run reaches its 2M steps):",
         "",
         "| goal area | ours | after steps | thesis |",
         "|---|---:|---:|---:|",
