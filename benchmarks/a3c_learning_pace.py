@@ -52,7 +52,7 @@ def curve(run: Path, bucket: int, until: int) -> dict:
                         for index, values in sorted(lengths.items()) if len(values) >= MIN_EPISODES]}
 
 
-def plot(curves: dict) -> None:
+def plot(curves: dict, image: Path = IMAGE, title: str = "Arm2D, single goal: A3C from pictures and from the state") -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -63,12 +63,12 @@ def plot(curves: dict) -> None:
         buckets = measured["buckets"]
         axis.plot([(b["from"] + b["to"]) / 2 for b in buckets], [b["mean_length"] for b in buckets], marker="o", label=key)
     axis.set(xlabel="simulator steps", ylabel="training episode length (actions)", yscale="log",
-             title="Arm2D, single goal: A3C from pictures and from the state")
+             title=title)
     axis.grid(alpha=0.3)
     axis.legend(fontsize=7)
     figure.tight_layout()
-    IMAGE.parent.mkdir(parents=True, exist_ok=True)
-    figure.savefig(IMAGE, dpi=110)
+    image.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(image, dpi=110)
     plt.close(figure)
 
 

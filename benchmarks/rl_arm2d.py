@@ -62,7 +62,12 @@ RUNS = {
     # ... whose policy reads an MLP on the state its auxiliary head reads (a3c.policy_input: state_estimate)
     "curriculum_keypoints_bottleneck_whole_area": ("configs/rl_arm2d_curriculum_keypoints_bottleneck.yaml", 1.0),
     "no_curriculum_keypoints_bottleneck_whole_area": ("configs/rl_arm2d_no_curriculum_keypoints_bottleneck.yaml", 1.0),
+    # the state learner acting on pixels through the frozen APRiL keypoint network (READ_STATE below)
+    "curriculum_read_state_whole_area": ("configs/rl_arm2d_curriculum_read_state.yaml", 1.0),
+    "no_curriculum_read_state_whole_area": ("configs/rl_arm2d_no_curriculum_read_state.yaml", 1.0),
 }
+KEYPOINTS = _common.ROOT / "runs" / "bench" / "arm2d_keypoints" / "keypoints.safetensors"  # rl_arm2d_april.py makes it
+READ_STATE = ("curriculum_read_state_whole_area", "no_curriculum_read_state_whole_area")
 ALIASES = {"curriculum": "curriculum_whole_area", "no_curriculum": "no_curriculum_whole_area",
            "curriculum_keypoints": "curriculum_keypoints_whole_area",
            "no_curriculum_keypoints": "no_curriculum_keypoints_whole_area",
@@ -77,15 +82,16 @@ ALIASES = {"curriculum": "curriculum_whole_area", "no_curriculum": "no_curriculu
                                                       "curriculum_keypoints_pretrained",
                                                       "no_curriculum_keypoints_pretrained",
                                                       "curriculum_keypoints_bottleneck",
-                                                      "no_curriculum_keypoints_bottleneck")}}
+                                                      "no_curriculum_keypoints_bottleneck",
+                                                      "curriculum_read_state", "no_curriculum_read_state")}}
 EPISODES = 200
 
 
 def evaluate(policy, goal_area: float, seed: int = 50_000, epsilon: float = 0.0, deterministic: bool = True,
-             config: RLConfig | None = None) -> dict:
+             config: RLConfig | None = None, wrap_env=None) -> dict:
     """200 seeded episodes at ``goal_area``; an A3C run's config gives its own env (pixels or state)."""
     if config is not None and config.algorithm == "a3c":
-        env = make_run_env(config)
+        env = make_run_env(config, wrap_env)
         env.unwrapped.set_goal_area(goal_area)
     else:
         env = make("binpick/Arm2D-v0", goal_area=goal_area)
@@ -170,11 +176,19 @@ def main() -> None:
                     sys.exit("the curriculum starts from the single-goal A3C run: run --only a3c first")
                 overrides["init_from"] = str(single_goal)
             config = load_rl_config(_common.ROOT / config_path, overrides)
-            trainer = continued(config, args.fresh) or trainer_for(config, _common.ROOT / "runs" / "bench")
+            wrap_env = None
+            if key in READ_STATE:
+                from binpick.april.arm2d import ReadStateOffPixels
+
+                if not KEYPOINTS.is_file():
+                    sys.exit(f"{key} reads the state with {KEYPOINTS}: make it with benchmarks/rl_arm2d_april.py first")
+                wrap_env = ReadStateOffPixels(str(KEYPOINTS))
+            trainer = (continued(config, args.fresh, wrap_env)
+                       or trainer_for(config, _common.ROOT / "runs" / "bench", wrap_env=wrap_env))
             with RichCallback() as callback:
                 metrics = trainer.run(callback)
             policy, _ = load_policy(trainer.run_dir)
-            results[key] = evaluate(policy, area, config=config) | {"sim_steps": metrics["sim_steps"],
+            results[key] = evaluate(policy, area, config=config, wrap_env=wrap_env) | {"sim_steps": metrics["sim_steps"],
                                                      "wall_seconds": metrics["wall_seconds"],
                                                      "run_dir": str(trainer.run_dir.relative_to(_common.ROOT)),
                                                      **({"pretrain": metrics["pretrain"]} if "pretrain" in metrics else {})}
@@ -182,7 +196,7 @@ def main() -> None:
                 results[key.replace("whole_area", "stages")] = [e for e in metrics["evaluations"]]
                 results[key] |= {"advance": config.curriculum.advance, "advanced_at": metrics.get("curriculum_advanced_at", [])}
             if config.algorithm == "a3c":  # an actor-critic acts by sampling its policy (Mnih et al. 2016); greedy above
-                results[f"{key}_sampled"] = evaluate(policy, area, deterministic=False, config=config) | {
+                results[f"{key}_sampled"] = evaluate(policy, area, deterministic=False, config=config, wrap_env=wrap_env) | {
                     k: results[key][k] for k in ("sim_steps", "wall_seconds", "run_dir", "pretrain") if k in results[key]}
             if key == "dqn":  # Mnih et al. (2015) evaluate with ε = 0.05; greedy above
                 results["dqn_epsilon_greedy"] = evaluate(policy, area, epsilon=0.05) | {
@@ -270,6 +284,11 @@ def main() -> None:
         f"{cell('curriculum_keypoints_pretrained_1m_sampled')} | |",
         f"| the same, + curriculum, its 1,050,015-step checkpoint, greedy | whole area | "
         f"{cell('curriculum_keypoints_pretrained_1m')} | |",
+        f"| A3C on pixels through the frozen APRiL keypoint network (the state learner acting on read states), + curriculum, "
+        f"sampling | whole area | {cell('curriculum_read_state_whole_area_sampled')} | 25 ± 6 |",
+        f"| the same, + curriculum, greedy | whole area | {cell('curriculum_read_state_whole_area')} | |",
+        f"| the same, no curriculum, sampling | whole area | {cell('no_curriculum_read_state_whole_area_sampled')} | |",
+        f"| the same, no curriculum, greedy | whole area | {cell('no_curriculum_read_state_whole_area')} | |",
         f"| shortest path on the arm's action lattice (exhaustive search, not a learner) | whole area | "
         f"{cell('shortest_path_whole_area')} | |",
         "",
@@ -383,13 +402,13 @@ def main() -> None:
     ]))
 
 
-def continued(config: RLConfig, fresh: bool):
+def continued(config: RLConfig, fresh: bool, wrap_env=None):
     """The trainer of the latest run of this very config (it resumes from its last checkpoint), or None."""
     latest = None if fresh else _common.latest_run(_common.ROOT / "runs" / "bench", config.name)
     if latest is None or load_run_config(RLConfig, latest) != config:
         return None
     print(f"{config.name}: continuing {latest.relative_to(_common.ROOT)}", flush=True)
-    return trainer_for(resume=latest)
+    return trainer_for(resume=latest, wrap_env=wrap_env)
 
 
 def april_paragraph(results: dict) -> list[str]:

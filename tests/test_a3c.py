@@ -515,3 +515,31 @@ def _process_state(pid: int) -> str:
         return open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[0]
     except OSError:
         return "Z"
+
+
+def test_reading_errors_add_a_row_of_the_table_seeded_and_untied_from_the_pose():
+    """ReadingErrors (issue 19): each step adds one row of a perception's measured errors, drawn at random, so
+    the same pose gets different errors; the same seed draws the same rows; a table of the wrong width is one line."""
+    from gymnasium.wrappers import FlattenObservation
+
+    from binpick.envs import make
+    from binpick.errors import ConfigError
+    from binpick.rl.wrappers import ReadingErrors
+
+    table = np.random.default_rng(0).normal(0.0, 0.05, (40, 12))
+    base = FlattenObservation(make("binpick/Arm2D-v0", goal_conditioned=True, image=None))
+    env = ReadingErrors(FlattenObservation(make("binpick/Arm2D-v0", goal_conditioned=True, image=None)), table)
+    drawn = []
+    for seed in range(30):
+        first, truth = env.reset(seed=seed)[0], base.reset(seed=seed)[0]
+        assert np.array_equal(first, env.reset(seed=seed)[0])
+        difference = first - truth
+        assert np.isclose(np.abs(table - difference).max(1), 0.0, atol=1e-12).any()  # one of the table's rows
+        drawn.append(int(np.argmin(np.abs(table - difference).max(1))))
+    assert len(set(drawn)) > 10
+    # the same pose, reached twice, is read with different errors
+    env.reset(seed=0)
+    there, back = env.step(0)[0], (env.step(1), env.step(0))[1][0]
+    assert np.allclose(there[:2], back[:2], atol=0.2) and not np.allclose(there, back)
+    with pytest.raises(ConfigError, match=r"\(N, 12\)"):
+        ReadingErrors(FlattenObservation(make("binpick/Arm2D-v0", goal_conditioned=True, image=None)), table[:, :5])

@@ -49,3 +49,42 @@ def test_keypoints_are_learnt_from_images_saved_and_loaded(tmp_path):
     (tmp_path / "bad.safetensors").write_bytes(b"not a weights file")
     with pytest.raises(InputFileError):
         load_keypoints(tmp_path / "bad.safetensors")
+
+
+def test_a3c_trains_a_state_learner_on_the_state_read_off_pixels(tmp_path):
+    """ReadStateOffPixels (issue 19): the frozen keypoint network turns Arm2D's pictures into the state vector,
+    pickles into A3C's spawned workers, and a run made with it resumes with it; a picture size the weights do
+    not read is one line."""
+    import pickle
+
+    import torch
+
+    from binpick.april.arm2d import Arm2DKeypoints, ReadStateOffPixels
+    from binpick.config import from_dict
+    from binpick.errors import ConfigError
+    from binpick.rl.a3c_train import A3CTrainer, make_env
+    from binpick.rl.config import RLConfig
+
+    torch.manual_seed(0)
+    weights = save_keypoints(Arm2DKeypoints(32, 8), tmp_path / "reader.safetensors")
+    reading = ReadStateOffPixels(str(weights))
+    assert pickle.loads(pickle.dumps(reading)) == reading
+    settings = {"name": "read", "env": "binpick/Arm2D-v0", "algorithm": "a3c", "total_timesteps": 120,
+                "checkpoint_every": 60, "env_kwargs": {"goal_conditioned": True, "image": "rgb", "image_size": 32},
+                "a3c": {"encoder": "state", "workers": 1, "n_steps": 10}, "eval": {"every": 60, "episodes": 1}}
+    config = from_dict(RLConfig, settings)
+    env = make_env(config, reading)
+    observation, _ = env.reset(seed=4)
+    picture = env.unwrapped._observation()["image"]
+    expected = FlattenObservation(make("binpick/Arm2D-v0", goal_conditioned=True, image=None)).observation(
+        state_from_keypoints(load_keypoints(weights).keypoints(picture)[0]))
+    np.testing.assert_allclose(observation, expected, atol=1e-6)
+    trainer = A3CTrainer.new(config, tmp_path / "runs", reading)
+    metrics = trainer.run()
+    assert metrics["sim_steps"] >= 120 and metrics["evaluations"]
+    with pytest.raises(ConfigError, match="a3c.encoder 'state' needs vector observations"):
+        A3CTrainer.resume(trainer.run_dir)  # the pictures are not a state without the reader
+    assert A3CTrainer.resume(trainer.run_dir, reading).steps == metrics["sim_steps"]
+    with pytest.raises(ConfigError, match="32 px"):
+        make_env(from_dict(RLConfig, settings | {"env_kwargs": {"goal_conditioned": True, "image": "rgb", "image_size": 16}}),
+                 reading)

@@ -13,6 +13,7 @@ row), about the 0.07 success radius. The joint angles follow from the elbows.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -165,3 +166,22 @@ class PixelsAsArm2DState(gym.ObservationWrapper):
     def observation(self, observation):
         points = self.perceive(observation["image"])
         return spaces.flatten(self.state_space, state_from_keypoints(np.asarray(points).reshape(len(KEYPOINTS), 2)))
+
+
+@dataclass(frozen=True)
+class ReadStateOffPixels:
+    """An A3C ``wrap_env`` (binpick.rl.a3c_train): Arm2D's pictures in, the state its frozen keypoint network
+    (weights at ``path``) reads off them out, so a state learner trains acting on pixels -- APRiL's split
+    inside RL. Why (issue 19): A3C's own pixel network reads the state ~0.06 off, this one ~0.01, and the
+    pixel learner's lag may come from that error being tied to the pose. A path, not a network, so it
+    pickles into A3C's spawned workers; each loads the weights itself."""
+
+    path: str
+
+    def __call__(self, env: gym.Env) -> gym.Env:
+        model = load_keypoints(Path(self.path))
+        image = getattr(env.observation_space, "spaces", {}).get("image")
+        if image is None or tuple(image.shape) != (model.image_size, model.image_size, 3):
+            raise ConfigError(f"keypoint weights {self.path!r} read RGB images of {model.image_size} px: set env_kwargs "
+                              f"{{goal_conditioned: true, image: rgb, image_size: {model.image_size}}}")
+        return PixelsAsArm2DState(env, lambda picture: model.keypoints(picture)[0])

@@ -11,6 +11,7 @@ from __future__ import annotations
 import multiprocessing
 import queue
 import time
+from collections.abc import Callable
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -32,6 +33,7 @@ from binpick.rl.config import RLConfig
 from binpick.rl.curriculum import CurriculumProgress
 from binpick.rl.evaluate import evaluate_policy
 
+EnvWrapper = Callable[[gym.Env], gym.Env]
 FORMAT = "binpick-a3c-checkpoint-1"
 A3C_FILE = "a3c.safetensors"
 
@@ -51,8 +53,12 @@ class _SampledPolicy:
         return self.model.act(observation, deterministic=deterministic or self.deterministic), None
 
 
-def make_env(config: RLConfig) -> gym.Env:
-    """The run's env; for ``a3c.encoder: state`` a goal env's dict observation is flattened into one vector."""
+def make_env(config: RLConfig, wrap_env: EnvWrapper | None = None) -> gym.Env:
+    """The run's env; for ``a3c.encoder: state`` a goal env's dict observation is flattened into one vector.
+
+    ``wrap_env`` (env -> env) is applied first: e.g. a frozen perception that turns the pictures into the
+    state vector a state learner reads (binpick.april.arm2d.ReadStateOffPixels). It must pickle, as the
+    workers are spawned processes."""
     from gymnasium import spaces
     from gymnasium.wrappers import FlattenObservation
 
@@ -60,6 +66,8 @@ def make_env(config: RLConfig) -> gym.Env:
     from binpick.rl.wrappers import GaussianObservationNoise
 
     env = make(config.env, **config.env_kwargs)
+    if wrap_env is not None:
+        env = wrap_env(env)
     space = env.observation_space
     if config.a3c.encoder == "state":
         parts = space.spaces if isinstance(space, spaces.Dict) else {"observation": space}
@@ -79,11 +87,11 @@ def make_env(config: RLConfig) -> gym.Env:
     return env
 
 
-def _state_size(config: RLConfig) -> int:
+def _state_size(config: RLConfig, wrap_env: EnvWrapper | None = None) -> int:
     """Length of the env's semantic state (info[a3c.state_key]) when the auxiliary state loss is on, else 0."""
     if config.a3c.state_weight == 0:
         return 0
-    env = make_env(config)
+    env = make_env(config, wrap_env)
     try:
         state = env.reset(seed=0)[1].get(config.a3c.state_key)
     finally:
@@ -95,11 +103,11 @@ def _state_size(config: RLConfig) -> int:
 
 
 def _worker(rank: int, config: RLConfig, model: ActorCritic, optimizer: SharedAdam, counter, goal_area,
-            stats_queue, stop) -> None:
+            stats_queue, stop, wrap_env: EnvWrapper | None = None) -> None:
     torch.set_num_threads(1)
     a3c = config.a3c
-    env_shape = make_env(config).observation_space.shape
-    worker = A3CWorker(lambda: make_env(config), env_shape, 6, seed=config.seed * 1000 + rank * 7919 + counter.value,
+    env_shape = make_env(config, wrap_env).observation_space.shape
+    worker = A3CWorker(lambda: make_env(config, wrap_env), env_shape, 6, seed=config.seed * 1000 + rank * 7919 + counter.value,
                        n_steps=a3c.n_steps, gamma=a3c.gamma, entropy_beta=a3c.entropy_beta,
                        value_coef=a3c.value_coef, max_grad_norm=a3c.max_grad_norm, reward_scale=a3c.reward_scale,
                        encoder=a3c.encoder, state_weight=a3c.state_weight, state_size=model.state_size,
@@ -138,15 +146,15 @@ def _source_checkpoint(config: RLConfig) -> Path:
 class A3CTrainer:
     """Owns a run folder for an A3C run; ``run()`` trains to ``total_timesteps`` and can resume."""
 
-    def __init__(self, config: RLConfig, run_dir: Path) -> None:
-        self.config, self.run_dir = config, Path(run_dir)
+    def __init__(self, config: RLConfig, run_dir: Path, wrap_env: EnvWrapper | None = None) -> None:
+        self.config, self.run_dir, self.wrap_env = config, Path(run_dir), wrap_env
         self.ckpt_dir = self.run_dir / "checkpoints"
-        env = make_env(config)
+        env = make_env(config, wrap_env)
         self.observation_shape = env.observation_space.shape
         self.base_area = float(env.unwrapped.goal_area)
         env.close()
         torch.manual_seed(config.seed)
-        self.state_size = _state_size(config)
+        self.state_size = _state_size(config, wrap_env)
         self.model = ActorCritic(self.observation_shape, 6, self.config.a3c.encoder, self.state_size, self.config.a3c.policy_input,
                                  self.config.a3c.detach_perception)
         self.model.share_memory()
@@ -156,7 +164,7 @@ class A3CTrainer:
         self.curriculum = CurriculumProgress(config.curriculum)
 
     @classmethod
-    def new(cls, config: RLConfig, runs_root: Path = Path("runs")) -> A3CTrainer:
+    def new(cls, config: RLConfig, runs_root: Path = Path("runs"), wrap_env: EnvWrapper | None = None) -> A3CTrainer:
         """A fresh run; with ``init_from`` it starts where that run's latest checkpoint ended.
 
         The thesis's curriculum (§3.2) starts from the network trained on the single goal (§3.1.3):
@@ -165,16 +173,17 @@ class A3CTrainer:
         """
         source = None if config.init_from is None else _source_checkpoint(config)
         with removed_on_error(new_run_dir(runs_root, config.name, yaml.safe_dump(to_dict(config), sort_keys=False))) as run_dir:
-            trainer = cls(config, run_dir)
+            trainer = cls(config, run_dir, wrap_env)
             if source is not None:
                 trainer.load_checkpoint(source)
                 trainer.curriculum = CurriculumProgress(config.curriculum)  # this run's own schedule starts here
             return trainer
 
     @classmethod
-    def resume(cls, run_dir: Path) -> A3CTrainer:
-        """Continue run folder ``run_dir`` from its latest checkpoint (or from zero if it has none)."""
-        trainer = cls(load_run_config(RLConfig, run_dir), Path(run_dir))
+    def resume(cls, run_dir: Path, wrap_env: EnvWrapper | None = None) -> A3CTrainer:
+        """Continue run folder ``run_dir`` from its latest checkpoint (or from zero if it has none); a run
+        made with ``wrap_env`` needs the same one again."""
+        trainer = cls(load_run_config(RLConfig, run_dir), Path(run_dir), wrap_env)
         trainer.load_checkpoint()
         return trainer
 
@@ -228,7 +237,7 @@ class A3CTrainer:
 
     # ------------------------------------------------------------------ evaluation
     def evaluate(self, area: float) -> dict[str, float]:
-        env = make_env(self.config)
+        env = make_env(self.config, self.wrap_env)
         env.unwrapped.set_goal_area(area)
         result = evaluate_policy(_SampledPolicy(self.model), env, episodes=self.config.eval.episodes,
                                  seed=self.config.eval.seed)
@@ -257,7 +266,7 @@ class A3CTrainer:
         a3c = self.config.a3c
         started = time.perf_counter()
         with callback.task(f"{self.config.name}: perception", a3c.pretrain_epochs) as task:
-            result = pretrain_perception(self.model, lambda: make_env(self.config), a3c.state_key, a3c.pretrain_pictures,
+            result = pretrain_perception(self.model, lambda: make_env(self.config, self.wrap_env), a3c.state_key, a3c.pretrain_pictures,
                                          a3c.pretrain_epochs, a3c.pretrain_learning_rate, self.config.seed + 777_777, task,
                                          near_goal=a3c.pretrain_near_goal)
         self.metrics["pretrain"] = asdict(result) | {"wall_seconds": round(time.perf_counter() - started, 1)}
@@ -271,7 +280,7 @@ class A3CTrainer:
         stats_queue = context.Queue()
         stop = context.Event()
         workers = [context.Process(target=_worker, args=(rank, self.config, self.model, self.optimizer, counter,
-                                                         goal_area, stats_queue, stop), daemon=True)
+                                                         goal_area, stats_queue, stop, self.wrap_env), daemon=True)
                    for rank in range(self.config.a3c.workers)]
         writer = SummaryWriter(str(self.run_dir / "tb"))
         started = time.perf_counter() - self.metrics["wall_seconds"]

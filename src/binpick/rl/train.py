@@ -41,12 +41,15 @@ def next_multiple(steps: int, every: int) -> int:
     return (int(steps) // every + 1) * every
 
 
-def make_env(config: RLConfig) -> gym.Env:
-    """The env exactly as the run trains on it (semantic state, minimum action scale; A3C's flattened state)."""
+def make_env(config: RLConfig, wrap_env=None) -> gym.Env:
+    """The env exactly as the run trains on it (semantic state, minimum action scale; A3C's flattened state,
+    after A3C's ``wrap_env`` if the run was made with one)."""
     if config.algorithm == "a3c":
         from binpick.rl.a3c_train import make_env as make_a3c_env
 
-        return make_a3c_env(config)
+        return make_a3c_env(config, wrap_env)
+    if wrap_env is not None:
+        raise ConfigError(f"wrap_env is an A3C option; this run is {config.algorithm}")
     env = make(config.env, **config.env_kwargs)
     if config.semantic_state and config.algorithm in ("sac", "sb3_sac_her"):
         env = SemanticState(env, gripper=needs_gripper(config.env), privileged=config.privileged_state,
@@ -373,15 +376,19 @@ class RLRun:
         return trainer_for(resume=run_dir)
 
 
-def trainer_for(config: RLConfig | None = None, runs_root: Path = Path("runs"), resume: Path | None = None):
-    """A new trainer for ``config``, or the one that continues run folder ``resume`` (A3C or SB3-based)."""
+def trainer_for(config: RLConfig | None = None, runs_root: Path = Path("runs"), resume: Path | None = None,
+                wrap_env=None):
+    """A new trainer for ``config``, or the one that continues run folder ``resume`` (A3C or SB3-based);
+    ``wrap_env`` is A3C's (binpick.rl.a3c_train.make_env)."""
     if resume is not None:
         config = load_run_config(RLConfig, resume)
     if config.algorithm == "a3c":
         from binpick.rl.a3c_train import A3CTrainer as trainer_class
-    else:
-        trainer_class = Trainer
-    return trainer_class.new(config, runs_root) if resume is None else trainer_class.resume(Path(resume))
+        return (trainer_class.new(config, runs_root, wrap_env) if resume is None
+                else trainer_class.resume(Path(resume), wrap_env))
+    if wrap_env is not None:
+        raise ConfigError(f"wrap_env is an A3C option; this run is {config.algorithm}")
+    return Trainer.new(config, runs_root) if resume is None else Trainer.resume(Path(resume))
 
 
 def load_policy(run_dir: Path, env_id: str | None = None):

@@ -111,16 +111,12 @@ def scale_up_small_action(action, high, scale: float) -> np.ndarray:
     return action
 
 
-class GaussianObservationNoise(gym.ObservationWrapper):
-    """Adds independent Gaussian noise (``std``) to every component of a vector observation, fresh each step.
+class _SeededPerturbation(gym.ObservationWrapper):
+    """A vector-observation wrapper with its own generator, seeded from reset's seed, so the env's goals
+    and starts stay as they are without it."""
 
-    Why (issue 19): a learner on the true state stands in for one on a state read off pictures only if the
-    reading's error does not matter; with the noise set to the reading's error it measures whether it does.
-    Its own generator, seeded from reset's seed, so the env's goals and starts stay as without noise."""
-
-    def __init__(self, env: gym.Env, std: float) -> None:
+    def __init__(self, env: gym.Env) -> None:
         super().__init__(env)
-        self.std = check_range("state_noise", std, 0.0, 1e3)
         self.rng = np.random.default_rng()
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -128,5 +124,38 @@ class GaussianObservationNoise(gym.ObservationWrapper):
             self.rng = np.random.default_rng(seed + 7_777)
         return super().reset(seed=seed, options=options)
 
+
+class GaussianObservationNoise(_SeededPerturbation):
+    """Adds independent Gaussian noise (``std``) to every component of a vector observation, fresh each step.
+
+    Why (issue 19): a learner on the true state stands in for one on a state read off pictures only if the
+    reading's error does not matter; with the noise set to the reading's error it measures whether it does."""
+
+    def __init__(self, env: gym.Env, std: float) -> None:
+        super().__init__(env)
+        self.std = check_range("state_noise", std, 0.0, 1e3)
+
     def observation(self, observation):
         return observation + self.rng.normal(0.0, self.std, np.shape(observation))
+
+
+class ReadingErrors(_SeededPerturbation):
+    """Adds a row of ``errors`` (N, D), a random row each step, to a D-vector observation.
+
+    Why (issue 19): a perception's error is tied to the pose -- the same each time the arm is there, so a
+    learner cannot average it out. Rows of that perception's own errors, measured on other pictures and
+    drawn at random, are the same errors untied from the pose: a learner that keeps its pace with these
+    and not with the perception itself is slowed by the tie, not by the size of the errors."""
+
+    def __init__(self, env: gym.Env, errors: np.ndarray) -> None:
+        super().__init__(env)
+        self.errors = np.asarray(errors, np.float64)
+        size = env.observation_space.shape
+        if self.errors.ndim != 2 or not len(self.errors) or size is None or (self.errors.shape[1],) != tuple(size):
+            from binpick.errors import ConfigError
+
+            raise ConfigError(f"reading errors must be a non-empty (N, {size[0] if size else '?'}) table for this "
+                              f"env's observations, got shape {self.errors.shape}")
+
+    def observation(self, observation):
+        return observation + self.errors[self.rng.integers(len(self.errors))]
