@@ -543,3 +543,45 @@ def test_reading_errors_add_a_row_of_the_table_seeded_and_untied_from_the_pose()
     assert np.allclose(there[:2], back[:2], atol=0.2) and not np.allclose(there, back)
     with pytest.raises(ConfigError, match=r"\(N, 12\)"):
         ReadingErrors(FlattenObservation(make("binpick/Arm2D-v0", goal_conditioned=True, image=None)), table[:, :5])
+
+
+def test_hidden_layers_deepen_the_heads_network_and_are_saved_with_the_weights(tmp_path):
+    """a3c.hidden_layers (issue 19): the layers between what the network reads and its heads. One (the default)
+    keeps older checkpoints' layout; two gives the pixel learner's heads the state learner's depth. A run with
+    another depth cannot continue from the weights; a bad value is one line."""
+    import yaml
+
+    from binpick.config import from_dict
+    from binpick.errors import ConfigError
+    from binpick.rl.a3c_train import load_a3c_policy
+    from binpick.rl.config import RLConfig
+    from binpick.rl.train import trainer_for
+    from binpick.runs import latest_checkpoint
+
+    def linears(module):
+        return [m for m in module if isinstance(m, torch.nn.Linear)]
+
+    one, two = ActorCritic((32, 32, 3), 6, "keypoints", 10, "state_estimate"), ActorCritic(
+        (32, 32, 3), 6, "keypoints", 10, "state_estimate", hidden_layers=2)
+    assert (len(linears(one.hidden)), len(linears(one.controller))) == (1, 1)
+    assert (len(linears(two.hidden)), len(linears(two.controller))) == (2, 2)
+    assert set(one.state_dict()) < set(two.state_dict()) and "hidden.0.weight" in one.state_dict()
+    logits, values = two(torch.randint(0, 256, (3, 32, 32, 3), dtype=torch.uint8))
+    assert logits.shape == (3, 6) and values.shape == (3,)
+    none = ActorCritic((8,), 6, "state", hidden_layers=0)  # the state learner with one layer: its trunk's
+    assert len(none.hidden) == 0 and none.policy.in_features == 256
+    assert ActorCritic((32, 32, 3), 6, "keypoints", 10, "state_estimate", hidden_layers=0).policy.in_features == 10
+    with pytest.raises(ValueError, match="hidden_layers"):
+        ActorCritic((8,), 6, "state", hidden_layers=-1)
+    settings = yaml.safe_load(A3C_RUN.format(steps=40)) | {
+        "env_kwargs": {"image_size": 32}, "a3c": {"workers": 1, "n_steps": 5, "encoder": "keypoints", "hidden_layers": 2}}
+    trainer = trainer_for(from_dict(RLConfig, settings), tmp_path / "runs")
+    trainer.save_checkpoint()
+    policy = load_a3c_policy(latest_checkpoint(trainer.run_dir / "checkpoints"))
+    assert policy.model.hidden_layers == 2
+    assert all(torch.equal(policy.model.state_dict()[k], v) for k, v in trainer.model.state_dict().items())
+    shallow = settings | {"a3c": settings["a3c"] | {"hidden_layers": 1}, "init_from": str(trainer.run_dir)}
+    with pytest.raises(ConfigError, match="a3c.hidden_layers 2"):
+        trainer_for(from_dict(RLConfig, shallow), tmp_path / "other")
+    with pytest.raises(ConfigError, match="a3c.hidden_layers"):
+        from_dict(RLConfig, settings | {"a3c": settings["a3c"] | {"hidden_layers": -1}})

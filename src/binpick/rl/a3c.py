@@ -56,11 +56,22 @@ class ActorCritic(nn.Module):
     reads off the picture, the very network the state learner uses on the true state, instead of the
     256 features that also had to encode that state linearly. Trained end to end; needs ``state_size``.
     ``detach_perception`` stops the policy's and value's gradients at what they read, so only the auxiliary
-    state loss trains the perception (APRiL's split: perception learns the state, the policy acts on it)."""
+    state loss trains the perception (APRiL's split: perception learns the state, the policy acts on it).
+
+    ``hidden_layers`` is the number of 256-unit ReLU layers in ``hidden`` (after the trunk) and in ``controller``
+    (0: the heads read the trunk's output, or the state estimate, directly). The state encoder's trunk is itself
+    one such layer, so the state learner has 1 + ``hidden_layers`` layers on the state, where a picture trunk that
+    ends at positions (keypoints) leaves ``hidden_layers`` above them. Why (issue 19): with one, the pixel learner
+    and the bottleneck learnt Arm2D's single goal at the pace of the state learner with one (``hidden_layers=0``),
+    half that of the state learner with two."""
 
     def __init__(self, observation_shape: tuple[int, ...], actions: int, encoder: str = "flatten",
-                 state_size: int = 0, policy_input: str = "features", detach_perception: bool = False) -> None:
+                 state_size: int = 0, policy_input: str = "features", detach_perception: bool = False,
+                 hidden_layers: int = 1) -> None:
         super().__init__()
+        if not isinstance(hidden_layers, int) or hidden_layers < 0:
+            raise ValueError(f"hidden_layers must be an integer >= 0, got {hidden_layers!r}")
+        self.hidden_layers = hidden_layers
         self.detach_perception = bool(detach_perception)
         if encoder not in ENCODERS:
             raise ValueError(f"encoder must be one of {ENCODERS}, got {encoder!r}")
@@ -94,21 +105,23 @@ class ActorCritic(nn.Module):
             )
         with torch.no_grad():
             features = self.trunk(self._prepare(torch.zeros(1, *observation_shape, dtype=torch.uint8))).shape[1]
-        self.hidden = nn.Sequential(nn.Linear(features, 256), nn.ReLU())
-        self.policy = nn.Linear(256, actions)
-        self.value = nn.Linear(256, 1)
+        self.hidden = _mlp(features, hidden_layers)
+        width = 256 if hidden_layers else features  # of the features; 0 layers: the trunk's own output
         # optional auxiliary head: the semantic state (info[state_key]) read from the same features
         self.state_size = int(state_size)
-        self.state = nn.Linear(256, self.state_size) if self.state_size else None
-        self.controller = (nn.Sequential(nn.Linear(self.state_size, 256), nn.ReLU())
-                           if policy_input == "state_estimate" else None)
+        self.state = nn.Linear(width, self.state_size) if self.state_size else None
+        self.controller = _mlp(self.state_size, hidden_layers) if policy_input == "state_estimate" else None
+        if self.controller is not None:
+            width = 256 if hidden_layers else self.state_size
+        self.policy = nn.Linear(width, actions)
+        self.value = nn.Linear(width, 1)
 
     def forward(self, images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """uint8 (B, H, W, C) images -> (logits (B, A), values (B,))."""
         return self.heads(self.features(images))
 
     def heads(self, hidden: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """(B, 256) features -> (logits, values), through the state estimate when there is a bottleneck."""
+        """(B, F) features -> (logits, values), through the state estimate when there is a bottleneck."""
         control = hidden if self.controller is None else self.state(hidden)
         if self.detach_perception:
             control = control.detach()
@@ -117,7 +130,8 @@ class ActorCritic(nn.Module):
         return self.policy(control), self.value(control).squeeze(-1)
 
     def features(self, images: torch.Tensor) -> torch.Tensor:
-        """uint8 (B, H, W, C) images (or (B, D) state vectors) -> the (B, 256) features the heads read."""
+        """uint8 (B, H, W, C) images (or (B, D) state vectors) -> the (B, F) features the heads read
+        (F = 256, or the trunk's output with ``hidden_layers=0``)."""
         return self.hidden(self.trunk(self._prepare(images)))
 
     def _prepare(self, observations: torch.Tensor) -> torch.Tensor:
@@ -131,6 +145,14 @@ class ActorCritic(nn.Module):
         if deterministic:
             return int(logits.argmax(-1))
         return int(torch.distributions.Categorical(logits=logits).sample())
+
+
+def _mlp(inputs: int, layers: int, width: int = 256) -> nn.Sequential:
+    """``layers`` ReLU layers of ``width`` units."""
+    modules: list[nn.Module] = []
+    for index in range(layers):
+        modules += [nn.Linear(inputs if index == 0 else width, width), nn.ReLU()]
+    return nn.Sequential(*modules)
 
 
 class SharedAdam(torch.optim.Adam):
@@ -167,10 +189,10 @@ class A3CWorker:
                  n_steps: int = 20, gamma: float = 0.99, entropy_beta: float = 0.01, value_coef: float = 0.5,
                  max_grad_norm: float = 40.0, reward_scale: float = 0.01, encoder: str = "flatten",
                  state_weight: float = 0.0, state_size: int = 0, state_key: str = "state",
-                 policy_input: str = "features", detach_perception: bool = False) -> None:
+                 policy_input: str = "features", detach_perception: bool = False, hidden_layers: int = 1) -> None:
         self.env = make_env()
         self.model = ActorCritic(observation_shape, actions, encoder, state_size if state_weight > 0 else 0, policy_input,
-                                 detach_perception)
+                                 detach_perception, hidden_layers)
         self.state_weight, self.state_key = state_weight, state_key
         self.n_steps, self.gamma = n_steps, gamma
         self.entropy_beta, self.value_coef, self.max_grad_norm = entropy_beta, value_coef, max_grad_norm

@@ -111,7 +111,8 @@ def _worker(rank: int, config: RLConfig, model: ActorCritic, optimizer: SharedAd
                        n_steps=a3c.n_steps, gamma=a3c.gamma, entropy_beta=a3c.entropy_beta,
                        value_coef=a3c.value_coef, max_grad_norm=a3c.max_grad_norm, reward_scale=a3c.reward_scale,
                        encoder=a3c.encoder, state_weight=a3c.state_weight, state_size=model.state_size,
-                       state_key=a3c.state_key, policy_input=a3c.policy_input, detach_perception=a3c.detach_perception)
+                       state_key=a3c.state_key, policy_input=a3c.policy_input, detach_perception=a3c.detach_perception,
+                       hidden_layers=a3c.hidden_layers)
     area, trainer = -1.0, multiprocessing.parent_process()
     while not stop.is_set() and counter.value < config.total_timesteps:
         if trainer is not None and not trainer.is_alive():  # killed (daemon workers outlive a SIGKILL): nobody saves this
@@ -156,7 +157,7 @@ class A3CTrainer:
         torch.manual_seed(config.seed)
         self.state_size = _state_size(config, wrap_env)
         self.model = ActorCritic(self.observation_shape, 6, self.config.a3c.encoder, self.state_size, self.config.a3c.policy_input,
-                                 self.config.a3c.detach_perception)
+                                 self.config.a3c.detach_perception, self.config.a3c.hidden_layers)
         self.model.share_memory()
         self.optimizer = SharedAdam(self.model.parameters(), lr=config.a3c.learning_rate)
         self.steps = 0
@@ -201,7 +202,8 @@ class A3CTrainer:
             tensorfile.save(folder / A3C_FILE, FORMAT, state={"model": self.model.state_dict(), "optimizer": self.optimizer.state_dict()},
                             meta={"observation_shape": list(self.observation_shape), "env": self.config.env,
                                   "encoder": self.config.a3c.encoder, "state_size": self.state_size,
-                                  "policy_input": self.config.a3c.policy_input})
+                                  "policy_input": self.config.a3c.policy_input,
+                                  "hidden_layers": self.config.a3c.hidden_layers})
             atomic_write_json(folder / "state.json", {"steps": self.steps, "metrics": self.metrics, "env": self.config.env,
                                                       "curriculum": self.curriculum.state_dict()})
 
@@ -221,6 +223,9 @@ class A3CTrainer:
         if str(meta.get("policy_input", "features")) != self.config.a3c.policy_input:
             raise ConfigError(f"checkpoint {checkpoint} has a3c.policy_input {meta.get('policy_input', 'features')!r}, "
                               f"this run's config says {self.config.a3c.policy_input!r}")
+        if int(meta.get("hidden_layers", 1)) != self.config.a3c.hidden_layers:
+            raise ConfigError(f"checkpoint {checkpoint} has a3c.hidden_layers {meta.get('hidden_layers', 1)}, "
+                              f"this run's config says {self.config.a3c.hidden_layers}")
         if int(meta.get("state_size", 0)) != self.state_size:
             raise ConfigError(f"checkpoint {checkpoint} was trained {'with' if meta.get('state_size') else 'without'} "
                               f"the auxiliary state head, this run's config (a3c.state_weight) says otherwise")
@@ -374,7 +379,8 @@ def load_a3c_policy(checkpoint: Path) -> _SampledPolicy:
     state, meta = read_a3c_checkpoint(checkpoint)
     try:
         model = ActorCritic(tuple(int(v) for v in meta["observation_shape"]), 6, str(meta.get("encoder", "flatten")),
-                            int(meta.get("state_size", 0)), str(meta.get("policy_input", "features")))
+                            int(meta.get("state_size", 0)), str(meta.get("policy_input", "features")),
+                            hidden_layers=int(meta.get("hidden_layers", 1)))
         model.load_state_dict(state["model"])
     except (TypeError, ValueError, RuntimeError) as error:
         raise InputFileError(f"A3C checkpoint {checkpoint} is damaged ({str(error).splitlines()[0][:120]})") from None

@@ -112,6 +112,7 @@ class A3CConfig:
     policy_input: str = "features"  # "state_estimate": policy and value read an MLP on the state head's output
     detach_perception: bool = False  # True: the RL losses stop at what the heads read; only the state loss trains the trunk
     state_noise: float = 0.0  # encoder "state": Gaussian noise (std) on every component, each step, as a reading's error
+    hidden_layers: int = 1  # 256-unit layers between the trunk (or the state estimate) and the heads; see rl/a3c.py
 
     def __post_init__(self) -> None:
         check_choice("a3c.encoder", self.encoder, ["flatten", "keypoints", "state"])
@@ -130,6 +131,7 @@ class A3CConfig:
         if self.policy_input == "state_estimate" and self.encoder == "state":
             raise ConfigError("a3c.policy_input 'state_estimate' estimates the state from pictures; a3c.encoder 'state' has it already")
         check_range("a3c.state_noise", self.state_noise, 0.0, 1e3)
+        check_range("a3c.hidden_layers", self.hidden_layers, 0, 16, integer=True)
         check_bool("a3c.detach_perception", self.detach_perception)
         if self.detach_perception and self.state_weight == 0:
             raise ConfigError("a3c.detach_perception leaves the trunk to the auxiliary state loss alone: set a3c.state_weight > 0")
