@@ -566,6 +566,10 @@ def test_hidden_layers_deepen_the_heads_network_and_are_saved_with_the_weights(t
     assert (len(linears(one.hidden)), len(linears(one.controller))) == (1, 1)
     assert (len(linears(two.hidden)), len(linears(two.controller))) == (2, 2)
     assert set(one.state_dict()) < set(two.state_dict()) and "hidden.0.weight" in one.state_dict()
+    # parameters in the order older checkpoints' optimiser states list them (matched by position, not name)
+    for model in (one, two):
+        modules = [name.split(".")[0] for name, _ in model.named_parameters()]
+        assert list(dict.fromkeys(modules)) == ["trunk", "hidden", "policy", "value", "state", "controller"]
     logits, values = two(torch.randint(0, 256, (3, 32, 32, 3), dtype=torch.uint8))
     assert logits.shape == (3, 6) and values.shape == (3,)
     none = ActorCritic((8,), 6, "state", hidden_layers=0)  # the state learner with one layer: its trunk's
@@ -585,3 +589,33 @@ def test_hidden_layers_deepen_the_heads_network_and_are_saved_with_the_weights(t
         trainer_for(from_dict(RLConfig, shallow), tmp_path / "other")
     with pytest.raises(ConfigError, match="a3c.hidden_layers"):
         from_dict(RLConfig, settings | {"a3c": settings["a3c"] | {"hidden_layers": -1}})
+
+
+class _BreaksOnStep:
+    """A wrap_env whose env fails on its first step: only A3C's workers step it (module level: it pickles)."""
+
+    def __call__(self, env):
+        import gymnasium as gym
+
+        class Broken(gym.Wrapper):
+            def step(self, action):
+                raise RuntimeError("this env breaks on purpose")
+
+        return Broken(env)
+
+
+def test_a_run_whose_workers_fail_is_an_error_not_a_finished_run(tmp_path):
+    """Workers that die (here: an env that raises) used to end the loop as if the budget were spent: the trainer
+    evaluated and wrote metrics.json for a run that never trained. Now it is one clear error naming the run."""
+    import yaml
+
+    from binpick.config import from_dict
+    from binpick.errors import WorkerError
+    from binpick.rl.a3c_train import A3CTrainer
+    from binpick.rl.config import RLConfig
+
+    settings = yaml.safe_load(A3C_RUN.format(steps=200)) | {"a3c": {"workers": 1, "n_steps": 5}}
+    trainer = A3CTrainer.new(from_dict(RLConfig, settings), tmp_path / "runs", _BreaksOnStep())
+    with pytest.raises(WorkerError, match="resumes from its last checkpoint"):
+        trainer.run()
+    assert not (trainer.run_dir / "metrics.json").exists()

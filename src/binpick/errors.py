@@ -32,3 +32,7 @@ class InputFileError(BinpickError):
 
 class OutputPathError(BinpickError):
     """binpick cannot write where it was asked to (a file where a folder must be, no permission, ...)."""
+
+
+class WorkerError(BinpickError, RuntimeError):
+    """A training worker process stopped with an error; the run keeps its last checkpoint."""

@@ -105,16 +105,16 @@ class ActorCritic(nn.Module):
             )
         with torch.no_grad():
             features = self.trunk(self._prepare(torch.zeros(1, *observation_shape, dtype=torch.uint8))).shape[1]
+        # modules in the order older checkpoints' optimiser states list their parameters
         self.hidden = _mlp(features, hidden_layers)
         width = 256 if hidden_layers else features  # of the features; 0 layers: the trunk's own output
-        # optional auxiliary head: the semantic state (info[state_key]) read from the same features
         self.state_size = int(state_size)
+        head_width = (256 if hidden_layers else self.state_size) if policy_input == "state_estimate" else width
+        self.policy = nn.Linear(head_width, actions)
+        self.value = nn.Linear(head_width, 1)
+        # optional auxiliary head: the semantic state (info[state_key]) read from the same features
         self.state = nn.Linear(width, self.state_size) if self.state_size else None
         self.controller = _mlp(self.state_size, hidden_layers) if policy_input == "state_estimate" else None
-        if self.controller is not None:
-            width = 256 if hidden_layers else self.state_size
-        self.policy = nn.Linear(width, actions)
-        self.value = nn.Linear(width, 1)
 
     def forward(self, images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """uint8 (B, H, W, C) images -> (logits (B, A), values (B,))."""

@@ -25,7 +25,7 @@ from torch.utils.tensorboard import SummaryWriter
 
 from binpick import tensorfile
 from binpick.config import load_run_config, to_dict
-from binpick.errors import ConfigError, InputFileError
+from binpick.errors import ConfigError, InputFileError, WorkerError
 from binpick.files import atomic_write_json, read_json_object, require_fields
 from binpick.rl.a3c import A3CWorker, ActorCritic, SharedAdam, apply_gradients
 from binpick.runs import SILENT, RunCallback, Task, commit_checkpoint, latest_checkpoint, new_run_dir, removed_on_error
@@ -336,6 +336,10 @@ class A3CTrainer:
             writer.close()
         self.steps = counter.value
         self.metrics["wall_seconds"] = time.perf_counter() - started
+        failed = [worker.exitcode for worker in workers if worker.exitcode]
+        if self.steps < self.config.total_timesteps and failed:  # not a finished run: no final evaluation, no metrics
+            raise WorkerError(f"A3C workers exited with an error (exit codes {failed}, traceback above) at step "
+                              f"{self.steps:,}; {self.run_dir} resumes from its last checkpoint (binpick rl train --resume)")
 
     def write_outputs(self) -> dict[str, Any]:
         from binpick.viz.plots import plot_learning_curve
