@@ -1,7 +1,7 @@
 """Is it the pose-tied error of a pixel network's reading that slows A3C on Arm2D? (issue 19)
 
-    python benchmarks/a3c_reading_error.py [--only tied shuffled precise] [--steps 150000]
-        [--reader-run RUN_DIR] [--keypoints PATH] [--state-run RUN_DIR]
+    python benchmarks/a3c_reading_error.py [--only tied shuffled precise] [--steps 175000]
+        [--reader-run RUN_DIR] [--keypoints PATH] [--state-run RUN_DIR] [--also KEY=RUN_DIR ...]
 
 The state learner (configs/rl_arm2d_curriculum_state_entropy.yaml: the single goal for its first 400k
 steps) is trained for ``--steps`` on three inputs, each a ``wrap_env`` of binpick.rl.a3c_train:
@@ -171,11 +171,15 @@ def train(variant: str, steps: int, wrap_env) -> Path:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--only", nargs="+", choices=list(VARIANTS), default=list(VARIANTS))
-    parser.add_argument("--steps", type=int, default=150_000)
+    parser.add_argument("--only", nargs="*", choices=list(VARIANTS), default=list(VARIANTS))
+    parser.add_argument("--steps", type=int, default=175_000)
     parser.add_argument("--reader-run", default=READER_RUN)
     parser.add_argument("--keypoints", default=KEYPOINTS)
     parser.add_argument("--state-run", default=STATE_RUN)
+    parser.add_argument("--also", nargs="*", default=[], metavar="KEY=RUN_DIR",
+                        help="more curves, e.g. precise=<the read-state curriculum run of rl_arm2d.py>, whose first steps "
+                             "are this benchmark's precise run")
+    parser.add_argument("--note", default="", help="a paragraph for docs/RESULTS.md: what the runs show")
     args = parser.parse_args()
     from binpick.april.arm2d import ReadStateOffPixels
 
@@ -193,27 +197,34 @@ def main() -> None:
             latest = train(variant, args.steps, wraps[variant])
         if latest is not None:
             runs[variant] = latest
+    runs |= dict(_common.keyed_run_dirs(args.also))
     curves = {key: a3c_learning_pace.curve(run, 25_000, args.steps) for key, run in runs.items()}
     _common.write_result("a3c_reading_error", {"steps": args.steps, "bucket": 25_000, "reader_run": args.reader_run,
                                                "keypoints": args.keypoints, "pictures": PICTURES, "reading_errors": errors,
                                                "runs": curves, "peak_rss_mib": round(_common.peak_rss_mib(), 1)})
     image = _common.ROOT / "docs" / "img" / "a3c_reading_error.png"
-    a3c_learning_pace.plot(curves, image, "Arm2D, single goal: the state learner on read states")
-    describe = {"tied": "read by A3C's pixel network (frozen)", "shuffled": "true + that network's errors, shuffled",
-                "precise": "read by the APRiL keypoint network (frozen)"}
+    a3c_learning_pace.plot(curves, image, "Arm2D, single goal: A3C on read states and from pixels")
+    describe = {"state": "the true state (the state learner: two layers on the state)",
+                "tied": "read by A3C's pixel network (frozen)", "shuffled": "true + that network's errors, shuffled",
+                "precise": "read by the APRiL keypoint network (frozen)",
+                "state_one_layer": "the true state, one layer on it (a3c.hidden_layers: 0)",
+                "pixels": "pixels, pretrained, one layer above the keypoints (the runs so far)",
+                "pixels_deep": "pixels, pretrained, two layers above the keypoints (a3c.hidden_layers: 2)",
+                "bottleneck": "pixels, bottleneck: one layer on the state estimate",
+                "bottleneck_deep": "pixels, bottleneck: two layers on the state estimate (a3c.hidden_layers: 2)"}
     _common.write_section("a3c_reading_error", "\n".join([
-        "## Is it the pose-tied reading error that slows A3C from pixels? (issue 19)",
+        "## What slows A3C from pixels on Arm2D's single goal: the reading, or the network above it? (issue 19)",
         "",
-        f"`python benchmarks/a3c_reading_error.py --steps {args.steps}`: the state learner "
-        "(`rl_arm2d_curriculum_state_entropy.yaml`, single goal) trained on the state as read off pictures. "
-        "Mean length of its own training episodes per 25,000 steps. Reading errors on the same "
-        f"{PICTURES:,} seeded pictures (median end point / goal, play-area units; success radius 0.07): "
+        f"`python benchmarks/a3c_reading_error.py --steps {args.steps} --also KEY=RUN ...`: mean length of each run's own "
+        "training episodes per 25,000 steps at the single goal (`rl_arm2d_curriculum_*` configs). Reading errors on the "
+        f"same {PICTURES:,} seeded pictures (median end point / goal, play-area units; success radius 0.07): "
         + "; ".join(f"{key}: {e['end_point_median']:.3f} / {e['goal_median']:.3f}" for key, e in errors.items()) + ". "
-        + "Runs: " + "; ".join(f"{key} ({describe.get(key, 'the true state')}): `{curves[key]['run_dir']}`"
+        + "Runs: " + "; ".join(f"{key}, {describe.get(key, key)}: `{curves[key]['run_dir']}`"
                                for key, run in runs.items()) + ".",
         "",
         *a3c_learning_pace.table(curves, 25_000),
         "",
+        *([args.note, ""] if args.note else []),
         "![training episodes per step](img/a3c_reading_error.png)",
     ]))
     for key, measured in curves.items():

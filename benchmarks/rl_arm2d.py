@@ -62,6 +62,9 @@ RUNS = {
     # ... whose policy reads an MLP on the state its auxiliary head reads (a3c.policy_input: state_estimate)
     "curriculum_keypoints_bottleneck_whole_area": ("configs/rl_arm2d_curriculum_keypoints_bottleneck.yaml", 1.0),
     "no_curriculum_keypoints_bottleneck_whole_area": ("configs/rl_arm2d_no_curriculum_keypoints_bottleneck.yaml", 1.0),
+    # ... with the state learner's depth on the state estimate (a3c.hidden_layers: 2)
+    "curriculum_keypoints_bottleneck_deep_whole_area": ("configs/rl_arm2d_curriculum_keypoints_bottleneck_deep.yaml", 1.0),
+    "no_curriculum_keypoints_bottleneck_deep_whole_area": ("configs/rl_arm2d_no_curriculum_keypoints_bottleneck_deep.yaml", 1.0),
     # the state learner acting on pixels through the frozen APRiL keypoint network (READ_STATE below)
     "curriculum_read_state_whole_area": ("configs/rl_arm2d_curriculum_read_state.yaml", 1.0),
     "no_curriculum_read_state_whole_area": ("configs/rl_arm2d_no_curriculum_read_state.yaml", 1.0),
@@ -83,6 +86,8 @@ ALIASES = {"curriculum": "curriculum_whole_area", "no_curriculum": "no_curriculu
                                                       "no_curriculum_keypoints_pretrained",
                                                       "curriculum_keypoints_bottleneck",
                                                       "no_curriculum_keypoints_bottleneck",
+                                                      "curriculum_keypoints_bottleneck_deep",
+                                                      "no_curriculum_keypoints_bottleneck_deep",
                                                       "curriculum_read_state", "no_curriculum_read_state")}}
 EPISODES = 200
 
@@ -284,6 +289,11 @@ def main() -> None:
         f"{cell('curriculum_keypoints_pretrained_1m_sampled')} | |",
         f"| the same, + curriculum, its 1,050,015-step checkpoint, greedy | whole area | "
         f"{cell('curriculum_keypoints_pretrained_1m')} | |",
+        f"| A3C end to end from 32 px, pretrained, bottleneck with the state learner's two layers on the state estimate, "
+        f"+ curriculum, sampling | whole area | {cell('curriculum_keypoints_bottleneck_deep_whole_area_sampled')} | 25 ± 6 |",
+        f"| the same, + curriculum, greedy | whole area | {cell('curriculum_keypoints_bottleneck_deep_whole_area')} | |",
+        f"| the same, no curriculum, sampling | whole area | {cell('no_curriculum_keypoints_bottleneck_deep_whole_area_sampled')} | |",
+        f"| the same, no curriculum, greedy | whole area | {cell('no_curriculum_keypoints_bottleneck_deep_whole_area')} | |",
         f"| A3C on pixels through the frozen APRiL keypoint network (the state learner acting on read states), + curriculum, "
         f"sampling | whole area | {cell('curriculum_read_state_whole_area_sampled')} | 25 ± 6 |",
         f"| the same, + curriculum, greedy | whole area | {cell('curriculum_read_state_whole_area')} | |",
