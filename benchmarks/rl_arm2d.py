@@ -486,6 +486,18 @@ def pretrained_paragraph(results: dict) -> list[str]:
         "its 25 after 1,000,000 episodes (§3.3: \"for the 1,000,000 episodes it took to achieve the final result in "
         "Section 3.2\"); 1M steps here are ~10,000 episodes.",
         "",
+        "Where the lag came from (2026-12-02, section 'What slows A3C from pixels on Arm2D's single goal' below): not "
+        "the reading -- the state learner fed the frozen reading of A3C's own pixel network kept its pace, with the "
+        "errors tied to the pose or shuffled -- but the network above it. The state learner has two 256-unit layers "
+        "on the state; every pixel learner above had one above what it read, and the state learner with one learns "
+        "the single goal at their pace. The deep bottleneck pair (`rl_arm2d_curriculum_keypoints_bottleneck_deep.yaml`: "
+        "`a3c.policy_input: state_estimate`, `a3c.hidden_layers: 2`, end to end from 32 px) learns the single goal at "
+        "the state learner's pace; its rows above fill in when its 2M steps are done "
+        "(`python benchmarks/rl_arm2d.py --only curriculum_keypoints_bottleneck_deep`, then `no_curriculum_keypoints_bottleneck_deep`; "
+        "both resume). The read-state pair (`rl_arm2d_curriculum_read_state.yaml`: the state learner acting on 64 px "
+        "pictures through the frozen APRiL keypoint network) was stopped at 94k for it (checkpoint 50,004; "
+        "`--only curriculum_read_state` resumes).",
+        "",
     ]
 
 
