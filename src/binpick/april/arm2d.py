@@ -172,9 +172,9 @@ class PixelsAsArm2DState(gym.ObservationWrapper):
 class ReadStateOffPixels:
     """An A3C ``wrap_env`` (binpick.rl.a3c_train): Arm2D's pictures in, the state its frozen keypoint network
     (weights at ``path``) reads off them out, so a state learner trains acting on pixels -- APRiL's split
-    inside RL. Why (issue 19): A3C's own pixel network reads the state ~0.06 off, this one ~0.01, and the
-    pixel learner's lag may come from that error being tied to the pose. A path, not a network, so it
-    pickles into A3C's spawned workers; each loads the weights itself."""
+    inside RL (issue 19: through it, and through A3C's own coarser reading, the state learner learns Arm2D's
+    single goal at its pace from the true state; benchmarks/a3c_reading_error.py). A path, not a network, so
+    it pickles into A3C's spawned workers; each loads the weights itself."""
 
     path: str
 
