@@ -492,13 +492,28 @@ def pretrained_paragraph(results: dict) -> list[str]:
         "on the state; every pixel learner above had one above what it read, and the state learner with one learns "
         "the single goal at their pace. The deep bottleneck pair (`rl_arm2d_curriculum_keypoints_bottleneck_deep.yaml`: "
         "`a3c.policy_input: state_estimate`, `a3c.hidden_layers: 2`, end to end from 32 px) learns the single goal at "
-        "the state learner's pace; its rows above fill in when its 2M steps are done "
+        "the state learner's pace. " + deep_sentence(results) + " "
         "(`python benchmarks/rl_arm2d.py --only curriculum_keypoints_bottleneck_deep`, then `no_curriculum_keypoints_bottleneck_deep`; "
-        "both resume). The read-state pair (`rl_arm2d_curriculum_read_state.yaml`: the state learner acting on 64 px "
+        "both resume.) The read-state pair (`rl_arm2d_curriculum_read_state.yaml`: the state learner acting on 64 px "
         "pictures through the frozen APRiL keypoint network) was stopped at 94k for it (checkpoint 50,004; "
         "`--only curriculum_read_state` resumes).",
         "",
     ]
+
+
+def deep_sentence(results: dict) -> str:
+    """The deep bottleneck pair's whole-area figures as far as they are measured."""
+    parts = []
+    for key, label in (("curriculum_keypoints_bottleneck_deep_whole_area", "With the curriculum"),
+                       ("no_curriculum_keypoints_bottleneck_deep_whole_area", "Without it")):
+        greedy, sampled = results.get(key), results.get(f"{key}_sampled")
+        if greedy and sampled:
+            parts.append(f"{label}, after {sampled['sim_steps']:,} steps, it takes {sampled['mean']:.1f} ± {sampled['std']:.1f} "
+                         f"actions sampling its policy on the 200 whole-area episodes ({sampled['success_rate']:.0%} reach; "
+                         f"the thesis's 25 ± 6), greedy {greedy['mean']:.1f} ({greedy['success_rate']:.0%} reach).")
+        else:
+            parts.append(f"{label}: not run to the end yet.")
+    return " ".join(parts)
 
 
 def curriculum_rule(results: dict, key: str = "curriculum_whole_area") -> str:
