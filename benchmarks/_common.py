@@ -57,6 +57,22 @@ def keyed_run_dirs(items: list[str]) -> list[tuple[str, Path]]:
     return pairs
 
 
+def training_scalars(run: Path, *tags: str, optional: tuple[str, ...] = ()) -> dict[str, list[tuple[int, float]]]:
+    """(step, value) pairs of each tag in a run's TensorBoard log (``run/tb``), and of those ``optional`` tags it
+    has; a missing folder or required tag is one line."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    if not (run / "tb").is_dir():
+        sys.exit(f"{run}: no TensorBoard folder (tb/); is it a run folder?")
+    events = EventAccumulator(str(run / "tb"), size_guidance={"scalars": 0})
+    events.Reload()
+    found = events.Tags()["scalars"]
+    if missing := [tag for tag in tags if tag not in found]:
+        sys.exit(f"{run}: its TensorBoard has no {', '.join(missing)} yet")
+    return {tag: [(event.step, event.value) for event in events.Scalars(tag)]
+            for tag in (*tags, *(tag for tag in optional if tag in found))}
+
+
 def write_result(name: str, payload: dict) -> Path:
     from binpick.files import atomic_write_text
 

@@ -29,22 +29,14 @@ MIN_EPISODES = 10  # a bucket with fewer is the run's unfinished last one
 
 def curve(run: Path, bucket: int, until: int) -> dict:
     """Mean training-episode length (and auxiliary state loss) per ``bucket`` steps of one run's TensorBoard."""
-    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
-
-    if not (run / "tb").is_dir():
-        sys.exit(f"{run}: no TensorBoard folder (tb/); is it an A3C run folder?")
-    events = EventAccumulator(str(run / "tb"), size_guidance={"scalars": 0})
-    events.Reload()
-    tags = events.Tags()["scalars"]
-    if "episode/length" not in tags:
-        sys.exit(f"{run}: its TensorBoard has no episode/length yet")
+    series = _common.training_scalars(run, "episode/length", optional=("loss/state",))
     lengths, losses = defaultdict(list), defaultdict(list)
-    for event in events.Scalars("episode/length"):
-        if event.step < until:
-            lengths[event.step // bucket].append(event.value)
-    for event in events.Scalars("loss/state") if "loss/state" in tags else []:
-        if event.step < until:
-            losses[event.step // bucket].append(event.value)
+    for step, value in series["episode/length"]:
+        if step < until:
+            lengths[step // bucket].append(value)
+    for step, value in series.get("loss/state", []):
+        if step < until:
+            losses[step // bucket].append(value)
     return {"run_dir": str(run.relative_to(_common.ROOT)) if run.is_relative_to(_common.ROOT) else str(run),
             "buckets": [{"from": index * bucket, "to": (index + 1) * bucket, "episodes": len(values),
                          "mean_length": sum(values) / len(values),
