@@ -41,6 +41,12 @@ def next_multiple(steps: int, every: int) -> int:
     return (int(steps) // every + 1) * every
 
 
+def _no_wrap_env(config: RLConfig, wrap_env) -> None:
+    """``wrap_env`` reaches only A3C's envs (binpick.rl.a3c_train.make_env); anywhere else it is a mistake."""
+    if wrap_env is not None:
+        raise ConfigError(f"wrap_env is an A3C option; this run is {config.algorithm}")
+
+
 def make_env(config: RLConfig, wrap_env=None) -> gym.Env:
     """The env exactly as the run trains on it (semantic state, minimum action scale; A3C's flattened state,
     after A3C's ``wrap_env`` if the run was made with one)."""
@@ -48,8 +54,7 @@ def make_env(config: RLConfig, wrap_env=None) -> gym.Env:
         from binpick.rl.a3c_train import make_env as make_a3c_env
 
         return make_a3c_env(config, wrap_env)
-    if wrap_env is not None:
-        raise ConfigError(f"wrap_env is an A3C option; this run is {config.algorithm}")
+    _no_wrap_env(config, wrap_env)
     env = make(config.env, **config.env_kwargs)
     if config.semantic_state and config.algorithm in ("sac", "sb3_sac_her"):
         env = SemanticState(env, gripper=needs_gripper(config.env), privileged=config.privileged_state,
@@ -386,8 +391,7 @@ def trainer_for(config: RLConfig | None = None, runs_root: Path = Path("runs"), 
         from binpick.rl.a3c_train import A3CTrainer as trainer_class
         return (trainer_class.new(config, runs_root, wrap_env) if resume is None
                 else trainer_class.resume(Path(resume), wrap_env))
-    if wrap_env is not None:
-        raise ConfigError(f"wrap_env is an A3C option; this run is {config.algorithm}")
+    _no_wrap_env(config, wrap_env)
     return Trainer.new(config, runs_root) if resume is None else Trainer.resume(Path(resume))
 
 

@@ -9,6 +9,7 @@ import numpy as np
 from gymnasium import spaces
 
 from binpick.config import check_range
+from binpick.errors import ConfigError
 
 
 class SemanticState(gym.ObservationWrapper):
@@ -49,8 +50,6 @@ def semantic_inputs(observation: dict, gripper: bool = False, privileged: np.nda
 def privileged_values(env: gym.Env, names: Sequence[str]) -> np.ndarray:
     """The env's own state named in an RL config's ``privileged_state`` (e.g. ``obstacle_position``),
     one vector; what a teacher in the simulator may read and a camera-driven policy may not."""
-    from binpick.errors import ConfigError
-
     values = []
     for name in names:
         value = getattr(env.unwrapped, name, None)
@@ -152,8 +151,6 @@ class ReadingErrors(_SeededPerturbation):
         self.errors = np.asarray(errors, np.float64)
         size = env.observation_space.shape
         if self.errors.ndim != 2 or not len(self.errors) or size is None or (self.errors.shape[1],) != tuple(size):
-            from binpick.errors import ConfigError
-
             raise ConfigError(f"reading errors must be a non-empty (N, {size[0] if size else '?'}) table for this "
                               f"env's observations, got shape {self.errors.shape}")
 
