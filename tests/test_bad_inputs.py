@@ -179,7 +179,7 @@ def world(tmp_path_factory) -> dict[str, str]:
         paths[name.replace(".", "_")] = root / name
 
     depth_png("depth_mm.png", np.full((64, 64), 800))
-    depth_png("depth_small.png", np.full((32, 32), 800))
+    depth_png("depth_small.png", np.full((24, 32), 800))  # another aspect than the colour's: not registered to it
     depth_png("depth_zero.png", np.zeros((64, 64)))
     np.save(root / "depth_in_mm.npy", np.full((64, 64), 800.0, np.float32))  # millimetres given as metres
     paths["depth_in_mm_npy"] = root / "depth_in_mm.npy"
@@ -254,7 +254,12 @@ CASES: list[tuple[list[str], list[str]]] = [
     (["grasp", "train", "--resume", "{root}"], ["is not a run folder"]),
     (["plan", "--rgb", "{scene_png}", "--depth", "{depth_mm_png}", "--camera", "{camera_yaml}"], ["exactly one of --photo", "--query-box"]),
     (["plan", "--rgb", "{scene_png}", "--depth", "{depth_small_png}", "--camera", "{camera_yaml}", "--photo", "{scene_png}"],
-     ["depth is 32x32 but colour is 64x64"]),
+     ["depth is 32x24 but colour is 64x64", "register depth to the colour camera"]),
+    (["plan", "--rgb", "{scene_png}", "--depth", "{depth_mm_png}", "--camera", "{camera_yaml}", "--query-box", "10,10,20,20"],
+     ["query box 10,10,20,20 lies on no object", "only the surface"]),
+    (["plan", "--rgb", "{scene_png}", "--depth", "{depth_mm_png}", "--camera", "{camera_yaml}", "--photo", "{scene_png}", "--copies-only"],
+     ["--copies-only goes with --query-box"]),
+    (["data", "generate", "--out", "{root}/gen", "--sensor", "lidar"], ["sensor 'lidar'", "perfect, realistic"]),
     (["plan", "--rgb", "{scene_png}", "--depth", "{depth_zero_png}", "--camera", "{camera_yaml}", "--photo", "{scene_png}"],
      ["depth_zero.png", "no valid reading"]),
     (["plan", "--rgb", "{scene_png}", "--depth", "{depth_in_mm_npy}", "--camera", "{camera_yaml}", "--photo", "{scene_png}"],

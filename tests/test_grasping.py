@@ -11,7 +11,7 @@ import pytest
 from PIL import Image
 
 from binpick.errors import ConfigError, InputFileError
-from binpick.grasping import GraspPlanner, JawGripper, PinholeCamera, grasp_candidates
+from binpick.grasping import DepthFrame, GraspPlanner, JawGripper, PinholeCamera, grasp_candidates
 from binpick.depth import read_depth
 from binpick.grasping.candidates import instance_surface, watershed_labels
 from binpick.grasping.quality import GraspQuality, height_map
@@ -34,6 +34,10 @@ def scene_depth(boxes) -> np.ndarray:
         inside = (pixels[..., 0] >= x0) & (pixels[..., 0] <= x1) & (pixels[..., 1] >= y0) & (pixels[..., 1] <= y1)
         heights = np.where(inside, np.maximum(heights, h), heights)
     return (HEIGHT - heights).astype(np.float32)
+
+
+def frame_of(depth, cam: PinholeCamera | None = None) -> DepthFrame:
+    return DepthFrame.from_depth(depth, cam or camera())
 
 
 def box_of(cam: PinholeCamera, x0, x1, y0, y1, h) -> tuple[float, float, float, float]:
@@ -59,7 +63,7 @@ def test_points_and_projection_invert_each_other_and_bad_intrinsics_are_one_line
 def test_an_elongated_block_is_grasped_across_its_narrow_side():
     cam = camera()
     block = (-0.02, 0.02, -0.06, 0.06, 0.05)  # 4 cm wide along x, 12 cm long along y
-    surface, candidates = grasp_candidates(cam.points(scene_depth([block])), cam, box_of(cam, *block))
+    surface, candidates = grasp_candidates(frame_of(scene_depth([block])), box_of(cam, *block))
     assert surface is not None and abs(surface.top - 0.05) < 0.003 and abs(surface.support) < 0.003
     assert surface.elongation > 2 and abs(np.cos(surface.minor_yaw)) > 0.99  # close along x
     across = min(candidates, key=lambda c: abs(np.sin(c.yaw)))  # yaw 0: jaws along x
@@ -67,19 +71,19 @@ def test_an_elongated_block_is_grasped_across_its_narrow_side():
     assert across.rejected is None and abs(across.width - 0.04) < 0.006 and np.allclose(across.position[:2], 0, atol=0.004)
     assert along.rejected.startswith("too wide") and along.width > 0.11
     assert 0.0059 <= across.position[2] <= 0.05 - 0.02  # tips below the top, clear of the floor
-    choice = GraspPlanner("analytic").choose(cam.points(scene_depth([block])), cam, box_of(cam, *block))
+    choice = GraspPlanner("analytic").choose(frame_of(scene_depth([block])), box_of(cam, *block))
     assert abs(np.sin(choice.chosen.yaw)) < 0.2 and choice.rejections().get("too wide across the jaws", 0) >= 3
-    fixed = GraspPlanner("fixed").choose(cam.points(scene_depth([block])), cam, box_of(cam, *block))
+    fixed = GraspPlanner("fixed").choose(frame_of(scene_depth([block])), box_of(cam, *block))
     assert abs(fixed.chosen.yaw - np.pi / 2) < 1e-6 and fixed.chosen.rejected  # today's grasp: tried regardless
 
 
 def test_a_tall_neighbour_blocks_the_finger_that_would_land_on_it():
     cam = camera()
     block, wall = (-0.02, 0.02, -0.06, 0.06, 0.04), (0.045, 0.09, -0.1, 0.1, 0.12)  # a wall 2.5 cm to its +x side
-    surface, candidates = grasp_candidates(cam.points(scene_depth([block, wall])), cam, box_of(cam, *block))
+    surface, candidates = grasp_candidates(frame_of(scene_depth([block, wall])), box_of(cam, *block))
     across = min(candidates, key=lambda c: abs(np.sin(c.yaw)))
     assert across.rejected.startswith("finger blocked") and across.clearance < -0.05
-    choice = GraspPlanner("analytic").choose(cam.points(scene_depth([block, wall])), cam, box_of(cam, *block))
+    choice = GraspPlanner("analytic").choose(frame_of(scene_depth([block, wall])), box_of(cam, *block))
     assert choice.chosen is None and "finger blocked" in choice.reason
 
 
@@ -95,10 +99,10 @@ def test_the_watershed_tells_two_touching_lying_cylinders_apart():
     labels = watershed_labels(heights, 0.01, heights.max())
     left, right = labels[100, 100 - 24], labels[100, 100 + 24]  # the two ridges
     assert left > 0 and right > 0 and left != right
-    points = cam.points(HEIGHT - heights)
+    points = frame_of(HEIGHT - heights)
     surface = instance_surface(points, box_of(cam, -2 * radius, 0, -0.08, 0.08, 2 * radius))
     assert surface is not None and abs(surface.centre[0] + radius) < 0.006 and np.ptp(surface.xy[:, 0]) < 2 * radius + 0.006
-    _, candidates = grasp_candidates(points, cam, box_of(cam, -2 * radius, 0, -0.08, 0.08, 2 * radius))
+    _, candidates = grasp_candidates(points, box_of(cam, -2 * radius, 0, -0.08, 0.08, 2 * radius))
     across = min(candidates, key=lambda c: abs(np.sin(c.yaw)))
     assert abs(across.width - 2 * radius) < 0.008  # one cylinder's width, not both
 
@@ -122,18 +126,18 @@ def test_depth_files_in_millimetres_or_metres_and_wrong_units_are_one_line(tmp_p
 def test_the_quality_model_scores_candidates_and_round_trips_through_safetensors(tmp_path):
     cam = camera()
     block = (-0.02, 0.02, -0.06, 0.06, 0.05)
-    points = cam.points(scene_depth([block]))
-    _, candidates = grasp_candidates(points, cam, box_of(cam, *block))
-    grid = height_map(points, cam, candidates[1].position, 0.0, candidates[1].top, candidates[1].support)
+    points = frame_of(scene_depth([block]))
+    _, candidates = grasp_candidates(points, box_of(cam, *block))
+    grid = height_map(points, candidates[1].position, 0.0, candidates[1].top, candidates[1].support)
     assert grid.shape == (32, 32) and grid[16, 16] > 0.3 and grid[16, 0] < 0  # the block's top above the tips, floor below
     model = GraspQuality()
-    scores = model.score(points, cam, candidates)
+    scores = model.score(points, candidates)
     assert scores.shape == (len(candidates),) and np.all((scores > 0) & (scores < 1))
     model.save(tmp_path / "q.safetensors")
     again = GraspQuality.load(tmp_path / "q.safetensors")
-    assert np.allclose(again.score(points, cam, candidates), scores, atol=1e-6)
+    assert np.allclose(again.score(points, candidates), scores, atol=1e-6)
     planner = GraspPlanner("learnt", again)
-    assert planner.choose(points, cam, box_of(cam, *block)).chosen.quality == pytest.approx(max(
+    assert planner.choose(points, box_of(cam, *block)).chosen.quality == pytest.approx(max(
         s for s, c in zip(scores, candidates) if c.rejected is None), abs=1e-6)
     (tmp_path / "bad.safetensors").write_bytes(b"not a file")
     with pytest.raises(InputFileError, match="not a safetensors file"):

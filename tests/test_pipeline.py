@@ -13,7 +13,7 @@ from binpick.detection.model import DetectorNetwork, ModelSpec
 from binpick.detection.train import save_detector
 from binpick.sim import default_library
 from binpick.sim.bin_scene import BinWorld
-from binpick.grasping import GraspPlanner, PinholeCamera
+from binpick.grasping import DepthFrame, GraspPlanner, PinholeCamera
 from binpick.sim.mjcf import FLOOR_TOP, CameraSpec
 from binpick.warehouse.grasping import Reason, execute_pick, grasp_point, order_tote_xml, pixel_to_world
 from binpick.warehouse.pipeline import PickPipeline, summarise
@@ -37,14 +37,13 @@ def test_a_detected_can_is_grasped_at_its_top_and_placed_in_the_order_tote():
         scene = world.scene(2, 0, seed=1)
         world.set_guards(False)
         results = []
-        pinhole = PinholeCamera.from_record(scene.camera)
-        points = pinhole.points(scene.depth)
+        frame = DepthFrame.from_depth(scene.depth, PinholeCamera.from_record(scene.camera))
         for instance in scene.instances:
             world.restore(scene.state)
             point = grasp_point(instance.bbox, scene.depth, camera)  # the fixed policy's point: the can's top
             centre, top = world.instance_centre_and_top(instance.slot)
             assert np.allclose(point[:2], centre[:2], atol=0.012) and abs(point[2] - top) < 0.012
-            chosen = GraspPlanner("analytic").choose(points, pinhole, instance.bbox).chosen  # from depth alone
+            chosen = GraspPlanner("analytic").choose(frame, instance.bbox).chosen  # from depth alone
             assert chosen is not None and np.allclose(chosen.position[:2], centre[:2], atol=0.015)
             assert FLOOR_TOP < chosen.position[2] < top - 0.015 and chosen.width < 0.09
             results.append((instance.slot, execute_pick(world, chosen.position, chosen.yaw)))
@@ -112,7 +111,7 @@ def test_the_colour_check_tells_the_ordered_product_from_another_colour():
     assert 0.01 < can_mask.mean() < 0.5
     histogram = colour_histogram(can_photo, can_mask)
     by_product: dict[str, list[float]] = {}
-    points = PinholeCamera.from_record(scene.camera).points(scene.depth)  # camera-agnostic: world heights, no floor constant
+    points = DepthFrame.from_depth(scene.depth, PinholeCamera.from_record(scene.camera)).heights  # above the support plane
     for instance in scene.instances:
         by_product.setdefault(instance.product_id, []).append(colour_similarity(histogram, scene.rgb, points, instance.bbox))
     assert min(by_product["robosuite/can"]) > 0.3 > max(by_product["robosuite/lemon"])

@@ -423,6 +423,8 @@ def data_generate(
     targets: Annotated[str, typer.Option(help="Products or categories to fill bins with, comma-separated (default: all)")] = "",
     randomise: Annotated[bool, typer.Option(help="Randomise lighting and colours per world (older; see --domain)")] = False,
     domain: Annotated[str, typer.Option(help="Scene look: default, random (domain randomisation), shifted, or a domain YAML file")] = "default",
+    sensor: Annotated[str, typer.Option(help="Depth camera: perfect (the renderer's depth), realistic (holes, noise, tilted "
+                                             "camera and tote, as a structured-light sensor gives it) or a sensor YAML file")] = "perfect",
     address: Annotated[str | None, typer.Option(help="Run scene workers as Ray tasks: HOST:PORT of a Ray cluster, or local")] = None,
     val_fraction: Annotated[float, typer.Option(help="Share of worlds (groups of --scenes-per-world scenes) in the val split")] = 0.1,
     scenes_per_world: Annotated[int, typer.Option(help="Scenes made from one compiled world (one product); small sets: 1")] = 8,
@@ -439,7 +441,8 @@ def data_generate(
     flags = {"out": str(out), "scenes": scenes, "policies": [p for p in policies.split(",") if p], "workers": workers,
              "grasp_trials": grasp_trials,
              "image_size": size, "copies": list(_pair(copies, "copies")), "distractors": list(_pair(distractors, "distractors")),
-             "held_out_categories": [c for c in held_out.split(",") if c], "randomise": randomise, "domain": domain, "address": address,
+             "held_out_categories": [c for c in held_out.split(",") if c], "randomise": randomise, "domain": domain, "sensor": sensor,
+             "address": address,
              "targets": [t for t in targets.split(",") if t], "products": str(products) if products else None,
              "only_products": only_products, "val_fraction": val_fraction, "scenes_per_world": scenes_per_world, "seed": seed}
     config = from_dict(GenerateConfig, flags | parse_settings(settings), where="data generate")  # validated once
@@ -882,7 +885,10 @@ def plan(
     depth: Annotated[Path, typer.Option(help="Depth image: 16-bit PNG in millimetres or .npy in metres (0: no reading)")],
     camera: Annotated[Path, typer.Option(help="camera.yaml: ROS camera_info layout, plus camera_to_base (the camera's pose in the robot's base frame)")],
     photo: Annotated[Path | None, typer.Option(help="Shop photo of the ordered product (a transparent PNG's alpha marks the product)")] = None,
-    query_box: Annotated[str | None, typer.Option(help="Or: x,y,w,h of one instance of it in the colour image")] = None,
+    query_box: Annotated[str | None, typer.Option(help="Or: x,y,w,h of the instance to pick in the colour image (planned "
+                                                       "first, then the copies of it that the detector finds)")] = None,
+    copies_only: Annotated[bool, typer.Option(help="With --query-box: plan on the other copies only, not the instance "
+                                                   "pointed at (repeated-object evaluation)")] = False,
     out: Annotated[Path, typer.Option(help="plan.json: grasps (position, quaternion x,y,z,w in the base frame), scores, boxes")] = Path("plan.json"),
     overlay: Annotated[Path | None, typer.Option(help="PNG of the frame with detections and the planned jaws, numbered")] = None,
     weights: Annotated[Path | None, typer.Option(help="Detector: run folder or .safetensors (default: the shipped one for the query)")] = None,
@@ -917,9 +923,12 @@ def plan(
         raise ConfigError(f"--query-box {query_box!r} lies outside the {colour.shape[1]}x{colour.shape[0]} colour image")
     crop = weights if box is not None else None
     picker = Picker.load(None if box is not None else weights, grasp, grasp_weights, crop_detector=crop, max_grasps=max_grasps)
-    plans = picker.plan(colour, metres, info, photo=query, query_box=box, size=dimensions)
+    if copies_only and box is None:
+        raise ConfigError("--copies-only goes with --query-box (the instance whose copies to plan on)")
+    plans = picker.plan(colour, metres, info, photo=query, query_box=box, size=dimensions, copies_only=copies_only)
     result = {"inputs": {"rgb": str(rgb), "depth": str(depth), "camera": str(camera),
-                         "photo": None if photo is None else str(photo), "query_box": query_box, "size": dimensions},
+                         "photo": None if photo is None else str(photo), "query_box": query_box, "copies_only": copies_only,
+                         "size": dimensions},
               "grasp_policy": grasp, **plans.to_json()}
     atomic_write_text(out, json.dumps(result, indent=1))
     if overlay is not None:

@@ -3,6 +3,7 @@ planner that chooses one (Dex-Net 2.0 / GG-CNN's setting; thesis §5.4.4 and §6
 
 from binpick.grasping.camera import PinholeCamera
 from binpick.grasping.candidates import GraspCandidate, JawGripper, grasp_candidates
+from binpick.grasping.frame import DepthFrame
 from binpick.grasping.planner import GraspChoice, GraspPlanner, GraspPolicyName
 
-__all__ = ["GraspCandidate", "GraspChoice", "GraspPlanner", "GraspPolicyName", "JawGripper", "PinholeCamera", "grasp_candidates"]
+__all__ = ["DepthFrame", "GraspCandidate", "GraspChoice", "GraspPlanner", "GraspPolicyName", "JawGripper", "PinholeCamera", "grasp_candidates"]

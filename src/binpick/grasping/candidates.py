@@ -1,11 +1,14 @@
 """Grasp candidates for one detection, from depth alone (no simulator): the instance's surface as
-the depth image shows it (a height watershed, the region matching its box), a set of yaws (evenly over 180° plus the surface's principal minor axis), the
-fingertips' depth, the width across the jaws, and a check that each finger can descend beside it.
+the depth image shows it (a height watershed above the support plane, the region matching its box,
+kept inside the box), a set of yaws (evenly over 180° plus the surface's principal minor axis), the
+jaws centred on the instance and shifted either way along the closing direction, the fingertips'
+depth, the width across the jaws, and a check that each finger can descend beside it.
 
 A top-down parallel-jaw grasp (Dex-Net 2.0's and GG-CNN's setting): the jaws close along the
 direction ``yaw`` (radians about the world's vertical), their centre at ``position`` (world xyz of
 the fingertips' midpoint). Every candidate keeps the reason it was rejected, so a pick attempt can
-say why the others were not tried.
+say why the others were not tried. Depth comes as a :class:`~binpick.grasping.frame.DepthFrame`:
+holes filled, and a finger's path judged on the pixels the sensor read.
 """
 
 from __future__ import annotations
@@ -15,14 +18,17 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from binpick.grasping.camera import PinholeCamera
+from binpick.grasping.frame import DepthFrame
 
 FLOOR_CLEARANCE = 0.006  # fingertips stop this far above the surface the instance rests on
 PALM_REACH = 0.07  # fingertips at most this far under the instance's top (8 cm fingers, the palm above them)
+MIN_GRIP = 0.015  # fingertips at least this far under the instance's top
 # A finger may land on a surface this far above its tips: it pushes what is there aside. In 3,402
 # simulated trials, grasps whose fingers met surfaces 0.5-3 cm above the tips still held 65-68% of
 # the time (80% with clear fingers); beyond 3 cm, 39%.
 BLOCK_TOLERANCE = 0.03
+SHIFT = 0.01  # m: candidates also move the jaws' centre this far either way along the closing direction
+YAWS = 12  # even yaws over 180 degrees (15 degrees apart), plus the minor axis
 
 
 @dataclass(frozen=True)
@@ -41,8 +47,8 @@ class Surface:
 
     xy: np.ndarray  # (N, 2) world xy of the instance's pixels
     centre: np.ndarray  # (2,) their centroid
-    top: float  # height of its top (world z)
-    support: float  # height of what it rests on
+    top: float  # world z of its top (at its centre)
+    support: float  # world z of what it rests on (at its centre)
     minor_yaw: float  # closing across the surface's narrow direction (principal minor axis)
     elongation: float  # major / minor standard deviation (1: round)
 
@@ -78,6 +84,7 @@ class GraspCandidate:
     support: float
     rejected: str | None = None  # why it is not tried (None: feasible)
     quality: float | None = None  # the policy's score, where it scored it
+    kind: str = "even"  # even (jaws centred on the instance), shifted, raised (tips lifted clear), given
 
     def to_json(self) -> dict:
         return {"position": [round(float(v), 4) for v in self.position], "yaw": round(float(self.yaw), 4),
@@ -144,8 +151,9 @@ def claim_edges(z: np.ndarray, labels: np.ndarray, floor: float, passes: int = 2
 def instance_mask(z: np.ndarray, support: float, top: float, box_in_crop) -> np.ndarray | None:
     """The instance's pixels among the watershed's regions (``box_in_crop``: its detection box, x, y,
     w, h in the crop's pixels): the region whose extent best matches the box, joined by the regions
-    touching it that lie wholly inside the box (the arms of a jack-like product below its top bar).
-    A detection's box is its instance's extent; a touching neighbour's region reaches outside it."""
+    touching it that lie wholly inside the box (the arms of a jack-like product below its top bar),
+    and cut to the box: a detection's box is its instance's extent, so a touching neighbour the
+    flood could not tell apart (two boxes side by side at one height) stays outside it."""
     height = top - support
     labels = watershed_labels(z, support + max(0.004, 0.3 * height), top)
     x, y, w, h = box_in_crop
@@ -176,14 +184,18 @@ def instance_mask(z: np.ndarray, support: float, top: float, box_in_crop) -> np.
             break
         chosen += joining
         mask = np.isin(labels, chosen)
-    return mask
+    margin = 2  # pixels: a box drawn tight, or by a detector a little off
+    rows, cols = np.indices(mask.shape)
+    inside_box = (cols >= x - margin) & (cols < x + w + margin) & (rows >= y - margin) & (rows < y + h + margin)
+    return mask & inside_box
 
 
-def instance_surface(points: np.ndarray, box) -> Surface | None:
-    """The instance inside ``box`` (x, y, w, h pixels) from the frame's world points (H, W, 3): the
-    region of a height watershed (:func:`instance_mask`) that matches the box; what it rests on is the
-    low end of the heights around the box."""
-    height_px, width_px = points.shape[:2]
+def instance_surface(frame: DepthFrame, box) -> Surface | None:
+    """The instance inside ``box`` (x, y, w, h pixels) of the frame: the region of a height watershed
+    (:func:`instance_mask`, on heights above the support plane) that matches the box; what it rests on
+    is the low end of the heights around the box. None when depth shows nothing standing out there."""
+    points, heights = frame.points, frame.heights
+    height_px, width_px = heights.shape
     x, y, w, h = (float(v) for v in box)
     pad = max(6.0, 0.25 * max(w, h))
     r0, r1 = int(max(0, y - pad)), int(min(height_px, y + h + pad))
@@ -192,16 +204,15 @@ def instance_surface(points: np.ndarray, box) -> Surface | None:
     a0, a1 = int(max(0, x)), int(min(width_px, np.ceil(x + w)))
     if b1 - b0 < 2 or a1 - a0 < 2:
         return None
-    z = points[b0:b1, a0:a1, 2]
+    z = heights[b0:b1, a0:a1]
     inner = z[int(0.2 * (b1 - b0)):max(int(0.2 * (b1 - b0)) + 1, int(0.8 * (b1 - b0))),
               int(0.2 * (a1 - a0)):max(int(0.2 * (a1 - a0)) + 1, int(0.8 * (a1 - a0)))]
     if not np.isfinite(inner).any():
         return None
     top = float(np.nanpercentile(inner, 95))
-    around = points[r0:r1, c0:c1, 2]
+    around = heights[r0:r1, c0:c1]
     support = float(np.nanpercentile(around, 5))
-    height = top - support
-    if height < 0.005:
+    if top - support < 0.005:
         return None
     mask = instance_mask(around, support, top, (x - c0, y - r0, w, h))
     if mask is None:
@@ -216,72 +227,105 @@ def instance_surface(points: np.ndarray, box) -> Surface | None:
     major = vectors[:, 1]
     minor_yaw = float(np.mod(np.arctan2(major[1], major[0]) + np.pi / 2, np.pi))
     elongation = float(np.sqrt(max(values[1], 1e-12) / max(values[0], 1e-12)))
-    return Surface(xy, centre, top, support, minor_yaw, elongation)
+    base = float(frame.support_z(centre))  # heights above the plane back to world z, at the instance
+    return Surface(xy, centre, top + base, support + base, minor_yaw, elongation)
 
 
-def footprint_heights(points: np.ndarray, camera: PinholeCamera, centre: np.ndarray, yaw: float, along: float,
-                      gripper: JawGripper, z_ref: float, samples: tuple[int, int] = (3, 5)) -> np.ndarray:
-    """Heights of the surfaces under one open finger (centre + ``along`` metres in the closing
-    direction): a grid over the finger's footprint, each point looked up through the camera.
-    NaN where the camera does not see the spot."""
-    d = np.array([np.cos(yaw), np.sin(yaw)])
-    j = np.array([-d[1], d[0]])
+def surface_heights(frame: DepthFrame, xy: np.ndarray, z_ref) -> tuple[np.ndarray, np.ndarray]:
+    """World z of the surface seen at world ``xy`` (N, 2): the pixel where (x, y, z_ref) projects,
+    its back-projected height (holes filled), and whether the sensor read that pixel. NaN (and not
+    read) outside the image."""
+    xy = np.asarray(xy, dtype=float)
+    world = np.concatenate([xy, np.broadcast_to(np.asarray(z_ref, dtype=float), (len(xy),))[:, None]], axis=1)
+    pixels, _ = frame.camera.project(world)
+    u, v = np.rint(pixels[:, 0]), np.rint(pixels[:, 1])
+    points = frame.points
+    inside = np.isfinite(u) & np.isfinite(v) & (u >= 0) & (v >= 0) & (u < points.shape[1]) & (v < points.shape[0])
+    heights, read = np.full(len(xy), np.nan), np.zeros(len(xy), bool)
+    rows, cols = v[inside].astype(int), u[inside].astype(int)
+    heights[inside] = points[rows, cols, 2]
+    read[inside] = frame.valid[rows, cols]
+    return heights, read
+
+
+def finger_heights(frame: DepthFrame, centres: np.ndarray, yaws: np.ndarray, gripper: JawGripper, z_ref: float,
+                   samples: tuple[int, int] = (3, 5)) -> tuple[np.ndarray, np.ndarray]:
+    """For N grasps (jaws' centres (N, 2), yaws (N,)): the highest surface under each open finger,
+    (N, 2), judged on the pixels the sensor read where a finger's footprint has any (on the filled
+    depth where it has none), and whether both fingers are inside the camera's view (N,)."""
+    d = np.stack([np.cos(yaws), np.sin(yaws)], axis=1)
+    j = np.stack([-d[:, 1], d[:, 0]], axis=1)
+    reach = gripper.opening / 2 + gripper.finger_thickness / 2
     a = np.linspace(-gripper.finger_thickness / 2, gripper.finger_thickness / 2, samples[0])
     b = np.linspace(-gripper.finger_width / 2, gripper.finger_width / 2, samples[1])
-    grid = centre + (along + a)[:, None, None] * d + b[None, :, None] * j
-    return surface_heights(points, camera, grid.reshape(-1, 2), z_ref)
+    offsets_a = np.stack([-reach + a, reach + a])  # (2 fingers, sa)
+    grid = (centres[:, None, None, None, :] + offsets_a[None, :, :, None, None] * d[:, None, None, None, :]
+            + b[None, None, None, :, None] * j[:, None, None, None, :])  # (N, 2, sa, sb, 2)
+    heights, read = surface_heights(frame, grid.reshape(-1, 2), z_ref)
+    heights = heights.reshape(len(centres), 2, -1)
+    read = read.reshape(len(centres), 2, -1)
+    seen = np.isfinite(heights).all(axis=(1, 2))
+    any_read = read.any(axis=2, keepdims=True)
+    judged = np.where(read | ~any_read, heights, -np.inf)  # read pixels where there are any, else the filled depth
+    return np.max(judged, axis=2), seen
 
 
-def surface_heights(points: np.ndarray, camera: PinholeCamera, xy: np.ndarray, z_ref: float) -> np.ndarray:
-    """World z of the surface seen at world ``xy`` (N, 2): the pixel where (x, y, z_ref) projects,
-    its back-projected height. NaN outside the image or without a depth reading."""
-    xy = np.asarray(xy, dtype=float)
-    world = np.concatenate([xy, np.full((len(xy), 1), z_ref)], axis=1)
-    pixels, _ = camera.project(world)
-    u = np.rint(pixels[:, 0])
-    v = np.rint(pixels[:, 1])
-    inside = np.isfinite(u) & np.isfinite(v) & (u >= 0) & (v >= 0) & (u < points.shape[1]) & (v < points.shape[0])
-    heights = np.full(len(xy), np.nan)
-    heights[inside] = points[v[inside].astype(int), u[inside].astype(int), 2]
-    return heights
-
-
-def width_across(surface: Surface, centre: np.ndarray, yaw: float, gripper: JawGripper) -> tuple[float, float]:
-    """The instance's extent along the closing direction within the fingers' band, and the offset of
-    that extent's midpoint from ``centre`` (where the jaws should centre to squeeze evenly)."""
-    d = np.array([np.cos(yaw), np.sin(yaw)])
-    rel = surface.xy - centre
-    along, across = rel @ d, rel @ np.array([-d[1], d[0]])
+def widths_across(surface: Surface, centres: np.ndarray, yaws: np.ndarray, gripper: JawGripper) -> tuple[np.ndarray, np.ndarray]:
+    """For N grasps: the instance's extent along each closing direction within the fingers' band,
+    and the offset of that extent's midpoint from the centre (where the jaws squeeze evenly)."""
+    d = np.stack([np.cos(yaws), np.sin(yaws)], axis=1)  # (N, 2)
+    rel = surface.xy[None, :, :] - centres[:, None, :]  # (N, M, 2)
+    along = np.einsum("nmk,nk->nm", rel, d)
+    across = rel[..., 0] * -d[:, None, 1] + rel[..., 1] * d[:, None, 0]
     band = np.abs(across) <= gripper.finger_width / 2 + 0.004
-    if not band.any():
-        return 0.0, 0.0
-    low, high = float(along[band].min()), float(along[band].max())
-    return high - low, (high + low) / 2
+    low = np.where(band, along, np.inf).min(axis=1)
+    high = np.where(band, along, -np.inf).max(axis=1)
+    empty = ~band.any(axis=1)
+    width = np.where(empty, 0.0, high - low)
+    middle = np.where(empty, 0.0, (high + low) / 2)
+    return width, middle
 
 
-def yaws(count: int = 8, surface: Surface | None = None) -> list[float]:
+def yaws(count: int = YAWS, surface: Surface | None = None) -> list[float]:
     """``count`` yaws evenly over 180°, and the surface's principal minor axis first where given."""
     even = [np.pi * k / count for k in range(count)]
     return ([surface.minor_yaw] if surface is not None else []) + even
 
 
-def describe(points: np.ndarray, camera: PinholeCamera, surface: Surface, centre, yaw: float, tips: float | None = None,
-             gripper: JawGripper = JawGripper()) -> GraspCandidate:
-    """The grasp with the jaws' centre at world ``centre`` (x, y), closing along ``yaw``: its fingertips'
-    height (``tips``, or as deep as :meth:`Surface.tips_range` and the surfaces under the fingers
-    allow), the instance's width across the jaws there, the fingers' clearance, and the reason it
-    would be rejected (None: feasible)."""
-    centre = np.asarray(centre, dtype=float)[:2]
-    width, _ = width_across(surface, centre, yaw, gripper)
-    reach = gripper.opening / 2 + gripper.finger_thickness / 2
-    under = np.concatenate([footprint_heights(points, camera, centre, yaw, s * reach, gripper, surface.top) for s in (-1, 1)])
-    seen = bool(np.isfinite(under).all())
-    if tips is None:
-        deepest, shallowest = surface.tips_range()
-        tips = float(np.clip(np.max(under) + 0.003, deepest, shallowest)) if seen else deepest
-    clearance = float(tips - np.max(under)) if seen else float("nan")
-    candidate = GraspCandidate(np.array([centre[0], centre[1], tips]), float(np.mod(yaw, np.pi)), width, clearance,
-                               surface.top, surface.support)
+def describe_many(frame: DepthFrame, surface: Surface, centres, yaws_, tips=None, gripper: JawGripper = JawGripper(),
+                  kinds=None, raise_blocked: bool = False) -> list[GraspCandidate]:
+    """Grasps with the jaws' centres at world ``centres`` (N, 2), closing along ``yaws_`` (N,): their
+    fingertips' height (``tips`` (N,), or as deep as :meth:`Surface.tips_range` and the surfaces under
+    the fingers allow), the instance's width across the jaws there, the fingers' clearance, and the
+    reason each would be rejected (None: feasible). With ``raise_blocked``, a grasp whose fingers
+    would land on something above its deepest tips also comes with its tips lifted clear of it (kind
+    ``raised``), as long as they stay MIN_GRIP under the top."""
+    centres = np.asarray(centres, dtype=float).reshape(-1, 2)
+    yaws_ = np.mod(np.asarray(yaws_, dtype=float).reshape(-1), np.pi)
+    kinds = list(kinds) if kinds is not None else ["even"] * len(centres)
+    width, _ = widths_across(surface, centres, yaws_, gripper)
+    under, seen = finger_heights(frame, centres, yaws_, gripper, surface.top)
+    highest = under.max(axis=1)
+    deepest, shallowest = surface.tips_range()
+    given = tips is not None
+    if given:
+        tip_z = np.asarray(tips, dtype=float).reshape(-1)
+    else:
+        tip_z = np.where(seen, np.clip(highest + 0.003, deepest, shallowest), deepest)
+    candidates = [_candidate(centres[i], yaws_[i], tip_z[i], width[i], highest[i], seen[i], surface, gripper, kinds[i])
+                  for i in range(len(centres))]
+    if raise_blocked and not given:
+        limit = max(shallowest, surface.top - MIN_GRIP)
+        for i in np.flatnonzero(seen & (highest + 0.003 > shallowest + 0.005) & (highest + 0.003 <= limit)):
+            candidates.append(_candidate(centres[i], yaws_[i], highest[i] + 0.003, width[i], highest[i], True, surface, gripper, "raised"))
+    return candidates
+
+
+def _candidate(centre, yaw: float, tips: float, width: float, highest: float, seen: bool, surface: Surface,
+               gripper: JawGripper, kind: str) -> GraspCandidate:
+    clearance = float(tips - highest) if seen else float("nan")
+    candidate = GraspCandidate(np.array([centre[0], centre[1], tips]), float(yaw), float(width), clearance,
+                               surface.top, surface.support, kind=kind)
     if not seen:
         candidate.rejected = "finger outside the camera's view"
     elif width > gripper.opening - gripper.margin:
@@ -291,19 +335,35 @@ def describe(points: np.ndarray, camera: PinholeCamera, surface: Surface, centre
     return candidate
 
 
-def grasp_candidates(points: np.ndarray, camera: PinholeCamera, box, gripper: JawGripper = JawGripper(),
-                     count: int = 8, offsets: np.ndarray | None = None) -> tuple[Surface | None, list[GraspCandidate]]:
+def describe(frame: DepthFrame, surface: Surface, centre, yaw: float, tips: float | None = None,
+             gripper: JawGripper = JawGripper()) -> GraspCandidate:
+    """One grasp (:func:`describe_many`): the jaws' centre at world ``centre`` (x, y), closing along ``yaw``."""
+    return describe_many(frame, surface, np.asarray(centre, dtype=float)[None, :2], [yaw],
+                         None if tips is None else [tips], gripper, ["given"])[0]
+
+
+def grasp_candidates(frame: DepthFrame, box, gripper: JawGripper = JawGripper(), count: int = YAWS,
+                     offsets: np.ndarray | None = None) -> tuple[Surface | None, list[GraspCandidate]]:
     """Candidates for the instance in ``box``: per yaw (:func:`yaws`), the jaws centred on the
-    instance's extent across them (and at ``offsets``, (K, 2) world xy shifts, if given), each with
-    its width, clearance and the reason it is rejected. Empty when depth shows nothing in the box."""
-    surface = instance_surface(points, box)
+    instance's extent across them and shifted SHIFT either way along the closing direction (and at
+    ``offsets``, (K, 2) world xy shifts from the instance's centre, if given), each with its width,
+    clearance and the reason it is rejected; blocked ones also with their tips lifted clear. The
+    first candidate is the even grasp across the minor axis. Empty when depth shows nothing in the box."""
+    surface = instance_surface(frame, box)
     if surface is None:
         return None, []
-    shifts = [np.asarray(o, dtype=float) for o in offsets] if offsets is not None else []
-    candidates = []
-    for yaw in yaws(count, surface):
-        _, middle = width_across(surface, surface.centre, yaw, gripper)
-        even = surface.centre + middle * np.array([np.cos(yaw), np.sin(yaw)])  # both fingers meet it together
-        for centre in [even] + [surface.centre + shift for shift in shifts]:
-            candidates.append(describe(points, camera, surface, centre, yaw, gripper=gripper))
-    return surface, candidates
+    directions = np.array(yaws(count, surface))
+    unit = np.stack([np.cos(directions), np.sin(directions)], axis=1)
+    _, middle = widths_across(surface, np.repeat(surface.centre[None], len(directions), axis=0), directions, gripper)
+    even = surface.centre + middle[:, None] * unit
+    centres, angles, kinds = [even], [directions], ["even"] * len(directions)
+    for sign in (-1, 1):
+        centres.append(even + sign * SHIFT * unit)
+        angles.append(directions)
+        kinds += ["shifted"] * len(directions)
+    for offset in ([] if offsets is None else np.asarray(offsets, dtype=float).reshape(-1, 2)):
+        centres.append(surface.centre + offset + 0 * unit)
+        angles.append(directions)
+        kinds += ["offset"] * len(directions)
+    return surface, describe_many(frame, surface, np.concatenate(centres), np.concatenate(angles), gripper=gripper,
+                                  kinds=kinds, raise_blocked=True)

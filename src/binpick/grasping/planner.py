@@ -18,8 +18,11 @@ from enum import StrEnum
 import numpy as np
 
 from binpick.errors import ConfigError
-from binpick.grasping.camera import PinholeCamera
-from binpick.grasping.candidates import GraspCandidate, JawGripper, Surface, grasp_candidates
+from binpick.grasping.candidates import YAWS, GraspCandidate, JawGripper, Surface, grasp_candidates
+from binpick.grasping.frame import DepthFrame
+
+
+NOTHING_THERE = "depth shows nothing standing out in the box"
 
 
 class GraspPolicyName(StrEnum):
@@ -51,18 +54,20 @@ class GraspChoice:
 
 
 def analytic_score(candidate: GraspCandidate, surface: Surface) -> float:
-    """Alignment with the minor axis (weighted by how elongated the surface is) plus clearance."""
+    """Alignment with the minor axis (weighted by how elongated the surface is) plus clearance, less
+    for tips lifted above the depth the grip wants and for jaws off the instance's middle."""
     alignment = abs(np.cos(candidate.yaw - surface.minor_yaw)) * min(1.0, surface.elongation - 1.0)
-    return float(alignment + 10.0 * np.clip(candidate.clearance, -0.01, 0.03))
+    shallow = max(0.0, float(candidate.position[2]) - surface.tips_range()[1])
+    return float(alignment + 10.0 * np.clip(candidate.clearance, -0.01, 0.03) - 5.0 * shallow - 0.05 * (candidate.kind == "shifted"))
 
 
 class GraspPlanner:
-    """``GraspPlanner(policy).choose(points, camera, box)``: the grasp for one detection.
+    """``GraspPlanner(policy).choose(frame, box)``: the grasp for one detection.
 
-    ``points`` are the frame's world xyz per pixel (:meth:`PinholeCamera.points`), computed once per
-    frame and shared by every detection."""
+    ``frame`` is the depth frame made ready once (:meth:`DepthFrame.from_depth`: holes filled, the
+    support plane found) and shared by every detection."""
 
-    def __init__(self, policy: str = "analytic", quality=None, gripper: JawGripper = JawGripper(), yaw_count: int = 8) -> None:
+    def __init__(self, policy: str = "analytic", quality=None, gripper: JawGripper = JawGripper(), yaw_count: int = YAWS) -> None:
         try:
             self.policy = GraspPolicyName(policy)
         except ValueError:
@@ -86,12 +91,16 @@ class GraspPlanner:
             raise ConfigError(f"grasp weights are for the learnt policy, not {policy!r}")
         return cls(policy, quality, **options)
 
-    def choose(self, points: np.ndarray, camera: PinholeCamera, box) -> GraspChoice:
-        surface, candidates = grasp_candidates(points, camera, box, self.gripper, self.yaw_count)
+    def frame(self, depth: np.ndarray, camera) -> DepthFrame:
+        """A depth image (metres, 0: no reading) made ready for :meth:`choose`."""
+        return DepthFrame.from_depth(depth, camera)
+
+    def choose(self, frame: DepthFrame, box) -> GraspChoice:
+        surface, candidates = grasp_candidates(frame, box, self.gripper, self.yaw_count)
         if surface is None:
-            return GraspChoice(None, [], "depth shows nothing standing out in the box")
-        if self.policy is GraspPolicyName.FIXED:
-            fixed = min(candidates[1:], key=lambda c: abs(c.yaw - np.pi / 2))  # [0] is the minor axis
+            return GraspChoice(None, [], NOTHING_THERE)
+        if self.policy is GraspPolicyName.FIXED:  # [0] is the minor axis; the jaws along y, centred
+            fixed = min((c for c in candidates[1:] if c.kind == "even"), key=lambda c: abs(c.yaw - np.pi / 2))
             fixed.quality = None
             return GraspChoice(fixed, candidates, surface=surface)  # today's grasp: tried whatever the checks say
         feasible = [c for c in candidates if c.rejected is None]
@@ -103,7 +112,7 @@ class GraspPlanner:
             for candidate in feasible:
                 candidate.quality = analytic_score(candidate, surface)
         else:
-            scores = self.quality.score(points, camera, feasible)
+            scores = self.quality.score(frame, feasible)
             for candidate, score in zip(feasible, scores):
                 candidate.quality = float(score)
         best = max(feasible, key=lambda c: c.quality)

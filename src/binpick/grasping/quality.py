@@ -16,8 +16,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from binpick.grasping.camera import PinholeCamera
 from binpick.grasping.candidates import GraspCandidate, JawGripper, surface_heights
+from binpick.grasping.frame import DepthFrame
 
 FORMAT = "binpick-grasp-quality-1"
 SHIPPED = Path(__file__).parent / "weights" / "grasp_quality.safetensors"  # trained by benchmarks/grasp.py
@@ -30,17 +30,27 @@ class MapSpec:
     extent: float = 0.16  # metres per side (5 mm cells): both open fingers and some room beyond
 
 
-def height_map(points: np.ndarray, camera: PinholeCamera, position, yaw: float, top: float, support: float,
-               spec: MapSpec = MapSpec()) -> np.ndarray:
-    """(size, size) float32: surface heights around the grasp minus its fingertips' height, in units
-    of HEIGHT_SCALE; unseen cells read as the support surface's height."""
-    d = np.array([np.cos(yaw), np.sin(yaw)])
-    j = np.array([-d[1], d[0]])
+def height_maps(frame: DepthFrame, positions, yaws, tops, supports, spec: MapSpec = MapSpec()) -> np.ndarray:
+    """(N, size, size) float32 for N grasps: surface heights around each grasp minus its fingertips'
+    height, in units of HEIGHT_SCALE (holes filled as the frame fills them); cells outside the camera's
+    view read as the support surface's height."""
+    positions = np.asarray(positions, dtype=float).reshape(-1, 3)
+    yaws = np.asarray(yaws, dtype=float).reshape(-1)
+    d = np.stack([np.cos(yaws), np.sin(yaws)], axis=1)
+    j = np.stack([-d[:, 1], d[:, 0]], axis=1)
     steps = (np.arange(spec.size) - (spec.size - 1) / 2) * spec.extent / spec.size
-    grid = np.asarray(position[:2]) + steps[None, :, None] * d + steps[:, None, None] * j  # rows: jaw axis
-    heights = surface_heights(points, camera, grid.reshape(-1, 2), top).reshape(spec.size, spec.size)
-    heights = np.where(np.isfinite(heights), heights, support)
-    return np.clip((heights - position[2]) / HEIGHT_SCALE, -1.0, 4.0).astype(np.float32)
+    grid = (positions[:, None, None, :2] + steps[None, None, :, None] * d[:, None, None, :]
+            + steps[None, :, None, None] * j[:, None, None, :])  # rows: jaw axis
+    z_ref = np.repeat(np.asarray(tops, dtype=float).reshape(-1), spec.size * spec.size)
+    heights, _ = surface_heights(frame, grid.reshape(-1, 2), z_ref)
+    heights = heights.reshape(len(positions), spec.size, spec.size)
+    heights = np.where(np.isfinite(heights), heights, np.asarray(supports, dtype=float).reshape(-1, 1, 1))
+    return np.clip((heights - positions[:, 2, None, None]) / HEIGHT_SCALE, -1.0, 4.0).astype(np.float32)
+
+
+def height_map(frame: DepthFrame, position, yaw: float, top: float, support: float, spec: MapSpec = MapSpec()) -> np.ndarray:
+    """(size, size) float32: one grasp's height map (:func:`height_maps`)."""
+    return height_maps(frame, [position], [yaw], [top], [support], spec)[0]
 
 
 def grasp_features(width: float, clearance: float, tips: float, top: float, support: float,
@@ -69,7 +79,7 @@ class GraspQualityNet(nn.Module):
 
 
 class GraspQuality:
-    """``GraspQuality.load(path).score(points, camera, candidates)``: success probabilities."""
+    """``GraspQuality.load(path).score(frame, candidates)``: success probabilities."""
 
     def __init__(self, net: GraspQualityNet | None = None, spec: MapSpec = MapSpec(), width: int = 16, meta: dict | None = None) -> None:
         self.spec, self.width = spec, width
@@ -77,8 +87,9 @@ class GraspQuality:
         self.net.eval()
         self.meta = meta or {}
 
-    def inputs(self, points: np.ndarray, camera: PinholeCamera, candidates: list[GraspCandidate]) -> tuple[np.ndarray, np.ndarray]:
-        maps = np.stack([height_map(points, camera, c.position, c.yaw, c.top, c.support, self.spec) for c in candidates])
+    def inputs(self, frame: DepthFrame, candidates: list[GraspCandidate]) -> tuple[np.ndarray, np.ndarray]:
+        maps = height_maps(frame, [c.position for c in candidates], [c.yaw for c in candidates], [c.top for c in candidates],
+                           [c.support for c in candidates], self.spec)
         features = np.stack([grasp_features(c.width, c.clearance, c.position[2], c.top, c.support) for c in candidates])
         return maps, features
 
@@ -87,10 +98,10 @@ class GraspQuality:
         logits = self.net(torch.from_numpy(maps)[:, None], torch.from_numpy(features))
         return torch.sigmoid(logits).numpy()
 
-    def score(self, points: np.ndarray, camera: PinholeCamera, candidates: list[GraspCandidate]) -> np.ndarray:
+    def score(self, frame: DepthFrame, candidates: list[GraspCandidate]) -> np.ndarray:
         if not candidates:
             return np.zeros(0)
-        return self.probabilities(*self.inputs(points, camera, candidates))
+        return self.probabilities(*self.inputs(frame, candidates))
 
     def save(self, path: str | Path, meta: dict | None = None) -> Path:
         from binpick import tensorfile

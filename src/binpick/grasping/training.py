@@ -25,6 +25,7 @@ from binpick.metrics import roc_auc
 from binpick.depth import read_depth
 from binpick.grasping.camera import PinholeCamera
 from binpick.grasping.candidates import Surface, describe, instance_surface
+from binpick.grasping.frame import DepthFrame
 from binpick.grasping.quality import FEATURES, GraspQuality, GraspQualityNet, MapSpec, grasp_features, height_map
 from binpick.runs import SILENT, RunCallback, commit_checkpoint, latest_checkpoint, new_run_dir
 
@@ -75,20 +76,20 @@ def load_trials(data: str | Path, split: str, spec: MapSpec = MapSpec()) -> Tria
         if record.get("split") != split or not record.get("grasp_trials"):
             continue
         camera = PinholeCamera.from_record(record["camera"])
-        points = camera.points(read_depth(data / record["depth_file"]))
+        frame = DepthFrame.from_depth(read_depth(data / record["depth_file"]), camera)
         boxes = {a["slot"]: a["bbox"] for a in record["annotations"]}
         surfaces: dict[int, Surface | None] = {}
         for trial in record["grasp_trials"]:
             # what the executed grasp (position, yaw) was, described by today's candidate code
             slot = trial["slot"]
             if slot not in surfaces:
-                surfaces[slot] = instance_surface(points, boxes[slot])
+                surfaces[slot] = instance_surface(frame, boxes[slot])
             surface = surfaces[slot]
             if surface is None:
                 continue
             position = np.array(trial["position"])
-            candidate = describe(points, camera, surface, position, trial["yaw"], position[2])
-            maps.append(height_map(points, camera, position, trial["yaw"], surface.top, surface.support, spec))
+            candidate = describe(frame, surface, position, trial["yaw"], position[2])
+            maps.append(height_map(frame, position, trial["yaw"], surface.top, surface.support, spec))
             clearance = candidate.clearance if np.isfinite(candidate.clearance) else -0.05
             features.append(grasp_features(candidate.width, clearance, position[2], surface.top, surface.support))
             labels.append(float(trial["success"]))

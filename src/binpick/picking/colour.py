@@ -30,8 +30,10 @@ def colour_histogram(rgb: np.ndarray, mask: np.ndarray | None = None) -> np.ndar
 
 def detection_mask(points: np.ndarray, box_xywh, support: float | None = None) -> np.ndarray:
     """The box's pixels standing above what the products rest on: ``support`` (the bin floor's
-    height in the base frame, where known), else the low end (5th percentile) of the heights in
-    and around the box, as the grasp planner estimates it."""
+    height, where known), else the low end (5th percentile) of the heights in and around the box,
+    as the grasp planner estimates it. ``points``: the frame's world xyz (H, W, 3), or its heights
+    (H, W), e.g. above the support plane (:attr:`binpick.grasping.DepthFrame.heights`)."""
+    points = points[..., None] if points.ndim == 2 else points[..., 2:3]
     height_px, width_px = points.shape[:2]
     mask = np.zeros((height_px, width_px), bool)
     x, y, w, h = (float(v) for v in box_xywh)
@@ -41,12 +43,12 @@ def detection_mask(points: np.ndarray, box_xywh, support: float | None = None) -
         return mask
     if support is None:
         pad = max(6.0, 0.25 * max(w, h))
-        around = points[int(max(0, y - pad)):int(min(height_px, y + h + pad)), int(max(0, x - pad)):int(min(width_px, x + w + pad)), 2]
+        around = points[int(max(0, y - pad)):int(min(height_px, y + h + pad)), int(max(0, x - pad)):int(min(width_px, x + w + pad)), 0]
         if not np.isfinite(around).any():
             return mask
         support = float(np.nanpercentile(around, 5))
     with np.errstate(invalid="ignore"):
-        mask[y0:y1, x0:x1] = points[y0:y1, x0:x1, 2] > support + ABOVE_SUPPORT  # NaN (no reading): not a product pixel
+        mask[y0:y1, x0:x1] = points[y0:y1, x0:x1, 0] > support + ABOVE_SUPPORT  # NaN (no reading): not a product pixel
     return mask
 
 

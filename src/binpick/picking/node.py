@@ -155,16 +155,24 @@ class PlanRequests:
             return cls(picker, FrameSynchroniser())
         return cls(picker, FrameSynchroniser(), catalogue(library), size_for=catalogue_sizes(library))
 
-    def plan(self, product_id: str = "", photo: np.ndarray | None = None, max_grasps: int = 0, size=None) -> tuple[Frame, Plans]:
+    def plan(self, product_id: str = "", photo: np.ndarray | None = None, max_grasps: int = 0, size=None,
+             query_box=None, copies_only: bool = False) -> tuple[Frame, Plans]:
         """Plans on the latest frame. ``size``: the product's catalogue dimensions (m; none given: the
-        catalogue's for ``product_id``, where the node has one)."""
+        catalogue's for ``product_id``, where the node has one). ``query_box`` (x, y, w, h pixels)
+        points at the instance to pick instead of a product: it is planned first, then its copies
+        (``copies_only``: the copies alone)."""
         if size is not None and len(size) == 0:
             size = None
         if size is None and product_id and self.size_for is not None:
             size = self.size_for(product_id)
-        if photo is None or photo.size == 0:
+        box = None
+        if query_box is not None and len(query_box):
+            box = [float(v) for v in query_box]
+            if len(box) != 4 or not all(np.isfinite(box)) or box[2] <= 0 or box[3] <= 0:
+                raise BinpickError(f"query_box must be x, y, w, h with a positive width and height, got {box}")
+        elif photo is None or photo.size == 0:
             if not product_id:
-                raise BinpickError("the request names no product and carries no photo")
+                raise BinpickError("the request names no product, photo or query box")
             if self.photo_for is None:
                 raise BinpickError(f"this node has no product catalogue: send the photo of {product_id!r}")
             photo, mask = self.photo_for(product_id)
@@ -173,6 +181,12 @@ class PlanRequests:
         frame = self.frames.latest(timeout=self.frame_timeout)
         if frame is None:
             raise BinpickError(f"no synchronised colour + depth + camera_info frame within {self.frame_timeout:g} s")
+        if box is not None:
+            height, width = frame.rgb.shape[:2]
+            if box[0] < 0 or box[1] < 0 or box[0] + box[2] > width or box[1] + box[3] > height:
+                raise BinpickError(f"query_box {box} lies outside the {width}x{height} colour image")
+            return frame, self.picker.plan(frame.rgb, frame.depth, frame.camera, query_box=box, max_grasps=max_grasps or None,
+                                           size=size, copies_only=copies_only)
         plans = self.picker.plan(frame.rgb, frame.depth, frame.camera, photo=photo, max_grasps=max_grasps or None, size=size)
         return frame, plans
 

@@ -21,7 +21,8 @@ from typing import Any
 import numpy as np
 
 from binpick.errors import ConfigError, InputFileError
-from binpick.grasping import GraspChoice, GraspPlanner, PinholeCamera
+from binpick.grasping import DepthFrame, GraspChoice, GraspPlanner, PinholeCamera
+from binpick.grasping.planner import NOTHING_THERE
 from binpick.depth import depth_problem
 from binpick.picking.camera_info import CameraInfo, matrix_to_quaternion
 from binpick.detection.photos import photo_mask
@@ -41,6 +42,15 @@ def larger_than(surface, size, margin: float = 0.02, relative: float = 0.15) -> 
     major, minor = surface.extents()
     slack = lambda side: max(margin, relative * side)  # noqa: E731
     return major > first + slack(first) or minor > second + slack(second) or surface.height > first + slack(first)
+
+
+def box_iou(a, b) -> float:
+    """Intersection over union of two x, y, w, h boxes."""
+    ax, ay, aw, ah = (float(v) for v in a)
+    bx, by, bw, bh = (float(v) for v in b)
+    overlap = max(0.0, min(ax + aw, bx + bw) - max(ax, bx)) * max(0.0, min(ay + ah, by + bh) - max(ay, by))
+    union = aw * ah + bw * bh - overlap
+    return overlap / union if union > 0 else 0.0
 
 
 def grasp_orientation(yaw: float) -> list[float]:
@@ -134,16 +144,34 @@ def as_camera_info(camera: CameraInfo | PinholeCamera) -> CameraInfo:
     return camera if isinstance(camera, CameraInfo) else CameraInfo(camera)
 
 
+def same_aspect(a: tuple[int, ...], b: tuple[int, ...]) -> bool:
+    """Whether two (height, width) images have the same aspect ratio (within a pixel)."""
+    return abs(a[0] * b[1] - a[1] * b[0]) <= max(a[0], b[0])
+
+
+def register_depth(depth: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """Depth registered to the colour camera but at another resolution (a RealSense's 640x360 depth
+    aligned to its 1280x720 colour), resampled to the colour's ``shape`` (height, width): nearest
+    reading, so no depth is invented between an edge's two sides and holes stay holes."""
+    if depth.shape == tuple(shape):
+        return depth
+    import cv2
+
+    return cv2.resize(np.asarray(depth, dtype=np.float32), (shape[1], shape[0]), interpolation=cv2.INTER_NEAREST)
+
+
 def check_frame(rgb: np.ndarray, depth: np.ndarray, camera: PinholeCamera) -> None:
-    """Colour and depth of one size that the calibration describes; depth in metres."""
+    """Colour and depth that the calibration describes (depth registered to the colour camera, at its
+    size or one of the same aspect); depth in metres."""
     rgb, depth = np.asarray(rgb), np.asarray(depth)
     if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
         raise InputFileError(f"colour image must be 8-bit RGB (height x width x 3), got {rgb.dtype} with shape {rgb.shape}")
     if depth.ndim != 2:
         raise InputFileError(f"depth image must be 2-D (height x width), got shape {depth.shape}")
-    if depth.shape != rgb.shape[:2]:
+    if depth.shape != rgb.shape[:2] and not same_aspect(depth.shape, rgb.shape[:2]):
         raise InputFileError(f"depth is {depth.shape[1]}x{depth.shape[0]} but colour is {rgb.shape[1]}x{rgb.shape[0]}: "
-                             "register depth to the colour camera (same size and intrinsics)")
+                             "register depth to the colour camera (its viewpoint and intrinsics; at the colour's size or "
+                             "one of the same aspect, which binpick resamples)")
     if (camera.width, camera.height) != (rgb.shape[1], rgb.shape[0]):
         raise InputFileError(f"the camera calibration is for {camera.width}x{camera.height} images, the frame is "
                              f"{rgb.shape[1]}x{rgb.shape[0]}")
@@ -215,16 +243,21 @@ class Picker:
 
     def plan(self, rgb: np.ndarray, depth: np.ndarray, camera: CameraInfo | PinholeCamera, photo: np.ndarray | None = None,
              query_box=None, *, photo_product_mask: np.ndarray | None = None, boxes: tuple[np.ndarray, np.ndarray] | None = None,
-             max_grasps: int | None = None, size=None) -> Plans:
+             max_grasps: int | None = None, size=None, copies_only: bool = False) -> Plans:
         """Grasps for the product in ``photo`` (or the one inside ``query_box``, x, y, w, h pixels) in
         one frame: ``rgb`` uint8 (H, W, 3), ``depth`` metres (H, W, 0 = no reading), registered to the
-        colour camera. ``boxes`` (boxes, scores) skips detection and the colour check: grasps for
-        detections from elsewhere. ``photo`` may be RGBA, its alpha marking the product's pixels (as
-        ``photo_product_mask`` does; default: what is not bright grey). ``size``: the product's
-        catalogue dimensions (m, any order); detections whose instance is clearly bigger are not
-        planned (rejected as larger than the ordered product)."""
+        colour camera (at its size, or one of the same aspect). ``boxes`` (boxes, scores) skips
+        detection and the colour check: grasps for detections from elsewhere. ``photo`` may be RGBA,
+        its alpha marking the product's pixels (as ``photo_product_mask`` does; default: what is not
+        bright grey). ``size``: the product's catalogue dimensions (m, any order); detections whose
+        instance is clearly bigger are not planned (rejected as larger than the ordered product).
+
+        A ``query_box`` points at one instance: it is planned first, then the copies the detector
+        finds of it. ``copies_only`` plans on the other copies alone (the thesis's evaluation of
+        repeated-object detection). A query box with no object under it is one clear line."""
         info = as_camera_info(camera)
         check_frame(rgb, depth, info.camera)
+        depth = register_depth(np.asarray(depth), np.asarray(rgb).shape[:2])
         if photo is not None:
             photo, alpha = split_photo(photo)
             photo_product_mask = alpha if photo_product_mask is None else photo_product_mask
@@ -233,8 +266,11 @@ class Picker:
         timing: dict[str, float] = {}
         started = time.perf_counter()
         rgb, depth = info.rectify(np.asarray(rgb), np.asarray(depth, dtype=np.float32))
-        points = info.camera.points(depth)  # once per frame, shared by every detection
-        timing["points"] = 1000 * (time.perf_counter() - started)
+        frame = self.grasp.frame(depth, info.camera)  # once per frame: holes filled, support plane found
+        timing["depth"] = 1000 * (time.perf_counter() - started)
+        pointed = None
+        if query_box is not None and boxes is None:
+            pointed = self.pointed_instance(frame, query_box)
         tick = time.perf_counter()
         if boxes is not None:
             found, scores = np.asarray(boxes[0], dtype=float).reshape(-1, 4), np.asarray(boxes[1], dtype=float)
@@ -247,11 +283,14 @@ class Picker:
             query_image = None if query_box is not None else (  # the product mask travels as alpha, for framing
                 photo if photo_product_mask is None else np.dstack([photo, np.where(photo_product_mask, 255, 0).astype(np.uint8)]))
             prediction = predict(model, rgb, query_box=query_box, query_image=query_image,
-                                 score_threshold=self.candidate_threshold, depth=depth)
+                                 score_threshold=self.candidate_threshold, depth=frame.filled)  # holes filled, as the planner sees it
             found, scores = prediction.boxes, prediction.scores
+            if query_box is not None:  # the detector may find the pointed instance too: it is planned as pointed
+                keep = [box_iou(b, query_box) < 0.5 for b in found]
+                found, scores = found[keep].reshape(-1, 4), scores[keep]
             timing["detect"] = 1000 * (time.perf_counter() - tick)
             tick = time.perf_counter()
-            similarities = self.colour_similarities(rgb, points, found, photo, photo_product_mask, query_box)
+            similarities = self.colour_similarities(rgb, frame.heights, found, photo, photo_product_mask, query_box)
             timing["colour"] = 1000 * (time.perf_counter() - tick)
         ranked = list(zip(found, scores, similarities))
         if self.colour_check is not None:
@@ -262,17 +301,31 @@ class Picker:
         tick = time.perf_counter()
         plans: list[GraspPlan] = []
         wanted = max_grasps or self.max_grasps
+        if pointed is not None and not copies_only:  # what the user pointed at first, then its copies
+            plans.append(self.plan_detection(frame, query_box, 1.0, None, size, choice=pointed))
         for box, score, similarity in ranked:
             if sum(p.feasible for p in plans) >= wanted:
                 break
-            plans.append(self.plan_detection(points, info.camera, box, float(score), similarity, size))
+            plans.append(self.plan_detection(frame, box, float(score), similarity, size))
         timing["grasp"] = 1000 * (time.perf_counter() - tick)
         timing["total"] = 1000 * (time.perf_counter() - started)
         return Plans(plans, info.base_frame, {k: round(v, 2) for k, v in timing.items()}, found, scores, colour_rejected)
 
-    def plan_detection(self, points: np.ndarray, camera: PinholeCamera, box, score: float,
-                       similarity: float | None, size=None) -> GraspPlan:
-        choice: GraspChoice = self.grasp.choose(points, camera, box)
+    def pointed_instance(self, frame: DepthFrame, query_box) -> GraspChoice:
+        """The grasp for the instance a query box points at; a box over nothing standing out (only the
+        floor beneath it in depth) is one clear line."""
+        from binpick.errors import InputFileError
+
+        choice = self.grasp.choose(frame, query_box)
+        if choice.surface is None and choice.reason == NOTHING_THERE:
+            x, y, w, h = (float(v) for v in query_box)
+            raise InputFileError(f"the query box {x:g},{y:g},{w:g},{h:g} lies on no object: depth shows only the surface "
+                                 "beneath it (draw the box around one instance of the product)")
+        return choice
+
+    def plan_detection(self, frame: DepthFrame, box, score: float, similarity: float | None, size=None,
+                       choice: GraspChoice | None = None) -> GraspPlan:
+        choice = choice if choice is not None else self.grasp.choose(frame, box)
         plan = GraspPlan([round(float(v), 2) for v in box], round(score, 4), None if similarity is None else round(similarity, 3),
                          rejected=choice.rejections())
         if size is not None and choice.surface is not None and larger_than(choice.surface, size):
@@ -288,15 +341,16 @@ class Picker:
             plan.quality = None if chosen.quality is None else round(float(chosen.quality), 4)
         return plan
 
-    def colour_similarities(self, rgb: np.ndarray, points: np.ndarray, boxes: np.ndarray, photo: np.ndarray | None,
+    def colour_similarities(self, rgb: np.ndarray, heights: np.ndarray, boxes: np.ndarray, photo: np.ndarray | None,
                             photo_product_mask: np.ndarray | None, query_box) -> list[float | None]:
         """Each box's colour similarity to the query's product: the photo's product pixels, or the
-        query box's pixels standing above what they rest on."""
+        query box's pixels standing above what they rest on (``heights``: the frame's, above the
+        support plane)."""
         if self.colour_check is None:
             return [None] * len(boxes)
         if query_box is None:
             histogram = colour_histogram(photo, photo_mask(photo) if photo_product_mask is None else photo_product_mask)
         else:
-            mask = detection_mask(points, query_box)
+            mask = detection_mask(heights, query_box)
             histogram = colour_histogram(rgb, mask if mask.any() else None)
-        return [colour_similarity(histogram, rgb, points, box) for box in boxes]
+        return [colour_similarity(histogram, rgb, heights, box) for box in boxes]

@@ -33,6 +33,8 @@ PICK_GOAL = """string product_id       # a product in the node's catalogue (its 
 sensor_msgs/Image photo   # or the shop photo itself (rgb8/bgr8); empty: use product_id
 int32 max_grasps          # plan this many grasps at most (0: the node's default)
 float32[] size            # the product's catalogue dimensions (m, 3 numbers); empty: the catalogue's, or no check
+float32[] query_box       # or x, y, w, h (pixels of the colour image) of the instance to pick; empty: none
+bool copies_only          # with query_box: plan on the other copies only, not the instance pointed at
 """
 PICK_RESULT = """geometry_msgs/PoseStamped[] grasps  # gripper pose (z along the approach, x across the jaws), best first
 float32[] scores         # detector scores

@@ -77,7 +77,8 @@ class PickNode:
             photo = None
             if goal.photo.width and goal.photo.height:
                 photo = photo_of(goal.photo.encoding, self._pixels(goal.photo))
-            frame, plans = self.requests.plan(goal.product_id, photo, int(goal.max_grasps), list(goal.size) or None)
+            frame, plans = self.requests.plan(goal.product_id, photo, int(goal.max_grasps), list(goal.size) or None,
+                                              list(goal.query_box) or None, bool(goal.copies_only))
             stamp = rospy.Time.from_sec(frame.stamp)
             result = self.types["PlanPickResult"]()
             result.grasps = [pose_stamped(p, plans.frame, stamp) for p in plans.grasps]

@@ -5,7 +5,7 @@ ROS 2 actions and services need interface types compiled by rosidl (colcon, a C 
 build tool chain), which PyPI's wheels do not carry, so the request and answer of ``PlanPick`` travel
 as standard messages on ``<namespace>/...``:
 
-- ``goal`` (``std_msgs/String``, JSON ``{"id", "product_id", "max_grasps", "size"}``) or ``goal_photo``
+- ``goal`` (``std_msgs/String``, JSON ``{"id", "product_id", "max_grasps", "size", "query_box", "copies_only"}``) or ``goal_photo``
   (``sensor_msgs/Image``, the shop photo; ``header.frame_id`` is the request id, or that JSON);
 - ``result`` (``std_msgs/String``, JSON ``{"id", "status", "text", "grasps": [{position, orientation,
   score, quality, width}], "opening", "plans"}``): the ROS 1 result's fields, same values;
@@ -74,9 +74,9 @@ def make_node(requests: PlanRequests, camera_to_base: np.ndarray, base_frame: st
     poses = node.create_publisher(geometry_msgs.msg.PoseArray, f"{namespace}/grasps", RELIABLE_DEPTH)
     overlay = node.create_publisher(sensor_msgs.msg.Image, f"{namespace}/overlay", 1)
 
-    def answer(request_id: str, product_id: str, photo, max_grasps: int, size=None) -> None:
+    def answer(request_id: str, product_id: str, photo, max_grasps: int, size=None, query_box=None, copies_only: bool = False) -> None:
         try:
-            frame, plans = requests.plan(product_id, photo, max_grasps, size)
+            frame, plans = requests.plan(product_id, photo, max_grasps, size, query_box, copies_only)
         except Exception as error:  # noqa: BLE001 - the client gets the reason instead of a timeout
             results.publish(std_msgs.msg.String(data=json.dumps({"id": request_id, "status": "aborted", "text": f"{type(error).__name__}: {error}"})))
             return
@@ -103,10 +103,12 @@ def make_node(requests: PlanRequests, camera_to_base: np.ndarray, base_frame: st
             goal = json.loads(message.data)
             request_id, product_id, max_grasps = str(goal.get("id", "")), str(goal.get("product_id", "")), int(goal.get("max_grasps", 0))
             size = [float(v) for v in goal["size"]] if goal.get("size") else None
+            query_box = [float(v) for v in goal["query_box"]] if goal.get("query_box") else None
+            copies_only = bool(goal.get("copies_only", False))
         except (ValueError, AttributeError, TypeError) as error:
             results.publish(std_msgs.msg.String(data=json.dumps({"id": "", "status": "aborted", "text": f"bad goal: {error}"})))
             return
-        answer(request_id, product_id, None, max_grasps, size)
+        answer(request_id, product_id, None, max_grasps, size, query_box, copies_only)
 
     node.create_subscription(std_msgs.msg.String, f"{namespace}/goal", on_goal, RELIABLE_DEPTH)
     def on_goal_photo(message) -> None:

@@ -18,6 +18,7 @@ from binpick.sim.domain import DomainConfig
 from binpick.sim.mjcf import (BIN_HALF, BIN_WALL, FLOOR_TOP, CameraSpec, product_assets, product_body, random_world_xml,
                               scene_xml)
 from binpick.sim.products import Product
+from binpick.sim.sensor import SensorConfig, sense, tote_tilt
 
 PARK_X = 3.0  # unused slots wait here, on the table, out of view
 SETTLE_SECONDS = 1.2
@@ -49,6 +50,7 @@ class Scene:
     seed: int
     state: np.ndarray = field(repr=False, default=None)  # qpos after settling (for grasp trials)
     camera: dict = field(default_factory=dict)  # intrinsics K (3x3, pixels) and camera-to-world extrinsics (4x4, OpenCV axes)
+    sensor: dict = field(default_factory=dict)  # what the depth sensor drew for this scene (empty: perfect depth)
 
 
 class BinWorld:
@@ -57,8 +59,11 @@ class BinWorld:
     def __init__(self, target: Product, distractors: list[Product], max_copies: int = 8,
                  camera: CameraSpec = CameraSpec(), extra_worldbody: str = "", extra: str = "",
                  randomise_lighting: bool = False, gripper: bool = False, seed: int = 0,
-                 domain: DomainConfig | None = None) -> None:
+                 domain: DomainConfig | None = None, sensor: SensorConfig | None = None) -> None:
         self.target, self.distractors, self.camera = target, list(distractors), camera
+        self.sensor = sensor if sensor is not None and sensor.realistic else None
+        # the tote's tilt is the world's (one compiled model); drawn apart from the scenes' draws
+        self.tote_tilt = tote_tilt(self.sensor, np.random.default_rng([seed, 0x7075])) if self.sensor else (0.0, 0.0)
         self.max_copies = max_copies
         self.domain = domain if domain is not None and domain.randomise else None
         self.half = BIN_HALF
@@ -82,7 +87,7 @@ class BinWorld:
         if self.domain is not None:
             self.xml = self._random_world(assets, bodies, extra_worldbody, extra, rng)
         else:
-            self.xml = scene_xml(assets, bodies, camera, extra_worldbody, extra, **lighting)
+            self.xml = scene_xml(assets, bodies, camera, extra_worldbody, extra, tote_tilt=self.tote_tilt, **lighting)
         self.model = mujoco.MjModel.from_xml_string(self.xml)
         self.data = mujoco.MjData(self.model)
         self.body_ids = [self.model.body(f"slot{i}").id for i in range(len(self.slots))]
@@ -130,7 +135,7 @@ class BinWorld:
             assets += product_assets(item, f"c{i}")
             bodies += product_body(item, f"clutter{i}", (PARK_X, -0.5 - 0.25 * i, 0.1), (1, 0, 0, 0), f"c{i}")
         return random_world_xml(assets, bodies, self.camera.size, self.half, self.wall_height, max(self.lights, 1),
-                                extra_worldbody, extra)
+                                extra_worldbody, extra, self.tote_tilt)
 
     def _fill_textures(self, products: dict[str, Product], prefixes: dict[str, str]) -> None:
         from binpick.sim.domain import fill_texture, pattern
@@ -222,14 +227,35 @@ class BinWorld:
             if self._drop_and_settle(used, rng):
                 break
         draw = self._randomise_scene(rng) if self.domain is not None else None
+        sensing = np.random.default_rng([seed, 0x5E45])  # apart from the drops: a scene's perfect and realistic twins settle alike
+        if draw is None and self.sensor is not None and self.sensor.tilts_camera:
+            draw = self._tilt_camera(sensing)
         rgb, depth, segmentation = self.render()
         instances = self._annotate(used, segmentation)
         if self.domain is not None and self.domain.post_processing:
             from binpick.sim.domain import post_process
 
             rgb = post_process(rgb, self.domain, rng)
-        return Scene(rgb, depth, segmentation, instances, self.target.id, int(seed), self.data.qpos.copy(),
-                     self.camera_record(draw))
+        record = self.camera_record(draw)
+        drawn = {}
+        if self.sensor is not None:
+            depth, drawn = sense(rgb, depth, np.array(record["K"]), self.sensor, sensing, segmentation)
+            drawn = {"name": self.sensor.name, "tote_tilt_degrees": [round(float(np.degrees(t)), 3) for t in self.tote_tilt], **drawn}
+        return Scene(rgb, depth, segmentation, instances, self.target.id, int(seed), self.data.qpos.copy(), record, drawn)
+
+    def _tilt_camera(self, rng: np.random.Generator):
+        """Tilt the fixed overhead camera away from straight down by the sensor's range, aimed at the
+        tote's centre from the same height (its intrinsics stay the camera spec's)."""
+        from binpick.sim.domain import DomainConfig, draw_camera
+
+        spec = self.camera
+        mounting = DomainConfig(camera_height=(spec.height, spec.height), camera_tilt=self.sensor.camera_tilt,
+                                camera_fovy=(spec.fovy, spec.fovy))
+        draw = draw_camera(mounting, rng, spec.size, FLOOR_TOP)
+        self.model.cam_pos[self.camera_id] = draw.position
+        self.model.cam_quat[self.camera_id] = draw.quaternion
+        mujoco.mj_forward(self.model, self.data)  # the camera's world pose follows the model's
+        return draw
 
     def _drop_and_settle(self, used: list[int], rng: np.random.Generator) -> bool:
         self.set_guards(True)
@@ -320,7 +346,7 @@ class BinWorld:
                 continue  # fully hidden, or bounced out of view
             position = self.data.qpos[self.qpos_adr[slot]:self.qpos_adr[slot] + 3]
             centre, _ = self.instance_centre_and_top(slot)  # not the body origin: meshes may sit off it
-            if centre[2] < FLOOR_TOP - 0.01 or abs(centre[0]) > self.half[0] + 0.03 or abs(centre[1]) > self.half[1] + 0.03:
+            if centre[2] < FLOOR_TOP - 0.01 - 0.3 * np.hypot(*self.tote_tilt) or abs(centre[0]) > self.half[0] + 0.03 or abs(centre[1]) > self.half[1] + 0.03:
                 continue  # fell out of the tote
             ys, xs = np.nonzero(mask)
             full = self._amodal_pixels(slot)

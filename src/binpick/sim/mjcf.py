@@ -88,8 +88,9 @@ def product_body(product: Product, name: str, pos, quat, prefix: str | None = No
             f'{product_geom(product, prefix or name)}</body>')
 
 
-def tote(half: tuple[float, float] = BIN_HALF, wall_height: float = BIN_WALL_HEIGHT) -> str:
-    """A tote on the table: a thick floor and four walls (static geoms)."""
+def tote(half: tuple[float, float] = BIN_HALF, wall_height: float = BIN_WALL_HEIGHT, tilt: tuple[float, float] = (0.0, 0.0)) -> str:
+    """A tote on the table: a thick floor and four walls (static geoms); ``tilt`` (radians about the
+    world's x and y axes) sets it down off level, as a tote on a sloping conveyor or table stands."""
     hx, hy = half
     h, t = wall_height, BIN_WALL
     z = FLOOR_TOP + h / 2
@@ -102,6 +103,8 @@ def tote(half: tuple[float, float] = BIN_HALF, wall_height: float = BIN_WALL_HEI
     guard_z = FLOOR_TOP + h + GUARD_HEIGHT / 2
     geoms += [f'<geom name="bin_guard{i}" type="box" pos="{_fmt((p[0], p[1], guard_z))}" '
               f'size="{_fmt((s[0], s[1], GUARD_HEIGHT / 2))}" rgba="0 0 0 0"/>' for i, (p, s) in enumerate(walls)]
+    if any(tilt):
+        return f'<body name="tote" euler="{_fmt((tilt[0], tilt[1], 0.0))}">{"".join(geoms)}</body>'
     return "".join(geoms)
 
 
@@ -116,7 +119,7 @@ def _preamble(size: int, headlight_diffuse: float) -> str:
 
 def scene_xml(assets: str, bodies: str, camera: CameraSpec, extra_worldbody: str = "", extra: str = "",
               light_dir=(0.0, 0.0, -1.0), light_diffuse=(0.7, 0.7, 0.7), table_rgba=(0.55, 0.45, 0.35, 1.0),
-              bin_rgba=(0.2, 0.35, 0.6, 1.0)) -> str:
+              bin_rgba=(0.2, 0.35, 0.6, 1.0), tote_tilt: tuple[float, float] = (0.0, 0.0)) -> str:
     return f"""<mujoco model="bin_scene">
   {_preamble(camera.size, 0.3)}
   <asset>
@@ -128,7 +131,7 @@ def scene_xml(assets: str, bodies: str, camera: CameraSpec, extra_worldbody: str
   <worldbody>
     <light name="key" pos="0.3 -0.2 1.6" dir="{_fmt(light_dir)}" diffuse="{_fmt(light_diffuse)}" castshadow="true"/>
     <geom name="table" type="plane" size="0 0 0.05" material="table"/>
-    {tote()}
+    {tote(tilt=tote_tilt)}
     <camera name="overhead" pos="0 0 {camera.height}" xyaxes="1 0 0 0 1 0" fovy="{camera.fovy}"/>
     {extra_worldbody}
     {bodies}
@@ -138,7 +141,7 @@ def scene_xml(assets: str, bodies: str, camera: CameraSpec, extra_worldbody: str
 
 
 def random_world_xml(assets: str, bodies: str, size: int, half: tuple[float, float], wall_height: float,
-                     lights: int, extra_worldbody: str = "", extra: str = "") -> str:
+                     lights: int, extra_worldbody: str = "", extra: str = "", tote_tilt: tuple[float, float] = (0.0, 0.0)) -> str:
     """A randomised bin world (:mod:`binpick.sim.domain`): a tote of the given size, textured table
     and tote (``table_tex``/``tote_tex``, filled after compiling), ``lights`` lights and a camera
     whose pose and intrinsics are set per scene (declared with ``sensorsize`` so that
@@ -156,7 +159,7 @@ def random_world_xml(assets: str, bodies: str, size: int, half: tuple[float, flo
   <worldbody>
     {light_xml}
     <geom name="table" type="plane" size="0 0 0.05" material="table"/>
-    {tote(half, wall_height)}
+    {tote(half, wall_height, tote_tilt)}
     <camera name="overhead" pos="0 0 1" xyaxes="1 0 0 0 1 0" sensorsize="0.01 0.01" focal="0.012 0.012"
             principal="0 0" resolution="{size} {size}"/>
     {extra_worldbody}

@@ -56,6 +56,7 @@ class GenerateConfig:
     scenes_per_world: int = 8  # scenes made from one compiled model (compiling + renderers ≈ 1 s)
     randomise: bool = False  # lighting, table and tote colours per world (before domains existed)
     domain: str = "default"  # default | random | shifted | a domain YAML file (binpick.sim.domain)
+    sensor: str = "perfect"  # perfect | realistic | a sensor YAML file (binpick.sim.sensor): the depth camera's faults
     address: str | None = None  # a Ray cluster (HOST:PORT) or "local" (Ray on this machine): scene workers as Ray tasks
     products: str | None = None  # a user's products YAML (added to the built-in library)
     only_products: bool = False  # use only the user's products
@@ -85,6 +86,9 @@ class GenerateConfig:
         from binpick.sim.domain import load_domain
 
         object.__setattr__(self, "_domain", load_domain(self.domain))  # a bad name or file: one line, now
+        from binpick.sim.sensor import load_sensor
+
+        object.__setattr__(self, "_sensor", load_sensor(self.sensor))
         if self.address not in (None, "local"):
             from binpick.cluster import check_ray_address
 
@@ -102,12 +106,23 @@ class GenerateConfig:
             data.pop(key)
         data["copies"], data["distractors"] = list(self.copies), list(self.distractors)
         data["domain_values"] = domain_dict(self.domain_config)  # so an edited domain file is noticed on resume
+        if self.sensor_config.realistic:  # perfect depth adds nothing: data sets made before sensors resume as they were
+            from binpick.sim.sensor import sensor_dict
+
+            data["sensor_values"] = sensor_dict(self.sensor_config)
+        else:
+            data.pop("sensor")
         return data
 
     @property
     def domain_config(self):
         """The :class:`binpick.sim.domain.DomainConfig` that ``domain`` names (loaded once)."""
         return self._domain
+
+    @property
+    def sensor_config(self):
+        """The :class:`binpick.sim.sensor.SensorConfig` that ``sensor`` names (loaded once)."""
+        return self._sensor
 
 
 _LIBRARIES: dict[str, ProductLibrary] = {}
@@ -260,7 +275,8 @@ def world_sim(config: GenerateConfig, world: int, library: ProductLibrary | None
     gripper = (bool(config.policies) or config.grasp_trials > 0) if gripper is None else gripper
     sim = BinWorld(products[0], products[1:], max_copies=config.copies[1],
                    camera=CameraSpec(size=config.image_size), randomise_lighting=config.randomise,
-                   gripper=gripper, seed=config.seed * 1_000_003 + world, domain=config.domain_config)
+                   gripper=gripper, seed=config.seed * 1_000_003 + world, domain=config.domain_config,
+                   sensor=config.sensor_config)
     return sim, products, split
 
 
@@ -321,7 +337,8 @@ def scene_record(scene, index: int, split: str, config: GenerateConfig) -> dict[
                     "position": list(i.position), "pickable": {}, "is_query": False} for i in scene.instances]
     return {"index": index, "file_name": f"images/{index:06d}.png", "depth_file": f"depth/{index:06d}.png",
             "width": config.image_size, "height": config.image_size, "split": split, "target": scene.target_id,
-            "seed": scene.seed, "annotations": annotations, "picked_by": None, "camera": scene.camera}
+            "seed": scene.seed, "annotations": annotations, "picked_by": None, "camera": scene.camera,
+            **({"sensor": scene.sensor} if scene.sensor else {})}
 
 
 def trial_ready(sim) -> None:
@@ -394,18 +411,17 @@ def record_grasp_trials(sim, scene, record: dict[str, Any], trials: int, rng: np
     centre and random shifts), three in four drawn among the feasible ones, each executed from the
     saved scene state; the outcome is whether that instance rose and stayed in the jaws through a
     carry at the pick pipeline's speed."""
-    from binpick.grasping import JawGripper, PinholeCamera, grasp_candidates
+    from binpick.grasping import DepthFrame, JawGripper, PinholeCamera, grasp_candidates
     from binpick.sim.gripper import lift_test, trial_timestep
 
-    camera = PinholeCamera.from_record(scene.camera)
-    points = camera.points(scene.depth)
+    frame = DepthFrame.from_depth(scene.depth, PinholeCamera.from_record(scene.camera))
     trial_ready(sim)
     results = []
     for annotation in record["annotations"]:
         if annotation["visible_fraction"] < TRIAL_VISIBLE:
             continue
         offsets = rng.uniform(-TRIAL_OFFSET, TRIAL_OFFSET, size=(2, 2))
-        _, candidates = grasp_candidates(points, camera, annotation["bbox"], JawGripper(), offsets=offsets)
+        _, candidates = grasp_candidates(frame, annotation["bbox"], JawGripper(), offsets=offsets)
         if not candidates:
             continue
         feasible = [c for c in candidates if c.rejected is None]

@@ -28,7 +28,7 @@ from binpick.sim.bin_scene import BinWorld, Scene
 from binpick.sim.mjcf import CameraSpec
 from binpick.sim.photos import shop_photo
 from binpick.sim.products import ProductLibrary, product_dimensions
-from binpick.grasping import GraspChoice, GraspPlanner, GraspPolicyName, PinholeCamera
+from binpick.grasping import DepthFrame, GraspChoice, GraspPlanner, GraspPolicyName, PinholeCamera
 from binpick.depth import as_camera_depth
 from binpick.picking import GraspPlan, Picker, Plans
 from binpick.picking.picker import jaw_pixels
@@ -93,14 +93,16 @@ class PickPipeline:
     ``oracle=True`` takes the ordered product's boxes from the simulator (most visible first) instead of
     the detector: what the grasp alone achieves, to tell detection failures from grasp failures.
     ``domain`` (a :class:`binpick.sim.domain.DomainConfig`) renders the bins in another domain, e.g.
-    the shifted-domain test set's camera, tote and light. ``size_check`` gives the picker the ordered
+    the shifted-domain test set's camera, tote and light; ``sensor`` (a
+    :class:`binpick.sim.sensor.SensorConfig`) gives its depth as a real sensor would, holes and noise,
+    from a tilted camera over a tote that may not be level. ``size_check`` gives the picker the ordered
     product's catalogue dimensions, so instances clearly bigger than it are not grasped."""
 
     def __init__(self, detector: DetectorNetwork, library: ProductLibrary, grasp: GraspPlanner | str = "learnt",
                  copies: tuple[int, int] = (3, 6), distractors: tuple[int, int] = (2, 3), max_attempts: int = 3,
                  score_threshold: float | None = None, camera: CameraSpec = CameraSpec(size=416),
                  colour_check: float | None = 0.15, oracle: bool = False, colour_rank: float | None = 0.01,
-                 domain=None, size_check: bool = True) -> None:
+                 domain=None, size_check: bool = True, sensor=None) -> None:
         if detector.spec.query != "photo":
             raise ConfigError("the pick pipeline conditions on shop photos: give a detector trained with query: photo")
         planner = grasp if isinstance(grasp, GraspPlanner) else GraspPlanner.load(grasp)
@@ -108,7 +110,7 @@ class PickPipeline:
                              colour_rank=colour_rank, max_grasps=max_attempts)
         self.detector, self.library, self.grasp = detector, library, planner
         self.copies, self.distractors, self.max_attempts = copies, distractors, max_attempts
-        self.camera, self.oracle, self.domain, self.size_check = camera, oracle, domain, size_check
+        self.camera, self.oracle, self.domain, self.size_check, self.sensor = camera, oracle, domain, size_check, sensor
         self._photos: dict[str, tuple[np.ndarray, np.ndarray]] = {}
 
     @property
@@ -149,7 +151,7 @@ class PickPipeline:
         others = [p for p in sorted(self.library.products) if p != product_id]
         chosen = [self.library[others[i]] for i in rng.choice(len(others), size=self.distractors[1], replace=False)]
         world = BinWorld(target, chosen, max_copies=self.copies[1], camera=self.camera, extra_worldbody=order_tote_xml(),
-                         gripper=True, seed=seed, domain=self.domain)
+                         gripper=True, seed=seed, domain=self.domain, sensor=self.sensor)
         return world, rng
 
     def settle(self, world: BinWorld, rng: np.random.Generator, seed: int) -> Scene:
@@ -228,7 +230,7 @@ class PickPipeline:
     def tips(self, plan: GraspPlan, scene: Scene) -> np.ndarray:
         """Where the fingertips go. The fixed policy keeps the grasp point and depth it had before the
         planner existed (from the overhead camera), so its rows stay comparable."""
-        if self.grasp.policy is GraspPolicyName.FIXED:
+        if self.grasp.policy is GraspPolicyName.FIXED and legacy_view(scene):
             return fixed_policy_tips(plan.box, scene.depth, self.camera)
         return np.asarray(plan.position, dtype=float)
 
@@ -262,16 +264,23 @@ class PickPipeline:
                 for number, attempt in enumerate(tried, start=1)]
 
 
-def plan_grasp(planner: GraspPlanner, points: np.ndarray, camera: PinholeCamera, box, depth: np.ndarray,
-               overhead: CameraSpec) -> tuple[GraspChoice, np.ndarray | None]:
+def plan_grasp(planner: GraspPlanner, frame: DepthFrame, box, scene: Scene, overhead: CameraSpec) -> tuple[GraspChoice, np.ndarray | None]:
     """The planner's grasp for a detection and its fingertips' position (world xyz). The fixed policy
-    keeps the grasp point and depth it had before the planner existed, so its rows stay comparable."""
-    choice = planner.choose(points, camera, box)
+    keeps the grasp point and depth it had before the planner existed, so its rows stay comparable,
+    where that grasp point can be had (perfect depth from a camera straight above the tote)."""
+    choice = planner.choose(frame, box)
     if choice.chosen is None:
         return choice, None
-    if planner.policy is GraspPolicyName.FIXED:
-        return choice, fixed_policy_tips(box, depth, overhead)
+    if planner.policy is GraspPolicyName.FIXED and legacy_view(scene):
+        return choice, fixed_policy_tips(box, scene.depth, overhead)
     return choice, choice.chosen.position
+
+
+def legacy_view(scene: Scene) -> bool:
+    """Perfect depth from a camera straight above the tote: what the fixed policy's own grasp point
+    (:func:`fixed_policy_tips`) was made for. Elsewhere it takes its candidate's fingertips."""
+    pose = np.asarray(scene.camera.get("camera_to_world", np.eye(4)), dtype=float)
+    return not scene.sensor and bool(pose[2, 2] < -0.9999)
 
 
 def fixed_policy_tips(box, depth: np.ndarray, overhead: CameraSpec) -> np.ndarray:

@@ -39,17 +39,16 @@ class PlannedGrasp:
         self._scene = None
 
     def prepare(self, scene) -> None:
-        camera = PinholeCamera.from_record(scene.camera)
-        boxes = {i.slot: i.bbox for i in scene.instances}
-        self._scene = (camera, camera.points(scene.depth), boxes)
+        frame = self.planner.frame(scene.depth, PinholeCamera.from_record(scene.camera))
+        self._scene = (frame, {i.slot: i.bbox for i in scene.instances})
 
     def attempt(self, world, slot: int, offset: tuple[float, float] = (0.0, 0.0)) -> bool:
         from binpick.sim.gripper import lift_test, trial_timestep
 
         if self._scene is None:
             raise RuntimeError("PlannedGrasp.prepare(scene) comes before attempt()")
-        camera, points, boxes = self._scene
-        chosen = self.planner.choose(points, camera, boxes[slot]).chosen
+        frame, boxes = self._scene
+        chosen = self.planner.choose(frame, boxes[slot]).chosen
         if chosen is None:
             return False  # nothing feasible: the pipeline would not try it either
         with trial_timestep(world.model):

@@ -1,0 +1,165 @@
+"""Depth as real sensors give it: the sensor model (shadows, noise, tilt), and a planner that expects
+it (holes unknown, not obstacles; heights above a fitted support plane; the pointed instance planned)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from binpick.errors import ConfigError, InputFileError
+from binpick.grasping import DepthFrame, GraspPlanner, PinholeCamera
+from binpick.grasping.candidates import JawGripper, finger_heights
+from binpick.sim.sensor import SensorConfig, axial_sigma, load_sensor, projector_shadow, sense
+
+SIZE, HEIGHT, F = 240, 0.8, 400.0
+K = np.array([[F, 0.0, (SIZE - 1) / 2], [0.0, F, (SIZE - 1) / 2], [0.0, 0.0, 1.0]])
+DOWN = np.array([[1.0, 0, 0, 0], [0, -1.0, 0, 0], [0, 0, -1.0, HEIGHT], [0, 0, 0, 1.0]])  # OpenCV axes, looking down
+
+
+def blocks_depth(blocks) -> np.ndarray:
+    """A camera straight down over a floor at z = 0 with axis-aligned blocks (x0, x1, y0, y1, height)."""
+    pixels = PinholeCamera(K, SIZE, SIZE, DOWN).points(np.full((SIZE, SIZE), HEIGHT))
+    heights = np.zeros((SIZE, SIZE))
+    for x0, x1, y0, y1, h in blocks:
+        inside = (pixels[..., 0] >= x0) & (pixels[..., 0] <= x1) & (pixels[..., 1] >= y0) & (pixels[..., 1] <= y1)
+        heights = np.where(inside, np.maximum(heights, h), heights)
+    return (HEIGHT - heights).astype(np.float32)
+
+
+def box_of(camera: PinholeCamera, x0, x1, y0, y1, h) -> tuple[float, float, float, float]:
+    corners = np.array([[x, y, z] for x in (x0, x1) for y in (y0, y1) for z in (0.0, h)])
+    uv, _ = camera.project(corners)
+    return float(uv[:, 0].min()), float(uv[:, 1].min()), float(np.ptp(uv[:, 0])), float(np.ptp(uv[:, 1]))
+
+
+def test_the_projector_shadows_the_far_side_of_a_tall_edge_and_noise_grows_with_distance():
+    depth = blocks_depth([(-0.02, 0.02, -0.2, 0.2, 0.15)])  # a 15 cm wall along y through the middle
+    right = projector_shadow(depth, F, 0.075, side=1)
+    left = projector_shadow(depth, F, 0.075, side=-1)
+    columns = lambda mask: np.flatnonzero(mask[SIZE // 2])  # noqa: E731
+    wall = np.flatnonzero(depth[SIZE // 2] < HEIGHT - 0.1)
+    assert columns(right).max() < wall.min() and columns(left).min() > wall.max()  # on the side away from the projector
+    expected = F * 0.075 * (1 / (HEIGHT - 0.15) - 1 / HEIGHT)  # the disparity step across the edge, in pixels
+    assert abs(len(columns(right)) - expected) <= 2 and not right[:, :wall.min() - 30].any()
+    assert axial_sigma(np.array(0.4))[()] == pytest.approx(0.0012) and axial_sigma(np.array(1.4))[()] == pytest.approx(0.0031)
+    rng = np.random.default_rng(0)
+    noisy, drawn = sense(np.full((SIZE, SIZE, 3), 128, np.uint8), np.full((SIZE, SIZE), 1.2, np.float32), K,
+                         SensorConfig(realistic=True, lateral_noise=(0, 0), flying_pixels=(0, 0), dropout=(0, 0),
+                                      border=(0, 0), misregistration=(0, 0), noise_scale=(1, 1), subpixel=(64, 64)), rng)
+    read = noisy[noisy > 0]
+    assert abs(read.std() - float(axial_sigma(np.array(1.2)))) < 0.0005 and drawn["missing"] < 0.01
+    same, _ = sense(np.zeros((4, 4, 3), np.uint8), np.ones((4, 4), np.float32), K, load_sensor("perfect"), rng)
+    assert np.array_equal(same, np.ones((4, 4)))  # perfect depth stays as rendered
+    with pytest.raises(ConfigError, match="sensor 'lidar' is neither"):
+        load_sensor("lidar")
+    with pytest.raises(ConfigError, match="baseline"):
+        SensorConfig(baseline=(0.1, 0.05))
+
+
+def test_with_30_percent_of_depth_missing_in_shadows_the_fingers_avoid_the_taller_neighbour():
+    camera = PinholeCamera(K, SIZE, SIZE, DOWN)
+    block = (-0.02, 0.02, -0.03, 0.03, 0.04)  # the instance: 4 x 6 cm, 4 cm tall
+    neighbour = (0.045, 0.09, -0.12, 0.12, 0.16)  # 2.5 cm to its +x side, 16 cm tall
+    others = [(x, x + 0.03, -0.25, 0.25, 0.2) for x in (0.13, 0.19, -0.2, -0.14, -0.08)]  # tall clutter casting shadows
+    truth = blocks_depth([block, neighbour, *others])
+    shadow = projector_shadow(truth, F, 0.15, side=1)
+    assert shadow.mean() >= 0.3  # 30% of the frame unread, all of it beside tall edges
+    depth = np.where(shadow, 0.0, truth).astype(np.float32)
+    frame = DepthFrame.from_depth(depth, camera)
+    assert frame.missing >= 0.3 and np.isfinite(frame.points).all()  # every hole filled
+    choice = GraspPlanner("analytic").choose(frame, box_of(camera, *block))
+    chosen = choice.chosen
+    assert chosen is not None, choice.reason
+    assert np.allclose(chosen.position[:2], 0.0, atol=0.012) and 0.0 < chosen.position[2] < 0.04 - 0.01
+    # judged on the true scene: neither finger lands on the neighbour (nor on anything above the tips' tolerance)
+    true_frame = DepthFrame.from_depth(truth, camera)
+    under, seen = finger_heights(true_frame, chosen.position[None, :2], np.array([chosen.yaw]), JawGripper(), chosen.top)
+    assert seen.all() and under.max() < chosen.position[2] + 0.03 and under.max() < 0.1
+    # the old reading of a hole, an obstacle or the view's end, would have left nothing to grasp: not so here
+    assert "finger outside the camera's view" not in choice.rejections()
+
+
+def test_a_tilted_camera_over_a_tilted_tote_plans_grasps_at_the_surface_height():
+    from binpick.sim import default_library
+    from binpick.sim.bin_scene import BinWorld
+    from binpick.sim.mjcf import CameraSpec
+
+    library = default_library(procedural=0, shapes=0)
+    sensor = SensorConfig(name="tilted", realistic=True, camera_tilt=(15.0, 15.0), tote_tilt=(3.0, 3.0))
+    world = BinWorld(library["robosuite/can"], [library["robosuite/lemon"]], max_copies=2, camera=CameraSpec(size=200),
+                     seed=3, sensor=sensor)
+    try:
+        scene = world.scene(2, 1, seed=3)
+        _, perfect, segmentation = world.render()  # the same scene as the renderer sees it, every pixel exact
+    finally:
+        world.close()
+    truth = PinholeCamera.from_record(scene.camera).points(perfect)
+    truths = {i.slot: (truth[segmentation == i.slot][:, :2].mean(axis=0), float(truth[segmentation == i.slot][:, 2].max()))
+              for i in scene.instances}
+    pose = np.array(scene.camera["camera_to_world"])
+    assert np.degrees(np.arccos(-pose[2, 2])) == pytest.approx(15.0, abs=0.5)  # the calibration records the tilt
+    assert 0.05 < scene.sensor["missing"] < 0.5 and np.hypot(*scene.sensor["tote_tilt_degrees"]) == pytest.approx(3.0, abs=0.01)
+    frame = DepthFrame.from_depth(scene.depth, PinholeCamera.from_record(scene.camera))
+    a, b, _ = frame.plane
+    assert np.degrees(np.arctan(np.hypot(a, b))) == pytest.approx(3.0, abs=0.7)  # the tote floor, found off level
+    planner = GraspPlanner("analytic")
+    planned = 0
+    for instance in scene.instances:
+        if instance.visible_fraction < 0.6:
+            continue
+        centre, top = truths[instance.slot]
+        choice = planner.choose(frame, instance.bbox)
+        assert choice.surface is not None and abs(choice.surface.top - top) < 0.008  # the top read from tilted depth
+        if choice.chosen is not None:
+            planned += 1
+            floor = float(frame.support_z(choice.chosen.position[:2]))
+            assert floor < choice.chosen.position[2] < top - 0.01  # under its top, above the tote floor there
+            assert np.linalg.norm(choice.chosen.position[:2] - centre[:2]) < 0.03
+    assert planned >= 1
+
+
+def test_a_query_box_on_the_one_copy_plans_on_it_and_on_the_empty_floor_is_one_line():
+    from binpick.picking import Picker
+    from binpick.sim import default_library
+    from binpick.sim.bin_scene import BinWorld
+    from binpick.sim.mjcf import CameraSpec
+
+    library = default_library(procedural=0, shapes=0)
+    world = BinWorld(library["robosuite/can"], [library["robosuite/lemon"], library["robosuite/milk"]], max_copies=1,
+                     camera=CameraSpec(size=256), seed=4, sensor=load_sensor("realistic"))
+    try:
+        scene = world.scene(1, 2, seed=4)
+        (can,) = [i for i in scene.instances if i.product_id == "robosuite/can"]
+        centre, top = world.instance_centre_and_top(can.slot)
+    finally:
+        world.close()
+    camera = PinholeCamera.from_record(scene.camera)
+    picker = Picker.load(grasp="analytic")
+    plans = picker.plan(scene.rgb, scene.depth, camera, query_box=can.bbox)
+    first = plans[0]
+    assert first.box == [round(float(v), 2) for v in can.bbox] and first.feasible  # the pointed instance, first
+    assert np.linalg.norm(np.array(first.position[:2]) - centre[:2]) < 0.03 and first.position[2] < top
+    others = picker.plan(scene.rgb, scene.depth, camera, query_box=can.bbox, copies_only=True)
+    assert all(p.box != first.box for p in others)  # the thesis's evaluation: the other copies only
+    heights = DepthFrame.from_depth(scene.depth, camera).heights
+    flat = [(x, y) for y in range(30, 200, 8) for x in range(30, 200, 8)  # a patch of floor with nothing on it
+            if np.ptp(heights[y - 20:y + 44, x - 20:x + 44]) < 0.006 and (scene.segmentation[y:y + 24, x:x + 24] < 0).all()]
+    x, y = flat[0]
+    with pytest.raises(InputFileError, match=rf"^the query box {x},{y},24,24 lies on no object: depth shows only the surface"):
+        picker.plan(scene.rgb, scene.depth, camera, query_box=(x, y, 24, 24))
+    with pytest.raises(InputFileError, match="no valid reading"):
+        picker.plan(scene.rgb, np.zeros_like(scene.depth), camera, query_box=can.bbox)
+
+
+def test_depth_at_a_lower_resolution_of_the_same_aspect_is_resampled_and_the_sample_frame_plans():
+    from binpick.picking import Picker
+    from binpick.picking.frames import read_frame, read_photo
+    from binpick.samples import SAMPLE_FRAME
+
+    rgb, depth, info = read_frame(SAMPLE_FRAME / "rgb.png", SAMPLE_FRAME / "depth.png", SAMPLE_FRAME / "camera.yaml")
+    assert rgb.shape[:2] == (480, 640) and depth.shape == (240, 320) and (depth == 0).mean() > 0.05  # as a sensor gives it
+    assert abs(info.camera.camera_to_world[2, 2]) < 0.999  # a tilted camera
+    plans = Picker.load().plan(rgb, depth, info, photo=read_photo(SAMPLE_FRAME / "photo.png"))
+    assert plans.detections >= 1 and plans.grasps and np.isfinite(plans.grasps[0].position).all()
+    with pytest.raises(InputFileError, match="depth is 320x200 but colour is 640x480"):
+        Picker.load(grasp="analytic").plan(rgb, np.ones((200, 320), np.float32), info, query_box=(1, 1, 5, 5))
