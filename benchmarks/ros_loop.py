@@ -79,14 +79,14 @@ class Ros1:
         self.publishers["depth"].publish(depth)
         self.publishers["info"].publish(info)
 
-    def plan(self, product_id: str, timeout: float, photo=None, size=None) -> dict:
+    def plan(self, product_id: str, timeout: float, photo=None, size=None, query_box=None) -> dict:
         done = threading.Event()
 
         def on_transition(handle) -> None:
             if handle.get_comm_state() == self.actionlib.CommState.DONE:
                 done.set()
 
-        goal = self.types["PlanPickGoal"](product_id=product_id, size=list(size or []))
+        goal = self.types["PlanPickGoal"](product_id=product_id, size=list(size or []), query_box=list(query_box or []))
         if photo is not None:
             from binpick.picking.node import image_fields
 
@@ -190,10 +190,12 @@ class Ros2:
         self.publishers["depth"].publish(self.image_message(depth_mm, "16UC1", now, frame))
         self.publishers["info"].publish(info)
 
-    def plan(self, product_id: str, timeout: float, photo=None, size=None) -> dict:
+    def plan(self, product_id: str, timeout: float, photo=None, size=None, query_box=None) -> dict:
         self.requests += 1
         request = f"r{self.requests}"
-        if photo is None:
+        if query_box is not None:
+            self.goal.publish(self.std.String(data=json.dumps({"id": request, "query_box": list(query_box)})))
+        elif photo is None:
             self.goal.publish(self.std.String(data=json.dumps({"id": request, "product_id": product_id})))
         else:
             header = json.dumps({"id": request, "size": list(size or [])})
@@ -231,8 +233,10 @@ def main() -> None:
     parser.add_argument("--timeout", type=float, default=120.0, help="seconds for the node to start and for each plan")
     parser.add_argument("--json", type=Path, default=None)
     parser.add_argument("--node-args", default="", help="extra options for the node, e.g. '--grasp analytic'")
-    parser.add_argument("--goal", choices=("id", "photo"), default="photo",
-                        help="name the product (the node renders its catalogue photo, once per product) or send its shop photo")
+    parser.add_argument("--goal", default="photo",
+                        help="what each goal gives, cycled over the orders (comma-separated): id (the product; the node "
+                             "renders its catalogue photo, once per product), photo (its shop photo) or box (a query box on "
+                             "its most visible instance, as a person pointing at it)")
     args = parser.parse_args()
     if args.ros == 2 and interfaces() != ["lo"]:  # before anything is loaded: refuse at once
         raise SystemExit(f"ROS 2 runs only inside a namespace with just loopback (unshare -n); here: {interfaces()}")
@@ -251,6 +255,9 @@ def main() -> None:
     from binpick.warehouse.pipeline import OrderResult, PickPipeline
 
     products = [p for p in args.products.split(",") if p]
+    goals = [g for g in args.goal.split(",") if g]
+    if not goals or any(g not in ("id", "photo", "box") for g in goals):
+        raise SystemExit(f"--goal takes id, photo and box (comma-separated), got {args.goal!r}")
     # only the world building, settling and execution of the pipeline are used here: the node plans
     pipeline = PickPipeline(Detector.load(PICKING).network, default_library(), grasp=GraspPlanner("analytic"))
     work = Path(tempfile.mkdtemp(prefix="binpick-ros-loop-"))
@@ -279,13 +286,18 @@ def main() -> None:
 
                 streamer = threading.Thread(target=stream, daemon=True)
                 streamer.start()
-                if args.goal == "photo":
+                goal = goals[order % len(goals)]
+                if goal == "photo":
                     pipeline.photo(product)  # rendered before the clock starts: a shop system has its photos
                 time.sleep(0.3)  # the first frame reaches the node before the goal
                 started = time.perf_counter()
-                photo = cut_out(*pipeline.photo_and_mask(product)) if args.goal == "photo" else None
-                size = product_dimensions(pipeline.library[product]) if args.goal == "photo" else None  # id: the node's catalogue
-                answer = ros.plan(product, args.timeout, photo, size)
+                photo = cut_out(*pipeline.photo_and_mask(product)) if goal == "photo" else None
+                size = product_dimensions(pipeline.library[product]) if goal == "photo" else None  # id: the node's catalogue
+                box = None
+                if goal == "box":
+                    pointed = max((i for i in scene.instances if i.product_id == product), key=lambda i: i.visible_fraction)
+                    box = [float(v) for v in pointed.bbox]
+                answer = ros.plan(product, args.timeout, photo, size, box)
                 latencies.append(1000 * (time.perf_counter() - started))
                 stop.set()
                 streamer.join()

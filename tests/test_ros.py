@@ -58,10 +58,10 @@ def test_a_bin_is_picked_through_the_plan_pick_node():
     from pathlib import Path
 
     loop = Path(__file__).resolve().parents[1] / "benchmarks" / "ros_loop.py"
-    ran = subprocess.run([sys.executable, str(loop), "--ros", "1", "--orders", "1", "--goal", "id", "--timeout", "120"],
+    ran = subprocess.run([sys.executable, str(loop), "--ros", "1", "--orders", "2", "--goal", "id,box", "--timeout", "120"],
                          capture_output=True, text=True, timeout=300)
     assert ran.returncode == 0, ran.stderr[-2000:]
     summary = json.loads(ran.stdout.strip().splitlines()[-1])
-    assert summary["orders"] == 1 and summary["placed"] == 1, summary
+    assert summary["orders"] == 2 and summary["placed"] == 2, summary
     assert summary["frame"] == "world" and summary["latency_ms"]["median"] > 0
     assert summary["overlays"] >= 1 and summary["overlay_size"] == [416, 416]  # the node's picture of its plan

@@ -34,13 +34,13 @@ pytestmark = pytest.mark.skipif(_why_not() is not None, reason=_why_not() or "")
 
 
 def test_a_bin_is_picked_through_the_ros2_node_inside_a_loopback_only_namespace():
-    command = (f"ip link set lo up && exec {ROS2_PYTHON} {ROOT / 'benchmarks' / 'ros_loop.py'} --ros 2 --orders 1 "
-               "--goal photo --timeout 120")
+    command = (f"ip link set lo up && exec {ROS2_PYTHON} {ROOT / 'benchmarks' / 'ros_loop.py'} --ros 2 --orders 2 "
+               "--goal photo,box --timeout 120")
     ran = subprocess.run(["unshare", "-n", "sh", "-c", command], capture_output=True, text=True, timeout=300)
     assert ran.returncode == 0, ran.stderr[-2000:]
     summary = json.loads(ran.stdout.strip().splitlines()[-1])
     assert summary["interfaces"] == ["lo"]  # DDS had no other address to reach
-    assert summary["orders"] == 1 and summary["placed"] == 1, summary
+    assert summary["orders"] == 2 and summary["placed"] == 2, summary
     assert summary["frame"] == "world"
     assert summary["overlays"] >= 1 and summary["overlay_size"] == [416, 416]  # the node's picture of its plan
 

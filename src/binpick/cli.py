@@ -881,9 +881,12 @@ def pick(
 
 @app.command("plan")
 def plan(
-    rgb: Annotated[Path, typer.Option(help="Colour image (PNG/JPEG), registered with the depth image")],
-    depth: Annotated[Path, typer.Option(help="Depth image: 16-bit PNG in millimetres or .npy in metres (0: no reading)")],
-    camera: Annotated[Path, typer.Option(help="camera.yaml: ROS camera_info layout, plus camera_to_base (the camera's pose in the robot's base frame)")],
+    rgb: Annotated[Path | None, typer.Option(help="Colour image (PNG/JPEG), registered with the depth image")] = None,
+    depth: Annotated[Path | None, typer.Option(help="Depth image: 16-bit PNG in millimetres or .npy in metres (0: no reading), "
+                                                    "at the colour's size or one of the same aspect")] = None,
+    camera: Annotated[Path | None, typer.Option(help="camera.yaml: ROS camera_info layout, plus camera_to_base (the camera's pose in the robot's base frame)")] = None,
+    sample: Annotated[bool, typer.Option(help="Plan on the sample frame that ships with binpick (a bin seen by a realistic "
+                                              "RGB-D sensor, tilted; its shop photo unless --query-box)")] = False,
     photo: Annotated[Path | None, typer.Option(help="Shop photo of the ordered product (a transparent PNG's alpha marks the product)")] = None,
     query_box: Annotated[str | None, typer.Option(help="Or: x,y,w,h of the instance to pick in the colour image (planned "
                                                        "first, then the copies of it that the detector finds)")] = None,
@@ -908,6 +911,13 @@ def plan(
     from binpick.picking.frames import read_frame, read_photo
 
     check_range("--max-grasps", max_grasps, 1, 100, integer=True)
+    if sample:
+        from binpick.samples import SAMPLE_FRAME
+
+        rgb, depth, camera = rgb or SAMPLE_FRAME / "rgb.png", depth or SAMPLE_FRAME / "depth.png", camera or SAMPLE_FRAME / "camera.yaml"
+        photo = photo if photo is not None or query_box is not None else SAMPLE_FRAME / "photo.png"
+    if rgb is None or depth is None or camera is None:
+        raise ConfigError("give the frame's --rgb, --depth and --camera (or --sample for the frame that ships with binpick)")
     if (photo is None) == (query_box is None):
         raise ConfigError("give exactly one of --photo (the product's shop photo) or --query-box x,y,w,h")
     if out.suffix.lower() != ".json":
