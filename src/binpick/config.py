@@ -58,6 +58,18 @@ def check_vector(name: str, value: Any, length: int, low: float | None = None, h
     return [float(check_range(f"{name}[{i}]", v, low, high, **bounds)) for i, v in enumerate(value)]
 
 
+def check_pair(name: str, value: Any, low: float, high: float, integer: bool = False) -> tuple:
+    """A range ``[low, high]`` (a single number means ``[v, v]``) within the bounds, low <= high."""
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        value = (value, value)
+    if not isinstance(value, (list, tuple)) or len(value) != 2:
+        raise ConfigError(f"{name} must be a range [low, high], got {value!r}")
+    lo, hi = (check_range(f"{name}[{i}]", v, low, high, integer=integer) for i, v in enumerate(value))
+    if lo > hi:
+        raise ConfigError(f"{name} must be [low, high] with low <= high, got {list(value)}")
+    return (int(lo), int(hi)) if integer else (float(lo), float(hi))
+
+
 def check_bool(name: str, value: Any) -> bool:
     """``value`` if it is true or false (not a string that merely looks truthy)."""
     if not isinstance(value, bool):
@@ -202,6 +214,25 @@ def apply_overrides(data: dict[str, Any], overrides: dict[str, Any] | None, wher
 def load_config(cls: type[T], path: str | Path, overrides: dict[str, Any] | None = None) -> T:
     """A YAML config file with ``--set`` overrides applied, validated once as dataclass ``cls``."""
     return from_dict(cls, apply_overrides(load_yaml(path), overrides), where=Path(path).name)
+
+
+def load_named(cls: type[T], name: str | Path, folder: Path, builtin: str, what: str) -> T:
+    """A config that is named (``builtin``: the class's defaults; another name: ``folder/<name>.yaml``,
+    shipped with binpick) or given as the path of a YAML file; anything else is one line listing the names."""
+    name = str(name)
+    if name == builtin:
+        return cls()
+    path = folder / f"{name}.yaml" if "/" not in name and not name.endswith((".yaml", ".yml")) else Path(name)
+    if not path.is_file():
+        known = ", ".join([builtin, *sorted(p.stem for p in folder.glob("*.yaml"))])
+        raise ConfigError(f"{what} {name!r} is neither a known {what} ({known}) nor a YAML file")
+    return load_config(cls, path)
+
+
+def ranges_dict(instance: Any) -> dict[str, Any]:
+    """A dataclass of ranges as JSON (tuples as lists): what a data set's manifest records."""
+    return {item.name: list(v) if isinstance(v := getattr(instance, item.name), tuple) else v
+            for item in dataclasses.fields(instance)}
 
 
 def load_run_config(cls: type[T], run_dir: str | Path) -> T:

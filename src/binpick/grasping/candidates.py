@@ -293,17 +293,18 @@ def yaws(count: int = YAWS, surface: Surface | None = None) -> list[float]:
 
 
 def describe_many(frame: DepthFrame, surface: Surface, centres, yaws_, tips=None, gripper: JawGripper = JawGripper(),
-                  kinds=None, raise_blocked: bool = False) -> list[GraspCandidate]:
+                  kinds=None, raise_blocked: bool = False, widths: np.ndarray | None = None) -> list[GraspCandidate]:
     """Grasps with the jaws' centres at world ``centres`` (N, 2), closing along ``yaws_`` (N,): their
     fingertips' height (``tips`` (N,), or as deep as :meth:`Surface.tips_range` and the surfaces under
     the fingers allow), the instance's width across the jaws there, the fingers' clearance, and the
     reason each would be rejected (None: feasible). With ``raise_blocked``, a grasp whose fingers
     would land on something above its deepest tips also comes with its tips lifted clear of it (kind
-    ``raised``), as long as they stay MIN_GRIP under the top."""
+    ``raised``), as long as they stay MIN_GRIP under the top. ``widths``: the widths across the jaws,
+    where the caller knows them already."""
     centres = np.asarray(centres, dtype=float).reshape(-1, 2)
     yaws_ = np.mod(np.asarray(yaws_, dtype=float).reshape(-1), np.pi)
     kinds = list(kinds) if kinds is not None else ["even"] * len(centres)
-    width, _ = widths_across(surface, centres, yaws_, gripper)
+    width = widths_across(surface, centres, yaws_, gripper)[0] if widths is None else np.asarray(widths, dtype=float)
     under, seen = finger_heights(frame, centres, yaws_, gripper, surface.top)
     highest = under.max(axis=1)
     deepest, shallowest = surface.tips_range()
@@ -354,16 +355,20 @@ def grasp_candidates(frame: DepthFrame, box, gripper: JawGripper = JawGripper(),
         return None, []
     directions = np.array(yaws(count, surface))
     unit = np.stack([np.cos(directions), np.sin(directions)], axis=1)
-    _, middle = widths_across(surface, np.repeat(surface.centre[None], len(directions), axis=0), directions, gripper)
+    width, middle = widths_across(surface, np.repeat(surface.centre[None], len(directions), axis=0), directions, gripper)
     even = surface.centre + middle[:, None] * unit
-    centres, angles, kinds = [even], [directions], ["even"] * len(directions)
+    # shifting the jaws along their closing direction keeps the band between them: the same width
+    centres, angles, widths, kinds = [even], [directions], [width], ["even"] * len(directions)
     for sign in (-1, 1):
         centres.append(even + sign * SHIFT * unit)
         angles.append(directions)
+        widths.append(width)
         kinds += ["shifted"] * len(directions)
     for offset in ([] if offsets is None else np.asarray(offsets, dtype=float).reshape(-1, 2)):
-        centres.append(surface.centre + offset + 0 * unit)
+        shifted = np.repeat((surface.centre + offset)[None], len(directions), axis=0)
+        centres.append(shifted)
         angles.append(directions)
+        widths.append(widths_across(surface, shifted, directions, gripper)[0])
         kinds += ["offset"] * len(directions)
     return surface, describe_many(frame, surface, np.concatenate(centres), np.concatenate(angles), gripper=gripper,
-                                  kinds=kinds, raise_blocked=True)
+                                  kinds=kinds, raise_blocked=True, widths=np.concatenate(widths))

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from binpick.config import check_range, load_config
+from binpick.config import check_pair, check_range, load_named, ranges_dict
 from binpick.errors import ConfigError
 
 DOMAINS_DIR = Path(__file__).resolve().parent / "domains"  # the committed domains ship with the package
@@ -38,17 +38,6 @@ TRAIN_TEXTURES = ("brass-ambra", "clay", "cream-plaster", "dirt", "gray-felt", "
                   "steel-scratched", "white-plaster", "wood-varnished-panels", "yellow-plaster")
 SHIFTED_TEXTURES = ("blue-wood", "dark-wood", "light-gray-floor-tile", "light-gray-plaster", "white-bricks", "wood-tiles")
 PATTERNS = ("flat", "stripes", "checker", "noise", "label", "dots", "image")
-
-
-def _pair(name: str, value, low: float, high: float) -> tuple[float, float]:
-    if isinstance(value, (int, float)) and not isinstance(value, bool):
-        value = (value, value)
-    if not isinstance(value, (list, tuple)) or len(value) != 2:
-        raise ConfigError(f"{name} must be a range [low, high], got {value!r}")
-    lo, hi = (float(check_range(f"{name}[{i}]", v, low, high)) for i, v in enumerate(value))
-    if lo > hi:
-        raise ConfigError(f"{name} must be [low, high] with low <= high, got {list(value)}")
-    return lo, hi
 
 
 # name: (low, high) bounds every range of that field must stay within
@@ -110,7 +99,7 @@ class DomainConfig:
                 if item.name == "shadows":
                     object.__setattr__(self, item.name, float(check_range(item.name, self.shadows, low, high)))
                     continue
-                value = _pair(item.name, getattr(self, item.name), low, high)
+                value = check_pair(item.name, getattr(self, item.name), low, high)
                 if item.name in ("lights", "clutter", "jpeg_quality"):
                     if not all(float(v).is_integer() for v in value):
                         raise ConfigError(f"{item.name} must be a range of integers, got {list(value)}")
@@ -130,19 +119,12 @@ class DomainConfig:
 
 def load_domain(name: str | Path) -> DomainConfig:
     """``default``, ``random``, ``shifted`` (the committed files) or the path of a YAML file."""
-    name = str(name)
-    if name == "default":
-        return DomainConfig()
-    path = DOMAINS_DIR / f"{name}.yaml" if "/" not in name and not name.endswith((".yaml", ".yml")) else Path(name)
-    if not path.is_file():
-        known = ", ".join(["default", *sorted(p.stem for p in DOMAINS_DIR.glob("*.yaml"))])
-        raise ConfigError(f"domain {name!r} is neither a known domain ({known}) nor a YAML file")
-    return load_config(DomainConfig, path)
+    return load_named(DomainConfig, name, DOMAINS_DIR, "default", "domain")
 
 
 def domain_dict(domain: DomainConfig) -> dict:
     """JSON form (recorded in a data set's manifest and in weights trained on it)."""
-    return {item.name: list(v) if isinstance(v := getattr(domain, item.name), tuple) else v for item in fields(domain)}
+    return ranges_dict(domain)
 
 
 # ---------------------------------------------------------------------- draws

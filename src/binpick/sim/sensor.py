@@ -29,8 +29,9 @@ from pathlib import Path
 
 import numpy as np
 
-from binpick.config import check_range, load_config
+from binpick.config import check_pair, load_named, ranges_dict
 from binpick.errors import ConfigError
+from binpick.sim.domain import uniform as _draw
 
 SENSORS_DIR = Path(__file__).resolve().parent / "sensors"
 
@@ -43,17 +44,6 @@ _BOUNDS = {
     "subpixel": (1, 64), "misregistration": (0, 10), "camera_tilt": (0.0, 45.0), "tote_tilt": (0.0, 8.0),
 }
 _INTEGER = ("border", "subpixel", "misregistration")
-
-
-def _pair(name: str, value, low: float, high: float, integer: bool) -> tuple:
-    if isinstance(value, (int, float)) and not isinstance(value, bool):
-        value = (value, value)
-    if not isinstance(value, (list, tuple)) or len(value) != 2:
-        raise ConfigError(f"{name} must be a range [low, high], got {value!r}")
-    lo, hi = (check_range(f"{name}[{i}]", v, low, high, integer=integer) for i, v in enumerate(value))
-    if lo > hi:
-        raise ConfigError(f"{name} must be [low, high] with low <= high, got {list(value)}")
-    return (int(lo), int(hi)) if integer else (float(lo), float(hi))
 
 
 @dataclass(frozen=True)
@@ -97,7 +87,7 @@ class SensorConfig:
         for item in fields(self):
             if item.name in _BOUNDS:
                 low, high = _BOUNDS[item.name]
-                object.__setattr__(self, item.name, _pair(item.name, getattr(self, item.name), low, high, item.name in _INTEGER))
+                object.__setattr__(self, item.name, check_pair(item.name, getattr(self, item.name), low, high, item.name in _INTEGER))
         if self.projector_side not in ("left", "right", "random"):
             raise ConfigError(f"projector_side must be one of 'left', 'right', 'random', got {self.projector_side!r}")
 
@@ -112,23 +102,12 @@ class SensorConfig:
 
 def load_sensor(name: str | Path) -> SensorConfig:
     """``perfect``, ``realistic`` (the committed files) or the path of a sensor YAML file."""
-    name = str(name)
-    if name == "perfect":
-        return SensorConfig()
-    path = SENSORS_DIR / f"{name}.yaml" if "/" not in name and not name.endswith((".yaml", ".yml")) else Path(name)
-    if not path.is_file():
-        known = ", ".join(["perfect", *sorted(p.stem for p in SENSORS_DIR.glob("*.yaml"))])
-        raise ConfigError(f"sensor {name!r} is neither a known sensor ({known}) nor a YAML file")
-    return load_config(SensorConfig, path)
+    return load_named(SensorConfig, name, SENSORS_DIR, "perfect", "sensor")
 
 
 def sensor_dict(sensor: SensorConfig) -> dict:
     """JSON form (a data set's manifest records the sensor it was made with)."""
-    return {item.name: list(v) if isinstance(v := getattr(sensor, item.name), tuple) else v for item in fields(sensor)}
-
-
-def _draw(rng: np.random.Generator, pair) -> float:
-    return float(rng.uniform(pair[0], pair[1])) if pair[1] > pair[0] else float(pair[0])
+    return ranges_dict(sensor)
 
 
 def tote_tilt(sensor: SensorConfig, rng: np.random.Generator) -> tuple[float, float]:
