@@ -70,8 +70,9 @@ def plane_z(plane: np.ndarray | None, x, y):
 
 
 def fill_holes(depth: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """Depth with every pixel lacking a reading filled from its surroundings: OpenCV's Telea inpainting
-    at half resolution (holes of a few pixels to a few centimetres), upsampled into the holes only.
+    """Depth with every pixel lacking a reading filled from its surroundings: OpenCV's inpainting
+    (Navier-Stokes) at half resolution (holes of a few pixels to a few centimetres), upsampled into
+    the holes only.
     It inpaints whole millimetres in 16 bits: on float images OpenCV's inpainting leaves values far
     outside the surrounding depths."""
     height, width = depth.shape
@@ -82,12 +83,12 @@ def fill_holes(depth: np.ndarray, valid: np.ndarray) -> np.ndarray:
     if holes.all():
         return depth
     if holes.any():
-        small = cv2.inpaint(small, holes, 3, cv2.INPAINT_TELEA)
+        small = cv2.inpaint(small, holes, 3, cv2.INPAINT_NS)
     up = cv2.resize(small.astype(np.float32) / 1000.0, (width, height), interpolation=cv2.INTER_LINEAR)
     return np.where(valid, depth, up).astype(np.float32)
 
 
-def support_plane(points: np.ndarray, valid: np.ndarray, samples: int = 3000, iterations: int = 150,
+def support_plane(points: np.ndarray, valid: np.ndarray, samples: int = 1500, iterations: int = 100,
                   seed: int = 0) -> np.ndarray | None:
     """The surface the products rest on, (a, b, c) with z = a x + b y + c in the base frame: among
     near-level planes (within MAX_PLANE_TILT of level) through sampled read points of the image's
