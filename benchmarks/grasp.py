@@ -2,8 +2,11 @@
 
     binpick data generate --out runs/data/grasp_trials_realistic --scenes 800 --policies '' --grasp-trials 4 \\
         --copies 3,6 --distractors 2,3 --held-out can,mug,toy --workers 2 --sensor realistic   # trials (resumable)
-    python benchmarks/grasp.py train [--data runs/data/grasp_trials]            # trains, ships the weights
-    python benchmarks/grasp.py eval [--bins 40]                                 # results/grasp.json
+    binpick data generate --out runs/data/grasp_trials_perfect --scenes 400 --policies '' --grasp-trials 4 \\
+        --copies 3,6 --distractors 2,3 --held-out can,mug,toy --workers 2 --seed 1                  # perfect depth too
+    python benchmarks/grasp.py train                  # configs/grasp_quality.yaml: trains, ships the weights
+    python benchmarks/grasp.py eval --data runs/data/grasp_trials_realistic --data runs/data/grasp_trials_perfect \\
+        [--bins 40]                                   # results/grasp.json: both kinds of depth
     binpick data generate --out runs/data/bins_learnt --scenes 1000 --policies learnt --workers 2 \
         --held-out can,mug,toy --set split_rule=random                         # pickability by the learnt policy
     python benchmarks/grasp.py pickability                                     # fine-tunes ROD on it, before/after
@@ -39,7 +42,9 @@ SEED = 40_000  # bins away from the data set's and the pick benchmark's
 POLICIES = ["fixed", "analytic", "learnt"]
 
 
-def train(data: Path, epochs: int) -> None:
+def train() -> None:
+    """The shipped model's recipe (configs/grasp_quality.yaml), resumed if its newest run stopped."""
+    from binpick.config import load_config
     from binpick.grasping.quality import SHIPPED, GraspQuality
     from binpick.grasping.training import QualityTrainConfig, QualityTrainer
     from binpick.terminal import RichCallback
@@ -48,8 +53,7 @@ def train(data: Path, epochs: int) -> None:
     if folder is not None and not finished(folder):
         trainer = QualityTrainer.resume(folder)
     else:
-        trainer = QualityTrainer.new(QualityTrainConfig(data=str(data.relative_to(_common.ROOT) if data.is_absolute() else data),
-                                                        epochs=epochs), RUNS)
+        trainer = QualityTrainer.new(load_config(QualityTrainConfig, _common.ROOT / "configs" / "grasp_quality.yaml"), RUNS)
     with RichCallback() as callback:
         metrics = trainer.run(callback)
     print(f"best val AUC {metrics['best_val_auc']} after {metrics['epochs']} epochs in {trainer.run_dir}", flush=True)
@@ -136,7 +140,7 @@ def top1(bins: int, sensor_name: str = "perfect") -> dict:
             "plan_ms_median": round(float(np.median(plan_ms)), 1), "plan_ms_p95": round(float(np.percentile(plan_ms, 95)), 1)}
 
 
-def evaluate(data: Path, bins: int) -> None:
+def evaluate(data: list[Path], bins: int) -> None:
     import json
 
     import torch
@@ -148,7 +152,8 @@ def evaluate(data: Path, bins: int) -> None:
     previous = json.loads((_common.RESULTS / "grasp.json").read_text()) if (_common.RESULTS / "grasp.json").is_file() else {}
     by_sensor = {sensor: top1(bins, sensor) for sensor in ("perfect", "realistic")}
     result = {"weights": str(SHIPPED.relative_to(_common.ROOT)), "training": {k: meta.get(k) for k in ("train_trials", "train_success_rate", "val_auc", "epoch", "run", "data")},
-              "held_out_trials": held_out_auc(data), **by_sensor["perfect"],
+              "held_out_trials": held_out_auc(data[0]), "held_out_trials_by_data": {path.name: held_out_auc(path) for path in data},
+              **by_sensor["perfect"],
               "top1_success_by_sensor": {sensor: row["top1_success"] for sensor, row in by_sensor.items()},
               "top1_by_sensor": by_sensor, "targets": {"plan_ms_median": 100, "realistic_learnt": 0.8, "realistic_below_perfect": 0.05}}
     if "pickability" in previous:
@@ -337,19 +342,19 @@ def pickability(heads_given: list[str] | None = None) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("phase", choices=["train", "eval", "pickability"])
-    parser.add_argument("--data", type=Path, default=DATA)
-    parser.add_argument("--epochs", type=int, default=40)
+    parser.add_argument("--data", type=Path, action="append", help="eval: data sets of grasp trials whose held-out "
+                                                                  "products' trials to score (repeatable; default: the realistic one)")
     parser.add_argument("--bins", type=int, default=40)
     parser.add_argument("--head", action="append", help="pickability: also the fine-tuned detector with a pickability head, a run "
                                                         "of configs/pickability_photo_learnt.yaml (a folder, or 'newest' under runs/grasp); repeatable")
     args = parser.parse_args()
     os.chdir(_common.ROOT)
     if args.phase == "train":
-        train(args.data, args.epochs)
+        train()
     elif args.phase == "pickability":
         pickability(args.head)
     else:
-        evaluate(args.data, args.bins)
+        evaluate(args.data or [DATA], args.bins)
 
 
 if __name__ == "__main__":

@@ -62,7 +62,7 @@ TINY: list[tuple[str, str]] = [
     (r"--scenes 2000\b", "--scenes 24"),  # 3 worlds of 8: one each for val, test and train (split_rule=random)
     (r"--policies x,y", "--policies y"),  # the one the rod_* configs and `data show --policy y` read
     (r"--scenes 400\b", "--scenes 6 --scenes-per-world 1 --val-fraction 0.34"),
-    (r"--scenes 480\b", "--scenes 6 --scenes-per-world 1 --val-fraction 0.5"),  # grasp trials: train and val worlds
+    (r"--scenes 800\b", "--scenes 6 --scenes-per-world 1 --val-fraction 0.5"),  # grasp trials: train and val worlds
     (r"--grasp-trials \d+", "--grasp-trials 1"),
     (r"--workers \d+", "--workers 1"),
     (r"--orders \d+", "--orders 1"),

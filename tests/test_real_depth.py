@@ -163,3 +163,24 @@ def test_depth_at_a_lower_resolution_of_the_same_aspect_is_resampled_and_the_sam
     assert plans.detections >= 1 and plans.grasps and np.isfinite(plans.grasps[0].position).all()
     with pytest.raises(InputFileError, match="depth is 320x200 but colour is 640x480"):
         Picker.load(grasp="analytic").plan(rgb, np.ones((200, 320), np.float32), info, query_box=(1, 1, 5, 5))
+
+
+def test_data_generate_with_the_realistic_sensor_records_it_and_resumes_only_with_it(tmp_path):
+    import json
+
+    from binpick.depth import read_depth
+    from binpick.warehouse.dataset import DataGeneration, GenerateConfig
+
+    settings = dict(out=str(tmp_path / "bins"), scenes=2, policies=[], workers=1, image_size=96, copies=(2, 2), distractors=(1, 1),
+                    targets=["can"], scenes_per_world=1, val_fraction=0.5)
+    DataGeneration.new(GenerateConfig(**settings, sensor="realistic")).run()
+    record = json.loads((tmp_path / "bins" / "scenes" / "000000.json").read_text())
+    assert record["sensor"]["name"] == "realistic" and 0.02 < record["sensor"]["missing"] < 0.6
+    depth = read_depth(tmp_path / "bins" / record["depth_file"])
+    assert 0.02 < float((depth == 0).mean()) < 0.6  # the holes travel in the file as 0 (no reading)
+    manifest = json.loads((tmp_path / "bins" / "dataset.json").read_text())
+    assert manifest["config"]["sensor"] == "realistic" and manifest["config"]["sensor_values"]["baseline"] == [0.05, 0.08]
+    with pytest.raises(ConfigError, match="made with other settings"):
+        DataGeneration.new(GenerateConfig(**settings | {"scenes": 3}))  # perfect depth would be another data set
+    perfect = GenerateConfig(**settings | {"out": str(tmp_path / "perfect")})
+    assert "sensor" not in perfect.comparable()  # data sets made before sensors existed resume as they were

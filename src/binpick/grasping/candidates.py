@@ -278,12 +278,11 @@ def widths_across(surface: Surface, centres: np.ndarray, yaws: np.ndarray, gripp
     along = np.einsum("nmk,nk->nm", rel, d)
     across = rel[..., 0] * -d[:, None, 1] + rel[..., 1] * d[:, None, 0]
     band = np.abs(across) <= gripper.finger_width / 2 + 0.004
+    empty = ~band.any(axis=1)
     low = np.where(band, along, np.inf).min(axis=1)
     high = np.where(band, along, -np.inf).max(axis=1)
-    empty = ~band.any(axis=1)
-    width = np.where(empty, 0.0, high - low)
-    middle = np.where(empty, 0.0, (high + low) / 2)
-    return width, middle
+    low, high = np.where(empty, 0.0, low), np.where(empty, 0.0, high)  # nothing in the band: no width
+    return high - low, (high + low) / 2
 
 
 def yaws(count: int = YAWS, surface: Surface | None = None) -> list[float]:

@@ -34,7 +34,7 @@ CHECKPOINT_FORMAT = "binpick-grasp-quality-checkpoint-1"
 
 @dataclass(frozen=True)
 class QualityTrainConfig:
-    data: str  # a data set made with --grasp-trials
+    data: str | list[str]  # a data set made with --grasp-trials, or several (their trials pooled)
     name: str = "grasp_quality"
     epochs: int = 30
     batch_size: int = 128
@@ -51,6 +51,12 @@ class QualityTrainConfig:
         check_range("weight_decay", self.weight_decay, 0.0, 1.0)
         check_range("width", self.width, 1, 256, integer=True)
         check_range("threads", self.threads, 1, 256, integer=True)
+        if isinstance(self.data, list) and not self.data:
+            raise ConfigError("data must name at least one data set")
+
+    @property
+    def data_sets(self) -> list[str]:
+        return [self.data] if isinstance(self.data, str) else list(self.data)
 
 
 @dataclass
@@ -64,8 +70,13 @@ class TrialSet:
         return len(self.labels)
 
 
-def load_trials(data: str | Path, split: str, spec: MapSpec = MapSpec()) -> TrialSet:
-    """Every recorded trial of the data set's ``split`` scenes, as height maps, features and outcomes."""
+def load_trials(data: str | Path | list, split: str, spec: MapSpec = MapSpec()) -> TrialSet:
+    """Every recorded trial of the data set's ``split`` scenes (of several data sets: all of theirs),
+    as height maps, features and outcomes."""
+    if isinstance(data, (list, tuple)):
+        parts = [load_trials(one, split, spec) for one in data]
+        return TrialSet(np.concatenate([p.maps for p in parts]), np.concatenate([p.features for p in parts]),
+                        np.concatenate([p.labels for p in parts]), [name for p in parts for name in p.products])
     data = Path(data)
     scenes = sorted((data / "scenes").glob("*.json"))
     if not scenes:
@@ -119,8 +130,9 @@ class QualityTrainer:
     def new(cls, config: QualityTrainConfig, runs: Path = Path("runs")) -> QualityTrainer:
         import yaml
 
-        if not (Path(config.data) / "scenes").is_dir():
-            raise ConfigError(f"data {config.data!r} is not a data set folder (binpick data generate --grasp-trials N)")
+        for data in config.data_sets:
+            if not (Path(data) / "scenes").is_dir():
+                raise ConfigError(f"data {data!r} is not a data set folder (binpick data generate --grasp-trials N)")
         return cls(config, new_run_dir(Path(runs), config.name, yaml.safe_dump(to_dict(config), sort_keys=False)))
 
     @classmethod
@@ -132,8 +144,8 @@ class QualityTrainer:
 
         config = self.config
         torch.set_num_threads(config.threads)
-        callback.message(f"reading trials from {config.data}")
-        train, val = load_trials(config.data, "train"), load_trials(config.data, "val")
+        callback.message(f"reading trials from {', '.join(config.data_sets)}")
+        train, val = load_trials(config.data_sets, "train"), load_trials(config.data_sets, "val")
         if len(train) < config.batch_size or len(val) == 0:
             raise ConfigError(f"{config.data!r} has {len(train)} train and {len(val)} val trials: "
                               f"too few (more scenes, or a larger --grasp-trials)")
@@ -178,7 +190,7 @@ class QualityTrainer:
         finally:
             writer.close()
         best = GraspQuality.load(self.run_dir / "best.safetensors")
-        best.save(self.run_dir / "model.safetensors", {"data": config.data, "train_trials": len(train),
+        best.save(self.run_dir / "model.safetensors", {"data": config.data_sets, "train_trials": len(train),
                                                        "train_success_rate": round(positive, 4)})
         metrics = {"name": config.name, "epochs": self.epoch, "best_val_auc": self.best_auc if self.best_auc >= 0 else None,
                    "history": self.history}

@@ -141,7 +141,7 @@ def read_camera_info(path: str | Path) -> CameraInfo:
     path = require_file(Path(path), "camera file")
     where = repr(str(path))
     try:
-        data = yaml.safe_load(path.read_text())
+        data = yaml.load(path.read_text(), Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))  # libyaml where present: 10x faster
     except (yaml.YAMLError, UnicodeDecodeError) as error:
         raise InputFileError(f"camera file {where} is not valid YAML ({str(error).splitlines()[0][:80]})") from None
     if not isinstance(data, dict):
