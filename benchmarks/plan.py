@@ -130,18 +130,17 @@ def file_orders(domain: str, orders: int, sensor: str = "perfect") -> dict:
 def single_copy(orders: int, sensor: str) -> dict:
     """Bins with one instance of the ordered product (and other products): the query box is drawn on
     it, as a user pointing at it would, and the picker plans on the pointed instance first, then any
-    copies its detector finds; the simulator executes the plans in turn (up to three grasps). Placed:
+    copies its detector finds; the simulator executes the best grasp, and after a failed one
+    the robot looks again and plans anew (up to three grasps: ``PickPipeline.pick_pointed``). Placed:
     the pointed instance reached the order tote; right object: of everything lifted, the share that
-    was the pointed instance."""
-    from binpick.depth import as_camera_depth
+    was the pointed instance; pointed or nothing: the orders in which nothing else was lifted."""
     from binpick.errors import BinpickError
-    from binpick.grasping import PinholeCamera
     from binpick.warehouse.grasping import Reason
     from binpick.warehouse.pipeline import OrderResult, summarise
 
     pipeline = pipeline_for("default", sensor, copies=(1, 1))
     products = products_for("default", pipeline)
-    results, refused, started = [], 0, time.perf_counter()
+    results, refused, only_pointed, started = [], 0, [], time.perf_counter()
     for order in range(orders):
         product, seed = products[order % len(products)], SEEDS["single"] + order
         world, rng = pipeline.build_world(product, seed)
@@ -155,24 +154,21 @@ def single_copy(orders: int, sensor: str) -> dict:
             x, y, w, h = mine[0].bbox
             box = (x - 2, y - 2, w + 4, h + 4)  # drawn by a person: a little loose
             try:
-                plans = pipeline.picker.plan(scene.rgb, as_camera_depth(scene.depth), PinholeCamera.from_record(scene.camera),
-                                             query_box=box)
+                pipeline.pick_pointed(world, scene, box, result)
             except BinpickError as error:
                 refused += 1
                 print(f"single order {order}: {product} refused: {error}", flush=True)
-                results.append(result)
-                continue
-            result.detections = plans.detections
-            pipeline.execute(world, scene, plans, result)
             results.append(result)
+            lifted = [a.lifted_product for a in result.attempts if a.lifted_product is not None]
+            only_pointed.append(all(p == product for p in lifted))
         finally:
             world.close()
-        first = result.attempts[0] if result.attempts else None
-        print(f"single order {order}: {product} {'placed' if result.success else result.reason}"
-              f"{'' if first is None or first.outcome is Reason.NO_GRASP else ''}", flush=True)
+        print(f"single order {order}: {product} {'placed' if result.success else result.reason} "
+              f"({result.grasps} grasp{'s' if result.grasps != 1 else ''})", flush=True)
     summary = summarise(results, time.perf_counter() - started)
     return {"sensor": sensor, "orders": summary["orders"], "pick_success": summary["pick_success"],
-            "right_object": summary["right_product"], "lifts": summary["lifts"], "refused": refused,
+            "right_object": summary["right_product"], "pointed_or_nothing": round(sum(only_pointed) / max(1, len(only_pointed)), 4),
+            "lifts": summary["lifts"], "grasps_per_order": summary["attempts_per_order"], "refused": refused,
             "reasons": summary["reasons"], "by_product": summary["by_product"]}
 
 

@@ -32,7 +32,7 @@ def box_of(camera: PinholeCamera, x0, x1, y0, y1, h) -> tuple[float, float, floa
     return float(uv[:, 0].min()), float(uv[:, 1].min()), float(np.ptp(uv[:, 0])), float(np.ptp(uv[:, 1]))
 
 
-def test_the_projector_shadows_the_far_side_of_a_tall_edge_and_noise_grows_with_distance():
+def test_the_projector_shadows_the_far_side_of_a_tall_edge_noise_grows_with_distance_and_borders_and_registration_are_a_sensors():
     depth = blocks_depth([(-0.02, 0.02, -0.2, 0.2, 0.15)])  # a 15 cm wall along y through the middle
     right = projector_shadow(depth, F, 0.075, side=1)
     left = projector_shadow(depth, F, 0.075, side=-1)
@@ -43,11 +43,25 @@ def test_the_projector_shadows_the_far_side_of_a_tall_edge_and_noise_grows_with_
     assert abs(len(columns(right)) - expected) <= 2 and not right[:, :wall.min() - 30].any()
     assert axial_sigma(np.array(0.4))[()] == pytest.approx(0.0012) and axial_sigma(np.array(1.4))[()] == pytest.approx(0.0031)
     rng = np.random.default_rng(0)
-    noisy, drawn = sense(np.full((SIZE, SIZE, 3), 128, np.uint8), np.full((SIZE, SIZE), 1.2, np.float32), K,
-                         SensorConfig(realistic=True, lateral_noise=(0, 0), flying_pixels=(0, 0), dropout=(0, 0),
-                                      border=(0, 0), misregistration=(0, 0), noise_scale=(1, 1), subpixel=(64, 64)), rng)
-    read = noisy[noisy > 0]
-    assert abs(read.std() - float(axial_sigma(np.array(1.2)))) < 0.0005 and drawn["missing"] < 0.01
+    quiet = dict(realistic=True, lateral_noise=(0, 0), flying_pixels=(0, 0), dropout=(0, 0), border=(0, 0), misregistration=(0, 0),
+                 noise_scale=(1, 1), subpixel=(64, 64), hard_instances=(0, 0))
+    spreads = []
+    for distance in (0.6, 1.4):  # the sensor's noise grows with distance as Nguyen et al. measured it
+        noisy, drawn = sense(np.full((SIZE, SIZE, 3), 128, np.uint8), np.full((SIZE, SIZE), distance, np.float32), K,
+                             SensorConfig(**quiet), rng)
+        spreads.append(float(noisy[noisy > 0].std()))
+        assert abs(spreads[-1] - float(axial_sigma(np.array(distance)))) < 0.0004 and drawn["missing"] < 0.01
+    assert spreads[1] > 1.5 * spreads[0]
+    # the edge the projector cannot reach loses twice the band of the others; depth moves against colour
+    flat = np.full((SIZE, SIZE), 0.8, np.float32)
+    edged, _ = sense(np.full((SIZE, SIZE, 3), 128, np.uint8), flat, K, SensorConfig(**quiet | {"border": (5, 5), "projector_side": "right"}), rng)
+    lost = (edged[SIZE // 2] == 0)
+    assert lost[:10].all() and not lost[10] and lost[-5:].all() and not lost[-6]
+    shifted, drawn = sense(np.full((SIZE, SIZE, 3), 128, np.uint8), flat + np.linspace(0, 0.1, SIZE, dtype=np.float32)[None, :], K,
+                           SensorConfig(**quiet | {"misregistration": (2, 2), "noise_scale": (0, 0)}), rng)
+    dx, dy = drawn["misregistration"]
+    assert abs(dx) == 2 and abs(dy) == 2 and shifted[SIZE // 2, SIZE // 2] == pytest.approx(
+        0.8 + 0.1 * (SIZE // 2 - dx) / (SIZE - 1), abs=0.003)
     same, _ = sense(np.zeros((4, 4, 3), np.uint8), np.ones((4, 4), np.float32), K, load_sensor("perfect"), rng)
     assert np.array_equal(same, np.ones((4, 4)))  # perfect depth stays as rendered
     with pytest.raises(ConfigError, match="sensor 'lidar' is neither"):
@@ -125,11 +139,11 @@ def test_a_query_box_on_the_one_copy_plans_on_it_and_on_the_empty_floor_is_one_l
     from binpick.sim.mjcf import CameraSpec
 
     library = default_library(procedural=0, shapes=0)
-    world = BinWorld(library["robosuite/can"], [library["robosuite/lemon"], library["robosuite/milk"]], max_copies=1,
+    world = BinWorld(library["robosuite/can"], [library["robosuite/lemon"], library["robosuite/milk"]], max_copies=3,
                      camera=CameraSpec(size=256), seed=4, sensor=load_sensor("realistic"))
     try:
-        scene = world.scene(1, 2, seed=4)
-        (can,) = [i for i in scene.instances if i.product_id == "robosuite/can"]
+        scene = world.scene(3, 2, seed=4)
+        can = max((i for i in scene.instances if i.product_id == "robosuite/can"), key=lambda i: i.visible_fraction)
         centre, top = world.instance_centre_and_top(can.slot)
     finally:
         world.close()
@@ -140,15 +154,25 @@ def test_a_query_box_on_the_one_copy_plans_on_it_and_on_the_empty_floor_is_one_l
     assert first.box == [round(float(v), 2) for v in can.bbox] and first.feasible  # the pointed instance, first
     assert np.linalg.norm(np.array(first.position[:2]) - centre[:2]) < 0.03 and first.position[2] < top
     others = picker.plan(scene.rgb, scene.depth, camera, query_box=can.bbox, copies_only=True)
-    assert all(p.box != first.box for p in others)  # the thesis's evaluation: the other copies only
+    assert others and [p.box for p in plans[1:]] == [p.box for p in others][:len(plans) - 1]  # then its copies, as before
+    x0, y0, w0, h0 = can.bbox
+    for plan in others:  # the thesis's evaluation: the other copies only, never the pointed one
+        x, y, w, h = plan.box
+        overlap = max(0.0, min(x + w, x0 + w0) - max(x, x0)) * max(0.0, min(y + h, y0 + h0) - max(y, y0))
+        assert overlap / (w * h + w0 * h0 - overlap) < 0.5
     heights = DepthFrame.from_depth(scene.depth, camera).heights
-    flat = [(x, y) for y in range(30, 200, 8) for x in range(30, 200, 8)  # a patch of floor with nothing on it
-            if np.ptp(heights[y - 20:y + 44, x - 20:x + 44]) < 0.006 and (scene.segmentation[y:y + 24, x:x + 24] < 0).all()]
+    flat = [(x, y) for y in range(24, 210, 6) for x in range(24, 210, 6)  # a patch of floor with nothing on it
+            if np.ptp(heights[y - 12:y + 36, x - 12:x + 36]) < 0.012 and (scene.segmentation[y - 12:y + 36, x - 12:x + 36] < 0).all()]
+    assert flat, "no patch of empty floor in this bin"
     x, y = flat[0]
     with pytest.raises(InputFileError, match=rf"^the query box {x},{y},24,24 lies on no object: depth shows only the surface"):
         picker.plan(scene.rgb, scene.depth, camera, query_box=(x, y, 24, 24))
     with pytest.raises(InputFileError, match="no valid reading"):
         picker.plan(scene.rgb, np.zeros_like(scene.depth), camera, query_box=can.bbox)
+    with pytest.raises(ConfigError, match="lies outside the 256x256 image"):
+        picker.plan(scene.rgb, scene.depth, camera, query_box=(250, 10, 20, 20))
+    with pytest.raises(ConfigError, match="4 finite numbers"):
+        picker.plan(scene.rgb, scene.depth, camera, query_box=(1, 2, 3))
 
 
 def test_depth_at_a_lower_resolution_of_the_same_aspect_is_resampled_and_the_sample_frame_plans():
@@ -156,6 +180,10 @@ def test_depth_at_a_lower_resolution_of_the_same_aspect_is_resampled_and_the_sam
     from binpick.picking.frames import read_frame, read_photo
     from binpick.samples import SAMPLE_FRAME
 
+    from binpick.picking.picker import register_depth
+
+    coarse = np.arange(12, dtype=np.float32).reshape(3, 4)  # each reading covers its 2x2 block at the colour's size
+    assert np.array_equal(register_depth(coarse, (6, 8)), np.repeat(np.repeat(coarse, 2, axis=0), 2, axis=1))
     rgb, depth, info = read_frame(SAMPLE_FRAME / "rgb.png", SAMPLE_FRAME / "depth.png", SAMPLE_FRAME / "camera.yaml")
     assert rgb.shape[:2] == (480, 640) and depth.shape == (240, 320) and (depth == 0).mean() > 0.05  # as a sensor gives it
     assert abs(info.camera.camera_to_world[2, 2]) < 0.999  # a tilted camera

@@ -251,8 +251,8 @@ def surface_heights(frame: DepthFrame, xy: np.ndarray, z_ref) -> tuple[np.ndarra
 def finger_heights(frame: DepthFrame, centres: np.ndarray, yaws: np.ndarray, gripper: JawGripper, z_ref: float,
                    samples: tuple[int, int] = (3, 5)) -> tuple[np.ndarray, np.ndarray]:
     """For N grasps (jaws' centres (N, 2), yaws (N,)): the highest surface under each open finger,
-    (N, 2), judged on the pixels the sensor read where a finger's footprint has any (on the filled
-    depth where it has none), and whether both fingers are inside the camera's view (N,)."""
+    (N, 2), judged on the pixels the sensor read where it read most of a finger's footprint (on the
+    filled depth as well where it did not), and whether both fingers are inside the camera's view (N,)."""
     d = np.stack([np.cos(yaws), np.sin(yaws)], axis=1)
     j = np.stack([-d[:, 1], d[:, 0]], axis=1)
     reach = gripper.opening / 2 + gripper.finger_thickness / 2
@@ -265,8 +265,10 @@ def finger_heights(frame: DepthFrame, centres: np.ndarray, yaws: np.ndarray, gri
     heights = heights.reshape(len(centres), 2, -1)
     read = read.reshape(len(centres), 2, -1)
     seen = np.isfinite(heights).all(axis=(1, 2))
-    any_read = read.any(axis=2, keepdims=True)
-    judged = np.where(read | ~any_read, heights, -np.inf)  # read pixels where there are any, else the filled depth
+    # read pixels where at least half the footprint was read (a shadow's edge beside it says nothing
+    # of what the finger meets); a footprint mostly unread (a dark or shiny neighbour) on the filled depth
+    mostly_read = read.mean(axis=2, keepdims=True) >= 0.5
+    judged = np.where(read | ~mostly_read, heights, -np.inf)
     return np.max(judged, axis=2), seen
 
 

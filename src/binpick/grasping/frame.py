@@ -88,7 +88,7 @@ def fill_holes(depth: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return np.where(valid, depth, up).astype(np.float32)
 
 
-def support_plane(points: np.ndarray, valid: np.ndarray, samples: int = 1500, iterations: int = 100,
+def support_plane(points: np.ndarray, valid: np.ndarray, samples: int = 1500, iterations: int = 300,
                   seed: int = 0) -> np.ndarray | None:
     """The surface the products rest on, (a, b, c) with z = a x + b y + c in the base frame: among
     near-level planes (within MAX_PLANE_TILT of level) through sampled read points of the image's
@@ -96,15 +96,25 @@ def support_plane(points: np.ndarray, valid: np.ndarray, samples: int = 1500, it
     preferring the lowest of those with nearly as many (a product's broad top is a plane too), refit
     by least squares on its points. None when no plane holds enough of them (a bin filled to the top)."""
     height, width = valid.shape
-    window = (slice(height // 6, height - height // 6), slice(width // 6, width - width // 6))
-    cloud = points[window][valid[window]]
-    cloud = cloud[np.isfinite(cloud).all(axis=1)].astype(np.float64)
+    rng = np.random.default_rng(seed)
+    rows = rng.integers(height // 6, height - height // 6, size=4 * samples)  # pixels of the central window
+    cols = rng.integers(width // 6, width - width // 6, size=4 * samples)
+    cloud = points[rows, cols][valid[rows, cols]].astype(np.float64)
+    cloud = cloud[np.isfinite(cloud).all(axis=1)][:samples]
     if len(cloud) < 50:
         return None
-    rng = np.random.default_rng(seed)
-    if len(cloud) > samples:
-        cloud = cloud[rng.choice(len(cloud), samples, replace=False)]
-    triples = cloud[rng.integers(0, len(cloud), size=(iterations, 3))]
+    # half the triples drawn anywhere, half from one neighbourhood of the image (three pixels within
+    # 20 of each other): in a full bin a patch of visible floor gives whole triples, where three
+    # points drawn anywhere rarely all land on it
+    local = iterations // 2
+    r = rng.integers(height // 6, height - height // 6, size=local)[:, None] + np.concatenate(
+        [np.zeros((local, 1), int), rng.integers(-20, 21, size=(local, 2))], axis=1)
+    c = rng.integers(width // 6, width - width // 6, size=local)[:, None] + np.concatenate(
+        [np.zeros((local, 1), int), rng.integers(-20, 21, size=(local, 2))], axis=1)
+    r, c = np.clip(r, 0, height - 1), np.clip(c, 0, width - 1)
+    near = points[r, c].astype(np.float64)[valid[r, c].all(axis=1)]
+    triples = np.concatenate([near[np.isfinite(near).all(axis=(1, 2))],
+                              cloud[rng.integers(0, len(cloud), size=(iterations - local, 3))]])
     normals = np.cross(triples[:, 1] - triples[:, 0], triples[:, 2] - triples[:, 0])
     lengths = np.linalg.norm(normals, axis=1)
     usable = lengths > 1e-9
@@ -123,7 +133,9 @@ def support_plane(points: np.ndarray, valid: np.ndarray, samples: int = 1500, it
     z_at_centre = -(offsets + normals[:, :2] @ centre) / normals[:, 2]
     strong = counts >= 0.5 * counts.max()  # the lowest of the well-supported planes: the floor, not a product's top
     best = int(np.flatnonzero(strong)[np.argmin(z_at_centre[strong])])
-    inliers = cloud[distances[:, best] < PLANE_TOLERANCE]
-    design = np.column_stack([inliers[:, 0], inliers[:, 1], np.ones(len(inliers))])
-    coefficients, *_ = np.linalg.lstsq(design, inliers[:, 2], rcond=None)
+    inliers = distances[:, best] < PLANE_TOLERANCE
+    design = np.column_stack([cloud[:, 0], cloud[:, 1], np.ones(len(cloud))])
+    for _ in range(3):  # refit on the plane's points, then take the points of the refit plane
+        coefficients, *_ = np.linalg.lstsq(design[inliers], cloud[inliers, 2], rcond=None)
+        inliers = np.abs(design @ coefficients - cloud[:, 2]) < PLANE_TOLERANCE
     return coefficients

@@ -165,12 +165,8 @@ class PlanRequests:
             size = None
         if size is None and product_id and self.size_for is not None:
             size = self.size_for(product_id)
-        box = None
-        if query_box is not None and len(query_box):
-            box = [float(v) for v in query_box]
-            if len(box) != 4 or not all(np.isfinite(box)) or box[2] <= 0 or box[3] <= 0:
-                raise BinpickError(f"query_box must be x, y, w, h with a positive width and height, got {box}")
-        elif photo is None or photo.size == 0:
+        box = list(query_box) if query_box is not None and len(query_box) else None  # the picker checks it
+        if box is None and (photo is None or photo.size == 0):
             if not product_id:
                 raise BinpickError("the request names no product, photo or query box")
             if self.photo_for is None:
@@ -182,9 +178,6 @@ class PlanRequests:
         if frame is None:
             raise BinpickError(f"no synchronised colour + depth + camera_info frame within {self.frame_timeout:g} s")
         if box is not None:
-            height, width = frame.rgb.shape[:2]
-            if box[0] < 0 or box[1] < 0 or box[0] + box[2] > width or box[1] + box[3] > height:
-                raise BinpickError(f"query_box {box} lies outside the {width}x{height} colour image")
             return frame, self.picker.plan(frame.rgb, frame.depth, frame.camera, query_box=box, max_grasps=max_grasps or None,
                                            size=size, copies_only=copies_only)
         plans = self.picker.plan(frame.rgb, frame.depth, frame.camera, photo=photo, max_grasps=max_grasps or None, size=size)

@@ -19,10 +19,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
 
 from binpick.errors import ConfigError, InputFileError
 from binpick.grasping import DepthFrame, GraspChoice, GraspPlanner, PinholeCamera
-from binpick.grasping.planner import NOTHING_THERE
 from binpick.depth import depth_problem
 from binpick.picking.camera_info import CameraInfo, matrix_to_quaternion
 from binpick.detection.photos import photo_mask
@@ -42,15 +42,6 @@ def larger_than(surface, size, margin: float = 0.02, relative: float = 0.15) -> 
     major, minor = surface.extents()
     slack = lambda side: max(margin, relative * side)  # noqa: E731
     return major > first + slack(first) or minor > second + slack(second) or surface.height > first + slack(first)
-
-
-def box_iou(a, b) -> float:
-    """Intersection over union of two x, y, w, h boxes."""
-    ax, ay, aw, ah = (float(v) for v in a)
-    bx, by, bw, bh = (float(v) for v in b)
-    overlap = max(0.0, min(ax + aw, bx + bw) - max(ax, bx)) * max(0.0, min(ay + ah, by + bh) - max(ay, by))
-    union = aw * ah + bw * bh - overlap
-    return overlap / union if union > 0 else 0.0
 
 
 def grasp_orientation(yaw: float) -> list[float]:
@@ -160,6 +151,20 @@ def register_depth(depth: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     return cv2.resize(np.asarray(depth, dtype=np.float32), (shape[1], shape[0]), interpolation=cv2.INTER_NEAREST)
 
 
+def as_query_box(box, width: int, height: int) -> np.ndarray:
+    """A query box as 4 finite numbers x, y, w, h inside a ``width`` x ``height`` image; one line if not."""
+    from binpick.detection.predict import check_query_box
+
+    try:
+        array = np.asarray(box, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        raise ConfigError(f"a query box is 4 numbers x, y, w, h, got {box!r}") from None
+    if array.shape != (4,) or not np.all(np.isfinite(array)):
+        raise ConfigError(f"a query box is 4 finite numbers x, y, w, h, got {array.tolist()}")
+    check_query_box(array, width, height)
+    return array
+
+
 def check_frame(rgb: np.ndarray, depth: np.ndarray, camera: PinholeCamera) -> None:
     """Colour and depth that the calibration describes (depth registered to the colour camera, at its
     size or one of the same aspect); depth in metres."""
@@ -258,6 +263,8 @@ class Picker:
         info = as_camera_info(camera)
         check_frame(rgb, depth, info.camera)
         depth = register_depth(np.asarray(depth), np.asarray(rgb).shape[:2])
+        if query_box is not None:
+            query_box = as_query_box(query_box, info.camera.width, info.camera.height)
         if photo is not None:
             photo, alpha = split_photo(photo)
             photo_product_mask = alpha if photo_product_mask is None else photo_product_mask
@@ -278,16 +285,18 @@ class Picker:
         else:
             from binpick.detection.predict import predict
 
-            query_box = None if query_box is None else np.asarray(query_box, dtype=float)
             model = self._detector_for(query_box)
             query_image = None if query_box is not None else (  # the product mask travels as alpha, for framing
                 photo if photo_product_mask is None else np.dstack([photo, np.where(photo_product_mask, 255, 0).astype(np.uint8)]))
             prediction = predict(model, rgb, query_box=query_box, query_image=query_image,
                                  score_threshold=self.candidate_threshold, depth=frame.filled)  # holes filled, as the planner sees it
             found, scores = prediction.boxes, prediction.scores
-            if query_box is not None:  # the detector may find the pointed instance too: it is planned as pointed
-                keep = [box_iou(b, query_box) < 0.5 for b in found]
-                found, scores = found[keep].reshape(-1, 4), scores[keep]
+            if query_box is not None and len(found):  # the detector may find the pointed instance too: it is planned as pointed
+                from binpick.detection.ops import box_iou, xywh_to_xyxy
+
+                overlap = box_iou(xywh_to_xyxy(torch.as_tensor(found, dtype=torch.float32)),
+                                  xywh_to_xyxy(torch.as_tensor(query_box[None], dtype=torch.float32)))[:, 0].numpy()
+                found, scores = found[overlap < 0.5].reshape(-1, 4), scores[overlap < 0.5]
             timing["detect"] = 1000 * (time.perf_counter() - tick)
             tick = time.perf_counter()
             similarities = self.colour_similarities(rgb, frame.heights, found, photo, photo_product_mask, query_box)
@@ -314,10 +323,8 @@ class Picker:
     def pointed_instance(self, frame: DepthFrame, query_box) -> GraspChoice:
         """The grasp for the instance a query box points at; a box over nothing standing out (only the
         floor beneath it in depth) is one clear line."""
-        from binpick.errors import InputFileError
-
         choice = self.grasp.choose(frame, query_box)
-        if choice.surface is None and choice.reason == NOTHING_THERE:
+        if choice.surface is None:
             x, y, w, h = (float(v) for v in query_box)
             raise InputFileError(f"the query box {x:g},{y:g},{w:g},{h:g} lies on no object: depth shows only the surface "
                                  "beneath it (draw the box around one instance of the product)")

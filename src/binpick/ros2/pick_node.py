@@ -104,7 +104,9 @@ def make_node(requests: PlanRequests, camera_to_base: np.ndarray, base_frame: st
             request_id, product_id, max_grasps = str(goal.get("id", "")), str(goal.get("product_id", "")), int(goal.get("max_grasps", 0))
             size = [float(v) for v in goal["size"]] if goal.get("size") else None
             query_box = [float(v) for v in goal["query_box"]] if goal.get("query_box") else None
-            copies_only = bool(goal.get("copies_only", False))
+            copies_only = goal.get("copies_only", False)
+            if not isinstance(copies_only, bool):
+                raise ValueError(f"copies_only must be true or false, got {copies_only!r}")
         except (ValueError, AttributeError, TypeError) as error:
             results.publish(std_msgs.msg.String(data=json.dumps({"id": "", "status": "aborted", "text": f"bad goal: {error}"})))
             return

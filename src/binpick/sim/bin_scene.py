@@ -230,18 +230,26 @@ class BinWorld:
         sensing = np.random.default_rng([seed, 0x5E45])  # apart from the drops: a scene's perfect and realistic twins settle alike
         if draw is None and self.sensor is not None and self.sensor.tilts_camera:
             draw = self._tilt_camera(sensing)
+        self._used = used
+        return self._observe(self.camera_record(draw), int(seed), rng, sensing)
+
+    def look_again(self, scene: Scene, seed: int) -> Scene:
+        """The bin as it is now (after a grasp moved things), through the scene's camera: a new frame,
+        the sensor's faults drawn anew from ``seed``."""
+        return self._observe(scene.camera, scene.seed, np.random.default_rng([seed, 1]), np.random.default_rng([seed, 0x5E45]))
+
+    def _observe(self, record: dict, seed: int, rng: np.random.Generator, sensing: np.random.Generator) -> Scene:
         rgb, depth, segmentation = self.render()
-        instances = self._annotate(used, segmentation)
+        instances = self._annotate(self._used, segmentation)
         if self.domain is not None and self.domain.post_processing:
             from binpick.sim.domain import post_process
 
             rgb = post_process(rgb, self.domain, rng)
-        record = self.camera_record(draw)
         drawn = {}
         if self.sensor is not None:
             depth, drawn = sense(rgb, depth, np.array(record["K"]), self.sensor, sensing, segmentation)
             drawn = {"name": self.sensor.name, "tote_tilt_degrees": [round(float(np.degrees(t)), 3) for t in self.tote_tilt], **drawn}
-        return Scene(rgb, depth, segmentation, instances, self.target.id, int(seed), self.data.qpos.copy(), record, drawn)
+        return Scene(rgb, depth, segmentation, instances, self.target.id, seed, self.data.qpos.copy(), record, drawn)
 
     def _tilt_camera(self, rng: np.random.Generator):
         """Tilt the fixed overhead camera away from straight down by the sensor's range, aimed at the

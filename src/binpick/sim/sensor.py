@@ -5,8 +5,8 @@ The renderer's depth is perfect: every pixel read, exact, a camera straight abov
 structured-light or active-stereo camera differs in ways a grasp planner must survive:
 
 - **missing readings** where the projector (or the second camera), offset from the camera by a
-  baseline, cannot see the surface: a shadow beside every tall edge, on the projector's side
-  (:func:`projector_shadow`); on dark, specular or transparent-looking surfaces and at grazing
+  baseline, cannot see the surface: a shadow beside every tall edge, on the side away from the
+  projector (:func:`projector_shadow`); on dark, specular or transparent-looking surfaces and at grazing
   angles; in a band at the image border; and in random blobs;
 - **axial noise** growing with distance (Nguyen, Izadi & Lovell 2012: sigma(z) = 1.2 mm +
   1.9 mm (z - 0.4 m)^2 for a structured-light sensor), **lateral noise** that moves edges by a pixel,
@@ -41,7 +41,7 @@ _BOUNDS = {
     "specular_level": (0.0, 1.0), "specular_dropout": (0.0, 1.0), "grazing_angle": (30.0, 90.0),
     "hard_instances": (0.0, 1.0), "hard_dropout": (0.0, 1.0), "border": (0, 100), "dropout": (0.0, 0.9),
     "blob_size": (1.0, 200.0), "noise_scale": (0.0, 10.0), "lateral_noise": (0.0, 5.0), "flying_pixels": (0.0, 1.0),
-    "subpixel": (1, 64), "misregistration": (0, 10), "camera_tilt": (0.0, 45.0), "tote_tilt": (0.0, 8.0),
+    "subpixel": (1, 64), "misregistration": (0, 10), "camera_tilt": (0.0, 45.0), "tote_tilt": (0.0, 5.0),
 }
 _INTEGER = ("border", "subpixel", "misregistration")
 
@@ -69,7 +69,7 @@ class SensorConfig:
     grazing_angle: tuple[float, float] = (75.0, 82.0)
     hard_instances: tuple[float, float] = (0.1, 0.2)
     hard_dropout: tuple[float, float] = (0.3, 0.7)
-    border: tuple[int, int] = (2, 10)  # pixels lost at the image border (the projector's side: up to twice)
+    border: tuple[int, int] = (2, 10)  # pixels lost at the image border (twice as many on the side away from the projector)
     dropout: tuple[float, float] = (0.0, 0.03)  # share of the image lost in random blobs
     blob_size: tuple[float, float] = (3.0, 12.0)  # their size in pixels
     # noise: sigma(z) = noise_scale * (1.2 mm + 1.9 mm (z - 0.4 m)^2)
@@ -226,17 +226,16 @@ def sense(rgb: np.ndarray, depth: np.ndarray, K: np.ndarray, sensor: SensorConfi
     missing |= _blobs((h, w), _draw(rng, sensor.dropout), _draw(rng, sensor.blob_size), rng)
     border = int(round(_draw(rng, sensor.border)))
     if border:
-        wide = 2 * border  # the projector's side loses more: nothing there is lit
+        wide = 2 * border  # the edge away from the projector loses more: the projector does not reach it
         missing[:border], missing[-border:] = True, True
         if side > 0:
-            missing[:, :border], missing[:, -wide:] = True, True
-        else:
             missing[:, :wide], missing[:, -border:] = True, True
+        else:
+            missing[:, :border], missing[:, -wide:] = True, True
     depth = np.where(missing, np.float32(0.0), depth)
     # 5. depth registered to colour a pixel or two off
-    offset = int(sensor.misregistration[1])
-    if offset:
-        dx, dy = (int(rng.integers(-offset, offset + 1)) for _ in range(2))
+    if sensor.misregistration[1]:
+        dx, dy = (int(round(_draw(rng, sensor.misregistration))) * int(rng.choice([-1, 1])) for _ in range(2))
         drawn["misregistration"] = [dx, dy]
         depth = np.roll(depth, (dy, dx), axis=(0, 1))
         if dy > 0:

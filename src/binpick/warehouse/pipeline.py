@@ -227,6 +227,31 @@ class PickPipeline:
                 return
             result.reason = Reason.WRONG_PRODUCT if lifted not in (None, result.product) else outcome.reason
 
+    def pick_pointed(self, world: BinWorld, scene: Scene, query_box, result: OrderResult) -> None:
+        """Pick the instance a person pointed at (``query_box``, pixels of ``scene``'s frame) as a robot
+        would: plan on it (then on the copies of it the detector finds), execute the best feasible grasp, and after
+        a failed one look at the bin again and plan anew, up to ``max_attempts`` grasps. When the box
+        holds nothing any more (the instance left it), stop: nothing else is grasped in its place."""
+        from binpick.errors import InputFileError
+
+        for attempt in range(self.max_attempts):
+            camera = PinholeCamera.from_record(scene.camera)
+            try:
+                plans = self.picker.plan(scene.rgb, as_camera_depth(scene.depth), camera, query_box=query_box, max_grasps=1)
+            except InputFileError:  # nothing stands in the box any more
+                break
+            result.detections = max(result.detections, plans.detections)
+            chosen = next(iter(plans.grasps), None)
+            if chosen is None:
+                result.attempts.append(Attempt(plans[0].box if len(plans) else list(query_box), 1.0, None, [], Reason.NO_GRASP,
+                                               None, rejected=plans[0].rejected if len(plans) else {}))
+                result.reason = Reason.NO_GRASP
+                break
+            self.execute(world, scene, [chosen], result)
+            if result.success:
+                return
+            scene = world.look_again(scene, result.seed * 31 + attempt + 1)
+
     def tips(self, plan: GraspPlan, scene: Scene) -> np.ndarray:
         """Where the fingertips go. The fixed policy keeps the grasp point and depth it had before the
         planner existed (from the overhead camera), so its rows stay comparable."""
