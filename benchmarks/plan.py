@@ -1,21 +1,26 @@
 """Pick planning from a camera's files and through ROS (thesis ch. 6).
 
-    python benchmarks/plan.py files [--orders 30] [--default-orders 20]
-    python benchmarks/plan.py latency [--frames 30] [--ros-orders 20]
+    python benchmarks/plan.py files [--sensor perfect|realistic] [--orders 30] [--default-orders 100]
+    python benchmarks/plan.py single [--sensor realistic] [--orders 42]
+    python benchmarks/plan.py latency [--sensor realistic] [--frames 30] [--ros-orders 20]
 
 ``files``: orders on the shifted-domain set-up (its camera, tote and light; its held-out products can,
 mug, toy), each bin planned twice: by the simulator pipeline (render -> Picker.plan on arrays ->
 execute) and by ``binpick plan`` on the bin's exported files (rgb.png, depth.png in mm, camera.yaml,
-photo.png), whose plan.json the simulator then executes in the same bin. Both run the same planner;
-the rows say how often they placed and how often they agreed. ``--default-orders`` does the same
-on the default set-up (the products the detector was trained on), where the detector works.
+photo.png, ``--size`` the product's catalogue dimensions as the pipeline checks them), whose plan.json
+the simulator then executes in the same bin. Both run the same planner; the rows say how often they
+placed and how often they agreed. ``--default-orders`` does the same on the default set-up (the
+products the detector was trained on), where the detector works. ``--sensor realistic`` runs each
+set-up's sensor-realistic twin (``binpick/sim/sensors/realistic.yaml``).
+
+``single``: bins with one copy of the ordered product, the query box drawn on it (:func:`single_copy`).
 
 ``latency``: planning time per frame from the exported files (read + plan, in one process after a
 warm-up), and the round trip through each ROS version's node (`benchmarks/ros_loop.py`; ROS 2 inside
 ``unshare -n``). Run it on an otherwise idle machine.
 
-Both write their keys into results/plan.json (``file_orders``, ``latency_ms.{api,ros1,ros2}``) and
-the plan section of docs/RESULTS.md.
+Each writes its keys into results/plan.json (``file_orders``, ``file_orders_by_sensor``,
+``single_copy``, ``latency_ms.{api,ros1,ros2}``) and the plan section of docs/RESULTS.md.
 """
 
 from __future__ import annotations
@@ -71,6 +76,7 @@ def file_orders(domain: str, orders: int, sensor: str = "perfect") -> dict:
     from binpick.depth import as_camera_depth
     from binpick.warehouse.export import cut_out, export_frame
     from binpick.warehouse.grasping import Reason
+    from binpick.sim.products import product_dimensions
     from binpick.warehouse.pipeline import OrderResult, summarise
 
     pipeline = pipeline_for(domain, sensor)
@@ -89,9 +95,10 @@ def file_orders(domain: str, orders: int, sensor: str = "perfect") -> dict:
                                   cut_out(*pipeline.photo_and_mask(product)), {"product": product, "seed": seed, "domain": domain,
                                                                                "sensor": scene.sensor or {"name": "perfect"}})
             tick = time.perf_counter()
+            size = ",".join(f"{v:.4f}" for v in product_dimensions(pipeline.library[product]))  # the catalogue's, as the pipeline checks
             ran = subprocess.run(CLI + ["plan", "--rgb", str(folder / "rgb.png"), "--depth", str(folder / "depth.png"),
                                         "--camera", str(folder / "camera.yaml"), "--photo", str(folder / "photo.png"),
-                                        "--out", str(folder / "plan.json"), "--overlay", str(folder / "overlay.png")],
+                                        "--size", size, "--out", str(folder / "plan.json"), "--overlay", str(folder / "overlay.png")],
                                  capture_output=True, text=True)
             cli_seconds.append(time.perf_counter() - tick)
             if ran.returncode != 0:
@@ -100,8 +107,9 @@ def file_orders(domain: str, orders: int, sensor: str = "perfect") -> dict:
             plans = [GraspPlan(**p) for p in written["plans"]]
             photo = cut_out(*pipeline.photo_and_mask(product))
             camera = PinholeCamera.from_record(scene.camera)
+            dimensions = product_dimensions(pipeline.library[product])
             for key, depth in (("float", scene.depth), ("millimetres", as_camera_depth(scene.depth))):
-                memory = pipeline.picker.plan(scene.rgb, depth, camera, photo=photo)
+                memory = pipeline.picker.plan(scene.rgb, depth, camera, photo=photo, size=dimensions)
                 same_as_memory[key].append([(p.box, p.position) for p in memory] == [(p.box, p.position) for p in plans])
             result = OrderResult(order, product, seed, False, Reason.NO_DETECTION, detections=written["detections"])
             if written["detections"] and not plans:
@@ -285,7 +293,7 @@ def main() -> None:
     parser.add_argument("--sensor", default="perfect", help="files/single: perfect or realistic depth (the set-ups' "
                                                             "sensor-realistic twins); latency: the exported frames to time")
     parser.add_argument("--orders", type=int, default=30)
-    parser.add_argument("--default-orders", type=int, default=20)
+    parser.add_argument("--default-orders", type=int, default=100)
     parser.add_argument("--frames", type=int, default=30)
     parser.add_argument("--ros-orders", type=int, default=20)
     args = parser.parse_args()
