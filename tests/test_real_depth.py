@@ -212,3 +212,28 @@ def test_data_generate_with_the_realistic_sensor_records_it_and_resumes_only_wit
         DataGeneration.new(GenerateConfig(**settings | {"scenes": 3}))  # perfect depth would be another data set
     perfect = GenerateConfig(**settings | {"out": str(tmp_path / "perfect")})
     assert "sensor" not in perfect.comparable()  # data sets made before sensors existed resume as they were
+
+
+def test_the_pipeline_picks_the_pointed_instance_and_nothing_else():
+    from binpick.detection import Detector
+    from binpick.detection.detector import PICKING
+    from binpick.sim import default_library
+    from binpick.sim.mjcf import CameraSpec
+    from binpick.warehouse.grasping import Reason
+    from binpick.warehouse.pipeline import OrderResult, PickPipeline
+
+    library = default_library(procedural=0, shapes=0)
+    pipeline = PickPipeline(Detector.load(PICKING).network, library, copies=(1, 1), distractors=(2, 2),
+                            camera=CameraSpec(size=256), sensor=load_sensor("realistic"))
+    world, rng = pipeline.build_world("robosuite/can", 7)
+    try:
+        scene = pipeline.settle(world, rng, 7)
+        (can,) = [i for i in scene.instances if i.product_id == "robosuite/can"]
+        again = world.look_again(scene, 1)  # a new frame of the same bin: same camera, the sensor's faults drawn anew
+        assert again.camera == scene.camera and not np.array_equal(again.depth, scene.depth)
+        result = OrderResult(0, "robosuite/can", 7, False, Reason.NO_DETECTION)
+        pipeline.pick_pointed(world, scene, can.bbox, result)
+    finally:
+        world.close()
+    lifted = [a.lifted_product for a in result.attempts if a.lifted_product is not None]
+    assert result.success and set(lifted) == {"robosuite/can"}, result
