@@ -35,7 +35,7 @@ pytestmark = pytest.mark.skipif(_why_not() is not None, reason=_why_not() or "")
 
 def test_a_bin_is_picked_through_the_ros2_node_inside_a_loopback_only_namespace():
     command = (f"ip link set lo up && exec {ROS2_PYTHON} {ROOT / 'benchmarks' / 'ros_loop.py'} --ros 2 --orders 2 "
-               "--goal photo,box --timeout 120")
+               "--goal photo,box --timeout 120 --products robosuite/can,pybullet/duck")  # bins placed at the first grasp
     ran = subprocess.run(["unshare", "-n", "sh", "-c", command], capture_output=True, text=True, timeout=300)
     assert ran.returncode == 0, ran.stderr[-2000:]
     summary = json.loads(ran.stdout.strip().splitlines()[-1])
