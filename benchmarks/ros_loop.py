@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -103,6 +104,27 @@ class Ros1:
         poses = [[g.pose.position.x, g.pose.position.y, g.pose.position.z, g.pose.orientation.x, g.pose.orientation.y,
                   g.pose.orientation.z, g.pose.orientation.w] for g in result.grasps]
         return {"plans": plans, "poses": poses, "frame": result.grasps[0].header.frame_id if result.grasps else plans["frame"]}
+
+    def publish_raw(self, topic: str, fields: dict, stamp: float) -> None:
+        """One camera message with the given fields, as a broken or hostile publisher would send it."""
+        kind = self.msgs.CameraInfo if topic == "info" else self.msgs.Image
+        message = kind(**{("K" if k == "k" else "D" if k == "d" else k): v for k, v in fields.items()})
+        message.header.stamp, message.header.frame_id = self.rospy.Time.from_sec(stamp), "camera_color_optical_frame"
+        self.publishers[topic].publish(message)
+
+    def raw_goal(self, fields: dict, timeout: float) -> dict:
+        """Send a goal with the given fields (``photo``: Image fields); its status and text."""
+        done = threading.Event()
+        photo = fields.pop("photo", None)
+        goal = self.types["PlanPickGoal"](**fields)
+        for key, value in (photo or {}).items():
+            setattr(goal.photo, key, value)
+        handle = self.client.send_goal(goal, transition_cb=lambda h: done.set() if h.get_comm_state() == self.actionlib.CommState.DONE else None)
+        if not done.wait(timeout):
+            return {"status": "no answer", "text": ""}
+        status = handle.get_goal_status()
+        return {"status": "succeeded" if status == self.actionlib.GoalStatus.SUCCEEDED else "aborted"
+                if status == self.actionlib.GoalStatus.ABORTED else str(status), "text": handle.get_goal_status_text()}
 
     def close(self) -> None:
         self.client = None
@@ -209,6 +231,41 @@ class Ros2:
         poses = [g["position"] + g["orientation"] for g in answer["grasps"]]
         return {"plans": answer["plans"], "poses": poses, "frame": answer["frame"]}
 
+    def publish_raw(self, topic: str, fields: dict, stamp: float) -> None:
+        """One camera message with the given fields, as a broken or hostile publisher would send it."""
+        import array as array_
+
+        from builtin_interfaces.msg import Time
+
+        kind = self.msgs.CameraInfo if topic == "info" else self.msgs.Image
+        values = dict(fields)
+        if "data" in values:
+            values["data"] = array_.array("B", values["data"])
+        message = kind(**values)
+        message.header.stamp, message.header.frame_id = Time(sec=int(stamp), nanosec=int(1e9 * (stamp % 1))), "camera_color_optical_frame"
+        self.publishers[topic].publish(message)
+
+    def raw_goal(self, fields: dict, timeout: float) -> dict:
+        """Send a goal: ``{"json": text}`` on the goal topic or ``{"photo": Image fields, "frame_id": ...}``
+        on the photo topic; the answer addressed to ``fields["id"]`` (or to no id)."""
+        import array as array_
+
+        request = fields.get("id", "")
+        with self.answered:
+            self.answers.pop(request, None)
+        if "json" in fields:
+            self.goal.publish(self.std.String(data=fields["json"]))
+        else:
+            photo = dict(fields["photo"])
+            photo["data"] = array_.array("B", photo.get("data", b""))
+            message = self.msgs.Image(**photo)
+            message.header.frame_id = fields.get("frame_id", request)
+            self.goal_photo.publish(message)
+        with self.answered:
+            if not self.answered.wait_for(lambda: request in self.answers, timeout):
+                return {"status": "no answer", "text": ""}
+            return self.answers.pop(request)
+
     def close(self) -> None:
         self.node.terminate()
         try:
@@ -218,6 +275,110 @@ class Ros2:
         self.executor.shutdown()
         self.client.destroy_node()
         self.rclpy.try_shutdown()
+
+
+def hostile_camera_messages(width: int, height: int, K) -> list[tuple[str, str, dict]]:
+    """(case, topic, fields) of camera messages a broken driver or an attacker sends: each must be
+    dropped with a warning while the node keeps serving."""
+    K = [float(v) for v in K.ravel()]
+    good_info = {"width": width, "height": height, "distortion_model": "plumb_bob", "d": [0.0] * 5, "k": K}
+    row = width * 3
+    return [
+        ("colour: unknown encoding", "colour", {"encoding": "yuv422", "height": height, "width": width, "step": width * 2,
+                                                "data": bytes(width * 2 * height)}),
+        ("colour: data shorter than height x step", "colour", {"encoding": "rgb8", "height": height, "width": width, "step": row,
+                                                               "data": bytes(row)}),
+        ("colour: zero size", "colour", {"encoding": "rgb8", "height": 0, "width": 0, "step": 0, "data": b""}),
+        ("colour: step shorter than a row", "colour", {"encoding": "rgb8", "height": 2, "width": 4, "step": 3, "data": bytes(6)}),
+        ("colour: 100000 x 100000 declared, 12 bytes sent", "colour", {"encoding": "rgb8", "height": 100_000, "width": 100_000,
+                                                                       "step": 300_000, "data": bytes(12)}),
+        ("colour: step 4 GB", "colour", {"encoding": "rgb8", "height": 1, "width": 1, "step": 4_000_000_000, "data": bytes(3)}),
+        ("depth: a colour encoding", "depth", {"encoding": "rgb8", "height": height, "width": width, "step": row, "data": bytes(row * height)}),
+        ("depth: unknown encoding", "depth", {"encoding": "16SC1", "height": height, "width": width, "step": width * 2,
+                                              "data": bytes(width * 2 * height)}),
+        ("camera_info: K all zero", "info", {**good_info, "k": [0.0] * 9}),
+        ("camera_info: unknown distortion model", "info", {**good_info, "distortion_model": "kannala_brandt_9"}),
+        ("camera_info: 3 distortion numbers for plumb_bob", "info", {**good_info, "d": [0.1, 0.0, 0.0]}),
+        ("camera_info: width 0", "info", {**good_info, "width": 0}),
+        ("camera_info: NaN in K", "info", {**good_info, "k": [float("nan")] + K[1:]}),
+        ("camera_info: focal length 1e-6", "info", {**good_info, "k": [1e-6, 0.0, K[2], 0.0, 1e-6, K[5], 0.0, 0.0, 1.0]}),
+        ("camera_info: last row of K not 0 0 1", "info", {**good_info, "k": K[:6] + [1.0, 1.0, 1.0]}),
+        ("camera_info: infinite distortion", "info", {**good_info, "d": [float("inf"), 0.0, 0.0, 0.0, 0.0]}),
+    ]
+
+
+def hostile_goals(version: int, width: int, height: int) -> list[tuple[str, dict]]:
+    """(case, goal) of goals that must each be answered with an aborted result naming the problem."""
+    photo_ok = {"encoding": "rgb8", "height": 8, "width": 8, "step": 24, "data": bytes(192)}
+    bad_photos = [("photo: unknown encoding", {**photo_ok, "encoding": "yuv422"}),
+                  ("photo: data shorter than height x step", {**photo_ok, "data": bytes(20)}),
+                  ("photo: 100000 x 100000 declared", {**photo_ok, "height": 100_000, "width": 100_000, "step": 300_000}),
+                  ("photo: width 0 with data", {**photo_ok, "width": 0, "step": 0})]
+    if version == 1:
+        return [
+            ("max_grasps -1", {"product_id": "robosuite/can", "max_grasps": -1}),
+            ("max_grasps 2^31 - 1", {"product_id": "robosuite/can", "max_grasps": 2**31 - 1}),
+            ("size NaN", {"product_id": "robosuite/can", "size": [float("nan")] * 3}),
+            ("size infinite", {"product_id": "robosuite/can", "size": [float("inf"), 0.1, 0.1]}),
+            ("size of 2 numbers", {"product_id": "robosuite/can", "size": [0.1, 0.1]}),
+            ("size negative", {"product_id": "robosuite/can", "size": [-0.1, 0.1, 0.1]}),
+            ("query_box NaN", {"query_box": [float("nan")] * 4}),
+            ("query_box of 3 numbers", {"query_box": [1.0, 2.0, 3.0]}),
+            ("query_box off the image", {"query_box": [width * 10.0, height * 10.0, 20.0, 20.0]}),
+            ("query_box of zero size", {"query_box": [10.0, 10.0, 0.0, 0.0]}),
+            ("query_box infinite", {"query_box": [0.0, 0.0, float("inf"), 10.0]}),
+            ("product unknown", {"product_id": "no/such/product"}),
+            ("nothing asked", {}),
+            ("product id 10,000 characters", {"product_id": "x" * 10_000}),
+            ("product id with a NUL", {"product_id": "robosuite/can\x00"}),
+            *[(name, {"photo": photo}) for name, photo in bad_photos],
+            ("photo and query box both", {"photo": photo_ok, "query_box": [1.0, 1.0, 5.0, 5.0]}),
+        ]
+    deep = "[" * 100_000 + "]" * 100_000
+    cases = [
+        ("not JSON", {"json": "plan the can please"}),
+        ("a JSON list", {"json": "[1, 2]"}),
+        ("nested 100,000 deep", {"json": deep}),
+        ("nested 100,000 deep inside an object", {"json": '{"id": "d", "size": ' + deep + "}"}),  # too long to read its id
+        ("max_grasps Infinity", {"json": '{"id": "h1", "product_id": "robosuite/can", "max_grasps": Infinity}', "id": "h1"}),
+        ("max_grasps 1e400", {"json": '{"id": "h2", "product_id": "robosuite/can", "max_grasps": 1e400}', "id": "h2"}),
+        ("max_grasps -1", {"json": '{"id": "h3", "product_id": "robosuite/can", "max_grasps": -1}', "id": "h3"}),
+        ("max_grasps a string", {"json": '{"id": "h4", "product_id": "robosuite/can", "max_grasps": "5"}', "id": "h4"}),
+        ("max_grasps true", {"json": '{"id": "h5", "product_id": "robosuite/can", "max_grasps": true}', "id": "h5"}),
+        ("max_grasps a 5,000-digit number", {"json": '{"id": "h6", "product_id": "robosuite/can", "max_grasps": ' + "9" * 5000 + "}"}),
+        ("size a string", {"json": '{"id": "h7", "product_id": "robosuite/can", "size": "123"}', "id": "h7"}),
+        ("size NaN", {"json": '{"id": "h8", "product_id": "robosuite/can", "size": [NaN, 0.1, 0.1]}', "id": "h8"}),
+        ("query_box of 2 numbers", {"json": '{"id": "h9", "query_box": [1, 2]}', "id": "h9"}),
+        ("query_box NaN", {"json": '{"id": "h10", "query_box": [NaN, 1, 5, 5]}', "id": "h10"}),
+        ("query_box off the image", {"json": json.dumps({"id": "h11", "query_box": [width * 10, height * 10, 20, 20]}), "id": "h11"}),
+        ("copies_only a string", {"json": '{"id": "h12", "query_box": [10, 10, 50, 50], "copies_only": "yes"}', "id": "h12"}),
+        ("product unknown", {"json": '{"id": "h13", "product_id": "no/such/product"}', "id": "h13"}),
+        ("nothing asked", {"json": '{"id": "h14"}', "id": "h14"}),
+        ("unknown field", {"json": '{"id": "h15", "product_id": "robosuite/can", "max_grasp": 3}', "id": "h15"}),
+        ("id a number", {"json": '{"id": 7, "product_id": "robosuite/can", "max_grasps": -5}'}),
+        ("a megabyte of text", {"json": '{"id": "' + "x" * 1_000_000 + '"}'}),
+        *[(name, {"photo": photo, "id": f"p{i}"}) for i, (name, photo) in enumerate(bad_photos)],
+        ("photo with a header that is not JSON", {"photo": photo_ok, "frame_id": "{not json", "id": ""}),
+    ]
+    return cases
+
+
+def run_hostile(ros, version: int, rgb, K, stamp: float, timeout: float) -> dict:
+    """Every hostile camera message, then every hostile goal, into the running node; what came back."""
+    height, width = rgb.shape[:2]
+    camera = hostile_camera_messages(width, height, K)
+    for index, (_, topic, fields) in enumerate(camera):
+        ros.publish_raw(topic, fields, stamp + 1000 + index)  # stamped away from the good frames: never matched with them
+    time.sleep(0.5)
+    goals = []
+    for name, fields in hostile_goals(version, width, height):
+        answer = ros.raw_goal(dict(fields), min(timeout, 30.0))
+        goals.append({"case": name, "status": answer["status"], "text": str(answer.get("text", ""))[:200]})
+    return {"camera_messages": len(camera), "goals": len(goals),
+            # answered with binpick's own reason, not an exception's name (a crash caught at the last moment)
+            "answered_with_reason": sum(g["status"] == "aborted" and bool(g["text"].strip())
+                                        and not re.match(r"[A-Z]\w*(Error|Exception):", g["text"]) for g in goals),
+            "node_alive": ros.node.poll() is None, "goal_answers": goals}
 
 
 def transport(version: int, camera_yaml: Path, node_args: list[str], timeout: float):
@@ -233,6 +394,9 @@ def main() -> None:
     parser.add_argument("--timeout", type=float, default=120.0, help="seconds for the node to start and for each plan")
     parser.add_argument("--json", type=Path, default=None)
     parser.add_argument("--node-args", default="", help="extra options for the node, e.g. '--grasp analytic'")
+    parser.add_argument("--hostile", action="store_true",
+                        help="before the first order's goal, send the node every hostile camera message and goal "
+                             "(each bad goal must be answered with a reason, the node must keep serving)")
     parser.add_argument("--goal", default="photo",
                         help="what each goal gives, cycled over the orders (comma-separated): id (the product; the node "
                              "renders its catalogue photo, once per product), photo (its shop photo) or box (a query box on "
@@ -268,6 +432,7 @@ def main() -> None:
     camera_yaml = write_camera_info(CameraInfo(fixed_camera, base_frame="world"), work / "camera.yaml")
     ros = transport(args.ros, camera_yaml, args.node_args.split(), args.timeout)
     results, latencies, planning = [], [], []
+    hostile = None
     try:
         for order in range(args.orders):
             product, seed = products[order % len(products)], args.seed + order
@@ -290,6 +455,10 @@ def main() -> None:
                 if goal == "photo":
                     pipeline.photo(product)  # rendered before the clock starts: a shop system has its photos
                 time.sleep(0.3)  # the first frame reaches the node before the goal
+                if args.hostile and order == 0:
+                    hostile = run_hostile(ros, args.ros, scene.rgb, fixed_camera.K, stamp, args.timeout)
+                    print(f"hostile: {hostile['answered_with_reason']}/{hostile['goals']} bad goals answered with a reason, "
+                          f"{hostile['camera_messages']} bad camera messages, node alive: {hostile['node_alive']}", file=sys.stderr)
                 started = time.perf_counter()
                 photo = cut_out(*pipeline.photo_and_mask(product)) if goal == "photo" else None
                 size = product_dimensions(pipeline.library[product]) if goal == "photo" else None  # id: the node's catalogue
@@ -316,14 +485,22 @@ def main() -> None:
                 world.close()
         time.sleep(0.5)  # the last overlay follows the last result
         overlays = list(ros.overlays)
+        alive_at_end = ros.node.poll() is None
     finally:
         ros.close()
+    node_log = (ros.node.stdout.read() or "") if ros.node.stdout is not None else ""
+    if hostile is not None:
+        hostile["tracebacks_in_node_log"] = node_log.count("Traceback")
+        hostile["camera_warnings_in_node_log"] = node_log.count("dropped a message on")
+        if "Traceback" in node_log:
+            print(node_log[-1500:], file=sys.stderr)
     summary = {"ros": args.ros, "goal": args.goal, "orders": len(results), "placed": sum(r.success for r in results),
                "pick_success": round(sum(r.success for r in results) / max(1, len(results)), 4),
                "latency_ms": {"median": round(float(np.median(latencies)), 1), "p95": round(float(np.percentile(latencies, 95)), 1)},
                "planning_ms": {"median": round(float(np.median(planning)), 1), "p95": round(float(np.percentile(planning, 95)), 1)},
                "frame": answer["frame"], "outcomes": [str(r.reason) for r in results], "interfaces": interfaces(),
-               "overlays": len(overlays), "overlay_size": list(overlays[-1]) if overlays else None}
+               "overlays": len(overlays), "overlay_size": list(overlays[-1]) if overlays else None,
+               **({"hostile": {**hostile, "node_alive_at_end": alive_at_end}} if hostile is not None else {})}
     print(json.dumps(summary), flush=True)
     if args.json is not None:
         args.json.write_text(json.dumps(summary, indent=1))

@@ -143,7 +143,7 @@ def test_ros_images_convert_both_ways_and_frames_are_matched_by_stamp():
     with pytest.raises(InputFileError, match="not supported"):
         image_array("yuv422", 5, 7, 14, b"\0" * 70)
     frames = FrameSynchroniser(slop=0.02)
-    info = CameraInfo(PinholeCamera(K, 7, 5))
+    info = CameraInfo(PinholeCamera(np.array([[6.0, 0.0, 3.0], [0.0, 6.0, 2.0], [0.0, 0.0, 1.0]]), 7, 5))
     frames.add_colour(1.00, rgb)
     frames.add_depth(1.10, np.ones((5, 7)))  # 100 ms apart: not the same frame
     frames.add_info(1.00, info)

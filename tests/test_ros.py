@@ -64,10 +64,14 @@ def test_a_bin_is_picked_through_the_plan_pick_node():
 
     loop = Path(__file__).resolve().parents[1] / "benchmarks" / "ros_loop.py"
     ran = subprocess.run([sys.executable, str(loop), "--ros", "1", "--orders", "2", "--goal", "id,box", "--timeout", "120",
-                          "--products", EASY_BINS],
+                          "--products", EASY_BINS, "--hostile"],
                          capture_output=True, text=True, timeout=300)
     assert ran.returncode == 0, ran.stderr[-2000:]
     summary = json.loads(ran.stdout.strip().splitlines()[-1])
-    assert summary["orders"] == 2 and summary["placed"] == 2, summary
+    assert summary["orders"] == 2 and summary["placed"] == 2, summary  # after the hostile messages below
     assert summary["frame"] == "world" and summary["latency_ms"]["median"] > 0
+    hostile = summary["hostile"]  # bad camera messages and goals sent to the running node before the first good goal
+    assert hostile["goals"] >= 20 and hostile["answered_with_reason"] == hostile["goals"], hostile["goal_answers"]
+    assert hostile["camera_messages"] >= 15 and hostile["camera_warnings_in_node_log"] >= 1
+    assert hostile["node_alive_at_end"] and hostile["tracebacks_in_node_log"] == 0
     assert summary["overlays"] >= 1 and summary["overlay_size"] == [416, 416]  # the node's picture of its plan

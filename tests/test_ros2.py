@@ -35,13 +35,17 @@ pytestmark = pytest.mark.skipif(_why_not() is not None, reason=_why_not() or "")
 
 def test_a_bin_is_picked_through_the_ros2_node_inside_a_loopback_only_namespace():
     command = (f"ip link set lo up && exec {ROS2_PYTHON} {ROOT / 'benchmarks' / 'ros_loop.py'} --ros 2 --orders 2 "
-               "--goal photo,box --timeout 120 --products robosuite/can,pybullet/duck")  # bins placed at the first grasp
+               "--goal photo,box --timeout 120 --products robosuite/can,pybullet/duck --hostile")  # bins placed at the first grasp
     ran = subprocess.run(["unshare", "-n", "sh", "-c", command], capture_output=True, text=True, timeout=300)
     assert ran.returncode == 0, ran.stderr[-2000:]
     summary = json.loads(ran.stdout.strip().splitlines()[-1])
     assert summary["interfaces"] == ["lo"]  # DDS had no other address to reach
-    assert summary["orders"] == 2 and summary["placed"] == 2, summary
+    assert summary["orders"] == 2 and summary["placed"] == 2, summary  # after the hostile messages below
     assert summary["frame"] == "world"
+    hostile = summary["hostile"]  # bad camera messages and goals sent to the running node before the first good goal
+    assert hostile["goals"] >= 20 and hostile["answered_with_reason"] == hostile["goals"], hostile["goal_answers"]
+    assert hostile["camera_messages"] >= 15 and hostile["camera_warnings_in_node_log"] >= 1
+    assert hostile["node_alive_at_end"] and hostile["tracebacks_in_node_log"] == 0
     assert summary["overlays"] >= 1 and summary["overlay_size"] == [416, 416]  # the node's picture of its plan
 
 

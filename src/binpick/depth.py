@@ -54,16 +54,13 @@ def read_depth(path: str | Path) -> np.ndarray:
             if not isinstance(loaded, np.ndarray) or not np.issubdtype(loaded.dtype, np.number):
                 raise ValueError("not a single numeric array")
             depth = loaded.astype(np.float32)
-        except (ValueError, OSError) as error:
+        except (ValueError, OSError, EOFError, MemoryError) as error:
             raise InputFileError(f"depth image {str(path)!r} is not a numeric .npy array ({str(error)[:80]})") from None
     else:
-        from PIL import Image, UnidentifiedImageError
+        from binpick.files import opened_image
 
-        try:
-            with Image.open(path) as image:
-                raw = np.array(image)
-        except (UnidentifiedImageError, OSError) as error:
-            raise InputFileError(f"depth image {str(path)!r} cannot be read ({str(error)[:80]})") from None
+        with opened_image(path, "depth image") as image:
+            raw = np.array(image)
         if raw.dtype not in (np.uint16, np.int32, np.uint32) or raw.ndim != 2:
             raise InputFileError(f"depth image {str(path)!r} must be a single-channel 16-bit PNG in millimetres "
                                  f"(got {raw.dtype} with shape {raw.shape})")

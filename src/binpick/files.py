@@ -10,8 +10,10 @@ from __future__ import annotations
 
 import json
 import os
+import stat
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import IO, Any
 
@@ -101,20 +103,76 @@ def atomic_write_json(path: str | Path, data: Any, indent: int | None = 2) -> Pa
 
 
 # ---------------------------------------------------------------------- reading
-def require_file(path: str | Path, what: str = "file") -> Path:
-    """``path`` if it is a readable file; missing, a folder or unreadable is one line (nothing is read)."""
+MAX_FILE_BYTES = 2 << 30  # 2 GiB: no file binpick reads whole is larger (data sets are read file by file)
+MAX_IMAGE_PIXELS = 80_000_000  # decoded pixels: 10000 x 8000 (below PIL's own bomb warning, 89 million)
+
+
+def require_file(path: str | Path, what: str = "file", max_bytes: int = MAX_FILE_BYTES) -> Path:
+    """``path`` if it is a readable regular file of at most ``max_bytes``; missing, a folder, a FIFO
+    or device (reading one can block for ever), too large or unreadable is one line (nothing is read)."""
     path = Path(path)
-    if path.is_dir():
+    try:
+        info = path.stat()
+    except FileNotFoundError:
+        raise InputFileError(f"{what} {str(path)!r} does not exist") from None
+    except OSError as error:
+        raise InputFileError(f"cannot read {what} {str(path)!r}: {_reason(error)}") from None
+    if stat.S_ISDIR(info.st_mode):
         raise InputFileError(f"{what} {str(path)!r} is a folder, not a file")
-    if not path.is_file():
-        raise InputFileError(f"{what} {str(path)!r} does not exist")
+    if not stat.S_ISREG(info.st_mode):
+        raise InputFileError(f"{what} {str(path)!r} is not a regular file (a FIFO, device or socket): give a file")
+    if info.st_size > max_bytes:
+        raise InputFileError(f"{what} {str(path)!r} is {info.st_size / 2**20:.0f} MiB, more than binpick reads "
+                             f"({max_bytes / 2**20:.0f} MiB)")
     if not os.access(path, os.R_OK):
         raise InputFileError(f"cannot read {what} {str(path)!r}: permission denied")
     return path
 
 
-def read_bytes(path: str | Path, what: str = "file") -> bytes:
+def inside(root: str | Path, name: Any, what: str = "file") -> Path:
+    """``root / name`` for a file name a data set, record or run gives, refused in one line if it
+    would leave ``root`` (an absolute name, ``..``, or a symbolic link pointing out): a data set only
+    ever reads and names its own files."""
+    if not isinstance(name, str) or not name or "\x00" in name:
+        raise InputFileError(f"{what} name {str(name)[:80]!r} must be a non-empty relative path inside {str(root)!r}")
+    base = Path(root).resolve()
+    target = (base / name).resolve()
+    if Path(name).is_absolute() or not target.is_relative_to(base):
+        raise InputFileError(f"{what} {name[:120]!r} lies outside {str(root)!r}: a data set names only its own files")
+    return base / name
+
+
+@contextmanager
+def opened_image(path: str | Path, what: str = "image", max_pixels: int = MAX_IMAGE_PIXELS) -> Iterator[Any]:
+    """A PIL image of a regular file, its size checked from the header before any pixel is decoded
+    (a decompression bomb is refused, not decoded); failures while opening or decoding inside the
+    ``with`` are one line naming the file."""
+    import warnings
+
+    from PIL import Image
+
+    path = require_file(path, what)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", Image.DecompressionBombWarning)
+            with Image.open(path) as image:
+                width, height = image.size
+                if width * height > max_pixels:
+                    raise InputFileError(f"{what} {str(path)!r} is {width}x{height} pixels ({width * height / 1e6:.0f} "
+                                         f"megapixels), more than binpick decodes ({max_pixels / 1e6:.0f})")
+                yield image
+    except InputFileError:
+        raise
+    except (OSError, ValueError, SyntaxError, EOFError, IndexError, TypeError, MemoryError, Image.DecompressionBombWarning,
+            Image.DecompressionBombError) as error:
+        detail = str(error).splitlines()[0][:100] if str(error) else type(error).__name__
+        raise InputFileError(f"cannot read {what} {str(path)!r}: {detail}") from None
+
+
+def read_bytes(path: str | Path, what: str = "file", max_bytes: int = MAX_FILE_BYTES) -> bytes:
     path = Path(path)
+    if path.exists():
+        require_file(path, what, max_bytes)  # no FIFO, device or oversized file is opened
     try:
         return path.read_bytes()
     except FileNotFoundError:
@@ -141,6 +199,10 @@ def read_json(path: str | Path, what: str = "JSON file") -> Any:
         return json.loads(text)
     except json.JSONDecodeError as error:
         raise InputFileError(f"{what} {str(path)!r} is not valid JSON ({error.msg} at line {error.lineno})") from None
+    except RecursionError:
+        raise InputFileError(f"{what} {str(path)!r} nests too deeply to be a binpick file") from None
+    except ValueError as error:  # e.g. a number of more digits than Python converts
+        raise InputFileError(f"{what} {str(path)!r} is not valid JSON ({str(error)[:80]})") from None
 
 
 def read_npz(path: str | Path, what: str = "array file") -> dict[str, Any]:
@@ -151,12 +213,12 @@ def read_npz(path: str | Path, what: str = "array file") -> dict[str, Any]:
     import numpy as np
 
     path = Path(path)
-    if not path.is_file():
+    if not path.is_file():  # (FIFOs and devices are not files: nothing blocks)
         raise InputFileError(f"{what} {str(path)!r} does not exist")
     try:
         with np.load(path, allow_pickle=False) as archive:
             return {name: archive[name] for name in archive.files}
-    except (ValueError, OSError, zipfile.BadZipFile, EOFError) as error:
+    except (ValueError, OSError, zipfile.BadZipFile, EOFError, MemoryError) as error:
         detail = str(error).splitlines()[0][:100] if str(error) else type(error).__name__
         raise InputFileError(f"{what} {str(path)!r} is not a readable npz file ({detail})") from None
 

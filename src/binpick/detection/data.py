@@ -38,15 +38,14 @@ class Task:
     others: list[dict[str, Any]] = field(default_factory=list)  # instances of other products in the image
 
 
-def read_image(path: Path, keep_alpha: bool = False) -> np.ndarray:
+def read_image(path: Path, keep_alpha: bool = False, what: str = "image") -> np.ndarray:
     """RGB uint8 (H, W, 3), or RGBA where the file has transparency and ``keep_alpha``; an
     unreadable or empty file is one clear line."""
-    try:
-        with Image.open(path) as image:
-            alpha = keep_alpha and (image.mode in ("RGBA", "LA", "PA") or "transparency" in image.info)
-            array = np.asarray(image.convert("RGBA" if alpha else "RGB"))
-    except (OSError, ValueError) as error:
-        raise ConfigError(f"cannot read image {str(path)!r}: {str(error).splitlines()[0] if str(error) else type(error).__name__}") from None
+    from binpick.files import opened_image
+
+    with opened_image(path, what) as image:
+        alpha = keep_alpha and (image.mode in ("RGBA", "LA", "PA") or "transparency" in image.info)
+        array = np.asarray(image.convert("RGBA" if alpha else "RGB"))
     if array.size == 0 or min(array.shape[:2]) < 8:
         raise ConfigError(f"image {str(path)!r} is empty or smaller than 8 pixels")
     return array
@@ -178,11 +177,13 @@ class RepeatedInstances:
         return ids
 
     def _task(self, image: dict, category: int, annotations: list[dict], others: list[dict]) -> Task | None:
-        file = self.root / image["file_name"]
+        from binpick.files import inside
+
+        file = inside(self.root, image["file_name"], "image")
         name = self.categories[category]["name"].replace("/", "_")
         photo = self.photos / f"{name}.png"
         photo = photo if photo.is_file() else None
-        depth = self.root / image["depth_file"] if isinstance(image.get("depth_file"), str) else None
+        depth = inside(self.root, image["depth_file"], "depth image") if isinstance(image.get("depth_file"), str) else None
         if self.policy:
             query = next((a for a in annotations if a.get("is_query")), None)
             if query is None or all(pickable_by(a, self.policy) is None for a in annotations if a is not query):

@@ -156,9 +156,9 @@ def kmeans_anchors(sizes: np.ndarray, clusters: int = 3 * ANCHORS_PER_LEVEL, ite
 
 def fit_anchors(dataset: TaskDataset) -> torch.Tensor:
     """Anchors from the training boxes, in the pixels of the resized images the model sees."""
-    from PIL import Image
+    from binpick.files import opened_image
 
-    with Image.open(dataset.source.tasks[0].file) as image:
+    with opened_image(dataset.source.tasks[0].file, "training image") as image:
         scale = dataset.size / float(max(image.size))  # a data set's images share one size
     sizes = [a["bbox"][2:4] for task in dataset.source.tasks for a in task.annotations]
     return torch.tensor(kmeans_anchors(np.array(sizes) * scale), dtype=torch.float32).view(3, ANCHORS_PER_LEVEL, 2)

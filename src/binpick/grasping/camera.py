@@ -7,11 +7,50 @@ a real camera's calibration gives exactly these numbers.
 
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from binpick.errors import ConfigError
+
+
+MAX_SIDE = 16384  # pixels: the largest image side a calibration may describe
+FIELD_OF_VIEW = (2.0, 170.0)  # degrees: a lens outside this is no camera binpick plans with
+MAX_TRANSLATION = 100.0  # metres between the camera and the frame it is calibrated in
+
+
+def check_intrinsics(K: np.ndarray, width: int, height: int) -> None:
+    """A pinhole K a real camera can have: finite, the last row 0 0 1, focal lengths that give a field
+    of view within ``FIELD_OF_VIEW`` and a principal point on the image. A calibration outside these
+    (a focal length of 1e-6 puts a grasp 10^10 m away) is one line naming the number."""
+    if K.shape != (3, 3) or not np.all(np.isfinite(K)) or np.abs(K).max() > 1e9:
+        raise ConfigError(f"camera intrinsics K must be a finite 3x3 matrix, got {np.round(K, 6).tolist()}")
+    if not np.allclose(K[2], [0.0, 0.0, 1.0], atol=1e-9) or abs(K[1, 0]) > 1e-9:
+        raise ConfigError(f"camera intrinsics K must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]], got {np.round(K, 6).tolist()}")
+    for name, focal, side in (("fx", K[0, 0], width), ("fy", K[1, 1], height)):
+        low, high = (side / (2 * np.tan(np.radians(angle / 2))) for angle in FIELD_OF_VIEW[::-1])
+        if not low <= focal <= high:
+            raise ConfigError(f"camera focal length {name} = {focal:g} px gives no real lens's field of view over "
+                              f"{side} px (expected {low:.3g} to {high:.3g} px)")
+    if not (0 <= K[0, 2] <= width and 0 <= K[1, 2] <= height):
+        raise ConfigError(f"camera principal point ({K[0, 2]:g}, {K[1, 2]:g}) lies outside the {width}x{height} image")
+
+
+def check_rigid(pose: np.ndarray, name: str) -> None:
+    """A rigid transform: a rotation (orthonormal, determinant +1), a finite translation within
+    ``MAX_TRANSLATION``, the last row 0 0 0 1. A scaled, sheared, mirrored or projective matrix is
+    one line."""
+    if pose.shape != (4, 4) or not np.all(np.isfinite(pose)) or np.abs(pose).max() > 1e9:
+        raise ConfigError(f"{name} must be a finite 4x4 transform")
+    rotation = pose[:3, :3]
+    if not np.allclose(pose[3], [0.0, 0.0, 0.0, 1.0], atol=1e-6):
+        raise ConfigError(f"{name} must end in the row 0 0 0 1, got {np.round(pose[3], 6).tolist()}")
+    if not np.allclose(rotation.T @ rotation, np.eye(3), atol=1e-3) or np.linalg.det(rotation) < 0:
+        raise ConfigError(f"{name}'s rotation is not a rotation (scaled, sheared or mirrored: determinant "
+                          f"{np.linalg.det(rotation):.4g})")
+    if np.linalg.norm(pose[:3, 3]) > MAX_TRANSLATION:
+        raise ConfigError(f"{name} puts the camera {np.linalg.norm(pose[:3, 3]):.3g} m away (at most {MAX_TRANSLATION:g} m)")
 
 
 @dataclass(frozen=True)
@@ -24,12 +63,14 @@ class PinholeCamera:
     def __post_init__(self) -> None:
         K = np.asarray(self.K, dtype=float)
         pose = np.asarray(self.camera_to_world, dtype=float)
-        if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
-            raise ConfigError(f"camera intrinsics K must be a 3x3 matrix with positive focal lengths, got {K.tolist()}")
-        if pose.shape != (4, 4) or not np.all(np.isfinite(pose)):
-            raise ConfigError("camera_to_world must be a finite 4x4 transform")
-        if int(self.width) < 1 or int(self.height) < 1:
-            raise ConfigError(f"camera width and height must be positive, got {self.width} x {self.height}")
+        for side in (self.width, self.height):
+            if isinstance(side, bool) or not isinstance(side, numbers.Real) or not 1 <= side <= MAX_SIDE or side != int(side):
+                raise ConfigError(f"camera width and height must be whole numbers of pixels from 1 to {MAX_SIDE}, "
+                                  f"got {self.width} x {self.height}")
+        check_intrinsics(K, int(self.width), int(self.height))
+        check_rigid(pose, "camera_to_world")
+        object.__setattr__(self, "width", int(self.width))
+        object.__setattr__(self, "height", int(self.height))
         object.__setattr__(self, "K", K)
         object.__setattr__(self, "camera_to_world", pose)
 
@@ -41,6 +82,8 @@ class PinholeCamera:
                        np.array(record.get("camera_to_world", np.eye(4))))
         except KeyError as missing:
             raise ConfigError(f"camera record has no {missing.args[0]!r} field") from None
+        except (TypeError, ValueError) as error:
+            raise ConfigError(f"camera record is malformed: {str(error)[:100]}") from None
 
     def to_record(self) -> dict:
         return {"K": self.K.round(6).tolist(), "width": int(self.width), "height": int(self.height),

@@ -20,7 +20,7 @@ from torch import nn
 from binpick import tensorfile
 from binpick.config import check_range, load_run_config, to_dict
 from binpick.errors import ConfigError, InputFileError
-from binpick.files import atomic_write_text, read_json
+from binpick.files import atomic_write_text, inside, read_json
 from binpick.metrics import roc_auc
 from binpick.depth import read_depth
 from binpick.grasping.camera import PinholeCamera
@@ -87,7 +87,7 @@ def load_trials(data: str | Path | list, split: str, spec: MapSpec = MapSpec()) 
         if record.get("split") != split or not record.get("grasp_trials"):
             continue
         camera = PinholeCamera.from_record(record["camera"])
-        frame = DepthFrame.from_depth(read_depth(data / record["depth_file"]), camera)
+        frame = DepthFrame.from_depth(read_depth(inside(data, record["depth_file"], "depth image")), camera)
         boxes = {a["slot"]: a["bbox"] for a in record["annotations"]}
         surfaces: dict[int, Surface | None] = {}
         for trial in record["grasp_trials"]:

@@ -20,8 +20,10 @@ import numpy as np
 
 from binpick.errors import ConfigError, InputFileError
 from binpick.grasping.camera import PinholeCamera
+from binpick.picking.workspace import Workspace
 
 DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "equidistant", "none", "")
+DISTORTION_LENGTHS = {"plumb_bob": (5,), "rational_polynomial": (8,), "equidistant": (4,)}  # or none given
 
 
 def quaternion_to_matrix(q) -> np.ndarray:
@@ -64,6 +66,7 @@ class CameraInfo:
     D: np.ndarray = field(default_factory=lambda: np.zeros(0))  # distortion coefficients, ROS order
     distortion_model: str = "plumb_bob"
     base_frame: str = "base_link"
+    workspace: Workspace | None = None  # where grasps may be (base frame); None: around the camera's view
 
     @property
     def distorted(self) -> bool:
@@ -79,9 +82,16 @@ class CameraInfo:
         if distortion_model not in DISTORTION_MODELS:
             raise ConfigError(f"distortion_model {distortion_model!r} is not one binpick rectifies: "
                               f"use one of {', '.join(m for m in DISTORTION_MODELS if m)}")
+        D = np.asarray(D, dtype=float).ravel()
+        if not np.all(np.isfinite(D)):
+            raise ConfigError(f"distortion coefficients must be finite, got {D.tolist()[:8]}")
+        wanted = DISTORTION_LENGTHS.get(distortion_model)
+        if D.size and wanted is not None and D.size not in wanted:
+            raise ConfigError(f"distortion model {distortion_model} takes {wanted[0]} coefficients, got {D.size}")
+        if distortion_model in ("none", "") and np.any(D != 0):
+            raise ConfigError(f"distortion model {distortion_model or 'empty'!r} with non-zero coefficients {D.tolist()[:8]}")
         pose = np.eye(4) if camera_to_base is None else np.asarray(camera_to_base, dtype=float)
-        return cls(PinholeCamera(K.reshape(3, 3), int(width), int(height), pose), np.asarray(D, dtype=float).ravel(),
-                   distortion_model, base_frame)
+        return cls(PinholeCamera(K.reshape(3, 3), width, height, pose), D, distortion_model, base_frame)
 
     def rectify(self, rgb: np.ndarray, depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Undistorted colour (bilinear) and depth (nearest: never a depth between two surfaces),
@@ -111,7 +121,8 @@ class CameraInfo:
                 "rectification_matrix": {"rows": 3, "cols": 3, "data": np.eye(3).ravel().tolist()},
                 "projection_matrix": {"rows": 3, "cols": 4, "data": P},
                 "camera_to_base": {"base_frame": self.base_frame, "translation": pose[:3, 3].round(6).tolist(),
-                                   "rotation": [round(v, 8) for v in matrix_to_quaternion(pose[:3, :3])]}}
+                                   "rotation": [round(v, 8) for v in matrix_to_quaternion(pose[:3, :3])]},
+                **({"workspace": self.workspace.to_mapping()} if self.workspace is not None else {})}
 
 
 def _numbers(data: dict, key: str, count: int | None, where: str) -> np.ndarray:
@@ -165,7 +176,12 @@ def read_camera_info(path: str | Path) -> CameraInfo:
             pose[:3, :3] = quaternion_to_matrix(_numbers(extrinsic, "rotation", 4, where))
         base_frame = str(extrinsic.get("base_frame", base_frame))
     try:
-        return CameraInfo.from_ros(K, D, data["image_width"], data["image_height"], pose, model, base_frame)
+        info = CameraInfo.from_ros(K, D, data["image_width"], data["image_height"], pose, model, base_frame)
+        if data.get("workspace") is not None:
+            from dataclasses import replace
+
+            info = replace(info, workspace=Workspace.from_mapping(data["workspace"]))
+        return info
     except ConfigError as error:
         raise InputFileError(f"camera file {where}: {error}") from None
 

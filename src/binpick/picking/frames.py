@@ -16,14 +16,8 @@ from binpick.picking.picker import check_frame
 
 def read_colour(path: str | Path, what: str = "colour image") -> np.ndarray:
     from binpick.detection.data import read_image
-    from binpick.errors import ConfigError
-    from binpick.files import require_file
 
-    path = require_file(Path(path), what)
-    try:
-        return read_image(path)
-    except ConfigError as error:
-        raise InputFileError(f"{what}: {error}") from None
+    return read_image(Path(path), what=what)
 
 
 def read_frame(rgb: str | Path, depth: str | Path, camera: str | Path) -> tuple[np.ndarray, np.ndarray, CameraInfo]:
@@ -40,17 +34,11 @@ def read_frame(rgb: str | Path, depth: str | Path, camera: str | Path) -> tuple[
 
 def read_photo(path: str | Path) -> np.ndarray:
     """A shop photo: RGBA where the file has transparency (its alpha marks the product), else RGB."""
-    from PIL import Image, UnidentifiedImageError
+    from binpick.files import opened_image
 
-    from binpick.files import require_file
-
-    path = require_file(Path(path), "--photo")
-    try:
-        with Image.open(path) as image:
-            transparent = image.mode in ("RGBA", "LA", "PA") or "transparency" in image.info
-            array = np.asarray(image.convert("RGBA" if transparent else "RGB"))
-    except (UnidentifiedImageError, OSError, ValueError) as error:
-        raise InputFileError(f"--photo {str(path)!r} cannot be read ({str(error)[:80] or type(error).__name__})") from None
+    with opened_image(Path(path), "--photo") as image:
+        transparent = image.mode in ("RGBA", "LA", "PA") or "transparency" in image.info
+        array = np.asarray(image.convert("RGBA" if transparent else "RGB"))
     if array.size == 0 or min(array.shape[:2]) < 8:
         raise InputFileError(f"--photo {str(path)!r} is empty or smaller than 8 pixels")
     return array

@@ -5,10 +5,13 @@ camera-info messages matched by time stamp, and a plan request answered from the
 
 from __future__ import annotations
 
+import json
+import math
+import numbers
 import threading
 import time
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -21,15 +24,23 @@ ENCODINGS = {"rgb8": (np.uint8, 3), "bgr8": (np.uint8, 3), "rgba8": (np.uint8, 4
              "mono8": (np.uint8, 1), "16UC1": (np.uint16, 1), "mono16": (np.uint16, 1), "32FC1": (np.float32, 1)}
 
 
+MAX_SIDE = 8192  # pixels: the largest side of an image message the node decodes (a 4K camera's is 3840)
+MAX_GOAL_CHARS = 65536  # a goal is a few hundred characters of JSON
+MAX_GRASPS = 100
+
+
 def image_array(encoding: str, height: int, width: int, step: int, data: bytes, bigendian: bool = False) -> np.ndarray:
-    """A ``sensor_msgs/Image``'s pixels as an array (rows may be padded to ``step`` bytes)."""
+    """A ``sensor_msgs/Image``'s pixels as an array (rows may be padded to ``step`` bytes). A message
+    whose fields disagree (too few bytes, a side of zero or past ``MAX_SIDE``) is one line."""
     if encoding not in ENCODINGS:
-        raise InputFileError(f"image encoding {encoding!r} is not supported: use one of {', '.join(ENCODINGS)}")
+        raise InputFileError(f"image encoding {str(encoding)[:40]!r} is not supported: use one of {', '.join(ENCODINGS)}")
+    if not (0 < height <= MAX_SIDE and 0 < width <= MAX_SIDE):
+        raise InputFileError(f"image of {width}x{height} pixels: each side must be 1 to {MAX_SIDE}")
     dtype, channels = ENCODINGS[encoding]
     dtype = np.dtype(dtype).newbyteorder(">" if bigendian else "<")
     row = width * channels * dtype.itemsize
     buffer = np.frombuffer(bytes(data), np.uint8)
-    if step < row or buffer.size < step * height:
+    if step < row or step > 4 * row + 64 or buffer.size < step * height:
         raise InputFileError(f"{encoding} image of {width}x{height} has {buffer.size} bytes with step {step}: too few")
     rows = buffer[:step * height].reshape(height, step)[:, :row]
     array = np.ascontiguousarray(rows).view(dtype).reshape(height, width, channels)
@@ -71,6 +82,128 @@ def depth_of(encoding: str, array: np.ndarray) -> np.ndarray:
 
 
 @dataclass(frozen=True)
+class Goal:
+    """One plan request as both nodes take it, checked: a product id, a query box or a photo (sent
+    beside it), how many grasps, the catalogue size, whether only the copies are wanted."""
+
+    id: str = ""
+    product_id: str = ""
+    max_grasps: int = 0  # 0: the picker's own number
+    size: list[float] | None = None
+    query_box: list[float] | None = None
+    copies_only: bool = False
+    photo: np.ndarray | None = field(default=None, repr=False)
+
+
+def _text_field(goal: Mapping, key: str) -> str:
+    value = goal.get(key, "")
+    if not isinstance(value, str) or len(value) > 256:
+        raise InputFileError(f"goal field {key!r} must be text of at most 256 characters")
+    return value
+
+
+def _numbers_field(goal: Mapping, key: str, count: int, positive: bool = False) -> list[float] | None:
+    value = goal.get(key)
+    if value is None or (isinstance(value, (list, tuple)) and len(value) == 0):
+        return None
+    if not isinstance(value, (list, tuple)) or len(value) != count:
+        raise InputFileError(f"goal field {key!r} must be a list of {count} numbers, got {str(value)[:60]}")
+    if any(isinstance(v, bool) or not isinstance(v, numbers.Real) for v in value):
+        raise InputFileError(f"goal field {key!r} must hold numbers only, got {str(value)[:60]}")
+    checked = [float(v) for v in value]
+    if not all(math.isfinite(v) for v in checked) or (positive and min(checked) <= 0):
+        raise InputFileError(f"goal field {key!r} must hold finite{' positive' if positive else ''} numbers, got {checked}")
+    return checked
+
+
+def parse_goal(goal: Mapping, photo: np.ndarray | None = None) -> Goal:
+    """A goal's fields checked once, for either node: every bad field is one line naming it."""
+    if not isinstance(goal, Mapping):
+        raise InputFileError(f"a goal must be a JSON object, got {type(goal).__name__}")
+    unknown = sorted(set(goal) - {"id", "product_id", "max_grasps", "size", "query_box", "copies_only"})
+    if unknown:
+        raise InputFileError(f"goal has unknown fields {', '.join(map(repr, unknown))[:120]} (fields: id, product_id, "
+                             "max_grasps, size, query_box, copies_only)")
+    max_grasps = goal.get("max_grasps", 0)
+    if isinstance(max_grasps, float) and math.isfinite(max_grasps) and max_grasps.is_integer():
+        max_grasps = int(max_grasps)
+    if isinstance(max_grasps, bool) or not isinstance(max_grasps, int) or not 0 <= max_grasps <= MAX_GRASPS:
+        raise InputFileError(f"goal field 'max_grasps' must be a whole number from 0 (the node's default) to {MAX_GRASPS}, "
+                             f"got {str(max_grasps)[:40]}")
+    copies_only = goal.get("copies_only", False)
+    if not isinstance(copies_only, bool):
+        raise InputFileError(f"goal field 'copies_only' must be true or false, got {str(copies_only)[:40]}")
+    return Goal(_text_field(goal, "id"), _text_field(goal, "product_id"), max_grasps,
+                _numbers_field(goal, "size", 3, positive=True), _numbers_field(goal, "query_box", 4), copies_only, photo)
+
+
+def request_id_of(goal) -> str:
+    """A goal's id where it has a readable one (to address the answer to a goal that is otherwise bad)."""
+    value = goal.get("id", "") if isinstance(goal, Mapping) else ""
+    return value if isinstance(value, str) and len(value) <= 256 else ""
+
+
+def parse_goal_json(text: str) -> dict:
+    """The JSON of a ROS 2 goal as a mapping: too long, nested past a few levels or not JSON is one line."""
+    if not isinstance(text, str) or len(text) > MAX_GOAL_CHARS:
+        raise InputFileError(f"a goal is at most {MAX_GOAL_CHARS} characters of JSON")
+    depth = deepest = 0
+    for character in text:  # brackets inside strings count too: a goal has no reason to nest or quote them
+        if character in "[{":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif character in "]}":
+            depth -= 1
+    if deepest > 4:
+        raise InputFileError(f"a goal's JSON nests {deepest} levels deep; a goal nests two")
+    try:
+        goal = json.loads(text)
+    except ValueError as error:
+        raise InputFileError(f"a goal must be JSON: {str(error)[:80]}") from None
+    if not isinstance(goal, dict):
+        raise InputFileError(f"a goal must be a JSON object, got {type(goal).__name__}")
+    return goal
+
+
+class Guard:
+    """Runs a node's callbacks so that none can take the node down: a bad camera message is dropped
+    with a warning (at most one per ``every`` seconds per topic, and a count), a bad goal is answered
+    by the caller's ``on_error``."""
+
+    def __init__(self, warn: Callable[[str], None], every: float = 5.0) -> None:
+        self.warn, self.every = warn, every
+        self.dropped: dict[str, int] = {}
+        self._last: dict[str, float] = {}
+        self._lock = threading.Lock()
+
+    def drop(self, topic: str, error: BaseException) -> None:
+        with self._lock:
+            self.dropped[topic] = self.dropped.get(topic, 0) + 1
+            now = time.monotonic()
+            if now - self._last.get(topic, -math.inf) < self.every:
+                return
+            self._last[topic] = now
+            count = self.dropped[topic]
+        self.warn(f"binpick: dropped a message on {topic} ({count} so far): {describe(error)}")
+
+    def frames(self, topic: str, callback: Callable) -> Callable:
+        """``callback`` for camera messages on ``topic``, dropping the ones it cannot take."""
+        def guarded(message) -> None:
+            try:
+                callback(message)
+            except Exception as error:  # noqa: BLE001 - a camera topic must never stop the node
+                self.drop(topic, error)
+
+        return guarded
+
+
+def describe(error: BaseException) -> str:
+    """One line for a result or a log: binpick's own errors as they are, others with their type."""
+    text = " ".join(str(error).split())[:300]
+    return text if isinstance(error, BinpickError) else f"{type(error).__name__}: {text}"
+
+
+@dataclass(frozen=True)
 class Topics:
     """A RealSense-style camera's topics (``aligned_depth_to_color``: depth registered to colour)."""
 
@@ -102,6 +235,8 @@ class FrameSynchroniser:
         self._new = threading.Condition(self._lock)
 
     def _add(self, queue: list, stamp: float, item) -> None:
+        if not math.isfinite(stamp) or stamp < 0:
+            raise InputFileError(f"a message's time stamp must be a finite time, got {stamp}")
         with self._lock:
             queue.append((stamp, item))
             del queue[:-self.keep]
@@ -121,13 +256,15 @@ class FrameSynchroniser:
             depth = min(self._depth, key=lambda d: abs(d[0] - stamp), default=None)
             info = min(self._info, key=lambda d: abs(d[0] - stamp), default=None)
             if depth is not None and info is not None and abs(depth[0] - stamp) <= self.slop and abs(info[0] - stamp) <= self.slop:
-                if self._latest is None or stamp > self._latest.stamp:
+                # the newest colour to arrive that has its depth and info (not the largest stamp: one
+                # message stamped far in the future must not pin the planner to its frame)
+                if self._latest is None or rgb is not self._latest.rgb:
                     self._latest = Frame(stamp, rgb, depth[1], info[1])
                     self._new.notify_all()
                 return
 
     def latest(self, timeout: float = 0.0, newer_than: float | None = None) -> Frame | None:
-        """The latest matched frame (waiting up to ``timeout`` s for one newer than ``newer_than``)."""
+        """The latest matched frame (waiting up to ``timeout`` s for one stamped after ``newer_than``)."""
         deadline = time.monotonic() + timeout
         with self._lock:
             while self._latest is None or (newer_than is not None and self._latest.stamp <= newer_than):
@@ -161,11 +298,14 @@ class PlanRequests:
         catalogue's for ``product_id``, where the node has one). ``query_box`` (x, y, w, h pixels)
         points at the instance to pick instead of a product: it is planned first, then its copies
         (``copies_only``: the copies alone)."""
-        if size is not None and len(size) == 0:
-            size = None
+        checked = parse_goal({"product_id": product_id, "max_grasps": max_grasps, "copies_only": copies_only,
+                              "size": None if size is None else list(size), "query_box": None if query_box is None else list(query_box)})
+        size, query_box, max_grasps = checked.size, checked.query_box, checked.max_grasps
         if size is None and product_id and self.size_for is not None:
             size = self.size_for(product_id)
-        box = list(query_box) if query_box is not None and len(query_box) else None  # the picker checks it
+        box = query_box  # the picker checks it against the image
+        if box is not None and photo is not None and photo.size:
+            raise BinpickError("the request gives both a photo and a query box: give one (a box points at the instance itself)")
         if box is None and (photo is None or photo.size == 0):
             if not product_id:
                 raise BinpickError("the request names no product, photo or query box")

@@ -27,6 +27,7 @@ from binpick.depth import depth_problem
 from binpick.picking.camera_info import CameraInfo, matrix_to_quaternion
 from binpick.detection.photos import photo_mask
 from binpick.picking.colour import colour_histogram, colour_similarity, detection_mask
+from binpick.picking.workspace import OUTSIDE, Workspace
 
 APPROACH = (0.0, 0.0, -1.0)  # top-down: the gripper moves along the base frame's -z (z up)
 LARGER = "larger than the ordered product"
@@ -210,8 +211,10 @@ class Picker:
     in :class:`binpick.warehouse.pipeline.PickPipeline`, which measured them."""
 
     def __init__(self, detector, grasp: GraspPlanner, crop_detector=None, score_threshold: float | None = None,
-                 colour_check: float | None = 0.15, colour_rank: float | None = 0.01, max_grasps: int = 3) -> None:
+                 colour_check: float | None = 0.15, colour_rank: float | None = 0.01, max_grasps: int = 3,
+                 workspace: Workspace | None = None) -> None:
         self.detector, self.crop_detector, self.grasp = detector, crop_detector, grasp
+        self.workspace = workspace  # None: the camera's own (camera.yaml), else around its view
         if score_threshold is None:  # the weights' own threshold where they carry one (scores are calibrated per model)
             own = getattr(detector, "score_threshold", None) if detector is not None else None
             score_threshold = own if own is not None else 0.2
@@ -293,6 +296,7 @@ class Picker:
         started = time.perf_counter()
         rgb, depth = info.rectify(np.asarray(rgb), np.asarray(depth, dtype=np.float32))
         frame = self.grasp.frame(depth, info.camera)  # once per frame: holes filled, support plane found
+        workspace = self.workspace or info.workspace or Workspace.around_view(info.camera)
         timing["depth"] = 1000 * (time.perf_counter() - started)
         pointed = None
         if query_box is not None and boxes is None:
@@ -330,11 +334,11 @@ class Picker:
         plans: list[GraspPlan] = []
         wanted = max_grasps or self.max_grasps
         if pointed is not None and not copies_only:  # what the user pointed at first, then its copies
-            plans.append(self.plan_detection(frame, query_box, 1.0, None, size, choice=pointed))
+            plans.append(self.plan_detection(frame, query_box, 1.0, None, size, choice=pointed, workspace=workspace))
         for box, score, similarity in ranked:
             if sum(p.feasible for p in plans) >= wanted:
                 break
-            plans.append(self.plan_detection(frame, box, float(score), similarity, size))
+            plans.append(self.plan_detection(frame, box, float(score), similarity, size, workspace=workspace))
         timing["grasp"] = 1000 * (time.perf_counter() - tick)
         timing["total"] = 1000 * (time.perf_counter() - started)
         return Plans(plans, info.base_frame, {k: round(v, 2) for k, v in timing.items()}, found, scores, colour_rejected)
@@ -350,7 +354,9 @@ class Picker:
         return choice
 
     def plan_detection(self, frame: DepthFrame, box, score: float, similarity: float | None, size=None,
-                       choice: GraspChoice | None = None) -> GraspPlan:
+                       choice: GraspChoice | None = None, workspace: Workspace | None = None) -> GraspPlan:
+        """The plan for one detection: its best grasp, unless the instance is larger than the ordered
+        product or the grasp lies outside ``workspace`` (then rejected, with the reason, and no pose)."""
         choice = choice if choice is not None else self.grasp.choose(frame, box)
         plan = GraspPlan([round(float(v), 2) for v in box], round(score, 4), None if similarity is None else round(similarity, 3),
                          rejected=choice.rejections())
@@ -358,6 +364,9 @@ class Picker:
             plan.rejected = {LARGER: 1}
             return plan
         chosen = choice.chosen
+        if chosen is not None and workspace is not None and not workspace.contains(chosen.position):
+            plan.rejected = {**plan.rejected, OUTSIDE: 1}
+            return plan
         if chosen is not None:
             plan.position = [round(float(v), 4) for v in chosen.position]
             plan.yaw = round(float(chosen.yaw), 4)

@@ -12,7 +12,7 @@ import json
 import numpy as np
 
 from binpick.picking.camera_info import CameraInfo
-from binpick.picking.node import PlanRequests, Topics, colour_of, depth_of, image_array, image_fields, photo_of
+from binpick.picking.node import Guard, PlanRequests, Topics, colour_of, depth_of, describe, image_array, image_fields, parse_goal, photo_of
 from binpick.ros import master_uri, require_ros, wait_for_master
 
 
@@ -47,12 +47,14 @@ class PickNode:
         self.namespace = namespace.rstrip("/")
         self.types = plan_pick_action_types()
         frames = requests.frames
+        self.guard = guard = Guard(rospy.logwarn)  # a bad camera message is dropped with a warning, never a traceback
         self.subscribers = [
-            rospy.Subscriber(topics.colour, sensor_msgs.msg.Image, lambda m: frames.add_colour(stamp_seconds(m.header), colour_of(m.encoding, self._pixels(m))),
-                             queue_size=2, buff_size=2**24),
-            rospy.Subscriber(topics.depth, sensor_msgs.msg.Image, lambda m: frames.add_depth(stamp_seconds(m.header), depth_of(m.encoding, self._pixels(m))),
-                             queue_size=2, buff_size=2**24),
-            rospy.Subscriber(topics.info, sensor_msgs.msg.CameraInfo, lambda m: frames.add_info(stamp_seconds(m.header), self._camera(m)), queue_size=2),
+            rospy.Subscriber(topics.colour, sensor_msgs.msg.Image, guard.frames(topics.colour, lambda m: frames.add_colour(
+                stamp_seconds(m.header), colour_of(m.encoding, self._pixels(m)))), queue_size=2, buff_size=2**24),
+            rospy.Subscriber(topics.depth, sensor_msgs.msg.Image, guard.frames(topics.depth, lambda m: frames.add_depth(
+                stamp_seconds(m.header), depth_of(m.encoding, self._pixels(m)))), queue_size=2, buff_size=2**24),
+            rospy.Subscriber(topics.info, sensor_msgs.msg.CameraInfo, guard.frames(topics.info, lambda m: frames.add_info(
+                stamp_seconds(m.header), self._camera(m))), queue_size=2),
         ]
         self.overlay = rospy.Publisher(f"{self.namespace}/overlay", sensor_msgs.msg.Image, queue_size=1, latch=True)
         self.server = actionlib.ActionServer(self.namespace, self.types["PlanPickAction"], self._on_goal, auto_start=False)
@@ -75,10 +77,12 @@ class PickNode:
         try:
             handle.publish_feedback(self.types["PlanPickFeedback"](state="planning"))
             photo = None
-            if goal.photo.width and goal.photo.height:
+            if goal.photo.width or goal.photo.height or len(goal.photo.data):
                 photo = photo_of(goal.photo.encoding, self._pixels(goal.photo))
-            frame, plans = self.requests.plan(goal.product_id, photo, int(goal.max_grasps), list(goal.size) or None,
-                                              list(goal.query_box) or None, bool(goal.copies_only))
+            checked = parse_goal({"product_id": goal.product_id, "max_grasps": int(goal.max_grasps), "size": list(goal.size),
+                                  "query_box": list(goal.query_box), "copies_only": bool(goal.copies_only)}, photo)
+            frame, plans = self.requests.plan(checked.product_id, photo, checked.max_grasps, checked.size, checked.query_box,
+                                              checked.copies_only)
             stamp = rospy.Time.from_sec(frame.stamp)
             result = self.types["PlanPickResult"]()
             result.grasps = [pose_stamped(p, plans.frame, stamp) for p in plans.grasps]
@@ -88,9 +92,13 @@ class PickNode:
             result.opening = float(self.requests.picker.grasp.gripper.opening)
             result.plans_json = json.dumps({**plans.to_json(), "stamp": frame.stamp})
             handle.set_succeeded(result)
-            self._publish_overlay(frame, plans, photo, stamp)
         except Exception as error:  # noqa: BLE001 - the client gets the reason instead of a timeout
-            handle.set_aborted(text=f"{type(error).__name__}: {error}")
+            handle.set_aborted(text=describe(error))
+            return
+        try:
+            self._publish_overlay(frame, plans, photo, stamp)
+        except Exception as error:  # noqa: BLE001 - the answer is out; a picture that fails is only logged
+            self.guard.drop(f"{self.namespace}/overlay", error)
 
     def _publish_overlay(self, frame, plans, photo, stamp) -> None:
         import sensor_msgs.msg

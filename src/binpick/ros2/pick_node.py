@@ -20,7 +20,8 @@ import json
 import numpy as np
 
 from binpick.picking.camera_info import CameraInfo
-from binpick.picking.node import PlanRequests, colour_of, depth_of, image_array, image_fields, photo_of
+from binpick.picking.node import (Goal, Guard, PlanRequests, colour_of, depth_of, describe, image_array, image_fields, parse_goal,
+                                  parse_goal_json, photo_of, request_id_of)
 from binpick.ros2 import require_ros2
 
 RELIABLE_DEPTH = 10
@@ -62,27 +63,30 @@ def make_node(requests: PlanRequests, camera_to_base: np.ndarray, base_frame: st
     namespace = namespace.rstrip("/")
     node = rclpy.node.Node("binpick_pick_planner")
     frames = requests.frames
+    guard = Guard(node.get_logger().warning)
+    node.binpick_guard = guard  # what was dropped, for whoever runs the node
 
     def on_info(message) -> None:
         frames.add_info(stamp_seconds(message.header), CameraInfo.from_ros(
             message.k, message.d, message.width, message.height, camera_to_base, message.distortion_model or "plumb_bob", base_frame))
 
-    node.create_subscription(sensor_msgs.msg.Image, colour, lambda m: frames.add_colour(stamp_seconds(m.header), colour_of(m.encoding, pixels(m))), qos_profile_sensor_data)
-    node.create_subscription(sensor_msgs.msg.Image, depth, lambda m: frames.add_depth(stamp_seconds(m.header), depth_of(m.encoding, pixels(m))), qos_profile_sensor_data)
-    node.create_subscription(sensor_msgs.msg.CameraInfo, info, on_info, qos_profile_sensor_data)
+    node.create_subscription(sensor_msgs.msg.Image, colour, guard.frames(colour, lambda m: frames.add_colour(
+        stamp_seconds(m.header), colour_of(m.encoding, pixels(m)))), qos_profile_sensor_data)
+    node.create_subscription(sensor_msgs.msg.Image, depth, guard.frames(depth, lambda m: frames.add_depth(
+        stamp_seconds(m.header), depth_of(m.encoding, pixels(m)))), qos_profile_sensor_data)
+    node.create_subscription(sensor_msgs.msg.CameraInfo, info, guard.frames(info, on_info), qos_profile_sensor_data)
     results = node.create_publisher(std_msgs.msg.String, f"{namespace}/result", RELIABLE_DEPTH)
     poses = node.create_publisher(geometry_msgs.msg.PoseArray, f"{namespace}/grasps", RELIABLE_DEPTH)
     overlay = node.create_publisher(sensor_msgs.msg.Image, f"{namespace}/overlay", 1)
 
-    def answer(request_id: str, product_id: str, photo, max_grasps: int, size=None, query_box=None, copies_only: bool = False) -> None:
-        try:
-            frame, plans = requests.plan(product_id, photo, max_grasps, size, query_box, copies_only)
-        except Exception as error:  # noqa: BLE001 - the client gets the reason instead of a timeout
-            results.publish(std_msgs.msg.String(data=json.dumps({"id": request_id, "status": "aborted", "text": f"{type(error).__name__}: {error}"})))
-            return
+    def aborted(request_id: str, error: BaseException) -> None:
+        results.publish(std_msgs.msg.String(data=json.dumps({"id": request_id, "status": "aborted", "text": describe(error)})))
+
+    def answer(goal: Goal) -> None:
+        frame, plans = requests.plan(goal.product_id, goal.photo, goal.max_grasps, goal.size, goal.query_box, goal.copies_only)
         grasps = [{"position": p.position, "orientation": p.orientation, "score": p.score, "quality": p.quality, "width": p.width}
                   for p in plans.grasps]
-        results.publish(std_msgs.msg.String(data=json.dumps({"id": request_id, "status": "succeeded", "text": "", "frame": plans.frame,
+        results.publish(std_msgs.msg.String(data=json.dumps({"id": goal.id, "status": "succeeded", "text": "", "frame": plans.frame,
                                                              "stamp": frame.stamp, "grasps": grasps,
                                                              "opening": float(requests.picker.grasp.gripper.opening),
                                                              "plans": plans.to_json()})))
@@ -95,36 +99,36 @@ def make_node(requests: PlanRequests, camera_to_base: np.ndarray, base_frame: st
             pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w = (float(v) for v in plan.orientation)
             array_message.poses.append(pose)
         poses.publish(array_message)
-        picture = plans.plot(frame.rgb, frame.camera.camera, requests.picker.grasp.gripper.opening, photo)
-        overlay.publish(image_message(picture, "rgb8", array_message.header.stamp, plans.frame))
-
-    def on_goal(message) -> None:
         try:
-            goal = json.loads(message.data)
-            request_id, product_id, max_grasps = str(goal.get("id", "")), str(goal.get("product_id", "")), int(goal.get("max_grasps", 0))
-            size = [float(v) for v in goal["size"]] if goal.get("size") else None
-            query_box = [float(v) for v in goal["query_box"]] if goal.get("query_box") else None
-            copies_only = goal.get("copies_only", False)
-            if not isinstance(copies_only, bool):
-                raise ValueError(f"copies_only must be true or false, got {copies_only!r}")
-        except (ValueError, AttributeError, TypeError) as error:
-            results.publish(std_msgs.msg.String(data=json.dumps({"id": "", "status": "aborted", "text": f"bad goal: {error}"})))
-            return
-        answer(request_id, product_id, None, max_grasps, size, query_box, copies_only)
+            picture = plans.plot(frame.rgb, frame.camera.camera, requests.picker.grasp.gripper.opening, goal.photo)
+            overlay.publish(image_message(picture, "rgb8", array_message.header.stamp, plans.frame))
+        except Exception as error:  # noqa: BLE001 - the answer is out; a picture that fails is only logged
+            guard.drop(f"{namespace}/overlay", error)
 
-    node.create_subscription(std_msgs.msg.String, f"{namespace}/goal", on_goal, RELIABLE_DEPTH)
-    def on_goal_photo(message) -> None:
-        request = {"id": message.header.frame_id}
-        if message.header.frame_id.startswith("{"):
+    def serve_goal(load, photo_message=None) -> None:
+        """Answer one goal message: ``load()`` gives its JSON mapping; every failure is an aborted
+        result naming the problem (with the goal's id where it has a readable one), and the node goes
+        on serving."""
+        request_id = ""
+        try:
+            request = load()
+            request_id = request_id_of(request)
+            photo = None if photo_message is None else photo_of(photo_message.encoding, pixels(photo_message))
+            answer(parse_goal(request, photo))
+        except Exception as error:  # noqa: BLE001 - the client gets the reason instead of a timeout
             try:
-                request = json.loads(message.header.frame_id)
-            except ValueError as error:
-                results.publish(std_msgs.msg.String(data=json.dumps({"id": "", "status": "aborted", "text": f"bad goal: {error}"})))
-                return
-        answer(str(request.get("id", "")), str(request.get("product_id", "")), photo_of(message.encoding, pixels(message)),
-               int(request.get("max_grasps", 0)), [float(v) for v in request["size"]] if request.get("size") else None)
+                aborted(request_id, error)
+            except Exception as failed:  # noqa: BLE001 - even the answer failed: log it, keep serving
+                guard.drop(f"{namespace}/result", failed)
 
-    node.create_subscription(sensor_msgs.msg.Image, f"{namespace}/goal_photo", on_goal_photo, RELIABLE_DEPTH)
+    def photo_request(message) -> dict:
+        frame_id = str(message.header.frame_id)
+        return parse_goal_json(frame_id) if frame_id.startswith("{") else {"id": frame_id}
+
+    node.create_subscription(std_msgs.msg.String, f"{namespace}/goal",
+                             lambda message: serve_goal(lambda: parse_goal_json(message.data)), RELIABLE_DEPTH)
+    node.create_subscription(sensor_msgs.msg.Image, f"{namespace}/goal_photo",
+                             lambda message: serve_goal(lambda: photo_request(message), message), RELIABLE_DEPTH)
     return node
 
 
@@ -132,6 +136,7 @@ def serve(picker, camera_to_base: np.ndarray, base_frame: str, namespace: str, t
     """Run the node until Ctrl-C or SIGTERM."""
     require_ros2()
     import rclpy
+    from rclpy.executors import ExternalShutdownException
 
     rclpy.init()
     try:
@@ -140,7 +145,7 @@ def serve(picker, camera_to_base: np.ndarray, base_frame: str, namespace: str, t
         node = make_node(requests, camera_to_base, base_frame, namespace, topics.colour, topics.depth, topics.info)
         node.get_logger().info(f"binpick: planning picks at {namespace} from {topics.colour}, {topics.depth}, {topics.info}")
         rclpy.spin(node)
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, ExternalShutdownException):  # Ctrl-C, or SIGTERM through rclpy's handler: a clean stop
         pass
     finally:
         if rclpy.ok():

@@ -225,7 +225,9 @@ def draw_lights(domain: DomainConfig, rng: np.random.Generator, model, count: in
 def _texture_image(path: str, size: int) -> np.ndarray:
     from PIL import Image
 
-    with Image.open(path) as image:
+    from binpick.files import opened_image
+
+    with opened_image(path, "texture") as image:
         return np.asarray(image.convert("RGB").resize((size * 2, size * 2), Image.BILINEAR))
 
 

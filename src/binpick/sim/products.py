@@ -290,13 +290,10 @@ def load_products(path: str | Path, library: ProductLibrary | None = None) -> Pr
 
 def read_photo(path: Path):
     """RGB uint8 (H, W, 3) of a user's image file; one line naming the file if it cannot be read."""
-    from PIL import Image
+    from binpick.files import opened_image
 
-    try:
-        with Image.open(path) as image:
-            return np.asarray(image.convert("RGB"))
-    except (OSError, ValueError) as error:
-        raise ConfigError(f"cannot read image {str(path)!r} ({type(error).__name__})") from None
+    with opened_image(path, "image") as image:
+        return np.asarray(image.convert("RGB"))
 
 
 def check_product_compiles(product: Product) -> None:

@@ -24,14 +24,11 @@ def draw_boxes(image: np.ndarray, boxes: list[tuple[tuple[float, float, float, f
 
 
 def labelled_scene(data_dir: Path, record: dict, policy: str | None) -> np.ndarray:
-    from PIL import Image
+    from binpick.files import inside, opened_image
 
-    path = Path(data_dir) / record["file_name"]
-    try:
-        with Image.open(path) as opened:
-            image = np.asarray(opened.convert("RGB"))
-    except (OSError, ValueError) as error:
-        raise InputFileError(f"cannot read scene image {str(path)!r} ({type(error).__name__}): regenerate the data set") from None
+    path = inside(data_dir, record["file_name"], "scene image")
+    with opened_image(path, "scene image") as opened:
+        image = np.asarray(opened.convert("RGB"))
     boxes = []
     for a in sorted(record["annotations"], key=lambda a: a["is_query"]):  # the query on top
         if a["is_query"]:

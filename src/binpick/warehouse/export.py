@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from binpick.errors import ConfigError
+from binpick.errors import ConfigError, OutputPathError
 from binpick.files import atomic_write, atomic_write_text, ensure_dir
 from binpick.grasping import PinholeCamera
 from binpick.depth import depth_millimetres
@@ -71,9 +71,15 @@ def export_dataset_scene(data: Path, index: int, out: Path, library=None) -> Pat
     else:
         raise ConfigError(f"scene {index}'s product {target!r} is not in the product library and the data set has no photo of it")
     out = ensure_dir(Path(out), "--out")
-    shutil.copyfile(Path(data) / record["file_name"], out / "rgb.png")
-    depth_file = Path(data) / record.get("depth_file", f"depth/{index:06d}.png")
-    shutil.copyfile(depth_file, out / "depth.png")  # already 16-bit millimetres
+    from binpick.files import inside, require_file
+
+    sources = [require_file(inside(data, record[key] if key in record else fallback, what), what) for key, fallback, what in
+               (("file_name", None, "scene image"), ("depth_file", f"depth/{index:06d}.png", "depth image"))]
+    for source, name in zip(sources, ("rgb.png", "depth.png")):  # the depth is already 16-bit millimetres
+        try:
+            shutil.copyfile(source, out / name)
+        except OSError as error:
+            raise OutputPathError(f"cannot write {str(out / name)!r}: {error.strerror or type(error).__name__}") from None
     write_camera_info(CameraInfo(PinholeCamera.from_record(camera), base_frame="world"), out / "camera.yaml")
     _png(out / "photo.png", photo)
     truth = {"product": target, "source": {"data": str(data), "scene": index, "seed": record.get("seed")},
