@@ -34,7 +34,7 @@ data_app = typer.Typer(help="Warehouse bin data sets with pickability from trial
 app.add_typer(data_app, name="data")
 detect_app = typer.Typer(help="Repeated object detection (thesis ch. 5, §6.3): ROD and TDID.", no_args_is_help=True)
 app.add_typer(detect_app, name="detect")
-grasp_app = typer.Typer(help="Grasps from depth (issue 17): train the grasp-quality model on simulated trials.",
+grasp_app = typer.Typer(help="Grasps from depth: train the grasp-quality model on simulated trials.",
                         no_args_is_help=True)
 app.add_typer(grasp_app, name="grasp")
 products_app = typer.Typer(help="The products binpick can generate bins of and pick: built in, or your own (--products YAML).",

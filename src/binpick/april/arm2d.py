@@ -1,7 +1,7 @@
 """APRiL for Arm2D: an A3C policy trained on the arm's semantic state, deployed on pixels (ch. 4's recipe
 on ch. 3's task).
 
-End to end from pixels A3C needs far more steps than on the state (issue 19: 319 actions after 1M pixel
+End to end from pixels A3C needs far more steps than on the state (319 actions after 1M pixel
 steps, 20 after 2M state steps). APRiL's answer is to learn the policy on the state and give it, at
 deployment, the state read off the image. What the state policy needs are positions (its input is
 cos/sin of the joints, the end point and the goal), so the perception here regresses keypoints -- the
@@ -172,7 +172,7 @@ class PixelsAsArm2DState(gym.ObservationWrapper):
 class ReadStateOffPixels:
     """An A3C ``wrap_env`` (binpick.rl.a3c_train): Arm2D's pictures in, the state its frozen keypoint network
     (weights at ``path``) reads off them out, so a state learner trains acting on pixels -- APRiL's split
-    inside RL (issue 19: through it, and through A3C's own coarser reading, the state learner learns Arm2D's
+    inside RL (through it, and through A3C's own coarser reading, the state learner learns Arm2D's
     single goal at its pace from the true state; benchmarks/a3c_reading_error.py). A path, not a network, so
     it pickles into A3C's spawned workers; each loads the weights itself."""
 

@@ -1,4 +1,4 @@
-"""Depth as a second input, for pickability (issue 16; thesis §5.4.4, §6.3).
+"""Depth as a second input, for pickability (thesis §5.4.4, §6.3).
 
 Which copy of a product a grasp can lift depends on its pose and on its neighbours: whether something
 lies on it, whether a finger has room beside it. An RGB crop of 40 pixels shows that poorly, the

@@ -1,4 +1,4 @@
-"""A second look at each detection: will the policy pick this copy? (issue 16; thesis §5.4.4, §6.3)
+"""A second look at each detection: will the policy pick this copy? (thesis §5.4.4, §6.3)
 
 ROD finds the copies of a product well (97% of the pickable ones at IoU 0.5 on binpick's default
 bins) but ranks pickable against unpickable copies with a ROC AUC of only 0.87: whether Policy 1's jaws

@@ -96,7 +96,7 @@ class Arm2DEnv(gym.Env):
 
     def place_goal(self, goal: np.ndarray) -> tuple[Any, dict[str, Any]]:
         """Move the goal, keeping the arm's pose; returns the new (observation, info). For pictures of the
-        goal close to the end point, where episodes end but random poses seldom put it (issue 19)."""
+        goal close to the end point, where episodes end but random poses seldom put it."""
         goal = np.asarray(goal, dtype=float)
         if goal.shape != (2,) or not np.isfinite(goal).all():
             raise ValueError(f"a goal is two finite numbers, got {goal!r}")
@@ -135,7 +135,7 @@ class Arm2DEnv(gym.Env):
     def state_continuous(self) -> np.ndarray:
         """The semantic state with each joint angle as its cosine and sine (3 + 3), end point, goal: a
         regression target without the jump at ±π. A network regressing the raw angles spends its loss on
-        that jump (issue 19: from 64 px images at A3C's learning rate, 6,000 updates left the end point
+        that jump (from 64 px images at A3C's learning rate, 6,000 updates left the end point
         0.34 off with raw angles, 0.10 with this)."""
         return _continuous(self.state)
 

@@ -30,7 +30,7 @@ POLICY_INPUTS = ("features", "state_estimate")
 class SpatialSoftmax(nn.Module):
     """Each channel's expected (x, y) under its softmax over the image, in [-1, 1] (Levine et al. 2016):
     a feature that fires on the goal gives the goal's coordinates wherever it is, where a flattened
-    map gives a separate weight to every place (issue 19: trained on goals in a quarter of the play
+    map gives a separate weight to every place (trained on goals in a quarter of the play
     area, a flattened trunk located goals elsewhere over 10x worse than inside; this one about as well:
     benchmarks/a3c_encoder_probe.py)."""
 
@@ -49,7 +49,7 @@ class ActorCritic(nn.Module):
     keeps half-resolution maps and reads each channel's expected position (:class:`SpatialSoftmax`), so what is
     learnt about a goal in one place holds in every place: the curriculum's widening needs it. ``"state"``
     takes a flat float vector (B, D) instead of images: it measures what the learner does when
-    perception is perfect (issue 19).
+    perception is perfect.
 
     ``policy_input="state_estimate"`` puts a semantic bottleneck between perception and control (APRiL's
     idea, thesis ch. 4, inside A3C): the policy and value heads read an MLP on the state the auxiliary head
@@ -61,7 +61,7 @@ class ActorCritic(nn.Module):
     ``hidden_layers`` is the number of 256-unit ReLU layers in ``hidden`` (after the trunk) and in ``controller``
     (0: the heads read the trunk's output, or the state estimate, directly). The state encoder's trunk is itself
     one such layer, so the state learner has 1 + ``hidden_layers`` layers on the state, where a picture trunk that
-    ends at positions (keypoints) leaves ``hidden_layers`` above them. Why (issue 19): with one, the pixel learner
+    ends at positions (keypoints) leaves ``hidden_layers`` above them. Why: with one, the pixel learner
     and the bottleneck learnt Arm2D's single goal at the pace of the state learner with one (``hidden_layers=0``),
     half that of the state learner with two."""
 

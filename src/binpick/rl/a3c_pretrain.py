@@ -1,4 +1,4 @@
-"""Teach an A3C network to read the semantic state off its pictures before RL starts (issue 19).
+"""Teach an A3C network to read the semantic state off its pictures before RL starts.
 
 A3C from pixels learns its perception from the reward and the auxiliary state loss while it acts, at
 the small learning rate the policy needs; on Arm2D its features still read the arm's state poorly
@@ -38,7 +38,7 @@ def render_states(make_env: Callable[[], gym.Env], state_key: str, count: int, s
     A ``near_goal`` fraction of them has the goal moved next to the end point (offsets of 1.5 success radii
     a coordinate, normally distributed), the pictures every successful episode ends in: random poses put the
     tip within 0.15 of the goal in ~2% of pictures, and a network never shown them reads the goal there
-    twice as badly as elsewhere (issue 19)."""
+    twice as badly as elsewhere."""
     env = make_env()
     rng = np.random.default_rng(seed)
     if near_goal and not hasattr(env.unwrapped, "place_goal"):

@@ -127,7 +127,7 @@ class _SeededPerturbation(gym.ObservationWrapper):
 class GaussianObservationNoise(_SeededPerturbation):
     """Adds independent Gaussian noise (``std``) to every component of a vector observation, fresh each step.
 
-    Why (issue 19): a learner on the true state stands in for one on a state read off pictures only if the
+    Why: a learner on the true state stands in for one on a state read off pictures only if the
     reading's error does not matter; with the noise set to the reading's error it measures whether it does."""
 
     def __init__(self, env: gym.Env, std: float) -> None:
@@ -141,7 +141,7 @@ class GaussianObservationNoise(_SeededPerturbation):
 class ReadingErrors(_SeededPerturbation):
     """Adds a row of ``errors`` (N, D), a random row each step, to a D-vector observation.
 
-    Why (issue 19): a perception's error is tied to the pose -- the same each time the arm is there, so a
+    Why: a perception's error is tied to the pose -- the same each time the arm is there, so a
     learner cannot average it out. Rows of that perception's own errors, measured on other pictures and
     drawn at random, are the same errors untied from the pose: a learner that keeps its pace with these
     and not with the perception itself is slowed by the tie, not by the size of the errors."""
