@@ -239,3 +239,49 @@ def test_the_guard_drops_bad_camera_messages_with_throttled_warnings():
         callback(message)  # 1 // 0 raises: dropped, never raised
     assert seen == [1] and guard.dropped == {"/camera/color/image_raw": 3} and len(warnings) == 1
     assert "ZeroDivisionError" in warnings[0]
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.text(max_size=400))
+def test_any_text_as_yaml_gives_data_or_one_line(text):
+    from binpick.files import parse_yaml
+
+    try:
+        parse_yaml(text, "settings.yaml")
+    except InputFileError as error:
+        one_line(error)
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.binary(max_size=300))
+def test_any_bytes_as_a_json_file_give_data_or_one_line(data):
+    import tempfile
+
+    from binpick.files import read_json
+
+    with tempfile.NamedTemporaryFile(suffix=".json") as file:
+        file.write(data)
+        file.flush()
+        try:
+            read_json(file.name, "scene file")
+        except InputFileError as error:
+            one_line(error)
+
+
+JSON_VALUES = st.recursive(st.none() | st.booleans() | st.floats() | st.integers(-10**6, 10**6) | st.text(max_size=12),
+                           lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=10), inner, max_size=4),
+                           max_leaves=12)
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.dictionaries(st.sampled_from(["name", "env", "algorithm", "total_timesteps", "seed", "env_kwargs", "sac", "replay",
+                                        "eval", "curriculum", "gp", "unknown"]), JSON_VALUES, max_size=5))
+def test_any_mapping_as_an_rl_config_gives_a_config_or_one_line(data):
+    """The config loader's one path (from_dict, then the dataclasses' own checks) on whatever a file holds."""
+    from binpick.config import from_dict
+    from binpick.rl.config import RLConfig
+
+    try:
+        from_dict(RLConfig, data, "rl.yaml")
+    except BinpickError as error:
+        one_line(error)

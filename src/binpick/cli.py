@@ -18,7 +18,7 @@ from rich.table import Table
 from rich.text import Text
 
 from binpick.errors import BinpickError, ConfigError
-from binpick.files import atomic_write, atomic_write_json, check_output_file, ensure_dir
+from binpick.files import atomic_write, atomic_write_json, check_output_file, ensure_dir, parse_yaml
 from binpick.terminal import RichCallback
 
 app = typer.Typer(help="Learned bin picking: simulated worlds, RL, APRiL and repeated object detection.",
@@ -81,7 +81,7 @@ def parse_settings(pairs: list[str] | None) -> dict:
         key, sep, value = pair.partition("=")
         if not sep or not key.strip():
             raise ConfigError(f"--set expects KEY=VALUE, got {pair!r}")
-        settings[key.strip()] = yaml.safe_load(value) if value.strip() else None
+        settings[key.strip()] = parse_yaml(value, f"--set {key.strip()}") if value.strip() else None
     return settings
 
 

@@ -30,8 +30,13 @@ def check_ray_address(address: str | None) -> str | None:
     return address
 
 
+HTTP2_HELLO = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + bytes([0, 0, 0, 4, 0, 0, 0, 0, 0])  # preface + empty SETTINGS
+
+
 def probe_ray_address(address: str, timeout: float = 5.0) -> None:
-    """Fail in one line, within ``timeout``, when nothing listens at a cluster address."""
+    """Fail in one line, within ``timeout``, when nothing at a cluster address answers: nothing
+    listening, or a peer that accepts the connection and then stays silent (Ray would wait on it far
+    longer). A Ray head's GCS and client server speak gRPC, which answers an HTTP/2 greeting at once."""
     from binpick.errors import ConfigError
 
     match = _ADDRESS.fullmatch(address)
@@ -39,7 +44,13 @@ def probe_ray_address(address: str, timeout: float = 5.0) -> None:
         return  # "auto": Ray finds the cluster itself
     host = match["host"].strip("[]")
     try:
-        socket.create_connection((host, int(match["port"])), timeout=timeout).close()
+        with socket.create_connection((host, int(match["port"])), timeout=timeout) as connection:
+            connection.settimeout(timeout)
+            connection.sendall(HTTP2_HELLO)
+            connection.recv(64)  # any answer (or a close) is a live peer; silence until the timeout is not
+    except TimeoutError:
+        raise ConfigError(f"the peer at {address} accepted the connection but did not answer within {timeout:.0f} s: "
+                          "not a Ray cluster (start one with `ray start --head`)") from None
     except OSError as error:
         raise ConfigError(f"no Ray cluster answered at {address} within {timeout:.0f} s "
                           f"({error.strerror or type(error).__name__}): start one with `ray start --head`") from None

@@ -15,10 +15,9 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any, TypeVar
 
-import yaml
 
 from binpick.errors import ConfigError
-from binpick.files import read_text
+from binpick.files import parse_yaml, read_text
 
 T = TypeVar("T")
 
@@ -104,14 +103,8 @@ def load_yaml(path: str | Path) -> dict[str, Any]:
     path = Path(path)
     if not path.exists():
         raise ConfigError(f"config file {str(path)!r} does not exist")
-    text = read_text(path, "config file")  # a folder, unreadable or not UTF-8: one line
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as error:
-        mark = getattr(error, "problem_mark", None)
-        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
-        problem = getattr(error, "problem", None) or str(error).splitlines()[0]
-        raise ConfigError(f"{path}: invalid YAML{where}: {problem}") from None
+    text = read_text(path, "config file")  # a folder, a FIFO, unreadable or not UTF-8: one line
+    data = parse_yaml(text, str(path))  # bad syntax, a key twice, a bomb: one line
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: expected a mapping of keys to values at the top level")
     return data

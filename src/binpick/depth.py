@@ -51,8 +51,9 @@ def read_depth(path: str | Path) -> np.ndarray:
     if path.suffix.lower() == ".npy":
         try:
             loaded = np.load(path, allow_pickle=False)  # object arrays (pickles) are refused here
-            if not isinstance(loaded, np.ndarray) or not np.issubdtype(loaded.dtype, np.number):
-                raise ValueError("not a single numeric array")
+            if not isinstance(loaded, np.ndarray) or not (np.issubdtype(loaded.dtype, np.integer)
+                                                          or np.issubdtype(loaded.dtype, np.floating)):
+                raise ValueError(f"depth must be real numbers, got {getattr(loaded, 'dtype', type(loaded).__name__)}")
             depth = loaded.astype(np.float32)
         except (ValueError, OSError, EOFError, MemoryError) as error:
             raise InputFileError(f"depth image {str(path)!r} is not a numeric .npy array ({str(error)[:80]})") from None

@@ -163,8 +163,10 @@ def opened_image(path: str | Path, what: str = "image", max_pixels: int = MAX_IM
                 yield image
     except InputFileError:
         raise
-    except (OSError, ValueError, SyntaxError, EOFError, IndexError, TypeError, MemoryError, Image.DecompressionBombWarning,
-            Image.DecompressionBombError) as error:
+    except (Image.DecompressionBombWarning, Image.DecompressionBombError):  # PIL's own guard, past its larger limit
+        raise InputFileError(f"{what} {str(path)!r} declares more pixels than binpick decodes "
+                             f"({max_pixels / 1e6:.0f} megapixels): a decompression bomb or a damaged file") from None
+    except (OSError, ValueError, SyntaxError, EOFError, IndexError, TypeError, MemoryError) as error:
         detail = str(error).splitlines()[0][:100] if str(error) else type(error).__name__
         raise InputFileError(f"cannot read {what} {str(path)!r}: {detail}") from None
 
@@ -203,6 +205,108 @@ def read_json(path: str | Path, what: str = "JSON file") -> Any:
         raise InputFileError(f"{what} {str(path)!r} nests too deeply to be a binpick file") from None
     except ValueError as error:  # e.g. a number of more digits than Python converts
         raise InputFileError(f"{what} {str(path)!r} is not valid JSON ({str(error)[:80]})") from None
+
+
+MAX_YAML_NODES = 1_000_000  # values after aliases are expanded: far above any config, far below a bomb
+MAX_YAML_DEPTH = 64  # nesting levels: configs nest three or four
+
+
+def parse_yaml(text: str, where: str) -> Any:
+    """YAML as binpick reads it everywhere (configs, ``--set`` values, camera.yaml, products files):
+    safe (no tags that build objects), a key twice in one mapping refused, aliases that would expand
+    past ``MAX_YAML_NODES`` values (a "billion laughs") or nesting past ``MAX_YAML_DEPTH`` levels
+    refused before anything is built. Every failure is one ``InputFileError`` line naming ``where``."""
+    import yaml
+
+    loader = _strict_loader()
+    try:
+        node = yaml.compose(text, Loader=loader)
+        if node is None:
+            return None
+        _check_expansion(node, where)
+        return yaml.load(text, Loader=loader)
+    except _DuplicateKey as duplicate:
+        raise InputFileError(f"{where}: key {duplicate.key!r} appears twice in one mapping (line {duplicate.line})") from None
+    except yaml.YAMLError as error:
+        mark = getattr(error, "problem_mark", None)
+        at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        problem = str(getattr(error, "problem", None) or str(error).splitlines()[0])
+        if "flow level" in problem or "depth" in problem:
+            raise InputFileError(f"{where} nests too deeply to be a binpick file") from None
+        raise InputFileError(f"{where}: invalid YAML{at}: {problem[:120]}") from None
+    except RecursionError:
+        raise InputFileError(f"{where} nests too deeply to be a binpick file") from None
+    except ValueError as error:  # a number of more digits than Python converts
+        raise InputFileError(f"{where}: a value cannot be read ({str(error)[:80]})") from None
+
+
+class _DuplicateKey(Exception):
+    def __init__(self, key: str, line: int) -> None:
+        super().__init__(key)
+        self.key, self.line = key, line
+
+
+_LOADER: Any = None
+
+
+def _strict_loader():
+    """libyaml's safe loader where present (10x faster), refusing a key given twice in one mapping."""
+    global _LOADER
+    if _LOADER is None:
+        import yaml
+
+        base = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+        class StrictLoader(base):  # type: ignore[valid-type, misc]
+            def construct_mapping(self, node, deep=False):
+                seen: set[str] = set()
+                for key_node, _ in node.value:
+                    if isinstance(key_node, yaml.ScalarNode) and key_node.tag != "tag:yaml.org,2002:merge":
+                        if key_node.value in seen:
+                            raise _DuplicateKey(key_node.value, key_node.start_mark.line + 1)
+                        seen.add(key_node.value)
+                return super().construct_mapping(node, deep)
+
+        _LOADER = StrictLoader
+    return _LOADER
+
+
+def _check_expansion(root, where: str) -> None:
+    """Values and depth of a composed YAML document as it would be built, aliases expanded (each
+    node counted once per reference, computed once per node: linear in the file's size)."""
+    import yaml
+
+    size: dict[int, int] = {}
+    depth: dict[int, int] = {}
+    open_nodes: set[int] = set()  # entered, not yet sized: meeting one again is a cycle
+    stack = [(root, False)]
+    while stack:
+        node, done = stack.pop()
+        key = id(node)
+        if key in size:
+            continue
+        children = ([n for pair in node.value for n in pair] if isinstance(node, yaml.MappingNode)
+                    else list(node.value) if isinstance(node, yaml.SequenceNode) else [])
+        if not done:
+            if key in open_nodes:
+                raise InputFileError(f"{where}: a value contains itself through an alias")
+            open_nodes.add(key)
+            stack.append((node, True))
+            stack.extend((child, False) for child in children if id(child) not in size)
+            continue
+        open_nodes.discard(key)
+        size[key] = 1 + sum(size.get(id(child), 0) for child in children)
+        depth[key] = 1 + max((depth.get(id(child), 0) for child in children), default=0)
+        if size[key] > MAX_YAML_NODES:
+            raise InputFileError(f"{where}: its aliases expand to more than {MAX_YAML_NODES:,} values "
+                                 "(a YAML bomb?): binpick reads files without them")
+        if depth[key] > MAX_YAML_DEPTH:
+            raise InputFileError(f"{where} nests too deeply to be a binpick file (over {MAX_YAML_DEPTH} levels)")
+
+
+def read_yaml(path: str | Path, what: str = "YAML file") -> Any:
+    """A YAML file read through :func:`parse_yaml` (a regular file, UTF-8, bounded)."""
+    return parse_yaml(read_text(path, what), f"{what} {str(path)!r}")
 
 
 def read_npz(path: str | Path, what: str = "array file") -> dict[str, Any]:

@@ -27,7 +27,7 @@ from typing import Any, Protocol
 from contextlib import contextmanager
 from pathlib import Path
 
-from binpick.errors import InputFileError
+from binpick.errors import ConfigError, InputFileError
 from binpick.files import atomic_write_text, ensure_dir, fsync_dir, read_text
 
 _NAME = re.compile(r"ckpt-\d{9}")
@@ -67,8 +67,21 @@ def latest_checkpoint(directory: Path) -> Path | None:
     return folder
 
 
+_RUN_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.+-]{0,127}")
+
+
+def check_run_name(name: str) -> str:
+    """A config's ``name`` becomes a folder inside the runs folder: a plain name (letters, digits,
+    ``_ . + -``), never a path that could leave it (``..``, ``/``, an absolute path, a NUL)."""
+    if not isinstance(name, str) or not _RUN_NAME.fullmatch(name) or ".." in name:
+        raise ConfigError(f"name {str(name)[:80]!r} must be a plain folder name (letters, digits, _ . + -, up to 128): "
+                          "a run's folder is made inside the runs folder, never elsewhere")
+    return name
+
+
 def new_run_dir(runs_root: Path, name: str, config_yaml: str) -> Path:
     """``runs_root/name/<YYYYmmdd-HHMMSS>[-k]/`` holding ``config.yaml``: everything to re-run it."""
+    check_run_name(name)
     stamp = time.strftime("%Y%m%d-%H%M%S")
     base = ensure_dir(Path(runs_root) / name, "runs folder")
     for attempt in range(1000):

@@ -125,7 +125,7 @@ def load(path: str | Path, formats: str | tuple[str, ...], what: str = "file") -
     try:
         tensors = from_bytes(data)
         header = _header(data)
-    except (SafetensorError, ValueError, OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+    except (SafetensorError, ValueError, OSError, UnicodeDecodeError, RecursionError, MemoryError) as error:
         detail = str(error).splitlines()[0][:120] if str(error) else type(error).__name__
         raise InputFileError(f"{what} {str(path)!r} is not a safetensors file ({detail})") from None
     metadata = header.get("__metadata__") or {}
@@ -135,7 +135,7 @@ def load(path: str | Path, formats: str | tuple[str, ...], what: str = "file") -
         raise InputFileError(f"{what} {str(path)!r} is {kind}; expected {' or '.join(repr(f) for f in formats)}")
     try:
         document = json.loads(metadata.get(META_KEY, "{}"))
-    except json.JSONDecodeError:
+    except (ValueError, RecursionError, TypeError):  # not JSON, nested past reading, a number past converting
         raise InputFileError(f"{what} {str(path)!r} is damaged: its metadata is not valid JSON") from None
     if not isinstance(document, dict) or not isinstance(document.get("meta", {}), dict):
         raise InputFileError(f"{what} {str(path)!r} is damaged: its metadata is not a JSON object")

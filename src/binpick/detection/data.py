@@ -63,16 +63,29 @@ def check_coco(coco: dict[str, Any], path: Path) -> None:
     for key in ("images", "annotations", "categories"):
         if not isinstance(coco[key], list):
             fail(key, "a list", type(coco[key]).__name__)
+    def twice(kind: str, value: Any) -> None:
+        raise ConfigError(f"{path}: {kind} id {value} appears twice: ids must be unique")
+
     categories = set()
     for i, category in enumerate(coco["categories"]):
         if not isinstance(category, dict) or not integer(category.get("id")) or not isinstance(category.get("name"), str):
             fail(f"categories[{i}]", "an object with an integer id and a string name", category)
         if not isinstance(category.get("supercategory", ""), str):
             fail(f"categories[{i}].supercategory", "a string", category["supercategory"])
+        if category["id"] in categories:
+            twice("category", category["id"])
         categories.add(category["id"])
+    sizes: dict[int, tuple[Any, Any]] = {}
     for i, image in enumerate(coco["images"]):
         if not isinstance(image, dict) or not integer(image.get("id")) or not isinstance(image.get("file_name"), str):
             fail(f"images[{i}]", "an object with an integer id and a string file_name", image)
+        for key in ("width", "height"):
+            if key in image and (not integer(image[key]) or not 0 < image[key] <= 100_000):
+                fail(f"images[{i}].{key}", "a whole number of pixels from 1 to 100000", image[key])
+        if image["id"] in sizes:
+            twice("image", image["id"])
+        sizes[image["id"]] = (image.get("width"), image.get("height"))
+    annotation_ids = set()
     for i, annotation in enumerate(coco["annotations"]):
         where = f"annotations[{i}]"
         if not isinstance(annotation, dict):
@@ -89,6 +102,16 @@ def check_coco(coco: dict[str, Any], path: Path) -> None:
             fail(f"{where}.bbox", "[x, y, width, height]: 4 finite numbers, width and height > 0", box)
         if "id" in annotation and not integer(annotation["id"]):
             fail(f"{where}.id", "an integer", annotation["id"])
+        if "id" in annotation:
+            if annotation["id"] in annotation_ids:
+                twice("annotation", annotation["id"])
+            annotation_ids.add(annotation["id"])
+        if annotation["image_id"] not in sizes:
+            raise ConfigError(f"{path}: {where} has image_id {annotation['image_id']}, but no image has that id")
+        width, height = sizes[annotation["image_id"]]
+        if width is not None and height is not None and (box[0] < -0.5 or box[1] < -0.5 or box[0] + box[2] > width + 0.5
+                                                         or box[1] + box[3] > height + 0.5):
+            raise ConfigError(f"{path}: {where}.bbox {box} lies outside its {width}x{height} image")
         if not isinstance(annotation.get("pickable", {}), (dict, type(None))):
             fail(f"{where}.pickable", "a mapping of policy to true/false", annotation["pickable"])
         if not isinstance(annotation.get("iscrowd", 0), (int, bool)):

@@ -75,10 +75,25 @@ def _read_detector_file(path: Path) -> tuple[dict[str, torch.Tensor], dict[str, 
     return weights, meta
 
 
+def check_network_sizes(meta: dict, path: Path) -> None:
+    """Sizes a weights file's metadata asks for, checked before a network is built: a file asking for
+    a 10-million-pixel input or a million channels is refused, not allocated."""
+    where = f"detector weights {str(path)!r}"
+    for key, low, high in (("image_size", 32, 4096), ("query_size", 16, 1024)):
+        value = meta.get(key, low)
+        if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+            raise InputFileError(f"{where}: {key} must be a whole number from {low} to {high}, got {str(value)[:40]}")
+    numbers = [v for value in meta["spec"].values() for v in (value if isinstance(value, (list, tuple)) else [value])
+               if isinstance(v, (int, float)) and not isinstance(v, bool)]
+    if any(not abs(v) <= 4096 for v in numbers):
+        raise InputFileError(f"{where}: its network description asks for sizes past 4096 (channels, layers, scales)")
+
+
 def load_detector(path: str | Path) -> DetectorNetwork:
     """A detector saved by :func:`save_detector` (or a run folder holding ``model.safetensors``)."""
     path = _weights_path(Path(path))
     weights, meta = _read_detector_file(path)
+    check_network_sizes(meta, path)
     try:
         spec = ModelSpec(**{**meta["spec"], "scales": tuple(meta["spec"]["scales"]),  # JSON lists -> the spec's tuples
                             "photo_sizes": tuple(meta["spec"].get("photo_sizes", ()))})

@@ -67,8 +67,9 @@ class PinholeCamera:
             if isinstance(side, bool) or not isinstance(side, numbers.Real) or not 1 <= side <= MAX_SIDE or side != int(side):
                 raise ConfigError(f"camera width and height must be whole numbers of pixels from 1 to {MAX_SIDE}, "
                                   f"got {self.width} x {self.height}")
-        check_intrinsics(K, int(self.width), int(self.height))
-        check_rigid(pose, "camera_to_world")
+        with np.errstate(over="ignore", invalid="ignore"):  # a hostile number is reported, not warned about
+            check_intrinsics(K, int(self.width), int(self.height))
+            check_rigid(pose, "camera_to_world")
         object.__setattr__(self, "width", int(self.width))
         object.__setattr__(self, "height", int(self.height))
         object.__setattr__(self, "K", K)

@@ -145,20 +145,14 @@ def _numbers(data: dict, key: str, count: int | None, where: str) -> np.ndarray:
 def read_camera_info(path: str | Path) -> CameraInfo:
     """A ``camera_info`` YAML file with an optional ``camera_to_base`` (default: the camera is the
     base frame). Anything missing or malformed is one line naming the field."""
-    import yaml
+    from binpick.files import read_yaml
 
-    from binpick.files import require_file
-
-    path = require_file(Path(path), "camera file")
     where = repr(str(path))
-    try:
-        data = yaml.load(path.read_text(), Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))  # libyaml where present: 10x faster
-    except (yaml.YAMLError, UnicodeDecodeError) as error:
-        raise InputFileError(f"camera file {where} is not valid YAML ({str(error).splitlines()[0][:80]})") from None
+    data = read_yaml(path, "camera file")  # a regular file, UTF-8, no key twice, no bomb
     if not isinstance(data, dict):
         raise InputFileError(f"camera file {where} must be a mapping in the ROS camera_info YAML layout")
     for key in ("image_width", "image_height"):
-        if not isinstance(data.get(key), int) or data[key] < 1:
+        if isinstance(data.get(key), bool) or not isinstance(data.get(key), int) or data[key] < 1:
             raise InputFileError(f"camera file {where}: {key} must be a positive whole number of pixels, got {data.get(key)!r}")
     K = _numbers(data, "camera_matrix", 9, where)
     D = _numbers(data, "distortion_coefficients", None, where) if "distortion_coefficients" in data else np.zeros(0)

@@ -55,11 +55,15 @@ class RosMaster:
         while time.monotonic() < deadline:
             if self.process.poll() is not None:
                 raise BinpickError(f"rosmaster exited: {self.process.stderr.read().decode(errors='replace').strip()[-300:]}")
+            previous = socket.getdefaulttimeout()
+            socket.setdefaulttimeout(max(0.1, min(deadline - time.monotonic(), 2.0)))  # a silent peer on the port: no hang
             try:
                 xmlrpc.client.ServerProxy(self.uri).getPid("/binpick")
                 return
-            except OSError:
+            except (OSError, xmlrpc.client.Error):
                 time.sleep(0.05)
+            finally:
+                socket.setdefaulttimeout(previous)
         raise BinpickError(f"rosmaster did not answer on {self.uri} within {timeout:.0f} s")
 
     def stop(self) -> None:

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from binpick.sim.mjcf_mesh import merged_obj
+from xml.sax.saxutils import quoteattr
 
 if TYPE_CHECKING:  # products.py compiles MJCF from here: the type only, no import cycle
     from binpick.sim.products import Product
@@ -56,12 +57,12 @@ def product_assets(product: Product, prefix: str) -> str:
         parts.append(f'<material name="{prefix}_mat" texture="{prefix}_tex" rgba="1 1 1 1"/>')
     if product.mesh is not None:
         inline = merged_obj(product.mesh) if product.mesh.suffix.lower() == ".obj" else None
-        source = f'vertex="{inline[0]}" face="{inline[1]}"' if inline else f'file="{product.mesh}"'
+        source = f'vertex="{inline[0]}" face="{inline[1]}"' if inline else f"file={quoteattr(str(product.mesh))}"
         parts.append(f'<mesh name="{prefix}_mesh" {source} scale="{_fmt([product.scale] * 3)}" inertia="convex"/>')
     if product.pattern is not None:
         pass
     elif product.texture is not None:
-        parts.append(f'<texture name="{prefix}_tex" type="2d" file="{product.texture}"/>')
+        parts.append(f'<texture name="{prefix}_tex" type="2d" file={quoteattr(str(product.texture))}/>')
         uniform = "true" if product.texuniform else "false"
         parts.append(f'<material name="{prefix}_mat" texture="{prefix}_tex" texrepeat="{_fmt(product.texrepeat)}" '
                      f'texuniform="{uniform}" rgba="1 1 1 1"/>')

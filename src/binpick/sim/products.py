@@ -19,11 +19,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from binpick.config import check_range
 from binpick.errors import ConfigError
-from binpick.files import read_text
+from binpick.files import parse_yaml, read_text
 from binpick.sim.mjcf_mesh import merged_obj
 
 
@@ -124,13 +123,15 @@ MIN_ASPECT = 0.35  # random shapes: shortest / longest side
 def mesh_extent(path: Path) -> np.ndarray:
     """Axis-aligned size of a mesh as MuJoCo loads it (its OBJ reader may keep fewer vertices than
     the file holds), so that ``scale`` normalises what is really simulated and rendered."""
+    from xml.sax.saxutils import quoteattr
+
     import mujoco
 
     path = Path(path)
     if path.suffix.lower() not in (".obj", ".stl"):
         raise ConfigError(f"mesh {str(path)!r}: only .obj and .stl meshes are supported")
     inline = merged_obj(path) if path.suffix.lower() == ".obj" and path.is_file() else None
-    source = f'vertex="{inline[0]}" face="{inline[1]}"' if inline else f'file="{path}"'
+    source = f'vertex="{inline[0]}" face="{inline[1]}"' if inline else f"file={quoteattr(str(path))}"
     xml = f'<mujoco><asset><mesh name="m" {source}/></asset><worldbody><geom type="mesh" mesh="m"/></worldbody></mujoco>'
     try:
         model = mujoco.MjModel.from_xml_string(xml)
@@ -244,19 +245,27 @@ def load_products(path: str | Path, library: ProductLibrary | None = None) -> Pr
     if not path.exists():
         raise ConfigError(f"products file {str(path)!r} does not exist")
     text = read_text(path, "products file")
-    try:
-        data = yaml.safe_load(text) or {}
-    except yaml.YAMLError as error:
-        raise ConfigError(f"{path}: not valid YAML ({str(error).splitlines()[0]})") from None
+    data = parse_yaml(text, str(path)) or {}  # a key twice (``products:`` given twice), a bomb: one line
     entries = data.get("products") if isinstance(data, dict) else None
     if not isinstance(entries, list) or not entries:
         raise ConfigError(f"{path}: expected a 'products:' list")
     library = library or ProductLibrary()
-    allowed = {"id", "category", "mesh", "texture", "longest_side", "scale", "mass", "friction", "photo", "rgba"}
+    allowed = {"id", "category", "mesh", "texture", "longest_side", "scale", "mass", "friction", "photo", "rgba", "replaces"}
+    seen: set[str] = set()
     for index, entry in enumerate(entries):
         where = f"{path.name}: products[{index}]"
         if not isinstance(entry, dict) or "id" not in entry or "category" not in entry or "mesh" not in entry:
             raise ConfigError(f"{where} needs id, category and mesh")
+        for key in ("id", "category"):
+            value = entry[key]
+            if not isinstance(value, str) or not value.strip() or len(value) > 128 or any(c in value for c in "\x00\n\r\t"):
+                raise ConfigError(f"{where}.{key} must be a non-empty name of up to 128 characters on one line, got {str(value)[:40]!r}")
+        if entry["id"] in seen:
+            raise ConfigError(f"{where}: product id {entry['id']!r} appears twice in {path.name}: ids name one product each")
+        seen.add(entry["id"])
+        if entry["id"] in library.products and entry.get("replaces") is not True:
+            raise ConfigError(f"{where}: product id {entry['id']!r} is a built-in product's: choose another id, or "
+                              "add replaces: true to stand in for the built-in one")
         extra = sorted(set(entry) - allowed)
         if extra:
             raise ConfigError(f"{where} has no key {extra[0]!r} (allowed: {', '.join(sorted(allowed))})")

@@ -250,12 +250,13 @@ def generate_world(config: GenerateConfig, world: int, out: Path) -> list[dict[s
 
 def write_scene(out: Path, files: dict[str, bytes], record: dict[str, Any]) -> None:
     """A scene's images first, its JSON last and atomically: the scene now exists (resume relies on it)."""
-    from binpick.files import atomic_write_bytes
+    from binpick.files import atomic_write_bytes, inside
 
-    for name, data in files.items():
-        if name.startswith("photos/") and (out / name).is_file():
+    for name, data in files.items():  # names a worker sent: written only inside the data set
+        target = inside(out, name, "scene file")
+        if name.startswith("photos/") and target.is_file():
             continue
-        atomic_write_bytes(out / name, data)
+        atomic_write_bytes(target, data)
     atomic_write_json(out / "scenes" / f"{record['index']:06d}.json", record, indent=None)
 
 
