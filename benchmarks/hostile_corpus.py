@@ -53,6 +53,7 @@ def make_corpus(root: Path) -> dict[str, str]:
     import yaml
 
     root = Path(root)
+    root.mkdir(parents=True, exist_ok=True)
     paths: dict[str, Path] = {"root": root}
 
     def put(name: str, content: bytes | str) -> Path:
@@ -157,7 +158,7 @@ def make_corpus(root: Path) -> dict[str, str]:
     coco("coco_orphan.json", annotations=[box, second | {"image_id": 7}])
     coco("coco_unknown_category.json", annotations=[box, second | {"category_id": 9}])
     coco("coco_escape.json", images=[image | {"file_name": "../../../../etc/hostname"}])
-    coco("coco_absolute.json", images=[image | {"file_name": str(root / "scene.png")}])
+    coco("coco_absolute.json", images=[image | {"file_name": "/etc/hostname"}])
     coco("coco_depth_escape.json", images=[image | {"depth_file": "../../../../etc/hostname"}])
     coco("coco_deep.json", text='{"images": ' + "[" * 100_000 + "]" * 100_000 + "}")
     coco("coco_image_size_zero.json", images=[image | {"width": 0}])
@@ -261,8 +262,8 @@ CASES: list[tuple[str, list[str], list[str]]] = [
     ("frames", plan_with(camera="{cam_focal_huge_yaml}"), ["focal length fx = 1e+09"]),
     ("frames", plan_with(camera="{cam_centre_off_yaml}"), ["principal point"]),
     ("frames", plan_with(camera="{cam_last_row_yaml}"), ["[0, 0, 1]"]),
-    ("frames", plan_with(camera="{cam_d_short_yaml}"), ["plumb_bob takes 5 coefficients, got 3"]),
-    ("frames", plan_with(camera="{cam_d_long_yaml}"), ["equidistant takes 4 coefficients, got 7"]),
+    ("frames", plan_with(camera="{cam_d_short_yaml}"), ["plumb_bob takes 4 or 5 or 8 or 12 or 14 coefficients, got 3"]),
+    ("frames", plan_with(camera="{cam_d_long_yaml}"), ["equidistant takes 4 or 5 or 8 coefficients, got 7"]),
     ("frames", plan_with(camera="{cam_d_none_yaml}"), ["non-zero coefficients"]),
     ("frames", plan_with(camera="{cam_scaled_yaml}"), ["not a rotation"]),
     ("frames", plan_with(camera="{cam_mirrored_yaml}"), ["not a rotation"]),

@@ -127,7 +127,7 @@ def test_any_intrinsics_give_a_real_camera_or_one_line(k, width, height):
         one_line(error)
         return
     fx, fy = camera.K[0, 0], camera.K[1, 1]
-    assert 0 < fx < 12 * width and 0 < fy < 12 * height and 0 <= camera.K[0, 2] <= width
+    assert 0 < fx < 30 * width and 0 < fy < 30 * height and 0 <= camera.K[0, 2] <= width
 
 
 BAD_POSES = {
@@ -158,12 +158,15 @@ def test_intrinsics_no_camera_has_are_one_line(k, fragment):
     assert fragment in one_line(refused.value)
 
 
-@pytest.mark.parametrize("d,model,fragment", [([0.1, 0.0, 0.0], "plumb_bob", "takes 5"), ([0.1] * 5, "equidistant", "takes 4"),
+@pytest.mark.parametrize("d,model,fragment", [([0.1, 0.0, 0.0], "plumb_bob", "got 3"), ([0.1] * 5, "equidistant", "not zero"),
+                                              ([0.1] * 7, "equidistant", "got 7"), ([0.1] * 9, "rational_polynomial", "got 9"),
                                               ([float("inf")] * 5, "plumb_bob", "finite"), ([0.2], "none", "non-zero")])
 def test_distortion_of_the_wrong_length_is_one_line(d, model, fragment):
     with pytest.raises(ConfigError, match=fragment):
         CameraInfo.from_ros(K.ravel(), d, 416, 416, DOWN, model)
     assert CameraInfo.from_ros(K.ravel(), [], 416, 416, DOWN, "plumb_bob").D.size == 0  # none given: no distortion
+    for model, length in (("plumb_bob", 5), ("plumb_bob", 8), ("rational_polynomial", 14), ("equidistant", 4)):
+        assert CameraInfo.from_ros(K.ravel(), [0.01] * length, 416, 416, DOWN, model).D.size == length  # what drivers publish
 
 
 def sample_camera(tmp_path: Path, change) -> Path:
@@ -285,3 +288,44 @@ def test_any_mapping_as_an_rl_config_gives_a_config_or_one_line(data):
         from_dict(RLConfig, data, "rl.yaml")
     except BinpickError as error:
         one_line(error)
+
+
+def test_json_depth_counts_brackets_outside_strings_only():
+    from binpick.picking.node import json_depth
+
+    assert json_depth('{"id": "[[[[x", "size": [1, 2, 3]}') == 2
+    hidden = '{"id": "' + "]" * 30 + '", "x": ' + "[" * 30 + "]" * 30 + "}"  # closing brackets in a string hide nothing
+    assert json_depth(hidden) == 31
+    with pytest.raises(InputFileError, match="nests 31 levels"):
+        parse_goal_json(hidden)
+    assert parse_goal_json('{"id": "[[[[x", "product_id": "a"}')["id"] == "[[[[x"
+
+
+def test_a_live_grpc_server_passes_the_ray_probe_and_a_silent_one_does_not():
+    """Ray's head speaks gRPC: the probe's HTTP/2 greeting is answered at once (a silent peer is the
+    hostile-file suite's)."""
+    from concurrent import futures
+
+    import grpc
+
+    from binpick.cluster import probe_ray_address
+
+    server = grpc.server(futures.ThreadPoolExecutor(max_workers=1))
+    port = server.add_insecure_port("127.0.0.1:0")
+    server.start()
+    try:
+        probe_ray_address(f"127.0.0.1:{port}", timeout=5.0)  # no exception: a live peer
+    finally:
+        server.stop(0)
+
+
+def test_yaml_duplicates_are_found_by_value_and_rounded_hand_eye_matrices_pass():
+    from binpick.files import parse_yaml
+
+    with pytest.raises(InputFileError, match="twice"):
+        parse_yaml("yes: a\ntrue: b\n", "x.yaml")  # both the boolean true
+    assert parse_yaml("1: a\n'1': b\n", "x.yaml") == {1: "a", "1": "b"}
+    rounded = np.array([[0.47, 0.836, 0.285, 0.1], [0.814, -0.285, -0.507, 0.2], [-0.342, 0.47, -0.814, 0.9], [0, 0, 0, 1.0]])
+    camera = PinholeCamera(K, 416, 416, rounded)  # printed to 3 decimals: accepted, made exactly rigid
+    rotation = camera.camera_to_world[:3, :3]
+    assert np.allclose(rotation.T @ rotation, np.eye(3), atol=1e-9) and np.allclose(rotation, rounded[:3, :3], atol=0.01)

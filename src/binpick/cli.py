@@ -782,11 +782,12 @@ def _pick_node_setup(camera: Path | None, namespace: str, colour: str, depth: st
 
     for name, option in ((namespace, "--namespace"), (colour, "--colour-topic"), (depth, "--depth-topic"), (info, "--info-topic")):
         _check_namespace(name, option)
-    pose, frame = np.eye(4), "camera"
+    pose, frame, workspace = np.eye(4), "camera", None
     if camera is not None:
         calibration = read_camera_info(camera)
-        pose, frame = calibration.camera.camera_to_world, calibration.base_frame
-    return pose, frame, Picker.load(weights, grasp, grasp_weights), Topics(colour, depth, info)
+        pose, frame, workspace = calibration.camera.camera_to_world, calibration.base_frame, calibration.workspace
+    # the camera_info topic brings K and D; camera.yaml's workspace bounds every pose the node emits
+    return pose, frame, Picker.load(weights, grasp, grasp_weights, workspace=workspace), Topics(colour, depth, info)
 
 
 @ros_app.command("pick-node")

@@ -44,16 +44,20 @@ def probe_ray_address(address: str, timeout: float = 5.0) -> None:
         return  # "auto": Ray finds the cluster itself
     host = match["host"].strip("[]")
     try:
-        with socket.create_connection((host, int(match["port"])), timeout=timeout) as connection:
-            connection.settimeout(timeout)
-            connection.sendall(HTTP2_HELLO)
-            connection.recv(64)  # any answer (or a close) is a live peer; silence until the timeout is not
-    except TimeoutError:
-        raise ConfigError(f"the peer at {address} accepted the connection but did not answer within {timeout:.0f} s: "
-                          "not a Ray cluster (start one with `ray start --head`)") from None
+        connection = socket.create_connection((host, int(match["port"])), timeout=timeout)
     except OSError as error:
         raise ConfigError(f"no Ray cluster answered at {address} within {timeout:.0f} s "
                           f"({error.strerror or type(error).__name__}): start one with `ray start --head`") from None
+    with connection:
+        try:
+            connection.settimeout(timeout)
+            connection.sendall(HTTP2_HELLO)
+            connection.recv(64)  # any answer (or a close) is a live peer; silence until the timeout is not
+        except TimeoutError:
+            raise ConfigError(f"the peer at {address} accepted the connection but did not answer within {timeout:.0f} s: "
+                              "not a Ray cluster (start one with `ray start --head`)") from None
+        except OSError:
+            return  # reset by a peer that spoke first (e.g. TLS): Ray itself will say what it is
 
 
 def start_ray(address: str | None, workers: int) -> bool:

@@ -8,6 +8,7 @@ a folder, not UTF-8, not JSON) into an :class:`~binpick.errors.InputFileError` t
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import stat
@@ -134,12 +135,18 @@ def inside(root: str | Path, name: Any, what: str = "file") -> Path:
     would leave ``root`` (an absolute name, ``..``, or a symbolic link pointing out): a data set only
     ever reads and names its own files."""
     if not isinstance(name, str) or not name or "\x00" in name:
-        raise InputFileError(f"{what} name {str(name)[:80]!r} must be a non-empty relative path inside {str(root)!r}")
-    base = Path(root).resolve()
+        raise InputFileError(f"{what} name {str(name)[:80]!r} must be a non-empty path inside {str(root)!r}")
+    base = _resolved(str(root))
     target = (base / name).resolve()
-    if Path(name).is_absolute() or not target.is_relative_to(base):
-        raise InputFileError(f"{what} {name[:120]!r} lies outside {str(root)!r}: a data set names only its own files")
+    if not target.is_relative_to(base):
+        raise InputFileError(f"{what} {name[:120]!r} lies outside {str(root)!r} (or is a link that leads out of it): "
+                             "a data set names only its own files")
     return base / name
+
+
+@functools.lru_cache(maxsize=64)
+def _resolved(root: str) -> Path:
+    return Path(root).resolve()
 
 
 @contextmanager
@@ -151,17 +158,20 @@ def opened_image(path: str | Path, what: str = "image", max_pixels: int = MAX_IM
 
     from PIL import Image
 
+    from binpick.errors import BinpickError
+
     path = require_file(path, what)
     try:
-        with warnings.catch_warnings():
+        with warnings.catch_warnings():  # only while the header is read: PIL warns past its own limit
             warnings.simplefilter("error", Image.DecompressionBombWarning)
-            with Image.open(path) as image:
-                width, height = image.size
-                if width * height > max_pixels:
-                    raise InputFileError(f"{what} {str(path)!r} is {width}x{height} pixels ({width * height / 1e6:.0f} "
-                                         f"megapixels), more than binpick decodes ({max_pixels / 1e6:.0f})")
-                yield image
-    except InputFileError:
+            image = Image.open(path)
+        with image:
+            width, height = image.size
+            if width * height > max_pixels:
+                raise InputFileError(f"{what} {str(path)!r} is {width}x{height} pixels ({width * height / 1e6:.0f} "
+                                     f"megapixels), more than binpick decodes ({max_pixels / 1e6:.0f})")
+            yield image
+    except BinpickError:
         raise
     except (Image.DecompressionBombWarning, Image.DecompressionBombError):  # PIL's own guard, past its larger limit
         raise InputFileError(f"{what} {str(path)!r} declares more pixels than binpick decodes "
@@ -259,12 +269,13 @@ def _strict_loader():
 
         class StrictLoader(base):  # type: ignore[valid-type, misc]
             def construct_mapping(self, node, deep=False):
-                seen: set[str] = set()
+                seen: set = set()
                 for key_node, _ in node.value:
                     if isinstance(key_node, yaml.ScalarNode) and key_node.tag != "tag:yaml.org,2002:merge":
-                        if key_node.value in seen:
+                        key = (type(value := self.construct_object(key_node)).__name__, value)  # yes/true alike, 1 and "1" not
+                        if key in seen:
                             raise _DuplicateKey(key_node.value, key_node.start_mark.line + 1)
-                        seen.add(key_node.value)
+                        seen.add(key)
                 return super().construct_mapping(node, deep)
 
         _LOADER = StrictLoader

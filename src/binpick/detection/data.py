@@ -80,8 +80,10 @@ def check_coco(coco: dict[str, Any], path: Path) -> None:
         if not isinstance(image, dict) or not integer(image.get("id")) or not isinstance(image.get("file_name"), str):
             fail(f"images[{i}]", "an object with an integer id and a string file_name", image)
         for key in ("width", "height"):
-            if key in image and (not integer(image[key]) or not 0 < image[key] <= 100_000):
-                fail(f"images[{i}].{key}", "a whole number of pixels from 1 to 100000", image[key])
+            value = image.get(key)
+            if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value <= 100_000
+                                      or value != int(value)):
+                fail(f"images[{i}].{key}", "a whole number of pixels from 1 to 100000", value)
         if image["id"] in sizes:
             twice("image", image["id"])
         sizes[image["id"]] = (image.get("width"), image.get("height"))
@@ -109,8 +111,8 @@ def check_coco(coco: dict[str, Any], path: Path) -> None:
         if annotation["image_id"] not in sizes:
             raise ConfigError(f"{path}: {where} has image_id {annotation['image_id']}, but no image has that id")
         width, height = sizes[annotation["image_id"]]
-        if width is not None and height is not None and (box[0] < -0.5 or box[1] < -0.5 or box[0] + box[2] > width + 0.5
-                                                         or box[1] + box[3] > height + 0.5):
+        if width is not None and height is not None and (box[0] < -1 or box[1] < -1 or box[0] + box[2] > width + 1
+                                                         or box[1] + box[3] > height + 1):  # a pixel of slack: inclusive boxes
             raise ConfigError(f"{path}: {where}.bbox {box} lies outside its {width}x{height} image")
         if not isinstance(annotation.get("pickable", {}), (dict, type(None))):
             fail(f"{where}.pickable", "a mapping of policy to true/false", annotation["pickable"])

@@ -18,6 +18,7 @@ from binpick.errors import ConfigError
 MAX_SIDE = 16384  # pixels: the largest image side a calibration may describe
 FIELD_OF_VIEW = (2.0, 170.0)  # degrees: a lens outside this is no camera binpick plans with
 MAX_TRANSLATION = 100.0  # metres between the camera and the frame it is calibrated in
+ROTATION_TOLERANCE = 0.02  # R^T R within this of I: a hand-eye matrix printed to 2 decimals passes, a scaled one not
 
 
 def check_intrinsics(K: np.ndarray, width: int, height: int) -> None:
@@ -46,11 +47,23 @@ def check_rigid(pose: np.ndarray, name: str) -> None:
     rotation = pose[:3, :3]
     if not np.allclose(pose[3], [0.0, 0.0, 0.0, 1.0], atol=1e-6):
         raise ConfigError(f"{name} must end in the row 0 0 0 1, got {np.round(pose[3], 6).tolist()}")
-    if not np.allclose(rotation.T @ rotation, np.eye(3), atol=1e-3) or np.linalg.det(rotation) < 0:
+    if not np.allclose(rotation.T @ rotation, np.eye(3), atol=ROTATION_TOLERANCE) or np.linalg.det(rotation) < 0:
         raise ConfigError(f"{name}'s rotation is not a rotation (scaled, sheared or mirrored: determinant "
                           f"{np.linalg.det(rotation):.4g})")
     if np.linalg.norm(pose[:3, 3]) > MAX_TRANSLATION:
         raise ConfigError(f"{name} puts the camera {np.linalg.norm(pose[:3, 3]):.3g} m away (at most {MAX_TRANSLATION:g} m)")
+
+
+def nearest_rigid(pose: np.ndarray) -> np.ndarray:
+    """``pose`` with its rotation made exactly orthonormal (SVD; unchanged when it already is): a
+    calibration printed with few decimals plans as the rotation it stands for."""
+    rotation = pose[:3, :3]
+    if np.allclose(rotation.T @ rotation, np.eye(3), atol=1e-9):
+        return pose
+    u, _, vt = np.linalg.svd(rotation)
+    fixed = pose.copy()
+    fixed[:3, :3] = u @ vt
+    return fixed
 
 
 @dataclass(frozen=True)
@@ -73,7 +86,7 @@ class PinholeCamera:
         object.__setattr__(self, "width", int(self.width))
         object.__setattr__(self, "height", int(self.height))
         object.__setattr__(self, "K", K)
-        object.__setattr__(self, "camera_to_world", pose)
+        object.__setattr__(self, "camera_to_world", nearest_rigid(pose))
 
     @classmethod
     def from_record(cls, record: dict) -> PinholeCamera:
@@ -83,6 +96,8 @@ class PinholeCamera:
                        np.array(record.get("camera_to_world", np.eye(4))))
         except KeyError as missing:
             raise ConfigError(f"camera record has no {missing.args[0]!r} field") from None
+        except ConfigError:
+            raise
         except (TypeError, ValueError) as error:
             raise ConfigError(f"camera record is malformed: {str(error)[:100]}") from None
 

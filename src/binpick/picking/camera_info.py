@@ -23,7 +23,8 @@ from binpick.grasping.camera import PinholeCamera
 from binpick.picking.workspace import Workspace
 
 DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "equidistant", "none", "")
-DISTORTION_LENGTHS = {"plumb_bob": (5,), "rational_polynomial": (8,), "equidistant": (4,)}  # or none given
+# coefficient counts each model may carry (none given: no distortion); OpenCV's own for the first two
+DISTORTION_LENGTHS = {"plumb_bob": (4, 5, 8, 12, 14), "rational_polynomial": (8, 12, 14), "equidistant": (4, 5, 8)}
 
 
 def quaternion_to_matrix(q) -> np.ndarray:
@@ -87,7 +88,10 @@ class CameraInfo:
             raise ConfigError(f"distortion coefficients must be finite, got {D.tolist()[:8]}")
         wanted = DISTORTION_LENGTHS.get(distortion_model)
         if D.size and wanted is not None and D.size not in wanted:
-            raise ConfigError(f"distortion model {distortion_model} takes {wanted[0]} coefficients, got {D.size}")
+            raise ConfigError(f"distortion model {distortion_model} takes {' or '.join(map(str, wanted))} coefficients, "
+                              f"got {D.size}")
+        if distortion_model == "equidistant" and np.any(D[4:] != 0):
+            raise ConfigError(f"distortion model equidistant has 4 coefficients (k1-k4); got more that are not zero: {D.tolist()}")
         if distortion_model in ("none", "") and np.any(D != 0):
             raise ConfigError(f"distortion model {distortion_model or 'empty'!r} with non-zero coefficients {D.tolist()[:8]}")
         pose = np.eye(4) if camera_to_base is None else np.asarray(camera_to_base, dtype=float)
@@ -112,7 +116,7 @@ class CameraInfo:
         """The ``camera_info`` YAML layout (with ``camera_to_base``) that :func:`read_camera_info` reads."""
         K = self.camera.K.round(6).tolist()
         P = np.hstack([self.camera.K, np.zeros((3, 1))]).round(6).ravel().tolist()
-        D = self.D.tolist() if self.D.size else [0.0] * 5
+        D = self.D.tolist() if self.D.size else [0.0] * DISTORTION_LENGTHS.get(self.distortion_model, (5,))[0]
         pose = self.camera.camera_to_world
         return {"image_width": int(self.camera.width), "image_height": int(self.camera.height), "camera_name": camera_name,
                 "camera_matrix": {"rows": 3, "cols": 3, "data": [v for row in K for v in row]},

@@ -27,6 +27,7 @@ ENCODINGS = {"rgb8": (np.uint8, 3), "bgr8": (np.uint8, 3), "rgba8": (np.uint8, 4
 MAX_SIDE = 8192  # pixels: the largest side of an image message the node decodes (a 4K camera's is 3840)
 MAX_GOAL_CHARS = 65536  # a goal is a few hundred characters of JSON
 MAX_GRASPS = 100
+MAX_PRODUCT_SIZE = 2.0  # metres: a catalogue dimension past this is no product a bin holds
 
 
 def image_array(encoding: str, height: int, width: int, step: int, data: bytes, bigendian: bool = False) -> np.ndarray:
@@ -97,12 +98,12 @@ class Goal:
 
 def _text_field(goal: Mapping, key: str) -> str:
     value = goal.get(key, "")
-    if not isinstance(value, str) or len(value) > 256:
-        raise InputFileError(f"goal field {key!r} must be text of at most 256 characters")
+    if not isinstance(value, str) or len(value) > 256 or any(ord(c) < 32 for c in value):
+        raise InputFileError(f"goal field {key!r} must be text of at most 256 characters on one line")
     return value
 
 
-def _numbers_field(goal: Mapping, key: str, count: int, positive: bool = False) -> list[float] | None:
+def _numbers_field(goal: Mapping, key: str, count: int, positive: bool = False, most: float | None = None) -> list[float] | None:
     value = goal.get(key)
     if value is None or (isinstance(value, (list, tuple)) and len(value) == 0):
         return None
@@ -113,6 +114,8 @@ def _numbers_field(goal: Mapping, key: str, count: int, positive: bool = False) 
     checked = [float(v) for v in value]
     if not all(math.isfinite(v) for v in checked) or (positive and min(checked) <= 0):
         raise InputFileError(f"goal field {key!r} must hold finite{' positive' if positive else ''} numbers, got {checked}")
+    if most is not None and max(checked) > most:
+        raise InputFileError(f"goal field {key!r} must hold numbers of at most {most:g}, got {checked}")
     return checked
 
 
@@ -134,7 +137,7 @@ def parse_goal(goal: Mapping, photo: np.ndarray | None = None) -> Goal:
     if not isinstance(copies_only, bool):
         raise InputFileError(f"goal field 'copies_only' must be true or false, got {str(copies_only)[:40]}")
     return Goal(_text_field(goal, "id"), _text_field(goal, "product_id"), max_grasps,
-                _numbers_field(goal, "size", 3, positive=True), _numbers_field(goal, "query_box", 4), copies_only, photo)
+                _numbers_field(goal, "size", 3, positive=True, most=MAX_PRODUCT_SIZE), _numbers_field(goal, "query_box", 4), copies_only, photo)
 
 
 def request_id_of(goal) -> str:
@@ -143,22 +146,38 @@ def request_id_of(goal) -> str:
     return value if isinstance(value, str) and len(value) <= 256 else ""
 
 
-def parse_goal_json(text: str) -> dict:
-    """The JSON of a ROS 2 goal as a mapping: too long, nested past a few levels or not JSON is one line."""
-    if not isinstance(text, str) or len(text) > MAX_GOAL_CHARS:
-        raise InputFileError(f"a goal is at most {MAX_GOAL_CHARS} characters of JSON")
+def json_depth(text: str) -> int:
+    """How deep JSON ``text`` nests (brackets inside strings not counted), without parsing it."""
     depth = deepest = 0
-    for character in text:  # brackets inside strings count too: a goal has no reason to nest or quote them
-        if character in "[{":
+    in_string = escaped = False
+    for character in text:
+        if in_string:
+            if escaped:
+                escaped = False
+            elif character == "\\":
+                escaped = True
+            elif character == '"':
+                in_string = False
+        elif character == '"':
+            in_string = True
+        elif character in "[{":
             depth += 1
             deepest = max(deepest, depth)
         elif character in "]}":
             depth -= 1
+    return deepest
+
+
+def parse_goal_json(text: str) -> dict:
+    """The JSON of a ROS 2 goal as a mapping: too long, nested past a few levels or not JSON is one line."""
+    if not isinstance(text, str) or len(text) > MAX_GOAL_CHARS:
+        raise InputFileError(f"a goal is at most {MAX_GOAL_CHARS} characters of JSON")
+    deepest = json_depth(text)
     if deepest > 4:
         raise InputFileError(f"a goal's JSON nests {deepest} levels deep; a goal nests two")
     try:
         goal = json.loads(text)
-    except ValueError as error:
+    except (ValueError, RecursionError) as error:
         raise InputFileError(f"a goal must be JSON: {str(error)[:80]}") from None
     if not isinstance(goal, dict):
         raise InputFileError(f"a goal must be a JSON object, got {type(goal).__name__}")
@@ -175,6 +194,7 @@ class Guard:
         self.dropped: dict[str, int] = {}
         self._last: dict[str, float] = {}
         self._lock = threading.Lock()
+        self._published = 0  # how many drops the last report covered
 
     def drop(self, topic: str, error: BaseException) -> None:
         with self._lock:
@@ -185,6 +205,23 @@ class Guard:
             self._last[topic] = now
             count = self.dropped[topic]
         self.warn(f"binpick: dropped a message on {topic} ({count} so far): {describe(error)}")
+
+    def report(self) -> str | None:
+        """JSON of the drop counts per topic when they changed since the last report (for the
+        node's ``dropped`` topic), else None."""
+        with self._lock:
+            total = sum(self.dropped.values())
+            if total == self._published:
+                return None
+            self._published = total
+            return json.dumps(dict(sorted(self.dropped.items())))
+
+    def summary(self) -> str:
+        """What was dropped, per topic (a node prints it when it stops)."""
+        with self._lock:
+            counts = dict(self.dropped)
+        return "; ".join(f"binpick: dropped {count} messages on {topic}" for topic, count in sorted(counts.items())) or \
+            "binpick: dropped no messages"
 
     def frames(self, topic: str, callback: Callable) -> Callable:
         """``callback`` for camera messages on ``topic``, dropping the ones it cannot take."""

@@ -3,8 +3,8 @@ emits is checked against it, so that no calibration, depth reading or model erro
 pose outside its cell (a pose outside is rejected with its reason, never emitted).
 
 The box comes from, in order: the ``Picker``'s ``workspace`` setting, the ``workspace`` of
-``camera.yaml`` (``{min: [x, y, z], max: [x, y, z]}``, metres in the base frame), or the camera's view
-between ``NEAR`` and ``FAR`` metres in front of it.
+``camera.yaml`` (``{min: [x, y, z], max: [x, y, z]}``, metres in the base frame; the ROS nodes take
+it from their ``--camera``), or the camera's view between ``NEAR`` and ``FAR`` metres in front of it.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import numpy as np
 
 from binpick.errors import ConfigError
 
-NEAR, FAR = 0.05, 3.0  # metres along the optical axis: the default workspace is the view between them
+NEAR, FAR = 0.05, 6.0  # metres along the optical axis: the default workspace is the view between them
 MAX_EXTENT = 20.0  # metres: no robot cell is larger
 
 OUTSIDE = "outside the workspace"

@@ -8,6 +8,7 @@ every plan on ``<namespace>/overlay``. Everything but the ROS plumbing is
 from __future__ import annotations
 
 import json
+import sys
 
 import numpy as np
 
@@ -57,9 +58,19 @@ class PickNode:
                 stamp_seconds(m.header), self._camera(m))), queue_size=2),
         ]
         self.overlay = rospy.Publisher(f"{self.namespace}/overlay", sensor_msgs.msg.Image, queue_size=1, latch=True)
+        import std_msgs.msg
+
+        self.dropped = rospy.Publisher(f"{self.namespace}/dropped", std_msgs.msg.String, queue_size=2, latch=True)
+        self.string = std_msgs.msg.String
+        self.timer = rospy.Timer(rospy.Duration(0.5), self._report_drops)  # camera messages it could not use, JSON {topic: count}
         self.server = actionlib.ActionServer(self.namespace, self.types["PlanPickAction"], self._on_goal, auto_start=False)
         self.server.start()
         self.stamps: dict[float, object] = {}
+
+    def _report_drops(self, _event=None) -> None:
+        text = self.guard.report()
+        if text is not None:
+            self.dropped.publish(self.string(data=text))
 
     @staticmethod
     def _pixels(message) -> np.ndarray:
@@ -109,6 +120,7 @@ class PickNode:
         self.overlay.publish(message)
 
     def stop(self) -> None:
+        self.timer.shutdown()
         self.server.stop()
         for subscriber in self.subscribers:
             subscriber.unregister()
@@ -130,3 +142,4 @@ def serve(picker, camera_to_base: np.ndarray, base_frame: str, namespace: str, t
         rospy.spin()
     finally:
         node.stop()
+        print(node.guard.summary(), file=sys.stderr, flush=True)

@@ -9,13 +9,15 @@ as standard messages on ``<namespace>/...``:
   (``sensor_msgs/Image``, the shop photo; ``header.frame_id`` is the request id, or that JSON);
 - ``result`` (``std_msgs/String``, JSON ``{"id", "status", "text", "grasps": [{position, orientation,
   score, quality, width}], "opening", "plans"}``): the ROS 1 result's fields, same values;
-- ``grasps`` (``geometry_msgs/PoseArray`` in the base frame, best first, for RViz) and ``overlay``.
+- ``grasps`` (``geometry_msgs/PoseArray`` in the base frame, best first, for RViz) and ``overlay``;
+- ``dropped`` (``std_msgs/String``, JSON ``{topic: count}``): camera messages the node could not use, when the counts change.
 """
 
 from __future__ import annotations
 
 import array
 import json
+import sys
 
 import numpy as np
 
@@ -78,6 +80,14 @@ def make_node(requests: PlanRequests, camera_to_base: np.ndarray, base_frame: st
     results = node.create_publisher(std_msgs.msg.String, f"{namespace}/result", RELIABLE_DEPTH)
     poses = node.create_publisher(geometry_msgs.msg.PoseArray, f"{namespace}/grasps", RELIABLE_DEPTH)
     overlay = node.create_publisher(sensor_msgs.msg.Image, f"{namespace}/overlay", 1)
+    dropped = node.create_publisher(std_msgs.msg.String, f"{namespace}/dropped", RELIABLE_DEPTH)
+
+    def report_drops() -> None:  # what the camera topics brought that could not be used, twice a second when it changes
+        text = guard.report()
+        if text is not None:
+            dropped.publish(std_msgs.msg.String(data=text))
+
+    node.create_timer(0.5, report_drops)
 
     def aborted(request_id: str, error: BaseException) -> None:
         results.publish(std_msgs.msg.String(data=json.dumps({"id": request_id, "status": "aborted", "text": describe(error)})))
@@ -86,10 +96,8 @@ def make_node(requests: PlanRequests, camera_to_base: np.ndarray, base_frame: st
         frame, plans = requests.plan(goal.product_id, goal.photo, goal.max_grasps, goal.size, goal.query_box, goal.copies_only)
         grasps = [{"position": p.position, "orientation": p.orientation, "score": p.score, "quality": p.quality, "width": p.width}
                   for p in plans.grasps]
-        results.publish(std_msgs.msg.String(data=json.dumps({"id": goal.id, "status": "succeeded", "text": "", "frame": plans.frame,
-                                                             "stamp": frame.stamp, "grasps": grasps,
-                                                             "opening": float(requests.picker.grasp.gripper.opening),
-                                                             "plans": plans.to_json()})))
+        answer_text = json.dumps({"id": goal.id, "status": "succeeded", "text": "", "frame": plans.frame, "stamp": frame.stamp,
+                                  "grasps": grasps, "opening": float(requests.picker.grasp.gripper.opening), "plans": plans.to_json()})
         array_message = geometry_msgs.msg.PoseArray()
         array_message.header.frame_id = plans.frame
         array_message.header.stamp.sec, array_message.header.stamp.nanosec = int(frame.stamp), int(1e9 * (frame.stamp % 1))
@@ -98,12 +106,13 @@ def make_node(requests: PlanRequests, camera_to_base: np.ndarray, base_frame: st
             pose.position.x, pose.position.y, pose.position.z = (float(v) for v in plan.position)
             pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w = (float(v) for v in plan.orientation)
             array_message.poses.append(pose)
-        poses.publish(array_message)
+        results.publish(std_msgs.msg.String(data=answer_text))  # built in full first: a goal is answered once
         try:
+            poses.publish(array_message)
             picture = plans.plot(frame.rgb, frame.camera.camera, requests.picker.grasp.gripper.opening, goal.photo)
             overlay.publish(image_message(picture, "rgb8", array_message.header.stamp, plans.frame))
-        except Exception as error:  # noqa: BLE001 - the answer is out; a picture that fails is only logged
-            guard.drop(f"{namespace}/overlay", error)
+        except Exception as error:  # noqa: BLE001 - the answer is out; what follows it is only logged if it fails
+            guard.drop(f"{namespace}/grasps", error)
 
     def serve_goal(load, photo_message=None) -> None:
         """Answer one goal message: ``load()`` gives its JSON mapping; every failure is an aborted
@@ -139,6 +148,7 @@ def serve(picker, camera_to_base: np.ndarray, base_frame: str, namespace: str, t
     from rclpy.executors import ExternalShutdownException
 
     rclpy.init()
+    node = None
     try:
         picker.warm_up()
         requests = PlanRequests.with_catalogue(picker, library)
@@ -148,5 +158,7 @@ def serve(picker, camera_to_base: np.ndarray, base_frame: str, namespace: str, t
     except (KeyboardInterrupt, ExternalShutdownException):  # Ctrl-C, or SIGTERM through rclpy's handler: a clean stop
         pass
     finally:
+        if node is not None:
+            print(node.binpick_guard.summary(), file=sys.stderr, flush=True)
         if rclpy.ok():
             rclpy.shutdown()

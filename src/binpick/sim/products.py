@@ -258,7 +258,9 @@ def load_products(path: str | Path, library: ProductLibrary | None = None) -> Pr
             raise ConfigError(f"{where} needs id, category and mesh")
         for key in ("id", "category"):
             value = entry[key]
-            if not isinstance(value, str) or not value.strip() or len(value) > 128 or any(c in value for c in "\x00\n\r\t"):
+            if isinstance(value, int) and not isinstance(value, bool):  # a barcode given as a number
+                value = entry[key] = str(value)
+            if not isinstance(value, str) or not value.strip() or len(value) > 128 or any(ord(c) < 32 for c in value):
                 raise ConfigError(f"{where}.{key} must be a non-empty name of up to 128 characters on one line, got {str(value)[:40]!r}")
         if entry["id"] in seen:
             raise ConfigError(f"{where}: product id {entry['id']!r} appears twice in {path.name}: ids name one product each")
