@@ -69,3 +69,20 @@ def _one_torch_thread_per_worker():
 def pytest_collection_modifyitems(config, items):
     rank = {name: index for index, name in enumerate(LONG_FIRST)}
     items.sort(key=lambda item: rank.get(item.nodeid.split("/")[-1], len(rank)))
+
+
+def run_cli(args: list[str], capsys, monkeypatch, cwd: Path | None = None) -> tuple[int, str]:
+    """``binpick ARGS`` in this process (in ``cwd``): its exit code and what it printed on stderr;
+    never a traceback (asserted here)."""
+    import sys
+
+    from binpick.cli import main
+
+    if cwd is not None:
+        monkeypatch.chdir(cwd)  # nothing a case writes lands in the repository
+    monkeypatch.setattr(sys, "argv", ["binpick", *args])
+    with pytest.raises(SystemExit) as exit_info:
+        main()
+    out, err = capsys.readouterr()
+    assert "Traceback" not in out + err
+    return exit_info.value.code, err

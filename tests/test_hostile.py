@@ -7,7 +7,6 @@ from __future__ import annotations
 import importlib.util
 import json
 import math
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +16,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from binpick.errors import BinpickError, ConfigError, InputFileError
+from conftest import run_cli
 from binpick.grasping import PinholeCamera
 from binpick.picking.camera_info import CameraInfo, read_camera_info
 from binpick.picking.node import (ENCODINGS, FrameSynchroniser, Guard, colour_of, depth_of, image_array, parse_goal,
@@ -177,17 +177,6 @@ def sample_camera(tmp_path: Path, change) -> Path:
     return path
 
 
-def run_cli(args: list[str], monkeypatch, capsys) -> tuple[int, str]:
-    from binpick.cli import main
-
-    monkeypatch.setattr(sys, "argv", ["binpick", *args])
-    with pytest.raises(SystemExit) as exit_info:
-        main()
-    out, err = capsys.readouterr()
-    assert "Traceback" not in out + err
-    return exit_info.value.code, err
-
-
 def test_plan_with_a_focal_length_of_1e_minus_6_is_one_line_and_never_a_pose(tmp_path, monkeypatch, capsys):
     def tiny_focal(data):
         data["camera_matrix"]["data"][0] = data["camera_matrix"]["data"][4] = 1e-6
@@ -195,7 +184,7 @@ def test_plan_with_a_focal_length_of_1e_minus_6_is_one_line_and_never_a_pose(tmp
     camera = sample_camera(tmp_path, tiny_focal)
     code, err = run_cli(["plan", "--rgb", str(SAMPLE_FRAME / "rgb.png"), "--depth", str(SAMPLE_FRAME / "depth.png"),
                          "--camera", str(camera), "--photo", str(SAMPLE_FRAME / "photo.png"), "--out", str(tmp_path / "plans.json")],
-                        monkeypatch, capsys)
+                        capsys, monkeypatch)
     lines = [line for line in err.splitlines() if line.strip()]
     assert code == 2 and len(lines) == 1 and "focal length fx = 1e-06" in lines[0], err
     assert not (tmp_path / "plans.json").exists()

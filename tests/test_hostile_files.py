@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from binpick.cli import main
+from conftest import run_cli
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLE = ROOT / "src" / "binpick" / "samples" / "bin_frame"
@@ -46,14 +46,9 @@ def _ids() -> list[str]:
 @pytest.mark.timeout(60)  # a case that hangs fails here instead of blocking the suite
 @pytest.mark.parametrize("klass,args,fragments", CORPUS.CASES, ids=_ids())
 def test_every_hostile_file_is_one_line(klass, args, fragments, corpus, capsys, monkeypatch):
-    monkeypatch.chdir(corpus["root"])  # nothing a case writes lands in the repository
-    monkeypatch.setattr(sys, "argv", ["binpick", *[a.format(**corpus) for a in args]])
-    with pytest.raises(SystemExit) as exit_info:
-        main()
-    out, err = capsys.readouterr()
-    assert "Traceback" not in out + err
+    code, err = run_cli([a.format(**corpus) for a in args], capsys, monkeypatch, corpus["root"])
     lines = [line for line in err.splitlines() if line.strip()]
-    assert exit_info.value.code == 2 and len(lines) == 1, (exit_info.value.code, err[-600:])  # refused: never accepted
+    assert code == 2 and len(lines) == 1, (code, err[-600:])  # refused: never accepted
     assert lines[0].startswith("error: ")
     for fragment in fragments:
         assert fragment.format(**corpus) in lines[0], lines[0]

@@ -23,8 +23,7 @@ import pytest
 import torch
 import yaml
 
-from binpick.cli import main
-from conftest import train_rl_run
+from conftest import run_cli, train_rl_run
 
 CLI = [sys.executable, "-c", "from binpick.cli import main; main()"]
 TINY_RL = {"name": "tiny", "env": "FetchReach", "total_timesteps": 200, "checkpoint_every": 100, "min_action_scale": 0.4,
@@ -116,16 +115,6 @@ def _run_folder(root: Path, name: str, config: dict, files: dict[str, object], m
     return run
 
 
-def _cli(args: list[str], capsys, monkeypatch, cwd: Path) -> tuple[int, str]:
-    monkeypatch.chdir(cwd)
-    monkeypatch.setattr(sys, "argv", ["binpick", *args])
-    with pytest.raises(SystemExit) as exit_info:
-        main()
-    out, err = capsys.readouterr()
-    assert "Traceback" not in out + err
-    return exit_info.value.code, err
-
-
 def _verbs(root: Path, marker: Path, trained: Path) -> dict[str, tuple[list[str], str]]:
     """verb -> (arguments, the one line's fragment), each pointed at crafted files."""
     image = root / "scene.png"
@@ -197,7 +186,7 @@ def test_no_verb_runs_code_from_a_crafted_file(trained_run, tmp_path, capsys, mo
     marker = tmp_path / "CODE_RAN"
     verbs = _verbs(tmp_path, marker, trained_run)
     for verb, (args, fragment) in verbs.items():
-        code, err = _cli(args, capsys, monkeypatch, tmp_path)
+        code, err = run_cli(args, capsys, monkeypatch, tmp_path)
         lines = [line for line in err.splitlines() if line.strip()]
         assert code == 2 and len(lines) == 1 and fragment in lines[0], (verb, code, err)
         assert not marker.exists(), f"{verb} ran code from a file"
