@@ -1,4 +1,4 @@
-"""What should A3C's auxiliary head regress? Arm2D's joint angles raw, or as cos/sin (issue 19, Table 3.2).
+"""What should A3C's auxiliary head regress? Arm2D's joint angles raw, or as cos/sin (Table 3.2).
 
     python benchmarks/a3c_aux_target.py [--sizes 32 64] [--updates 6000]
 
@@ -94,7 +94,7 @@ def main() -> None:
     table = [f"| {r['image_size']} px | `info[\"{r['target']}\"]` | {r['updates']:,} | {r['end_point']:.3f} | {r['goal']:.3f} |"
              for r in rows]
     _common.write_section("a3c_aux_target", "\n".join([
-        "### What A3C's auxiliary head should regress (issue 19)",
+        "### What A3C's auxiliary head should regress",
         "",
         "`python benchmarks/a3c_aux_target.py`: A3C's keypoints network and state head trained on the auxiliary "
         f"target alone (Adam {LEARNING_RATE:g}, {BATCH} pictures an update, goals anywhere, "

@@ -1,4 +1,4 @@
-"""Why the curriculum stalls (issue 19, Table 3.2): can A3C's trunk find a goal where it never saw one?
+"""Why the curriculum stalls (Table 3.2): can A3C's trunk find a goal where it never saw one?
 
     python benchmarks/a3c_encoder_probe.py [--steps 2000] [--only flatten keypoints]
     python benchmarks/a3c_encoder_probe.py --run runs/bench/arm2d_curriculum_keypoints/<time> [--run ...]
@@ -138,7 +138,7 @@ def report(results: dict) -> None:
             rows.append(f"| {encoder} | {seen['goal_error']:.3f} | {anywhere['goal_error']:.3f} "
                         f"({anywhere['goal_within_tolerance']:.0%} within 0.07) | {anywhere['end_point_error']:.3f} |")
     _common.write_section("a3c_encoder_probe", "\n".join([
-        "### Why the curriculum stalls: can A3C's trunk locate a goal where it never saw one? (issue 19)",
+        "### Why the curriculum stalls: can A3C's trunk locate a goal where it never saw one?",
         "",
         f"`python benchmarks/a3c_encoder_probe.py`: A3C's trunk and 256-unit layer, with a linear head, regress the goal "
         f"and the end point from Arm2D pictures with goals in a quarter of the play area ({results['train_pictures']} "

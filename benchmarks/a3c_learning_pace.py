@@ -1,4 +1,4 @@
-"""How fast, step for step, does A3C learn Arm2D's single goal from pictures and from the state? (issue 19)
+"""How fast, step for step, does A3C learn Arm2D's single goal from pictures and from the state?
 
     python benchmarks/a3c_learning_pace.py KEY=RUN_DIR [KEY=RUN_DIR ...] [--bucket 25000] [--until 400000]
 
@@ -89,7 +89,7 @@ def main() -> None:
                                                "note": args.note, "peak_rss_mib": round(_common.peak_rss_mib(), 1)})
     plot(curves)
     _common.write_section("a3c_learning_pace", "\n".join([
-        "## A3C's pace on Arm2D's single goal, from pictures and from the state (issue 19)",
+        "## A3C's pace on Arm2D's single goal, from pictures and from the state",
         "",
         f"`python benchmarks/a3c_learning_pace.py KEY=RUN ...`: mean length of each run's own training episodes "
         f"(sampling, as it learns) per {args.bucket:,} simulator steps, at the single goal the curriculum starts with. "

@@ -1,4 +1,4 @@
-"""How well does an A3C pixel network read Arm2D's tip and goal, by how close the tip is to the goal? (issue 19)
+"""How well does an A3C pixel network read Arm2D's tip and goal, by how close the tip is to the goal?
 
     python benchmarks/a3c_near_goal_reading.py KEY=RUN_DIR [KEY=RUN_DIR ...] [--pictures 4000]
 
@@ -99,7 +99,7 @@ def main() -> None:
                         f"{b['goal_median']:.3f} | {b['tip_to_goal_median']:.3f} ({b['tip_to_goal_p90']:.3f}) | "
                         f"{b['reads_within_radius']:.0%} |")
     _common.write_section("a3c_near_goal_reading", "\n".join([
-        "## Where A3C's pixel network reads Arm2D's tip and goal badly (issue 19)",
+        "## Where A3C's pixel network reads Arm2D's tip and goal badly",
         "",
         "`python benchmarks/a3c_near_goal_reading.py KEY=RUN ...`: median error (play-area units; success radius "
         f"0.07) of the state each run's latest checkpoint reads off {args.pictures:,} rendered pictures, half of them "

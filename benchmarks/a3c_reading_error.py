@@ -1,4 +1,4 @@
-"""Is it the pose-tied error of a pixel network's reading that slows A3C on Arm2D? (issue 19)
+"""Is it the pose-tied error of a pixel network's reading that slows A3C on Arm2D?
 
     python benchmarks/a3c_reading_error.py [--only tied shuffled precise] [--steps 175000]
         [--reader-run RUN_DIR] [--keypoints PATH] [--state-run RUN_DIR] [--also KEY=RUN_DIR ...]
@@ -213,7 +213,7 @@ def main() -> None:
                 "bottleneck": "pixels, bottleneck: one layer on the state estimate",
                 "bottleneck_deep": "pixels, bottleneck: two layers on the state estimate (a3c.hidden_layers: 2)"}
     _common.write_section("a3c_reading_error", "\n".join([
-        "## What slows A3C from pixels on Arm2D's single goal: the reading, or the network above it? (issue 19)",
+        "## What slows A3C from pixels on Arm2D's single goal: the reading, or the network above it?",
         "",
         f"`python benchmarks/a3c_reading_error.py --steps {args.steps} --also KEY=RUN ...`: mean length of each run's own "
         "training episodes per 25,000 steps at the single goal (`rl_arm2d_curriculum_*` configs). Reading errors on the "

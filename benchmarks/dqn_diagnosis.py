@@ -1,4 +1,4 @@
-"""Why greedy DQN cycles on Arm2D (issue 19, Table 3.1): the same SB3 DQN on the arm's semantic state.
+"""Why greedy DQN cycles on Arm2D (Table 3.1): the same SB3 DQN on the arm's semantic state.
 
     python benchmarks/dqn_diagnosis.py [--steps 200000] [--only baseline gamma_095 ...]
 
@@ -31,7 +31,7 @@ from stable_baselines3 import DQN  # noqa: E402
 from binpick.envs import make  # noqa: E402
 from binpick.rl.evaluate import evaluate_policy  # noqa: E402
 
-# Table 3.1's DQN settings (configs/rl_arm2d_dqn.yaml before issue 19), then one change per row
+# Table 3.1's DQN settings (configs/rl_arm2d_dqn.yaml before the diagnosis), then one change per row
 BASELINE = dict(buffer_size=50_000, target_update_interval=1000, learning_rate=1e-4, learning_starts=10_000,
                 exploration_fraction=0.2, exploration_final_eps=0.05, gamma=0.99, train_freq=4)
 ROWS = {
@@ -88,7 +88,7 @@ def main() -> None:
         print(key, rows[key]["greedy"], rows[key]["epsilon_greedy"], flush=True)
     _common.write_result("dqn_diagnosis", {"observation": "semantic state", "episodes": EPISODES, "rows": rows,
                                            "peak_rss_mib": round(_common.peak_rss_mib(), 1)})
-    lines = ["## Why greedy DQN cycled on Arm2D (issue 19)", "",
+    lines = ["## Why greedy DQN cycled on Arm2D", "",
              "SB3 DQN on Arm2D's semantic state instead of the picture, fixed goal, one change per row; "
              f"average actions ± std over {EPISODES} seeded episodes (T = 1000). "
              "`python benchmarks/dqn_diagnosis.py` → `results/dqn_diagnosis.json`.", "",

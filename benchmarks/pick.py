@@ -122,7 +122,7 @@ def section(result: dict, path: Path, orders: int) -> None:
 
     before = result.get("before", {})
     policies = result.get("oracle_by_policy", {})
-    lines = ["## Pick pipeline (thesis ch. 6; issue 17)", "",
+    lines = ["## Pick pipeline (thesis ch. 6)", "",
              f"`python benchmarks/pick.py --orders {orders} --compare-grasps` → `{path.relative_to(_common.ROOT)}`. Each order is a new bin "
              f"(3–6 copies of the product, 2–3 other products); the detector (`{Path(result['weights']).name}`, ROD conditioned on "
              "the shop photo) finds the instances; detections whose colours do not match the photo's product are skipped "

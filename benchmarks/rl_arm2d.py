@@ -11,7 +11,7 @@ under "greedy"; Table 3.2's stages are the curriculum run's last 200 training ep
 as the thesis measured them. Thesis: 369±341 / 134±99 / 15±3 (Table 3.1); 15 / 42 / 13 / 25±6 at single
 goal / ¼ / ½ / whole (Table 3.2). Targets: DQN <= 150; curriculum <= 25 at the whole area. Long: 2M
 steps a curriculum run (~75 min on 2 cores); results are merged into results/rl_arm2d.json so parts can
-be run separately. The way there (issue 19) is kept as further --only names (RUNS below).
+be run separately. The way there is kept as further --only names (RUNS below).
 """
 
 from __future__ import annotations
@@ -41,14 +41,14 @@ RUNS = {
     "a3c": ("configs/rl_arm2d_a3c.yaml", 0.0),
     "dqn": ("configs/rl_arm2d_dqn.yaml", 0.0),
     # Table 3.2's pair: end to end from 32 px, pretrained perception, a semantic bottleneck with the state learner's
-    # two layers on it (issue 19 found that depth, not the reading, was what kept pixel learners behind)
+    # two layers on it (depth, not the reading, was found to be what kept pixel learners behind)
     "curriculum_whole_area": ("configs/rl_arm2d_curriculum_keypoints_bottleneck_deep.yaml", 1.0),
     "no_curriculum_whole_area": ("configs/rl_arm2d_no_curriculum_keypoints_bottleneck_deep.yaml", 1.0),
-    # the way there (issue 19), each row kept with the key it was measured under. First the thesis-style network
+    # the way there, each row kept with the key it was measured under. First the thesis-style network
     # with a flattened trunk, whose curriculum starts from the single-goal "a3c" run (init_from)
     "curriculum_flat_whole_area": ("configs/rl_arm2d_curriculum.yaml", 1.0),
     "no_curriculum_flat_whole_area": ("configs/rl_arm2d_no_curriculum.yaml", 1.0),
-    # the same with a3c.encoder: keypoints (issue 19), each training its own single-goal start
+    # the same with a3c.encoder: keypoints, each training its own single-goal start
     "curriculum_keypoints_whole_area": ("configs/rl_arm2d_curriculum_keypoints.yaml", 1.0),
     "no_curriculum_keypoints_whole_area": ("configs/rl_arm2d_no_curriculum_keypoints.yaml", 1.0),
     # ... plus the auxiliary state loss (a3c.state_weight)
@@ -286,7 +286,7 @@ def main() -> None:
         "|---|---:|---:|---:|",
         *stage_rows(results.get("curriculum_stages", [])),
         "",
-        "### The way there (issue 19)",
+        "### The way there",
         "",
         "Every run measured on the way to the rows above, each under the key it was measured with: here `KEY` is the "
         "greedy evaluation and `KEY_sampled` the sampled one. The first pair is the thesis-style network (a flattened "
@@ -370,7 +370,7 @@ def main() -> None:
         "one, a joint spinning in place, which is why those two rows read exactly alike; this curriculum run's took two "
         "actions. At 1M steps, with or without the curriculum, training episodes were still ~250 actions long.",
         "",
-        "Why (issue 19, section 'Why the curriculum stalls' below): the flattened trunk gives every place in the picture "
+        "Why (section 'Why the curriculum stalls' below): the flattened trunk gives every place in the picture "
         "its own weights and cannot locate a goal where it has not seen one, so every widening meets goals it cannot "
         "read; and at the single goal, where 400k of the curriculum's steps go, the reward never asks where the goal is. "
         "The keypoints rows change the first (`a3c.encoder: keypoints`); the state-loss rows also the second "
@@ -501,7 +501,7 @@ def april_paragraph(results: dict) -> list[str]:
 
 
 def pretrained_paragraph(results: dict) -> list[str]:
-    """What the end-to-end pixel rows with a pretrained perception say, from their numbers (issue 19)."""
+    """What the end-to-end pixel rows with a pretrained perception say, from their numbers."""
     row, greedy = results.get("curriculum_keypoints_pretrained_1m_sampled"), results.get("curriculum_keypoints_pretrained_1m")
     if not row or not greedy:
         return []
@@ -602,7 +602,7 @@ def headline_paragraph(results: dict) -> list[str]:
 
 
 def curriculum_rule(results: dict, key: str = "curriculum_whole_area") -> str:
-    """How the measured curriculum run widened the area (runs before issue 19 followed a fixed step schedule)."""
+    """How the measured curriculum run widened the area (earlier runs followed a fixed step schedule)."""
     row = results.get(key, {})
     if row.get("advance") == "converged":
         return "widened on re-convergence, at steps " + ", ".join(f"{s:,}" for s in row.get("advanced_at", []))

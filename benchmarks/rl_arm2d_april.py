@@ -1,4 +1,4 @@
-"""Table 3.2 from pixels the APRiL way (issue 19): A3C state runs deployed on pixels through learnt keypoints.
+"""Table 3.2 from pixels the APRiL way: A3C state runs deployed on pixels through learnt keypoints.
 
     python benchmarks/rl_arm2d_april.py KEY=RUN_DIR [KEY=RUN_DIR ...] [--images 12000] [--epochs 12]
 

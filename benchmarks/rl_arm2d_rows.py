@@ -4,7 +4,7 @@ results/rl_arm2d.json under the keys given.
 
     python benchmarks/rl_arm2d_rows.py KEY=RUN_DIR [KEY=RUN_DIR ...] [--note TEXT]
 
-Issue 19's 2M-step state rows came from the two 1M state runs (entropy 0.01) copied to runs/explore,
+The 2M-step state rows came from the two 1M state runs (entropy 0.01) copied to runs/explore,
 ``total_timesteps: 2000000`` set in each copy's config.yaml and ``binpick rl train --resume COPY``.
 """
 

@@ -178,7 +178,7 @@ def main() -> None:
     over_tqc = None
     if "tqc_her_zoo" in results and "binpick" in results:
         ours, theirs = results["binpick"]["sim_steps_to_95"], results["tqc_her_zoo"]["sim_steps_to_95"]
-        if None not in ours and None not in theirs:  # per seed, then the median (issue 19)
+        if None not in ours and None not in theirs:  # per seed, then the median
             over_tqc = float(np.median([a / b for a, b in zip(ours, theirs)]))
     payload = {**results, "binpick_over_sb3_sim_steps": ratio, "target_ratio": 0.25,
                "met": ratio is not None and ratio <= 0.25,

@@ -3,7 +3,7 @@
     python benchmarks/rod.py train [--runs runs/rod]    # trains every config below (resumes)
     python benchmarks/rod.py report [--runs runs/rod]   # evaluates, writes results and pictures
 
-Generalisation (issue 16): pre-training on domain-randomised bins, fine-tuning on pickability, three
+Generalisation: pre-training on domain-randomised bins, fine-tuning on pickability, three
 test sets (seen products; held-out categories; the shifted domain with held-out products):
 
     python benchmarks/rod.py pretrain --runs runs/rod16 [--only rod rod_photo] [--set train.device=cuda]
@@ -59,7 +59,7 @@ def train(runs: Path, only: list[str] | None) -> None:
         print(f"{name}: {metrics['final']}", flush=True)
 
 
-# the rows of the generalisation tables (issue 16): name -> (query, overrides of the shared config)
+# the rows of the generalisation tables: name -> (query, overrides of the shared config)
 VARIANTS = {
     "rod": ("crop", {}),
     "rod_no_lh": ("crop", {"loss.heatmap": 0.0}),
@@ -390,7 +390,7 @@ def evaluate_on(detect, data: Path, split: str, targets: str, size: int, only: l
 
 
 def report_generalisation(runs: Path) -> None:
-    """Issue 16's tables: the same rows (ROD, ROD without L_h, TDID: one budget, one loader, one seed;
+    """The detector tables: the same rows (ROD, ROD without L_h, TDID: one budget, one loader, one seed;
     template matching and the colour histogram) on seen products, held-out categories and the shifted
     domain; the photo query; latency at the shipped size; learning curves."""
     import json
@@ -404,7 +404,7 @@ def report_generalisation(runs: Path) -> None:
     folders = {name: run_folder(runs, name) for name in
                [f"{stage}_{row}" for stage in ("pretrain", "finetune") for row in VARIANTS]}
     models = {name: load_detector(folder) for name, folder in folders.items() if finished(folder)}
-    # the weights shipped before issue 16 (bins-only training at 256 px), kept aside for the comparison
+    # the weights shipped before the pickability head (bins-only training at 256 px), kept aside for the comparison
     before = _common.ROOT / "runs" / "old_weights"
     for name, file in (("before_rod", "rod_tiny_256"), ("before_rod_photo", "rod_photo_tiny_256")):
         if (before / f"{file}.safetensors").is_file():
@@ -690,7 +690,7 @@ def write_generalisation_markdown(result: dict, path: Path) -> None:
         return _cell((rows.get(row) or {}).get("ap50"))
 
     shifted = result["shifted_domain"]
-    lines = ["## Repeated object detection that survives a new camera (thesis ch. 5, §6.3; issue 16)", "",
+    lines = ["## Repeated object detection that survives a new camera (thesis ch. 5, §6.3)", "",
              f"`python benchmarks/rod.py pretrain && python benchmarks/rod.py finetune && python benchmarks/rod.py generalise` → "
              f"`{path.relative_to(_common.ROOT)}`. Pre-training: domain-randomised bins (`{result['data']['pretraining']}`), every copy "
              "a target; fine-tuning: the default bins, instances Policy 1 can pick. Every model: the tiny backbone, "
@@ -732,7 +732,7 @@ def write_generalisation_markdown(result: dict, path: Path) -> None:
               "and matched at 9–25% of the image side; whole photos through the same weights scored 0.35 on seen products, and "
               "the copy the robot picked when the bin was labelled is one of the boxes to find (a photo names no copy; until "
               "this was fixed it was left out of training and evaluation, which cost the shipped photo weights 0.12 AP50 on seen products); "
-              f"the weights shipped before issue 16 {_cell((photo.get('held_out_before') or {}).get('ap50'))} held-out.", "",
+              f"the weights shipped before the pickability head {_cell((photo.get('held_out_before') or {}).get('ap50'))} held-out.", "",
               f"`predict` latency, batch 1, 2 CPU cores, {result['image_size']} px: shipped model **{lat['shipped']} ms** with its "
               f"pickability head (target ≤ 50), {lat.get('shipped_detector_only')} ms without it, {lat.get('shipped_unfolded')} ms "
               f"before its batch norms are folded; untrained tiny {lat.get('tiny_' + str(result['image_size']))} ms, "

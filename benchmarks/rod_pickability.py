@@ -1,4 +1,4 @@
-"""The crop-query detector with and without its pickability head (issue 16: ``seen.rod.ap50``).
+"""The crop-query detector with and without its pickability head (``seen.rod.ap50``).
 
     binpick detect pickability configs/pickability_crop_query.yaml --runs runs/pick38
     python benchmarks/rod_pickability.py --weights runs/pick38/pickability_crop_query/<time>/model.safetensors \
@@ -86,7 +86,7 @@ def shown(file: Path) -> str:
 def section(result: dict) -> str:
     compared = "with_compared_head" in result["sets"][0]
     what = "a head that also sees the query" if result.get("query") else "a head that sees the window only"
-    lines = ["## The crop query with a second look at each detection (issue 16)", "",
+    lines = ["## The crop query with a second look at each detection", "",
              f"`python benchmarks/rod_pickability.py` → `results/rod_pickability.json`. Weights: `{result['weights']}`: "
              f"{what} (`binpick detect pickability`, {result['head']['train_windows']} training windows, best val ROC AUC "
              f"{result['head']['val_auc']}). The same detections, scored by the detector alone"

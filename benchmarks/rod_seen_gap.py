@@ -1,4 +1,4 @@
-"""Why the crop query stops short of AP50 0.85 on seen products (issue 16): three measurements.
+"""Why the crop query stops short of AP50 0.85 on seen products: three measurements.
 
     python benchmarks/rod_seen_gap.py [--only curves|ceiling|decomposition] [--colour runs/rod16j]
         [--depth runs/rod16k] [--weights rod_tiny_320]
@@ -219,7 +219,7 @@ def section(result: dict) -> str:
     colour, depth, ceiling = result["colour_only"], result["with_depth"], result["label_ceiling"]
     epochs = range(1, max(len(colour["val_ap50_by_epoch"]), len(depth["val_ap50_by_epoch"])) + 1)
     lines = [
-        "## Why the crop query stops short of 0.85 on seen products (issue 16)",
+        "## Why the crop query stops short of 0.85 on seen products",
         "",
         "`python benchmarks/rod_seen_gap.py` → `results/rod_seen_gap.json`. Val AP50 (bins_2000 val, Policy 1 "
         "targets: the set and labels of `seen.rod.ap50`) per fine-tuning epoch, from the same pre-training, data, "

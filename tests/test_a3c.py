@@ -295,7 +295,7 @@ class SignPicksTheAction(gym.Env):
 
 
 def test_state_encoder_learns_an_action_that_depends_on_the_state_vector():
-    """a3c.encoder: state (perception taken away, issue 19): the same worker and losses on a vector."""
+    """a3c.encoder: state (perception taken away): the same worker and losses on a vector."""
     torch.manual_seed(0)
     model = ActorCritic((2,), 6, encoder="state")
     model.share_memory()
@@ -342,7 +342,7 @@ def test_state_encoder_runs_on_arm2d_state_and_mismatched_configs_are_one_line(t
 
 
 def test_perception_pretraining_reads_the_state_before_rl_and_is_not_redone_on_resume(tmp_path):
-    """a3c.pretrain_pictures (issue 19): the trunk and state head learn info[state_key] from rendered pictures
+    """a3c.pretrain_pictures: the trunk and state head learn info[state_key] from rendered pictures
     before any RL step; the run records it, checkpoints it, and a resumed run keeps the weights it has."""
     import yaml
 
@@ -371,7 +371,7 @@ def test_perception_pretraining_reads_the_state_before_rl_and_is_not_redone_on_r
 
 
 def test_state_estimate_bottleneck_acts_on_the_read_state_and_is_saved_with_the_weights(tmp_path):
-    """a3c.policy_input: state_estimate (issue 19): the policy and value see the picture only through the state
+    """a3c.policy_input: state_estimate: the policy and value see the picture only through the state
     the auxiliary head reads off it, so two pictures read as the same state get the same action probabilities."""
     import yaml
 
@@ -432,7 +432,7 @@ def test_state_estimate_bottleneck_acts_on_the_read_state_and_is_saved_with_the_
 
 
 def test_state_noise_perturbs_each_step_reproducibly_and_only_state_vectors():
-    """a3c.state_noise (issue 19): the state learner given a picture reader's error, fresh each step, seeded by
+    """a3c.state_noise: the state learner given a picture reader's error, fresh each step, seeded by
     reset; the env underneath (goal, start) is the same as without it."""
     from binpick.config import from_dict
     from binpick.errors import ConfigError
@@ -518,7 +518,7 @@ def _process_state(pid: int) -> str:
 
 
 def test_reading_errors_add_a_row_of_the_table_seeded_and_untied_from_the_pose():
-    """ReadingErrors (issue 19): each step adds one row of a perception's measured errors, drawn at random, so
+    """ReadingErrors: each step adds one row of a perception's measured errors, drawn at random, so
     the same pose gets different errors; the same seed draws the same rows; a table of the wrong width is one line."""
     from gymnasium.wrappers import FlattenObservation
 
@@ -546,7 +546,7 @@ def test_reading_errors_add_a_row_of_the_table_seeded_and_untied_from_the_pose()
 
 
 def test_hidden_layers_deepen_the_heads_network_and_are_saved_with_the_weights(tmp_path):
-    """a3c.hidden_layers (issue 19): the layers between what the network reads and its heads. One (the default)
+    """a3c.hidden_layers: the layers between what the network reads and its heads. One (the default)
     keeps older checkpoints' layout; two gives the pixel learner's heads the state learner's depth. A run with
     another depth cannot continue from the weights; a bad value is one line."""
     import yaml

@@ -52,7 +52,7 @@ def test_keypoints_are_learnt_from_images_saved_and_loaded(tmp_path):
 
 
 def test_a3c_trains_a_state_learner_on_the_state_read_off_pixels(tmp_path):
-    """ReadStateOffPixels (issue 19): the frozen keypoint network turns Arm2D's pictures into the state vector,
+    """ReadStateOffPixels: the frozen keypoint network turns Arm2D's pictures into the state vector,
     pickles into A3C's spawned workers, and a run made with it resumes with it; a picture size the weights do
     not read is one line."""
     import pickle

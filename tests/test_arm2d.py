@@ -38,7 +38,7 @@ def test_end_point_is_forward_kinematics(make_env):
 
 
 def test_continuous_state_has_each_angle_as_cos_and_sin_and_no_jump_at_pi(make_env):
-    """info["state_continuous"] (A3C's auxiliary target, issue 19): the semantic state without the ±π wrap."""
+    """info["state_continuous"] (A3C's auxiliary target): the semantic state without the ±π wrap."""
     env = make_env("binpick/Arm2D-v0")
     _, info = env.reset(seed=4)
     angles, rest = info["state"][:3], info["state"][3:]
@@ -102,7 +102,7 @@ def test_image_shows_goal_in_red_and_moves_with_the_arm(make_env):
 
 
 def test_place_goal_moves_only_the_goal_and_redraws_it():
-    """Pictures with the goal next to the tip, for perception pretraining (issue 19)."""
+    """Pictures with the goal next to the tip, for perception pretraining."""
     from binpick.envs import make
 
     env = make("Arm2D", image_size=32, goal_area=1.0)

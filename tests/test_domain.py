@@ -1,4 +1,4 @@
-"""Domain randomisation (issue 16): validated domains, randomised bins whose recorded camera is the one
+"""Domain randomisation: validated domains, randomised bins whose recorded camera is the one
 that rendered them, a shifted domain outside the training ranges, Ray scene workers, and the training
 pieces that make pre-training affordable (batched correlation, batched loss, joint training)."""
 

@@ -1,4 +1,4 @@
-"""Grasps from depth alone (issue 17): the camera model, candidates with their widths and clearance,
+"""Grasps from depth alone: the camera model, candidates with their widths and clearance,
 the watershed that tells touching products apart, the policies, and the grasp-quality model's files."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The layers of ../shared/DESIGN.md hold: no package imports one above it, no module cycles.
+"""The layers of the architecture (README) hold: no package imports one above it, no module cycles.
 
 The contracts live in pyproject.toml ([tool.importlinter]); import-linter checks them on the real
 import graph. A change that imports upward fails here with the offending import named.

@@ -1,4 +1,4 @@
-"""Pick planning from a real camera's frames (issue 18): the calibration files, grasp poses in the
+"""Pick planning from a real camera's frames: the calibration files, grasp poses in the
 base frame, the planner with no simulator in it, and `binpick plan` on an exported scene."""
 
 from __future__ import annotations
