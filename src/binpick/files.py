@@ -228,13 +228,13 @@ def parse_yaml(text: str, where: str) -> Any:
     refused before anything is built. Every failure is one ``InputFileError`` line naming ``where``."""
     import yaml
 
-    loader = _strict_loader()
+    loader = _strict_loader()(text)
     try:
-        node = yaml.compose(text, Loader=loader)
+        node = loader.get_single_node()  # parsed once: checked as composed, then built from the same nodes
         if node is None:
             return None
         _check_expansion(node, where)
-        return yaml.load(text, Loader=loader)
+        return loader.construct_document(node)
     except _DuplicateKey as duplicate:
         raise InputFileError(f"{where}: key {duplicate.key!r} appears twice in one mapping (line {duplicate.line})") from None
     except yaml.YAMLError as error:
@@ -248,6 +248,8 @@ def parse_yaml(text: str, where: str) -> Any:
         raise InputFileError(f"{where} nests too deeply to be a binpick file") from None
     except ValueError as error:  # a number of more digits than Python converts
         raise InputFileError(f"{where}: a value cannot be read ({str(error)[:80]})") from None
+    finally:
+        loader.dispose()
 
 
 class _DuplicateKey(Exception):
@@ -256,30 +258,25 @@ class _DuplicateKey(Exception):
         self.key, self.line = key, line
 
 
-_LOADER: Any = None
-
-
+@functools.cache
 def _strict_loader():
     """libyaml's safe loader where present (10x faster), refusing a key given twice in one mapping."""
-    global _LOADER
-    if _LOADER is None:
-        import yaml
+    import yaml
 
-        base = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+    base = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
-        class StrictLoader(base):  # type: ignore[valid-type, misc]
-            def construct_mapping(self, node, deep=False):
-                seen: set = set()
-                for key_node, _ in node.value:
-                    if isinstance(key_node, yaml.ScalarNode) and key_node.tag != "tag:yaml.org,2002:merge":
-                        key = (type(value := self.construct_object(key_node)).__name__, value)  # yes/true alike, 1 and "1" not
-                        if key in seen:
-                            raise _DuplicateKey(key_node.value, key_node.start_mark.line + 1)
-                        seen.add(key)
-                return super().construct_mapping(node, deep)
+    class StrictLoader(base):  # type: ignore[valid-type, misc]
+        def construct_mapping(self, node, deep=False):
+            seen: set = set()
+            for key_node, _ in node.value:
+                if isinstance(key_node, yaml.ScalarNode) and key_node.tag != "tag:yaml.org,2002:merge":
+                    key = (type(value := self.construct_object(key_node)).__name__, value)  # yes/true alike, 1 and "1" not
+                    if key in seen:
+                        raise _DuplicateKey(key_node.value, key_node.start_mark.line + 1)
+                    seen.add(key)
+            return super().construct_mapping(node, deep)
 
-        _LOADER = StrictLoader
-    return _LOADER
+    return StrictLoader
 
 
 def _check_expansion(root, where: str) -> None:

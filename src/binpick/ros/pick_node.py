@@ -13,7 +13,7 @@ import sys
 import numpy as np
 
 from binpick.picking.camera_info import CameraInfo
-from binpick.picking.node import Guard, PlanRequests, Topics, colour_of, depth_of, describe, image_array, image_fields, parse_goal, photo_of
+from binpick.picking.node import Guard, PlanRequests, Topics, colour_of, depth_of, describe, image_array, image_fields, photo_of
 from binpick.ros import master_uri, require_ros, wait_for_master
 
 
@@ -90,10 +90,8 @@ class PickNode:
             photo = None
             if goal.photo.width or goal.photo.height or len(goal.photo.data):
                 photo = photo_of(goal.photo.encoding, self._pixels(goal.photo))
-            checked = parse_goal({"product_id": goal.product_id, "max_grasps": int(goal.max_grasps), "size": list(goal.size),
-                                  "query_box": list(goal.query_box), "copies_only": bool(goal.copies_only)}, photo)
-            frame, plans = self.requests.plan(checked.product_id, photo, checked.max_grasps, checked.size, checked.query_box,
-                                              checked.copies_only)
+            frame, plans = self.requests.plan(goal.product_id, photo, int(goal.max_grasps), list(goal.size),  # checked there
+                                              list(goal.query_box), bool(goal.copies_only))
             stamp = rospy.Time.from_sec(frame.stamp)
             result = self.types["PlanPickResult"]()
             result.grasps = [pose_stamped(p, plans.frame, stamp) for p in plans.grasps]
