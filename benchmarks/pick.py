@@ -99,7 +99,8 @@ def main() -> None:
               flush=True)
     result.update({"weights": str(args.weights.relative_to(_common.ROOT) if args.weights.is_absolute() else args.weights),
                    "grasp": f"{policy} (binpick.grasping), up to 3 grasps down the ranked detections (detections without a feasible grasp skipped)",
-                   "colour_check": pipeline.colour_check, "size_check": pipeline.size_check,
+                   "verifier": "learnt" if not isinstance(pipeline.picker.verifier, str) else pipeline.picker.verifier,
+                   "check": pipeline.check, "photos": pipeline.photo_set, "size_check": pipeline.size_check,
                    "targets": {"oracle.pick_success": 0.92, "seen.pick_success": 0.88, "seen.right_product": 0.97,
                                "held_out.pick_success": 0.75}, "peak_rss_mib": _common.peak_rss_mib(),
                    "load_average": round(os.getloadavg()[0], 2)})
@@ -125,9 +126,9 @@ def section(result: dict, path: Path, orders: int) -> None:
     lines = ["## Pick pipeline (thesis ch. 6)", "",
              f"`python benchmarks/pick.py --orders {orders} --compare-grasps` → `{path.relative_to(_common.ROOT)}`. Each order is a new bin "
              f"(3–6 copies of the product, 2–3 other products); the detector (`{Path(result['weights']).name}`, ROD conditioned on "
-             "the shop photo) finds the instances; detections whose colours do not match the photo's product are skipped "
-             "(histogram intersection < 0.15) and the rest, down to a score of 0.01, are ranked by detector score times colour "
-             "similarity (`PickPipeline(colour_rank=0.01)`); detections whose instance depth shows to be clearly bigger than the "
+             "the product's catalogue photos, the best match over them) finds the instances; detections the learnt product check "
+             "(`binpick.detection.verifier`) gives a probability under 0.2 of being the ordered product are skipped and the rest, "
+             "down to a score of 0.01, are ranked by detector score times that probability (`PickPipeline(rank_from=0.01)`); detections whose instance depth shows to be clearly bigger than the "
              "product's catalogue dimensions are skipped (`size_check`; "
              f"{'on' if result.get('size_check') else 'off'} here); the planner (`binpick.picking.Picker`, the same call "
              "`binpick plan` and the ROS nodes make, on depth in whole millimetres) chooses each detection's "

@@ -3,6 +3,8 @@
     python benchmarks/plan.py files [--sensor perfect|realistic] [--orders 30] [--default-orders 100]
     python benchmarks/plan.py single [--sensor realistic] [--orders 42]
     python benchmarks/plan.py latency [--sensor realistic] [--frames 30] [--ros-orders 20]
+    python benchmarks/plan.py sim [--domain shifted] [--orders 50] [--verifier learnt|colour|none] \
+        [--photos catalogue|canonical] [--copies-from-match 0.9]
 
 ``files``: orders on the shifted-domain set-up (its camera, tote and light; its held-out products can,
 mug, toy), each bin planned twice: by the simulator pipeline (render -> Picker.plan on arrays ->
@@ -14,6 +16,10 @@ products the detector was trained on), where the detector works. ``--sensor real
 set-up's sensor-realistic twin (``binpick/sim/sensors/realistic.yaml``).
 
 ``single``: bins with one copy of the ordered product, the query box drawn on it (:func:`single_copy`).
+
+``sim``: orders through the simulator pipeline alone, one variant of the order path per run (the
+product check, the photos an order gives, copies found from the surest match), each a row of
+``sim_orders``.
 
 ``latency``: planning time per frame from the exported files (read + plan, in one process after a
 warm-up), and the round trip through each ROS version's node (`benchmarks/ros_loop.py`; ROS 2 inside
@@ -78,6 +84,7 @@ def file_orders(domain: str, orders: int, sensor: str = "perfect") -> dict:
     from binpick.warehouse.grasping import Reason
     from binpick.sim.products import product_dimensions
     from binpick.warehouse.pipeline import OrderResult, summarise
+    from PIL import Image
 
     pipeline = pipeline_for(domain, sensor)
     products = products_for(domain, pipeline)
@@ -91,29 +98,33 @@ def file_orders(domain: str, orders: int, sensor: str = "perfect") -> dict:
         world, rng = pipeline.build_world(product, seed)
         try:
             scene = pipeline.settle(world, rng, seed)
+            views = [cut_out(*view) for view in pipeline.photos_and_masks(product)]  # the order's photos of the product
             folder = export_frame(OUT / folder_name / f"order_{order:03d}", scene.rgb, scene.depth, scene.camera,
-                                  cut_out(*pipeline.photo_and_mask(product)), {"product": product, "seed": seed, "domain": domain,
-                                                                               "sensor": scene.sensor or {"name": "perfect"}})
+                                  views[0], {"product": product, "seed": seed, "domain": domain,
+                                             "sensor": scene.sensor or {"name": "perfect"}})
+            photo_files = [folder / "photo.png"]
+            for k, view in enumerate(views[1:], start=1):
+                photo_files.append(folder / f"photo_{k}.png")
+                Image.fromarray(view).save(photo_files[-1])
             tick = time.perf_counter()
             size = ",".join(f"{v:.4f}" for v in product_dimensions(pipeline.library[product]))  # the catalogue's, as the pipeline checks
             ran = subprocess.run(CLI + ["plan", "--rgb", str(folder / "rgb.png"), "--depth", str(folder / "depth.png"),
-                                        "--camera", str(folder / "camera.yaml"), "--photo", str(folder / "photo.png"),
-                                        "--size", size, "--out", str(folder / "plan.json"), "--overlay", str(folder / "overlay.png")],
+                                        "--camera", str(folder / "camera.yaml"),
+                                        *[arg for path in photo_files for arg in ("--photo", str(path))], "--size", size, "--out", str(folder / "plan.json"), "--overlay", str(folder / "overlay.png")],
                                  capture_output=True, text=True)
             cli_seconds.append(time.perf_counter() - tick)
             if ran.returncode != 0:
                 raise SystemExit(f"binpick plan failed on {folder}: {ran.stderr.strip()[-500:]}")
             written = json.loads((folder / "plan.json").read_text())
             plans = [GraspPlan(**p) for p in written["plans"]]
-            photo = cut_out(*pipeline.photo_and_mask(product))
             camera = PinholeCamera.from_record(scene.camera)
             dimensions = product_dimensions(pipeline.library[product])
             for key, depth in (("float", scene.depth), ("millimetres", as_camera_depth(scene.depth))):
-                memory = pipeline.picker.plan(scene.rgb, depth, camera, photo=photo, size=dimensions)
+                memory = pipeline.picker.plan(scene.rgb, depth, camera, photo=views, size=dimensions)
                 same_as_memory[key].append([(p.box, p.position) for p in memory] == [(p.box, p.position) for p in plans])
             result = OrderResult(order, product, seed, False, Reason.NO_DETECTION, detections=written["detections"])
             if written["detections"] and not plans:
-                result.reason = Reason.COLOUR_MISMATCH
+                result.reason = Reason.NOT_THE_PRODUCT
             pipeline.execute(world, scene, plans, result)
             file_results.append(result)
         finally:
@@ -133,6 +144,24 @@ def file_orders(domain: str, orders: int, sensor: str = "perfect") -> dict:
             # float depth, and with that depth in whole millimetres as depth.png holds it (the pipeline's)
             "same_plan_as_memory": {k: round(sum(v) / orders, 4) for k, v in same_as_memory.items()},
             "cli_seconds_median": round(sorted(cli_seconds)[len(cli_seconds) // 2], 2)}
+
+
+def sim_orders(domain: str, orders: int, sensor: str, **options) -> dict:
+    """Orders through the simulator pipeline alone (no files): the order path's variants side by side
+    (product check, photos, copies from the surest match) on the same bins as ``files``."""
+    from binpick.warehouse.pipeline import summarise
+
+    pipeline = pipeline_for(domain, sensor, **options)
+    products = products_for(domain, pipeline)
+    results, started = [], time.perf_counter()
+    for order in range(orders):
+        product = products[order % len(products)]
+        results.append(pipeline.run_order(product, order, SEEDS[domain] + order))
+        r = results[-1]
+        print(f"{domain} {options} order {order}: {product} {'placed' if r.success else r.reason}", flush=True)
+    summary = summarise(results, time.perf_counter() - started)
+    return {"domain": domain, "sensor": sensor, "options": options,
+            **{k: summary[k] for k in ("orders", "pick_success", "right_product", "reasons", "by_product")}}
 
 
 def single_copy(orders: int, sensor: str) -> dict:
@@ -289,13 +318,18 @@ def write(result: dict) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("stage", choices=("files", "single", "latency"))
+    parser.add_argument("stage", choices=("files", "single", "latency", "sim"))
     parser.add_argument("--sensor", default="perfect", help="files/single: perfect or realistic depth (the set-ups' "
                                                             "sensor-realistic twins); latency: the exported frames to time")
     parser.add_argument("--orders", type=int, default=30)
     parser.add_argument("--default-orders", type=int, default=100)
     parser.add_argument("--frames", type=int, default=30)
     parser.add_argument("--ros-orders", type=int, default=20)
+    parser.add_argument("--domain", default="shifted", choices=("shifted", "default"), help="sim: the set-up")
+    parser.add_argument("--verifier", default="learnt", help="sim: the product check (learnt, colour, none)")
+    parser.add_argument("--photos", default="catalogue", choices=("catalogue", "canonical"), help="sim: the order's photos")
+    parser.add_argument("--copies-from-match", type=float, default=None, help="sim: seed the box query from the surest match")
+    parser.add_argument("--check", type=float, default=None, help="sim: the product check's threshold (default: the check's own)")
     args = parser.parse_args()
     result = load()
     by_sensor = result.setdefault("file_orders_by_sensor", {})
@@ -312,6 +346,13 @@ def main() -> None:
             by_sensor[args.sensor] = default
         if shifted is not None:
             by_sensor["shifted" if args.sensor == "perfect" else f"shifted_{args.sensor}"] = shifted
+    elif args.stage == "sim":
+        options = {"verifier": None if args.verifier == "none" else args.verifier, "photos": args.photos,
+                   "copies_from_match": args.copies_from_match, "check": args.check}
+        label = f"{args.domain}_{args.sensor}_{args.verifier}_{args.photos}" + (
+            f"_copies{args.copies_from_match:g}" if args.copies_from_match is not None else "") + (
+            f"_check{args.check:g}" if args.check is not None else "")
+        result.setdefault("sim_orders", {})[label] = sim_orders(args.domain, args.orders, args.sensor, **options)
     elif args.stage == "single":
         result.setdefault("single_copy_by_sensor", {})[args.sensor] = single_copy(args.orders, args.sensor)
         result["single_copy"] = result["single_copy_by_sensor"].get("realistic") or result["single_copy_by_sensor"][args.sensor]

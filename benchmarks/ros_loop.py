@@ -471,7 +471,7 @@ def main() -> None:
                     print(f"hostile: {hostile['answered_with_reason']}/{hostile['goals']} bad goals answered with a reason, "
                           f"{hostile['camera_messages']} bad camera messages, node alive: {hostile['node_alive']}", file=sys.stderr)
                 started = time.perf_counter()
-                photo = cut_out(*pipeline.photo_and_mask(product)) if goal == "photo" else None
+                photo = cut_out(*pipeline.photos_and_masks(product)[0]) if goal == "photo" else None
                 size = product_dimensions(pipeline.library[product]) if goal == "photo" else None  # id: the node's catalogue
                 box = None
                 if goal == "box":
@@ -487,7 +487,7 @@ def main() -> None:
                     assert np.allclose(plan.position, pose[:3], atol=1e-5)  # the poses are the plans'
                 result = OrderResult(order, product, seed, False, Reason.NO_DETECTION, detections=answer["plans"]["detections"])
                 if answer["plans"]["detections"] and not plans:
-                    result.reason = Reason.COLOUR_MISMATCH
+                    result.reason = Reason.NOT_THE_PRODUCT
                 pipeline.execute(world, scene, plans, result)
                 results.append(result)
                 print(f"order {order}: {product} {'placed' if result.success else result.reason} "

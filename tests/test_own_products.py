@@ -33,7 +33,8 @@ def write_prism(path: Path, radius: float, height: float, sides: int = 6) -> Non
 
 
 PRODUCTS = """products:
-  - {id: acme/soap, category: soap, mesh: soap.obj, longest_side: 0.09, mass: 0.15, rgba: [0.9, 0.3, 0.3, 1.0]}
+  - {id: acme/soap, category: soap, mesh: soap.obj, longest_side: 0.09, mass: 0.15, rgba: [0.9, 0.3, 0.3, 1.0],
+     photos: [soap_front.png, soap_top.png]}
   - {id: acme/tin, category: tin, mesh: tin.obj, longest_side: 0.07, mass: 0.2, rgba: [0.2, 0.4, 0.9, 1.0]}
 """
 
@@ -48,17 +49,24 @@ def test_your_own_products_from_yaml_to_a_pick(tmp_path):
     write_box(tmp_path / "soap.obj", 0.09, 0.05, 0.03)
     write_prism(tmp_path / "tin.obj", 0.03, 0.07)
     (tmp_path / "products.yaml").write_text(PRODUCTS)
+    from PIL import Image, ImageDraw
+
+    for name, box in (("soap_front.png", (20, 40, 108, 88)), ("soap_top.png", (30, 30, 98, 98))):  # two shop photos
+        photo = Image.new("RGB", (128, 128), (250, 250, 250))
+        ImageDraw.Draw(photo).rectangle(box, fill=(230, 70, 70))
+        photo.save(tmp_path / name)
 
     listed = run("products", "list", "--products", "products.yaml", cwd=tmp_path).stdout
     assert "acme/soap" in listed and "acme/tin" in listed
 
     run("data", "generate", "--out", "mine", "--scenes", "4", "--products", "products.yaml", "--only-products",
         "--size", "128", "--workers", "1", "--policies", "y", "--scenes-per-world", "1", "--val-fraction", "0.25",
-        "--copies", "2,4", "--distractors", "0,1", cwd=tmp_path)
+        "--copies", "2,4", "--distractors", "0,1", "--photo-views", "1", cwd=tmp_path)
     card = json.loads((tmp_path / "mine" / "annotations.json").read_text())
     assert {c["name"] for c in card["categories"]} == {"acme/soap", "acme/tin"}
     assert {i["split"] for i in card["images"]} == {"train", "val"}  # a 4-scene set still splits
-    assert (tmp_path / "mine" / "photos" / "acme_soap.png").is_file()
+    assert (tmp_path / "mine" / "photos" / "acme_soap.png").is_file()  # the shop's first photo, as given
+    assert (tmp_path / "mine" / "photos" / "acme_soap" / "0.png").is_file()  # and one from a randomised studio
 
     run("detect", "train", str(ROOT / "configs" / "rod_warehouse_photo.yaml"), "--runs", "runs",
         "--set", "name=mine", "--set", "data.train=mine/annotations_train.json",

@@ -65,7 +65,7 @@ def test_given_boxes_the_picker_plans_a_grasp_in_the_base_frame():
     depth = np.where(inside, 0.75, 0.8).astype(np.float32)
     rows, cols = np.nonzero(inside)
     box = (cols.min(), rows.min(), cols.max() - cols.min() + 1, rows.max() - rows.min() + 1)
-    picker = Picker(None, GraspPlanner("analytic"), colour_check=None)
+    picker = Picker(None, GraspPlanner("analytic"), verifier=None)
     plans = picker.plan(np.zeros((200, 200, 3), np.uint8), depth, camera, boxes=(np.array([box]), np.array([0.9])))
     (plan,) = plans.grasps
     assert np.allclose(plan.position[:2], [0.12, 0.01], atol=0.006) and 0.0 < plan.position[2] < 0.05

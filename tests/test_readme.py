@@ -140,9 +140,9 @@ def prepare(folder: Path, blocks) -> None:
     for entry in yaml.safe_load(products)["products"]:
         (folder / entry["mesh"]).parent.mkdir(parents=True, exist_ok=True)
         write_box(folder / entry["mesh"], 0.09, 0.05, 0.03)
-        for key in ("texture", "photo"):
-            if entry.get(key):
-                Image.new("RGB", (64, 64), (200, 60, 50)).save(folder / entry[key])
+        for name in [entry.get("texture"), entry.get("photo"), *entry.get("photos", [])]:
+            if name:
+                Image.new("RGB", (64, 64), (200, 60, 50)).save(folder / name)
 
 
 OWN_PROCESS = ("binpick rl distributed", "binpick ros")  # Ray and rospy keep per-process state: a process each

@@ -428,6 +428,8 @@ def data_generate(
     address: Annotated[str | None, typer.Option(help="Run scene workers as Ray tasks: HOST:PORT of a Ray cluster, or local")] = None,
     val_fraction: Annotated[float, typer.Option(help="Share of worlds (groups of --scenes-per-world scenes) in the val split")] = 0.1,
     scenes_per_world: Annotated[int, typer.Option(help="Scenes made from one compiled world (one product); small sets: 1")] = 8,
+    photo_views: Annotated[int, typer.Option(help="Shop photos per product taken in randomised studios (light, background, "
+                                                  "viewpoint, framing, cut-out), besides the canonical one")] = 0,
     seed: Annotated[int, seed_option("Seed")] = 0,
     settings: Annotated[list[str] | None, typer.Option("--set", help="Any other generator setting KEY=VALUE, e.g. "
                                                                      "--set val_fraction=0.25 (see GenerateConfig)")] = None,
@@ -444,7 +446,8 @@ def data_generate(
              "held_out_categories": [c for c in held_out.split(",") if c], "randomise": randomise, "domain": domain, "sensor": sensor,
              "address": address,
              "targets": [t for t in targets.split(",") if t], "products": str(products) if products else None,
-             "only_products": only_products, "val_fraction": val_fraction, "scenes_per_world": scenes_per_world, "seed": seed}
+             "only_products": only_products, "val_fraction": val_fraction, "scenes_per_world": scenes_per_world, "photo_views": photo_views,
+             "seed": seed}
     config = from_dict(GenerateConfig, flags | parse_settings(settings), where="data generate")  # validated once
     with progress() as callback:
         stats = DataGeneration.new(config).run(callback)
@@ -843,7 +846,8 @@ def pick(
     product: Annotated[str, typer.Option(help="Product(s) to order: ids, unique short names or categories, comma-separated "
                                               "(orders cycle through them); `binpick products list` shows them")],
     products_file: Annotated[Path | None, typer.Option("--products", help="YAML of your own products (as for data generate)")] = None,
-    photo: Annotated[Path | None, typer.Option(help="Your own shop photo of the product (default: rendered)")] = None,
+    photo: Annotated[list[Path] | None, typer.Option(help="Your own shop photo of the product; repeat for several views "
+                                                        "(default: rendered catalogue views)")] = None,
     orders: Annotated[int, typer.Option(help="Orders to fulfil (one new bin each)")] = 5,
     weights: Annotated[Path | None, typer.Option(help="Photo-conditioned detector: run folder or .safetensors (default: shipped)")] = None,
     grasp: Annotated[str, typer.Option(help="Grasp policy: learnt (grasp-quality model), analytic (across the "
@@ -867,15 +871,16 @@ def pick(
     products = [pid for name in product.split(",") if name.strip() for pid in library.resolve(name.strip())]
     if not products:
         raise ConfigError(f"--product {product!r} names no product: give ids or categories, e.g. robosuite/milk,can")
-    if photo is not None:
+    if photo:
         if len(products) != 1:
             raise ConfigError("--photo is the photo of one product: give exactly one product id with it")
         from dataclasses import replace
 
         from binpick.detection.data import read_image
 
-        read_image(photo)  # unreadable -> one line now, not mid-run
-        library.add(replace(library[products[0]], photo=photo))
+        for path in photo:
+            read_image(path)  # unreadable -> one line now, not mid-run
+        library.add(replace(library[products[0]], photos=tuple(photo)))
     model = Detector.load(weights or PICKING).inference_network
     _fulfil(PickPipeline(model, library, grasp=planner), products, orders, seed, run_dir)
 
@@ -888,7 +893,8 @@ def plan(
     camera: Annotated[Path | None, typer.Option(help="camera.yaml: ROS camera_info layout, plus camera_to_base (the camera's pose in the robot's base frame)")] = None,
     sample: Annotated[bool, typer.Option(help="Plan on the sample frame that ships with binpick (a bin seen by a realistic "
                                               "RGB-D sensor, tilted; its shop photo unless --query-box)")] = False,
-    photo: Annotated[Path | None, typer.Option(help="Shop photo of the ordered product (a transparent PNG's alpha marks the product)")] = None,
+    photo: Annotated[list[Path] | None, typer.Option(help="Shop photo of the ordered product (a transparent PNG's alpha marks the "
+                                                        "product); repeat for several photos of it (the best match counts)")] = None,
     query_box: Annotated[str | None, typer.Option(help="Or: x,y,w,h of the instance to pick in the colour image (planned "
                                                        "first, then the copies of it that the detector finds)")] = None,
     copies_only: Annotated[bool, typer.Option(help="With --query-box: plan on the other copies only, not the instance "
@@ -916,11 +922,11 @@ def plan(
         from binpick.samples import SAMPLE_FRAME
 
         rgb, depth, camera = rgb or SAMPLE_FRAME / "rgb.png", depth or SAMPLE_FRAME / "depth.png", camera or SAMPLE_FRAME / "camera.yaml"
-        photo = photo if photo is not None or query_box is not None else SAMPLE_FRAME / "photo.png"
+        photo = photo if photo or query_box is not None else [SAMPLE_FRAME / "photo.png"]
     if rgb is None or depth is None or camera is None:
         raise ConfigError("give the frame's --rgb, --depth and --camera (or --sample for the frame that ships with binpick)")
-    if (photo is None) == (query_box is None):
-        raise ConfigError("give exactly one of --photo (the product's shop photo) or --query-box x,y,w,h")
+    if (not photo) == (query_box is None):
+        raise ConfigError("give exactly one of --photo (the product's shop photo; repeatable) or --query-box x,y,w,h")
     if out.suffix.lower() != ".json":
         raise ConfigError(f"--out must end in .json, got {str(out)!r}")
     check_output_file(out, "--out")
@@ -929,7 +935,7 @@ def plan(
     box = parse_box(query_box) if query_box is not None else None
     dimensions = _dimensions(size) if size is not None else None
     colour, metres, info = read_frame(rgb, depth, camera)
-    query = read_photo(photo) if photo is not None else None
+    query = [read_photo(path) for path in photo] if photo else None
     if box is not None and (box[0] < 0 or box[1] < 0 or box[0] + box[2] > colour.shape[1] or box[1] + box[3] > colour.shape[0]):
         raise ConfigError(f"--query-box {query_box!r} lies outside the {colour.shape[1]}x{colour.shape[0]} colour image")
     crop = weights if box is not None else None
@@ -938,7 +944,7 @@ def plan(
         raise ConfigError("--copies-only goes with --query-box (the instance whose copies to plan on)")
     plans = picker.plan(colour, metres, info, photo=query, query_box=box, size=dimensions, copies_only=copies_only)
     result = {"inputs": {"rgb": str(rgb), "depth": str(depth), "camera": str(camera),
-                         "photo": None if photo is None else str(photo), "query_box": query_box, "copies_only": copies_only,
+                         "photo": [str(path) for path in photo] if photo else None, "query_box": query_box, "copies_only": copies_only,
                          "size": dimensions},
               "grasp_policy": grasp, **plans.to_json()}
     atomic_write_text(out, json.dumps(result, indent=1))
@@ -950,7 +956,7 @@ def plan(
         for p in plans:
             for k, n in p.rejected.items():
                 reasons[k] = reasons.get(k, 0) + n
-        why = [f"{plans.colour_rejected} failed the colour check"] if plans.colour_rejected else []
+        why = [f"{plans.not_the_product} failed the product check"] if plans.not_the_product else []
         why += [f"{k} x{n}" for k, n in reasons.items()]
         console.print(f"no feasible grasp: {plans.detections} detection(s){': ' + '; '.join(why) if why else ''} -> {out}", soft_wrap=True)
     else:

@@ -36,6 +36,7 @@ class Task:
     photo: Path | None = None
     depth: Path | None = None  # the image's depth (16-bit millimetres), where the data set has one
     others: list[dict[str, Any]] = field(default_factory=list)  # instances of other products in the image
+    views: tuple[Path, ...] = ()  # more shop photos of the product (randomised studios), for training
 
 
 def read_image(path: Path, keep_alpha: bool = False, what: str = "image") -> np.ndarray:
@@ -208,15 +209,25 @@ class RepeatedInstances:
         name = self.categories[category]["name"].replace("/", "_")
         photo = self.photos / f"{name}.png"
         photo = photo if photo.is_file() else None
+        views = self._views(name)
         depth = inside(self.root, image["depth_file"], "depth image") if isinstance(image.get("depth_file"), str) else None
         if self.policy:
             query = next((a for a in annotations if a.get("is_query")), None)
             if query is None or all(pickable_by(a, self.policy) is None for a in annotations if a is not query):
                 return None  # nothing picked here, or no labels for this policy
-            return Task(image["id"], file, category, query, annotations, photo, depth, others)
+            return Task(image["id"], file, category, query, annotations, photo, depth, others, views)
         if len(annotations) < 2:
             return None
-        return Task(image["id"], file, category, None, annotations, photo, depth, others)
+        return Task(image["id"], file, category, None, annotations, photo, depth, others, views)
+
+    def _views(self, name: str) -> tuple[Path, ...]:
+        """The product's other shop photos: ``photos/<product>/*.png`` (``--photo-views``), listed once."""
+        if not hasattr(self, "_view_cache"):
+            self._view_cache: dict[str, tuple[Path, ...]] = {}
+        if name not in self._view_cache:
+            folder = self.photos / name
+            self._view_cache[name] = tuple(sorted(folder.glob("*.png"))) if folder.is_dir() else ()
+        return self._view_cache[name]
 
     def __len__(self) -> int:
         return len(self.tasks)
@@ -316,7 +327,12 @@ class TaskDataset(torch.utils.data.Dataset):
         if self.query_mode == "photo" or self.with_photo:
             if task.photo is None:
                 raise ConfigError(f"no shop photo for category {self.source.categories[task.category_id]['name']!r}")
-            photo = self.photo(task.photo)
+            path = task.photo  # training draws among the randomised studios' photos too, three times in four
+            if self.augment and task.views and rng.uniform() < 0.75:
+                path = task.views[rng.integers(len(task.views))]
+            photo = self.photo(path)
+            if self.augment and self.photometric:
+                photo = camera_effects(photo, rng)
         query_image = photo if self.query_mode == "photo" else crop_resize(image, query_box, self.query_size)
         extra = {"photo": to_tensor(photo)} if self.with_photo else {}
         if heights is not None:

@@ -314,10 +314,10 @@ class FrameSynchroniser:
 
 class PlanRequests:
     """Answers ``plan(product_id | photo)`` from the latest synchronised frame. ``photo_for`` turns a
-    product id into its shop photo (and the photo's product mask, or None), e.g. from a catalogue."""
+    product id into its shop photos (each with its product mask, or None), e.g. from a catalogue."""
 
     def __init__(self, picker: Picker, frames: FrameSynchroniser,
-                 photo_for: Callable[[str], tuple[np.ndarray, np.ndarray | None]] | None = None, frame_timeout: float = 5.0,
+                 photo_for: Callable[[str], list[tuple[np.ndarray, np.ndarray | None]]] | None = None, frame_timeout: float = 5.0,
                  size_for: Callable[[str], tuple[float, float, float]] | None = None) -> None:
         self.picker, self.frames, self.photo_for, self.frame_timeout = picker, frames, photo_for, frame_timeout
         self.size_for = size_for
@@ -343,14 +343,13 @@ class PlanRequests:
         box = query_box  # the picker checks it against the image
         if box is not None and photo is not None and photo.size:
             raise BinpickError("the request gives both a photo and a query box: give one (a box points at the instance itself)")
-        if box is None and (photo is None or photo.size == 0):
+        if box is None and (photo is None or (isinstance(photo, np.ndarray) and photo.size == 0)):
             if not product_id:
                 raise BinpickError("the request names no product, photo or query box")
             if self.photo_for is None:
                 raise BinpickError(f"this node has no product catalogue: send the photo of {product_id!r}")
-            photo, mask = self.photo_for(product_id)
-            if mask is not None:
-                photo = np.dstack([photo[..., :3], np.where(mask, 255, 0).astype(np.uint8)])
+            photo = [image if mask is None else np.dstack([image[..., :3], np.where(mask, 255, 0).astype(np.uint8)])
+                     for image, mask in self.photo_for(product_id)]
         frame = self.frames.latest(timeout=self.frame_timeout)
         if frame is None:
             raise BinpickError(f"no synchronised colour + depth + camera_info frame within {self.frame_timeout:g} s")
@@ -372,17 +371,19 @@ def catalogue_sizes(library):
 
 
 def catalogue(library):
-    """A product id -> (shop photo, product mask) lookup over a product library: the user's own photo
-    where the product has one, else one rendered like the training data's (cached)."""
-    cache: dict[str, tuple[np.ndarray, np.ndarray | None]] = {}
+    """A product id -> [(shop photo, product mask), ...] lookup over a product library: the user's own
+    photos where the product has them (masks found from each photo), else its rendered catalogue
+    views (cached)."""
+    cache: dict[str, list[tuple[np.ndarray, np.ndarray | None]]] = {}
 
-    def photo_for(product_id: str):
+    def photos_for(product_id: str):
         if product_id not in cache:
             from binpick.detection.data import read_image
-            from binpick.sim.photos import shop_photo
+            from binpick.sim.photos import catalogue_photos
 
             product = library[product_id]
-            cache[product_id] = (read_image(product.photo), None) if product.photo is not None else shop_photo(product, with_mask=True)
+            cache[product_id] = ([(read_image(path, keep_alpha=True), None) for path in product.photos] if product.photos
+                                 else catalogue_photos(product))
         return cache[product_id]
 
-    return photo_for
+    return photos_for

@@ -41,7 +41,7 @@ float32[] scores         # detector scores
 float32[] qualities      # grasp-quality scores
 float32[] widths         # the instance's width across the jaws (m)
 float32 opening          # how far to open the jaws (m)
-string plans_json        # everything: boxes, colour similarity, rejected candidates, timing
+string plans_json        # everything: boxes, product check, rejected candidates, timing
 """
 PICK_FEEDBACK = """string state      # planning
 """

@@ -1,7 +1,15 @@
-"""Shop photos (thesis §6.3): each product alone on a plain background from one canonical view —
-the external conditioning image of an order."""
+"""Shop photos (thesis §6.3): each product alone on a studio background — the external conditioning
+image of an order.
+
+:func:`shop_photo` renders the canonical photo (white studio, one key light, seen from 45°). A
+warehouse's photos come from other studios: :func:`random_photo_style` draws a style (light level,
+direction and colour, background colour or texture, viewpoint, how large the product is framed, a
+cut-out RGBA or not) so a detector trained on randomised photos does not learn one studio's look.
+"""
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import mujoco
 import numpy as np
@@ -10,16 +18,72 @@ from binpick.sim.mjcf import product_assets, product_geom
 from binpick.sim.products import Product
 
 
-def shop_photo(product: Product, size: int = 256, with_mask: bool = False):
-    """(size, size, 3) uint8: the product resting upright on a white studio floor, seen from 45°.
-    With ``with_mask``, also the (size, size) bool mask of the product's pixels."""
+@dataclass(frozen=True)
+class PhotoStyle:
+    """How one shop photo is taken. The defaults are the canonical studio photo."""
+
+    azimuth: float = 135.0  # degrees about the vertical
+    elevation: float = -35.0  # degrees (negative: looking down)
+    distance: float = 3.2  # camera distance in the product's half-diagonals (smaller: framed larger)
+    ambient: float = 0.5  # headlight ambient level
+    diffuse: float = 0.4  # headlight diffuse level
+    key: float = 0.5  # key light level
+    key_direction: tuple[float, float, float] = (-0.3, 0.4, -1.0)
+    tint: tuple[float, float, float] = (1.0, 1.0, 1.0)  # light colour
+    background: tuple[float, float, float] = (0.97, 0.97, 0.97)
+    background_seed: int | None = None  # a generated texture on the studio floor (None: plain)
+    cut_out: bool = False  # RGBA, alpha marking the product's pixels (a shop's cut-out PNG)
+
+
+CANONICAL = PhotoStyle()
+# the views of each built-in product an order gives: the canonical photo and one from nearly above
+CATALOGUE_VIEWS = (CANONICAL, PhotoStyle(azimuth=45.0, elevation=-70.0, distance=3.0))
+
+
+def catalogue_photos(product: Product, size: int = 256) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(photo, product mask) for each of :data:`CATALOGUE_VIEWS`."""
+    return [shop_photo(product, size, with_mask=True, style=style) for style in CATALOGUE_VIEWS]
+
+
+def random_photo_style(rng: np.random.Generator) -> PhotoStyle:
+    """A studio drawn at random: half the photos on a light plain background (as most shops), the rest
+    on any colour or a texture; warm to cool light, dim to bright; side to near-top views."""
+    light = rng.uniform(0.5, 1.4)
+    kind = rng.uniform()
+    if kind < 0.5:
+        background = tuple(float(v) for v in np.clip(rng.uniform(0.85, 1.0) + rng.normal(0, 0.02, 3), 0, 1))
+    else:
+        background = tuple(float(v) for v in rng.uniform(0.05, 0.95, 3))
+    tint = np.clip(np.array([1.0, 1.0, 1.0]) + rng.normal(0, 0.12, 3), 0.6, 1.0)
+    direction = (rng.uniform(-1, 1), rng.uniform(-1, 1), -rng.uniform(0.5, 1.5))
+    return PhotoStyle(azimuth=float(rng.uniform(0, 360)), elevation=float(rng.uniform(-80, -15)),
+                      distance=float(rng.uniform(2.4, 4.5)), ambient=float(0.5 * light * rng.uniform(0.5, 1.2)),
+                      diffuse=float(0.4 * light * rng.uniform(0.6, 1.3)), key=float(0.5 * light * rng.uniform(0.4, 1.4)),
+                      key_direction=tuple(float(v) for v in direction), tint=tuple(float(v) for v in tint),
+                      background=background, background_seed=int(rng.integers(2**31)) if kind >= 0.8 else None,
+                      cut_out=bool(rng.uniform() < 0.3))
+
+
+def _fmt(values) -> str:
+    return " ".join(f"{float(v):.4g}" for v in values)
+
+
+def shop_photo(product: Product, size: int = 256, with_mask: bool = False, style: PhotoStyle = CANONICAL):
+    """(size, size, 3) uint8: the product resting upright on the studio floor, taken as ``style`` says
+    ((size, size, 4) for a cut-out style, alpha 255 on the product). With ``with_mask``, also the
+    (size, size) bool mask of the product's pixels."""
+    tint = np.asarray(style.tint)
+    floor_texture = (f'<texture name="studio_tex" type="2d" builtin="flat" rgb1="1 1 1" width="64" height="64"/>'
+                     f'<material name="studio" texture="studio_tex" texrepeat="4 4" rgba="1 1 1 1"/>'
+                     if style.background_seed is not None else f'<material name="studio" rgba="{_fmt(style.background)} 1"/>')
     xml = f"""<mujoco><visual><global offwidth="{size}" offheight="{size}"/><quality shadowsize="2048"/>
-  <headlight ambient="0.5 0.5 0.5" diffuse="0.4 0.4 0.4"/></visual>
-  <asset><material name="studio" rgba="0.97 0.97 0.97 1"/>{product_assets(product, 'p')}</asset>
-  <worldbody><light pos="0.3 -0.4 1.0" dir="-0.3 0.4 -1" diffuse="0.5 0.5 0.5" castshadow="true"/>
+  <headlight ambient="{_fmt(tint * style.ambient)}" diffuse="{_fmt(tint * style.diffuse)}"/></visual>
+  <asset>{floor_texture}{product_assets(product, 'p')}</asset>
+  <worldbody><light pos="{_fmt(-np.asarray(style.key_direction))}" dir="{_fmt(style.key_direction)}" diffuse="{_fmt(tint * style.key)}" castshadow="true"/>
     <geom type="plane" size="0 0 0.05" material="studio"/>
     <body name="product" pos="0 0 0.3">{product_geom(product, 'p')}</body></worldbody></mujoco>"""
     model = mujoco.MjModel.from_xml_string(xml)
+    _fill_patterns(model, product, style)
     data = mujoco.MjData(model)
     body = model.body("product").id
     geom = np.flatnonzero(model.geom_bodyid == body)[0]
@@ -38,27 +102,39 @@ def shop_photo(product: Product, size: int = 256, with_mask: bool = False):
     try:
         camera = mujoco.MjvCamera()
         camera.lookat[:] = centre
-        camera.distance = 3.2 * extent + 0.05
-        camera.azimuth, camera.elevation = 135.0, -35.0
+        camera.distance = style.distance * extent + 0.05
+        camera.azimuth, camera.elevation = style.azimuth, style.elevation
         renderer.update_scene(data, camera=camera)
         rgb = renderer.render().copy()
-        if not with_mask:
+        if not (with_mask or style.cut_out):
             return rgb
         renderer.enable_segmentation_rendering()
         segmentation = renderer.render()
         mine = np.flatnonzero(model.geom_bodyid == body)
-        return rgb, np.isin(segmentation[..., 0], mine) & (segmentation[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM))
+        mask = np.isin(segmentation[..., 0], mine) & (segmentation[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM))
+        image = np.dstack([rgb, np.where(mask, 255, 0).astype(np.uint8)]) if style.cut_out else rgb
+        return (image, mask) if with_mask else image
     finally:
         renderer.close()
 
 
+def _fill_patterns(model, product: Product, style: PhotoStyle) -> None:
+    """Generated textures are pixels filled after compiling: the product's own (domain-randomised
+    products) and the studio floor's."""
+    from binpick.sim.domain import fill_texture, pattern
+
+    if product.pattern is not None:
+        fill_texture(model, model.texture("p_tex").id, pattern(np.random.default_rng(product.pattern[0]), product.pattern[1]))
+    if style.background_seed is not None:
+        fill_texture(model, model.texture("studio_tex").id, pattern(np.random.default_rng(style.background_seed), "train"))
+
+
 def contact_sheet(photos: dict[str, np.ndarray], columns: int = 8) -> np.ndarray:
     """Tile photos (same size) row by row, for docs."""
-    images = list(photos.values())
+    images = [image[..., :3] for image in photos.values()]
     rows = -(-len(images) // columns)
     h, w, _ = images[0].shape
     sheet = np.full((rows * h, columns * w, 3), 255, np.uint8)
     for i, image in enumerate(images):
         sheet[(i // columns) * h:(i // columns + 1) * h, (i % columns) * w:(i % columns + 1) * w] = image
     return sheet
-

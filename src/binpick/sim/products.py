@@ -42,12 +42,17 @@ class Product:
     rgba: tuple[float, float, float, float] = (0.8, 0.8, 0.8, 1.0)
     mass: float = 0.15
     friction: float = 1.0
-    photo: Path | None = None  # the shop's own photo, if the user has one
+    photos: tuple[Path, ...] = ()  # the shop's own photos, if the user has them (views, studios)
     pattern: tuple[int, str] | None = None  # (seed, texture pool): a generated texture (domain randomisation)
 
     @property
     def name(self) -> str:
         return self.id.replace("/", "_")
+
+    @property
+    def photo(self) -> Path | None:
+        """The user's first photo of the product (None: binpick renders its catalogue views)."""
+        return self.photos[0] if self.photos else None
 
 
 @dataclass
@@ -237,9 +242,10 @@ def load_products(path: str | Path, library: ProductLibrary | None = None) -> Pr
 
         products:
           - {id: acme/soap, category: soap, mesh: soap.obj, texture: soap.png, longest_side: 0.09,
-             mass: 0.2, friction: 1.0, photo: soap_photo.png}
+             mass: 0.2, friction: 1.0, photos: [soap_front.png, soap_top.png]}
 
-    Paths are relative to the YAML file. Each mesh is checked by compiling it in MuJoCo, so a bad one
+    ``photos`` lists the shop's photos of the product (``photo: one.png`` for one); an order is matched
+    against the best of them. Paths are relative to the YAML file. Each mesh is checked by compiling it in MuJoCo, so a bad one
     is reported with its file name here rather than in the middle of data generation."""
     path = Path(path)
     if not path.exists():
@@ -250,7 +256,7 @@ def load_products(path: str | Path, library: ProductLibrary | None = None) -> Pr
     if not isinstance(entries, list) or not entries:
         raise ConfigError(f"{path}: expected a 'products:' list")
     library = library or ProductLibrary()
-    allowed = {"id", "category", "mesh", "texture", "longest_side", "scale", "mass", "friction", "photo", "rgba", "replaces"}
+    allowed = {"id", "category", "mesh", "texture", "longest_side", "scale", "mass", "friction", "photo", "photos", "rgba", "replaces"}
     seen: set[str] = set()
     for index, entry in enumerate(entries):
         where = f"{path.name}: products[{index}]"
@@ -281,11 +287,20 @@ def load_products(path: str | Path, library: ProductLibrary | None = None) -> Pr
         if "longest_side" in entry:
             longest = check_range(f"{where}.longest_side", entry["longest_side"], 0.005, 0.5)
             scale = longest / float(mesh_extent(mesh).max())
-        optional = {key: (path.parent / entry[key]).resolve() for key in ("texture", "photo") if entry.get(key)}
-        for key, file in optional.items():
+        if "photo" in entry and "photos" in entry:
+            raise ConfigError(f"{where}: give photo (one file) or photos (a list), not both")
+        listed = [entry["photo"]] if "photo" in entry else entry.get("photos", [])
+        if not isinstance(listed, list) or not all(isinstance(name, str) and name for name in listed) or len(listed) > 32:
+            raise ConfigError(f"{where}.photos must be a list of up to 32 image file names, got {str(listed)[:60]!r}")
+        optional: dict = {"texture": (path.parent / entry["texture"]).resolve()} if entry.get("texture") else {}
+        files = {**({"texture": optional["texture"]} if optional else {}),
+                 **{f"photos[{i}]": (path.parent / name).resolve() for i, name in enumerate(listed)}}
+        for key, file in files.items():
             if not file.is_file():
                 raise ConfigError(f"{where}: {key} file {str(file)!r} does not exist")
             read_photo(file)  # an image PIL cannot read is reported now, not after the scenes are made
+        if listed:
+            optional["photos"] = tuple((path.parent / name).resolve() for name in listed)
         rgba = entry.get("rgba", (0.8, 0.8, 0.8, 1.0))
         if not isinstance(rgba, (list, tuple)) or len(rgba) != 4:
             raise ConfigError(f"{where}.rgba must be 4 numbers in [0, 1], got {rgba!r}")

@@ -61,6 +61,7 @@ class GenerateConfig:
     products: str | None = None  # a user's products YAML (added to the built-in library)
     only_products: bool = False  # use only the user's products
     photo_size: int = 256
+    photo_views: int = 0  # randomised studio photos per product besides the canonical one (photos/<product>/<k>.png)
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -72,6 +73,7 @@ class GenerateConfig:
         check_range("label_trials", self.label_trials, 1, 25, integer=True)
         check_range("label_jitter", self.label_jitter, 0.0, 0.02)
         check_range("image_size", self.image_size, 32, 2048, integer=True)
+        check_range("photo_views", self.photo_views, 0, 64, integer=True)
         check_range("scenes_per_world", self.scenes_per_world, 1, 1000, integer=True)
         check_range("val_fraction", self.val_fraction, 0.0, 1.0)
         from binpick.config import check_choice
@@ -105,6 +107,8 @@ class GenerateConfig:
         for key in ("out", "scenes", "workers", "address"):
             data.pop(key)
         data["copies"], data["distractors"] = list(self.copies), list(self.distractors)
+        if not self.photo_views:  # data sets made before photo views resume as they were
+            data.pop("photo_views")
         data["domain_values"] = domain_dict(self.domain_config)  # so an edited domain file is noticed on resume
         if self.sensor_config.realistic:  # perfect depth adds nothing: data sets made before sensors resume as they were
             from binpick.sim.sensor import sensor_dict
@@ -301,10 +305,8 @@ def world_scenes(config: GenerateConfig, world: int, indices: list[int]):
     policies = make_policies(config.policies)
     try:
         photo = {}
-        if config.domain_config.random_products:  # a world's own product has its own shop photo
-            from binpick.sim.photos import shop_photo
-
-            photo = {f"photos/{products[0].name}.png": _png_bytes(shop_photo(products[0], config.photo_size))}
+        if config.domain_config.random_products:  # a world's own product has its own shop photos
+            photo = {path: _png_bytes(image) for path, image in product_photos(config, products[0], world)}
         for index in indices:
             scene, rng = world_scene(sim, config, world, index)
             record = scene_record(scene, index, split, config)
@@ -527,21 +529,35 @@ def _generate_world_job(arguments) -> list[dict[str, Any]]:
     return generate_world(*arguments)
 
 
-def write_photos(config: GenerateConfig, library: ProductLibrary, out: Path, callback: RunCallback = SILENT) -> int:
-    from binpick.sim.photos import shop_photo
+def product_photos(config: GenerateConfig, product, world: int | None = None):
+    """Yield ``(relative path, image)`` for a product's shop photos: the canonical one (the user's own
+    photo where the products YAML gives one), then ``photo_views`` taken in randomised studios
+    (:func:`binpick.sim.photos.random_photo_style`; drawn from the world's seed, or the product's id)."""
+    from binpick.sim.photos import random_photo_style, shop_photo
 
+    if product.photo is not None:
+        from binpick.sim.products import read_photo
+
+        yield f"photos/{product.name}.png", read_photo(product.photo)
+    else:
+        yield f"photos/{product.name}.png", shop_photo(product, config.photo_size)
+    import zlib
+
+    key = world if world is not None else zlib.crc32(product.id.encode())
+    for k in range(config.photo_views):
+        style = random_photo_style(np.random.default_rng([config.seed, key, 11, k]))
+        yield f"photos/{product.name}/{k}.png", shop_photo(product, config.photo_size, style=style)
+
+
+def write_photos(config: GenerateConfig, library: ProductLibrary, out: Path, callback: RunCallback = SILENT) -> int:
     if config.domain_config.random_products and not config.products:
-        return len(list((out / "photos").glob("*.png")))  # each world wrote its own product's photo
-    missing = [p for p in library if not (out / "photos" / f"{p.name}.png").is_file()]
+        return len(list((out / "photos").glob("*.png")))  # each world wrote its own product's photos
+    missing = [p for p in library if not (out / "photos" / f"{p.name}.png").is_file()
+               or any(not (out / "photos" / p.name / f"{k}.png").is_file() for k in range(config.photo_views))]
     with callback.task("shop photos", len(missing)) as task:
         for product in missing:
-            if product.photo is not None:
-                from binpick.sim.products import read_photo
-
-                image = read_photo(product.photo)
-            else:
-                image = shop_photo(product, config.photo_size)
-            _write_png(out / "photos" / f"{product.name}.png", image)
+            for path, image in product_photos(config, product):
+                _write_png(out / path, image)
             task.update(advance=1)
     return len(library)
 

@@ -74,7 +74,7 @@ class Reason(StrEnum):
 
     PLACED = "placed"
     NO_DETECTION = "no detection"
-    COLOUR_MISMATCH = "colour mismatch"  # every detection failed the colour check
+    NOT_THE_PRODUCT = "not the ordered product"  # every detection failed the product check
     NO_GRASP = "no feasible grasp"  # every grasp candidate was too wide or blocked
     WRONG_PRODUCT = "wrong product"
     MISSED = "missed"  # nothing came up with the gripper

@@ -1,5 +1,5 @@
 """The warehouse pick pipeline (thesis ch. 6, Fig 1.1): an order's shop photo -> ROD with external
-conditioning -> ranked detections of pickable instances -> a colour check against the photo -> the
+conditioning -> ranked detections of pickable instances -> a product check against the photos -> the
 best one's 3D grasp point from depth -> a top-down grasp -> carried to the order tote -> verified.
 Each detection gets a grasp from the grasp planner (:mod:`binpick.grasping`, depth only); detections
 without a feasible one are skipped. After a failed attempt the next detection is tried, up to
@@ -26,7 +26,6 @@ from binpick.errors import ConfigError
 from binpick.files import atomic_write, atomic_write_text, ensure_dir
 from binpick.sim.bin_scene import BinWorld, Scene
 from binpick.sim.mjcf import CameraSpec
-from binpick.sim.photos import shop_photo
 from binpick.sim.products import ProductLibrary, product_dimensions
 from binpick.grasping import DepthFrame, GraspChoice, GraspPlanner, GraspPolicyName, PinholeCamera
 from binpick.depth import as_camera_depth
@@ -42,7 +41,7 @@ GIF_SIZE = 240
 class Attempt:
     box: list[float]
     score: float
-    colour_similarity: float | None
+    same_product: float | None  # the product check's score (None: not checked)
     grasp_point: list[float]  # the fingertips' midpoint, world xyz
     outcome: Reason
     lifted_product: str | None
@@ -77,18 +76,20 @@ class PickPipeline:
     the simulator's client of :class:`binpick.picking.Picker` (render -> plan -> execute in MuJoCo),
     so the simulated orders and a real camera's frames run the same planning code.
 
-    ``colour_check`` skips detections whose colours match the photo's product less than this
-    (histogram intersection, :mod:`binpick.picking.colour`; None: no check). On tuning bins (seeds
-    30000+, not the benchmark's), 0.15 raised the share of the top three detections that were the
-    ordered product from 66% to 90% on 36 orders of seen products (all kept a candidate) and from
-    34% to 74% on 16 orders of held-out ones (7 kept a right one in their top three, 6 before).
+    ``verifier`` is the product check against the shop photos (:class:`binpick.picking.Picker`:
+    ``learnt``, the shipped verifier, whose ``check`` threshold is a probability, default 0.2;
+    ``colour``, the older hue-saturation check, 0.15; None: none). It drops confident detections of
+    other products before a grasp puts them in the customer's tote. ``photos`` says which of the
+    product's shop photos condition the detector: ``catalogue`` (each built-in product's views,
+    :data:`binpick.sim.photos.CATALOGUE_VIEWS`, or a user's ``photos:`` list), or ``canonical`` (one).
+    ``copies_from_match`` seeds the box-query detector with the surest photo detection (see ``Picker``).
 
-    ``colour_rank`` (None: off) ranks the detections scoring at least this (below the weights' own
-    threshold) by detector score times colour similarity: the photo-query detector often scores the
+    ``rank_from`` (None: off) ranks the detections scoring at least this (below the weights' own
+    threshold) by detector score times the check's score: the photo-query detector often scores the
     ordered product's copies lowest in a cluttered bin (0.01-0.02 for red cans while a grey shape got
-    0.24), and the colour check tells them apart (similarity 0.8 against 0.01). On the tuning bins
-    (20 orders each, seeds 30000+ and 31000+), 0.01 raised seen orders placed from 80% to 85% (right
-    product 90% to 95%) and held-out ones from 40% to 95% (right product 80% to 95%).
+    0.24), and the check tells them apart. On the tuning bins (20 orders each, seeds 30000+ and
+    31000+), 0.01 with the colour check raised seen orders placed from 80% to 85% (right product 90% to
+    95%) and held-out ones from 40% to 95% (right product 80% to 95%).
 
     ``oracle=True`` takes the ordered product's boxes from the simulator (most visible first) instead of
     the detector: what the grasp alone achieves, to tell detection failures from grasp failures.
@@ -101,46 +102,54 @@ class PickPipeline:
     def __init__(self, detector: DetectorNetwork, library: ProductLibrary, grasp: GraspPlanner | str = "learnt",
                  copies: tuple[int, int] = (3, 6), distractors: tuple[int, int] = (2, 3), max_attempts: int = 3,
                  score_threshold: float | None = None, camera: CameraSpec = CameraSpec(size=416),
-                 colour_check: float | None = 0.15, oracle: bool = False, colour_rank: float | None = 0.01,
-                 domain=None, size_check: bool = True, sensor=None) -> None:
+                 verifier="learnt", check: float | None = None, oracle: bool = False, rank_from: float | None = 0.01,
+                 domain=None, size_check: bool = True, sensor=None, photos: str = "catalogue",
+                 copies_from_match: float | None = None) -> None:
         if detector.spec.query != "photo":
             raise ConfigError("the pick pipeline conditions on shop photos: give a detector trained with query: photo")
         planner = grasp if isinstance(grasp, GraspPlanner) else GraspPlanner.load(grasp)
-        self.picker = Picker(detector, planner, score_threshold=score_threshold, colour_check=None if oracle else colour_check,
-                             colour_rank=colour_rank, max_grasps=max_attempts)
+        if photos not in ("catalogue", "canonical"):
+            raise ConfigError(f"photos must be catalogue or canonical, got {photos!r}")
+        self.picker = Picker(detector, planner, score_threshold=score_threshold, verifier=None if oracle else verifier,
+                             check=check, rank_from=rank_from, max_grasps=max_attempts, copies_from_match=copies_from_match)
+        self.photo_set = photos
         self.detector, self.library, self.grasp = detector, library, planner
         self.copies, self.distractors, self.max_attempts = copies, distractors, max_attempts
         self.camera, self.oracle, self.domain, self.size_check, self.sensor = camera, oracle, domain, size_check, sensor
-        self._photos: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        self._photos: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
 
     @property
     def score_threshold(self) -> float:
         return self.picker.score_threshold
 
     @property
-    def colour_check(self) -> float | None:
-        return self.picker.colour_check
+    def check(self) -> float | None:
+        return self.picker.check
 
     @property
-    def colour_rank(self) -> float | None:
-        return self.picker.colour_rank
+    def rank_from(self) -> float | None:
+        return self.picker.rank_from
 
     def photo(self, product_id: str) -> np.ndarray:
-        """The shop's photo of a product: the user's own, or rendered like the training data's."""
-        return self.photo_and_mask(product_id)[0]
+        """The shop's (first) photo of a product: the user's own, or rendered like the training data's."""
+        return self.photos_and_masks(product_id)[0][0]
 
-    def photo_and_mask(self, product_id: str) -> tuple[np.ndarray, np.ndarray]:
-        """The photo and its product pixels (the renderer's mask; a user's photo: not bright grey)."""
+    def photos_and_masks(self, product_id: str) -> list[tuple[np.ndarray, np.ndarray]]:
+        """The product's photos an order gives (``photos``: every catalogue view, or the first) and
+        their product pixels (the renderer's masks; a user's photo: its alpha, or found from it)."""
         if product_id not in self._photos:
             from binpick.detection.data import read_image
+            from binpick.sim.photos import catalogue_photos
 
             product = self.library[product_id]
-            if product.photo is None:
-                photo, mask = shop_photo(product, with_mask=True)
+            if product.photos:
+                views = []
+                for path in product.photos:
+                    image = read_image(path, keep_alpha=True)
+                    views.append((np.ascontiguousarray(image[..., :3]), photo_mask(image)))
             else:
-                photo = read_image(product.photo)
-                mask = photo_mask(photo)
-            self._photos[product_id] = photo, mask
+                views = catalogue_photos(product)
+            self._photos[product_id] = views if self.photo_set == "catalogue" else views[:1]
         return self._photos[product_id]
 
     def build_world(self, product_id: str, seed: int) -> tuple[BinWorld, np.random.Generator]:
@@ -183,7 +192,7 @@ class PickPipeline:
             result = OrderResult(order, product_id, seed, False, Reason.NO_DETECTION,
                                  seen=None if trained is None else product_id in trained, detections=plans.detections)
             if plans.detections and not plans:
-                result.reason = Reason.COLOUR_MISMATCH
+                result.reason = Reason.NOT_THE_PRODUCT
             self.execute(world, scene, plans, result, on_frame=frame)
             frame()
             if out is not None:
@@ -199,12 +208,13 @@ class PickPipeline:
     def plan(self, scene: Scene, product_id: str) -> Plans:
         """The picker's plans for the scene's frame as a real camera would give it: depth in whole
         millimetres (a 16-bit frame), so the plan is the one `binpick plan` makes from its files."""
-        photo, mask = self.photo_and_mask(product_id)
+        views = self.photos_and_masks(product_id)
         camera, depth = PinholeCamera.from_record(scene.camera), as_camera_depth(scene.depth)
         if self.oracle:
             return self.picker.plan(scene.rgb, depth, camera, boxes=self.oracle_boxes(scene, product_id))
         size = product_dimensions(self.library[product_id]) if self.size_check else None
-        return self.picker.plan(scene.rgb, depth, camera, photo=photo, photo_product_mask=mask, size=size)
+        return self.picker.plan(scene.rgb, depth, camera, photo=[image for image, _ in views],
+                                photo_product_mask=[mask for _, mask in views], size=size)
 
     def execute(self, world: BinWorld, scene: Scene, plans: list[GraspPlan], result: OrderResult, on_frame=None) -> None:
         """Try the plans in turn in the simulator until the ordered product lands in the order tote
@@ -213,14 +223,14 @@ class PickPipeline:
             if result.grasps >= self.max_attempts:
                 break
             if not plan.feasible:
-                result.attempts.append(Attempt(plan.box, plan.score, plan.colour_similarity, [], Reason.NO_GRASP, None,
+                result.attempts.append(Attempt(plan.box, plan.score, plan.same_product, [], Reason.NO_GRASP, None,
                                                rejected=plan.rejected))
                 result.reason = Reason.NO_GRASP
                 continue
             tips = self.tips(plan, scene)
             outcome = execute_pick(world, tips, plan.yaw, on_frame=on_frame)
             lifted = world.slots[outcome.lifted_slot].id if outcome.lifted_slot is not None else None
-            result.attempts.append(Attempt(plan.box, plan.score, plan.colour_similarity, np.round(tips, 4).tolist(),
+            result.attempts.append(Attempt(plan.box, plan.score, plan.same_product, np.round(tips, 4).tolist(),
                                            outcome.reason, lifted, plan.yaw, plan.width, plan.quality, plan.rejected))
             if outcome.placed and lifted == result.product:
                 result.success, result.reason = True, Reason.PLACED
