@@ -268,9 +268,27 @@ def write(result: dict) -> None:
                   "(and depth.png) holds it; the simulator pipeline rounds its float depth so. The last column compares "
                   "the plan from the files with the picker's plan on the frame in memory: with the simulator's float depth "
                   "grasp positions differ by under a millimetre (an exact comparison); with the millimetre depth they are "
-                  f"the same plan in {orders['same_plan_as_memory']['millimetres']:.0%} of the shifted bins. The shifted set-up's low "
-                  "share is the detector's: most of its orders end with no detection or only detections of "
-                  "other products (colour mismatch).", ""]
+                  f"the same plan in {orders['same_plan_as_memory']['millimetres']:.0%} of the shifted bins. Each row's "
+                  "failures by reason are in `results/plan.json` (`files.reasons`).", ""]
+    variants = result.get("sim_orders", {})
+    if variants:
+        lines += ["The order path's variants side by side (`python benchmarks/plan.py sim --domain D [--verifier V] [--photos P] "
+                  "[--check T] [--copies-from-match P]`): the simulator pipeline alone on the same bins as `files` (seeds 40000+ "
+                  "shifted, 41000+ default). *check*: the product check before a grasp (learnt: `binpick.detection.verifier`, "
+                  "at its threshold; colour: the hue-saturation histogram at 0.15); *photos*: the order's photos (catalogue: the "
+                  "product's two catalogue views, the best match counting; canonical: one); *copies*: the box-query detector "
+                  "seeded with the surest photo match.", "",
+                  "| set-up | check | photos | copies from the surest match | orders | placed | right product | main failures |",
+                  "|---|---|---|---|---|---|---|---|"]
+        for row in variants.values():
+            options = row["options"]
+            check = options.get("verifier") or "none"
+            check += f" ≥ {options['check']:g}" if options.get("check") is not None else (" ≥ 0.2" if check == "learnt" else "")
+            failures = ", ".join(f"{k} {n}" for k, n in sorted(row["reasons"].items(), key=lambda kv: -kv[1]) if k != "placed")
+            lines.append(f"| {row['domain']} | {check} | {options.get('photos')} | "
+                         f"{'—' if options.get('copies_from_match') is None else options['copies_from_match']} | {row['orders']} | "
+                         f"{row['pick_success']:.0%} | {row['right_product']:.0%} | {failures} |")
+        lines.append("")
     by_sensor = result.get("file_orders_by_sensor", {})
     if by_sensor:
         lines += ["Depth as sensors give it (`python benchmarks/plan.py files --sensor realistic`): each set-up's twin with the "

@@ -18,44 +18,48 @@ MARGIN = 0.04  # of the product's width and height, kept around it when framing
 
 def photo_mask(photo: np.ndarray) -> np.ndarray:
     """The product's pixels in a shop photo: the alpha channel of a cut-out RGBA photo; on a light plain
-    background, what is not bright and grey; on another background, what differs from the photo's
-    border (a plain one: by colour distance; a textured one: GrabCut started from the border)."""
+    background (most of the border light), what is not bright and grey; on another background, what
+    differs from the photo's border (a plain one: by colour distance; a textured one: GrabCut, the
+    border as probable background)."""
     photo = np.asarray(photo)
     if photo.ndim == 3 and photo.shape[2] == 4:
         return photo[..., 3] > 127
-    rgb = np.ascontiguousarray(photo[..., :3])
+    rgb = np.ascontiguousarray(photo[..., :3], dtype=np.uint8)
     hsv = cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV)
     light = (hsv[..., 1] < 30) & (hsv[..., 2] > 150)
     edge = max(2, min(rgb.shape[:2]) // 40)
     border = np.ones(rgb.shape[:2], bool)
     border[edge:-edge, edge:-edge] = False
-    if light[border].mean() > 0.9:
+    if light[border].mean() > 0.5:  # a studio's white: the product may touch the frame (a tight crop)
         return ~light
     lab = cv2.cvtColor(rgb, cv2.COLOR_RGB2LAB).astype(np.float32)
     lab[..., 0] *= 0.5  # a shadow on the background differs from it mostly in lightness
     reference = np.median(lab[border], axis=0)
     distance = np.linalg.norm(lab - reference, axis=2)
     spread = float(np.percentile(distance[border], 90))
+    plain = distance > max(18.0, 2.0 * spread)
     if spread < 12.0:  # a plain background
-        return distance > max(18.0, 2.0 * spread)
-    return _grabcut(rgb, edge)
+        return plain
+    found = _grabcut(rgb, border)
+    return found if found.mean() > 0.01 else plain
 
 
-def _grabcut(rgb: np.ndarray, edge: int) -> np.ndarray:
-    """Foreground by GrabCut from a rectangle just inside the border (the product is in the frame)."""
+def _grabcut(rgb: np.ndarray, border: np.ndarray) -> np.ndarray:
+    """Foreground by GrabCut: the border probably background, the rest probably the product."""
     height, width = rgb.shape[:2]
     if min(height, width) < 16:
         return np.ones((height, width), bool)
     scale = 96.0 / max(height, width)
     if scale < 1.0:  # at most 96 px a side: a tenth of the time, and the framing box is all that is used
-        small = cv2.resize(rgb, (max(16, round(width * scale)), max(16, round(height * scale))), interpolation=cv2.INTER_AREA)
-        found = _grabcut(small, max(2, round(edge * scale))).astype(np.uint8)
+        size = (max(16, round(width * scale)), max(16, round(height * scale)))
+        small = cv2.resize(rgb, size, interpolation=cv2.INTER_AREA)
+        small_border = cv2.resize(border.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0
+        found = _grabcut(small, small_border).astype(np.uint8)
         return cv2.resize(found, (width, height), interpolation=cv2.INTER_NEAREST) > 0
-    mask = np.zeros((height, width), np.uint8)
+    mask = np.where(border, cv2.GC_PR_BGD, cv2.GC_PR_FGD).astype(np.uint8)
     background, foreground = np.zeros((1, 65), np.float64), np.zeros((1, 65), np.float64)
-    rect = (edge, edge, width - 2 * edge, height - 2 * edge)
     try:
-        cv2.grabCut(rgb, mask, rect, background, foreground, 3, cv2.GC_INIT_WITH_RECT)
+        cv2.grabCut(rgb, mask, None, background, foreground, 3, cv2.GC_INIT_WITH_MASK)
     except cv2.error:
         return np.ones((height, width), bool)
     return (mask == cv2.GC_FGD) | (mask == cv2.GC_PR_FGD)

@@ -109,7 +109,8 @@ def window_input(rgb: np.ndarray, depth: np.ndarray, box_xywh, side: int = STORE
     height, width = rgb.shape[:2]
     x, y, w, h = (float(v) for v in box_xywh)
     pad_x, pad_y = MARGIN * w, MARGIN * h
-    x0, y0 = int(np.floor(max(0.0, x - pad_x))), int(np.floor(max(0.0, y - pad_y)))
+    x0 = int(np.floor(min(max(0.0, x - pad_x), width - 2.0)))  # a box at the image's edge still has pixels
+    y0 = int(np.floor(min(max(0.0, y - pad_y), height - 2.0)))
     x1, y1 = int(np.ceil(min(float(width), x + w + pad_x))), int(np.ceil(min(float(height), y + h + pad_y)))
     x1, y1 = max(x1, min(width, x0 + 2)), max(y1, min(height, y0 + 2))
     colour = cv2.resize(np.ascontiguousarray(rgb[y0:y1, x0:x1]), (side, side), interpolation=cv2.INTER_AREA)
@@ -211,7 +212,9 @@ class ProductVerifier:
             return np.zeros(0)
         if isinstance(photos, np.ndarray):
             photos, photo_masks = [photos], [photo_masks]
-        masks = list(photo_masks) if photo_masks is not None else [None] * len(photos)
+        masks = list(photo_masks) if isinstance(photo_masks, (list, tuple)) else [photo_masks] * len(photos)
+        if len(masks) != len(photos):
+            raise ConfigError(f"{len(photos)} photos but {len(masks)} product masks: give one per photo")
         photo_arrays = [photo_input(p, m) for p, m in zip(photos, masks)]
         window_arrays = [centre(window_input(rgb, depth, box)) for box in boxes]
         light = illuminant(rgb)

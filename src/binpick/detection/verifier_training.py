@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -45,7 +45,6 @@ class VerifierTrainConfig:
     min_visible: float = 0.3  # instances less visible than this are left out
     threads: int = 2
     seed: int = 0
-    extra_val: list[str] = field(default_factory=list)  # more data sets to score after training (e.g. a shifted one)
 
     def __post_init__(self) -> None:
         check_range("scenes", self.scenes, 1, 10_000_000, integer=True)
@@ -280,7 +279,7 @@ def train_verifier(config: VerifierTrainConfig, callback: RunCallback = SILENT) 
     checkpoint = out / CHECKPOINT
     if checkpoint.is_file():  # resume: the model, optimiser, schedule and history of the last whole epoch
         _, meta, state = tensorfile.load(checkpoint, FORMAT_CHECKPOINT, "verifier checkpoint")
-        if meta.get("config") != asdict(config):
+        if {k: v for k, v in meta.get("config", {}).items() if k != "threads"} != {k: v for k, v in asdict(config).items() if k != "threads"}:
             raise ConfigError(f"{checkpoint} was written by another configuration; give another --out or delete it")
         net.load_state_dict(state["net"])
         optimiser.load_state_dict(state["optimiser"])
@@ -313,7 +312,7 @@ def train_verifier(config: VerifierTrainConfig, callback: RunCallback = SILENT) 
     metrics = {"val": scores(torch.sigmoid(logits_of(net, val_pairs)).numpy(), val_pairs[3].numpy()),
                "temperature": round(float(net.temperature), 4), "train_windows": int(len(train.windows)),
                "train_products": len(train.photos), "history": history}
-    verifier.save(out / "product_verifier.safetensors", {"trained_on": str(config.data), "metrics": metrics["val"]})
+    verifier.save(out / "product_verifier.safetensors", {"trained_on": Path(config.data).name, "metrics": metrics["val"]})
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
     return metrics
 

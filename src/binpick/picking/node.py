@@ -341,9 +341,13 @@ class PlanRequests:
         if size is None and product_id and self.size_for is not None:
             size = self.size_for(product_id)
         box = query_box  # the picker checks it against the image
-        if box is not None and photo is not None and photo.size:
+        if isinstance(photo, (list, tuple)):  # several photos of the product; none given: as no photo
+            photo = [p for p in photo if p is not None and np.asarray(p).size] or None
+        elif photo is not None and np.asarray(photo).size == 0:
+            photo = None
+        if box is not None and photo is not None:
             raise BinpickError("the request gives both a photo and a query box: give one (a box points at the instance itself)")
-        if box is None and (photo is None or (isinstance(photo, np.ndarray) and photo.size == 0)):
+        if box is None and photo is None:
             if not product_id:
                 raise BinpickError("the request names no product, photo or query box")
             if self.photo_for is None:

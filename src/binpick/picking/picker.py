@@ -137,20 +137,29 @@ def split_photo(photo: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
 
 
 def as_photos(photo, masks) -> list[tuple[np.ndarray, np.ndarray | None]]:
-    """One shop photo or a list of them (with one mask, a list of masks, or None) as (RGB, mask) pairs:
-    an RGBA photo's alpha is its mask unless one is given."""
+    """One shop photo or a list of them as (RGB, mask) pairs. ``masks``: None (an RGBA photo's alpha,
+    else found from the photo), one mask for one photo, or a list with one (or None) per photo; each
+    the photo's height and width."""
     if photo is None:
         return []
-    photos = list(photo) if isinstance(photo, (list, tuple)) else [photo]
+    several = isinstance(photo, (list, tuple))
+    photos = list(photo) if several else [photo]
     if not photos:
         return []
-    masks = list(masks) if isinstance(masks, (list, tuple)) else [masks] * len(photos)
-    if len(masks) != len(photos):
-        raise ConfigError(f"{len(photos)} photos but {len(masks)} product masks: give one mask per photo")
+    if masks is None:
+        masks = [None] * len(photos)
+    elif isinstance(masks, np.ndarray) and not several:
+        masks = [masks]
+    elif not isinstance(masks, (list, tuple)) or len(masks) != len(photos):
+        raise ConfigError(f"{len(photos)} photos: give one product mask per photo (a list), or none")
     pairs = []
     for image, mask in zip(photos, masks):
         rgb, alpha = split_photo(image)
-        pairs.append((rgb, alpha if mask is None else np.asarray(mask, bool)))
+        if mask is not None:
+            mask = np.asarray(mask, bool)
+            if mask.shape != rgb.shape[:2]:
+                raise ConfigError(f"a product mask is {mask.shape[1]}x{mask.shape[0]} but its photo is {rgb.shape[1]}x{rgb.shape[0]}")
+        pairs.append((rgb, alpha if mask is None else mask))
     return pairs
 
 
@@ -352,12 +361,12 @@ class Picker:
             found, scores = self.detect(rgb, frame, photos, query_box)
             timing["detect"] = 1000 * (time.perf_counter() - tick)
             tick = time.perf_counter()
-            checked = self.product_scores(rgb, frame, found, photos, query_box)
+            checked = self.product_scores(rgb, depth, frame, found, photos, query_box)
             if photos and self.copies_from_match is not None:
-                found, scores, checked = self.copies_of_best_match(rgb, frame, photos, found, scores, checked)
+                found, scores, checked = self.copies_of_best_match(rgb, depth, frame, photos, found, scores, checked)
             timing["check"] = 1000 * (time.perf_counter() - tick)
         ranked = list(zip(found, scores, checked))
-        threshold = THRESHOLDS["colour"] if query_box is not None else self.check
+        threshold = self.check if query_box is None or self.verifier == "colour" else THRESHOLDS["colour"]
         if threshold is not None and self.verifier is not None:
             ranked = [c for c in ranked if c[2] is None or c[2] >= threshold]
         not_the_product = len(found) - len(ranked)
@@ -407,14 +416,15 @@ class Picker:
         order = np.argsort(-scores, kind="stable")
         return found[order].reshape(-1, 4), scores[order]
 
-    def copies_of_best_match(self, rgb: np.ndarray, frame: DepthFrame, photos, found: np.ndarray, scores: np.ndarray,
-                             checked: list[float | None]):
+    def copies_of_best_match(self, rgb: np.ndarray, depth: np.ndarray, frame: DepthFrame, photos, found: np.ndarray,
+                             scores: np.ndarray, checked: list[float | None]):
         """The photo detections plus the copies the box-query detector finds of the surest of them (the
         product check at least ``copies_from_match``), those not already found, checked the same way."""
         from binpick.detection.ops import box_iou, xywh_to_xyxy
         from binpick.detection.predict import predict
 
-        sure = [i for i, p in enumerate(checked) if p is not None and p >= self.copies_from_match]
+        sure = [i for i, p in enumerate(checked) if p is not None and p >= self.copies_from_match
+                and found[i][2] >= 2 and found[i][3] >= 2]
         if not sure:
             return found, scores, checked
         best = max(sure, key=lambda i: scores[i] * checked[i])
@@ -428,12 +438,13 @@ class Picker:
         if not len(extra):
             return found, scores, checked
         return (np.concatenate([found, extra]), np.concatenate([scores, extra_scores]),
-                list(checked) + self.product_scores(rgb, frame, extra, photos, None))
+                list(checked) + self.product_scores(rgb, depth, frame, extra, photos, None))
 
-    def product_scores(self, rgb: np.ndarray, frame: DepthFrame, boxes: np.ndarray,
+    def product_scores(self, rgb: np.ndarray, depth: np.ndarray, frame: DepthFrame, boxes: np.ndarray,
                        photos: list[tuple[np.ndarray, np.ndarray | None]], query_box) -> list[float | None]:
         """The product check's score of each box: against a query box, colour similarity to the pointed
-        instance's pixels (same frame, same light); against photos, the verifier's (best over the photos)."""
+        instance's pixels (same frame, same light); against photos, the verifier's (best over the photos;
+        on depth as read, holes as holes, as it was trained)."""
         if self.verifier is None or not len(boxes):
             return [None] * len(boxes)
         if query_box is not None:
@@ -447,7 +458,7 @@ class Picker:
             from binpick.detection.verifier import ProductVerifier
 
             self.verifier = ProductVerifier.load()
-        probabilities = self.verifier.probabilities([image for image, _ in photos], [mask for _, mask in photos], rgb, frame.filled, boxes)
+        probabilities = self.verifier.probabilities([image for image, _ in photos], [mask for _, mask in photos], rgb, depth, boxes)
         return [float(p) for p in probabilities]
 
     def pointed_instance(self, frame: DepthFrame, query_box) -> GraspChoice:
