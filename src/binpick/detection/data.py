@@ -160,6 +160,7 @@ class RepeatedInstances:
         check_coco(coco, path)
         self.root = Path(images) if images else path.parent
         self.photos = Path(photos) if photos else path.parent / "photos"
+        self._view_cache: dict[str, tuple[Path, ...]] = {}  # product -> its other photos, listed once
         self.targets = targets
         self.policy = targets.split(":", 1)[1] if targets.startswith("pickable:") else None
         if targets != "all" and not self.policy:
@@ -222,8 +223,6 @@ class RepeatedInstances:
 
     def _views(self, name: str) -> tuple[Path, ...]:
         """The product's other shop photos: ``photos/<product>/*.png`` (``--photo-views``), listed once."""
-        if not hasattr(self, "_view_cache"):
-            self._view_cache: dict[str, tuple[Path, ...]] = {}
         if name not in self._view_cache:
             folder = self.photos / name
             self._view_cache[name] = tuple(sorted(folder.glob("*.png"))) if folder.is_dir() else ()

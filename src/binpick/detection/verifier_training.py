@@ -247,10 +247,9 @@ def scores(probabilities: np.ndarray, labels: np.ndarray, threshold: float = 0.5
     positive, negative = probabilities[labels == 1], probabilities[labels == 0]
     if not len(positive) or not len(negative):
         return {}
-    order = np.argsort(np.concatenate([negative, positive]), kind="stable")
-    ranks = np.empty(len(order))
-    ranks[order] = np.arange(1, len(order) + 1)
-    auc = (ranks[len(negative):].sum() - len(positive) * (len(positive) + 1) / 2) / (len(positive) * len(negative))
+    from binpick.metrics import roc_auc
+
+    auc = roc_auc(labels, probabilities)  # the Mann-Whitney statistic, ties counted half, as grasp quality's
     bins = np.minimum((probabilities * 10).astype(int), 9)
     ece = sum(abs(probabilities[bins == b].mean() - labels[bins == b].mean()) * (bins == b).mean() for b in range(10) if (bins == b).any())
     return {"auc": round(float(auc), 4), "accuracy": round(float(((probabilities >= threshold) == labels).mean()), 4),
