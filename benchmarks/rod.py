@@ -435,7 +435,7 @@ def report_generalisation(runs: Path) -> None:
 
     pretrained = {"rod": "pretrain_rod", "rod_no_lh": "pretrain_rod_no_lh", "tdid": "pretrain_tdid",
                   "rod_small": "pretrain_rod_small", "histogram": "histogram", "template": "template"}
-    result = {key: previous[key] for key in ("policy_pickability", "scale_ablation") if key in previous}
+    result = {key: previous[key] for key in ("policy_pickability", "scale_ablation", "recurrent") if key in previous}  # recurrent: benchmarks/rod_recurrent.py
     result |= {"data": {"seen_and_held_out": str(DATA.relative_to(_common.ROOT)), "shifted": str(SHIFTED.relative_to(_common.ROOT)),
                         "pretraining": models["pretrain_rod"].trained_config.get("data", {}).get("train") if "pretrain_rod" in models else None},
                "image_size": size, "backbone": "tiny",
