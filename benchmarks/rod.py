@@ -555,7 +555,11 @@ def photo_shifted_lines(photo: dict) -> list[str]:
     cells = ", ".join(f"`{name}` {_cell(row.get('ap50'))}" for name, row in rows.items())
     return [f"Photo query on the shifted set-up (another camera, tote and light; held-out products; each product's canonical "
             f"shop photo; every copy a target; `python benchmarks/rod.py photo-shifted` → `photo.shifted_domain`): {cells} "
-            f"(target ≥ {photo.get('shifted_domain_target', 0.6)}; the crop query on the same bins: `shifted_domain.rod`).", ""]
+            f"(target ≥ {photo.get('shifted_domain_target', 0.6)}; the crop query on the same bins: `shifted_domain.rod`).", ""] + (
+            [f"`pretrain_rod_photo`: the photo-query pre-training stage (`python benchmarks/rod.py pretrain --only rod_photo`, "
+             f"`configs/rod_pretrain_random_photo.yaml`: from the crop model's weights, on {pre['data']} with randomised studio photos), "
+             f"{pre['images_seen']:,} images seen, val AP50 {pre['val_ap50']:.3f} on its randomised val bins; not yet fine-tuned "
+             "on pickability nor shipped.", ""] if (pre := photo.get("pretraining")) else [])
 
 
 def photo_on_shifted(weights: list[str]) -> None:
