@@ -242,5 +242,7 @@ def train_recurrent(config: RecurrentTrainConfig, callback: RunCallback = SILENT
                "images_seen": step * config.batch_size, "history": history}
     save_recurrent(model, out / WEIGHTS, {"trained_on": config.train, "targets": config.targets, "images_seen": step * config.batch_size,
                                           "val_ap50": val["ap50"]})
-    (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    from binpick.files import atomic_write_text
+
+    atomic_write_text(out / "metrics.json", json.dumps(metrics, indent=2))
     return metrics
