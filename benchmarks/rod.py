@@ -9,6 +9,9 @@ test sets (seen products; held-out categories; the shifted domain with held-out 
     python benchmarks/rod.py pretrain --runs runs/rod16 [--only rod rod_photo] [--set train.device=cuda]
     python benchmarks/rod.py finetune --runs runs/rod16 [--only rod rod_photo]
     python benchmarks/rod.py generalise --runs runs/rod16   # results/rod.json, docs/RESULTS.md, pictures
+    python benchmarks/rod.py photo --weights rod_photo_learnt_tiny_320 runs/rod/finetune_rod_photo/<time>
+                                                            # photo query: seen, held-out, shifted per weights
+    python benchmarks/rod.py ship-photo --run runs/rod/finetune_rod_photo/<time>   # the two photo weights
 
 Same data (runs/data/bins_2000, held-out categories can, mug and toy in its test split), backbone
 (the small one at 256 px), budget and seed for every row. Writes results/rod.json ({seen, zero_shot,
@@ -122,9 +125,13 @@ def parse_overrides(items: list[str] | None) -> dict:
 def main() -> None:
     global DATA
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("phase", choices=["train", "pretrain", "finetune", "report", "generalise", "latency", "photo-shifted"])
+    parser.add_argument("phase", choices=["train", "pretrain", "finetune", "report", "generalise", "latency", "photo", "ship-photo"])
     parser.add_argument("--weights", nargs="*", default=["rod_photo_tiny_320", "rod_photo_learnt_tiny_320"],
-                        help="photo-shifted: photo-query weights to score (shipped names, files or run folders)")
+                        help="photo: photo-query weights to score (shipped names, files or run folders)")
+    parser.add_argument("--run", type=Path, help="ship-photo: the photo-query run folder to ship")
+    parser.add_argument("--head-from", default="rod_photo_learnt_tiny_320",
+                        help="ship-photo: weights whose pickability head the picking detector carries")
+    parser.add_argument("--row-of", help="photo: whose row is photo.seen/held_out/shifted_domain (default: the picking detector)")
     parser.add_argument("--runs", type=Path, default=_common.ROOT / "runs" / "rod")
     parser.add_argument("--only", nargs="*")
     parser.add_argument("--set", dest="settings", action="append", help="KEY=VALUE for every row (e.g. train.device=cuda)")
@@ -147,8 +154,12 @@ def main() -> None:
         report_generalisation(args.runs)
     elif args.phase == "latency":
         remeasure_latency(args.runs)
-    elif args.phase == "photo-shifted":
-        photo_on_shifted(args.weights)
+    elif args.phase == "photo":
+        photo_rows(args.weights, args.row_of)
+    elif args.phase == "ship-photo":
+        if args.run is None:
+            raise SystemExit("ship-photo needs --run RUN_FOLDER")
+        ship_photo(args.run, args.head_from)
     else:
         report(args.runs)
 
@@ -548,25 +559,40 @@ def busy_core_latency_ms(model, image, query_box, depth, repeats: int = 30) -> d
     return figures
 
 
-def photo_shifted_lines(photo: dict) -> list[str]:
-    rows = photo.get("shifted_domain_by_weights") or {}
+def photo_lines(photo: dict) -> list[str]:
+    """The photo query's table: every weights measured by ``python benchmarks/rod.py photo``."""
+    rows = photo.get("by_weights") or {}
     if not rows:
         return []
-    cells = ", ".join(f"`{name}` {_cell(row.get('ap50'))}" for name, row in rows.items())
-    return [f"Photo query on the shifted set-up (another camera, tote and light; held-out products; each product's canonical "
-            f"shop photo; every copy a target; `python benchmarks/rod.py photo-shifted` → `photo.shifted_domain`): {cells} "
-            f"(target ≥ {photo.get('shifted_domain_target', 0.6)}; the crop query on the same bins: `shifted_domain.rod`).", ""] + (
-            [f"`pretrain_rod_photo`: the photo-query pre-training stage (`python benchmarks/rod.py pretrain --only rod_photo`, "
-             f"`configs/rod_pretrain_random_photo.yaml`: from the crop model's weights, on {pre['data']} with randomised studio photos), "
-             f"{pre['images_seen']:,} images seen, val AP50 {pre['val_ap50']:.3f} on its randomised val bins; not yet fine-tuned "
-             "on pickability nor shipped.", ""] if (pre := photo.get("pretraining")) else [])
+    lines = ["Photo query by weights (`python benchmarks/rod.py photo --weights ...` → `photo.by_weights`; each product's "
+             "canonical shop photo as the query). Seen and held-out: `bins_2000` val and test, targets pickable by Policy 1; "
+             "shifted: another camera, tote and light, held-out products, every copy a target. Targets: seen ≥ 0.85, "
+             f"held-out ≥ 0.80, shifted ≥ {photo.get('shifted_domain_target', 0.6)}. `photo.seen`, `photo.held_out` and "
+             f"`photo.shifted_domain` are the row of `{photo.get('row_of', '?')}`.", "",
+             "| weights | how it was made | seen AP50 | held-out AP50 | shifted AP50 |", "|---|---|---|---|---|"]
+    for name, row in rows.items():
+        lines.append(f"| `{name}` | {row.get('made', '')} | {_cell((row.get('seen') or {}).get('ap50'))} | "
+                     f"{_cell((row.get('held_out') or {}).get('ap50'))} | {_cell((row.get('shifted') or {}).get('ap50'))} |")
+    return lines + [""]
 
 
-def photo_on_shifted(weights: list[str]) -> None:
-    """``photo.shifted_domain`` of results/rod.json: photo-query weights on the shifted set-up (another
-    camera, tote and light; the held-out products can, mug, toy), each product's canonical shop photo
-    as the query, every copy a target. The picking detector's row is the key's own; each weights'
-    row is under ``photo.shifted_domain_by_weights``."""
+# how each photo model was made, for the table (weights not named here read "—")
+PHOTO_MADE = {
+    "rod_photo_tiny_320": "crop model fine-tuned on shop photos (Policy 1), no photo pre-training",
+    "rod_photo_learnt_tiny_320": "`rod_photo_tiny_320` fine-tuned on the learnt policy's pickability",
+    "pretrain_rod_photo": "photo pre-training on `random_20k` with randomised studio photos "
+                          "(`configs/rod_pretrain_random_photo.yaml`), not fine-tuned",
+    "finetune_rod_photo": "`pretrain_rod_photo` fine-tuned on Policy 1 pickability with 4 studio photos per product "
+                          "(`configs/rod_finetune_photo.yaml`)",
+}
+
+
+def photo_rows(weights: list[str], row_of: str | None) -> None:
+    """``photo`` of results/rod.json: photo-query weights on seen products (``bins_2000`` val), held-out
+    products (test) — targets pickable by Policy 1 — and on the shifted set-up (another camera, tote and
+    light; held-out products; every copy a target), each product's canonical shop photo as the query.
+    ``photo.seen``, ``photo.held_out`` and ``photo.shifted_domain`` are the row of ``row_of`` (default:
+    the picking detector's shipped name when measured, else the first)."""
     import json
 
     import torch
@@ -578,20 +604,65 @@ def photo_on_shifted(weights: list[str]) -> None:
     if not (SHIFTED / "annotations_test.json").is_file():
         raise SystemExit(f"{SHIFTED} is missing: binpick data generate --out runs/data/shifted --domain shifted "
                          "--targets can,mug,toy --held-out can,mug,toy --policies '' --scenes 120 --scenes-per-world 4 --seed 7")
+    if not (DATA / "annotations_test.json").is_file():
+        raise SystemExit(f"{DATA} is missing: see configs/rod_finetune_photo.yaml for the command that makes it")
     path = _common.RESULTS / "rod.json"
     result = json.loads(path.read_text())
-    rows = {}
+    photo = result.setdefault("photo", {})
+    rows = photo.get("by_weights") or {}
     for name in weights:
         network = Detector.load(name).network
-        rows[Path(name).stem] = keep(evaluate_on(detector_detect(network), SHIFTED, "test", "all", network.image_size, query="photo",
-                                                 framed=network.spec.frames_photos, depth=network.spec.reads_depth))
-        print(name, rows[Path(name).stem], flush=True)
-    photo = result.setdefault("photo", {})
-    photo["shifted_domain_by_weights"] = rows
-    photo["shifted_domain"] = rows.get(PICKING) or next(iter(rows.values()))
-    photo["shifted_domain_target"] = 0.60
+        key = Path(name).stem if Path(name).suffix == ".safetensors" else Path(name).name
+        if Path(name).is_dir():  # a run folder: runs/<name>/<time>
+            key = Path(name).resolve().parent.name
+        rows[key] = {"made": PHOTO_MADE.get(key, "—")} | {
+            row: keep(evaluate_on(detector_detect(network), data, split, targets, network.image_size, query="photo",
+                                  framed=network.spec.frames_photos, depth=network.spec.reads_depth))
+            for row, (data, split, targets) in {"seen": (DATA, "val", P1), "held_out": (DATA, "test", P1),
+                                                "shifted": (SHIFTED, "test", "all")}.items()}
+        print(key, {k: (v or {}).get("ap50") for k, v in rows[key].items() if k != "made"}, flush=True)
+    chosen = row_of or (PICKING if PICKING in rows else next(iter(rows)))
+    if chosen not in rows:
+        raise SystemExit(f"--row-of {chosen!r} was not measured; measured: {', '.join(rows)}")
+    photo.pop("shifted_domain_by_weights", None)
+    photo |= {"by_weights": rows, "row_of": chosen, "seen": rows[chosen]["seen"], "held_out": rows[chosen]["held_out"],
+              "shifted_domain": rows[chosen]["shifted"], "shifted_domain_target": 0.60,
+              "targets": {"seen": 0.85, "held_out": 0.80, "shifted_domain": 0.60}}
     written = _common.write_result("rod", {k: v for k, v in result.items() if k not in ("benchmark", "machine")})
     write_generalisation_markdown(result, written)
+
+
+def ship_photo(run: Path, head_from: str) -> None:
+    """Ship a photo-query run as the two photo weights: ``rod_photo_tiny_320`` (the run as trained) and
+    the picking detector ``rod_photo_learnt_tiny_320``: the same network carrying the pickability head
+    of ``head_from``. The head reads each detection's window (colour, height map, box), not the
+    detector's features, so it moves to another network unchanged; its metadata says where it came from."""
+    from dataclasses import replace
+
+    from binpick.detection.detector import PICKING
+    from binpick.detection.train import _read_detector_file, _weights_path, load_detector, save_detector
+
+    weights = _common.ROOT / "src" / "binpick" / "detection" / "weights"
+    source = _weights_path(run)
+    _, meta = _read_detector_file(source)
+    head_path = _weights_path(weights / f"{head_from}.safetensors") if (weights / f"{head_from}.safetensors").is_file() \
+        else _weights_path(Path(head_from))
+    _, head_meta = _read_detector_file(head_path)
+    network, carrier = load_detector(source), load_detector(head_path)
+    if network.spec.query != "photo" or carrier.pickability is None:
+        raise SystemExit(f"{run} must be a photo-query run and {head_from} must hold a pickability head")
+    extra = {k: meta[k] for k in ("config", "trained_products", "trained_domains") if k in meta}
+    extra |= {"source_run": str(run.relative_to(_common.ROOT)) if run.is_absolute() else str(run),
+              "score_threshold": head_meta.get("score_threshold", 0.1)}
+    save_detector(network, weights / "rod_photo_tiny_320.safetensors", extra, half=True)
+    network.pickability = carrier.pickability
+    network.spec = replace(network.spec, pickability=carrier.spec.pickability, pickability_width=carrier.spec.pickability_width,
+                           pickability_query=carrier.spec.pickability_query,
+                           pickability_factorised=carrier.spec.pickability_factorised)
+    head = dict(head_meta.get("pickability") or {})
+    head["carried_from"] = head.get("carried_from") or head_meta.get("source_run") or str(head_from)  # the run that trained it
+    save_detector(network, weights / f"{PICKING}.safetensors", extra | {"pickability": head}, half=True)
+    print(f"shipped rod_photo_tiny_320 and {PICKING} from {run} (pickability head from {head_from})", flush=True)
 
 
 def remeasure_latency(runs: Path) -> None:
@@ -775,15 +846,12 @@ def write_generalisation_markdown(result: dict, path: Path) -> None:
               "(— : one grasp per instance)."]
     photo = result["photo"]
     lat = result["latency_ms"]
-    lines += ["", f"Photo query, targets pickable by Policy 1 (the pick pipeline uses this network fine-tuned on what its "
-              f"learnt grasp policy can pick: `results/grasp.json` → `pickability`): seen {_cell((photo.get('seen') or {}).get('ap50'))} "
-              f"(target ≥ 0.75), held-out {_cell((photo.get('held_out') or {}).get('ap50'))} (target ≥ 0.60). The photo row starts "
-              "from the crop row's fine-tuned weights (the same network) and is fine-tuned on shop photos framed on their product "
-              "and matched at 9–25% of the image side; whole photos through the same weights scored 0.35 on seen products, and "
-              "the copy the robot picked when the bin was labelled is one of the boxes to find (a photo names no copy; until "
-              "this was fixed it was left out of training and evaluation, which cost the shipped photo weights 0.12 AP50 on seen products); "
-              f"the weights shipped before the pickability head {_cell((photo.get('held_out_before') or {}).get('ap50'))} held-out.", "",
-              *photo_shifted_lines(photo),
+    lines += ["", "Photo query (the pick pipeline's detector is the photo query, fine-tuned on what its learnt grasp policy "
+              "can pick: `results/grasp.json` → `pickability`). Photos are framed on their product and matched at 9–25% of the "
+              "image side, and the copy the robot picked when the bin was labelled is one of the boxes to find (a photo names no "
+              f"copy). The weights shipped before the pickability head scored {_cell((photo.get('held_out_before') or {}).get('ap50'))} "
+              "held-out.", "",
+              *photo_lines(photo),
               f"`predict` latency, batch 1, 2 CPU cores, {result['image_size']} px: shipped model **{lat['shipped']} ms** with its "
               f"pickability head (target ≤ 50), {lat.get('shipped_detector_only')} ms without it, {lat.get('shipped_unfolded')} ms "
               f"before its batch norms are folded; untrained tiny {lat.get('tiny_' + str(result['image_size']))} ms, "

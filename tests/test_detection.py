@@ -500,3 +500,27 @@ train: {{epochs: 1, batch_size: 4, lr: 0.002, warmup_steps: 2, eval_every: 1, wo
         predict(model, image, np.array(box))
     with pytest.raises(ConfigError, match="no depth file"):
         TaskDataset(RepeatedInstances(make_coco(tmp_path / "plain", images=2)), 64, depth=True)
+
+
+def test_rehearsal_mixes_fresh_tasks_of_a_second_set_into_each_epoch(tmp_path):
+    from binpick.detection.train import make_datasets
+
+    main, other = make_coco(tmp_path / "main", images=6, seed=1), make_coco(tmp_path / "other", images=12, seed=2)
+    config = tmp_path / "rod.yaml"
+    body = f"""name: toy
+data: {{train: {main}, val: {main}, targets: all, image_size: 64, rehearse: {other}, rehearse_per_epoch: 4}}
+"""
+    config.write_text(body)
+    train, _ = make_datasets(load_detect_config(config))
+    assert len(train) == len(train.main) + 4 and train.source is train.main.source
+    drawn = []
+    for epoch in (0, 1, 0):
+        train.set_epoch(epoch)
+        drawn.append(sorted(train.drawn.tolist()))
+        assert torch.equal(train[len(train) - 1]["image"], train.rehearsal[int(train.drawn[-1])]["image"])
+        assert torch.equal(train[0]["image"], train.main[0]["image"])
+    assert drawn[0] == drawn[2] and drawn[0] != drawn[1]  # fresh each epoch, the same on a resume
+    assert len(collate([train[0], train[len(train) - 1]])["targets"]) == 2
+    config.write_text(body.replace("rehearse_per_epoch: 4", "rehearse_per_epoch: 0"))
+    with pytest.raises(ConfigError, match="data.rehearse and data.rehearse_per_epoch go together"):
+        load_detect_config(config)

@@ -23,9 +23,16 @@ class DataConfig:
     augment: bool = True
     photometric: bool = False  # also sensor noise, blur and JPEG artefacts (another camera's images)
     train_sizes: list[int] = field(default_factory=list)  # [low, high]: multi-scale training, a size per batch
+    # rehearsal while fine-tuning: tasks drawn afresh each epoch from a second COCO file (every copy a
+    # target), e.g. the pre-training's randomised bins, so fine-tuning on one domain keeps the others
+    rehearse: str | None = None
+    rehearse_per_epoch: int = 0
 
     def __post_init__(self) -> None:
         check_range("data.image_size", self.image_size, 64, 1024, integer=True)
+        check_range("data.rehearse_per_epoch", self.rehearse_per_epoch, 0, 10_000_000, integer=True)
+        if bool(self.rehearse) != (self.rehearse_per_epoch > 0):
+            raise ConfigError("data.rehearse and data.rehearse_per_epoch go together: a COCO file and how many of its tasks per epoch")
         if self.image_size % 32:
             raise ConfigError(f"data.image_size must be a multiple of 32, got {self.image_size}")
         check_range("data.query_size", self.query_size, 32, 512, integer=True)

@@ -437,6 +437,32 @@ def camera_effects(image: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     return np.asarray(result)
 
 
+class RehearsedTasks(torch.utils.data.Dataset):
+    """A fine-tuning set's tasks, then ``per_epoch`` tasks of a rehearsal set (every copy a target),
+    drawn afresh each epoch from ``seed`` and the epoch: fine-tuning on one domain's bins keeps what
+    pre-training on others taught (without it, fine-tuning the photo query on the default bins took its
+    AP50 on the shifted set-up from 0.67 to 0.32). Only the main set's tasks count as ``source``."""
+
+    def __init__(self, main: TaskDataset, rehearsal: TaskDataset, per_epoch: int, seed: int) -> None:
+        self.main, self.rehearsal, self.per_epoch, self.seed = main, rehearsal, min(per_epoch, len(rehearsal)), seed
+        self.source, self.size = main.source, main.size
+        self.set_epoch(0)
+
+    def set_epoch(self, epoch: int) -> None:
+        self.main.set_epoch(epoch)
+        self.rehearsal.set_epoch(epoch)
+        rng = np.random.default_rng([self.seed, epoch, 17])
+        self.drawn = rng.choice(len(self.rehearsal), self.per_epoch, replace=False)
+
+    def __len__(self) -> int:
+        return len(self.main) + self.per_epoch
+
+    def __getitem__(self, index: int) -> dict[str, Any]:
+        if index < len(self.main):
+            return self.main[index]
+        return self.rehearsal[int(self.drawn[index - len(self.main)])]
+
+
 def collate(samples: list[dict[str, Any]]) -> dict[str, Any]:
     batch = {key: torch.stack([s[key] for s in samples]) for key in ("image", "query_box", "query_image", "photo", "depth") if key in samples[0]}
     for key in ("targets", "all", "unpickable", "certain", "ambiguous", "other_products", "image_id", "category_id", "index", "query_id"):

@@ -19,7 +19,7 @@ import yaml
 from binpick import tensorfile
 from binpick.config import load_run_config, to_dict
 from binpick.detection.config import DetectConfig
-from binpick.detection.data import RepeatedInstances, TaskDataset, check_disjoint, collate, trained_products
+from binpick.detection.data import RehearsedTasks, RepeatedInstances, TaskDataset, check_disjoint, collate, trained_products
 from binpick.detection.evaluate import collect, summarise
 from binpick.detection.losses import rod_loss
 from binpick.detection.model import ANCHORS_PER_LEVEL, DetectorNetwork, ModelSpec
@@ -125,17 +125,21 @@ def trained_domains(config: DetectConfig) -> list[str]:
             domains += _read_detector_file(_weights_path(Path(config.train.init_from)))[1].get("trained_domains") or []
         except InputFileError:
             pass
-    manifest = Path(config.data.train).parent / "dataset.json"
-    if manifest.is_file():
-        try:
-            content = read_json(manifest, "data-set manifest")
-            name = (((content.get("config") or {}).get("domain_values") or {}).get("name", "default")
-                    if isinstance(content, dict) else "unknown")
-        except InputFileError:
-            name = "unknown"
-    else:
-        name = "external"  # a COCO file that binpick did not generate
-    return sorted(set(domains + [name]))
+    files = [config.data.train] + ([config.data.rehearse] if config.data.rehearse else [])
+    return sorted(set(domains + [domain_of(file) for file in files]))
+
+
+def domain_of(coco_file: str | Path) -> str:
+    """The scene domain a binpick data set was made in (its manifest's ``domain_values.name``)."""
+    manifest = Path(coco_file).parent / "dataset.json"
+    if not manifest.is_file():
+        return "external"  # a COCO file that binpick did not generate
+    try:
+        content = read_json(manifest, "data-set manifest")
+        return (((content.get("config") or {}).get("domain_values") or {}).get("name", "default")
+                if isinstance(content, dict) else "unknown")
+    except InputFileError:
+        return "unknown"
 
 
 def learnt_products(config: DetectConfig) -> list[str]:
@@ -191,6 +195,13 @@ def make_datasets(config: DetectConfig) -> tuple[TaskDataset, TaskDataset]:
                         photometric=data.photometric, frame_photos=framed, depth=config.model.depth)
     val = TaskDataset(val_source, data.image_size, query_mode, data.query_size, augment=False, seed=config.train.seed + 1,
                       frame_photos=framed, depth=config.model.depth)
+    if data.rehearse:
+        rehearsal = TaskDataset(RepeatedInstances(data.rehearse, None, "all"), data.load_size, query_mode, data.query_size,
+                                augment=data.augment, seed=config.train.seed + 2, photometric=data.photometric,
+                                frame_photos=framed, depth=config.model.depth)
+        if domain_of(data.rehearse) == domain_of(data.val):  # another domain's scene from the same seed is another scene
+            check_disjoint(rehearsal.source, val_source)
+        train = RehearsedTasks(train, rehearsal, data.rehearse_per_epoch, config.train.seed)
     return train, val
 
 
@@ -463,6 +474,8 @@ class JointTraining:
         for trainer in trainers[1:]:
             if trainer.config.data != first.data or trainer.config.train.batch_size != first.train.batch_size:
                 raise ConfigError(f"{trainer.config.name}: joint training needs the same data section and batch size as {first.name}")
+        if first.data.rehearse:
+            raise ConfigError(f"{first.name}: data.rehearse is for one detector's fine-tuning, not joint training")
         self.trainers = trainers
         self.train_set = trainers[0].train_set
         self.train_set.with_photo = any(t.model.spec.query == "photo" for t in trainers)
