@@ -174,9 +174,13 @@ def prepare_output(config: GenerateConfig, library: ProductLibrary) -> Path:
         # settings added later take their defaults; a set made before split_rule existed split at random
         stored = {**GenerateConfig(out="").comparable(), "split_rule": "random", **existing["config"]}
         asked = config.comparable()
-        more_views = _adds_photo_views(config, stored, asked)
-        if more_views:  # a fixed library's studio photos are per product, not per scene: they can be added later
-            stored = stored | {"photo_views": asked["photo_views"]}
+        more_views = False
+        if not (config.domain_config.random_products and not config.products):
+            # a fixed library's studio photos are per product, not per scene: a resume may add some, and
+            # one that asks for fewer keeps those there (randomised worlds make theirs with their scenes)
+            views = max(stored.get("photo_views", 0), asked.get("photo_views", 0))
+            more_views = views > stored.get("photo_views", 0)
+            stored, asked = stored | {"photo_views": views}, asked | {"photo_views": views}
         if existing.get("format") != FORMAT or stored != asked:
             raise ConfigError(f"{str(out)!r} holds a data set made with other settings; choose another folder")
         if config.scenes > (existing.get("scenes") or 0) or more_views:  # what a resume finishes
@@ -192,16 +196,6 @@ def prepare_output(config: GenerateConfig, library: ProductLibrary) -> Path:
     manifest_data = {"format": FORMAT, "config": config.comparable(), "products": products, "scenes": config.scenes}
     atomic_write_json(manifest, manifest_data, indent=None)
     return out
-
-
-def _adds_photo_views(config: GenerateConfig, stored: dict[str, Any], asked: dict[str, Any]) -> bool:
-    """Whether this resume only raises ``photo_views`` of a data set whose products are a fixed library
-    (randomised worlds make their own products' photos with their scenes, so there it is a new set)."""
-    if config.domain_config.random_products and not config.products:
-        return False
-    before = stored.get("photo_views", 0)
-    rest = {k: v for k, v in stored.items() if k != "photo_views"}
-    return asked.get("photo_views", 0) > before and rest == {k: v for k, v in asked.items() if k != "photo_views"}
 
 
 def _write_png(path: Path, array: np.ndarray) -> None:
