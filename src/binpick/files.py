@@ -359,3 +359,16 @@ def require_fields(data: dict[str, Any], keys: dict[str, type | tuple[type, ...]
             names = " or ".join(k.__name__ for k in kinds)
             raise InputFileError(f"{where} is damaged: {key!r} must be {names}, got {type(value).__name__}")
     return data
+
+
+def read_image(path: str | Path, keep_alpha: bool = False, what: str = "image") -> np.ndarray:
+    """RGB uint8 (H, W, 3), or RGBA where the file has transparency and ``keep_alpha``; an
+    unreadable or empty file is one clear line."""
+    import numpy as np
+
+    with opened_image(path, what) as image:
+        alpha = keep_alpha and (image.mode in ("RGBA", "LA", "PA") or "transparency" in image.info)
+        array = np.asarray(image.convert("RGBA" if alpha else "RGB"))
+    if array.size == 0 or min(array.shape[:2]) < 8:
+        raise InputFileError(f"image {str(path)!r} is empty or smaller than 8 pixels")
+    return array

@@ -23,7 +23,7 @@ from PIL import Image
 from binpick.depth import read_depth
 from binpick.detection.depth import depth_input
 from binpick.errors import ConfigError
-from binpick.files import read_json
+from binpick.files import read_image, read_json  # read_image: re-exported for callers of detection.data
 
 
 @dataclass
@@ -37,19 +37,6 @@ class Task:
     depth: Path | None = None  # the image's depth (16-bit millimetres), where the data set has one
     others: list[dict[str, Any]] = field(default_factory=list)  # instances of other products in the image
     views: tuple[Path, ...] = ()  # more shop photos of the product (randomised studios), for training
-
-
-def read_image(path: Path, keep_alpha: bool = False, what: str = "image") -> np.ndarray:
-    """RGB uint8 (H, W, 3), or RGBA where the file has transparency and ``keep_alpha``; an
-    unreadable or empty file is one clear line."""
-    from binpick.files import opened_image
-
-    with opened_image(path, what) as image:
-        alpha = keep_alpha and (image.mode in ("RGBA", "LA", "PA") or "transparency" in image.info)
-        array = np.asarray(image.convert("RGBA" if alpha else "RGB"))
-    if array.size == 0 or min(array.shape[:2]) < 8:
-        raise ConfigError(f"image {str(path)!r} is empty or smaller than 8 pixels")
-    return array
 
 
 def check_coco(coco: dict[str, Any], path: Path) -> None:

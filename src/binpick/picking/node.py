@@ -323,11 +323,12 @@ class PlanRequests:
         self.size_for = size_for
 
     @classmethod
-    def with_catalogue(cls, picker: Picker, library=None) -> PlanRequests:
-        """Requests on a new synchroniser; product ids resolve to photos and sizes in ``library``."""
-        if library is None:
+    def with_catalogue(cls, picker: Picker, catalogue=None) -> PlanRequests:
+        """Requests on a new synchroniser; product ids resolve through ``catalogue`` (``photos(id)`` and
+        ``size(id)``, e.g. :class:`binpick.sim.catalogue.Catalogue`), where there is one."""
+        if catalogue is None:
             return cls(picker, FrameSynchroniser())
-        return cls(picker, FrameSynchroniser(), catalogue(library), size_for=catalogue_sizes(library))
+        return cls(picker, FrameSynchroniser(), catalogue.photos, size_for=catalogue.size)
 
     def plan(self, product_id: str = "", photo: np.ndarray | None = None, max_grasps: int = 0, size=None,
              query_box=None, copies_only: bool = False) -> tuple[Frame, Plans]:
@@ -362,32 +363,3 @@ class PlanRequests:
                                            size=size, copies_only=copies_only)
         plans = self.picker.plan(frame.rgb, frame.depth, frame.camera, photo=photo, max_grasps=max_grasps or None, size=size)
         return frame, plans
-
-
-def catalogue_sizes(library):
-    """A product id -> catalogue dimensions lookup over a product library."""
-    def size_for(product_id: str):
-        from binpick.sim.products import product_dimensions
-
-        return product_dimensions(library[product_id])
-
-    return size_for
-
-
-def catalogue(library):
-    """A product id -> [(shop photo, product mask), ...] lookup over a product library: the user's own
-    photos where the product has them (masks found from each photo), else its rendered catalogue
-    views (cached)."""
-    cache: dict[str, list[tuple[np.ndarray, np.ndarray | None]]] = {}
-
-    def photos_for(product_id: str):
-        if product_id not in cache:
-            from binpick.detection.data import read_image
-            from binpick.sim.photos import catalogue_photos
-
-            product = library[product_id]
-            cache[product_id] = ([(read_image(path, keep_alpha=True), None) for path in product.photos] if product.photos
-                                 else catalogue_photos(product))
-        return cache[product_id]
-
-    return photos_for

@@ -133,7 +133,9 @@ def serve(picker, camera_to_base: np.ndarray, base_frame: str, namespace: str, t
     wait_for_master(master_uri(), master_timeout)
     rospy.init_node(node_name, anonymous=True, disable_signals=False)
     picker.warm_up()
-    requests = PlanRequests.with_catalogue(picker, library)
+    from binpick.sim.catalogue import Catalogue
+
+    requests = PlanRequests.with_catalogue(picker, Catalogue(library) if library is not None else None)
     node = PickNode(requests, camera_to_base, base_frame, namespace, topics)
     rospy.loginfo("binpick: planning picks at %s from %s, %s, %s", namespace, topics.colour, topics.depth, topics.info)
     try:

@@ -151,7 +151,9 @@ def serve(picker, camera_to_base: np.ndarray, base_frame: str, namespace: str, t
     node = None
     try:
         picker.warm_up()
-        requests = PlanRequests.with_catalogue(picker, library)
+        from binpick.sim.catalogue import Catalogue
+
+        requests = PlanRequests.with_catalogue(picker, Catalogue(library) if library is not None else None)
         node = make_node(requests, camera_to_base, base_frame, namespace, topics.colour, topics.depth, topics.info)
         node.get_logger().info(f"binpick: planning picks at {namespace} from {topics.colour}, {topics.depth}, {topics.info}")
         rclpy.spin(node)
