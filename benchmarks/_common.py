@@ -94,3 +94,17 @@ def write_section(name: str, markdown: str) -> None:
     from binpick.files import atomic_write_text
 
     atomic_write_text(RESULTS_MD, text)
+
+
+def recipe(name: str) -> tuple[Path, dict]:
+    """A config of ``configs/`` by its name (``rod_warehouse``), with the overrides it implies: a name ending
+    in ``_seed<N>`` is the config without that ending, trained again from seed N (a row of its own)."""
+    import re
+
+    found = sorted((ROOT / "configs").glob(f"*/{name}.yaml"))
+    if found:
+        return found[0], {}
+    seeded = re.fullmatch(r"(.+)_seed(\d+)", name)
+    if seeded and (base := sorted((ROOT / "configs").glob(f"*/{seeded.group(1)}.yaml"))):
+        return base[0], {"seed": int(seeded.group(2)), "name": name}
+    raise FileNotFoundError(f"no config named {name!r} under {ROOT / 'configs'}")

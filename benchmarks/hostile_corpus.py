@@ -170,9 +170,9 @@ def make_corpus(root: Path) -> dict[str, str]:
 
     save_detector(DetectorNetwork(ModelSpec(), 64), root / "detector.safetensors")
     paths["weights"] = root / "detector.safetensors"
-    from binpick.detection.train import _read_detector_file
+    from binpick.detection.weights_file import read_detector_file
 
-    tensors, meta = _read_detector_file(root / "detector.safetensors")
+    tensors, meta = read_detector_file(root / "detector.safetensors")
     tensorfile.save(root / "weights_huge_image.safetensors", FORMAT, tensors=tensors, meta={**meta, "image_size": 10_000_000})
     tensorfile.save(root / "weights_huge_channels.safetensors", FORMAT, tensors=tensors,
                     meta={**meta, "spec": {**meta["spec"], "pickability_width": 1_000_000}})

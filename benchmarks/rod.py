@@ -104,7 +104,7 @@ def stage_trainers(stage: str, runs: Path, overrides: dict, init: dict[str, Path
 
 def joint(stage: str, runs: Path, overrides: dict, init: dict[str, Path] | None = None, rows: list[str] | None = None) -> None:
     """Train every row of ``stage`` on the same batches (detection.train.JointTraining)."""
-    from binpick.detection.train import JointTraining
+    from binpick.detection.joint import JointTraining
     from binpick.terminal import RichCallback
 
     trainers = stage_trainers(stage, runs, overrides, init, rows)
@@ -644,14 +644,14 @@ def ship_photo(run: Path, head_from: str) -> None:
     from dataclasses import replace
 
     from binpick.detection.detector import PICKING
-    from binpick.detection.train import _read_detector_file, _weights_path, load_detector, save_detector
+    from binpick.detection.weights_file import load_detector, read_detector_file, save_detector, weights_path
 
     weights = _common.ROOT / "src" / "binpick" / "detection" / "weights"
-    source = _weights_path(run)
-    _, meta = _read_detector_file(source)
-    head_path = _weights_path(weights / f"{head_from}.safetensors") if (weights / f"{head_from}.safetensors").is_file() \
-        else _weights_path(Path(head_from))
-    _, head_meta = _read_detector_file(head_path)
+    source = weights_path(run)
+    _, meta = read_detector_file(source)
+    head_path = weights_path(weights / f"{head_from}.safetensors") if (weights / f"{head_from}.safetensors").is_file() \
+        else weights_path(Path(head_from))
+    _, head_meta = read_detector_file(head_path)
     network, carrier = load_detector(source), load_detector(head_path)
     if network.spec.query != "photo" or carrier.pickability is None:
         raise SystemExit(f"{run} must be a photo-query run and {head_from} must hold a pickability head")

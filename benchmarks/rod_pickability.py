@@ -175,19 +175,19 @@ def main() -> None:
 
 
 def read_meta(path: Path) -> dict:
-    from binpick.detection.train import _read_detector_file, _weights_path
+    from binpick.detection.weights_file import read_detector_file, weights_path
 
-    return _read_detector_file(_weights_path(Path(path)))[1].get("pickability") or {}
+    return read_detector_file(weights_path(Path(path)))[1].get("pickability") or {}
 
 
 def ship(source: Path, result: dict) -> None:
     """The weights become the package's rod_tiny_320; rod.json's seen row and latency say so."""
     import shutil
 
-    from binpick.detection.train import _weights_path
+    from binpick.detection.weights_file import weights_path
 
     target = _common.ROOT / "src" / "binpick" / "detection" / "weights" / "rod_tiny_320.safetensors"
-    shutil.copyfile(_weights_path(Path(source)), target)
+    shutil.copyfile(weights_path(Path(source)), target)
     rod = json.loads((_common.RESULTS / "rod.json").read_text())
     first = result["sets"][0]
     if first["data"] != shown(SEEN):

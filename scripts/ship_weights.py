@@ -20,7 +20,8 @@ from pathlib import Path
 
 from binpick.config import load_run_config
 from binpick.detection.config import DetectConfig
-from binpick.detection.train import _read_detector_file, _weights_path, learnt_products, load_detector, save_detector
+from binpick.detection.train import learnt_products
+from binpick.detection.weights_file import load_detector, read_detector_file, save_detector, weights_path
 
 ROOT = Path(__file__).resolve().parents[1]
 WEIGHTS = ROOT / "src" / "binpick" / "detection" / "weights"
@@ -34,7 +35,7 @@ def main() -> None:
     model = load_detector(run)
     os.chdir(ROOT)  # run configs name their data and starting weights relative to the repository
     products = learnt_products(load_run_config(DetectConfig, run if run.is_dir() else run.parent))
-    domains = _read_detector_file(_weights_path(run))[1].get("trained_domains") or ["default"]
+    domains = read_detector_file(weights_path(run))[1].get("trained_domains") or ["default"]
     path = WEIGHTS / f"{name}.safetensors"
     save_detector(model, path, {"config": model.trained_config, "source_run": str(run), "trained_products": products,
                                 "trained_domains": domains, **threshold}, half=True)

@@ -143,7 +143,8 @@ def test_joint_training_feeds_every_detector_the_same_batches_and_keeps_the_best
     from synthetic_coco import make_coco
 
     from binpick.detection.config import load_detect_config
-    from binpick.detection.train import DetectorTrainer, JointTraining
+    from binpick.detection.joint import JointTraining
+    from binpick.detection.train import DetectorTrainer
 
     path = make_coco(tmp_path / "toy", images=8, size=64, seed=2)
     config = tmp_path / "rod.yaml"

@@ -1,7 +1,7 @@
-"""Every command block of the README runs, as written, on tiny settings.
+"""Every command block of the README and of the docs' guides runs, as written, on tiny settings.
 
-The README's ```bash and ```python blocks are read from the file itself and run in order in one
-scratch folder (with the repository's ``configs/`` beside them), so a command that a later one
+The ```bash and ```python blocks of the README, then of each page in the docs site's order
+(mkdocs.yml's nav), are read from the files themselves and run in order in one scratch folder (with the repository's ``configs/`` beside them), so a command that a later one
 depends on (a data set, a run folder) is there when it is needed. The only changes are the ones
 in :data:`TINY`: smaller numbers (``--scenes 2000`` -> 24, ``--episodes 100`` -> 1) and ``--set``
 overrides that shrink training budgets; ``<time>`` becomes the newest run folder, and the ROS port
@@ -26,6 +26,21 @@ import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
+
+
+def documents() -> list[Path]:
+    """The README, then every page of the docs site in its nav order."""
+    import yaml as _yaml
+
+    def pages(node) -> list[str]:
+        if isinstance(node, str):
+            return [node]
+        if isinstance(node, dict):
+            return [p for value in node.values() for p in pages(value)]
+        return [p for item in node for p in pages(item)]
+
+    nav = _yaml.safe_load((ROOT / "mkdocs.yml").read_text())["nav"]
+    return [README, *(ROOT / "docs" / page for page in pages(nav))]
 
 SKIPPED = {
     "make demo": "runs `binpick demo`, which tests/test_pipeline.py runs; here it would reinstall .venv",
@@ -71,7 +86,8 @@ TINY: list[tuple[str, str]] = [
     (r"--steps \d+", "--steps 60"),
     (r"^binpick envs tour$", "binpick envs tour --episodes 1"),
     (r"^binpick demo$", "binpick demo --orders 1"),
-    (r"^(binpick rl train configs/\S+.*)$", r"\1 " + " ".join(f"--set {k}={v}" for k, v in TINY_RL.items())),
+    (r"^(binpick (?:rl )?train configs/rl_\S+.*)$", r"\1 " + " ".join(f"--set {k}={v}" for k, v in TINY_RL.items())),
+    (r"binpick\.train\(\"configs/rl_[^\n]*\)", lambda match: tiny_keywords(match.group(0))),
     (r"^(binpick april run configs/\S+.*)$", r"\1 --set collect.episodes=2 --set perception_training.epochs=1 "
                                             r"--set eval.episodes=1 --set policy.rl_config=tiny_rl.yaml"),
     (r"^(binpick grasp train configs/\S+.*)$", r"\1 --set epochs=1 --set batch_size=2 --set threads=1"),
@@ -81,18 +97,20 @@ TINY: list[tuple[str, str]] = [
 ]
 
 
-def readme_blocks() -> list[tuple[str, str, int]]:
-    """(language, text, line number) of every fenced block."""
-    blocks, language, lines, start = [], None, [], 0
-    for number, line in enumerate(README.read_text().splitlines(), 1):
-        if line.startswith("```"):
-            if language is None:
-                language, lines, start = line[3:].strip() or "text", [], number
-            else:
-                blocks.append((language, "\n".join(lines), start))
-                language = None
-        elif language is not None:
-            lines.append(line)
+def readme_blocks() -> list[tuple[str, str, str]]:
+    """(language, text, file:line) of every fenced block of the README and the guides, in reading order."""
+    blocks = []
+    for document in documents():
+        language, lines, start = None, [], 0
+        for number, line in enumerate(document.read_text().splitlines(), 1):
+            if line.startswith("```"):
+                if language is None:
+                    language, lines, start = line[3:].strip() or "text", [], number
+                else:
+                    blocks.append((language, "\n".join(lines), f"{document.relative_to(ROOT)}:{start}"))
+                    language = None
+            elif language is not None:
+                lines.append(line)
     return blocks
 
 
@@ -104,6 +122,14 @@ def commands(block: str) -> list[str]:
         if command and not command.startswith("#"):
             result.append(command)
     return result
+
+
+def tiny_keywords(call: str) -> str:
+    """``binpick.train("configs/rl_x.yaml", total_timesteps=300)`` with TINY_RL's settings as keywords
+    (SECTION__KEY), except those the call sets itself."""
+    given = set(re.findall(r"(\w+)=", call))
+    extra = [f"{key.replace('.', '__')}={value}" for key, value in TINY_RL.items() if key.replace(".", "__") not in given]
+    return call[:-1] + ", " + ", ".join(extra) + ")"
 
 
 def tiny(command: str) -> str:

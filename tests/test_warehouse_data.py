@@ -147,10 +147,10 @@ def _tiny(out: Path, **changes) -> GenerateConfig:
 
 
 def test_generation_resumes_without_losing_or_duplicating_scenes(tmp_path, monkeypatch):
-    import binpick.warehouse.dataset as dataset
+    import binpick.warehouse.generation as generation
 
-    monkeypatch.setattr(dataset, "_LIBRARIES", {})
-    monkeypatch.setattr(dataset, "default_library", lambda seed=0: default_library(procedural=3, seed=seed))
+    monkeypatch.setattr(generation, "_LIBRARIES", {})
+    monkeypatch.setattr(generation, "default_library", lambda seed=0: default_library(procedural=3, seed=seed))
     clean = generate(_tiny(tmp_path / "clean"))
     assert clean["scenes"] == 4 and clean["instances_per_image"] >= 2
     partial = tmp_path / "partial"
@@ -183,11 +183,11 @@ def test_generation_resumes_without_losing_or_duplicating_scenes(tmp_path, monke
 
 
 def test_labels_and_zero_shot_split(tmp_path, monkeypatch):
-    import binpick.warehouse.dataset as dataset
+    import binpick.warehouse.generation as generation
 
     library = default_library(procedural=3)
-    monkeypatch.setattr(dataset, "_LIBRARIES", {})
-    monkeypatch.setattr(dataset, "default_library", lambda seed=0: library)
+    monkeypatch.setattr(generation, "_LIBRARIES", {})
+    monkeypatch.setattr(generation, "default_library", lambda seed=0: library)
     config = _tiny(tmp_path / "labelled", scenes=2, scenes_per_world=1, policies=["x", "y"], copies=(2, 2), targets=["can", "toy"],
                    distractors=(0, 0), held_out_categories=["can", "bottle", "box", "carton", "bakery", "fruit", "toy", "mug",
                                                             "procedural_box", "procedural_cylinder", "procedural_sphere"])

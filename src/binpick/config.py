@@ -205,8 +205,11 @@ def apply_overrides(data: dict[str, Any], overrides: dict[str, Any] | None, wher
 
 
 def load_config(cls: type[T], path: str | Path, overrides: dict[str, Any] | None = None) -> T:
-    """A YAML config file with ``--set`` overrides applied, validated once as dataclass ``cls``."""
-    return from_dict(cls, apply_overrides(load_yaml(path), overrides), where=Path(path).name)
+    """A YAML config file with ``--set`` overrides applied, validated once as dataclass ``cls``. Its
+    ``task:`` key (which job ``binpick train`` runs it as) is not part of any job's settings."""
+    data = apply_overrides(load_yaml(path), overrides)
+    data.pop("task", None)
+    return from_dict(cls, data, where=Path(path).name)
 
 
 def load_named(cls: type[T], name: str | Path, folder: Path, builtin: str, what: str) -> T:

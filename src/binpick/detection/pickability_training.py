@@ -103,11 +103,11 @@ class PickabilityTrainer:
         from binpick.detection.detector import Detector
 
         self.config, self.run_dir = config, Path(run_dir)
-        from binpick.detection.train import _read_detector_file, _weights_path
+        from binpick.detection.weights_file import read_detector_file, weights_path
 
         detector = Detector.load(config.detector)
         # what the saved detector says about itself (config, products, domains), carried into every save
-        self.detector_meta = {k: v for k, v in _read_detector_file(_weights_path(detector.source))[1].items()
+        self.detector_meta = {k: v for k, v in read_detector_file(weights_path(detector.source))[1].items()
                               if k not in ("spec", "image_size", "query_size")}
         self.network: DetectorNetwork = detector.network
         torch.manual_seed(config.seed)

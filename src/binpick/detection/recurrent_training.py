@@ -246,3 +246,34 @@ def train_recurrent(config: RecurrentTrainConfig, callback: RunCallback = SILENT
 
     atomic_write_text(out / "metrics.json", json.dumps(metrics, indent=2))
     return metrics
+
+
+class RecurrentRun:
+    """The recurrent detector's training as a job (:class:`binpick.runs.Job`): its folder is the config's
+    ``out`` (the weights, ``metrics.json``, the checkpoint and the config it was started with)."""
+
+    def __init__(self, config: RecurrentTrainConfig) -> None:
+        self.config, self.run_dir = config, Path(config.out)
+
+    @classmethod
+    def new(cls, config: RecurrentTrainConfig, runs: Path | None = None) -> RecurrentRun:
+        """``runs`` is not used: the run goes to ``config.out``, and a run there with another config is refused."""
+        import yaml
+
+        from binpick.files import atomic_write_text, ensure_dir
+
+        atomic_write_text(ensure_dir(Path(config.out)) / "config.yaml", yaml.safe_dump(json.loads(json.dumps(asdict(config))),
+                                                                                     sort_keys=False))
+        return cls(config)
+
+    @classmethod
+    def resume(cls, run_dir: Path) -> RecurrentRun:
+        """Continue the run in ``run_dir`` with the config it was started with."""
+        from binpick.config import load_run_config
+
+        from dataclasses import replace
+
+        return cls(replace(load_run_config(RecurrentTrainConfig, run_dir), out=str(run_dir)))
+
+    def run(self, callback: RunCallback = SILENT) -> dict[str, Any]:
+        return train_recurrent(self.config, callback)

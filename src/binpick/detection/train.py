@@ -8,7 +8,6 @@ checkpoints (``checkpoints/``, one per epoch: a kill loses at most the epoch in 
 
 from __future__ import annotations
 
-from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Callable
 
@@ -19,110 +18,48 @@ import yaml
 from binpick import tensorfile
 from binpick.config import load_run_config, to_dict
 from binpick.detection.config import DetectConfig
-from binpick.detection.data import RehearsedTasks, RepeatedInstances, TaskDataset, check_disjoint, collate, trained_products
+from binpick.detection.data import (
+    RehearsedTasks,
+    RepeatedInstances,
+    TaskDataset,
+    check_disjoint,
+    collate,
+    trained_products,
+)
 from binpick.detection.evaluate import collect, summarise
 from binpick.detection.losses import rod_loss
-from binpick.detection.model import ANCHORS_PER_LEVEL, DetectorNetwork, ModelSpec
+from binpick.detection.model import ANCHORS_PER_LEVEL, DetectorNetwork
 from binpick.detection.ops import box_iou
+from binpick.detection.weights_file import (  # noqa: F401  (moved there; imported from here too)
+    CHECKPOINT_FORMAT,
+    FORMAT,
+    WEIGHTS_FILE,
+    check_network_sizes,
+    load_detector,
+    read_detector_file,
+    save_detector,
+    weights_path,
+)
 from binpick.errors import ConfigError, InputFileError
 from binpick.files import atomic_write_json, read_json, require_fields
-from binpick.runs import SILENT, RunCallback, Task, commit_checkpoint, latest_checkpoint, new_run_dir
+from binpick.runs import (
+    SILENT,
+    RunCallback,
+    Task,
+    commit_checkpoint,
+    latest_checkpoint,
+    new_run_dir,
+)
 
 
 # ---------------------------------------------------------------------- weights on disk
-FORMAT = "binpick-detector-2"  # safetensors + JSON; "binpick-detector-1" was a torch pickle (.pt)
-WEIGHTS_FILE = "model.safetensors"
-CHECKPOINT_FORMAT = "binpick-detector-checkpoint-1"
-
-
-def save_detector(model: DetectorNetwork, path: Path, extra: dict[str, Any] | None = None, half: bool = False) -> None:
-    """Write weights (safetensors) and what rebuilds the network (JSON) atomically: a crash leaves the
-    previous file or the new one. ``half`` stores float16 weights (half the size; loading turns them
-    back into float32). ``extra`` must be JSON data (config, products trained on, ...)."""
-    if model.inference_only:
-        raise ValueError("an inference copy of a detector (batch norms folded) cannot be saved: save the network it was made from")
-    weights = model.state_dict()
-    if half:
-        weights = {k: v.half() if v.is_floating_point() and k != "anchors" else v for k, v in weights.items()}
-    meta = {"spec": asdict(model.spec), "image_size": model.image_size, "query_size": model.query_size, **(extra or {})}
-    tensorfile.save(path, FORMAT, tensors=weights, meta=meta)
-
-
-def _weights_path(path: Path) -> Path:
-    """A file as given; a run folder's ``model.safetensors`` (or an older run's ``model.pt``)."""
-    if path.is_dir():
-        for name in (WEIGHTS_FILE, "model.pt"):
-            if (path / name).is_file():
-                return path / name
-        raise InputFileError(f"no detector weights in {str(path)!r} (no {WEIGHTS_FILE}): is the run finished?")
-    if not path.is_file():
-        raise InputFileError(f"no detector weights at {str(path)!r}")
-    return path
-
-
-def _read_detector_file(path: Path) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
-    """Weights and metadata; older ``.pt`` files only through ``torch.load(weights_only=True)``."""
-    if not tensorfile.is_safetensors(path):  # an older binpick .pt: plain tensors only
-        data = tensorfile.load_legacy_torch(path, "detector weights")
-        if not isinstance(data, dict) or data.get("format") != "binpick-detector-1":
-            raise InputFileError(f"{str(path)!r} is not a binpick detector checkpoint")
-        weights = data.get("weights")
-        meta = {k: v for k, v in data.items() if k not in ("weights", "format")}
-    else:
-        weights, meta, _ = tensorfile.load(path, FORMAT, "detector weights")
-    where = f"detector weights {str(path)!r}"
-    require_fields({"weights": weights, **meta}, {"weights": dict, "spec": dict, "image_size": int}, where)
-    return weights, meta
-
-
-def check_network_sizes(meta: dict, path: Path) -> None:
-    """Sizes a weights file's metadata asks for, checked before a network is built: a file asking for
-    a 10-million-pixel input or a million channels is refused, not allocated."""
-    where = f"detector weights {str(path)!r}"
-    for key, low, high in (("image_size", 32, 4096), ("query_size", 16, 1024)):
-        value = meta.get(key, low)
-        if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
-            raise InputFileError(f"{where}: {key} must be a whole number from {low} to {high}, got {str(value)[:40]}")
-    numbers = [v for value in meta["spec"].values() for v in (value if isinstance(value, (list, tuple)) else [value])
-               if isinstance(v, (int, float)) and not isinstance(v, bool)]
-    if any(not abs(v) <= 4096 for v in numbers):
-        raise InputFileError(f"{where}: its network description asks for sizes past 4096 (channels, layers, scales)")
-
-
-def load_detector(path: str | Path) -> DetectorNetwork:
-    """A detector saved by :func:`save_detector` (or a run folder holding ``model.safetensors``)."""
-    path = _weights_path(Path(path))
-    weights, meta = _read_detector_file(path)
-    check_network_sizes(meta, path)
-    try:
-        spec = ModelSpec(**{**meta["spec"], "scales": tuple(meta["spec"]["scales"]),  # JSON lists -> the spec's tuples
-                            "photo_sizes": tuple(meta["spec"].get("photo_sizes", ()))})
-        model = DetectorNetwork(spec, int(meta["image_size"]), int(meta.get("query_size", 96)))
-    except (TypeError, KeyError, ValueError) as error:
-        raise InputFileError(f"detector weights {str(path)!r} describe no valid network ({error})") from None
-    try:
-        missing, unexpected = model.load_state_dict(weights, strict=False)
-    except RuntimeError:  # tensors of other shapes
-        missing, unexpected = ["(shapes differ)"], []
-    if missing or unexpected:
-        raise InputFileError(f"{str(path)!r} holds weights of another architecture "
-                             f"({len(missing)} missing, {len(unexpected)} unexpected tensors)")
-    model.trained_config = meta.get("config") or {}
-    model.trained_products = meta.get("trained_products")
-    model.trained_domains = meta.get("trained_domains") or ["default"]  # before domains existed: the default scene
-    threshold = meta.get("score_threshold")
-    model.score_threshold = float(threshold) if isinstance(threshold, (int, float)) and 0 <= threshold <= 1 else None
-    model.eval()
-    return model
-
-
 def trained_domains(config: DetectConfig) -> list[str]:
     """The scene domains of the data a run was trained on: its own, plus those of the weights it was
     fine-tuned from (read from each data set's manifest, ``domain_values.name``)."""
     domains = []
     if config.train.init_from:
         try:
-            domains += _read_detector_file(_weights_path(Path(config.train.init_from)))[1].get("trained_domains") or []
+            domains += read_detector_file(weights_path(Path(config.train.init_from)))[1].get("trained_domains") or []
         except InputFileError:
             pass
     files = [config.data.train] + ([config.data.rehearse] if config.data.rehearse else [])
@@ -148,7 +85,7 @@ def learnt_products(config: DetectConfig) -> list[str]:
     products = set(trained_products(config.data.train))
     if config.train.init_from:
         try:
-            products |= set(_read_detector_file(_weights_path(Path(config.train.init_from)))[1].get("trained_products") or [])
+            products |= set(read_detector_file(weights_path(Path(config.train.init_from)))[1].get("trained_products") or [])
         except InputFileError:
             pass
     return sorted(products)
@@ -459,62 +396,3 @@ class DetectorTrainer:
                             meta={"epoch": self.epoch, "step": self.step, "history": self.history})
 
         commit_checkpoint(self.run_dir / "checkpoints", self.epoch, write)
-
-
-class JointTraining:
-    """Several detectors trained on the very same batches: one loader (the costly part on a CPU, and
-    the bottleneck beside a GPU) feeds every model, so rows compared in a table (ROD, ROD without
-    L_h, TDID, the photo query, two backbones) share data, order, augmentation, budget and seed by
-    construction. Every trainer keeps its own run folder, checkpoints and early stopping."""
-
-    def __init__(self, trainers: list[DetectorTrainer]) -> None:
-        if not trainers:
-            raise ConfigError("joint training needs at least one detector")
-        first = trainers[0].config
-        for trainer in trainers[1:]:
-            if trainer.config.data != first.data or trainer.config.train.batch_size != first.train.batch_size:
-                raise ConfigError(f"{trainer.config.name}: joint training needs the same data section and batch size as {first.name}")
-        if first.data.rehearse:
-            raise ConfigError(f"{first.name}: data.rehearse is for one detector's fine-tuning, not joint training")
-        self.trainers = trainers
-        self.train_set = trainers[0].train_set
-        self.train_set.with_photo = any(t.model.spec.query == "photo" for t in trainers)
-        framing = {t.model.spec.frames_photos for t in trainers if t.model.spec.query == "photo"}
-        if len(framing) > 1:
-            raise ConfigError("joint training needs every photo-query row to frame its photos alike (model.photo_sizes)")
-        self.train_set.frame_photos = framing == {True}
-        if any(t.model.spec.depth for t in trainers):  # the others ignore it
-            self.train_set.add_depth()
-
-    def run(self, callback: RunCallback = SILENT) -> dict[str, dict[str, Any]]:
-        import time
-
-        first = self.trainers[0]
-        config = first.config
-        active = list(self.trainers)
-        for trainer in active:
-            trainer.open_log()
-        started = time.monotonic()
-        try:
-            with callback.task("joint training", first.total_steps, first.step) as task:
-                while active and first.epoch < config.train.epochs:
-                    epoch = first.epoch
-                    self.train_set.set_epoch(epoch)
-                    sums = {id(t): {} for t in active}
-                    for trainer in active:
-                        trainer.model.train()
-                    for batch in loader(self.train_set, config.train.batch_size, True, config.train.workers, config.train.seed + epoch):
-                        for trainer in active:
-                            trainer.note_time(time.monotonic() - started)
-                            trainer.train_step(batch, sums[id(trainer)])
-                        task.update(first.step, status=f"epoch {epoch + 1}/{config.train.epochs} " +
-                                    " ".join(f"{t.config.name}{t.status}" for t in active))
-                        if first.out_of_time(time.monotonic() - started):
-                            break
-                    elapsed = time.monotonic() - started
-                    active = [t for t in active if not t.end_epoch(sums[id(t)], elapsed)]
-                    first = active[0] if active else first
-        finally:
-            for trainer in self.trainers:
-                trainer.writer.close()
-        return {trainer.config.name: trainer.finish() for trainer in self.trainers}

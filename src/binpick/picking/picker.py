@@ -16,222 +16,37 @@ feasible one. The simulator's pick loop, ``binpick plan`` and the ROS nodes all 
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
+from binpick.detection.photos import photo_mask
 from binpick.errors import ConfigError, InputFileError
 from binpick.grasping import DepthFrame, GraspChoice, GraspPlanner, PinholeCamera
-from binpick.depth import depth_problem
-from binpick.picking.camera_info import CameraInfo, matrix_to_quaternion
-from binpick.detection.photos import photo_mask
+from binpick.picking.camera_info import CameraInfo
 from binpick.picking.colour import colour_histogram, colour_similarity, detection_mask
+from binpick.picking.inputs import (  # noqa: F401  (moved there; imported from here too)
+    as_camera_info,
+    as_photos,
+    as_query_box,
+    check_frame,
+    one_blas_thread,
+    register_depth,
+    same_aspect,
+    split_photo,
+)
+from binpick.picking.plans import (  # noqa: F401  (moved there; imported from here too)
+    APPROACH,
+    LARGER,
+    GraspPlan,
+    Plans,
+    grasp_orientation,
+    jaw_pixels,
+    larger_than,
+)
 from binpick.picking.workspace import OUTSIDE, Workspace
-
-APPROACH = (0.0, 0.0, -1.0)  # top-down: the gripper moves along the base frame's -z (z up)
-LARGER = "larger than the ordered product"
-
-
-def larger_than(surface, size, margin: float = 0.02, relative: float = 0.15) -> bool:
-    """Whether what depth shows of an instance is too big to be a product of catalogue ``size`` (its
-    bounding-box sides, any order): the visible top's long side against the product's longest,
-    its short side against the middle one, its height against the longest. Occlusion only shrinks
-    what is seen, so only too big counts. On tuning bins 95% of the products' own instances measured
-    within their sides, 99% within 3.6 cm (two touching copies seen as one)."""
-    first, second, _ = sorted((float(v) for v in size), reverse=True)
-    major, minor = surface.extents()
-    slack = lambda side: max(margin, relative * side)  # noqa: E731
-    return major > first + slack(first) or minor > second + slack(second) or surface.height > first + slack(first)
-
-
-def grasp_orientation(yaw: float) -> list[float]:
-    """The gripper frame's quaternion (x, y, z, w) in the base frame: z along the approach (down),
-    x along the jaws' closing direction (``yaw`` about the base's z), y = z x x."""
-    x_axis = np.array([np.cos(yaw), np.sin(yaw), 0.0])
-    z_axis = np.array(APPROACH)
-    return matrix_to_quaternion(np.stack([x_axis, np.cross(z_axis, x_axis), z_axis], axis=1))
-
-
-@dataclass
-class GraspPlan:
-    """One detection of the ordered product and the grasp chosen for it (``position`` None: no
-    candidate was feasible; ``rejected`` says why, reason -> candidates)."""
-
-    box: list[float]  # x, y, w, h pixels in the (rectified) colour image
-    score: float  # the detector's
-    same_product: float | None  # the product check's: P(the ordered product) from photos, colour similarity to a query box; None: not checked
-    position: list[float] | None = None  # fingertips' midpoint, base frame (m)
-    orientation: list[float] | None = None  # gripper frame, quaternion x, y, z, w in the base frame
-    approach: list[float] = field(default_factory=lambda: list(APPROACH))
-    yaw: float | None = None  # the jaws' closing direction about the base's z (rad)
-    width: float | None = None  # the instance's width across the jaws (m)
-    opening: float | None = None  # how far to open the jaws before descending (m)
-    quality: float | None = None  # the grasp policy's score of the chosen candidate
-    rejected: dict[str, int] = field(default_factory=dict)
-
-    @property
-    def feasible(self) -> bool:
-        return self.position is not None
-
-
-class Plans(list):
-    """``list[GraspPlan]`` in the order to try them, with what the frame gave: ``grasps`` (the
-    feasible ones), ``boxes``/``scores`` of every detection above the score threshold, ``frame``
-    (the base frame's name) and ``timing_ms``."""
-
-    def __init__(self, plans: list[GraspPlan], frame: str, timing_ms: dict[str, float], boxes: np.ndarray | None = None,
-                 scores: np.ndarray | None = None, not_the_product: int = 0) -> None:
-        super().__init__(plans)
-        self.frame, self.timing_ms = frame, timing_ms
-        self.not_the_product = not_the_product  # detections the product check dropped
-        self.boxes = np.zeros((0, 4)) if boxes is None else np.asarray(boxes, dtype=float).reshape(-1, 4)  # every detection
-        self.scores = np.zeros(0) if scores is None else np.asarray(scores, dtype=float)
-
-    @property
-    def detections(self) -> int:
-        return len(self.boxes)
-
-    @property
-    def grasps(self) -> list[GraspPlan]:
-        return [p for p in self if p.feasible]
-
-    def to_json(self) -> dict[str, Any]:
-        return {"frame": self.frame, "detections": self.detections, "not_the_product": self.not_the_product, "timing_ms": self.timing_ms,
-                "grasps": len(self.grasps), "plans": [asdict(p) for p in self]}
-
-    def plot(self, rgb: np.ndarray, camera: PinholeCamera, opening: float, photo=None,
-             query_box=None) -> np.ndarray:
-        """The frame with each detection's box and score, and each grasp's open jaws numbered in the
-        order to try them (green)."""
-        from binpick.viz.detection import draw_jaws, overlay
-
-        boxes = np.array([p.box for p in self], dtype=float).reshape(-1, 4)
-        if isinstance(photo, (list, tuple)):  # several photos of the product: the first is shown
-            photo = photo[0] if photo else None
-        photo = None if photo is None else split_photo(photo)[0]
-        picture = overlay(rgb, boxes, np.array([p.score for p in self]), query_box, photo, min_score=0.0)
-        jaws = [(*jaw_pixels(camera, plan.position, plan.yaw, opening), True, str(number))
-                for number, plan in enumerate(self.grasps, start=1)]
-        return draw_jaws(picture, jaws)
-
-
-def jaw_pixels(camera: PinholeCamera, position, yaw: float, opening: float) -> tuple[np.ndarray, np.ndarray]:
-    """The open fingers' pixels (u, v) of a grasp at ``position`` closing along ``yaw``: its jaw line."""
-    centre = np.asarray(position, dtype=float)
-    reach = np.array([np.cos(yaw), np.sin(yaw), 0.0]) * opening / 2
-    (a, b), _ = camera.project(np.stack([centre - reach, centre + reach]))
-    return a, b
-
-
-def split_photo(photo: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-    """A shop photo's RGB and its product mask: the alpha channel of an RGBA photo (a cut-out PNG),
-    None for an RGB one (the colour check then takes what is not bright grey)."""
-    photo = np.asarray(photo)
-    if photo.ndim == 3 and photo.shape[2] == 4:
-        alpha = photo[..., 3] > 127
-        return np.ascontiguousarray(photo[..., :3]), None if alpha.all() or not alpha.any() else alpha
-    return photo, None
-
-
-def as_photos(photo, masks) -> list[tuple[np.ndarray, np.ndarray | None]]:
-    """One shop photo or a list of them as (RGB, mask) pairs. ``masks``: None (an RGBA photo's alpha,
-    else found from the photo), one mask for one photo, or a list with one (or None) per photo; each
-    the photo's height and width."""
-    if photo is None:
-        return []
-    several = isinstance(photo, (list, tuple))
-    photos = list(photo) if several else [photo]
-    if not photos:
-        return []
-    if masks is None:
-        masks = [None] * len(photos)
-    elif isinstance(masks, np.ndarray) and not several:
-        masks = [masks]
-    elif not isinstance(masks, (list, tuple)) or len(masks) != len(photos):
-        raise ConfigError(f"{len(photos)} photos: give one product mask per photo (a list), or none")
-    pairs = []
-    for image, mask in zip(photos, masks):
-        rgb, alpha = split_photo(image)
-        if mask is not None:
-            mask = np.asarray(mask, bool)
-            if mask.shape != rgb.shape[:2]:
-                raise ConfigError(f"a product mask is {mask.shape[1]}x{mask.shape[0]} but its photo is {rgb.shape[1]}x{rgb.shape[0]}")
-        pairs.append((rgb, alpha if mask is None else mask))
-    return pairs
-
-
-def as_camera_info(camera: CameraInfo | PinholeCamera) -> CameraInfo:
-    return camera if isinstance(camera, CameraInfo) else CameraInfo(camera)
-
-
-_BLAS = None
-
-
-def one_blas_thread():
-    """A context in which numpy's BLAS runs on one thread. Planning does many small matrix products
-    (3-column point clouds); after each, OpenBLAS's worker threads spin on the cores and the
-    detector's PyTorch threads wait for them: on 2 cores the detection stage took 2-3x as long."""
-    global _BLAS
-    if _BLAS is None:
-        from threadpoolctl import ThreadpoolController
-
-        _BLAS = ThreadpoolController()
-    return _BLAS.limit(limits=1, user_api="blas")
-
-
-def same_aspect(a: tuple[int, ...], b: tuple[int, ...]) -> bool:
-    """Whether two (height, width) images have the same aspect ratio (within a pixel)."""
-    return abs(a[0] * b[1] - a[1] * b[0]) <= max(a[0], b[0])
-
-
-def register_depth(depth: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """Depth registered to the colour camera but at another resolution (a RealSense's 640x360 depth
-    aligned to its 1280x720 colour), resampled to the colour's ``shape`` (height, width): nearest
-    reading, so no depth is invented between an edge's two sides and holes stay holes."""
-    if depth.shape == tuple(shape):
-        return depth
-    import cv2
-
-    return cv2.resize(np.asarray(depth, dtype=np.float32), (shape[1], shape[0]), interpolation=cv2.INTER_NEAREST)
-
-
-def as_query_box(box, width: int, height: int) -> np.ndarray:
-    """A query box as 4 finite numbers x, y, w, h inside a ``width`` x ``height`` image; one line if not."""
-    from binpick.detection.predict import check_query_box
-
-    try:
-        array = np.asarray(box, dtype=float).reshape(-1)
-    except (TypeError, ValueError):
-        raise ConfigError(f"a query box is 4 numbers x, y, w, h, got {box!r}") from None
-    if array.shape != (4,) or not np.all(np.isfinite(array)):
-        raise ConfigError(f"a query box is 4 finite numbers x, y, w, h, got {array.tolist()}")
-    check_query_box(array, width, height)
-    return array
-
-
-def check_frame(rgb: np.ndarray, depth: np.ndarray, camera: PinholeCamera) -> None:
-    """Colour and depth that the calibration describes (depth registered to the colour camera, at its
-    size or one of the same aspect); depth in metres."""
-    rgb, depth = np.asarray(rgb), np.asarray(depth)
-    if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
-        raise InputFileError(f"colour image must be 8-bit RGB (height x width x 3), got {rgb.dtype} with shape {rgb.shape}")
-    if depth.ndim != 2:
-        raise InputFileError(f"depth image must be 2-D (height x width), got shape {depth.shape}")
-    if depth.shape != rgb.shape[:2] and not same_aspect(depth.shape, rgb.shape[:2]):
-        raise InputFileError(f"depth is {depth.shape[1]}x{depth.shape[0]} but colour is {rgb.shape[1]}x{rgb.shape[0]}: "
-                             "register depth to the colour camera (its viewpoint and intrinsics; at the colour's size or "
-                             "one of the same aspect, which binpick resamples)")
-    if (camera.width, camera.height) != (rgb.shape[1], rgb.shape[0]):
-        raise InputFileError(f"the camera calibration is for {camera.width}x{camera.height} images, the frame is "
-                             f"{rgb.shape[1]}x{rgb.shape[0]}")
-    problem = depth_problem(depth)
-    if problem is not None:
-        hint = "" if "no valid reading" in problem else ": give depth in metres (16-bit PNGs in millimetres are converted when read)"
-        raise InputFileError(f"depth image {problem}{hint}")
-
 
 VERIFIERS = ("learnt", "colour")
 # the learnt check's is a probability (calibrated on randomised bins): detections it gives under 20% are
@@ -259,6 +74,8 @@ class Picker:
     def __init__(self, detector, grasp: GraspPlanner, crop_detector=None, score_threshold: float | None = None,
                  verifier="learnt", check: float | None = None, rank_from: float | None = 0.01, max_grasps: int = 3,
                  workspace: Workspace | None = None, copies_from_match: float | None = None) -> None:
+        # a Detector (binpick.Detector.load(...)) or the network inside one
+        detector, crop_detector = (getattr(d, "inference_network", d) for d in (detector, crop_detector))
         self.detector, self.crop_detector, self.grasp = detector, crop_detector, grasp
         self.workspace = workspace  # None: the camera's own (camera.yaml), else around its view
         if score_threshold is None:  # the weights' own threshold where they carry one (scores are calibrated per model)

@@ -20,147 +20,45 @@ product category used for zero-shot splits. Each annotation carries ``visible_fr
 
 from __future__ import annotations
 
-import json
 import os
-from collections import Counter, defaultdict
-from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from binpick.errors import ConfigError, InputFileError
-from binpick.files import atomic_write_json, atomic_write_text, read_json_object, require_fields
+from binpick.errors import ConfigError
+from binpick.files import atomic_write_json
 from binpick.runs import SILENT, RunCallback
-from binpick.sim.products import ProductLibrary, default_library, load_products
-
-FORMAT = "binpick-bins-1"
-
-
-@dataclass(frozen=True)
-class GenerateConfig:
-    out: str
-    scenes: int = 100
-    policies: list[str] = field(default_factory=lambda: ["x", "y"])  # empty: no labels
-    grasp_trials: int = 0  # per visible instance: random grasp candidates from depth, executed (grasp-quality data)
-    label_trials: int = 1  # grasps per instance and policy for its pickability label: the policy's own, then jittered (majority)
-    label_jitter: float = 0.002  # m: how far the extra label grasps move the jaws' centre (below a pixel of the camera)
-    workers: int = 2
-    image_size: int = 416
-    copies: tuple[int, int] = (2, 8)  # K instances of the target product
-    distractors: tuple[int, int] = (0, 3)  # other products in the bin
-    held_out_categories: list[str] = field(default_factory=list)  # zero-shot test split
-    targets: list[str] = field(default_factory=list)  # product ids or categories to order (default: all)
-    val_fraction: float = 0.1
-    split_rule: str = "even"  # which worlds go to val: "even" (every 1/val_fraction-th, stable as a set grows) or "random"
-    scenes_per_world: int = 8  # scenes made from one compiled model (compiling + renderers ≈ 1 s)
-    randomise: bool = False  # lighting, table and tote colours per world (before domains existed)
-    domain: str = "default"  # default | random | shifted | a domain YAML file (binpick.sim.domain)
-    sensor: str = "perfect"  # perfect | realistic | a sensor YAML file (binpick.sim.sensor): the depth camera's faults
-    address: str | None = None  # a Ray cluster (HOST:PORT) or "local" (Ray on this machine): scene workers as Ray tasks
-    products: str | None = None  # a user's products YAML (added to the built-in library)
-    only_products: bool = False  # use only the user's products
-    photo_size: int = 256
-    photo_views: int = 0  # randomised studio photos per product besides the canonical one (photos/<product>/<k>.png)
-    seed: int = 0
-
-    def __post_init__(self) -> None:
-        from binpick.config import check_range
-
-        check_range("scenes", self.scenes, 1, 10_000_000, integer=True)
-        check_range("workers", self.workers, 1, 256, integer=True)
-        check_range("grasp_trials", self.grasp_trials, 0, 100, integer=True)
-        check_range("label_trials", self.label_trials, 1, 25, integer=True)
-        check_range("label_jitter", self.label_jitter, 0.0, 0.02)
-        check_range("image_size", self.image_size, 32, 2048, integer=True)
-        check_range("photo_views", self.photo_views, 0, 64, integer=True)
-        check_range("scenes_per_world", self.scenes_per_world, 1, 1000, integer=True)
-        check_range("val_fraction", self.val_fraction, 0.0, 1.0)
-        from binpick.config import check_choice
-
-        check_choice("split_rule", self.split_rule, ("even", "random"))
-        object.__setattr__(self, "copies", tuple(self.copies))  # frozen: normalised once, here
-        object.__setattr__(self, "distractors", tuple(self.distractors))
-        if not 1 <= self.copies[0] <= self.copies[1] <= 16:
-            raise ConfigError(f"copies must be a range within 1..16, got {self.copies}")
-        if not 0 <= self.distractors[0] <= self.distractors[1] <= 8:
-            raise ConfigError(f"distractors must be a range within 0..8, got {self.distractors}")
-        from binpick.sim.domain import load_domain
-
-        object.__setattr__(self, "_domain", load_domain(self.domain))  # a bad name or file: one line, now
-        from binpick.sim.sensor import load_sensor
-
-        object.__setattr__(self, "_sensor", load_sensor(self.sensor))
-        if self.address not in (None, "local"):
-            from binpick.cluster import check_ray_address
-
-            check_ray_address(self.address)
-        from binpick.warehouse.policies import check_policies
-
-        check_policies(self.policies)
-
-    def comparable(self) -> dict[str, Any]:
-        """What must match for a resume to add to the same data set (not scenes or workers)."""
-        from binpick.sim.domain import domain_dict
-
-        data = asdict(self)
-        for key in ("out", "scenes", "workers", "address"):
-            data.pop(key)
-        data["copies"], data["distractors"] = list(self.copies), list(self.distractors)
-        if not self.photo_views:  # data sets made before photo views resume as they were
-            data.pop("photo_views")
-        data["domain_values"] = domain_dict(self.domain_config)  # so an edited domain file is noticed on resume
-        if self.sensor_config.realistic:  # perfect depth adds nothing: data sets made before sensors resume as they were
-            from binpick.sim.sensor import sensor_dict
-
-            data["sensor_values"] = sensor_dict(self.sensor_config)
-        else:
-            data.pop("sensor")
-        return data
-
-    @property
-    def domain_config(self):
-        """The :class:`binpick.sim.domain.DomainConfig` that ``domain`` names (loaded once)."""
-        return self._domain
-
-    @property
-    def sensor_config(self):
-        """The :class:`binpick.sim.sensor.SensorConfig` that ``sensor`` names (loaded once)."""
-        return self._sensor
+from binpick.sim.products import ProductLibrary
+from binpick.warehouse.coco import (  # noqa: F401  (their home before the split)
+    _ANNOTATION,
+    _RECORD,
+    card,
+    dataset_stats,
+    finalise,
+    load_records,
+    open_dataset,
+    read_record,
+    read_scene,
+    to_coco,
+)
+from binpick.warehouse.generation import (  # noqa: F401
+    FORMAT,
+    GenerateConfig,
+    build_library,
+    target_products,
+)
+from binpick.warehouse.labels import (  # noqa: F401
+    TRIAL_OFFSET,
+    TRIAL_VISIBLE,
+    grasp_outcomes,
+    label_offsets,
+    label_pickability,
+    record_grasp_trials,
+    trial_ready,
+)
 
 
-_LIBRARIES: dict[str, ProductLibrary] = {}
-
-
-def build_library(config: GenerateConfig) -> ProductLibrary:
-    """The products of a data set (cached per process: workers build it once, not once per world)."""
-    key = json.dumps([config.seed, config.products, config.only_products, sorted(config.held_out_categories)])
-    if key not in _LIBRARIES:
-        _LIBRARIES[key] = _build_library(config)
-    return _LIBRARIES[key]
-
-
-def _build_library(config: GenerateConfig) -> ProductLibrary:
-    library = ProductLibrary() if config.only_products else default_library(seed=config.seed)
-    if config.products:
-        library = load_products(config.products, library)
-    if config.only_products and not config.products:
-        raise ConfigError("only_products needs --products YAML")
-    library.in_categories(config.held_out_categories)  # names an unknown category in one line
-    for name in config.targets:
-        if name not in library.products and name not in library.categories:
-            raise ConfigError(f"unknown product or category {name!r} in targets; categories: {', '.join(library.categories)}")
-    return library
-
-
-def target_products(config: GenerateConfig, library: ProductLibrary) -> list[str]:
-    """Products that can be the ordered (repeated) one: all, or those named in ``targets``."""
-    if not config.targets:
-        return sorted(library.products)
-    return sorted(p.id for p in library if p.id in config.targets or p.category in config.targets)
-
-
-# ---------------------------------------------------------------------- the output folder
 def prepare_output(config: GenerateConfig, library: ProductLibrary) -> Path:
     """Create the folder, or check that an existing one is this same data set (then it resumes)."""
     out = Path(config.out)
@@ -353,102 +251,6 @@ def scene_record(scene, index: int, split: str, config: GenerateConfig) -> dict[
             **({"sensor": scene.sensor} if scene.sensor else {})}
 
 
-def trial_ready(sim) -> None:
-    """Trials run as the pick pipeline grasps: with the tote's invisible drop guards off. The guards
-    keep products in the tote while a scene settles, but a trial's carry takes the product out over
-    the walls. With them on, the learnt policy's trials on fully visible instances lifted box_00 64%,
-    cylinder_04 68% and shape_940 52% of the time, against 82%, 82% and 64% with them off, which is
-    what the pipeline places (82%, 82%, 61%): labels and grasp trials counted grasps the robot makes
-    as failures, most of them of tall products and of instances near a wall."""
-    sim.set_guards(False)
-
-
-def label_offsets(trials: int, jitter: float, rng: np.random.Generator) -> list[tuple[float, float]]:
-    """Where a label's grasps put the jaws' centre, relative to the policy's choice: the policy's own
-    grasp, then a cross at ``jitter``, then random points within it."""
-    cross = [(0.0, 0.0), (jitter, 0.0), (-jitter, 0.0), (0.0, jitter), (0.0, -jitter)]
-    extra = [tuple(v) for v in rng.uniform(-jitter, jitter, size=(max(0, trials - len(cross)), 2))]
-    return (cross + extra)[:trials]
-
-
-def grasp_outcomes(sim, state, policy, slot: int, offsets: list) -> list[bool]:
-    """Whether ``policy``'s grasp on instance ``slot`` held, from the saved ``state``, once per jaws'
-    offset (None: the plain call, so a user's policy without ``offset`` still labels data)."""
-    held = []
-    for offset in offsets:
-        sim.restore(state)
-        held.append(bool(policy.attempt(sim, slot) if offset is None else policy.attempt(sim, slot, offset)))
-    return held
-
-
-def label_pickability(sim, scene, record: dict[str, Any], policies, rng: np.random.Generator,
-                      trials: int = 1, jitter: float = 0.002) -> None:
-    """Thesis §5.4.4: try target instances in random order until one is picked (the query); then,
-    from the saved scene state, attempt every remaining instance — with each policy.
-
-    With ``trials`` > 1 each instance gets that many grasps per policy, the jaws' centre moved by
-    up to ``jitter``: the label is the majority and ``pickable_rate`` the share that held. One grasp's
-    outcome is not quite a property an image shows: moving Policy y's jaws by 2 mm (under a pixel)
-    changed it for 18 of 168 target instances of binpick's default bins (11 of the 84 that held, 7 of
-    the 84 that did not; 15 worlds, 2 scenes each: ``benchmarks/label_noise.py``).
-    """
-    targets = [a for a in record["annotations"] if a["is_target"]]
-    if not targets:
-        return
-    trial_ready(sim)
-    order = [targets[i] for i in rng.permutation(len(targets))]
-    offsets = label_offsets(trials, jitter, rng) if trials > 1 else [None]
-    for policy in policies:
-        if hasattr(policy, "prepare"):  # planned grasps read the scene's depth once
-            policy.prepare(scene)
-        for annotation in order:
-            held = grasp_outcomes(sim, scene.state, policy, annotation["slot"], offsets)
-            annotation["pickable"][policy.name] = sum(held) * 2 > len(held)
-            if trials > 1:
-                annotation.setdefault("pickable_rate", {})[policy.name] = round(sum(held) / len(held), 3)
-    first_policy = policies[0].name if policies else None
-    picked = next((a for a in order if first_policy and a["pickable"][first_policy]), None)
-    query = picked or order[0]
-    query["is_query"] = True
-    record["picked_by"] = first_policy if picked is not None else None
-
-
-TRIAL_OFFSET = 0.012  # random shifts of the jaws' centre (m) beside the even-squeeze positions
-TRIAL_VISIBLE = 0.3  # instances less visible than this get no trials (depth shows too little of them)
-
-
-def record_grasp_trials(sim, scene, record: dict[str, Any], trials: int, rng: np.random.Generator) -> None:
-    """Grasp-quality data (Dex-Net 2.0's recipe, on binpick's bins): per visible instance, ``trials``
-    candidates from depth alone (:func:`binpick.grasping.grasp_candidates`: all yaws, the even-squeeze
-    centre and random shifts), three in four drawn among the feasible ones, each executed from the
-    saved scene state; the outcome is whether that instance rose and stayed in the jaws through a
-    carry at the pick pipeline's speed."""
-    from binpick.grasping import DepthFrame, JawGripper, PinholeCamera, grasp_candidates
-    from binpick.sim.gripper import lift_test, trial_timestep
-
-    frame = DepthFrame.from_depth(scene.depth, PinholeCamera.from_record(scene.camera))
-    trial_ready(sim)
-    results = []
-    for annotation in record["annotations"]:
-        if annotation["visible_fraction"] < TRIAL_VISIBLE:
-            continue
-        offsets = rng.uniform(-TRIAL_OFFSET, TRIAL_OFFSET, size=(2, 2))
-        _, candidates = grasp_candidates(frame, annotation["bbox"], JawGripper(), offsets=offsets)
-        if not candidates:
-            continue
-        feasible = [c for c in candidates if c.rejected is None]
-        for _ in range(trials):
-            pool = feasible if feasible and rng.random() < 0.75 else candidates
-            candidate = pool[int(rng.integers(len(pool)))]
-            sim.restore(scene.state)
-            with trial_timestep(sim.model):
-                success = lift_test(sim, annotation["slot"], candidate.position, candidate.yaw, candidate.top, carry=True)
-            results.append({"slot": annotation["slot"], "product": annotation["product"], **candidate.to_json(),
-                            "top": round(candidate.top, 4), "support": round(candidate.support, 4), "success": success})
-    record["grasp_trials"] = results
-
-
-# ---------------------------------------------------------------------- the whole run
 class DataGeneration:
     """A data set as a job (:class:`binpick.runs.Job`): ``DataGeneration.new(config)`` checks the
     products and the output folder, ``DataGeneration.resume(folder)`` continues a killed run with the
@@ -569,159 +371,3 @@ def write_photos(config: GenerateConfig, library: ProductLibrary, out: Path, cal
                 _write_png(out / path, image)
             task.update(advance=1)
     return len(library)
-
-
-def open_dataset(data: Path) -> dict[str, Any]:
-    """The manifest of a data-set folder, or one clear line saying why it is not one."""
-    manifest = Path(data) / "dataset.json"
-    if not manifest.is_file():
-        raise ConfigError(f"{str(data)!r} is not a binpick data set (no dataset.json)")
-    content = read_json_object(manifest, "data-set manifest", {"format": str, "config": dict, "products": list})
-    if content["format"] != FORMAT:
-        raise ConfigError(f"{manifest} is not a {FORMAT} data set")
-    require_fields(content["config"], {"policies": list}, f"data-set manifest {str(manifest)!r}")
-    if not all(isinstance(p, dict) and isinstance(p.get("id"), str) and isinstance(p.get("category"), str)
-               for p in content["products"]):
-        raise InputFileError(f"data-set manifest {str(manifest)!r} is damaged: a product has no id or category")
-    return content
-
-
-_RECORD = {"index": int, "file_name": str, "depth_file": str, "width": int, "height": int, "split": str, "target": str,
-           "seed": int, "annotations": list, "picked_by": (str, type(None))}
-_ANNOTATION = {"slot": int, "product": str, "is_target": bool, "is_query": bool, "bbox": list, "area": (int, float),
-               "visible_fraction": (int, float), "pickable": dict}
-
-
-def read_record(path: Path) -> dict[str, Any]:
-    """One scene's JSON, checked field by field: a damaged file is one line that says how to redo it."""
-    where = f"scene file {str(path)!r}"
-    try:
-        record = read_json_object(path, "scene file")
-        require_fields(record, _RECORD, where)
-        for annotation in record["annotations"]:
-            if not isinstance(annotation, dict):
-                raise InputFileError(f"{where} is damaged: an annotation is not an object")
-            require_fields(annotation, _ANNOTATION, where)
-            box = annotation["bbox"]
-            if len(box) != 4 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in box):
-                raise InputFileError(f"{where} is damaged: a bbox is not 4 numbers")
-    except InputFileError as error:
-        raise InputFileError(f"{error}; delete it and run generate again to redo that scene") from None
-    return record
-
-
-def read_scene(data: Path, index: int) -> tuple[dict[str, Any], list[str]]:
-    manifest = open_dataset(data)
-    path = Path(data) / "scenes" / f"{index:06d}.json"
-    if not path.is_file():
-        raise ConfigError(f"scene {index} is not in {data} (scenes 0..{manifest['config'].get('scenes', '?')} may still be generating)")
-    return read_record(path), manifest["config"]["policies"]
-
-
-# ---------------------------------------------------------------------- COCO files and the card
-def load_records(out: Path) -> list[dict[str, Any]]:
-    return [read_record(path) for path in sorted((Path(out) / "scenes").glob("*.json"))]
-
-
-def to_coco(records: list[dict[str, Any]], library_products: list[dict[str, str]]) -> dict[str, Any]:
-    library_products = list(library_products)
-    listed = {p["id"] for p in library_products}
-    for record in records:  # a randomised world's own products are not in the library
-        for a in record["annotations"]:
-            if a["product"] not in listed:
-                listed.add(a["product"])
-                library_products.append({"id": a["product"], "category": a.get("category", "random")})
-    category_ids = {p["id"]: i + 1 for i, p in enumerate(library_products)}
-    coco = {"info": {"description": "binpick warehouse bins", "format": FORMAT},
-            "categories": [{"id": category_ids[p["id"]], "name": p["id"], "supercategory": p["category"]} for p in library_products],
-            "images": [], "annotations": []}
-    next_id = 1
-    for record in records:
-        image_id = record["index"] + 1
-        query_id = None
-        for a in record["annotations"]:
-            x, y, w, h = a["bbox"]
-            coco["annotations"].append({
-                "id": next_id, "image_id": image_id, "category_id": category_ids[a["product"]], "bbox": [x, y, w, h],
-                "area": a["area"], "iscrowd": 0, "instance_id": a["slot"], "visible_fraction": a["visible_fraction"],
-                "is_target": a["is_target"], "is_query": a["is_query"], "pickable": a["pickable"],
-                **({"pickable_rate": a["pickable_rate"]} if "pickable_rate" in a else {})})  # label_trials > 1
-            if a["is_query"]:
-                query_id = next_id
-            next_id += 1
-        coco["images"].append({"id": image_id, "file_name": record["file_name"], "depth_file": record["depth_file"],
-                               "width": record["width"], "height": record["height"], "split": record["split"],
-                               "target_product": record["target"], "query_annotation_id": query_id,
-                               "picked_by": record["picked_by"], "seed": record["seed"],
-                               **({"camera": record["camera"]} if record.get("camera") else {})})
-    return coco
-
-
-def finalise(out: Path) -> dict[str, Any]:
-    """Merge the scene shards into COCO files (all, and one per split) and write the card."""
-    out = Path(out)
-    manifest = open_dataset(out)
-    records = load_records(out)
-    coco = to_coco(records, manifest["products"])
-    atomic_write_json(out / "annotations.json", coco, indent=None)
-    for split in ("train", "val", "test"):
-        ids = {image["id"] for image in coco["images"] if image["split"] == split}
-        atomic_write_json(out / f"annotations_{split}.json", coco | {
-            "images": [i for i in coco["images"] if i["id"] in ids],
-            "annotations": [a for a in coco["annotations"] if a["image_id"] in ids]}, indent=None)
-    stats = dataset_stats(records, manifest["config"]["policies"])
-    atomic_write_text(out / "CARD.md", card(stats, manifest))
-    return stats
-
-
-def dataset_stats(records: list[dict[str, Any]], policies: list[str]) -> dict[str, Any]:
-    """Instances per image, pickable fraction per policy and category, and how often the policies disagree."""
-    instances = [len(r["annotations"]) for r in records]
-    targets = [a for r in records for a in r["annotations"] if a["is_target"]]
-    labelled = [a for a in targets if all(p in a["pickable"] for p in policies)] if policies else []
-    by_category: dict[str, dict[str, float]] = defaultdict(dict)
-    for policy in policies:
-        groups: dict[str, list[bool]] = defaultdict(list)
-        for a in labelled:
-            groups[a["category"]].append(a["pickable"][policy])
-        for category, values in groups.items():
-            by_category[category][policy] = round(float(np.mean(values)), 4)
-    differs = [len({a["pickable"][p] for p in policies}) > 1 for a in labelled] if len(policies) > 1 else []
-    splits = Counter(r["split"] for r in records)
-    trials = [t["success"] for r in records for t in r.get("grasp_trials", [])]
-    return {"scenes": len(records), "instances": int(sum(instances)),
-            "grasp_trials": len(trials), "grasp_trial_success": round(float(np.mean(trials)), 4) if trials else None,
-            "instances_per_image": round(float(np.mean(instances)), 3) if records else 0.0,
-            "target_instances_per_image": round(len(targets) / max(1, len(records)), 3),
-            "labelled_instances": len(labelled),
-            "pickable_fraction": {p: round(float(np.mean([a["pickable"][p] for a in labelled])), 4) for p in policies} if labelled else {},
-            "pickable_fraction_by_category": dict(sorted(by_category.items())),
-            "pickability_differs_fraction": round(float(np.mean(differs)), 4) if differs else None,
-            "scenes_with_a_pick": sum(r["picked_by"] is not None for r in records),
-            "splits": dict(splits), "categories": dict(Counter(a["category"] for a in targets))}
-
-
-def card(stats: dict[str, Any], manifest: dict[str, Any]) -> str:
-    config = manifest["config"]
-    lines = ["# binpick warehouse bins — data-set card", "",
-             f"Generated by `binpick data generate` ({FORMAT}); seed {config['seed']}, {config['image_size']} px overhead RGB-D,",
-             f"{config['copies'][0]}–{config['copies'][1]} copies of one product plus {config['distractors'][0]}–{config['distractors'][1]} "
-             f"distractor products per bin; grasp policies: {', '.join(config['policies']) or 'none'}.", "",
-             "| | |", "|---|---|",
-             f"| scenes | {stats['scenes']} (splits: {', '.join(f'{k} {v}' for k, v in sorted(stats['splits'].items()))}) |",
-             f"| instances | {stats['instances']} ({stats['instances_per_image']} per image, {stats['target_instances_per_image']} of the target) |",
-             f"| labelled target instances | {stats['labelled_instances']} |"]
-    for policy, fraction in stats["pickable_fraction"].items():
-        lines.append(f"| pickable by policy {policy} | {fraction:.1%} |")
-    if stats.get("grasp_trials"):
-        lines.append(f"| grasp trials (candidates from depth, executed with a carry) | {stats['grasp_trials']}, "
-                     f"{stats['grasp_trial_success']:.1%} held |")
-    if stats["pickability_differs_fraction"] is not None:
-        lines.append(f"| pickability differs between policies | {stats['pickability_differs_fraction']:.1%} |")
-    if stats["pickable_fraction_by_category"]:
-        policies = config["policies"]
-        lines += ["", "Pickable fraction by product category:", "", "| category | " + " | ".join(policies) + " |",
-                  "|---|" + "---|" * len(policies)]
-        for category, fractions in stats["pickable_fraction_by_category"].items():
-            lines.append(f"| {category} | " + " | ".join(f"{fractions.get(p, float('nan')):.0%}" for p in policies) + " |")
-    return "\n".join(lines) + "\n"

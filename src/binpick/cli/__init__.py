@@ -1,0 +1,43 @@
+"""binpick's command line: ``binpick <group> <command>``, a module per group (each command parses its
+options, makes one library call and prints the result)."""
+
+from __future__ import annotations
+
+import sys
+
+import typer
+
+from binpick.cli import april, data, detect, envs, pick, rl, ros, train  # noqa: F401  (each registers its commands)
+from binpick.cli.app import DEFAULT_POLICY, app, print_error, progress
+from binpick.errors import BinpickError
+
+__all__ = ["DEFAULT_POLICY", "app", "main", "progress"]
+
+
+def main() -> None:
+    """Console-script entry point: run the app; a user's mistake ends in one line and exit code 2.
+
+    Click's usage errors (a bad option value, a missing argument) are printed the same way as
+    binpick's own, instead of Typer's boxed panel."""
+    try:
+        code = app(prog_name="binpick", standalone_mode=False)
+    except typer.TyperException as error:  # Click's errors, as Typer vendors Click
+        context = getattr(error, "ctx", None)
+        if type(error).__name__ == "NoArgsIsHelpError" and context is not None:  # `binpick rl` alone: its help
+            typer.echo(context.get_help())
+        else:
+            command = context.command_path if context is not None else "binpick"
+            message = error.format_message() if hasattr(error, "format_message") else str(error)
+            print_error(f"{message} (see '{command} --help')")
+        sys.exit(getattr(error, "exit_code", 2))
+    except typer.Abort:
+        print_error("aborted")
+        sys.exit(130)
+    except BinpickError as error:
+        print_error(str(error))
+        sys.exit(2)
+    sys.exit(code if isinstance(code, int) else 0)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,179 @@
+"""The `binpick` Typer app, its command groups, and what every command shares (console, --set, progress, errors)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+
+from binpick.errors import ConfigError
+from binpick.files import atomic_write, check_output_file, parse_yaml
+from binpick.terminal import RichCallback
+
+app = typer.Typer(help="Learned bin picking: simulated worlds, RL, APRiL and repeated object detection.",
+                  no_args_is_help=True, pretty_exceptions_enable=False, add_completion=False)
+envs_app = typer.Typer(help="The simulated worlds of the thesis (Gymnasium ids binpick/...).", no_args_is_help=True)
+app.add_typer(envs_app, name="envs")
+rl_app = typer.Typer(help="Reinforcement learning (thesis ch. 3): train and evaluate runs.", no_args_is_help=True)
+app.add_typer(rl_app, name="rl")
+april_app = typer.Typer(help="APRiL (thesis ch. 4): train the policy on state, deploy it on pixels.", no_args_is_help=True)
+app.add_typer(april_app, name="april")
+data_app = typer.Typer(help="Warehouse bin data sets with pickability from trial grasps (thesis §5.4.4, §6.3).",
+                       no_args_is_help=True)
+app.add_typer(data_app, name="data")
+detect_app = typer.Typer(help="Repeated object detection (thesis ch. 5, §6.3): ROD and TDID.", no_args_is_help=True)
+app.add_typer(detect_app, name="detect")
+grasp_app = typer.Typer(help="Grasps from depth: train the grasp-quality model on simulated trials.",
+                        no_args_is_help=True)
+app.add_typer(grasp_app, name="grasp")
+products_app = typer.Typer(help="The products binpick can generate bins of and pick: built in, or your own (--products YAML).",
+                           no_args_is_help=True)
+app.add_typer(products_app, name="products")
+ros_app = typer.Typer(help="ROS 1 bridge (thesis §6.1.1): serve a binpick env as an action server, drive it over ROS.",
+                      no_args_is_help=True)
+app.add_typer(ros_app, name="ros")
+ros2_app = typer.Typer(help="ROS 2 (PyPI's ros-rclpy wheels, in .venv-ros2): pick planning for a robot's camera.", no_args_is_help=True)
+app.add_typer(ros2_app, name="ros2")
+
+console = Console(markup=False)  # paths and names are printed as they are, never read as Rich markup
+MAX_SEED = 2**32 - 1  # NumPy's legacy seeding (SB3, Gymnasium) takes 32-bit seeds
+
+
+def seed_option(text: str):
+    """A ``--seed`` option that takes only what every seeded library accepts: 0 .. 2^32 - 1."""
+    return typer.Option("--seed", min=0, max=MAX_SEED, help=text)
+
+
+SetOption = Annotated[list[str] | None, typer.Option("--set", help="Env parameter KEY=VALUE (repeatable), e.g. --set goal_area=0.5")]
+POLICIES = ("random",)
+DEFAULT_POLICY = "learnt"  # the grasp policy of pick and demo: the best in results/grasp.json and results/pick.json
+
+
+def _print_version(value: bool) -> None:
+    if value:
+        from binpick import __version__
+
+        console.print(f"binpick {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(version: Annotated[bool, typer.Option("--version", callback=_print_version, is_eager=True,
+                                                help="Print binpick's version and exit")] = False) -> None:
+    pass
+
+
+def parse_settings(pairs: list[str] | None) -> dict:
+    """``["goal_area=0.5", "image=grey"]`` -> ``{"goal_area": 0.5, "image": "grey"}`` (YAML scalars)."""
+    settings = {}
+    for pair in pairs or []:
+        key, sep, value = pair.partition("=")
+        if not sep or not key.strip():
+            raise ConfigError(f"--set expects KEY=VALUE, got {pair!r}")
+        settings[key.strip()] = parse_yaml(value, f"--set {key.strip()}") if value.strip() else None
+    return settings
+
+
+def progress() -> RichCallback:
+    """Progress bars on this command's console (``with progress() as callback: job.run(callback)``)."""
+    return RichCallback(console)
+
+
+ConfigSetOption = Annotated[list[str] | None, typer.Option("--set", help="Config override KEY=VALUE or SECTION.KEY=VALUE, applied "
+                                                                        "before validation (repeatable), e.g. --set train.epochs=2")]
+
+
+def start_or_resume(job_class, config: Path | None, resume: Path | None, runs: Path, load, overrides: dict,
+                    where=lambda job: ""):
+    """The one way every training command starts: a new run from ``config`` (YAML + ``--set``
+    overrides, validated once by ``load``) or ``--resume`` of a run folder (its own saved config);
+    ``where(job)`` says how far a resumed run had come."""
+    if (config is None) == (resume is None):
+        raise ConfigError("give either a CONFIG file to start a run or --resume RUN_DIR to continue one")
+    if resume is not None:
+        if not (resume / "config.yaml").is_file():
+            raise ConfigError(f"{str(resume)!r} is not a run folder (no config.yaml)")
+        if overrides:
+            raise ConfigError("--set and other overrides apply to new runs; a resumed run keeps its config.yaml")
+        job = job_class.resume(resume)
+        console.print(f"resuming {resume}{where(job)}")
+        return job
+    job = job_class.new(load(config, overrides), runs)
+    console.print(f"run folder: {job.run_dir}")
+    return job
+
+
+
+
+def fmt_metric(value) -> str:
+    return "n/a" if value is None else f"{value:.3f}"
+
+
+def parse_pair(text: str, name: str) -> tuple[int, int]:
+    try:
+        low, high = (int(v) for v in text.split(","))
+    except ValueError:
+        raise ConfigError(f"--{name} must be LOW,HIGH (two integers), got {text!r}") from None
+    return low, high
+
+
+def parse_dimensions(text: str) -> list[float]:
+    """``L,W,H`` in metres, each in (0, 2]."""
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) != 3 or not all(0.0 < v <= 2.0 for v in values):
+        raise ConfigError(f"--size must be three lengths in metres L,W,H (each in (0, 2]), got {text!r}")
+    return values
+
+
+def product_library(products_file: Path | None):
+    """The built-in products, plus a user's YAML of their own when given (checked as data generate checks it)."""
+    from binpick.sim import default_library, load_products
+
+    library = default_library()
+    return load_products(products_file, library) if products_file is not None else library
+
+
+def evaluate_with_progress(env, policy, label: str, episodes: int, seed: int) -> None:
+    """Seeded evaluation episodes with a progress bar; prints the summary and closes the env."""
+    from binpick.rl.evaluate import evaluate_policy
+
+    try:
+        with progress() as callback, callback.task(label, episodes) as task:
+            result = evaluate_policy(policy, env, episodes=episodes, seed=seed, on_episode=lambda *_: task.update(advance=1))
+    finally:
+        env.close()
+    console.print(result.summary())
+
+
+def check_png_path(path: Path, option: str = "--out") -> Path:
+    """A PNG path that can be written (checked before the work that fills it starts)."""
+    path = Path(path)
+    if path.suffix.lower() != ".png":
+        raise ConfigError(f"{option} must end in .png, got {str(path)!r}")
+    return check_output_file(path, option)
+
+
+def save_png(array, path: Path, option: str = "--out") -> None:
+    from PIL import Image
+
+    path = check_png_path(path, option)
+    atomic_write(path, lambda handle: Image.fromarray(array).save(handle, format="PNG"))
+
+
+def warn(message: str | None) -> None:
+    """``warning: <message>`` as one line on stderr (nothing for None)."""
+    if message:
+        Console(stderr=True, highlight=False).print(f"warning: {' '.join(message.split())}", markup=False, soft_wrap=True)
+
+
+def print_error(message: str) -> None:
+    """``error: <message>`` as one line on stderr; the message is never read as Rich markup."""
+    from rich.text import Text
+
+    line = " ".join(str(message).split())  # one line, whatever the message holds
+    Console(stderr=True, highlight=False).print(Text.assemble(("error: ", "bold red"), line), soft_wrap=True)

@@ -1,0 +1,136 @@
+"""Warehouse bin data sets: `binpick data generate|show|export|stats`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.table import Table
+
+from binpick.cli.app import (
+    check_png_path,
+    console,
+    data_app,
+    parse_pair,
+    parse_settings,
+    progress,
+    save_png,
+    seed_option,
+    warn,
+)
+from binpick.errors import ConfigError
+
+
+@data_app.command("generate")
+def data_generate(
+    out: Annotated[Path, typer.Option(help="Data-set folder (new, or one to resume)")],
+    scenes: Annotated[int, typer.Option(help="Number of bin scenes")] = 100,
+    policies: Annotated[str, typer.Option(help="Grasp policies that label pickability, comma-separated: x, y (scripted, jaws along an axis), analytic, learnt (the grasp planner); '' for none")] = "x,y",
+    workers: Annotated[int, typer.Option(help="Parallel processes")] = 2,
+    grasp_trials: Annotated[int, typer.Option(help="Random grasp candidates from depth to execute per visible instance "
+                                                   "(grasp-quality training data); 0 for none")] = 0,
+    products: Annotated[Path | None, typer.Option(help="YAML of your own products (meshes, textures)")] = None,
+    only_products: Annotated[bool, typer.Option(help="Use only the products in --products")] = False,
+    size: Annotated[int, typer.Option(help="Image size in pixels")] = 416,
+    copies: Annotated[str, typer.Option(help="Instances of the target product per bin, LOW,HIGH")] = "2,8",
+    distractors: Annotated[str, typer.Option(help="Other products per bin, LOW,HIGH")] = "0,3",
+    held_out: Annotated[str, typer.Option(help="Product categories for the zero-shot test split, comma-separated")] = "",
+    targets: Annotated[str, typer.Option(help="Products or categories to fill bins with, comma-separated (default: all)")] = "",
+    randomise: Annotated[bool, typer.Option(help="Randomise lighting and colours per world (older; see --domain)")] = False,
+    domain: Annotated[str, typer.Option(help="Scene look: default, random (domain randomisation), shifted, or a domain YAML file")] = "default",
+    sensor: Annotated[str, typer.Option(help="Depth camera: perfect (the renderer's depth), realistic (holes, noise, tilted "
+                                             "camera and tote, as a structured-light sensor gives it) or a sensor YAML file")] = "perfect",
+    address: Annotated[str | None, typer.Option(help="Run scene workers as Ray tasks: HOST:PORT of a Ray cluster, or local")] = None,
+    val_fraction: Annotated[float, typer.Option(help="Share of worlds (groups of --scenes-per-world scenes) in the val split")] = 0.1,
+    scenes_per_world: Annotated[int, typer.Option(help="Scenes made from one compiled world (one product); small sets: 1")] = 8,
+    photo_views: Annotated[int, typer.Option(help="Shop photos per product taken in randomised studios (light, background, "
+                                                  "viewpoint, framing, cut-out), besides the canonical one")] = 0,
+    seed: Annotated[int, seed_option("Seed")] = 0,
+    settings: Annotated[list[str] | None, typer.Option("--set", help="Any other generator setting KEY=VALUE, e.g. "
+                                                                     "--set val_fraction=0.25 (see GenerateConfig)")] = None,
+) -> None:
+    """Generate bin scenes (resumes after a kill), shop photos, COCO files and a data-set card."""
+    from binpick.config import from_dict
+    from binpick.warehouse.dataset import DataGeneration, GenerateConfig
+
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"--out {str(out)!r} is a file, not a data-set folder")
+    flags = {"out": str(out), "scenes": scenes, "policies": [p for p in policies.split(",") if p], "workers": workers,
+             "grasp_trials": grasp_trials,
+             "image_size": size, "copies": list(parse_pair(copies, "copies")), "distractors": list(parse_pair(distractors, "distractors")),
+             "held_out_categories": [c for c in held_out.split(",") if c], "randomise": randomise, "domain": domain, "sensor": sensor,
+             "address": address,
+             "targets": [t for t in targets.split(",") if t], "products": str(products) if products else None,
+             "only_products": only_products, "val_fraction": val_fraction, "scenes_per_world": scenes_per_world, "photo_views": photo_views,
+             "seed": seed}
+    config = from_dict(GenerateConfig, flags | parse_settings(settings), where="data generate")  # validated once
+    with progress() as callback:
+        stats = DataGeneration.new(config).run(callback)
+    _print_stats(stats, out)
+    empty = [split for split in ("train", "val") if not stats["splits"].get(split)]
+    if empty:
+        warn(f"no {' and no '.join(empty)} scenes: a detector needs both; give --scenes-per-world 1 and a "
+             "--val-fraction that leaves each some scenes")
+
+
+@data_app.command("show")
+def data_show(
+    data: Annotated[Path, typer.Argument(help="Data-set folder")],
+    index: Annotated[int, typer.Option(help="Scene index")] = 0,
+    out: Annotated[Path, typer.Option(help="PNG to write")] = Path("scene.png"),
+    policy: Annotated[str | None, typer.Option(help="Colour pickability by this policy (default: the first)")] = None,
+) -> None:
+    """Draw a scene's boxes: green pickable, red unpickable, blue the query, grey other products."""
+    from binpick.viz.bins import labelled_scene
+    from binpick.warehouse.dataset import read_scene
+
+    check_png_path(out)
+    record, policies = read_scene(data, index)
+    if policy is not None and policy not in policies:
+        raise ConfigError(f"--policy {policy!r}: this data set was labelled by {', '.join(policies) or 'no policy'}")
+    save_png(labelled_scene(data, record, policy or (policies[0] if policies else None)), out)
+    console.print(f"scene {index} ({record['target']}, {len(record['annotations'])} instances) -> {out}")
+
+
+@data_app.command("export")
+def data_export(
+    data: Annotated[Path, typer.Argument(help="Data-set folder")],
+    out: Annotated[Path, typer.Option(help="Folder for the files (one sub-folder per scene when several)")],
+    scene: Annotated[list[int] | None, typer.Option(help="Scene index (repeat for several; default: 0)")] = None,
+) -> None:
+    """Write scenes as a real RGB-D camera gives them: rgb.png, depth.png (16-bit mm), camera.yaml
+    (ROS camera_info + camera_to_base), photo.png (the ordered product) and truth.json; try
+    `binpick plan` on them."""
+    from binpick.warehouse.export import export_dataset_scene
+
+    scenes = scene or [0]
+    for index in scenes:
+        if index < 0:
+            raise ConfigError(f"--scene must be 0 or more, got {index}")
+    for index in scenes:
+        folder = export_dataset_scene(data, index, out if len(scenes) == 1 else out / f"{index:06d}")
+        console.print(f"scene {index} -> {folder}: rgb.png depth.png camera.yaml photo.png truth.json")
+
+
+@data_app.command("stats")
+def data_stats(data: Annotated[Path, typer.Argument(help="Data-set folder")]) -> None:
+    """Counts: instances per image, pickable fraction per policy and category, policy disagreement.
+    Reads the scene files only: nothing in the data set is written."""
+    from binpick.warehouse.dataset import dataset_stats, load_records, open_dataset
+
+    manifest = open_dataset(data)
+    _print_stats(dataset_stats(load_records(data), manifest["config"]["policies"]), data)
+
+
+def _print_stats(stats: dict, where: Path) -> None:
+    table = Table(title=f"{where}: {stats['scenes']} scenes")
+    table.add_column("")
+    table.add_column("value")
+    table.add_row("instances per image", f"{stats['instances_per_image']:.2f} ({stats['target_instances_per_image']:.2f} of the target)")
+    for policy, fraction in stats["pickable_fraction"].items():
+        table.add_row(f"pickable by policy {policy}", f"{fraction:.1%}")
+    if stats["pickability_differs_fraction"] is not None:
+        table.add_row("pickability differs between policies", f"{stats['pickability_differs_fraction']:.1%}")
+    table.add_row("splits", ", ".join(f"{k} {v}" for k, v in sorted(stats["splits"].items())))
+    console.print(table)

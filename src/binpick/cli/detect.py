@@ -1,0 +1,161 @@
+"""Repeated object detection: `binpick detect train|pickability|eval|predict`, `binpick grasp train`."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.table import Table
+
+from binpick.cli.app import (
+    ConfigSetOption,
+    check_png_path,
+    console,
+    detect_app,
+    fmt_metric,
+    grasp_app,
+    parse_settings,
+    progress,
+    save_png,
+    start_or_resume,
+)
+from binpick.files import atomic_write_json, ensure_dir
+
+
+@detect_app.command("train")
+def detect_train(
+    config: Annotated[Path | None, typer.Argument(help="YAML config (see configs/rod_*.yaml)")] = None,
+    resume: Annotated[Path | None, typer.Option(help="Run folder to continue from its latest checkpoint")] = None,
+    runs: Annotated[Path, typer.Option(help="Where new run folders go")] = Path("runs"),
+    settings: ConfigSetOption = None,
+) -> None:
+    """Train a detector: checkpoints each epoch, TensorBoard, metrics.json and model.safetensors in runs/<name>/<time>/."""
+    from binpick.detection.config import load_detect_config
+    from binpick.detection.train import DetectorTrainer
+
+    trainer = start_or_resume(DetectorTrainer, config, resume, runs, load_detect_config, parse_settings(settings),
+                              where=lambda job: f" at epoch {job.epoch}")
+    console.print(f"{len(trainer.train_set)} training tasks")
+    with progress() as callback:
+        metrics = trainer.run(callback)
+    final = metrics["final"]
+    console.print(f"val AP50 {fmt_metric(final.get('ap50'))}, mAP {fmt_metric(final.get('map'))}; wrote {trainer.run_dir / 'model.safetensors'}")
+
+
+@detect_app.command("pickability")
+def detect_pickability(
+    config: Annotated[Path | None, typer.Argument(help="YAML config (see configs/pickability_crop.yaml)")] = None,
+    resume: Annotated[Path | None, typer.Option(help="Run folder to continue from its latest checkpoint")] = None,
+    runs: Annotated[Path, typer.Option(help="Where new run folders go")] = Path("runs"),
+    settings: ConfigSetOption = None,
+) -> None:
+    """Teach a detector a second look at each detection (will the policy pick this copy?): windows cut
+    once, a checkpoint each epoch, TensorBoard, the best val ROC AUC kept; model.safetensors in
+    runs/<name>/<time>/ is the detector with its pickability head."""
+    from binpick.config import load_config
+    from binpick.detection.pickability_training import (
+        PickabilityConfig,
+        PickabilityTrainer,
+    )
+
+    trainer = start_or_resume(PickabilityTrainer, config, resume, runs,
+                              lambda path, overrides: load_config(PickabilityConfig, path, overrides),
+                              parse_settings(settings), where=lambda job: f" at epoch {job.epoch}")
+    with progress() as callback:
+        metrics = trainer.run(callback)
+    console.print(f"best val ROC AUC {fmt_metric(metrics['best_val_auc'])}; wrote {trainer.run_dir / 'model.safetensors'} "
+                  f"(binpick detect eval {trainer.run_dir} --data ...)")
+
+
+@grasp_app.command("train")
+def grasp_train(
+    config: Annotated[Path | None, typer.Argument(help="YAML config (see configs/grasp_quality.yaml)")] = None,
+    resume: Annotated[Path | None, typer.Option(help="Run folder to continue from its latest checkpoint")] = None,
+    runs: Annotated[Path, typer.Option(help="Where new run folders go")] = Path("runs"),
+    settings: ConfigSetOption = None,
+) -> None:
+    """Train the grasp-quality network on a data set with --grasp-trials: a checkpoint each epoch,
+    TensorBoard, the best val ROC AUC kept, model.safetensors in runs/<name>/<time>/."""
+    from binpick.config import load_config
+    from binpick.grasping.training import QualityTrainConfig, QualityTrainer
+
+    trainer = start_or_resume(QualityTrainer, config, resume, runs, lambda path, overrides: load_config(QualityTrainConfig, path, overrides),
+                              parse_settings(settings), where=lambda job: f" at epoch {job.epoch}")
+    with progress() as callback:
+        metrics = trainer.run(callback)
+    console.print(f"best val ROC AUC {fmt_metric(metrics['best_val_auc'])}; wrote {trainer.run_dir / 'model.safetensors'} "
+                  f"(use it with binpick pick --grasp learnt --grasp-weights)")
+
+
+@detect_app.command("eval")
+def detect_eval(
+    run: Annotated[Path, typer.Argument(help="Run folder, model.safetensors or a shipped name (rod_tiny_320)")],
+    data: Annotated[Path, typer.Option(help="COCO annotations file (e.g. runs/data/bins_2000/annotations_test.json)")],
+    targets: Annotated[str | None, typer.Option(help="all | pickable:<policy> (default: as trained)")] = None,
+    out: Annotated[Path | None, typer.Option(help="Write the metrics JSON and a PR-curve PNG here (a folder)")] = None,
+    pickability: Annotated[bool, typer.Option(help="Re-score with the weights' pickability head, if they hold one")] = True,
+) -> None:
+    """AP50 and mAP@[.5:.95] (pycocotools) against the targets, all instances and unpickable ones."""
+    from binpick.detection import Detector
+
+    if out is not None:
+        ensure_dir(out, "--out")
+    detector = Detector.load(run, pickability=pickability)
+    with progress() as callback:
+        metrics = detector.val(data, targets, callback=callback)
+    table = Table(title=f"{run} on {data} ({metrics['tasks']} tasks, targets {metrics['targets']})")
+    for column in ("ground truth", "AP50", "mAP"):
+        table.add_column(column)
+    table.add_row("targets", fmt_metric(metrics["ap50"]), fmt_metric(metrics["map"]))
+    table.add_row("all instances", fmt_metric(metrics["ap50_all"]), fmt_metric(metrics["map_all"]))
+    table.add_row("unpickable (lower is better)", fmt_metric(metrics["ap50_unpickable"]), fmt_metric(metrics["map_unpickable"]))
+    console.print(table)
+    if metrics.get("scenes_trained_on"):
+        console.print(f"warning: {metrics['scenes_trained_on']} of these scenes were in the weights' training set "
+                      "(data sets made with one generator --seed share scenes): these figures are not held out", style="yellow")
+    if out is not None:
+        from binpick.viz.detection import plot_pr_curves
+
+        atomic_write_json(out / "metrics.json", metrics)
+        plot_pr_curves({str(run.name): {**metrics["pr"], "ap50": metrics["ap50"] or 0.0}}, out / "pr_curve.png", f"{data.name}")
+        console.print(f"wrote {out / 'metrics.json'} and {out / 'pr_curve.png'}")
+
+
+@detect_app.command("predict")
+def detect_predict(
+    image: Annotated[Path, typer.Argument(help="Scene image (PNG/JPEG)")],
+    weights: Annotated[Path | None, typer.Option(help="Run folder, model.safetensors or a shipped name (default: the shipped model for the query kind)")] = None,
+    query_box: Annotated[str | None, typer.Option(help="Known instance x,y,w,h in pixels")] = None,
+    query_image: Annotated[Path | None, typer.Option(help="Product photo to look for (photo-conditioned models)")] = None,
+    depth: Annotated[Path | None, typer.Option(help="The scene's depth: 16-bit PNG in mm or .npy in metres (detectors that read depth)")] = None,
+    out: Annotated[Path | None, typer.Option(help="Overlay PNG: query blue, detections orange with scores, a legend")] = None,
+    heatmap: Annotated[Path | None, typer.Option(help="PNG of the ROD levels' max heatmaps, titled, with a colour bar")] = None,
+    min_score: Annotated[float, typer.Option(help="Detections below this score are not printed or drawn")] = 0.3,
+    pickability: Annotated[bool, typer.Option(help="Re-score with the weights' pickability head, if they hold one (it needs --depth)")] = True,
+) -> None:
+    """Find the other instances of the query; prints JSON boxes (x, y, w, h) and scores."""
+    from binpick.config import check_range
+    from binpick.detection import Detector
+    from binpick.detection.detector import PICKING
+    from binpick.detection.predict import parse_box
+
+    check_range("--min-score", min_score, 0.0, 1.0)
+    for path, option in ((out, "--out"), (heatmap, "--heatmap")):
+        if path is not None:
+            check_png_path(path, option)
+    detector = Detector.load(weights or (PICKING if query_image is not None else "rod_tiny_320"), pickability=pickability)
+    box = parse_box(query_box) if query_box is not None else None
+    import warnings
+
+    with warnings.catch_warnings(record=True) as notes:
+        warnings.simplefilter("always")
+        prediction = detector.predict(image, box, query_image, min_score=min_score, depth=depth)
+    for note in notes:
+        console.print(f"note: {note.message}", style="yellow")
+    print(json.dumps(prediction.to_json(min_score)))  # as drawn: what still scores min_score after a head's second look
+    if out is not None:
+        save_png(prediction.plot(), out, "--out")
+    if heatmap is not None:
+        save_png(prediction.plot_heatmaps(), heatmap, "--heatmap")

@@ -1,0 +1,201 @@
+"""Orders and plans: `binpick pick`, `binpick plan`, `binpick demo`."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.table import Table
+from rich.text import Text
+
+from binpick.cli.app import (
+    DEFAULT_POLICY,
+    app,
+    check_png_path,
+    console,
+    parse_dimensions,
+    product_library,
+    progress,
+    save_png,
+    seed_option,
+)
+from binpick.errors import ConfigError
+from binpick.files import check_output_file, ensure_dir
+
+
+@app.command("pick")
+def pick(
+    product: Annotated[str, typer.Option(help="Product(s) to order: ids, unique short names or categories, comma-separated "
+                                              "(orders cycle through them); `binpick products list` shows them")],
+    products_file: Annotated[Path | None, typer.Option("--products", help="YAML of your own products (as for data generate)")] = None,
+    photo: Annotated[list[Path] | None, typer.Option(help="Your own shop photo of the product; repeat for several views "
+                                                        "(default: rendered catalogue views)")] = None,
+    orders: Annotated[int, typer.Option(help="Orders to fulfil (one new bin each)")] = 5,
+    weights: Annotated[Path | None, typer.Option(help="Photo-conditioned detector: run folder or .safetensors (default: shipped)")] = None,
+    grasp: Annotated[str, typer.Option(help="Grasp policy: learnt (grasp-quality model), analytic (across the "
+                                            "principal minor axis) or fixed (jaws along y, as before)")] = DEFAULT_POLICY,
+    grasp_weights: Annotated[Path | None, typer.Option(help="Grasp-quality weights for --grasp learnt (default: shipped)")] = None,
+    out: Annotated[Path | None, typer.Option(help="Folder for per-order GIFs, overlays, results.json and report.html "
+                                                  "(default: runs/pick/<time>)")] = None,
+    seed: Annotated[int, seed_option("Seed of the first order's bin")] = 0,
+) -> None:
+    """Fulfil orders end to end: shop photo -> ROD -> grasp chosen from depth -> grasp -> order tote."""
+    from binpick.config import check_range
+    from binpick.detection import Detector
+    from binpick.detection.detector import PICKING
+    from binpick.grasping import GraspPlanner
+    from binpick.warehouse.pipeline import PickPipeline
+
+    check_range("orders", orders, 1, 100_000, integer=True)
+    planner = GraspPlanner.load(grasp, grasp_weights)  # a bad policy or weights file: one line, before any work
+    run_dir = ensure_dir(out or Path("runs/pick") / time.strftime("%Y%m%d-%H%M%S"), "--out")
+    library = product_library(products_file)
+    products = [pid for name in product.split(",") if name.strip() for pid in library.resolve(name.strip())]
+    if not products:
+        raise ConfigError(f"--product {product!r} names no product: give ids or categories, e.g. robosuite/milk,can")
+    if photo:
+        if len(products) != 1:
+            raise ConfigError("--photo is the photo of one product: give exactly one product id with it")
+        from dataclasses import replace
+
+        from binpick.detection.data import read_image
+
+        for path in photo:
+            read_image(path)  # unreadable -> one line now, not mid-run
+        library.add(replace(library[products[0]], photos=tuple(photo)))
+    model = Detector.load(weights or PICKING).inference_network
+    _fulfil(PickPipeline(model, library, grasp=planner), products, orders, seed, run_dir)
+
+
+@app.command("plan")
+def plan(
+    rgb: Annotated[Path | None, typer.Option(help="Colour image (PNG/JPEG), registered with the depth image")] = None,
+    depth: Annotated[Path | None, typer.Option(help="Depth image: 16-bit PNG in millimetres or .npy in metres (0: no reading), "
+                                                    "at the colour's size or one of the same aspect")] = None,
+    camera: Annotated[Path | None, typer.Option(help="camera.yaml: ROS camera_info layout, plus camera_to_base (the camera's pose in the robot's base frame)")] = None,
+    sample: Annotated[bool, typer.Option(help="Plan on the sample frame that ships with binpick (a bin seen by a realistic "
+                                              "RGB-D sensor, tilted; its shop photo unless --query-box)")] = False,
+    photo: Annotated[list[Path] | None, typer.Option(help="Shop photo of the ordered product (a transparent PNG's alpha marks the "
+                                                        "product); repeat for several photos of it (the best match counts)")] = None,
+    query_box: Annotated[str | None, typer.Option(help="Or: x,y,w,h of the instance to pick in the colour image (planned "
+                                                       "first, then the copies of it that the detector finds)")] = None,
+    copies_only: Annotated[bool, typer.Option(help="With --query-box: plan on the other copies only, not the instance "
+                                                   "pointed at (repeated-object evaluation)")] = False,
+    out: Annotated[Path, typer.Option(help="plan.json: grasps (position, quaternion x,y,z,w in the base frame), scores, boxes")] = Path("plan.json"),
+    overlay: Annotated[Path | None, typer.Option(help="PNG of the frame with detections and the planned jaws, numbered")] = None,
+    weights: Annotated[Path | None, typer.Option(help="Detector: run folder or .safetensors (default: the shipped one for the query)")] = None,
+    grasp: Annotated[str, typer.Option(help="Grasp policy: learnt, analytic or fixed")] = DEFAULT_POLICY,
+    grasp_weights: Annotated[Path | None, typer.Option(help="Grasp-quality weights for --grasp learnt (default: shipped)")] = None,
+    max_grasps: Annotated[int, typer.Option(help="Plan grasps for this many detections (best first)")] = 3,
+    size: Annotated[str | None, typer.Option(help="The product's catalogue dimensions L,W,H in metres: instances clearly "
+                                                  "bigger are not grasped")] = None,
+) -> None:
+    """Plan grasps from one real RGB-D frame: no simulator. Prints the best grasp; writes plan.json."""
+    import numpy as np
+
+    from binpick.config import check_range
+    from binpick.detection.predict import parse_box
+    from binpick.files import atomic_write_text
+    from binpick.picking import Picker
+    from binpick.picking.frames import read_frame, read_photo
+
+    check_range("--max-grasps", max_grasps, 1, 100, integer=True)
+    if sample:
+        from binpick.samples import SAMPLE_FRAME
+
+        rgb, depth, camera = rgb or SAMPLE_FRAME / "rgb.png", depth or SAMPLE_FRAME / "depth.png", camera or SAMPLE_FRAME / "camera.yaml"
+        photo = photo if photo or query_box is not None else [SAMPLE_FRAME / "photo.png"]
+    if rgb is None or depth is None or camera is None:
+        raise ConfigError("give the frame's --rgb, --depth and --camera (or --sample for the frame that ships with binpick)")
+    if (not photo) == (query_box is None):
+        raise ConfigError("give exactly one of --photo (the product's shop photo; repeatable) or --query-box x,y,w,h")
+    if out.suffix.lower() != ".json":
+        raise ConfigError(f"--out must end in .json, got {str(out)!r}")
+    check_output_file(out, "--out")
+    if overlay is not None:
+        check_png_path(overlay, "--overlay")
+    box = parse_box(query_box) if query_box is not None else None
+    dimensions = parse_dimensions(size) if size is not None else None
+    colour, metres, info = read_frame(rgb, depth, camera)
+    query = [read_photo(path) for path in photo] if photo else None
+    if box is not None and (box[0] < 0 or box[1] < 0 or box[0] + box[2] > colour.shape[1] or box[1] + box[3] > colour.shape[0]):
+        raise ConfigError(f"--query-box {query_box!r} lies outside the {colour.shape[1]}x{colour.shape[0]} colour image")
+    crop = weights if box is not None else None
+    picker = Picker.load(None if box is not None else weights, grasp, grasp_weights, crop_detector=crop, max_grasps=max_grasps)
+    if copies_only and box is None:
+        raise ConfigError("--copies-only goes with --query-box (the instance whose copies to plan on)")
+    plans = picker.plan(colour, metres, info, photo=query, query_box=box, size=dimensions, copies_only=copies_only)
+    result = {"inputs": {"rgb": str(rgb), "depth": str(depth), "camera": str(camera),
+                         "photo": [str(path) for path in photo] if photo else None, "query_box": query_box, "copies_only": copies_only,
+                         "size": dimensions},
+              "grasp_policy": grasp, **plans.to_json()}
+    atomic_write_text(out, json.dumps(result, indent=1))
+    if overlay is not None:
+        save_png(plans.plot(colour, info.camera, picker.grasp.gripper.opening, query, box), overlay, "--overlay")
+    best = plans.grasps[0] if plans.grasps else None
+    if best is None:
+        reasons: dict[str, int] = {}
+        for p in plans:
+            for k, n in p.rejected.items():
+                reasons[k] = reasons.get(k, 0) + n
+        why = [f"{plans.not_the_product} failed the product check"] if plans.not_the_product else []
+        why += [f"{k} x{n}" for k, n in reasons.items()]
+        console.print(f"no feasible grasp: {plans.detections} detection(s){': ' + '; '.join(why) if why else ''} -> {out}", soft_wrap=True)
+    else:
+        x, y, z = best.position
+        console.print(f"{len(plans.grasps)} grasp(s) from {plans.detections} detections in {plans.timing_ms['total']:.0f} ms; best: "
+                      f"({x:.3f}, {y:.3f}, {z:.3f}) m in {plans.frame}, yaw {np.degrees(best.yaw):.0f} deg, "
+                      f"width {100 * best.width:.1f} cm, score {best.score:.2f} -> {out}", soft_wrap=True)
+
+
+def _fulfil(pipeline, products: list[str], orders: int, seed: int, run_dir: Path) -> dict:
+    """Run the orders with a progress bar, then print their table and the summary."""
+    from binpick.warehouse.pipeline import fulfil
+
+    table = Table(title=f"{orders} order{'s' if orders > 1 else ''}")
+    for column in ("order", "product", "trained", "result", "grasps", "found", "s"):
+        table.add_column(column, no_wrap=column != "result")  # long failure reasons wrap; the rest stays whole
+    with progress() as callback, callback.task("orders", orders) as task:
+
+        def row(result) -> None:
+            seen = "?" if result.seen is None else "yes" if result.seen else "no"
+            outcome = Text("placed", style="green") if result.success else Text(str(result.reason), style="red")
+            table.add_row(str(result.order), result.product, seen, outcome,
+                          str(result.grasps), str(result.detections), f"{result.seconds:.1f}")
+            task.update(advance=1)
+
+        summary, _ = fulfil(pipeline, products, orders, seed, run_dir, on_order=row)
+    console.print(table)
+    right = "n/a" if summary["right_product"] is None else format(summary["right_product"], ".0%")
+    console.print(f"pick success {summary['pick_success']:.0%}, right product {right}, {summary['picks_per_min']} picks/min, "
+                  f"{summary['orders']} orders in {summary['wall_s']} s")
+    console.print(f"report: {run_dir / 'report.html'} (GIFs and results.json beside it)", soft_wrap=True)
+    return summary
+
+
+# The demo's orders, in turn: four products the shipped detector was trained on, two held out (duck, can).
+DEMO_PRODUCTS = ("robosuite/milk", "robosuite/cereal", "pybullet/duck", "procedural/box_03", "robosuite/bottle", "robosuite/can")
+
+
+@app.command("demo")
+def demo(
+    orders: Annotated[int, typer.Option(help="Orders to fulfil (products cycle through the demo's list)")] = 6,
+    out: Annotated[Path | None, typer.Option(help="Folder for the report, GIFs and results.json (default: runs/demo/<time>)")] = None,
+    seed: Annotated[int, seed_option("Seed of the first order's bin")] = 0,
+) -> None:
+    """The main job: fulfil a handful of orders end to end with the shipped detector, products seen in
+    its training and zero-shot ones, and write an HTML report with each order's detections and GIF."""
+    from binpick.config import check_range
+    from binpick.detection import Detector
+    from binpick.detection.detector import PICKING
+    from binpick.grasping import GraspPlanner
+    from binpick.sim import default_library
+    from binpick.warehouse.pipeline import PickPipeline
+
+    check_range("orders", orders, 1, 1000, integer=True)
+    run_dir = ensure_dir(out or Path("runs/demo") / time.strftime("%Y%m%d-%H%M%S"), "--out")
+    model = Detector.load(PICKING).inference_network
+    _fulfil(PickPipeline(model, default_library(), grasp=GraspPlanner.load(DEFAULT_POLICY)), list(DEMO_PRODUCTS), orders, seed, run_dir)

@@ -1,0 +1,189 @@
+"""The ROS bridges: `binpick ros master|serve|bench|pick-node`, `binpick ros2 pick-node`."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from binpick.cli.app import DEFAULT_POLICY, console, product_library, ros2_app, ros_app
+from binpick.errors import ConfigError
+from binpick.files import atomic_write_json, check_output_file
+
+MasterOption = Annotated[str | None, typer.Option("--master", help="ROS master URI (default: $ROS_MASTER_URI)")]
+NamespaceOption = Annotated[str, typer.Option(help="Action namespace clients connect to, e.g. /binpick/env")]
+
+
+def _check_timeout(timeout: float) -> float:
+    from binpick.config import check_range
+
+    return check_range("--timeout", timeout, 0.0, 3600.0, low_inclusive=False)
+
+
+def _check_namespace(namespace: str, option: str = "--namespace") -> str:
+    import re
+
+    if not re.fullmatch(r"/?[A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*/?", namespace):
+        raise ConfigError(f"{option} must be a ROS graph name like /binpick/env (letters, digits, _ and /), "
+                          f"got {namespace!r}")
+    return namespace
+
+
+def _ros_environment(master: str | None, timeout: float) -> None:
+    """Point this process's ROS node at ``master`` on 127.0.0.1 (before rospy is imported), and wait up
+    to ``timeout`` seconds for it to answer: rospy would wait forever."""
+    import os
+
+    from binpick.ros import (
+        check_master_uri,
+        local_ros_environment,
+        require_ros,
+        wait_for_master,
+    )
+
+    uri = master or os.environ.get("ROS_MASTER_URI")
+    if not uri:
+        raise ConfigError("no ROS master: give --master http://127.0.0.1:PORT/ or set ROS_MASTER_URI")
+    check_master_uri(uri)
+    require_ros()
+    wait_for_master(uri, timeout)
+    os.environ.update({k: v for k, v in local_ros_environment(uri).items() if k not in os.environ or k == "ROS_MASTER_URI"})
+
+
+@ros_app.command("master")
+def ros_master(port: Annotated[int, typer.Option(min=1, max=65535, help="Port on 127.0.0.1")] = 11311) -> None:
+    """Run a ROS master on 127.0.0.1 until Ctrl-C or SIGTERM (both stop the master process too)."""
+    import signal
+
+    from binpick.ros.master import RosMaster
+
+    def stop(*_: object) -> None:
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, stop)  # `kill` of this command must not leave rosmaster listening
+    try:  # a stop while rosmaster still starts is as clean as one later (RosMaster stops its child either way)
+        with RosMaster(port) as master:
+            console.print(f"ROS master at {master.uri} (Ctrl-C to stop)")
+            master.process.wait()
+    except KeyboardInterrupt:
+        pass
+
+
+@ros_app.command("serve")
+def ros_serve(
+    env_id: Annotated[str, typer.Argument(help="binpick env id, e.g. binpick/FetchReach-v0")],
+    namespace: NamespaceOption = "/binpick/env",
+    master: MasterOption = None,
+    timeout: Annotated[float, typer.Option(help="Seconds to wait for the ROS master")] = 10.0,
+) -> None:
+    """Serve an env as an actionlib server: goals reset or step it, results carry observation and reward."""
+    from binpick.envs import resolve_env_id
+
+    env_id = resolve_env_id(env_id)
+    _check_namespace(namespace)
+    _ros_environment(master, _check_timeout(timeout))
+    from binpick.ros.server import serve
+
+    serve(env_id, namespace)
+
+
+@ros_app.command("bench")
+def ros_bench(
+    namespace: Annotated[str, typer.Option(help="Action namespace of a served Fetch env, e.g. /binpick/env")] = "/binpick/env",
+    episodes: Annotated[int, typer.Option(help="Episodes of the scripted reach policy")] = 10,
+    master: MasterOption = None,
+    json_out: Annotated[Path | None, typer.Option("--json", help="Also write the summary here")] = None,
+    timeout: Annotated[float, typer.Option(help="Seconds to wait for the server and for each result")] = 10.0,
+) -> None:
+    """Drive a served Fetch env over ROS with the scripted reach policy: success and round-trip latency."""
+    from binpick.config import check_range
+
+    check_range("episodes", episodes, 1, 100_000, integer=True)
+    _check_namespace(namespace)
+    if json_out is not None:
+        check_output_file(json_out, "--json")
+    _ros_environment(master, _check_timeout(timeout))
+    import gymnasium as gym
+    import numpy as np
+
+    from binpick.rl.evaluate import evaluate_policy
+    from binpick.rl.heuristic import ReachController
+
+    env = gym.make("binpick/Ros-v0", namespace=namespace, timeout=timeout)
+    result = evaluate_policy(ReachController(env.action_space.shape[0]), env, episodes=episodes, seed=0)
+    trips = np.array(env.unwrapped.round_trips_ms)
+    summary = {**result.to_dict(), "round_trips": int(trips.size), "median_ms": round(float(np.median(trips)), 3),
+               "p95_ms": round(float(np.percentile(trips, 95)), 3), "namespace": namespace}
+    print(json.dumps(summary))
+    if json_out is not None:
+        atomic_write_json(json_out, summary)
+
+
+NodeCamera = Annotated[Path | None, typer.Option("--camera", help="camera.yaml whose camera_to_base places the camera in the robot's "
+                                                                   "base frame (intrinsics come from the camera_info topic)")]
+ColourTopic = Annotated[str, typer.Option(help="sensor_msgs/Image colour topic")]
+DepthTopic = Annotated[str, typer.Option(help="sensor_msgs/Image depth topic, registered to colour (16UC1 mm or 32FC1 m)")]
+InfoTopic = Annotated[str, typer.Option(help="sensor_msgs/CameraInfo of the colour camera")]
+NodeProducts = Annotated[Path | None, typer.Option("--products", help="YAML of your own products (ids goals may name)")]
+NodeWeights = Annotated[Path | None, typer.Option(help="Photo-conditioned detector (default: shipped)")]
+NodeGrasp = Annotated[str, typer.Option(help="Grasp policy: learnt, analytic or fixed")]
+NodeGraspWeights = Annotated[Path | None, typer.Option(help="Grasp-quality weights (default: shipped)")]
+COLOUR, DEPTH, INFO = "/camera/color/image_raw", "/camera/aligned_depth_to_color/image_raw", "/camera/color/camera_info"
+
+
+def _pick_node_setup(camera: Path | None, namespace: str, colour: str, depth: str, info: str, weights: Path | None, grasp: str,
+                     grasp_weights: Path | None):
+    """Checked names, then the extrinsic (a camera.yaml's camera_to_base; identity without one), the
+    picker and the topics: everything a pick node needs before ROS starts."""
+    import numpy as np
+
+    from binpick.picking import Picker, read_camera_info
+    from binpick.picking.node import Topics
+
+    for name, option in ((namespace, "--namespace"), (colour, "--colour-topic"), (depth, "--depth-topic"), (info, "--info-topic")):
+        _check_namespace(name, option)
+    pose, frame, workspace = np.eye(4), "camera", None
+    if camera is not None:
+        calibration = read_camera_info(camera)
+        pose, frame, workspace = calibration.camera.camera_to_world, calibration.base_frame, calibration.workspace
+    # the camera_info topic brings K and D; camera.yaml's workspace bounds every pose the node emits
+    return pose, frame, Picker.load(weights, grasp, grasp_weights, workspace=workspace), Topics(colour, depth, info)
+
+
+@ros_app.command("pick-node")
+def ros_pick_node(
+    camera: NodeCamera = None,
+    namespace: Annotated[str, typer.Option(help="Action namespace of the PlanPick server")] = "/binpick/plan_pick",
+    colour_topic: ColourTopic = COLOUR, depth_topic: DepthTopic = DEPTH, info_topic: InfoTopic = INFO,
+    products_file: NodeProducts = None, weights: NodeWeights = None, grasp: NodeGrasp = DEFAULT_POLICY,
+    grasp_weights: NodeGraspWeights = None,
+    master: MasterOption = None,
+    timeout: Annotated[float, typer.Option(help="Seconds to wait for the ROS master")] = 10.0,
+) -> None:
+    """Serve pick planning over ROS 1: camera topics in, a PlanPick action (grasp poses in the base frame) out."""
+    pose, frame, picker, topics = _pick_node_setup(camera, namespace, colour_topic, depth_topic, info_topic, weights, grasp, grasp_weights)
+    library = product_library(products_file)
+    _ros_environment(master, _check_timeout(timeout))
+    from binpick.ros.pick_node import serve
+
+    serve(picker, pose, frame, namespace, topics, library)
+
+
+@ros2_app.command("pick-node")
+def ros2_pick_node(
+    camera: NodeCamera = None,
+    namespace: Annotated[str, typer.Option(help="Namespace of the goal/result topics")] = "/binpick/plan_pick",
+    colour_topic: ColourTopic = COLOUR, depth_topic: DepthTopic = DEPTH, info_topic: InfoTopic = INFO,
+    products_file: NodeProducts = None, weights: NodeWeights = None, grasp: NodeGrasp = DEFAULT_POLICY,
+    grasp_weights: NodeGraspWeights = None,
+) -> None:
+    """Serve pick planning over ROS 2 (run with .venv-ros2/bin/binpick): camera topics in, grasp poses out."""
+    from binpick.ros2 import require_ros2
+
+    require_ros2()
+    pose, frame, picker, topics = _pick_node_setup(camera, namespace, colour_topic, depth_topic, info_topic, weights, grasp, grasp_weights)
+    from binpick.ros2.pick_node import serve
+
+    serve(picker, pose, frame, namespace, topics, product_library(products_file))

@@ -1,0 +1,64 @@
+"""`binpick train CONFIG`: every trainable thing through one command (the config's ``task:`` picks the job)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.table import Table
+
+from binpick.cli.app import ConfigSetOption, app, console, parse_settings, progress
+from binpick.errors import ConfigError
+
+
+@app.command("train")
+def train(
+    config: Annotated[Path | None, typer.Argument(help="YAML config with a task: key (rl, april, detect, pickability, "
+                                                       "grasp_quality, data); see configs/")] = None,
+    resume: Annotated[Path | None, typer.Option(help="Run folder (or data-set folder) to continue")] = None,
+    runs: Annotated[Path, typer.Option(help="Where new run folders go (a data set goes to its config's out)")] = Path("runs"),
+    settings: ConfigSetOption = None,
+    list_tasks: Annotated[bool, typer.Option("--list", help="List the tasks and their config keys, then exit")] = False,
+) -> None:
+    """Train what CONFIG describes, or continue a run with --resume: checkpoints, TensorBoard and metrics.json
+    in runs/<name>/<time>/; Ctrl-C or a crash loses at most the work since the last checkpoint."""
+    from binpick import jobs
+
+    if list_tasks:
+        table = Table(title="binpick train: tasks")
+        for column in ("task", "trains", "config keys"):
+            table.add_column(column, no_wrap=column == "task")
+        for task, what, keys in jobs.describe():
+            table.add_row(task, what, ", ".join(keys))
+        console.print(table)
+        return
+    if (config is None) == (resume is None):
+        raise ConfigError("give either a CONFIG file to start a run or --resume RUN_DIR to continue one")
+    if resume is not None:
+        if settings:
+            raise ConfigError("--set applies to new runs; a resumed run keeps its config.yaml")
+        kind = jobs.job_kind_of_run(resume)
+        job = kind.job_class().resume(resume)
+        done = jobs.progress(resume)
+        console.print(f"resuming {resume} ({kind.task}){'' if done is None else f' at {done} {kind.steps_key}'}")
+    else:
+        kind, settings_ = jobs.load_job_config(config, parse_settings(settings))
+        job = kind.job_class().new(settings_, runs)
+        console.print(f"{kind.task}: {job.run_dir}")
+    with progress() as callback:
+        metrics = job.run(callback)
+    done = jobs.progress(job.run_dir)
+    console.print(f"done: {'' if done is None else f'{done} {kind.steps_key}; '}{summary(metrics)}; run folder {job.run_dir}")
+
+
+def summary(metrics: dict) -> str:
+    """The run's headline figures, whichever job it was."""
+    parts = []
+    for key in ("final_success", "best_val_auc", "scenes", "images"):
+        if isinstance(value := metrics.get(key), (int, float)):
+            parts.append(f"{key} {value:.3f}" if isinstance(value, float) else f"{key} {value}")
+    final = metrics.get("final")
+    if isinstance(final, dict) and isinstance(final.get("ap50"), (int, float)):
+        parts.append(f"val AP50 {final['ap50']:.3f}")
+    return ", ".join(parts) or "finished"

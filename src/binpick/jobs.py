@@ -1,0 +1,161 @@
+"""Every trainable thing as one kind of job, picked by the ``task:`` key of its config.
+
+``binpick train CONFIG`` and :func:`train` read the config's ``task`` (``rl``, ``april``, ``detect``,
+``recurrent``, ``pickability``, ``grasp_quality``, ``data``), validate the rest once as that task's config dataclass
+(with ``--set`` overrides applied first) and run the job: ``Job.new(config, runs)``, or
+``Job.resume(run_dir)`` for a run folder, then ``job.run(callback) -> metrics``. A run folder says
+which job it belongs to by what it holds, so ``--resume`` needs no task.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import importlib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from binpick.config import apply_overrides, from_dict, load_yaml
+from binpick.errors import ConfigError
+from binpick.runs import SILENT, RunCallback
+
+TASK_KEY = "task"
+
+
+@dataclass(frozen=True)
+class JobKind:
+    """One task: where its config dataclass and job class live, and how far a finished run came."""
+
+    task: str
+    what: str
+    config: str  # "module:ConfigClass"
+    job: str  # "module:JobClass" (new / resume / run)
+    steps_key: str  # the key of metrics.json that counts its progress (steps, epochs, scenes)
+
+    def config_class(self) -> type:
+        return _attribute(self.config)
+
+    def job_class(self) -> type:
+        return _attribute(self.job)
+
+
+KINDS: dict[str, JobKind] = {kind.task: kind for kind in [
+    JobKind("rl", "reinforcement learning (SAC/DQN with GP + HER, A3C)", "binpick.rl.config:RLConfig",
+            "binpick.rl.train:RLRun", "sim_steps"),
+    JobKind("april", "APRiL: perception on the state, policy on the state, deployed on pixels",
+            "binpick.april.config:AprilConfig", "binpick.april.pipeline:AprilRun", "policy_sim_steps"),
+    JobKind("detect", "repeated object detection (ROD, TDID)", "binpick.detection.config:DetectConfig",
+            "binpick.detection.train:DetectorTrainer", "epochs"),
+    JobKind("recurrent", "the recurrent repeated-object detector (the thesis's rejected first design)",
+            "binpick.detection.recurrent_training:RecurrentTrainConfig", "binpick.detection.recurrent_training:RecurrentRun",
+            "images_seen"),
+    JobKind("pickability", "the pickability head on detections", "binpick.detection.pickability_training:PickabilityConfig",
+            "binpick.detection.pickability_training:PickabilityTrainer", "epochs"),
+    JobKind("grasp_quality", "the grasp-quality model on grasp trials", "binpick.grasping.training:QualityTrainConfig",
+            "binpick.grasping.training:QualityTrainer", "epochs"),
+    JobKind("data", "a warehouse bin data set (scenes, labels, COCO)", "binpick.warehouse.generation:GenerateConfig",
+            "binpick.warehouse.dataset:DataGeneration", "scenes"),
+]}
+
+
+def _attribute(spec: str):
+    module, _, name = spec.partition(":")
+    return getattr(importlib.import_module(module), name)
+
+
+def kind_of(task: Any, where: str) -> JobKind:
+    """The job kind named by a config's ``task``; anything else is one line with the nearest names."""
+    if isinstance(task, str) and task in KINDS:
+        return KINDS[task]
+    near = difflib.get_close_matches(str(task), KINDS, n=1)
+    hint = f" (did you mean {near[0]!r}?)" if near else ""
+    if task is None:
+        raise ConfigError(f"{where}: no 'task:' key; give one of {', '.join(KINDS)}")
+    raise ConfigError(f"{where}: task {task!r} is not a job{hint}; known: {', '.join(KINDS)}")
+
+
+def load_job_config(path: str | Path, overrides: dict[str, Any] | None = None) -> tuple[JobKind, Any]:
+    """The job kind and its validated config: ``task`` from the file (or an override), the rest
+    validated once as that kind's config dataclass, overrides applied before validation."""
+    path = Path(path)
+    data = apply_overrides(load_yaml(path), overrides)
+    kind = kind_of(data.pop(TASK_KEY, None), path.name)
+    return kind, from_dict(kind.config_class(), data, where=path.name)
+
+
+def job_kind_of_run(run_dir: str | Path) -> JobKind:
+    """Which job a run folder belongs to: a data set holds ``dataset.json``, APRiL ``stages.json``;
+    the others hold the config they were started with, which only their own dataclass accepts."""
+    run_dir = Path(run_dir)
+    if (run_dir / "dataset.json").is_file():
+        return KINDS["data"]
+    if (run_dir / "stages.json").is_file():  # (before its first stage ends, its config.yaml tells)
+        return KINDS["april"]
+    if not (run_dir / "config.yaml").is_file():
+        raise ConfigError(f"{str(run_dir)!r} is not a run folder (no config.yaml, stages.json or dataset.json)")
+    data = load_yaml(run_dir / "config.yaml")
+    data.pop(TASK_KEY, None)
+    fits = []
+    for kind in KINDS.values():
+        if kind.task == "data":
+            continue
+        try:
+            from_dict(kind.config_class(), data, where="config.yaml")
+        except (ConfigError, TypeError, ValueError):
+            continue
+        fits.append(kind)
+    if len(fits) != 1:
+        raise ConfigError(f"{str(run_dir / 'config.yaml')!r} is not the config of one job "
+                          f"({'none' if not fits else ', '.join(k.task for k in fits)} accept it)")
+    return fits[0]
+
+
+def new_job(config: str | Path, runs: str | Path = "runs", overrides: dict[str, Any] | None = None):
+    """A new run of the job a config file describes (its folder is made under ``runs``)."""
+    kind, settings = load_job_config(config, overrides)
+    return kind.job_class().new(settings, Path(runs))
+
+
+def resume_job(run_dir: str | Path):
+    """A run folder's job, continued with the config it was started with."""
+    return job_kind_of_run(run_dir).job_class().resume(Path(run_dir))
+
+
+def progress(run_dir: str | Path) -> int | None:
+    """How far a run folder's job has come, in its own unit: simulator steps of RL (APRiL: of its
+    policy stage), epochs of the trainers, scenes of a data set; None before anything is recorded."""
+    from binpick.files import read_json
+
+    run_dir = Path(run_dir)
+    kind = job_kind_of_run(run_dir)
+    if kind.task == "data":
+        return len(list((run_dir / "scenes").glob("*.json")))
+    if kind.task == "april":
+        stages = read_json(run_dir / "stages.json") if (run_dir / "stages.json").is_file() else {}
+        return (stages.get("policy") or {}).get("sim_steps")
+    if not (run_dir / "metrics.json").is_file():
+        return None
+    value = read_json(run_dir / "metrics.json").get(kind.steps_key)
+    return int(value) if isinstance(value, (int, float)) else None
+
+
+def train(config: str | Path | None = None, *, resume: str | Path | None = None, runs: str | Path = "runs",
+          callback: RunCallback = SILENT, **overrides: Any) -> dict[str, Any]:
+    """Train whatever ``config`` describes (``task:`` picks the job), or continue ``resume``'s run;
+    keyword overrides use ``SECTION__KEY`` for ``SECTION.KEY`` (``train__epochs=2``). Returns the
+    job's metrics."""
+    if (config is None) == (resume is None):
+        raise ConfigError("give either a config file to start a run or resume=RUN_DIR to continue one")
+    if resume is not None:
+        if overrides:
+            raise ConfigError("overrides apply to new runs; a resumed run keeps its own config")
+        return resume_job(resume).run(callback)
+    dotted = {key.replace("__", "."): value for key, value in overrides.items()}
+    return new_job(config, runs, dotted).run(callback)
+
+
+def describe() -> list[tuple[str, str, list[str]]]:
+    """(task, what it trains, its config's top-level keys) for every job kind: ``binpick train --list``."""
+    return [(kind.task, kind.what, [f.name for f in dataclasses.fields(kind.config_class())]) for kind in KINDS.values()]
+

@@ -1,0 +1,172 @@
+"""`binpick train CONFIG` trains every kind of job, and a run stopped by Ctrl-C (SIGINT) continues with
+`binpick train --resume RUN` to the same final count an uninterrupted run reaches: RL and APRiL's policy
+to their simulator steps, the detector, pickability and grasp-quality trainers to their epochs, a data
+set to its scenes. Each run is a real CLI process, interrupted once its first checkpoint is on disk."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+from synthetic_coco import make_coco
+
+from binpick import jobs
+from binpick.errors import ConfigError
+
+CLI = [sys.executable, "-c", "from binpick.cli import main; main()"]
+TINY_SAC = {"env": "FetchReach", "algorithm": "sac", "min_action_scale": 0.4, "checkpoint_every": 50,
+            "replay": {"capacity_episodes": 100, "her_additions": 1, "start_fraction": 0.01},
+            "gp": {"enabled": True, "warmup_episodes": 2, "refit_every": 100, "imagined_per_real": 1, "batch_episodes": 8,
+                   "iterations": 3, "max_points": 60},
+            "sac": {"batch_size": 16, "net_arch": [8, 8]}, "eval": {"every": 100, "episodes": 1}}
+
+
+def checkpointed(run: Path) -> bool:
+    return any(not p.name.startswith(".partial") for p in run.glob("checkpoints/ckpt-*"))
+
+
+def rl_setup(tmp: Path):
+    config = {"task": "rl", "name": "tiny_rl", "total_timesteps": 300, **TINY_SAC}
+    return config, 300, checkpointed
+
+
+def april_setup(tmp: Path):
+    policy = {"name": "tiny_policy", "total_timesteps": 300, **TINY_SAC}
+    (tmp / "policy.yaml").write_text(yaml.safe_dump(policy))
+    config = {"task": "april", "name": "tiny_april", "env": "FetchReach", "image": "grey", "collect": {"episodes": 2},
+              "perception": {"kind": "ae", "latent": 6, "conditioned": 6, "omega": 1.0, "channels": 4},
+              "perception_training": {"epochs": 1, "batch_size": 16},
+              "policy": {"mode": "semantic", "rl_config": str(tmp / "policy.yaml"), "finetune_steps": 0},
+              "eval": {"episodes": 1}}
+    return config, 300, lambda run: any(not p.name.startswith(".partial") for p in run.glob("rl/**/checkpoints/ckpt-*"))
+
+
+def detect_setup(tmp: Path):
+    coco = make_coco(tmp / "coco", images=8, size=64, seed=1)
+    config = {"task": "detect", "name": "tiny_detect",
+              "data": {"train": str(coco), "val": str(coco), "targets": "all", "image_size": 64, "augment": False},
+              "train": {"epochs": 8, "batch_size": 4, "warmup_steps": 1, "eval_every": 1, "workers": 0, "threads": 1}}
+    return config, 8, checkpointed
+
+
+def pickability_setup(tmp: Path):
+    import torch
+
+    from binpick.detection.model import DetectorNetwork, ModelSpec
+    from binpick.detection.train import save_detector
+
+    train = make_coco(tmp / "train", images=24, seed=3, pickable=True, depth=True, pickable_rule="small")
+    val = make_coco(tmp / "val", images=8, seed=4, pickable=True, depth=True, pickable_rule="small")
+    torch.manual_seed(0)
+    save_detector(DetectorNetwork(ModelSpec(), 128), tmp / "detector.safetensors")
+    config = {"task": "pickability", "name": "tiny_pickability", "detector": str(tmp / "detector.safetensors"),
+              "train": [str(train)], "val": str(val), "epochs": 8, "batch_size": 16, "width": 8, "threads": 1}
+    return config, 8, checkpointed
+
+
+def grasp_quality_setup(tmp: Path):
+    from binpick.warehouse.dataset import DataGeneration, GenerateConfig
+
+    data = tmp / "trials"
+    DataGeneration.new(GenerateConfig(out=str(data), scenes=4, policies=[], grasp_trials=2, workers=1, image_size=128,
+                                      copies=(2, 3), distractors=(0, 1), targets=["can", "procedural_box"],
+                                      scenes_per_world=1, val_fraction=0.5)).run()
+    config = {"task": "grasp_quality", "name": "tiny_quality", "data": str(data), "epochs": 8, "batch_size": 2, "threads": 1}
+    return config, 8, checkpointed
+
+
+def data_setup(tmp: Path):
+    config = {"task": "data", "out": str(tmp / "bins"), "scenes": 6, "scenes_per_world": 1, "workers": 1, "image_size": 64,
+              "policies": [], "copies": [2, 3], "distractors": [0, 1], "val_fraction": 0.34}
+    return config, 6, lambda run: len(list(run.glob("scenes/*.json"))) >= 1
+
+
+SETUPS = {"rl": rl_setup, "april": april_setup, "detect": detect_setup, "pickability": pickability_setup,
+          "grasp_quality": grasp_quality_setup, "data": data_setup}
+
+
+def run_folder(config: dict, runs: Path) -> Path | None:
+    if config["task"] == "data":
+        return Path(config["out"]) if Path(config["out"], "dataset.json").is_file() else None
+    found = sorted(p for p in (runs / config["name"]).glob("*") if p.is_dir()) if (runs / config["name"]).is_dir() else []
+    return found[-1] if found else None
+
+
+@pytest.mark.parametrize("task", list(SETUPS))
+def test_binpick_train_runs_each_job_and_resumes_it_after_ctrl_c_to_the_same_end(task, tmp_path):
+    config, target, ready = SETUPS[task](tmp_path)
+    path, runs = tmp_path / f"{task}.yaml", tmp_path / "runs"
+    path.write_text(yaml.safe_dump(config))
+    environment = {**os.environ, "OMP_NUM_THREADS": "1", "COLUMNS": "400"}
+    process = subprocess.Popen([*CLI, "train", str(path), "--runs", str(runs)], cwd=tmp_path, env=environment,
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 300
+    while time.monotonic() < deadline and process.poll() is None:
+        run = run_folder(config, runs)
+        if run is not None and ready(run):
+            break
+        time.sleep(0.02)
+    assert process.poll() is None, f"{task} ended before its first checkpoint could be interrupted:\n{process.communicate()[1][-2000:]}"
+    process.send_signal(signal.SIGINT)
+    _, stderr = process.communicate(timeout=120)
+    assert process.returncode != 0, stderr[-2000:]
+    run = run_folder(config, runs)
+    stopped_at = jobs.progress(run)
+    assert stopped_at is None or stopped_at < target, f"{task} had finished ({stopped_at}) before Ctrl-C"
+    assert jobs.job_kind_of_run(run).task == task
+    resumed = subprocess.run([*CLI, "train", "--resume", str(run)], cwd=tmp_path, env=environment,
+                             capture_output=True, text=True, timeout=600)
+    assert resumed.returncode == 0, resumed.stderr[-3000:]
+    assert f"resuming {run} ({task})" in resumed.stdout
+    assert jobs.progress(run) == target, resumed.stdout[-2000:]
+
+
+def test_a_config_names_its_task_once_and_a_wrong_one_is_one_line(tmp_path):
+    path = tmp_path / "c.yaml"
+    path.write_text(yaml.safe_dump({"task": "detct", "name": "x"}))
+    with pytest.raises(ConfigError, match=r"task 'detct' is not a job \(did you mean 'detect'\?\)"):
+        jobs.load_job_config(path)
+    path.write_text(yaml.safe_dump({"name": "x"}))
+    with pytest.raises(ConfigError, match="no 'task:' key"):
+        jobs.load_job_config(path)
+    path.write_text(yaml.safe_dump({"task": "rl", "total_timesteps": 100, "gp": {"bogus": 1}}))
+    with pytest.raises(ConfigError, match="bogus"):
+        jobs.load_job_config(path)
+    kind, config = jobs.load_job_config(_write(tmp_path, {"task": "april"}), {"total_timesteps": 123, "task": "rl"})
+    assert kind.task == "rl" and config.total_timesteps == 123
+    result = subprocess.run([*CLI, "train", str(_write(tmp_path, {"task": "nope"}))], capture_output=True, text=True)
+    assert result.returncode == 2 and result.stderr.count("\n") == 1 and "known: rl, april" in result.stderr
+
+
+def _write(folder: Path, config: dict) -> Path:
+    path = folder / f"{len(list(folder.glob('*.yaml')))}.yaml"
+    path.write_text(yaml.safe_dump(config))
+    return path
+
+
+def test_every_config_in_the_repository_loads_as_its_job():
+    root = Path(__file__).resolve().parents[1] / "configs"
+    files = sorted(root.rglob("*.yaml"))
+    assert files
+    for path in files:
+        kind, _ = jobs.load_job_config(path)
+        assert kind.task in jobs.KINDS, path
+
+
+def test_binpick_train_in_python_takes_overrides_as_keywords(tmp_path):
+    import binpick
+
+    config, _, _ = detect_setup(tmp_path)
+    path = _write(tmp_path, config)
+    metrics = binpick.train(path, runs=tmp_path / "runs", train__epochs=2)
+    assert metrics["epochs"] == 2
+    (run,) = (tmp_path / "runs" / "tiny_detect").iterdir()
+    assert jobs.progress(run) == 2 and binpick.Detector.load(run).network is not None
+    with pytest.raises(ConfigError, match="keeps its own config"):
+        binpick.train(resume=run, train__epochs=3)
