@@ -87,7 +87,7 @@ NOTES = {  # what a reader needs to read a table right
     "FetchReach": (
         "The 2026-12-01 rows (ground truth, ω = 1, `_two_views`, `_refined_on_pixels`, `_goals*`) share one state policy "
         "(same config and seed: the same ground-truth row); ω = 0.5, `_refined` and ω = 0 are 2026-11-22 runs. Why the plain pixels row fails is measured in "
-        "the diagnosis section below (`benchmarks/april_diagnosis.py`): not occlusion (the goal is visible in the failed "
+        "the diagnosis section below (the `april_diagnosis` note (docs/notes.md)): not occlusion (the goal is visible in the failed "
         "episodes) but a goal estimate that does not generalise. Collected with one goal per episode, perception sees 300 "
         "goals and learns them by heart: on its own training images the goal is off by 0.9-1.3 cm per axis, on the first "
         "frame of a new episode by 1.4-2.4 cm, and as the arm acts on its own estimates the error grows (10 cm in failed "
@@ -109,7 +109,7 @@ NOTES = {  # what a reader needs to read a table right
         "the gripper to the goal in 5% of episodes and never across it (driving straight at the goal: 99%), so a policy "
         "blind to it lost nothing (ground truth 3.11 actions, 100%; the thesis's blind policy went from 3.10 to 8.45) and "
         "free latents had nothing to carry. `obstacle_on_path: 1.0, obstacle_half_size: 0.03` puts a 6 cm box across that "
-        "line wherever there is room (55% of episodes; driving straight: 75%; `benchmarks/april_diagnosis.py --obstacle`). "
+        "line wherever there is room (55% of episodes; driving straight: 75%; the `april_diagnosis` note (docs/notes.md)). "
         "There the blind state policy reaches 72% (17.33 actions) and, deployed on n = m = 6 pixels, 58% (25.14). A state "
         "policy that also reads the box position (`privileged_state`, SAC + HER, 30,000 steps) does no better (70%, 18.49): "
         "it never learnt to go round the box, which a script that knows the box does (`detour_teacher`: 97%, 6.86). "
@@ -119,7 +119,7 @@ NOTES = {  # what a reader needs to read a table right
         "comes from distillation (the student learns on the states it reaches), not from the free features: with a teacher "
         "whose actions depend on the box, the two free features (trained for reconstruction alone) do not carry it well "
         "enough to imitate, and the student with them does worse; with 10 free features (n = 16, m = 6) 47% (30.94), still "
-        "below none. The thesis's central claim is not reproduced here. Why (`april_diagnosis.py RUN --probe-box`, "
+        "below none. The thesis's central claim is not reproduced here. Why (the `april_diagnosis` note (docs/notes.md), "
         "2026-12-01): a probe for the box centre on 500 held-out reset images does no better from all n features than "
         "from the m = 6 conditioned ones (linear: 10.26 vs 10.02 cm for n = 8, 9.56 vs 10.12 for n = 16; 10 nearest "
         "neighbours: 9.52 vs 9.55; the mean alone 12.96), and the decoder drew the arm but neither box nor goal: the "
@@ -138,7 +138,7 @@ NOTES = {  # what a reader needs to read a table right
         "shoulder in some random-policy images; a linear map from one view's image position to the box's 3D centre is "
         "itself approximate), though the decoder does not draw the box from its blob (the picture's bottom row). The "
         "student distilled at 10,000 steps is no better for it (42%, 33.02). Why: students that read the simulator's truth "
-        "instead of φ_enc(I), distilled the same way (`april_diagnosis.py RUN --distill-ceiling`), reach 75% blind to the box "
+        "instead of φ_enc(I), distilled the same way (the `april_diagnosis` note (docs/notes.md)), reach 75% blind to the box "
         "and **52% with its exact centre**: at 10,000 DAgger steps knowing the box makes a student worse, so no perception "
         "could have put n = 8 below n = m = 6 in those rows; they measured the imitation, not the features. At 40,000 "
         "steps (`_40k` rows, `--steps 40000`) the truth students reach 94% (9.53 actions) blind and 91% (11.46) with the box: "
@@ -146,7 +146,7 @@ NOTES = {  # what a reader needs to read a table right
         "lies on the path when there is room). The 40,000-step pixel rows: n = 8 keypoints 23.28 (65%), n = 8 dense (the "
         "thesis's layer) 24.79 (62%), n = m = 6 25.65 (62%) on the 100 evaluation episodes, but 25.36 (59.2%), 25.37 "
         "(60.8%) and 25.71 (60.2%) on 400 fresh ones (`--recheck 400`): a tie. All three sit ~30 points under their truth students: the failed episodes are the ones where φ_enc(I) puts the "
-        "gripper 2.4 cm off (median; 1.75 cm in successful ones, against the detour's 3 cm clearance; `april_diagnosis.py "
+        "gripper 2.4 cm off (median; 1.75 cm in successful ones, against the detour's 3 cm clearance; the `april_diagnosis` note (docs/notes.md) "
         "RUN`). Perception trained 80 epochs with the rate decayed to 0 (`_cosine80`; held-out s̄ error 1.55 against 1.74 "
         "cm) lifts n = m = 6 to 22.35 (68%), 20.85 (70.5%) on the 400 fresh episodes: s̄'s precision is what these rows "
         "lack. The same for n = 8 keypoints gives 25.87 (56%), 27.00 (53.0%) on 400: with the better s̄ the two free "
@@ -156,7 +156,7 @@ NOTES = {  # what a reader needs to read a table right
         "every detour), shown first with the truth students, and then s̄ read to well under the clearance. "
         "**2026-12-02, later: the box on the path half the time** (`obstacle_on_path: 0.5`, rows `_on_path0.5`; the "
         "box crosses the straight line in 28% of episodes and lies anywhere in the rest, so a student blind to it cannot "
-        "tell which; detour teacher 99%, 4.38 actions). Truth students first (`april_diagnosis.py RUN --distill-ceiling`, "
+        "tell which; detour teacher 99%, 4.38 actions). Truth students first (the `april_diagnosis` note (docs/notes.md), "
         "40,000 DAgger steps, diagnosis section below): blind 97% (8.16); with the box's exact centre 96% (6.56); with the "
         "box's exact (x, y) in the workspace image, what a free keypoint on the box gives at n = 8, m = 6 "
         "(`--box-in-view`), **98% (5.33)**: here the free features' information pays, and by as much as in the thesis's "
@@ -182,7 +182,7 @@ NOTES = {  # what a reader needs to read a table right
         "**2026-12-02, third: the goal read closely.** `_two_views`: the side camera's frame stacked with the workspace "
         "one; `_goalkp`: `perception.goal_keypoints: 2`, one heat map per view trained to sit where s̄'s goal lies in it "
         "(s̄ projected with the cameras' poses), read by a small MLP into the conditioned part. s̄'s goal on new "
-        "episodes, mean error per axis (`april_diagnosis.py RUN --episodes 200`): one view 1.83 / 1.43 / 2.02 cm, two "
+        "episodes, mean error per axis (the `april_diagnosis` note (docs/notes.md)): one view 1.83 / 1.43 / 2.02 cm, two "
         "views 0.52 / 0.85 / 0.57, two views with goal keypoints 0.32 / 0.75 / 0.50 (y, along which the side view looks, "
         "stays the worst). n = m = 6 on 400 fresh episodes: one view 13.54 (84.5%), two views 12.35 (87.0%), goal "
         "keypoints **9.59 (93.5%)** and from seed 1 10.45 (92.5%), near the blind truth student's 8.16. What it still "
@@ -209,7 +209,7 @@ NOTES = {  # what a reader needs to read a table right
         "object, so these rows measure that fine-tuning step rather than the latents. `_two_views` (a side camera, its own state policy: "
         "27.75 actions, 96% on the true state) reaches 13%, and with goals redrawn every 5 collection steps (`_goals5_two_views`) "
         "20%: perception still missed the goal by 2.0-3.9 cm per axis and the cube by 1.2-1.6 cm on new episodes "
-        "(`april_diagnosis`), too coarse for a grasp and the 5 cm tolerance. Its s̄ loss was still falling steeply at epoch 30: "
+        "(the `april_diagnosis` note (docs/notes.md)), too coarse for a grasp and the 5 cm tolerance. Its s̄ loss was still falling steeply at epoch 30: "
         "trained 80 epochs with the rate decayed to 0 (`perception_training.schedule: cosine`, rows `_cosine80`) the same "
         "images give 35%, with the cube found within 0.8 cm and the goal within 1.7-2.7 cm per axis on new episodes "
         "(1.1-1.3 cm on training images). "
@@ -219,7 +219,7 @@ NOTES = {  # what a reader needs to read a table right
         "images) but reached 22%: first-frame errors no longer rank these rows. 200 more episodes each (`binpick april eval "
         "RUN --episodes 200 --seed 30000`, `recheck` in the JSON): 28.5% for `_goals5_cosine80_two_views`, 20.5% for "
         "`_goals_cosine80_two_views`, so the best row is 29-35%. "
-        "**Why (2026-12-01, `april_diagnosis.py RUN --substitute`, 40 episodes each):** not the goal. Deployed on pixels "
+        "**Why (2026-12-01, the `april_diagnosis` note (docs/notes.md), 40 episodes each):** not the goal. Deployed on pixels "
         "with the true goal in place of φ_enc(I)'s the `_cosine80` row reaches 25% (30% without), with the true gripper "
         "22.5%, with the true cube 82.5% and with both 87.5%. The cube is lifted in 15% "
         "of the episodes: the arm closes on it and then holds it on the table until the episode ends. On the true state "
@@ -314,7 +314,8 @@ def main() -> None:
             results = merge("FetchPickAndPlace", {"heuristic": {"avg_actions": result.mean_length, "std": result.std_length,
                                                                 "success": result.success_rate, "sim_episodes": 0}})
             continue
-        config = load_april_config(_common.ROOT / "configs" / f"{name}.yaml")
+        config_file, overrides = _common.recipe(name)
+        config = load_april_config(config_file, overrides)
         env = config.env.split("/")[1].removesuffix("-v0")
         existing = sorted((_common.ROOT / args.runs / config.name).glob("*/stages.json"))
         if existing and not args.fresh:
@@ -332,7 +333,7 @@ def main() -> None:
             rows = recheck(run, rows, args.recheck)
         if "ground_truth" in rows and name != GROUND_TRUTH_FROM.get(env):
             rows.pop("ground_truth")  # the table's ground-truth row comes from the env's first config
-        results = merge(env, {row: values | {"config": f"configs/{name}.yaml",
+        results = merge(env, {row: values | {"config": str(config_file.relative_to(_common.ROOT)) + "".join(f" --set {k}={v}" for k, v in overrides.items() if k != "name"),
                                              "run_dir": str(run.run_dir.relative_to(_common.ROOT))}
                               for row, values in rows.items()})
         IMAGES.mkdir(parents=True, exist_ok=True)

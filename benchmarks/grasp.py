@@ -4,14 +4,14 @@
         --copies 3,6 --distractors 2,3 --held-out can,mug,toy --workers 2 --sensor realistic   # trials (resumable)
     binpick data generate --out runs/data/grasp_trials_perfect --scenes 400 --policies '' --grasp-trials 4 \\
         --copies 3,6 --distractors 2,3 --held-out can,mug,toy --workers 2 --seed 1                  # perfect depth too
-    python benchmarks/grasp.py train                  # configs/grasp_quality.yaml: trains, ships the weights
+    python benchmarks/grasp.py train                  # configs/grasping/grasp_quality.yaml: trains, ships the weights
     python benchmarks/grasp.py eval --data runs/data/grasp_trials_realistic --data runs/data/grasp_trials_perfect \\
         [--bins 40]                                   # results/grasp.json: both kinds of depth
     binpick data generate --out runs/data/bins_learnt --scenes 1000 --policies learnt --workers 2 \
         --held-out can,mug,toy --set split_rule=random                         # pickability by the learnt policy
     python benchmarks/grasp.py pickability                                     # fine-tunes ROD on it, before/after
-    binpick detect pickability configs/pickability_photo_learnt_window.yaml --runs runs/grasp   # the shipped second look
-    binpick detect pickability configs/pickability_photo_learnt.yaml --runs runs/grasp   # one that also sees the photo
+    binpick detect pickability configs/detection/pickability_photo_learnt_window.yaml --runs runs/grasp   # the shipped second look
+    binpick detect pickability configs/detection/pickability_photo_learnt.yaml --runs runs/grasp   # one that also sees the photo
     python benchmarks/grasp.py pickability --head RUN [--head RUN]             # ... a row per head
 
 ``eval`` reports (a) the model's ROC AUC on the held-out categories' trials (test split: products it
@@ -43,7 +43,7 @@ POLICIES = ["fixed", "analytic", "learnt"]
 
 
 def train() -> None:
-    """The shipped model's recipe (configs/grasp_quality.yaml), resumed if its newest run stopped."""
+    """The shipped model's recipe (configs/grasping/grasp_quality.yaml), resumed if its newest run stopped."""
     from binpick.config import load_config
     from binpick.grasping.quality import SHIPPED, GraspQuality
     from binpick.grasping.training import QualityTrainConfig, QualityTrainer
@@ -53,7 +53,7 @@ def train() -> None:
     if folder is not None and not finished(folder):
         trainer = QualityTrainer.resume(folder)
     else:
-        trainer = QualityTrainer.new(load_config(QualityTrainConfig, _common.ROOT / "configs" / "grasp_quality.yaml"), RUNS)
+        trainer = QualityTrainer.new(load_config(QualityTrainConfig, _common.recipe("grasp_quality")[0]), RUNS)
     with RichCallback() as callback:
         metrics = trainer.run(callback)
     print(f"best val AUC {metrics['best_val_auc']} after {metrics['epochs']} epochs in {trainer.run_dir}", flush=True)
@@ -254,7 +254,7 @@ def pickability(heads_given: list[str] | None = None) -> None:
     against those it cannot, before and after, on seen (val) and held-out (test) products. The
     fine-tuned weights are its run's (``runs/grasp/rod_finetune_photo_learnt``, finished here if it
     stopped) or, without that folder, the shipped ``rod_photo_learnt_tiny_320`` (that run's weights in
-    float16; its head switched off). ``heads_given``: runs of ``configs/pickability_photo_learnt.yaml``
+    float16; its head switched off). ``heads_given``: runs of ``configs/detection/pickability_photo_learnt.yaml``
     (or ``newest``): the fine-tuned detector with a second look at each detection, a row each."""
     import json
 
@@ -278,7 +278,7 @@ def pickability(heads_given: list[str] | None = None) -> None:
             run_dir = folder
         else:
             trainer = DetectorTrainer.resume(folder) if folder is not None else DetectorTrainer.new(
-                load_detect_config(_common.ROOT / "configs" / f"{name}.yaml"), RUNS)
+                load_detect_config(_common.recipe(name)[0]), RUNS)
             with RichCallback() as callback:
                 trainer.run(callback)
             run_dir = trainer.run_dir
@@ -307,8 +307,8 @@ def pickability(heads_given: list[str] | None = None) -> None:
         head_dir = run_folder(RUNS, "pickability_photo_learnt") if given == "newest" else Path(given)
         found = [head_dir / n for n in ("model.safetensors", "best.safetensors") if head_dir is not None and (head_dir / n).is_file()]
         if not found:
-            raise SystemExit(f"no run of configs/pickability_photo_learnt.yaml with weights at {given}: "
-                             "binpick detect pickability configs/pickability_photo_learnt.yaml --runs runs/grasp")
+            raise SystemExit(f"no run of configs/detection/pickability_photo_learnt.yaml with weights at {given}: "
+                             "binpick detect pickability configs/detection/pickability_photo_learnt.yaml --runs runs/grasp")
         label = "head_" + head_dir.resolve().parent.name  # the run's config name
         heads[label] = (head_dir.resolve(), found[0])  # the finished run's head, or the best so far of one stopped
         measure.append((label, found[0]))
@@ -354,7 +354,7 @@ def main() -> None:
                                                                   "products' trials to score (repeatable; default: the realistic one)")
     parser.add_argument("--bins", type=int, default=40)
     parser.add_argument("--head", action="append", help="pickability: also the fine-tuned detector with a pickability head, a run "
-                                                        "of configs/pickability_photo_learnt.yaml (a folder, or 'newest' under runs/grasp); repeatable")
+                                                        "of configs/detection/pickability_photo_learnt.yaml (a folder, or 'newest' under runs/grasp); repeatable")
     args = parser.parse_args()
     os.chdir(_common.ROOT)
     if args.phase == "train":

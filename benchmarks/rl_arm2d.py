@@ -38,43 +38,43 @@ from binpick.config import load_run_config  # noqa: E402
 from binpick.terminal import RichCallback  # noqa: E402
 
 RUNS = {
-    "a3c": ("configs/rl_arm2d_a3c.yaml", 0.0),
-    "dqn": ("configs/rl_arm2d_dqn.yaml", 0.0),
+    "a3c": ("configs/rl/rl_arm2d_a3c.yaml", 0.0),
+    "dqn": ("configs/rl/rl_arm2d_dqn.yaml", 0.0),
     # Table 3.2's pair: end to end from 32 px, pretrained perception, a semantic bottleneck with the state learner's
     # two layers on it (depth, not the reading, was found to be what kept pixel learners behind)
-    "curriculum_whole_area": ("configs/rl_arm2d_curriculum_keypoints_bottleneck_deep.yaml", 1.0),
-    "no_curriculum_whole_area": ("configs/rl_arm2d_no_curriculum_keypoints_bottleneck_deep.yaml", 1.0),
+    "curriculum_whole_area": ("configs/rl/rl_arm2d_curriculum_keypoints_bottleneck_deep.yaml", 1.0),
+    "no_curriculum_whole_area": ("configs/rl/rl_arm2d_no_curriculum_keypoints_bottleneck_deep.yaml", 1.0),
     # the way there, each row kept with the key it was measured under. First the thesis-style network
     # with a flattened trunk, whose curriculum starts from the single-goal "a3c" run (init_from)
-    "curriculum_flat_whole_area": ("configs/rl_arm2d_curriculum.yaml", 1.0),
-    "no_curriculum_flat_whole_area": ("configs/rl_arm2d_no_curriculum.yaml", 1.0),
+    "curriculum_flat_whole_area": ("configs/rl/rl_arm2d_curriculum.yaml", 1.0),
+    "no_curriculum_flat_whole_area": ("configs/rl/rl_arm2d_no_curriculum.yaml", 1.0),
     # the same with a3c.encoder: keypoints, each training its own single-goal start
-    "curriculum_keypoints_whole_area": ("configs/rl_arm2d_curriculum_keypoints.yaml", 1.0),
-    "no_curriculum_keypoints_whole_area": ("configs/rl_arm2d_no_curriculum_keypoints.yaml", 1.0),
+    "curriculum_keypoints_whole_area": ("configs/rl/rl_arm2d_curriculum_keypoints.yaml", 1.0),
+    "no_curriculum_keypoints_whole_area": ("configs/rl/rl_arm2d_no_curriculum_keypoints.yaml", 1.0),
     # ... plus the auxiliary state loss (a3c.state_weight)
-    "curriculum_keypoints_state_whole_area": ("configs/rl_arm2d_curriculum_keypoints_state.yaml", 1.0),
-    "no_curriculum_keypoints_state_whole_area": ("configs/rl_arm2d_no_curriculum_keypoints_state.yaml", 1.0),
+    "curriculum_keypoints_state_whole_area": ("configs/rl/rl_arm2d_curriculum_keypoints_state.yaml", 1.0),
+    "no_curriculum_keypoints_state_whole_area": ("configs/rl/rl_arm2d_no_curriculum_keypoints_state.yaml", 1.0),
     # the same learner on the arm's semantic state instead of pixels (a3c.encoder: state): perception taken away
-    "curriculum_state_whole_area": ("configs/rl_arm2d_curriculum_state.yaml", 1.0),
-    "no_curriculum_state_whole_area": ("configs/rl_arm2d_no_curriculum_state.yaml", 1.0),
+    "curriculum_state_whole_area": ("configs/rl/rl_arm2d_curriculum_state.yaml", 1.0),
+    "no_curriculum_state_whole_area": ("configs/rl/rl_arm2d_no_curriculum_state.yaml", 1.0),
     # entropy bonus 0.01 instead of 0.001 (the state runs showed the policy stopped exploring)
-    "curriculum_state_entropy_whole_area": ("configs/rl_arm2d_curriculum_state_entropy.yaml", 1.0),
-    "no_curriculum_state_entropy_whole_area": ("configs/rl_arm2d_no_curriculum_state_entropy.yaml", 1.0),
-    "curriculum_keypoints_state_entropy_whole_area": ("configs/rl_arm2d_curriculum_keypoints_state_entropy.yaml", 1.0),
-    "no_curriculum_keypoints_state_entropy_whole_area": ("configs/rl_arm2d_no_curriculum_keypoints_state_entropy.yaml", 1.0),
+    "curriculum_state_entropy_whole_area": ("configs/rl/rl_arm2d_curriculum_state_entropy.yaml", 1.0),
+    "no_curriculum_state_entropy_whole_area": ("configs/rl/rl_arm2d_no_curriculum_state_entropy.yaml", 1.0),
+    "curriculum_keypoints_state_entropy_whole_area": ("configs/rl/rl_arm2d_curriculum_keypoints_state_entropy.yaml", 1.0),
+    "no_curriculum_keypoints_state_entropy_whole_area": ("configs/rl/rl_arm2d_no_curriculum_keypoints_state_entropy.yaml", 1.0),
     # the auxiliary head regresses angles as cos/sin (no jump at ±π), weight 1, 32 px pictures, 2M steps
-    "curriculum_keypoints_continuous_whole_area": ("configs/rl_arm2d_curriculum_keypoints_continuous.yaml", 1.0),
-    "no_curriculum_keypoints_continuous_whole_area": ("configs/rl_arm2d_no_curriculum_keypoints_continuous.yaml", 1.0),
+    "curriculum_keypoints_continuous_whole_area": ("configs/rl/rl_arm2d_curriculum_keypoints_continuous.yaml", 1.0),
+    "no_curriculum_keypoints_continuous_whole_area": ("configs/rl/rl_arm2d_no_curriculum_keypoints_continuous.yaml", 1.0),
     # ... whose network first learns to read the state off rendered pictures (a3c.pretrain_*), then RL from pixels
-    "curriculum_keypoints_pretrained_whole_area": ("configs/rl_arm2d_curriculum_keypoints_pretrained.yaml", 1.0),
-    "no_curriculum_keypoints_pretrained_whole_area": ("configs/rl_arm2d_no_curriculum_keypoints_pretrained.yaml", 1.0),
+    "curriculum_keypoints_pretrained_whole_area": ("configs/rl/rl_arm2d_curriculum_keypoints_pretrained.yaml", 1.0),
+    "no_curriculum_keypoints_pretrained_whole_area": ("configs/rl/rl_arm2d_no_curriculum_keypoints_pretrained.yaml", 1.0),
     # ... whose policy reads an MLP on the state its auxiliary head reads (a3c.policy_input: state_estimate)
-    "curriculum_keypoints_bottleneck_whole_area": ("configs/rl_arm2d_curriculum_keypoints_bottleneck.yaml", 1.0),
-    "no_curriculum_keypoints_bottleneck_whole_area": ("configs/rl_arm2d_no_curriculum_keypoints_bottleneck.yaml", 1.0),
+    "curriculum_keypoints_bottleneck_whole_area": ("configs/rl/rl_arm2d_curriculum_keypoints_bottleneck.yaml", 1.0),
+    "no_curriculum_keypoints_bottleneck_whole_area": ("configs/rl/rl_arm2d_no_curriculum_keypoints_bottleneck.yaml", 1.0),
     # ... with the state learner's depth on the state estimate (a3c.hidden_layers: 2): Table 3.2's pair above
     # the state learner acting on pixels through the frozen APRiL keypoint network (READ_STATE below)
-    "curriculum_read_state_whole_area": ("configs/rl_arm2d_curriculum_read_state.yaml", 1.0),
-    "no_curriculum_read_state_whole_area": ("configs/rl_arm2d_no_curriculum_read_state.yaml", 1.0),
+    "curriculum_read_state_whole_area": ("configs/rl/rl_arm2d_curriculum_read_state.yaml", 1.0),
+    "no_curriculum_read_state_whole_area": ("configs/rl/rl_arm2d_no_curriculum_read_state.yaml", 1.0),
 }
 KEYPOINTS = _common.ROOT / "runs" / "bench" / "arm2d_keypoints" / "keypoints.safetensors"  # rl_arm2d_april.py makes it
 READ_STATE = ("curriculum_read_state_whole_area", "no_curriculum_read_state_whole_area")
@@ -562,7 +562,7 @@ def headline_paragraph(results: dict) -> list[str]:
         return lines
     pretrain = row["pretrain"]
     lines += [
-        "Table 3.2's pair (`configs/rl_arm2d_curriculum_keypoints_bottleneck_deep.yaml` and "
+        "Table 3.2's pair (`configs/rl/rl_arm2d_curriculum_keypoints_bottleneck_deep.yaml` and "
         "`rl_arm2d_no_curriculum_keypoints_bottleneck_deep.yaml`; `python benchmarks/rl_arm2d.py --only curriculum "
         "no_curriculum`, each resumes) learns end to end from 32 px pictures, the thesis's network changed where the way "
         "there (below) found it failing: a keypoints trunk (each feature map's expected position, so what it learnt "

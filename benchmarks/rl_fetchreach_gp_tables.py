@@ -7,7 +7,7 @@ Table 3.3: a single goal, with a fixed start and with a noisy start (±10 cm): s
 GP episodes and the final average actions (thesis: 2.00 with 4 sim / 1,500 GP episodes; 6.69 with 79
 sim / 400,000 GP episodes). Table 3.4: random goals, α_HER x M: episodes in Ω when training starts
 (10% full) and training iterations (gradient steps) until average actions < 5 (thesis best: α=1,
-M=10^4, 12,700 iterations). Runs start from configs/rl_fetchreach_gp_her.yaml. Writes
+M=10^4, 12,700 iterations). Runs start from configs/rl/rl_fetchreach_gp_her.yaml. Writes
 results/rl_fetchreach_gp_tables.json and sections of docs/RESULTS.md.
 """
 
@@ -27,7 +27,7 @@ from binpick.rl.config import load_rl_config  # noqa: E402
 from binpick.rl.train import Trainer  # noqa: E402
 from binpick.terminal import RichCallback  # noqa: E402
 
-BASE = "configs/rl_fetchreach_gp_her.yaml"
+BASE = "configs/rl/rl_fetchreach_gp_her.yaml"
 GOAL = (0.1, 0.05, 0.05)  # the single goal of Table 3.3, metres from the gripper's start
 
 

@@ -2,8 +2,8 @@
 
     python benchmarks/rl_fetchreach_vs_sb3.py [--seeds 0 1 2] [--sb3-steps 20000] [--binpick-steps 6000] [--only tqc_her_zoo]
 
-Both run through binpick's trainer from configs/rl_fetchreach_sb3_sac_her.yaml and
-configs/rl_fetchreach_gp_her_fast.yaml (binpick's learner; configs/rl_fetchreach_gp_her.yaml, the thesis's
+Both run through binpick's trainer from configs/rl/rl_fetchreach_sb3_sac_her.yaml and
+configs/rl/rl_fetchreach_gp_her_fast.yaml (binpick's learner; configs/rl/rl_fetchreach_gp_her.yaml, the thesis's
 settings, is the binpick_thesis row), evaluating 50 seeded episodes every 1,000 (SB3) / 500 (binpick)
 simulator steps. Reported: simulator steps until eval success >= 95%, final success and average
 actions. Target: binpick needs <= 1/4 of SB3's simulator steps at the same final success, and <= 1/2 of
@@ -31,8 +31,8 @@ from binpick.rl.train import Trainer  # noqa: E402
 from binpick.terminal import RichCallback  # noqa: E402
 
 # binpick: its own learner (8 updates per simulator step); binpick_thesis: the thesis's settings (4)
-CONFIGS = {"sb3_sac_her": "configs/rl_fetchreach_sb3_sac_her.yaml", "binpick": "configs/rl_fetchreach_gp_her_fast.yaml",
-           "binpick_thesis": "configs/rl_fetchreach_gp_her.yaml"}
+CONFIGS = {"sb3_sac_her": "configs/rl/rl_fetchreach_sb3_sac_her.yaml", "binpick": "configs/rl/rl_fetchreach_gp_her_fast.yaml",
+           "binpick_thesis": "configs/rl/rl_fetchreach_gp_her.yaml"}
 PEERS = ["tqc_her_zoo"]  # run by this script with SB3 directly, as their users run them
 EVAL_EVERY, EVAL_EPISODES, EVAL_SEED, STOP_AFTER = 500, 50, 10_000, 3  # binpick's row's protocol (its config's eval)
 

@@ -55,7 +55,7 @@ def train(runs: Path, only: list[str] | None) -> None:
         if folder is not None:
             trainer = DetectorTrainer.resume(folder)
         else:
-            trainer = DetectorTrainer.new(load_detect_config(_common.ROOT / "configs" / f"{name}.yaml"), runs)
+            trainer = DetectorTrainer.new(load_detect_config(_common.recipe(name)[0]), runs)
         print(f"{name}: training in {trainer.run_dir} from epoch {trainer.epoch}", flush=True)
         with RichCallback() as callback:
             metrics = trainer.run(callback)
@@ -94,7 +94,7 @@ def stage_trainers(stage: str, runs: Path, overrides: dict, init: dict[str, Path
         if folder is not None:
             trainers.append(DetectorTrainer.resume(folder))
             continue
-        config_file = _common.ROOT / "configs" / (f"rod_pretrain_random_{query}.yaml" if stage == "pretrain" else f"rod_finetune_{query}.yaml")
+        config_file = _common.recipe(f"rod_pretrain_random_{query}" if stage == "pretrain" else f"rod_finetune_{query}")[0]
         settings = {**overrides, **changes, "name": name}
         if init is not None:
             settings["train.init_from"] = str(init[row])
@@ -583,11 +583,11 @@ PHOTO_MADE = {
     "rod_photo_tiny_320": "crop model fine-tuned on shop photos (Policy 1), no photo pre-training",
     "rod_photo_learnt_tiny_320": "`rod_photo_tiny_320` fine-tuned on the learnt policy's pickability",
     "pretrain_rod_photo": "photo pre-training on `random_20k` with randomised studio photos "
-                          "(`configs/rod_pretrain_random_photo.yaml`), not fine-tuned",
+                          "(`configs/detection/rod_pretrain_random_photo.yaml`), not fine-tuned",
     "finetune_rod_photo": "`pretrain_rod_photo` fine-tuned on Policy 1 pickability with 4 studio photos per product "
-                          "(`configs/rod_finetune_photo.yaml`, from it; not shipped)",
+                          "(`configs/detection/rod_finetune_photo.yaml`, from it; not shipped)",
     "rod_finetune_photo_rehearsed": "`pretrain_rod_photo` fine-tuned on Policy 1 pickability, rehearsing 750 randomised "
-                                    "bins per epoch (`configs/rod_finetune_photo_rehearsed.yaml`)",
+                                    "bins per epoch (`configs/detection/rod_finetune_photo_rehearsed.yaml`)",
 }
 
 
@@ -609,7 +609,7 @@ def photo_rows(weights: list[str], row_of: str | None) -> None:
         raise SystemExit(f"{SHIFTED} is missing: binpick data generate --out runs/data/shifted --domain shifted "
                          "--targets can,mug,toy --held-out can,mug,toy --policies '' --scenes 120 --scenes-per-world 4 --seed 7")
     if not (DATA / "annotations_test.json").is_file():
-        raise SystemExit(f"{DATA} is missing: see configs/rod_finetune_photo.yaml for the command that makes it")
+        raise SystemExit(f"{DATA} is missing: see configs/detection/rod_finetune_photo.yaml for the command that makes it")
     path = _common.RESULTS / "rod.json"
     result = json.loads(path.read_text())
     photo = result.setdefault("photo", {})

@@ -1,6 +1,6 @@
 """The crop-query detector with and without its pickability head (``seen.rod.ap50``).
 
-    binpick detect pickability configs/pickability_crop_query.yaml --runs runs/pick38
+    binpick detect pickability configs/detection/pickability_crop_query.yaml --runs runs/pick38
     python benchmarks/rod_pickability.py --weights runs/pick38/pickability_crop_query/<time>/model.safetensors \
         --data runs/data/bins_2000/annotations_val.json --data runs/data/bins_fresh_seed16/annotations_val.json \
         [--compare OTHER_HEAD.safetensors] [--ship]
@@ -116,8 +116,8 @@ def section(result: dict) -> str:
               "unpickable copies of the ordered product taken away, and with those on other products taken away. "
               "The detector alone lost about as much to boxes on other products as to boxes on copies Policy 1 cannot pick; "
               "a head that sees only the window can lower the second kind but not the first, which is why the shipped head "
-              "also reads the query: `configs/pickability_crop_query_base.yaml` (copies and the detector's own detections, "
-              "`proposals: 6`), then `configs/pickability_crop_query.yaml` from it (`init`), with a window on every other "
+              "also reads the query: `configs/detection/pickability_crop_query_base.yaml` (copies and the detector's own detections, "
+              "`proposals: 6`), then `configs/detection/pickability_crop_query.yaml` from it (`init`), with a window on every other "
               "product in each image (`distractors`). Its cost: on categories it never saw (the held-out row) comparing with "
               "the query misleads it, and it ranks below the window-only head there."]
     return "\n".join(lines)

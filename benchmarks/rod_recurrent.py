@@ -1,7 +1,7 @@
 """The recurrent repeated-object detector (thesis §5.2) beside ROD and TDID: a negative result is a result.
 
-    python benchmarks/rod_recurrent.py pretrain [--set images=16480]   # configs/rod_recurrent_pretrain.yaml (resumes)
-    python benchmarks/rod_recurrent.py finetune                        # configs/rod_recurrent_finetune.yaml (resumes)
+    python benchmarks/rod_recurrent.py pretrain [--set images=16480]   # configs/detection/rod_recurrent_pretrain.yaml (resumes)
+    python benchmarks/rod_recurrent.py finetune                        # configs/detection/rod_recurrent_finetune.yaml (resumes)
     python benchmarks/rod_recurrent.py report                          # results/rod.json -> recurrent, docs/RESULTS.md
     python benchmarks/rod_recurrent.py repeats                         # how often a step finds what an earlier one found
 
@@ -26,8 +26,8 @@ sys.path.insert(0, os.path.dirname(__file__))
 import _common  # noqa: E402
 import rod as rod_benchmark  # noqa: E402
 
-PRETRAIN = _common.ROOT / "configs" / "rod_recurrent_pretrain.yaml"
-FINETUNE = _common.ROOT / "configs" / "rod_recurrent_finetune.yaml"
+PRETRAIN = _common.recipe("rod_recurrent_pretrain")[0]
+FINETUNE = _common.recipe("rod_recurrent_finetune")[0]
 HELD_OUT = ["can", "mug", "toy"]
 SHIPPED_ROD = _common.ROOT / "src" / "binpick" / "detection" / "weights" / "rod_tiny_320.safetensors"
 

@@ -270,9 +270,13 @@ def test_row_names_say_what_differs_from_the_thesis_set_up(tmp_path):
     """Rows of another world, schedule or teacher never overwrite the thesis-protocol rows."""
     from binpick.april import AprilRun, load_april_config
     from binpick.april.evaluate import row_names
-    configs = Path(__file__).resolve().parents[1] / "configs"
+    configs = Path(__file__).resolve().parents[1] / "configs" / "april"
 
     def rows(name: str) -> dict:
+        seeded = re.fullmatch(r"(.+)_seed(\d+)", name)  # a seed is an override of its config, not a file of its own
+        if seeded:
+            return row_names(AprilRun(load_april_config(configs / f"{seeded.group(1)}.yaml",
+                                                        {"seed": int(seeded.group(2)), "name": name}), tmp_path))
         return row_names(AprilRun(load_april_config(configs / f"{name}.yaml"), tmp_path))
 
     assert rows("april_obstacle_n6_m6") == {"state": "ground_truth", "pixels": "pixels_ae_n6_m6_w1"}

@@ -142,7 +142,7 @@ def _verbs(root: Path, marker: Path, trained: Path) -> dict[str, tuple[list[str]
     latest = npz_run / "checkpoints" / (npz_run / "checkpoints" / "latest").read_text()
     object_npz_payload(latest / "replay.npz", marker)
     april = {"name": "a", "env": "FetchReach", "image": "grey",
-             "policy": {"mode": "semantic", "rl_config": str(Path(__file__).parents[1] / "configs" / "rl_fetchreach_gp_her.yaml")}}
+             "policy": {"mode": "semantic", "rl_config": str(Path(__file__).parents[1] / "configs" / "rl" / "rl_fetchreach_gp_her.yaml")}}
     semantic = root / "april_semantic"
     semantic.mkdir()
     (semantic / "config.yaml").write_text(yaml.safe_dump(april))
@@ -234,7 +234,7 @@ def test_python_loaders_refuse_crafted_files(tmp_path):
     april = tmp_path / "april"
     april.mkdir()
     (april / "config.yaml").write_text(yaml.safe_dump({"name": "a", "env": "FetchReach", "policy": {
-        "mode": "latent", "rl_config": str(Path(__file__).parents[1] / "configs" / "rl_fetchreach_gp_her.yaml")}}))
+        "mode": "latent", "rl_config": str(Path(__file__).parents[1] / "configs" / "rl" / "rl_fetchreach_gp_her.yaml")}}))
     (april / "stages.json").write_text(json.dumps({"policy": {}}))
     torch_payload(april / "perception.pt", marker)
     calls = {

@@ -68,7 +68,7 @@ def test_your_own_products_from_yaml_to_a_pick(tmp_path):
     assert (tmp_path / "mine" / "photos" / "acme_soap.png").is_file()  # the shop's first photo, as given
     assert (tmp_path / "mine" / "photos" / "acme_soap" / "0.png").is_file()  # and one from a randomised studio
 
-    run("detect", "train", str(ROOT / "configs" / "rod_warehouse_photo.yaml"), "--runs", "runs",
+    run("detect", "train", str(ROOT / "configs" / "detection" / "rod_warehouse_photo.yaml"), "--runs", "runs",
         "--set", "name=mine", "--set", "data.train=mine/annotations_train.json",
         "--set", "data.val=mine/annotations_val.json", "--set", "data.image_size=128", "--set", "data.targets=all",
         "--set", "train.epochs=1", "--set", "train.batch_size=2", "--set", "train.workers=0", cwd=tmp_path)

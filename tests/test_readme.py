@@ -86,8 +86,8 @@ TINY: list[tuple[str, str]] = [
     (r"--steps \d+", "--steps 60"),
     (r"^binpick envs tour$", "binpick envs tour --episodes 1"),
     (r"^binpick demo$", "binpick demo --orders 1"),
-    (r"^(binpick (?:rl )?train configs/rl_\S+.*)$", r"\1 " + " ".join(f"--set {k}={v}" for k, v in TINY_RL.items())),
-    (r"binpick\.train\(\"configs/rl_[^\n]*\)", lambda match: tiny_keywords(match.group(0))),
+    (r"^(binpick (?:rl )?train configs/rl/\S+.*)$", r"\1 " + " ".join(f"--set {k}={v}" for k, v in TINY_RL.items())),
+    (r"binpick\.train\(\"configs/rl/[^\n]*\)", lambda match: tiny_keywords(match.group(0))),
     (r"^(binpick april run configs/\S+.*)$", r"\1 --set collect.episodes=2 --set perception_training.epochs=1 "
                                             r"--set eval.episodes=1 --set policy.rl_config=tiny_rl.yaml"),
     (r"^(binpick grasp train configs/\S+.*)$", r"\1 --set epochs=1 --set batch_size=2 --set threads=1"),
@@ -125,7 +125,7 @@ def commands(block: str) -> list[str]:
 
 
 def tiny_keywords(call: str) -> str:
-    """``binpick.train("configs/rl_x.yaml", total_timesteps=300)`` with TINY_RL's settings as keywords
+    """``binpick.train("configs/rl/rl_x.yaml", total_timesteps=300)`` with TINY_RL's settings as keywords
     (SECTION__KEY), except those the call sets itself."""
     given = set(re.findall(r"(\w+)=", call))
     extra = [f"{key.replace('.', '__')}={value}" for key, value in TINY_RL.items() if key.replace(".", "__") not in given]

@@ -99,7 +99,7 @@ def test_cli_config_errors_are_one_line(tmp_path):
 def test_shipped_configs_load():
     from binpick.rl.config import load_rl_config
 
-    for path in Path(__file__).parents[1].glob("configs/rl_*.yaml"):
+    for path in Path(__file__).parents[1].glob("configs/rl/rl_*.yaml"):
         load_rl_config(path)
 
 

@@ -173,7 +173,7 @@ class ReadStateOffPixels:
     """An A3C ``wrap_env`` (binpick.rl.a3c_train): Arm2D's pictures in, the state its frozen keypoint network
     (weights at ``path``) reads off them out, so a state learner trains acting on pixels -- APRiL's split
     inside RL (through it, and through A3C's own coarser reading, the state learner learns Arm2D's
-    single goal at its pace from the true state; benchmarks/a3c_reading_error.py). A path, not a network, so
+    single goal at its pace from the true state; the `a3c_reading_error` note (docs/notes.md)). A path, not a network, so
     it pickles into A3C's spawned workers; each loads the weights itself."""
 
     path: str

@@ -1,4 +1,4 @@
-"""APRiL run configuration (``configs/april_*.yaml``): env and camera, data collection, perception
+"""APRiL run configuration (``configs/april/april_*.yaml``): env and camera, data collection, perception
 network, how the policy is trained and what it sees at deployment, evaluation.
 """
 
@@ -66,7 +66,7 @@ class PolicyConfig:
     """
 
     mode: str = "semantic"
-    rl_config: str = "configs/rl_fetchreach_gp_her.yaml"  # the semantic-state run (GP + HER)
+    rl_config: str = "configs/rl/rl_fetchreach_gp_her.yaml"  # the semantic-state run (GP + HER)
     state_run: str | None = None  # a finished `binpick rl` run to use as the state policy instead of training one
     pretrain: bool = True
     finetune_steps: int = 20_000  # simulator steps with images for latent / state_plus_latent

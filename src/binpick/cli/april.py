@@ -23,7 +23,7 @@ from binpick.errors import ConfigError
 
 @april_app.command("run")
 def april_run(
-    config: Annotated[Path | None, typer.Argument(help="YAML config (see configs/april_*.yaml)")] = None,
+    config: Annotated[Path | None, typer.Argument(help="YAML config (see configs/april/april_*.yaml)")] = None,
     resume: Annotated[Path | None, typer.Option(help="APRiL run folder to continue after a crash")] = None,
     runs: Annotated[Path, typer.Option(help="Where new run folders go")] = Path("runs"),
     settings: ConfigSetOption = None,

@@ -26,7 +26,7 @@ from binpick.files import atomic_write_json, ensure_dir
 
 @detect_app.command("train")
 def detect_train(
-    config: Annotated[Path | None, typer.Argument(help="YAML config (see configs/rod_*.yaml)")] = None,
+    config: Annotated[Path | None, typer.Argument(help="YAML config (see configs/detection/rod_*.yaml)")] = None,
     resume: Annotated[Path | None, typer.Option(help="Run folder to continue from its latest checkpoint")] = None,
     runs: Annotated[Path, typer.Option(help="Where new run folders go")] = Path("runs"),
     settings: ConfigSetOption = None,
@@ -46,7 +46,7 @@ def detect_train(
 
 @detect_app.command("pickability")
 def detect_pickability(
-    config: Annotated[Path | None, typer.Argument(help="YAML config (see configs/pickability_crop.yaml)")] = None,
+    config: Annotated[Path | None, typer.Argument(help="YAML config (see configs/detection/pickability_crop.yaml)")] = None,
     resume: Annotated[Path | None, typer.Option(help="Run folder to continue from its latest checkpoint")] = None,
     runs: Annotated[Path, typer.Option(help="Where new run folders go")] = Path("runs"),
     settings: ConfigSetOption = None,
@@ -71,7 +71,7 @@ def detect_pickability(
 
 @grasp_app.command("train")
 def grasp_train(
-    config: Annotated[Path | None, typer.Argument(help="YAML config (see configs/grasp_quality.yaml)")] = None,
+    config: Annotated[Path | None, typer.Argument(help="YAML config (see configs/grasping/grasp_quality.yaml)")] = None,
     resume: Annotated[Path | None, typer.Option(help="Run folder to continue from its latest checkpoint")] = None,
     runs: Annotated[Path, typer.Option(help="Where new run folders go")] = Path("runs"),
     settings: ConfigSetOption = None,

@@ -24,7 +24,7 @@ from binpick.files import ensure_dir
 
 @rl_app.command("train")
 def rl_train(
-    config: Annotated[Path | None, typer.Argument(help="YAML config (see configs/rl_*.yaml)")] = None,
+    config: Annotated[Path | None, typer.Argument(help="YAML config (see configs/rl/rl_*.yaml)")] = None,
     resume: Annotated[Path | None, typer.Option(help="Run folder to continue from its latest checkpoint")] = None,
     runs: Annotated[Path, typer.Option(help="Where new run folders go")] = Path("runs"),
     steps: Annotated[int | None, typer.Option(help="Same as --set total_timesteps=N (simulator steps)")] = None,

@@ -1,4 +1,4 @@
-"""Configuration of a detector run (one YAML per experiment in ``configs/rod_*.yaml``)."""
+"""Configuration of a detector run (one YAML per experiment in ``configs/detection/rod_*.yaml``)."""
 
 from __future__ import annotations
 

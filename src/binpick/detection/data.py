@@ -137,7 +137,7 @@ def pickable_by(annotation: dict[str, Any], policy: str) -> bool | None:
 
 def ambiguous_for(annotation: dict[str, Any], policy: str) -> bool:
     """Held in some but not all of its trial grasps (``label_trials`` > 1): a label no image can
-    settle, since a shift of the jaws by under a pixel decides it (benchmarks/label_noise.py)."""
+    settle, since a shift of the jaws by under a pixel decides it (the `label_noise` note (docs/notes.md))."""
     rate = (annotation.get("pickable_rate") or {}).get(policy)
     return rate is not None and 0.0 < float(rate) < 1.0
 

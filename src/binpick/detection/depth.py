@@ -8,7 +8,7 @@ before the neck decides objectness. The projections start at zero, so a detector
 depth from RGB-only weights starts as exactly that detector.
 
 Measured on binpick's default bins it did not help: fine-tuned alike, colour alone and colour with
-depth both reach val AP50 0.80 (``benchmarks/rod_seen_gap.py``). It is off by default.
+depth both reach val AP50 0.80 (`the `rod_seen_gap` note (docs/notes.md)`). It is off by default.
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@
     result = detector.predict("scene.png", query_box=(120, 80, 40, 52))
     result.save("overlay.png"); print(result.to_json())      # or result.plot() -> RGB array
     metrics = detector.val("runs/data/bins/annotations_val.json")
-    trained = Detector.train("configs/rod_warehouse.yaml", epochs=2)   # overrides as keyword arguments
+    trained = Detector.train("configs/detection/rod_warehouse.yaml", epochs=2)   # overrides as keyword arguments
 
 ``predict`` finds every other instance of the query (a box in the image, or a shop photo for
 photo-conditioned weights); ``val`` is COCO AP against the data set's targets; ``train`` runs a

@@ -23,7 +23,7 @@ s̄); with keypoints they carry part of it (docs/RESULTS.md, Table 4.4).
 reads from the expected positions of K heat maps over the image itself, one per stacked camera view:
 the fully connected layer gives every place in the picture its own weights and reads a goal sphere
 a few pixels wide only to ~2 cm per axis in FetchReachObstacle, where a student needs ~0.5 cm to
-gain from knowing the box (benchmarks/april_diagnosis.py --goal-noise); a soft-argmax finds a small
+gain from knowing the box (the `april_diagnosis` note (docs/notes.md)); a soft-argmax finds a small
 object to a fraction of a pixel wherever it is. Given where s̄'s goal lies in each view (``points``,
 projected with the cameras' poses) L_cond also asks each keypoint to sit there -- s̄ itself, in the
 image's coordinates: left to find the goal through the MLP alone the maps spread over the whole

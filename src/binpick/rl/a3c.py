@@ -32,7 +32,7 @@ class SpatialSoftmax(nn.Module):
     a feature that fires on the goal gives the goal's coordinates wherever it is, where a flattened
     map gives a separate weight to every place (trained on goals in a quarter of the play
     area, a flattened trunk located goals elsewhere over 10x worse than inside; this one about as well:
-    benchmarks/a3c_encoder_probe.py)."""
+    the `a3c_encoder_probe` note (docs/notes.md))."""
 
     def forward(self, maps: torch.Tensor) -> torch.Tensor:
         batch, channels, height, width = maps.shape

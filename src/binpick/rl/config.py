@@ -1,4 +1,4 @@
-"""RL run configuration: one YAML file per thesis experiment (``configs/rl_*.yaml``).
+"""RL run configuration: one YAML file per thesis experiment (``configs/rl/rl_*.yaml``).
 
 Every field has a default; a YAML file names only what differs. Loading checks key names, types
 and ranges, and says which key is wrong in one line.

@@ -45,7 +45,7 @@ def label_pickability(sim, scene, record: dict[str, Any], policies, rng: np.rand
     up to ``jitter``: the label is the majority and ``pickable_rate`` the share that held. One grasp's
     outcome is not quite a property an image shows: moving Policy y's jaws by 2 mm (under a pixel)
     changed it for 18 of 168 target instances of binpick's default bins (11 of the 84 that held, 7 of
-    the 84 that did not; 15 worlds, 2 scenes each: ``benchmarks/label_noise.py``).
+    the 84 that did not; 15 worlds, 2 scenes each: `the `label_noise` note (docs/notes.md)`).
     """
     targets = [a for a in record["annotations"] if a["is_target"]]
     if not targets:
