@@ -15,7 +15,7 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(VENV)/bin/python benchmarks/env_speed.py
-	$(VENV)/bin/python benchmarks/random_policy.py
+	$(VENV)/bin/python experiments/random_policy.py
 	$(VENV)/bin/python benchmarks/gp_cost.py
 
 setup: $(STAMP)

@@ -18,7 +18,7 @@ import sys
 import time
 
 os.environ.setdefault("MUJOCO_GL", "egl")
-sys.path.insert(0, os.path.dirname(__file__))
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), os.pardir, "experiments"))  # _common: results and docs
 
 import _common  # noqa: E402
 import numpy as np  # noqa: E402

@@ -51,17 +51,17 @@ SKIPPED = {
     "binpick rl distributed --workers 16 --address A_HOST:6379": "needs the cluster above (a local Ray run is tested)",
     "binpick data generate --out runs/data/random_20k --scenes 20000 --domain random --policies '' --held-out can,mug,toy "
     "--scenes-per-world 16 --address A_HOST:6379": "needs a cluster (tests/test_domain.py runs Ray scene workers locally)",
-    "python benchmarks/rod.py pretrain --runs runs/rod16": "a benchmark on the full data sets (hours on a CPU); "
+    "python experiments/rod.py pretrain --runs runs/rod16": "a benchmark on the full data sets (hours on a CPU); "
                                                            "the commands above run its pieces",
-    "python benchmarks/rod.py finetune --runs runs/rod16": "a benchmark, after the one above",
-    "python benchmarks/rod.py generalise --runs runs/rod16": "a benchmark, after the two above",
+    "python experiments/rod.py finetune --runs runs/rod16": "a benchmark, after the one above",
+    "python experiments/rod.py generalise --runs runs/rod16": "a benchmark, after the two above",
     "binpick ros pick-node --camera runs/frame/camera.yaml --master http://127.0.0.1:11311/": "a node that serves until stopped, "
         "with nothing here to ask it; tests/test_ros.py runs the whole loop through it",
     "unshare -n sh -c 'ip link set lo up && exec .venv-ros2/bin/binpick ros2 pick-node --camera runs/frame/camera.yaml'":
         "a node that serves until stopped; tests/test_ros2.py runs the whole loop through it in a namespace",
-    "python benchmarks/plan.py files": "a benchmark (50 orders, each planned twice); tests/test_picking.py runs its pieces",
-    "python benchmarks/plan.py latency": "a benchmark on an idle machine; tests/test_ros.py and test_ros2.py run its loops",
-    "python benchmarks/grasp.py eval": "a benchmark (40 bins of held-out products, the shipped grasp model); "
+    "python experiments/plan.py files": "a benchmark (50 orders, each planned twice); tests/test_picking.py runs its pieces",
+    "python experiments/plan.py latency": "a benchmark on an idle machine; tests/test_ros.py and test_ros2.py run its loops",
+    "python experiments/grasp.py eval": "a benchmark (40 bins of held-out products, the shipped grasp model); "
                                        "tests/test_grasping.py runs its pieces",
 }
 

@@ -3,7 +3,7 @@
 ``darknet53`` is YOLOv3's backbone as the thesis uses it (Fig 5.9: residual blocks 1-2-8-8-4,
 widths 64-1024). ``tiny`` is the same design, narrower and shallower, for training and inference on
 a laptop CPU; ``small`` is tiny at 1.5 times the width (the AP / latency trade-off is measured in
-``benchmarks/rod.py``).
+``experiments/rod.py``).
 """
 
 from __future__ import annotations

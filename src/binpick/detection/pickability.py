@@ -13,7 +13,7 @@ by it. It learns from the same one-grasp labels the detector learns from
 A head that also sees the query (``query=True``: the query's crop, or the shop photo, beside the
 window) answers a sharper question -- is this a copy *of the ordered product* that the policy picks? --
 and so also lowers the detector's confident boxes on other products and on background, which cost
-the shipped detector as much AP50 as its boxes on unpickable copies (``benchmarks/rod_pickability.py``).
+the shipped detector as much AP50 as its boxes on unpickable copies (``experiments/rod_pickability.py``).
 It learns that from the detector's own detections on the training images (``proposals``, labelled 1
 where they cover a copy the policy picked) and from a window on every other product in each image
 (``distractors``, 0), where only the query can tell. The head only re-ranks: which boxes exist is the

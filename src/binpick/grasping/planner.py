@@ -84,7 +84,7 @@ class GraspPlanner:
             from binpick.grasping.quality import SHIPPED, GraspQuality
 
             if weights is None and not SHIPPED.is_file():
-                raise ConfigError(f"no grasp-quality weights shipped at {SHIPPED}: train them (python benchmarks/grasp.py train) "
+                raise ConfigError(f"no grasp-quality weights shipped at {SHIPPED}: train them (python experiments/grasp.py train) "
                                   "or choose the analytic policy")
             quality = GraspQuality.load(weights or SHIPPED)
         elif weights is not None:

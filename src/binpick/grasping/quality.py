@@ -20,7 +20,7 @@ from binpick.grasping.candidates import GraspCandidate, JawGripper, surface_heig
 from binpick.grasping.frame import DepthFrame
 
 FORMAT = "binpick-grasp-quality-1"
-SHIPPED = Path(__file__).parent / "weights" / "grasp_quality.safetensors"  # trained by benchmarks/grasp.py
+SHIPPED = Path(__file__).parent / "weights" / "grasp_quality.safetensors"  # trained by experiments/grasp.py
 HEIGHT_SCALE = 0.05  # metres per unit of the height map
 
 

@@ -8,7 +8,7 @@ otherwise end up in the customer's tote.
 
 It holds where both sides share a light: a query box and its copies in one frame. Between a studio
 photo and a warehouse bin it does not (AUC 0.97 in binpick's own light, 0.72 under a warm hard one:
-``benchmarks/verify.py``); there the learnt :mod:`binpick.detection.verifier` checks instead.
+``experiments/verify.py``); there the learnt :mod:`binpick.detection.verifier` checks instead.
 
 Camera-agnostic: the product pixels come from the frame's world points (any calibrated camera,
 any pose), not from a simulator's floor height.

@@ -1,11 +1,11 @@
 """The recurrent repeated-object detector (thesis §5.2) beside ROD and TDID: a negative result is a result.
 
-    python benchmarks/rod_recurrent.py pretrain [--set images=16480]   # configs/detection/rod_recurrent_pretrain.yaml (resumes)
-    python benchmarks/rod_recurrent.py finetune                        # configs/detection/rod_recurrent_finetune.yaml (resumes)
-    python benchmarks/rod_recurrent.py report                          # results/rod.json -> recurrent, docs/RESULTS.md
-    python benchmarks/rod_recurrent.py repeats                         # how often a step finds what an earlier one found
+    python experiments/rod_recurrent.py pretrain [--set images=16480]   # configs/detection/rod_recurrent_pretrain.yaml (resumes)
+    python experiments/rod_recurrent.py finetune                        # configs/detection/rod_recurrent_finetune.yaml (resumes)
+    python experiments/rod_recurrent.py report                          # results/rod.json -> recurrent, docs/RESULTS.md
+    python experiments/rod_recurrent.py repeats                         # how often a step finds what an earlier one found
 
-The same test sets as ``benchmarks/rod.py``: the shifted set-up (``runs/data/shifted``, held-out
+The same test sets as ``experiments/rod.py``: the shifted set-up (``runs/data/shifted``, held-out
 products, every copy a target), held-out categories of the default bins (``runs/data/bins_2000``
 test split, every copy a target: the pre-trained model) and seen products (its val split, copies
 Policy 1 can pick: the fine-tuned model). The shipped crop-query ROD is scored on the same tasks
@@ -17,11 +17,9 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, os.path.dirname(__file__))
 
 import _common  # noqa: E402
 import rod as rod_benchmark  # noqa: E402
@@ -65,7 +63,7 @@ def scored(detect, data: Path, split: str, targets: str, only: list[str] | None 
 
 
 def scored_rod(model, data: Path, split: str, targets: str, only: list[str] | None = None) -> dict:
-    """ROD as ``benchmarks/rod.py`` scores it: at its size, with its query kind and depth if it reads depth."""
+    """ROD as ``experiments/rod.py`` scores it: at its size, with its query kind and depth if it reads depth."""
     from binpick.detection.train import detector_detect
 
     return rod_benchmark.keep(rod_benchmark.evaluate_on(detector_detect(model), data, split, targets, model.image_size, only,
@@ -104,7 +102,7 @@ def report(pretrained_path: Path, finetuned_path: Path) -> None:
         "trained_on": {"pretrain": pretrained.meta.get("trained_on"), "finetune": finetuned.meta.get("trained_on")},
         "data": {"shifted": str(shifted.relative_to(_common.ROOT)), "seen_and_held_out": str(bins.relative_to(_common.ROOT))},
         "rod_shipped_same_tasks": rows["rod_shipped"],
-        "measured": "benchmarks/rod_recurrent.py report",
+        "measured": "experiments/rod_recurrent.py report",
     }
     result["shifted_domain"]["recurrent"] = rows["recurrent"]["shifted_domain"]
     from binpick.files import atomic_write_text
@@ -152,8 +150,8 @@ def write_markdown(rec: dict) -> None:
 
     rod = rec["rod_shipped_same_tasks"]
     lines = ["## The recurrent detector the thesis set aside (§5.2)", "",
-             "`python benchmarks/rod_recurrent.py pretrain && python benchmarks/rod_recurrent.py finetune && "
-             "python benchmarks/rod_recurrent.py report` → `results/rod.json` → `recurrent`. "
+             "`python experiments/rod_recurrent.py pretrain && python experiments/rod_recurrent.py finetune && "
+             "python experiments/rod_recurrent.py report` → `results/rod.json` → `recurrent`. "
              "A convolutional encoder (ROD's tiny backbone) and a decoder of three convolutional LSTMs (Eq 5.3) that gives one "
              "instance mask per step and a stop flag, conditioned on the query's crop; Hungarian-matched soft-IoU (Eq 5.4-5.5), "
              "stop (Eq 5.6) and repetition (Eq 5.8, through a similarity network trained by Eq 5.7) losses, introduced in the "
@@ -173,7 +171,7 @@ def write_markdown(rec: dict) -> None:
               "every step; ROD's `predict`: `latency_ms` above)."]
     steps = rec.get("repeated_steps")
     if steps:
-        lines += ["", f"What it learnt (`python benchmarks/rod_recurrent.py repeats`, {steps['tasks']} tasks of {steps['data']}): "
+        lines += ["", f"What it learnt (`python experiments/rod_recurrent.py repeats`, {steps['tasks']} tasks of {steps['data']}): "
                   f"{steps['boxes_per_task']} boxes per task, and **{steps['share']:.0%}** of them overlap an earlier step's box "
                   "(IoU > 0.5): the steps find one region again and again, often a blob over several touching copies, while the "
                   "stop flag falls step by step much alike from image to image (how many steps to expect, not whether a new copy "

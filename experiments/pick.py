@@ -2,7 +2,7 @@
 conditioning -> grasp point from depth -> top-down grasp (jaws along y, the policy the detector's
 pickability labels are for) -> order tote.
 
-    python benchmarks/pick.py [--orders 50] [--weights src/binpick/detection/weights/rod_photo_learnt_tiny_320.safetensors]
+    python experiments/pick.py [--orders 50] [--weights src/binpick/detection/weights/rod_photo_learnt_tiny_320.safetensors]
                               [--grasp learnt|analytic|fixed] [--compare-grasps] [--keep-oracle]
 
 Runs ``--orders`` orders of products the detector saw in training and as many of held-out products
@@ -24,7 +24,6 @@ import sys
 from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
-sys.path.insert(0, os.path.dirname(__file__))
 
 import _common  # noqa: E402
 
@@ -65,7 +64,7 @@ def main() -> None:
     torch.set_num_threads(2)
     model = load_detector(args.weights)
     if not model.trained_products:
-        sys.exit(f"{args.weights} does not list its training products; ship it with scripts/ship_weights.py")
+        sys.exit(f"{args.weights} does not list its training products; ship it with tools/ship_weights.py")
     library = default_library()
     seen = [p for p in sorted(library.products) if p in model.trained_products]
     held_out = [p for p in sorted(library.products) if p not in model.trained_products]
@@ -124,7 +123,7 @@ def section(result: dict, path: Path, orders: int) -> None:
     before = result.get("before", {})
     policies = result.get("oracle_by_policy", {})
     lines = ["## Pick pipeline (thesis ch. 6)", "",
-             f"`python benchmarks/pick.py --orders {orders} --compare-grasps` → `{path.relative_to(_common.ROOT)}`. Each order is a new bin "
+             f"`python experiments/pick.py --orders {orders} --compare-grasps` → `{path.relative_to(_common.ROOT)}`. Each order is a new bin "
              f"(3–6 copies of the product, 2–3 other products); the detector (`{Path(result['weights']).name}`, ROD conditioned on "
              "the product's catalogue photos, the best match over them) finds the instances; detections the learnt product check "
              "(`binpick.detection.verifier`) gives a probability under 0.2 of being the ordered product are skipped and the rest, "

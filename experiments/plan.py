@@ -1,9 +1,9 @@
 """Pick planning from a camera's files and through ROS (thesis ch. 6).
 
-    python benchmarks/plan.py files [--sensor perfect|realistic] [--orders 30] [--default-orders 100]
-    python benchmarks/plan.py single [--sensor realistic] [--orders 42]
-    python benchmarks/plan.py latency [--sensor realistic] [--frames 30] [--ros-orders 20]
-    python benchmarks/plan.py sim [--domain shifted] [--orders 50] [--verifier learnt|colour|none] \
+    python experiments/plan.py files [--sensor perfect|realistic] [--orders 30] [--default-orders 100]
+    python experiments/plan.py single [--sensor realistic] [--orders 42]
+    python experiments/plan.py latency [--sensor realistic] [--frames 30] [--ros-orders 20]
+    python experiments/plan.py sim [--domain shifted] [--orders 50] [--verifier learnt|colour|none] \
         [--photos catalogue|canonical] [--copies-from-match 0.9]
 
 ``files``: orders on the shifted-domain set-up (its camera, tote and light; its held-out products can,
@@ -40,7 +40,6 @@ import time
 from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
-sys.path.insert(0, os.path.dirname(__file__))
 
 import _common  # noqa: E402
 
@@ -219,7 +218,7 @@ def api_latency(frames: int, sensor: str = "realistic") -> dict:
     folders = sorted(p.parent for p in OUT.glob(f"default_{sensor}/order_*/plan.json"))[:frames + 1] if sensor != "perfect" else []
     folders = folders or sorted(p.parent for p in OUT.glob("*/order_*/plan.json"))[:frames + 1]
     if len(folders) < 2:
-        raise SystemExit("no exported frames: run `python benchmarks/plan.py files` first")
+        raise SystemExit("no exported frames: run `python experiments/plan.py files` first")
     picker = Picker.load()
     times, stages = [], []
     for index, folder in enumerate(folders):
@@ -235,7 +234,7 @@ def api_latency(frames: int, sensor: str = "realistic") -> dict:
 
 
 def ros_latency(version: int, orders: int) -> dict:
-    loop = [str(Path(__file__).with_name("ros_loop.py")), "--ros", str(version), "--orders", str(orders), "--goal", "photo"]
+    loop = [str(Path(__file__).resolve().parents[1] / "benchmarks" / "ros_loop.py"), "--ros", str(version), "--orders", str(orders), "--goal", "photo"]
     if version == 1:
         ran = subprocess.run([sys.executable, *loop], capture_output=True, text=True)
     else:
@@ -252,7 +251,7 @@ def ros_latency(version: int, orders: int) -> dict:
 def write(result: dict) -> None:
     _common.write_result("plan", {k: v for k, v in result.items() if k not in ("benchmark", "machine")})
     lines = ["## Pick planning from a camera's files and through ROS", "",
-             "`python benchmarks/plan.py files` / `latency`: the planner with no simulator in it (`binpick.picking`), "
+             "`python experiments/plan.py files` / `latency`: the planner with no simulator in it (`binpick.picking`), "
              "fed the files a real RGB-D camera gives (`binpick plan`) or ROS topics; the simulator executes its grasps. "
              "Thesis ch. 6 has no planning-latency figure; its ROS set-up is §6.1.", ""]
     orders = result.get("file_orders", {})
@@ -272,7 +271,7 @@ def write(result: dict) -> None:
                   "failures by reason are in `results/plan.json` (`files.reasons`).", ""]
     variants = result.get("sim_orders", {})
     if variants:
-        lines += ["The order path's variants side by side (`python benchmarks/plan.py sim --domain D [--verifier V] [--photos P] "
+        lines += ["The order path's variants side by side (`python experiments/plan.py sim --domain D [--verifier V] [--photos P] "
                   "[--check T] [--copies-from-match P]`): the simulator pipeline alone on the same bins as `files` (seeds 40000+ "
                   "shifted, 41000+ default). *check*: the product check before a grasp (learnt: `binpick.detection.verifier`, "
                   "at its threshold; colour: the hue-saturation histogram at 0.15); *photos*: the order's photos (catalogue: the "
@@ -291,7 +290,7 @@ def write(result: dict) -> None:
         lines.append("")
     by_sensor = result.get("file_orders_by_sensor", {})
     if by_sensor:
-        lines += ["Depth as sensors give it (`python benchmarks/plan.py files --sensor realistic`): each set-up's twin with the "
+        lines += ["Depth as sensors give it (`python experiments/plan.py files --sensor realistic`): each set-up's twin with the "
                   "`realistic` sensor (`binpick/sim/sensors/realistic.yaml`: a structured-light camera's shadows beside tall edges, "
                   "dark, shiny and grazing surfaces unread, border and blob dropout, axial noise after Nguyen et al. 2012, lateral "
                   "noise, flying pixels, 1/8-pixel disparity quantisation, depth 0-2 px off colour; the camera tilted 0-20° and "
@@ -310,7 +309,7 @@ def write(result: dict) -> None:
         lines.append("")
     single = result.get("single_copy_by_sensor", {})
     if single:
-        lines += ["The object the user points at (`python benchmarks/plan.py single --orders 40 --sensor realistic`): bins with "
+        lines += ["The object the user points at (`python experiments/plan.py single --orders 40 --sensor realistic`): bins with "
                   "one instance of the ordered product among others, the query box drawn on it; the picker plans on the "
                   "pointed instance first, then the copies its detector finds (`copies_only=True` keeps the thesis's "
                   "\"other copies only\").", "",

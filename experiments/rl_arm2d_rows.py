@@ -1,8 +1,8 @@
-"""Evaluate A3C run folders made outside benchmarks/rl_arm2d.py (for example a benchmark run continued
+"""Evaluate A3C run folders made outside experiments/rl_arm2d.py (for example a benchmark run continued
 further) on the same 200 seeded whole-area episodes, greedy and sampling, and merge them into
 results/rl_arm2d.json under the keys given.
 
-    python benchmarks/rl_arm2d_rows.py KEY=RUN_DIR [KEY=RUN_DIR ...] [--note TEXT]
+    python experiments/rl_arm2d_rows.py KEY=RUN_DIR [KEY=RUN_DIR ...] [--note TEXT]
 
 The 2M-step state rows came from the two 1M state runs (entropy 0.01) copied to runs/explore,
 ``total_timesteps: 2000000`` set in each copy's config.yaml and ``binpick rl train --resume COPY``.
@@ -11,10 +11,7 @@ The 2M-step state rows came from the two 1M state runs (entropy 0.01) copied to 
 from __future__ import annotations
 
 import argparse
-import os
-import sys
 
-sys.path.insert(0, os.path.dirname(__file__))
 
 import rl_arm2d  # noqa: E402
 

@@ -1,7 +1,7 @@
 """Statistics of a generated warehouse data set, and its pictures for the docs.
 
     binpick data generate --out runs/data/bins_2000 --scenes 2000 --workers 2 --held-out can,mug,toy --set split_rule=random
-    python benchmarks/data_stats.py [--data runs/data/bins_2000]
+    python experiments/data_stats.py [--data runs/data/bins_2000]
 
 Writes results/data_stats.json ({scenes, instances_per_image, pickable_fraction {policy},
 pickability_differs_fraction, ...}), the data-stats section of docs/RESULTS.md,
@@ -13,11 +13,9 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
-sys.path.insert(0, os.path.dirname(__file__))
 
 import _common  # noqa: E402
 import numpy as np  # noqa: E402
@@ -61,7 +59,7 @@ def main() -> None:
         Image.fromarray(contact_sheet(photos, columns=9)).save(IMAGES / "shop_photos.png")
 
     rows = ["## Warehouse bin data set (thesis §5.4.4, §6.3)", "",
-            f"`python benchmarks/data_stats.py --data {args.data.relative_to(_common.ROOT) if args.data.is_relative_to(_common.ROOT) else args.data}` → "
+            f"`python experiments/data_stats.py --data {args.data.relative_to(_common.ROOT) if args.data.is_relative_to(_common.ROOT) else args.data}` → "
             f"`{path.relative_to(_common.ROOT)}`; pictures: `docs/img/bins_labelled.png`, `docs/img/shop_photos.png`.", "",
             "| | ours | target / thesis |", "|---|---|---|",
             f"| scenes | {stats['scenes']:,} | 2,000 |",

@@ -1,6 +1,6 @@
 """Render docs/img/<env>.png: one frame per env as a person sees it, beside the policy's image input.
 
-    .venv/bin/python scripts/render_docs_images.py
+    .venv/bin/python tools/render_docs_images.py
 """
 
 from __future__ import annotations

@@ -5,8 +5,8 @@
     binpick data generate --out runs/data/shifted --domain shifted --targets can,mug,toy --policies '' \\
         --scenes 120 --scenes-per-world 4 --seed 7                          # another camera, tote and light
     binpick data generate --out runs/data/verify_default --policies '' --scenes 160 --scenes-per-world 2 --seed 5
-    python benchmarks/verify.py train [--scenes 8000] [--epochs 8]      # ships weights/product_verifier.safetensors
-    python benchmarks/verify.py eval                                    # results/verify.json
+    python experiments/verify.py train [--scenes 8000] [--epochs 8]      # ships weights/product_verifier.safetensors
+    python experiments/verify.py eval                                    # results/verify.json
 
 ``eval`` scores every instance (at least half visible) of each bin against the shop photo of the
 product ordered in it (its canonical photo, as an order gives it): same product or not. Rows: the
@@ -24,7 +24,6 @@ import sys
 from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
-sys.path.insert(0, os.path.dirname(__file__))
 
 import _common  # noqa: E402
 
@@ -120,7 +119,7 @@ def evaluate_all(args) -> None:
     _common.write_result("verify", payload)
     lines = ["## Is it the ordered product? (the check before a grasp)", "",
              "Every instance at least half visible, scored against the canonical shop photo of the product ordered in its bin "
-             "(`python benchmarks/verify.py eval` → `results/verify.json`). *right accepted*: the ordered product's instances "
+             "(`python experiments/verify.py eval` → `results/verify.json`). *right accepted*: the ordered product's instances "
              "passing the check; *wrong accepted*: other products' instances passing it.", "",
              "| set-up | check | threshold | AUC | right accepted | wrong accepted | calibration error |", "|---|---|---|---|---|---|---|"]
     for name, methods in rows.items():

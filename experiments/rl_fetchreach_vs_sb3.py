@@ -1,6 +1,6 @@
 """Side by side on FetchReach with random goals: SB3 SAC+HER ('future', k=4), the RL Zoo's tuned TQC+HER and binpick (GP + episode HER).
 
-    python benchmarks/rl_fetchreach_vs_sb3.py [--seeds 0 1 2] [--sb3-steps 20000] [--binpick-steps 6000] [--only tqc_her_zoo]
+    python experiments/rl_fetchreach_vs_sb3.py [--seeds 0 1 2] [--sb3-steps 20000] [--binpick-steps 6000] [--only tqc_her_zoo]
 
 Both run through binpick's trainer from configs/rl/rl_fetchreach_sb3_sac_her.yaml and
 configs/rl/rl_fetchreach_gp_her_fast.yaml (binpick's learner; configs/rl/rl_fetchreach_gp_her.yaml, the thesis's
@@ -18,10 +18,8 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 
 os.environ.setdefault("MUJOCO_GL", "egl")
-sys.path.insert(0, os.path.dirname(__file__))
 
 import _common  # noqa: E402
 import numpy as np  # noqa: E402
@@ -202,7 +200,7 @@ def main() -> None:
         "",
         "Simulator steps until eval success ≥ 95% (50 seeded episodes per evaluation), per seed; final "
         "success and average actions of the last evaluation, mean over seeds. `python "
-        "benchmarks/rl_fetchreach_vs_sb3.py` → `results/rl_fetchreach_vs_sb3.json`. Thesis (Table 3.4, "
+        "experiments/rl_fetchreach_vs_sb3.py` → `results/rl_fetchreach_vs_sb3.json`. Thesis (Table 3.4, "
         "α=1, M=10⁴): 12,700 training iterations to < 5 actions; final 3.10 actions (Table 4.3).",
         "",
         "| method | sim steps to 95% (per seed) | final success | final avg actions | policy updates, whole run (median) | wall s (median) |",

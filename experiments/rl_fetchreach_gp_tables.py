@@ -1,7 +1,7 @@
 """Thesis Tables 3.3 and 3.4 on FetchReach with binpick's GP imagination and episode HER.
 
-    python benchmarks/rl_fetchreach_gp_tables.py --table 3.3
-    python benchmarks/rl_fetchreach_gp_tables.py --table 3.4 [--alphas 1 10 50] [--capacities 10000 1000000]
+    python experiments/rl_fetchreach_gp_tables.py --table 3.3
+    python experiments/rl_fetchreach_gp_tables.py --table 3.4 [--alphas 1 10 50] [--capacities 10000 1000000]
 
 Table 3.3: a single goal, with a fixed start and with a noisy start (±10 cm): simulator episodes,
 GP episodes and the final average actions (thesis: 2.00 with 4 sim / 1,500 GP episodes; 6.69 with 79
@@ -16,10 +16,8 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import sys
 
 os.environ.setdefault("MUJOCO_GL", "egl")
-sys.path.insert(0, os.path.dirname(__file__))
 
 import _common  # noqa: E402
 
@@ -48,7 +46,7 @@ def write_table_3_4(rows: dict, steps: int) -> None:
     thesis = {(1, 10_000): (550, 12_700), (10, 10_000): (100, 22_700), (50, 10_000): (300, 114_100),
               (1, 1_000_000): (50_150, 13_100), (10, 1_000_000): (9_450, 21_900), (50, 1_000_000): (21_600, 66_200)}
     lines = ["## Table 3.4: FetchReach, random goals, α_HER × M", "",
-             "`python benchmarks/rl_fetchreach_gp_tables.py --table 3.4` → `results/rl_fetchreach_gp_tables.json`. "
+             "`python experiments/rl_fetchreach_gp_tables.py --table 3.4` → `results/rl_fetchreach_gp_tables.json`. "
              "Episodes sampled (simulator + GP) until Ω is 10% full and training starts; in brackets all "
              "episodes in Ω then, HER copies included. Iterations = gradient steps until the evaluated average is "
              f"below 5 actions ('—' = not within {steps} simulator steps). One seed per cell.", "",
@@ -94,7 +92,7 @@ def main() -> None:
             print(label, rows[label], flush=True)
         results["table_3_3"] = rows
         lines = ["## Table 3.3: FetchReach, single goal, GP imagination", "",
-                 "`python benchmarks/rl_fetchreach_gp_tables.py --table 3.3` → `results/rl_fetchreach_gp_tables.json`. "
+                 "`python experiments/rl_fetchreach_gp_tables.py --table 3.3` → `results/rl_fetchreach_gp_tables.json`. "
                  f"Goal fixed at {GOAL} m from the gripper's start; noisy start = ±10 cm per axis; "
                  f"{args.steps} simulator steps, seed {args.seed}.", "",
                  "Episode counts are those at the first evaluation with ≥ 95% success (the 15 random warm-up "

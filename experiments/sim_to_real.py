@@ -2,9 +2,9 @@
 second rendering domain that plays the physical robot's camera, before and after retraining
 perception on <= 25 episodes recorded there.
 
-    python benchmarks/sim_to_real.py [--run runs/april/april_fetchreach_w1.0/<time>] [--episodes 25]
+    python experiments/sim_to_real.py [--run runs/april/april_fetchreach_w1.0/<time>] [--episodes 25]
 
-Needs the APRiL run (python benchmarks/april.py --only april_fetchreach_w1.0). Writes
+Needs the APRiL run (python experiments/april.py --only april_fetchreach_w1.0). Writes
 results/sim_to_real.json (the Table 6.1 rows) and its section of docs/RESULTS.md.
 """
 
@@ -12,12 +12,10 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 import time
 from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
-sys.path.insert(0, os.path.dirname(__file__))
 
 import _common  # noqa: E402
 
@@ -43,7 +41,7 @@ def main() -> None:
     thesis = {"simulated_ground_truth": "15 / 2800 / - / 3.38 ± 2.37", "simulated_encoded": "65 / 2800 / - / 10.18 ± 10.84",
               "shifted_ground_truth": "15 / 2800 / 0 / 3.52 ± 2.45", "shifted_encoded_retrained": "65 / 2800 / 23 / 8.14 ± 12.75"}
     lines = ["## Sim-to-real stand-in (thesis §6.2, Table 6.1)", "",
-             f"`python benchmarks/sim_to_real.py --episodes {args.episodes}` → `{path.relative_to(_common.ROOT)}`. "
+             f"`python experiments/sim_to_real.py --episodes {args.episodes}` → `{path.relative_to(_common.ROOT)}`. "
              f"Fetch Reach, APRiL run `{Path(result['run']).relative_to(_common.ROOT)}`; the 'physical' robot is a second "
              f"rendering domain: {result['domain']}. Control is never retrained; perception is retrained for "
              f"{result['retraining_epochs']} epochs on the shifted domain's images only. {result['eval_episodes']} evaluation "

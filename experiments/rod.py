@@ -1,17 +1,17 @@
 """Repeated object detection on the warehouse bins (thesis ch. 5 and §6.3).
 
-    python benchmarks/rod.py train [--runs runs/rod]    # trains every config below (resumes)
-    python benchmarks/rod.py report [--runs runs/rod]   # evaluates, writes results and pictures
+    python experiments/rod.py train [--runs runs/rod]    # trains every config below (resumes)
+    python experiments/rod.py report [--runs runs/rod]   # evaluates, writes results and pictures
 
 Generalisation: pre-training on domain-randomised bins, fine-tuning on pickability, three
 test sets (seen products; held-out categories; the shifted domain with held-out products):
 
-    python benchmarks/rod.py pretrain --runs runs/rod16 [--only rod rod_photo] [--set train.device=cuda]
-    python benchmarks/rod.py finetune --runs runs/rod16 [--only rod rod_photo]
-    python benchmarks/rod.py generalise --runs runs/rod16   # results/rod.json, docs/RESULTS.md, pictures
-    python benchmarks/rod.py photo --weights rod_photo_learnt_tiny_320 runs/rod/finetune_rod_photo/<time>
+    python experiments/rod.py pretrain --runs runs/rod16 [--only rod rod_photo] [--set train.device=cuda]
+    python experiments/rod.py finetune --runs runs/rod16 [--only rod rod_photo]
+    python experiments/rod.py generalise --runs runs/rod16   # results/rod.json, docs/RESULTS.md, pictures
+    python experiments/rod.py photo --weights rod_photo_learnt_tiny_320 runs/rod/finetune_rod_photo/<time>
                                                             # photo query: seen, held-out, shifted per weights
-    python benchmarks/rod.py ship-photo --run runs/rod/finetune_rod_photo/<time>   # the two photo weights
+    python experiments/rod.py ship-photo --run runs/rod/finetune_rod_photo/<time>   # the two photo weights
 
 Same data (runs/data/bins_2000, held-out categories can, mug and toy in its test split), backbone
 (the small one at 256 px), budget and seed for every row. Writes results/rod.json ({seen, zero_shot,
@@ -26,7 +26,6 @@ import os
 import sys
 from pathlib import Path
 
-sys.path.insert(0, os.path.dirname(__file__))
 
 import _common  # noqa: E402
 
@@ -148,7 +147,7 @@ def main() -> None:
         init = {row: run_folder(args.runs, FINETUNE_FROM.get(row, f"pretrain_{row}")) for row in VARIANTS if not args.only or row in args.only}
         missing = [FINETUNE_FROM.get(row, f"pretrain_{row}") for row, folder in init.items() if not finished(folder)]
         if missing:
-            raise SystemExit(f"train these first (python benchmarks/rod.py pretrain | finetune): no finished run of {', '.join(missing)}")
+            raise SystemExit(f"train these first (python experiments/rod.py pretrain | finetune): no finished run of {', '.join(missing)}")
         joint("finetune", args.runs, parse_overrides(args.settings), init, rows=args.only)
     elif args.phase == "generalise":
         report_generalisation(args.runs)
@@ -228,7 +227,7 @@ def report(runs: Path) -> None:
         if finished(folder):
             models[name] = load_detector(folder)
         else:
-            print(f"{name}: not trained yet (python benchmarks/rod.py train)", flush=True)
+            print(f"{name}: not trained yet (python experiments/rod.py train)", flush=True)
     size = 256
     rows = {"rod": "rod_warehouse", "rod_no_lh": "rod_warehouse_no_lh", "tdid": "tdid_warehouse", "rod_photo": "rod_warehouse_photo"}
     result: dict = {"data": str(DATA.relative_to(_common.ROOT)), "image_size": size, "backbone": "tiny",
@@ -345,7 +344,7 @@ def pickability_and_scale_tables(result: dict) -> list[str]:
 def write_markdown(result: dict, path: Path) -> None:
     seen = result["seen"]
     lines = ["## Repeated object detection (thesis ch. 5, §6.3)", "",
-             f"`python benchmarks/rod.py train && python benchmarks/rod.py report` → `{path.relative_to(_common.ROOT)}`; "
+             f"`python experiments/rod.py train && python experiments/rod.py report` → `{path.relative_to(_common.ROOT)}`; "
              "pictures in `docs/img/rod/`. Every model: the small backbone at 256 px, the same data "
              f"(`{result['data']}`), 12 epochs, batch 8, seed 0. Targets: instances pickable by Policy 1 "
              "(jaws along the robot's y-axis); the query is the instance the robot picked.", "",
@@ -446,7 +445,7 @@ def report_generalisation(runs: Path) -> None:
 
     pretrained = {"rod": "pretrain_rod", "rod_no_lh": "pretrain_rod_no_lh", "tdid": "pretrain_tdid",
                   "rod_small": "pretrain_rod_small", "histogram": "histogram", "template": "template"}
-    result = {key: previous[key] for key in ("policy_pickability", "scale_ablation", "recurrent") if key in previous}  # recurrent: benchmarks/rod_recurrent.py
+    result = {key: previous[key] for key in ("policy_pickability", "scale_ablation", "recurrent") if key in previous}  # recurrent: experiments/rod_recurrent.py
     result |= {"data": {"seen_and_held_out": str(DATA.relative_to(_common.ROOT)), "shifted": str(SHIFTED.relative_to(_common.ROOT)),
                         "pretraining": models["pretrain_rod"].trained_config.get("data", {}).get("train") if "pretrain_rod" in models else None},
                "image_size": size, "backbone": "tiny",
@@ -562,11 +561,11 @@ def busy_core_latency_ms(model, image, query_box, depth, repeats: int = 30) -> d
 
 
 def photo_lines(photo: dict) -> list[str]:
-    """The photo query's table: every weights measured by ``python benchmarks/rod.py photo``."""
+    """The photo query's table: every weights measured by ``python experiments/rod.py photo``."""
     rows = photo.get("by_weights") or {}
     if not rows:
         return []
-    lines = ["Photo query by weights (`python benchmarks/rod.py photo --weights ...` → `photo.by_weights`; each product's "
+    lines = ["Photo query by weights (`python experiments/rod.py photo --weights ...` → `photo.by_weights`; each product's "
              "canonical shop photo as the query). Seen and held-out: `bins_2000` val and test, targets pickable by Policy 1; "
              "shifted: another camera, tote and light, held-out products, every copy a target. Targets: seen ≥ 0.85, "
              f"held-out ≥ 0.80, shifted ≥ {photo.get('shifted_domain_target', 0.6)}. `photo.seen`, `photo.held_out` and "
@@ -710,7 +709,7 @@ def remeasure_latency(runs: Path) -> None:
                                                   "shipped_detector_only": result["latency_ms"]["shipped_detector_only"],
                                                   "machine_gflops": result["latency_ms"]["machine_gflops"],
                                                   "one_core_busy": result["latency_ms"]["shipped_one_core_busy"]}]
-    result["latency_ms"]["measured"] = ("benchmarks/rod.py latency: median of 5 blocks of 30 turns each, 2 threads, batch 1; shipped = "
+    result["latency_ms"]["measured"] = ("experiments/rod.py latency: median of 5 blocks of 30 turns each, 2 threads, batch 1; shipped = "
                                         "rod_tiny_320 through Detector.predict (batch norms folded), with its pickability head and the scene's depth")
     written = _common.write_result("rod", {k: v for k, v in result.items() if k not in ("benchmark", "machine")})
     write_generalisation_markdown(result, written)
@@ -789,7 +788,7 @@ def budget_sentence(result: dict) -> str:
 
 
 def latency_history(lat: dict) -> list[str]:
-    """Every ``benchmarks/rod.py latency`` measurement so far, as one sentence (none before the first)."""
+    """Every ``experiments/rod.py latency`` measurement so far, as one sentence (none before the first)."""
     history = lat.get("history") or []
     if len(history) < 2:
         return []
@@ -816,7 +815,7 @@ def write_generalisation_markdown(result: dict, path: Path) -> None:
 
     shifted = result["shifted_domain"]
     lines = ["## Repeated object detection that survives a new camera (thesis ch. 5, §6.3)", "",
-             f"`python benchmarks/rod.py pretrain && python benchmarks/rod.py finetune && python benchmarks/rod.py generalise` → "
+             f"`python experiments/rod.py pretrain && python experiments/rod.py finetune && python experiments/rod.py generalise` → "
              f"`{path.relative_to(_common.ROOT)}`. Pre-training: domain-randomised bins (`{result['data']['pretraining']}`), every copy "
              "a target; fine-tuning: the default bins, instances Policy 1 can pick. Every model: the tiny backbone, "
              f"{result['image_size']} px, rows trained on the same batches (one loader), seed 0. {budget_sentence(result)} "
@@ -859,7 +858,7 @@ def write_generalisation_markdown(result: dict, path: Path) -> None:
               f"`predict` latency, batch 1, 2 CPU cores, {result['image_size']} px: shipped model **{lat['shipped']} ms** with its "
               f"pickability head (target ≤ 50), {lat.get('shipped_detector_only')} ms without it, {lat.get('shipped_unfolded')} ms "
               f"before its batch norms are folded; untrained tiny {lat.get('tiny_' + str(result['image_size']))} ms, "
-              f"small {lat.get('small_' + str(result['image_size']))} ms (`python benchmarks/rod.py latency`: medians of five blocks, "
+              f"small {lat.get('small_' + str(result['image_size']))} ms (`python experiments/rod.py latency`: medians of five blocks, "
               f"the shipped detector's blocks {lat.get('shipped_blocks')} ms; the machine's matrix products ran at "
               f"{lat.get('machine_gflops')} GFLOP/s meanwhile — this virtual machine's speed drifts by up to 2x from hour to hour).",
               *latency_history(lat), *busy_core_sentence(lat), "",

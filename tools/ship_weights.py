@@ -3,9 +3,9 @@ predict`, `binpick pick` and the demo use when no --weights is given). The file 
 products it has learnt (its training set's and those of the weights it started from), so the pick pipeline can say whether an order is zero-shot,
 and the scene domains it was trained on (``default``, ``random``, ...: pre-training and fine-tuning).
 
-    python scripts/ship_weights.py runs/rod16/finetune_rod/<time> rod_tiny_320
-    python scripts/ship_weights.py runs/rod16/finetune_rod_photo/<time> rod_photo_tiny_320 0.1
-    python scripts/ship_weights.py runs/grasp/rod_finetune_photo_learnt/<time> rod_photo_learnt_tiny_320 0.1
+    python tools/ship_weights.py runs/rod16/finetune_rod/<time> rod_tiny_320
+    python tools/ship_weights.py runs/rod16/finetune_rod_photo/<time> rod_photo_tiny_320 0.1
+    python tools/ship_weights.py runs/grasp/rod_finetune_photo_learnt/<time> rod_photo_learnt_tiny_320 0.1
 
 A third argument is the score threshold the pick pipeline keeps detections above for these weights
 (scores are calibrated per model: the pipeline's 0.2 dropped every copy in 11 of 50 seen orders for

@@ -1,7 +1,7 @@
 """Thesis Tables 3.1 and 3.2 on Arm2D from images: random / DQN / A3C with a fixed goal, and
 A3C with and without the goal-area curriculum on the same budget.
 
-    python benchmarks/rl_arm2d.py [--only random shortest_path a3c dqn curriculum no_curriculum] [--steps-scale 1.0]
+    python experiments/rl_arm2d.py [--only random shortest_path a3c dqn curriculum no_curriculum] [--steps-scale 1.0]
 
 Each learner trains from its config in configs/ (run folders in runs/bench/) and is then evaluated
 on 200 seeded episodes; the curriculum runs are evaluated on the whole play area. A killed run continues
@@ -26,7 +26,6 @@ from pathlib import Path
 import numpy as np
 
 os.environ.setdefault("MUJOCO_GL", "egl")
-sys.path.insert(0, os.path.dirname(__file__))
 
 import _common  # noqa: E402
 
@@ -198,7 +197,7 @@ def main() -> None:
                 from binpick.april.arm2d import ReadStateOffPixels
 
                 if not KEYPOINTS.is_file():
-                    sys.exit(f"{key} reads the state with {KEYPOINTS}: make it with benchmarks/rl_arm2d_april.py first")
+                    sys.exit(f"{key} reads the state with {KEYPOINTS}: make it with experiments/rl_arm2d_april.py first")
                 wrap_env = ReadStateOffPixels(str(KEYPOINTS))
             trainer = (continued(config, args.fresh, wrap_env)
                        or trainer_for(config, _common.ROOT / "runs" / "bench", wrap_env=wrap_env))
@@ -246,7 +245,7 @@ def main() -> None:
         "## Arm2D from images: Tables 3.1 and 3.2",
         "",
         f"Average actions per episode ± std over {EPISODES} seeded episodes (T = 1000) after training; "
-        "`python benchmarks/rl_arm2d.py` → `results/rl_arm2d.json` (keys in brackets). The A3C rows act as A3C acts, "
+        "`python experiments/rl_arm2d.py` → `results/rl_arm2d.json` (keys in brackets). The A3C rows act as A3C acts, "
         "sampling its policy: the thesis's figures are its training episodes (Figs 3.3b and 3.5, moving averages over "
         "100), and A3C trains and acts by sampling. Their argmax is beside them: it can cycle between two poses on some "
         "starts, as greedy DQN did before its fix.",
@@ -376,7 +375,7 @@ def main() -> None:
         "The keypoints rows change the first (`a3c.encoder: keypoints`); the state-loss rows also the second "
         "(`a3c.state_weight: 0.1`, untuned: the features regress the arm's semantic state beside the A3C losses). The "
         "keypoints pair was stopped part-way (curriculum at 650,011 steps, control at 450,009, of 1M) to give the two "
-        "cores to the state-loss curriculum run; both resume with `python benchmarks/rl_arm2d.py --only "
+        "cores to the state-loss curriculum run; both resume with `python experiments/rl_arm2d.py --only "
         "curriculum_keypoints no_curriculum_keypoints`. The state-loss control was stopped at 100,018 steps "
         "(resumes with `--only no_curriculum_keypoints_state`) to give the cores to the runs below.",
         "",
@@ -399,7 +398,7 @@ def main() -> None:
         "46.3. On the state, at this budget, the thesis's direction does not appear: its schedule spends 400k steps on "
         "one goal, whose policy the wider areas must then unlearn, while goals anywhere from the start are reachable "
         "for an exploring policy (random reach at the whole area above) and teach the goal's reading from the first "
-        "step. Continued to 2M steps (`benchmarks/rl_arm2d_rows.py`: each 1M run copied, its total_timesteps raised, "
+        "step. Continued to 2M steps (`experiments/rl_arm2d_rows.py`: each 1M run copied, its total_timesteps raised, "
         "resumed), both state learners pass the thesis's figure sampling their policy: curriculum 20.5 ± 13.4, no "
         "curriculum 19.5 ± 15.2 (100% reach; greedy 221.8 and 172.5). So A3C with the entropy bonus at 0.01 does "
         "reach Table 3.2's 25 in 2M steps when it sees the state, and the curriculum is not what gets it there.",
@@ -471,7 +470,7 @@ def continued(config: RLConfig, fresh: bool, wrap_env=None):
 
 
 def april_paragraph(results: dict) -> list[str]:
-    """What the pixel-deployed state rows (benchmarks/rl_arm2d_april.py) say, from their numbers."""
+    """What the pixel-deployed state rows (experiments/rl_arm2d_april.py) say, from their numbers."""
     row = results.get("curriculum_state_entropy_2m_pixels_sampled")
     control = results.get("no_curriculum_state_entropy_2m_pixels_sampled")
     if not row or not control:
@@ -480,7 +479,7 @@ def april_paragraph(results: dict) -> list[str]:
     state, state_control = results["curriculum_state_entropy_2m_sampled"], results["no_curriculum_state_entropy_2m_sampled"]
     greedy, greedy_control = results["curriculum_state_entropy_2m"], results["no_curriculum_state_entropy_2m"]
     return [
-        "From pixels the APRiL way (thesis ch. 4 on this task; `python benchmarks/rl_arm2d_april.py "
+        "From pixels the APRiL way (thesis ch. 4 on this task; `python experiments/rl_arm2d_april.py "
         "curriculum_state_entropy_2m=RUN no_curriculum_state_entropy_2m=RUN`): the 2M-step state policies above act on "
         "the state read off the 64 px image alone, by a network that finds the two elbows, the end point and the goal "
         f"(spatial soft-argmax; {seen['train_images']:,} rendered random poses, {seen['epochs']} epochs, "
@@ -531,7 +530,7 @@ def pretrained_paragraph(results: dict) -> list[str]:
         f"earlier pixel runs {pixels['mean']:.1f} (keypoints + raw state loss) and {flattened['mean']:.1f} (flattened "
         "trunk). Better than every earlier pixel run, far from the state learner. The run was stopped with its last "
         "checkpoint at 1,200,009 of its 2M steps and its no-curriculum control at 600,010, to give the cores to the "
-        "measurement of where the lag starts (section 'A3C's pace on Arm2D's single goal' below); both resume with `python benchmarks/rl_arm2d.py "
+        "measurement of where the lag starts (section 'A3C's pace on Arm2D's single goal' below); both resume with `python experiments/rl_arm2d.py "
         "--only curriculum_keypoints_pretrained` and `--only no_curriculum_keypoints_pretrained`. The thesis reports "
         "its 25 after 1,000,000 episodes (§3.3: \"for the 1,000,000 episodes it took to achieve the final result in "
         "Section 3.2\"); 1M steps here are ~10,000 episodes.",
@@ -563,7 +562,7 @@ def headline_paragraph(results: dict) -> list[str]:
     pretrain = row["pretrain"]
     lines += [
         "Table 3.2's pair (`configs/rl/rl_arm2d_curriculum_keypoints_bottleneck_deep.yaml` and "
-        "`rl_arm2d_no_curriculum_keypoints_bottleneck_deep.yaml`; `python benchmarks/rl_arm2d.py --only curriculum "
+        "`rl_arm2d_no_curriculum_keypoints_bottleneck_deep.yaml`; `python experiments/rl_arm2d.py --only curriculum "
         "no_curriculum`, each resumes) learns end to end from 32 px pictures, the thesis's network changed where the way "
         "there (below) found it failing: a keypoints trunk (each feature map's expected position, so what it learnt "
         "of a goal in one place holds everywhere) whose auxiliary head regresses the arm's state with its angles as "

@@ -1,11 +1,11 @@
 """Table 3.2 from pixels the APRiL way: A3C state runs deployed on pixels through learnt keypoints.
 
-    python benchmarks/rl_arm2d_april.py KEY=RUN_DIR [KEY=RUN_DIR ...] [--images 12000] [--epochs 12]
+    python experiments/rl_arm2d_april.py KEY=RUN_DIR [KEY=RUN_DIR ...] [--images 12000] [--epochs 12]
 
 Trains (or reuses) the Arm2D keypoint network (binpick.april.arm2d; runs/bench/arm2d_keypoints/
 keypoints.safetensors, remade with --retrain) on rendered random poses and goals, measures its error on
 2,000 held-out images, then plays each run's state policy on the 200 seeded whole-area episodes of
-benchmarks/rl_arm2d.py -- the same seeds as the state rows -- from the image alone, greedy and sampling.
+experiments/rl_arm2d.py -- the same seeds as the state rows -- from the image alone, greedy and sampling.
 Rows ``KEY_pixels`` and ``KEY_pixels_sampled`` are merged into results/rl_arm2d.json.
 """
 
@@ -13,11 +13,9 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 import time
 
-sys.path.insert(0, os.path.dirname(__file__))
 
 import _common  # noqa: E402
 import rl_arm2d  # noqa: E402

@@ -4,15 +4,15 @@
         --copies 3,6 --distractors 2,3 --held-out can,mug,toy --workers 2 --sensor realistic   # trials (resumable)
     binpick data generate --out runs/data/grasp_trials_perfect --scenes 400 --policies '' --grasp-trials 4 \\
         --copies 3,6 --distractors 2,3 --held-out can,mug,toy --workers 2 --seed 1                  # perfect depth too
-    python benchmarks/grasp.py train                  # configs/grasping/grasp_quality.yaml: trains, ships the weights
-    python benchmarks/grasp.py eval --data runs/data/grasp_trials_realistic --data runs/data/grasp_trials_perfect \\
+    python experiments/grasp.py train                  # configs/grasping/grasp_quality.yaml: trains, ships the weights
+    python experiments/grasp.py eval --data runs/data/grasp_trials_realistic --data runs/data/grasp_trials_perfect \\
         [--bins 40]                                   # results/grasp.json: both kinds of depth
     binpick data generate --out runs/data/bins_learnt --scenes 1000 --policies learnt --workers 2 \
         --held-out can,mug,toy --set split_rule=random                         # pickability by the learnt policy
-    python benchmarks/grasp.py pickability                                     # fine-tunes ROD on it, before/after
+    python experiments/grasp.py pickability                                     # fine-tunes ROD on it, before/after
     binpick detect pickability configs/detection/pickability_photo_learnt_window.yaml --runs runs/grasp   # the shipped second look
     binpick detect pickability configs/detection/pickability_photo_learnt.yaml --runs runs/grasp   # one that also sees the photo
-    python benchmarks/grasp.py pickability --head RUN [--head RUN]             # ... a row per head
+    python experiments/grasp.py pickability --head RUN [--head RUN]             # ... a row per head
 
 ``eval`` reports (a) the model's ROC AUC on the held-out categories' trials (test split: products it
 never trained on), next to the analytic score's; (b) top-1 success: in new bins of held-out products,
@@ -25,12 +25,10 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 import time
 from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
-sys.path.insert(0, os.path.dirname(__file__))
 
 import _common  # noqa: E402
 from rod import run_folder, finished  # noqa: E402  (the newest run folder of a name; has it written its weights)
@@ -169,7 +167,7 @@ def section(result: dict, path: Path, bins: int) -> None:
     trials = result["held_out_trials"]
     top = result["top1_success"]
     lines = ["## Grasp policies and the grasp-quality model (Dex-Net 2.0 / GG-CNN's setting)", "",
-             f"`python benchmarks/grasp.py eval --bins {bins}` → `{path.relative_to(_common.ROOT)}`. Candidates come from depth "
+             f"`python experiments/grasp.py eval --bins {bins}` → `{path.relative_to(_common.ROOT)}`. Candidates come from depth "
              "alone (`binpick.grasping`), made ready once per frame (holes inpainted, noise smoothed, the support plane fitted): the "
              "instance's region of a watershed of heights above that plane that matches its box, 12 yaws over 180° and across its "
              "principal minor axis, the jaws centred on its extent and shifted 1 cm either way along the closing direction, "
@@ -208,7 +206,7 @@ def section(result: dict, path: Path, bins: int) -> None:
         lines += ["", "Pickability under the learnt policy (thesis §6.3; measured with the grasp planner and model before depth "
                   "as sensors give it, whose learnt policy labelled `bins_learnt`): the shipped photo-query ROD, trained on Policy 1 "
                   "(jaws along y) labels, fine-tuned 4 epochs on bins whose instances the learnt policy tried "
-                  f"(`python benchmarks/grasp.py pickability`: trained on `{p.get('train')}`, {p.get('train_scenes')} scenes; "
+                  f"(`python experiments/grasp.py pickability`: trained on `{p.get('train')}`, {p.get('train_scenes')} scenes; "
                   f"measured on the val and test scenes of `{p['data']}`). AP50 against the instances the learnt "
                   "policy picks (higher is better) and against those it cannot pick (lower: the detector prefers what the "
                   "policy can pick):", "",

@@ -1,6 +1,6 @@
 """Random-policy baselines: average episode length (actions until success, capped at T) ± std.
 
-    python benchmarks/random_policy.py [--episodes 1000]
+    python experiments/random_policy.py [--episodes 1000]
 
 Thesis figures: Arm2D with a fixed goal 369 ± 341 (T=1000, Table 3.1); Reacher 49.46 ± 4.49
 (T=50, Table 4.2). Also measured for the Fetch worlds, which the thesis does not report.
@@ -12,11 +12,9 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 import time
 
 os.environ.setdefault("MUJOCO_GL", "egl")
-sys.path.insert(0, os.path.dirname(__file__))
 
 import _common  # noqa: E402
 from rich.progress import Progress  # noqa: E402
@@ -64,7 +62,7 @@ def main() -> None:
         "## Random-policy baselines",
         "",
         "Average episode length = actions until success, capped at T; ± one standard deviation over "
-        "seeded episodes (episode i uses seed i). Produced by `python benchmarks/random_policy.py` → "
+        "seeded episodes (episode i uses seed i). Produced by `python experiments/random_policy.py` → "
         "`results/random_policy.json`.",
         "",
         "| env | T | episodes | ours: avg actions ± std | success | thesis | source |",

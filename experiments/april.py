@@ -1,7 +1,7 @@
 """Thesis Tables 4.2-4.5: APRiL rows per env - ground truth, pixels with conditioned / partly
 conditioned / unconditioned latents - with the simulator episodes each row used.
 
-    python benchmarks/april.py [--only april_fetchreach_w1.0 ...] [--report-only]
+    python experiments/april.py [--only april_fetchreach_w1.0 ...] [--report-only]
 
 Each name is a config in configs/ (configs/<name>.yaml); its run folder goes to runs/bench/april/.
 Rows are merged into results/april.json as {env: {row: {avg_actions, std, success, sim_episodes}}}
@@ -15,10 +15,8 @@ import json
 from dataclasses import replace
 import os
 import shutil
-import sys
 
 os.environ.setdefault("MUJOCO_GL", "egl")
-sys.path.insert(0, os.path.dirname(__file__))
 
 import _common  # noqa: E402
 
@@ -346,7 +344,7 @@ def main() -> None:
              "Average actions per episode (T = 50; pick and place T = 100) over seeded evaluation episodes; simulator episodes = "
              "training episodes the row needed (random-policy image episodes for perception + RL episodes; "
              "evaluation episodes not counted). Rows ending `_refined` had perception trained further on 100 noisy "
-             "episodes of the state policy (`refine:`). `python benchmarks/april.py` → `results/april.json`; "
+             "episodes of the state policy (`refine:`). `python experiments/april.py` → `results/april.json`; "
              "reconstructions and heat maps in `docs/img/april/`.", ""]
     for env, (table, thesis) in THESIS.items():
         rows = results.get(env, {})

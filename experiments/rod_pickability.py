@@ -1,7 +1,7 @@
 """The crop-query detector with and without its pickability head (``seen.rod.ap50``).
 
     binpick detect pickability configs/detection/pickability_crop_query.yaml --runs runs/pick38
-    python benchmarks/rod_pickability.py --weights runs/pick38/pickability_crop_query/<time>/model.safetensors \
+    python experiments/rod_pickability.py --weights runs/pick38/pickability_crop_query/<time>/model.safetensors \
         --data runs/data/bins_2000/annotations_val.json --data runs/data/bins_fresh_seed16/annotations_val.json \
         [--compare OTHER_HEAD.safetensors] [--ship]
 
@@ -23,11 +23,8 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import sys
 from pathlib import Path
 
-sys.path.insert(0, os.path.dirname(__file__))
 
 import _common  # noqa: E402
 
@@ -87,7 +84,7 @@ def section(result: dict) -> str:
     compared = "with_compared_head" in result["sets"][0]
     what = "a head that also sees the query" if result.get("query") else "a head that sees the window only"
     lines = ["## The crop query with a second look at each detection", "",
-             f"`python benchmarks/rod_pickability.py` → `results/rod_pickability.json`. Weights: `{result['weights']}`: "
+             f"`python experiments/rod_pickability.py` → `results/rod_pickability.json`. Weights: `{result['weights']}`: "
              f"{what} (`binpick detect pickability`, {result['head']['train_windows']} training windows, best val ROC AUC "
              f"{result['head']['val_auc']}). The same detections, scored by the detector alone"
              + (f", times the probability of the head before it (`{result['compared']['weights']}`, window only)" if compared else "")
@@ -159,7 +156,7 @@ def main() -> None:
             row["with_compared_head"] = scores_on(other, file)
         print(json.dumps(row), flush=True)
         result["sets"].append(row)
-    from rod import interleaved_latency_ms, latency_input  # benchmarks/ is on the path (above)
+    from rod import interleaved_latency_ms, latency_input  # experiments/ is on the path (the script's own folder)
 
     image, box, depth = latency_input()
     fast = detector.inference_network  # what Detector.predict runs
@@ -196,10 +193,10 @@ def ship(source: Path, result: dict) -> None:
     # this run's figures only: keys of the row it replaces (measured on other detections) would be stale
     rod["seen"]["rod"] = {**first["with_head"], "ap50_certain": None, "pickability_head": True,
                           "pickability_query": result.get("query", False),
-                          "measured": "benchmarks/rod_pickability.py (the shipped rod_tiny_320: detector and pickability head)"}
+                          "measured": "experiments/rod_pickability.py (the shipped rod_tiny_320: detector and pickability head)"}
     rod["latency_ms"]["shipped"] = result["latency_ms"]["with_head"]
     rod["latency_ms"]["shipped_detector_only"] = result["latency_ms"]["detector_only"]
-    rod["latency_ms"]["measured"] = "benchmarks/rod_pickability.py --ship, both in one run, in turns (the rest: benchmarks/rod.py latency)"
+    rod["latency_ms"]["measured"] = "experiments/rod_pickability.py --ship, both in one run, in turns (the rest: experiments/rod.py latency)"
     from binpick.files import atomic_write_text
 
     path = atomic_write_text(_common.RESULTS / "rod.json", json.dumps(rod, indent=2) + "\n")
