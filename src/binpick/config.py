@@ -81,8 +81,17 @@ def check_choice(name: str, value: Any, choices: Iterable[Any]) -> Any:
     options = list(choices)
     if value not in options:
         listed = ", ".join(repr(c) for c in options)
-        raise ConfigError(f"{name} must be one of {listed}, got {value!r}")
+        raise ConfigError(f"{name} must be one of {listed}, got {value!r}{did_you_mean(value, options)}")
     return value
+
+
+def did_you_mean(given: Any, known: Iterable[Any]) -> str:
+    """`` (did you mean 'x'?)`` for the nearest known name to a mistyped one (case ignored), else ``""``."""
+    import difflib
+
+    names = {str(k).lower(): str(k) for k in known}
+    near = difflib.get_close_matches(str(given).lower(), list(names), n=1, cutoff=0.6)
+    return f" (did you mean {names[near[0]]!r}?)" if near else ""
 
 
 def _range_text(low: float | None, high: float | None, low_inc: bool, high_inc: bool) -> str:
@@ -124,7 +133,8 @@ def from_dict(cls: type[T], data: dict[str, Any] | None, where: str = "config") 
     names = [f.name for f in dataclasses.fields(cls)]  # type: ignore[arg-type]
     unknown = [k for k in data if k not in names]
     if unknown:
-        raise ConfigError(f"{where} has no key {unknown[0]!r}; valid keys: {', '.join(names)}")
+        near = did_you_mean(unknown[0], names)
+        raise ConfigError(f"{where} has no key {unknown[0]!r}{near or '; valid keys: ' + ', '.join(names)}")
     values = {key: _convert(hints[key], value, f"{where}.{key}") for key, value in data.items()}
     return cls(**values)
 

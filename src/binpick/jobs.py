@@ -84,6 +84,17 @@ def load_job_config(path: str | Path, overrides: dict[str, Any] | None = None) -
     return kind, from_dict(kind.config_class(), data, where=path.name)
 
 
+def load_as(task: str, path: str | Path, overrides: dict[str, Any] | None = None) -> Any:
+    """A config file validated as ``task``'s config (what the per-task commands take): its own ``task:``,
+    where it has one, must agree."""
+    path = Path(path)
+    data = apply_overrides(load_yaml(path), overrides)
+    given = data.pop(TASK_KEY, task)
+    if given != task:
+        raise ConfigError(f"{path.name} is a {given!r} config; this command trains {task!r} (binpick train runs any)")
+    return from_dict(KINDS[task].config_class(), data, where=path.name)
+
+
 def job_kind_of_run(run_dir: str | Path) -> JobKind:
     """Which job a run folder belongs to: a data set holds ``dataset.json``, APRiL ``stages.json``;
     the others hold the config they were started with, which only their own dataclass accepts."""

@@ -81,6 +81,8 @@ def progress() -> RichCallback:
     return RichCallback(console)
 
 
+ResumeOption = Annotated[Path | None, typer.Option(help="Run folder to continue from its latest checkpoint")]
+RunsOption = Annotated[Path, typer.Option(help="Where new run folders go")]
 ConfigSetOption = Annotated[list[str] | None, typer.Option("--set", help="Config override KEY=VALUE or SECTION.KEY=VALUE, applied "
                                                                         "before validation (repeatable), e.g. --set train.epochs=2")]
 

@@ -10,6 +10,8 @@ from rich.table import Table
 
 from binpick.cli.app import (
     ConfigSetOption,
+    ResumeOption,
+    RunsOption,
     april_app,
     console,
     evaluate_with_progress,
@@ -24,8 +26,8 @@ from binpick.errors import ConfigError
 @april_app.command("run")
 def april_run(
     config: Annotated[Path | None, typer.Argument(help="YAML config (see configs/april/april_*.yaml)")] = None,
-    resume: Annotated[Path | None, typer.Option(help="APRiL run folder to continue after a crash")] = None,
-    runs: Annotated[Path, typer.Option(help="Where new run folders go")] = Path("runs"),
+    resume: ResumeOption = None,
+    runs: RunsOption = Path("runs"),
     settings: ConfigSetOption = None,
 ) -> None:
     """The whole pipeline: collect -> perception -> policy -> evaluate (resumable per stage)."""

@@ -11,35 +11,31 @@ from rich.table import Table
 
 from binpick.cli.app import (
     ConfigSetOption,
+    ResumeOption,
+    RunsOption,
     check_png_path,
     console,
     detect_app,
     fmt_metric,
     grasp_app,
-    parse_settings,
     progress,
     save_png,
-    start_or_resume,
 )
+from binpick.cli.train import run_task
 from binpick.files import atomic_write_json, ensure_dir
 
 
 @detect_app.command("train")
 def detect_train(
     config: Annotated[Path | None, typer.Argument(help="YAML config (see configs/detection/rod_*.yaml)")] = None,
-    resume: Annotated[Path | None, typer.Option(help="Run folder to continue from its latest checkpoint")] = None,
-    runs: Annotated[Path, typer.Option(help="Where new run folders go")] = Path("runs"),
+    resume: ResumeOption = None,
+    runs: RunsOption = Path("runs"),
     settings: ConfigSetOption = None,
 ) -> None:
     """Train a detector: checkpoints each epoch, TensorBoard, metrics.json and model.safetensors in runs/<name>/<time>/."""
-    from binpick.detection.config import load_detect_config
-    from binpick.detection.train import DetectorTrainer
 
-    trainer = start_or_resume(DetectorTrainer, config, resume, runs, load_detect_config, parse_settings(settings),
-                              where=lambda job: f" at epoch {job.epoch}")
-    console.print(f"{len(trainer.train_set)} training tasks")
-    with progress() as callback:
-        metrics = trainer.run(callback)
+    trainer, metrics = run_task("detect", config, resume, runs, settings,
+                                before_run=lambda job: console.print(f"{len(job.train_set)} training tasks"))
     final = metrics["final"]
     console.print(f"val AP50 {fmt_metric(final.get('ap50'))}, mAP {fmt_metric(final.get('map'))}; wrote {trainer.run_dir / 'model.safetensors'}")
 
@@ -47,24 +43,14 @@ def detect_train(
 @detect_app.command("pickability")
 def detect_pickability(
     config: Annotated[Path | None, typer.Argument(help="YAML config (see configs/detection/pickability_crop.yaml)")] = None,
-    resume: Annotated[Path | None, typer.Option(help="Run folder to continue from its latest checkpoint")] = None,
-    runs: Annotated[Path, typer.Option(help="Where new run folders go")] = Path("runs"),
+    resume: ResumeOption = None,
+    runs: RunsOption = Path("runs"),
     settings: ConfigSetOption = None,
 ) -> None:
     """Teach a detector a second look at each detection (will the policy pick this copy?): windows cut
     once, a checkpoint each epoch, TensorBoard, the best val ROC AUC kept; model.safetensors in
     runs/<name>/<time>/ is the detector with its pickability head."""
-    from binpick.config import load_config
-    from binpick.detection.pickability_training import (
-        PickabilityConfig,
-        PickabilityTrainer,
-    )
-
-    trainer = start_or_resume(PickabilityTrainer, config, resume, runs,
-                              lambda path, overrides: load_config(PickabilityConfig, path, overrides),
-                              parse_settings(settings), where=lambda job: f" at epoch {job.epoch}")
-    with progress() as callback:
-        metrics = trainer.run(callback)
+    trainer, metrics = run_task("pickability", config, resume, runs, settings)
     console.print(f"best val ROC AUC {fmt_metric(metrics['best_val_auc'])}; wrote {trainer.run_dir / 'model.safetensors'} "
                   f"(binpick detect eval {trainer.run_dir} --data ...)")
 
@@ -72,19 +58,13 @@ def detect_pickability(
 @grasp_app.command("train")
 def grasp_train(
     config: Annotated[Path | None, typer.Argument(help="YAML config (see configs/grasping/grasp_quality.yaml)")] = None,
-    resume: Annotated[Path | None, typer.Option(help="Run folder to continue from its latest checkpoint")] = None,
-    runs: Annotated[Path, typer.Option(help="Where new run folders go")] = Path("runs"),
+    resume: ResumeOption = None,
+    runs: RunsOption = Path("runs"),
     settings: ConfigSetOption = None,
 ) -> None:
     """Train the grasp-quality network on a data set with --grasp-trials: a checkpoint each epoch,
     TensorBoard, the best val ROC AUC kept, model.safetensors in runs/<name>/<time>/."""
-    from binpick.config import load_config
-    from binpick.grasping.training import QualityTrainConfig, QualityTrainer
-
-    trainer = start_or_resume(QualityTrainer, config, resume, runs, lambda path, overrides: load_config(QualityTrainConfig, path, overrides),
-                              parse_settings(settings), where=lambda job: f" at epoch {job.epoch}")
-    with progress() as callback:
-        metrics = trainer.run(callback)
+    trainer, metrics = run_task("grasp_quality", config, resume, runs, settings)
     console.print(f"best val ROC AUC {fmt_metric(metrics['best_val_auc'])}; wrote {trainer.run_dir / 'model.safetensors'} "
                   f"(use it with binpick pick --grasp learnt --grasp-weights)")
 

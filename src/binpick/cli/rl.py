@@ -10,6 +10,8 @@ import typer
 
 from binpick.cli.app import (
     ConfigSetOption,
+    ResumeOption,
+    RunsOption,
     console,
     evaluate_with_progress,
     parse_settings,
@@ -25,8 +27,8 @@ from binpick.files import ensure_dir
 @rl_app.command("train")
 def rl_train(
     config: Annotated[Path | None, typer.Argument(help="YAML config (see configs/rl/rl_*.yaml)")] = None,
-    resume: Annotated[Path | None, typer.Option(help="Run folder to continue from its latest checkpoint")] = None,
-    runs: Annotated[Path, typer.Option(help="Where new run folders go")] = Path("runs"),
+    resume: ResumeOption = None,
+    runs: RunsOption = Path("runs"),
     steps: Annotated[int | None, typer.Option(help="Same as --set total_timesteps=N (simulator steps)")] = None,
     seed: Annotated[int | None, seed_option("Same as --set seed=N")] = None,
     init_from: Annotated[Path | None, typer.Option(help="A3C: start from this run's latest checkpoint (--set init_from=RUN)")] = None,

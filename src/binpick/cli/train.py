@@ -52,6 +52,32 @@ def train(
     console.print(f"done: {'' if done is None else f'{done} {kind.steps_key}; '}{summary(metrics)}; run folder {job.run_dir}")
 
 
+def run_task(task: str, config: Path | None, resume: Path | None, runs: Path, settings: list[str] | None,
+             before_run=None) -> tuple[object, dict]:
+    """What every per-task training command does: a new run of ``task`` from ``config`` (+ ``--set``), or
+    ``--resume`` of one of its runs, then the job with progress bars; returns the job and its metrics."""
+    from binpick import jobs
+
+    if (config is None) == (resume is None):
+        raise ConfigError("give either a CONFIG file to start a run or --resume RUN_DIR to continue one")
+    kind = jobs.KINDS[task]
+    if resume is not None:
+        if settings:
+            raise ConfigError("--set and other overrides apply to new runs; a resumed run keeps its config.yaml")
+        if not (resume / "config.yaml").is_file():
+            raise ConfigError(f"{str(resume)!r} is not a run folder (no config.yaml)")
+        job = kind.job_class().resume(resume)
+        done = jobs.progress(resume)
+        console.print(f"resuming {resume}{'' if done is None else f' at {done} {kind.steps_key}'}")
+    else:
+        job = kind.job_class().new(jobs.load_as(task, config, parse_settings(settings)), runs)
+        console.print(f"run folder: {job.run_dir}")
+    if before_run is not None:
+        before_run(job)
+    with progress() as callback:
+        return job, job.run(callback)
+
+
 def summary(metrics: dict) -> str:
     """The run's headline figures, whichever job it was."""
     parts = []
