@@ -826,7 +826,7 @@ def write_generalisation_markdown(result: dict, path: Path) -> None:
              "|---|---|---|---|---|---|---|---|",
              f"| {ap(shifted, 'rod')} | {ap(shifted, 'rod_no_lh')} | {ap(shifted, 'tdid')} | {ap(shifted, 'rod_small')} | "
              f"{ap(shifted, 'rod_finetuned')} | {ap(shifted, 'rod_before')} | {ap(shifted, 'template')} | {ap(shifted, 'histogram')} |", "",
-             "(— : not trained in this session.)", "",
+             "(— : not trained in this run of the experiment.)", "",
              "Zero-shot, default domain (categories never trained on; targets: every other copy). Target: ROD ≥ TDID + 0.05 on each:", "",
              "| held-out category | ROD | ROD w/o L_h | TDID | template | histogram | ROD fine-tuned, pickable (before) | photo query, pickable (before) |",
              "|---|---|---|---|---|---|---|---|"]

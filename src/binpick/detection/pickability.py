@@ -1,9 +1,8 @@
 """A second look at each detection: will the policy pick this copy? (thesis §5.4.4, §6.3)
 
-ROD finds the copies of a product well (97% of the pickable ones at IoU 0.5 on binpick's default
-bins) but ranks pickable against unpickable copies with a ROC AUC of only 0.87: whether Policy 1's jaws
-can close on a copy turns on its outline and pose and on its neighbours, details a 320 px one-stage
-detector shares with everything else it must do. So, as two-stage detectors re-score their proposals,
+ROD finds the copies of a product well but ranks pickable against unpickable ones less well (the
+figures: docs/notes.md, "Tuning notes"): whether Policy 1's jaws can close on a copy turns on its outline
+and pose and on its neighbours, details a 320 px one-stage detector shares with everything else it must do. So, as two-stage detectors re-score their proposals,
 a small network looks again at each detection: a window around it (its neighbours and where the fingers
 go, a fixed share of the image so widths keep their meaning), colour and the height map, the box drawn
 as a mask; it says how likely the policy is to pick that copy, and the detection's score is multiplied

@@ -274,8 +274,7 @@ class DetectorTrainer:
 
     def learning_rate(self) -> float:
         """Linear warm-up, then cosine decay to 5% of ``lr`` by the last step or by ``max_minutes``,
-        whichever comes first. (A pre-training cut by time at 2.4 of 30 planned epochs stopped at 98%
-        of its peak rate; annealing it afterwards on 9,000 images raised its val AP50 from 0.68 to 0.81.)"""
+        whichever comes first (why the time budget anneals too: docs/notes.md, "Tuning notes")."""
         train = self.config.train
         if self.step < train.warmup_steps:
             return train.lr * (self.step + 1) / train.warmup_steps

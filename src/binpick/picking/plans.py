@@ -19,8 +19,7 @@ def larger_than(surface, size, margin: float = 0.02, relative: float = 0.15) -> 
     """Whether what depth shows of an instance is too big to be a product of catalogue ``size`` (its
     bounding-box sides, any order): the visible top's long side against the product's longest,
     its short side against the middle one, its height against the longest. Occlusion only shrinks
-    what is seen, so only too big counts. On tuning bins 95% of the products' own instances measured
-    within their sides, 99% within 3.6 cm (two touching copies seen as one)."""
+    what is seen, so only too big counts (its margins: docs/notes.md, "Tuning notes")."""
     first, second, _ = sorted((float(v) for v in size), reverse=True)
     major, minor = surface.extents()
     slack = lambda side: max(margin, relative * side)  # noqa: E731

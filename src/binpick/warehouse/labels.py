@@ -11,10 +11,7 @@ import numpy as np
 def trial_ready(sim) -> None:
     """Trials run as the pick pipeline grasps: with the tote's invisible drop guards off. The guards
     keep products in the tote while a scene settles, but a trial's carry takes the product out over
-    the walls. With them on, the learnt policy's trials on fully visible instances lifted box_00 64%,
-    cylinder_04 68% and shape_940 52% of the time, against 82%, 82% and 64% with them off, which is
-    what the pipeline places (82%, 82%, 61%): labels and grasp trials counted grasps the robot makes
-    as failures, most of them of tall products and of instances near a wall."""
+    the walls (what that did to the labels: docs/notes.md, "Tuning notes")."""
     sim.set_guards(False)
 
 

@@ -86,10 +86,8 @@ class PickPipeline:
 
     ``rank_from`` (None: off) ranks the detections scoring at least this (below the weights' own
     threshold) by detector score times the check's score: the photo-query detector often scores the
-    ordered product's copies lowest in a cluttered bin (0.01-0.02 for red cans while a grey shape got
-    0.24), and the check tells them apart. On the tuning bins (20 orders each, seeds 30000+ and
-    31000+), 0.01 with the colour check raised seen orders placed from 80% to 85% (right product 90% to
-    95%) and held-out ones from 40% to 95% (right product 80% to 95%).
+    ordered product's copies lowest in a cluttered bin, and the check tells them apart (why 0.01:
+    docs/notes.md, "Tuning notes").
 
     ``oracle=True`` takes the ordered product's boxes from the simulator (most visible first) instead of
     the detector: what the grasp alone achieves, to tell detection failures from grasp failures.
