@@ -164,7 +164,7 @@ def make_corpus(root: Path) -> dict[str, str]:
     coco("coco_image_size_zero.json", images=[image | {"width": 0}])
 
     # detector weights whose metadata asks for too much
-    from binpick import tensorfile
+    from binpick.core import tensorfile
     from binpick.detection.model import DetectorNetwork, ModelSpec
     from binpick.detection.train import FORMAT, save_detector
 

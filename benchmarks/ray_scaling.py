@@ -28,7 +28,7 @@ def throughput(workers: int, seconds: float) -> dict:
     from stable_baselines3 import SAC
     from stable_baselines3.common.vec_env import DummyVecEnv
 
-    from binpick.distributed.rollouts import DistributedRollouts
+    from binpick.integrations.ray.rollouts import DistributedRollouts
     from binpick.envs import make
 
     local = make(ENV)
@@ -50,7 +50,7 @@ def throughput(workers: int, seconds: float) -> dict:
 
 
 def killed_run(steps: int) -> dict:
-    from binpick.distributed.learner import DistributedConfig, train_distributed
+    from binpick.integrations.ray.learner import DistributedConfig, train_distributed
 
     killed = {}
 

@@ -50,7 +50,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=50)
     args = parser.parse_args()
-    from binpick.ros.master import RosMaster
+    from binpick.integrations.ros1.master import RosMaster
 
     with RosMaster() as master, tempfile.TemporaryDirectory() as folder:
         server = subprocess.Popen(CLI + ["ros", "serve", "binpick/FetchReach-v0", "--namespace", "/binpick/fetch_reach",

@@ -32,7 +32,7 @@ class Ros1:
     """A master, the node (a child process) and this process's publishers and action client."""
 
     def __init__(self, camera_yaml: Path, node_args: list[str], timeout: float) -> None:
-        from binpick.ros.master import RosMaster
+        from binpick.integrations.ros1.master import RosMaster
 
         self.master = RosMaster()
         os.environ.update({k: v for k, v in self.master.environment.items() if k.startswith("ROS_")})
@@ -43,8 +43,8 @@ class Ros1:
         import rospy
         import sensor_msgs.msg
 
-        from binpick.ros.client import init_node_once
-        from binpick.ros.messages import plan_pick_action_types
+        from binpick.integrations.ros1.client import init_node_once
+        from binpick.integrations.ros1.messages import plan_pick_action_types
 
         init_node_once("binpick_sim_camera", timeout)
         self.rospy, self.actionlib, self.msgs = rospy, actionlib, sensor_msgs.msg
@@ -163,7 +163,7 @@ class Ros2:
         import std_msgs.msg
         from rclpy.qos import qos_profile_sensor_data
 
-        from binpick.ros2.pick_node import image_message
+        from binpick.integrations.ros2.pick_node import image_message
 
         self.rclpy, self.msgs, self.std, self.image_message = rclpy, sensor_msgs.msg, std_msgs.msg, image_message
         rclpy.init()

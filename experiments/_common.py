@@ -74,7 +74,7 @@ def training_scalars(run: Path, *tags: str, optional: tuple[str, ...] = ()) -> d
 
 
 def write_result(name: str, payload: dict) -> Path:
-    from binpick.files import atomic_write_text
+    from binpick.core.files import atomic_write_text
 
     path = RESULTS / f"{name}.json"
     return atomic_write_text(path, json.dumps({"benchmark": name, "machine": machine(), **payload}, indent=2) + "\n")
@@ -91,7 +91,7 @@ def write_section(name: str, markdown: str) -> None:
         text = before + block + after
     else:
         text = text.rstrip() + "\n\n" + block + "\n"
-    from binpick.files import atomic_write_text
+    from binpick.core.files import atomic_write_text
 
     atomic_write_text(RESULTS_MD, text)
 

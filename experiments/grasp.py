@@ -42,7 +42,7 @@ POLICIES = ["fixed", "analytic", "learnt"]
 
 def train() -> None:
     """The shipped model's recipe (configs/grasping/grasp_quality.yaml), resumed if its newest run stopped."""
-    from binpick.config import load_config
+    from binpick.core.config import load_config
     from binpick.grasping.quality import SHIPPED, GraspQuality
     from binpick.grasping.training import QualityTrainConfig, QualityTrainer
     from binpick.terminal import RichCallback
@@ -165,7 +165,6 @@ def evaluate(data: list[Path], bins: int) -> None:
 
 def section(result: dict, path: Path, bins: int) -> None:
     trials = result["held_out_trials"]
-    top = result["top1_success"]
     lines = ["## Grasp policies and the grasp-quality model (Dex-Net 2.0 / GG-CNN's setting)", "",
              f"`python experiments/grasp.py eval --bins {bins}` → `{path.relative_to(_common.ROOT)}`. Candidates come from depth "
              "alone (`binpick.grasping`), made ready once per frame (holes inpainted, noise smoothed, the support plane fitted): the "

@@ -170,7 +170,7 @@ def single_copy(orders: int, sensor: str) -> dict:
     the robot looks again and plans anew (up to three grasps: ``PickPipeline.pick_pointed``). Placed:
     the pointed instance reached the order tote; right object: of everything lifted, the share that
     was the pointed instance; pointed or nothing: the orders in which nothing else was lifted."""
-    from binpick.errors import BinpickError
+    from binpick.core.errors import BinpickError
     from binpick.warehouse.grasping import Reason
     from binpick.warehouse.pipeline import OrderResult, summarise
 

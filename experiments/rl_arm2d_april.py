@@ -45,7 +45,7 @@ def perception(images: int, epochs: int, retrain: bool) -> tuple[object, dict]:
             "held_out_images": 2000, "held_out": keypoint_errors(model, held_pictures, held_points)}
     FOLDER.mkdir(parents=True, exist_ok=True)
     save_keypoints(model, path, **{k: v for k, v in info.items() if k != "history"})
-    from binpick.files import atomic_write_text
+    from binpick.core.files import atomic_write_text
 
     atomic_write_text(FOLDER / "keypoints.json", json.dumps(info, indent=1))
     return model, info

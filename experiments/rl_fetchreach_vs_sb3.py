@@ -47,7 +47,7 @@ def run_tqc_her_zoo(seed: int, steps: int) -> dict:
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
     from binpick.envs import make
-    from binpick.files import atomic_write_json
+    from binpick.core.files import atomic_write_json
     from binpick.rl.evaluate import evaluate_policy
 
     env = VecNormalize(DummyVecEnv([lambda: TimeFeatureWrapper(make("binpick/FetchReach-v0"))]), gamma=0.95)

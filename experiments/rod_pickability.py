@@ -197,7 +197,7 @@ def ship(source: Path, result: dict) -> None:
     rod["latency_ms"]["shipped"] = result["latency_ms"]["with_head"]
     rod["latency_ms"]["shipped_detector_only"] = result["latency_ms"]["detector_only"]
     rod["latency_ms"]["measured"] = "experiments/rod_pickability.py --ship, both in one run, in turns (the rest: experiments/rod.py latency)"
-    from binpick.files import atomic_write_text
+    from binpick.core.files import atomic_write_text
 
     path = atomic_write_text(_common.RESULTS / "rod.json", json.dumps(rod, indent=2) + "\n")
     from rod import write_generalisation_markdown

@@ -31,7 +31,7 @@ SHIPPED_ROD = _common.ROOT / "src" / "binpick" / "detection" / "weights" / "rod_
 
 
 def train(config_file: Path, settings: list[str] | None) -> None:
-    from binpick.config import load_config
+    from binpick.core.config import load_config
     from binpick.detection.recurrent_training import RecurrentTrainConfig, train_recurrent
     from binpick.terminal import RichCallback
 
@@ -105,7 +105,7 @@ def report(pretrained_path: Path, finetuned_path: Path) -> None:
         "measured": "experiments/rod_recurrent.py report",
     }
     result["shifted_domain"]["recurrent"] = rows["recurrent"]["shifted_domain"]
-    from binpick.files import atomic_write_text
+    from binpick.core.files import atomic_write_text
 
     atomic_write_text(path, json.dumps(result, indent=2) + "\n")
     write_markdown(result["recurrent"])
@@ -137,7 +137,7 @@ def repeats(pretrained_path: Path, tasks: int = 100) -> None:
     result = json.loads(path.read_text())
     result["recurrent"]["repeated_steps"] = {"share": round(repeated / max(1, boxes), 4), "boxes_per_task": round(boxes / max(1, min(tasks, len(dataset))), 2),
                                              "tasks": min(tasks, len(dataset)), "data": "held-out categories, default bins (test split)"}
-    from binpick.files import atomic_write_text
+    from binpick.core.files import atomic_write_text
 
     atomic_write_text(path, json.dumps(result, indent=2) + "\n")
     print(result["recurrent"]["repeated_steps"], flush=True)

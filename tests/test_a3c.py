@@ -103,10 +103,10 @@ def _check_init_from(source, tmp_path):
     import pytest
     import yaml
 
-    from binpick.config import from_dict
-    from binpick.errors import ConfigError
+    from binpick.core.config import from_dict
+    from binpick.core.errors import ConfigError
     from binpick.rl.a3c_train import read_a3c_checkpoint
-    from binpick.runs import latest_checkpoint
+    from binpick.core.runs import latest_checkpoint
     from binpick.rl.config import RLConfig
     from binpick.rl.train import trainer_for
 
@@ -126,7 +126,7 @@ def _check_init_from(source, tmp_path):
 
 
 def test_sb3_curriculum_callback_widens_the_training_envs_goal_area(tmp_path):
-    from binpick.config import from_dict, to_dict
+    from binpick.core.config import from_dict, to_dict
     from binpick.rl.config import RLConfig
     from binpick.rl.train import Trainer, trainer_for
 
@@ -159,7 +159,7 @@ def test_curriculum_widens_only_once_the_agent_has_re_converged():
     """Thesis §3.2: hold an area until the recent average has settled, then ramp to the next."""
     import pytest
 
-    from binpick.errors import ConfigError
+    from binpick.core.errors import ConfigError
     from binpick.rl.curriculum import CurriculumProgress
 
     schedule = CurriculumConfig([CurriculumStage(0.0, 0, 100), CurriculumStage(0.5, 100, 50), CurriculumStage(1.0, 100)],
@@ -178,7 +178,7 @@ def test_curriculum_widens_only_once_the_agent_has_re_converged():
     assert resumed.record(310, [20] * 5, 0.5) and resumed.stage == 2 and resumed.advanced_at == [150, 310]
     assert resumed.goal_area(360) == 0.75 and resumed.goal_area(10**6) == 1.0
     assert not resumed.record(10**6, [5] * 20, 1.0)  # the last stage holds for the rest of the run
-    from binpick.errors import InputFileError
+    from binpick.core.errors import InputFileError
 
     with pytest.raises(InputFileError, match="curriculum state is damaged"):
         CurriculumProgress(schedule).load_state_dict({"stage": "two"})
@@ -211,12 +211,12 @@ def test_a3c_encoder_is_saved_with_the_weights_and_a_mismatch_is_one_line(tmp_pa
     import pytest
     import yaml
 
-    from binpick.config import from_dict
-    from binpick.errors import ConfigError
+    from binpick.core.config import from_dict
+    from binpick.core.errors import ConfigError
     from binpick.rl.a3c_train import load_a3c_policy
     from binpick.rl.config import RLConfig
     from binpick.rl.train import trainer_for
-    from binpick.runs import latest_checkpoint
+    from binpick.core.runs import latest_checkpoint
 
     settings = yaml.safe_load(A3C_RUN.format(steps=40)) | {"a3c": {"workers": 1, "n_steps": 5, "encoder": "keypoints"}}
     trainer = trainer_for(from_dict(RLConfig, settings), tmp_path / "runs")
@@ -314,12 +314,12 @@ def test_state_encoder_learns_an_action_that_depends_on_the_state_vector():
 def test_state_encoder_runs_on_arm2d_state_and_mismatched_configs_are_one_line(tmp_path):
     import yaml
 
-    from binpick.config import from_dict
-    from binpick.errors import ConfigError
+    from binpick.core.config import from_dict
+    from binpick.core.errors import ConfigError
     from binpick.rl.a3c_train import load_a3c_policy
     from binpick.rl.config import RLConfig
     from binpick.rl.train import trainer_for
-    from binpick.runs import latest_checkpoint
+    from binpick.core.runs import latest_checkpoint
 
     settings = yaml.safe_load(A3C_RUN.format(steps=40))
     state_run = settings | {"env_kwargs": {"goal_conditioned": True, "image": None, "tolerance": 0.2},
@@ -346,8 +346,8 @@ def test_perception_pretraining_reads_the_state_before_rl_and_is_not_redone_on_r
     before any RL step; the run records it, checkpoints it, and a resumed run keeps the weights it has."""
     import yaml
 
-    from binpick.config import from_dict
-    from binpick.errors import ConfigError
+    from binpick.core.config import from_dict
+    from binpick.core.errors import ConfigError
     from binpick.rl.config import RLConfig
     from binpick.rl.train import trainer_for
 
@@ -377,12 +377,12 @@ def test_state_estimate_bottleneck_acts_on_the_read_state_and_is_saved_with_the_
 
     from binpick.envs import make
 
-    from binpick.config import from_dict
-    from binpick.errors import ConfigError
+    from binpick.core.config import from_dict
+    from binpick.core.errors import ConfigError
     from binpick.rl.a3c_train import load_a3c_policy
     from binpick.rl.config import RLConfig
     from binpick.rl.train import trainer_for
-    from binpick.runs import latest_checkpoint
+    from binpick.core.runs import latest_checkpoint
 
     torch.manual_seed(0)
     pictures = torch.randint(0, 256, (4, 32, 32, 3), dtype=torch.uint8)
@@ -434,8 +434,8 @@ def test_state_estimate_bottleneck_acts_on_the_read_state_and_is_saved_with_the_
 def test_state_noise_perturbs_each_step_reproducibly_and_only_state_vectors():
     """a3c.state_noise: the state learner given a picture reader's error, fresh each step, seeded by
     reset; the env underneath (goal, start) is the same as without it."""
-    from binpick.config import from_dict
-    from binpick.errors import ConfigError
+    from binpick.core.config import from_dict
+    from binpick.core.errors import ConfigError
     from binpick.rl.a3c_train import make_env
     from binpick.rl.config import RLConfig
 
@@ -523,7 +523,7 @@ def test_reading_errors_add_a_row_of_the_table_seeded_and_untied_from_the_pose()
     from gymnasium.wrappers import FlattenObservation
 
     from binpick.envs import make
-    from binpick.errors import ConfigError
+    from binpick.core.errors import ConfigError
     from binpick.rl.wrappers import ReadingErrors
 
     table = np.random.default_rng(0).normal(0.0, 0.05, (40, 12))
@@ -551,12 +551,12 @@ def test_hidden_layers_deepen_the_heads_network_and_are_saved_with_the_weights(t
     another depth cannot continue from the weights; a bad value is one line."""
     import yaml
 
-    from binpick.config import from_dict
-    from binpick.errors import ConfigError
+    from binpick.core.config import from_dict
+    from binpick.core.errors import ConfigError
     from binpick.rl.a3c_train import load_a3c_policy
     from binpick.rl.config import RLConfig
     from binpick.rl.train import trainer_for
-    from binpick.runs import latest_checkpoint
+    from binpick.core.runs import latest_checkpoint
 
     def linears(module):
         return [m for m in module if isinstance(m, torch.nn.Linear)]
@@ -609,8 +609,8 @@ def test_a_run_whose_workers_fail_is_an_error_not_a_finished_run(tmp_path):
     evaluated and wrote metrics.json for a run that never trained. Now it is one clear error naming the run."""
     import yaml
 
-    from binpick.config import from_dict
-    from binpick.errors import WorkerError
+    from binpick.core.config import from_dict
+    from binpick.core.errors import WorkerError
     from binpick.rl.a3c_train import A3CTrainer
     from binpick.rl.config import RLConfig
 

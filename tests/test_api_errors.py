@@ -6,7 +6,7 @@ import pytest
 
 import binpick
 from binpick.envs.arm2d import Arm2DEnv
-from binpick.errors import BinpickError, ConfigError, UnknownEnvError
+from binpick.core.errors import BinpickError, ConfigError, UnknownEnvError
 
 
 def test_unknown_env_id_lists_valid_ids():
@@ -66,7 +66,7 @@ def test_make_rejects_bad_parameters(env_id, kwargs, fragment):
 
 
 def test_an_empty_setting_for_a_text_field_says_how_to_write_an_empty_string():
-    from binpick.config import apply_overrides, from_dict
+    from binpick.core.config import apply_overrides, from_dict
     from binpick.detection.pickability_training import PickabilityConfig
 
     data = apply_overrides({"val": "d.json", "init": "runs/x"}, {"init": None})  # --set init=

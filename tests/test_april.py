@@ -17,9 +17,9 @@ from stable_baselines3 import SAC
 
 from binpick.april.finetune import widen_from_semantic
 from binpick.envs import make
-from binpick.errors import ConfigError
-from binpick.files import read_npz
-from binpick.runs import SILENT
+from binpick.core.errors import ConfigError
+from binpick.core.files import read_npz
+from binpick.core.runs import SILENT
 from binpick.rl.wrappers import SemanticState
 
 CLI = [sys.executable, "-c", "from binpick.cli import main; main()"]
@@ -161,7 +161,7 @@ def _latent_policy_distilled_from_the_state_policy(state_run, tmp_path):
     # a student that starts from random weights (not widened) learns the state policy's actions
     from binpick.april.finetune import distill_from_state_policy
     from binpick.april.observations import EncodedObservation
-    from binpick.perception import load_perception, perception_path
+    from binpick.april.perception import load_perception, perception_path
     from binpick.rl.train import load_policy
 
     perception = load_perception(perception_path(run.run_dir))
@@ -255,7 +255,7 @@ def test_teachers_that_know_the_box_label_the_students_images(tmp_path):
     import torch
 
     from binpick.april.finetune import PRETRAINED_PERCEPTION_FILE
-    from binpick.perception import load_perception
+    from binpick.april.perception import load_perception
 
     run, rows = _distilled_obstacle_run(tmp_path, "rl.yaml", "pretrain: false, teacher: detour, finetune_steps: 20, "
                                                              "distill_every: 10, distill_gradient_steps: 3, distill_encoder: true")
@@ -316,7 +316,7 @@ def test_demonstrations_fill_the_replay_and_behaviour_cloning_imitates_the_heuri
     """Thesis §4.5.3: heuristic episodes in the replay and an actor pretrained to imitate them."""
     import yaml
 
-    from binpick.config import from_dict
+    from binpick.core.config import from_dict
     from binpick.rl.config import RLConfig
     from binpick.rl.train import trainer_for
 
@@ -361,7 +361,7 @@ def test_cloning_fits_sigma_goes_on_during_rl_and_survives_a_resume(tmp_path):
     import torch
     import yaml
 
-    from binpick.config import from_dict
+    from binpick.core.config import from_dict
     from binpick.rl.config import RLConfig
     from binpick.rl.demonstrations import cloning_loss
     from binpick.rl.train import Trainer, trainer_for
@@ -419,7 +419,7 @@ def test_pick_and_place_images_come_from_the_heuristic_so_the_object_moves(tmp_p
 
     from binpick.april import AprilRun
     from binpick.april.config import AprilConfig
-    from binpick.config import from_dict
+    from binpick.core.config import from_dict
 
     config = from_dict(AprilConfig, yaml.safe_load("""
 name: tiny_pnp_collect

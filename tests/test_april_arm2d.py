@@ -9,7 +9,7 @@ from gymnasium.wrappers import FlattenObservation
 from binpick.april.arm2d import (PixelsAsArm2DState, collect, keypoint_errors, load_keypoints, save_keypoints,
                                  state_from_keypoints, train_keypoints, true_keypoints)
 from binpick.envs import make
-from binpick.errors import InputFileError
+from binpick.core.errors import InputFileError
 
 
 def test_the_state_rebuilt_from_true_keypoints_is_the_envs_own():
@@ -60,8 +60,8 @@ def test_a3c_trains_a_state_learner_on_the_state_read_off_pixels(tmp_path):
     import torch
 
     from binpick.april.arm2d import Arm2DKeypoints, ReadStateOffPixels
-    from binpick.config import from_dict
-    from binpick.errors import ConfigError
+    from binpick.core.config import from_dict
+    from binpick.core.errors import ConfigError
     from binpick.rl.a3c_train import A3CTrainer, make_env
     from binpick.rl.config import RLConfig
 

@@ -21,7 +21,7 @@ import yaml
 from PIL import Image
 
 from binpick.cli import main
-from binpick.ros.master import free_port
+from binpick.integrations.ros1.master import free_port
 
 TINY_RL = {"name": "tiny", "env": "FetchReach", "total_timesteps": 200, "checkpoint_every": 100,
            "replay": {"capacity_episodes": 100, "her_additions": 1, "start_fraction": 0.01},
@@ -77,7 +77,7 @@ def world(tmp_path_factory) -> dict[str, str]:
     put("coco_zero_box.json", json.dumps(_coco([good_image], [box | {"bbox": [4, 4, 0, 10]}, two[1]])))
 
     # detector weights: a good tiny one and damaged ones
-    from binpick import tensorfile
+    from binpick.core import tensorfile
     from binpick.detection.model import DetectorNetwork, ModelSpec
     from binpick.detection.train import FORMAT, save_detector
 
@@ -421,7 +421,7 @@ def _free_uri() -> str:
     ["ros", "bench", "--master", "{uri}", "--timeout", "2", "--episodes", "1"],
 ], ids=["serve", "bench"])
 def test_an_absent_ros_master_is_one_line_within_the_timeout(args, tmp_path):
-    from binpick.ros import ros_missing
+    from binpick.integrations.ros1 import ros_missing
 
     if ros_missing():
         pytest.skip(ros_missing())
@@ -436,13 +436,13 @@ def test_an_absent_ros_master_is_one_line_within_the_timeout(args, tmp_path):
 
 
 def test_ros_client_env_gives_up_on_an_absent_master(tmp_path):
-    from binpick.ros import ros_missing
+    from binpick.integrations.ros1 import ros_missing
 
     if ros_missing():
         pytest.skip(ros_missing())
     uri = _free_uri()
     code = ("import gymnasium, binpick\n"
-            "from binpick.errors import BinpickError\n"
+            "from binpick.core.errors import BinpickError\n"
             "try:\n    gymnasium.make('binpick/Ros-v0', namespace='/x', timeout=1.5)\n"
             "except BinpickError as e:\n    print('refused:', e)\n")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
@@ -454,7 +454,7 @@ def test_ros_master_stops_its_child_on_sigterm(tmp_path):
     import signal
     import socket
 
-    from binpick.ros import ros_missing
+    from binpick.integrations.ros1 import ros_missing
 
     if ros_missing():
         pytest.skip(ros_missing())

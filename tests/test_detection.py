@@ -22,7 +22,7 @@ from binpick.detection.model import DetectorNetwork, ModelSpec
 from binpick.detection.ops import box_iou, generalized_box_iou, nms
 from binpick.detection.rod import RODModule
 from binpick.detection.train import DetectorTrainer, evaluate_model, kmeans_anchors, load_detector, save_detector
-from binpick.errors import ConfigError, InputFileError
+from binpick.core.errors import ConfigError, InputFileError
 from synthetic_coco import make_coco
 
 CLI = [sys.executable, "-c", "from binpick.cli import main; main()"]
@@ -414,7 +414,7 @@ def test_shop_photos_are_framed_on_their_product():
 
 
 def test_photo_sizes_match_the_photo_at_each_size_and_load_from_crop_weights(tmp_path):
-    from binpick.errors import ConfigError
+    from binpick.core.errors import ConfigError
 
     torch.manual_seed(0)
     spec = ModelSpec(query="photo", photo_sizes=(0.25, 0.5))

@@ -8,7 +8,7 @@ import signal
 
 import pytest
 
-from binpick.distributed.learner import DistributedConfig, train_distributed
+from binpick.integrations.ray.learner import DistributedConfig, train_distributed
 
 
 @pytest.mark.slow
@@ -38,13 +38,13 @@ def test_a_killed_worker_is_restarted_and_the_run_finishes(tmp_path):
 
 @pytest.mark.slow
 def test_a3c_workers_as_ray_actors_send_gradients_to_the_learner(tmp_path):
-    from binpick.distributed.a3c import DistributedA3CConfig, train_a3c_distributed
+    from binpick.integrations.ray.a3c import DistributedA3CConfig, train_a3c_distributed
 
     seen = []
     metrics = train_a3c_distributed(DistributedA3CConfig(workers=2, total_timesteps=120, n_steps=20, eval_episodes=1),
                                     tmp_path / "a3c", on_update=lambda steps, pool: seen.append(steps))
     assert metrics["env_steps"] >= 120 and metrics["updates"] == len(seen) >= 6 and seen == sorted(seen)
-    from binpick import tensorfile
+    from binpick.core import tensorfile
 
     weights, meta, _ = tensorfile.load(tmp_path / "a3c" / "model.safetensors", "binpick-a3c-model-1")
     assert meta["config"]["workers"] == 2 and any(v.abs().sum() > 0 for v in weights.values())

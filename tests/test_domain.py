@@ -12,7 +12,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from binpick.errors import ConfigError
+from binpick.core.errors import ConfigError
 from binpick.sim.domain import DomainConfig, draw_camera, load_domain
 from binpick.warehouse.dataset import GenerateConfig, generate
 

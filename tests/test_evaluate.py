@@ -69,7 +69,7 @@ def test_random_policy_is_repeatable_and_worse_than_the_controller(make_env):
 
 def test_episodes_must_be_positive():
     env = binpick.make("binpick/Arm2D-v0")
-    with pytest.raises(binpick.errors.ConfigError, match="episodes"):
+    with pytest.raises(binpick.core.errors.ConfigError, match="episodes"):
         evaluate_policy(random_policy(env), env, episodes=0)
 
 

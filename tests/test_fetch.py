@@ -71,8 +71,8 @@ def test_a_teacher_that_knows_the_box_goes_round_it(make_env):
 
 
 def test_privileged_state_shows_the_teacher_where_the_box_is(make_env, tmp_path):
-    from binpick.config import load_config
-    from binpick.errors import ConfigError
+    from binpick.core.config import load_config
+    from binpick.core.errors import ConfigError
     from binpick.rl.config import RLConfig
     from binpick.rl.wrappers import SemanticState
 
@@ -174,7 +174,7 @@ def test_in_views_places_the_goal_where_each_camera_draws_it(make_env):
 
 
 def test_unknown_view_is_one_clear_error(make_env):
-    from binpick.errors import ConfigError
+    from binpick.core.errors import ConfigError
 
     with pytest.raises(ConfigError, match="views must be one of 'workspace', 'side'"):
         make_env("binpick/FetchReach-v0", image="rgb", image_size=64, views=["top"])
@@ -199,8 +199,8 @@ def test_gripper_opening_puts_the_fingers_into_the_semantic_state(make_env, tmp_
     """RL config gripper_opening: s̄ = (gripper, opening, object, goal); the opening is what the
     fingers span, so closing on nothing and holding the cube differ in s̄ as they do in the images."""
     from binpick.april.observations import PixelsAsSemantic, semantic_observation, semantic_state
-    from binpick.config import load_config
-    from binpick.errors import ConfigError
+    from binpick.core.config import load_config
+    from binpick.core.errors import ConfigError
     from binpick.rl.config import RLConfig
     from binpick.rl.wrappers import SemanticState
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from binpick.errors import ConfigError, InputFileError
+from binpick.core.errors import ConfigError, InputFileError
 from binpick.grasping import DepthFrame, GraspPlanner, JawGripper, PinholeCamera, grasp_candidates
 from binpick.depth import read_depth
 from binpick.grasping.candidates import instance_surface, watershed_labels

@@ -15,7 +15,7 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from binpick.errors import BinpickError, ConfigError, InputFileError
+from binpick.core.errors import BinpickError, ConfigError, InputFileError
 from conftest import run_cli
 from binpick.grasping import PinholeCamera
 from binpick.picking.camera_info import CameraInfo, read_camera_info
@@ -236,7 +236,7 @@ def test_the_guard_drops_bad_camera_messages_with_throttled_warnings():
 @settings(max_examples=200, deadline=None)
 @given(st.text(max_size=400))
 def test_any_text_as_yaml_gives_data_or_one_line(text):
-    from binpick.files import parse_yaml
+    from binpick.core.files import parse_yaml
 
     try:
         parse_yaml(text, "settings.yaml")
@@ -249,7 +249,7 @@ def test_any_text_as_yaml_gives_data_or_one_line(text):
 def test_any_bytes_as_a_json_file_give_data_or_one_line(data):
     import tempfile
 
-    from binpick.files import read_json
+    from binpick.core.files import read_json
 
     with tempfile.NamedTemporaryFile(suffix=".json") as file:
         file.write(data)
@@ -270,7 +270,7 @@ JSON_VALUES = st.recursive(st.none() | st.booleans() | st.floats() | st.integers
                                         "eval", "curriculum", "gp", "unknown"]), JSON_VALUES, max_size=5))
 def test_any_mapping_as_an_rl_config_gives_a_config_or_one_line(data):
     """The config loader's one path (from_dict, then the dataclasses' own checks) on whatever a file holds."""
-    from binpick.config import from_dict
+    from binpick.core.config import from_dict
     from binpick.rl.config import RLConfig
 
     try:
@@ -309,7 +309,7 @@ def test_a_live_grpc_server_passes_the_ray_probe_and_a_silent_one_does_not():
 
 
 def test_yaml_duplicates_are_found_by_value_and_rounded_hand_eye_matrices_pass():
-    from binpick.files import parse_yaml
+    from binpick.core.files import parse_yaml
 
     with pytest.raises(InputFileError, match="twice"):
         parse_yaml("yes: a\ntrue: b\n", "x.yaml")  # both the boolean true

@@ -152,7 +152,7 @@ def _verbs(root: Path, marker: Path, trained: Path) -> dict[str, tuple[list[str]
     latent = root / "april_latent"
     shutil.copytree(semantic, latent)
     (latent / "perception.pt").unlink()
-    from binpick.perception import AutoPerception, PerceptionConfig, save_perception
+    from binpick.april.perception import AutoPerception, PerceptionConfig, save_perception
 
     save_perception(AutoPerception(PerceptionConfig(latent=6, conditioned=6, channels=4), (64, 64, 1), 6),
                     latent / "perception.safetensors")
@@ -214,14 +214,14 @@ def test_resume_never_opens_planted_pickles(trained_run, tmp_path):
 
 
 def test_python_loaders_refuse_crafted_files(tmp_path):
-    from binpick import tensorfile
+    from binpick.core import tensorfile
     from binpick.april import Policy
     from binpick.detection import load_detector
-    from binpick.errors import BinpickError
-    from binpick.files import read_npz
+    from binpick.core.errors import BinpickError
+    from binpick.core.files import read_npz
     from binpick.depth import read_depth
     from binpick.grasping.quality import GraspQuality
-    from binpick.perception import load_perception
+    from binpick.april.perception import load_perception
     from binpick.rl.a3c_train import load_a3c_policy
     from binpick.rl.dynamics import GPDynamics
     from binpick.rl.persistence import load_saved_policy

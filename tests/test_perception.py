@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from binpick.errors import ConfigError
-from binpick.perception import AutoPerception, PerceptionConfig, load_perception, save_perception, train_perception
+from binpick.core.errors import ConfigError
+from binpick.april.perception import AutoPerception, PerceptionConfig, load_perception, save_perception, train_perception
 
 
 def dot_images(count: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:

@@ -14,7 +14,7 @@ from binpick.detection.model import DetectorNetwork, ModelSpec
 from binpick.detection.pickability import CROP, WINDOW, PickabilityHead, head_auc, query_crops, roi_windows, train_epoch
 from binpick.detection.pickability_training import PickabilityConfig, PickabilityTrainer
 from binpick.detection.train import save_detector
-from binpick.errors import ConfigError
+from binpick.core.errors import ConfigError
 from binpick.metrics import roc_auc
 from synthetic_coco import make_coco
 

@@ -10,7 +10,7 @@ import sys
 import numpy as np
 import pytest
 
-from binpick.errors import InputFileError
+from binpick.core.errors import InputFileError
 from binpick.grasping import GraspPlanner, PinholeCamera
 from binpick.picking import CameraInfo, Picker, read_camera_info, write_camera_info
 from binpick.picking.camera_info import matrix_to_quaternion, quaternion_to_matrix

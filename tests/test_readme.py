@@ -220,7 +220,7 @@ def run_block(language: str, text: str, folder: Path, environment: dict) -> list
             if command.rstrip(" &") in SKIPPED:
                 continue
             if "11311" in command:  # the README's ROS port: a free one here
-                from binpick.ros.master import free_port
+                from binpick.integrations.ros1.master import free_port
 
                 port = port or free_port()
                 command = command.replace("11311", str(port))

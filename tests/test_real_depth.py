@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from binpick.errors import ConfigError, InputFileError
+from binpick.core.errors import ConfigError, InputFileError
 from binpick.grasping import DepthFrame, GraspPlanner, PinholeCamera
 from binpick.grasping.candidates import JawGripper, finger_heights
 from binpick.sim.sensor import SensorConfig, axial_sigma, load_sensor, projector_shadow, sense

@@ -9,7 +9,7 @@ from synthetic_coco import make_coco
 
 from binpick.detection.recurrent import (LossWeights, RecurrentDetector, RecurrentSpec, box_masks, mask_box, recurrent_loss,
                                          soft_iou)
-from binpick.errors import BinpickError, ConfigError
+from binpick.core.errors import BinpickError, ConfigError
 
 
 def test_soft_iou_is_zero_for_the_same_mask_and_one_for_disjoint_ones():
@@ -132,7 +132,7 @@ def _config(data, out, images):
 
 def test_a_killed_run_resumes_where_it_stopped_and_ends_as_an_unbroken_one(tmp_path):
     from binpick.detection.recurrent_training import CHECKPOINT, load_recurrent, train_recurrent
-    from binpick.runs import RunCallback
+    from binpick.core.runs import RunCallback
 
     data = make_coco(tmp_path / "data", images=10, size=128)  # 10 tasks: two whole batches of 4 per epoch
     unbroken = train_recurrent(_config(data, tmp_path / "unbroken", 24))

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from gymnasium import spaces
 
-from binpick.errors import ConfigError
+from binpick.core.errors import ConfigError
 from binpick.rl.replay import Episode, EpisodeReplayBuffer
 
 TOL = 0.05
@@ -127,7 +127,7 @@ def test_saved_state_keeps_only_used_slots_and_round_trips(tmp_path):
 
 
 def test_saved_state_refuses_a_buffer_of_other_settings(tmp_path):
-    from binpick.errors import InputFileError
+    from binpick.core.errors import InputFileError
     from binpick.rl.persistence import load_replay, save_replay
 
     buffer = make_buffer(capacity_episodes=50, her_additions=1)

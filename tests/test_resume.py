@@ -71,7 +71,7 @@ train.atomic_write_json = patched
 HARNESS = """
 import os, signal, sys
 from pathlib import Path
-from binpick.config import from_dict, load_yaml
+from binpick.core.config import from_dict, load_yaml
 from binpick.rl import train
 from binpick.rl.config import RLConfig
 
@@ -210,7 +210,7 @@ A3CTrainer.save_checkpoint = patched
 A3C_HARNESS = """
 import os, signal, sys
 from pathlib import Path
-from binpick.config import from_dict, load_yaml
+from binpick.core.config import from_dict, load_yaml
 from binpick.rl.a3c_train import A3CTrainer
 from binpick.rl.config import RLConfig
 

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from binpick.config import from_dict
-from binpick.errors import ConfigError
+from binpick.core.config import from_dict
+from binpick.core.errors import ConfigError
 from binpick.rl.config import RLConfig
 
 TINY = """

@@ -10,14 +10,14 @@ import sys
 
 import pytest
 
-from binpick.ros import ros_missing
+from binpick.integrations.ros1 import ros_missing
 
 pytestmark = pytest.mark.skipif(ros_missing() is not None, reason=ros_missing() or "")
 CLI = [sys.executable, "-c", "from binpick.cli import main; main()"]
 
 
 def test_action_messages_round_trip():
-    from binpick.ros.messages import env_action_types
+    from binpick.integrations.ros1.messages import env_action_types
 
     types = env_action_types()
     assert {"EnvAction", "EnvActionGoal", "EnvActionResult", "EnvActionFeedback", "EnvGoal", "EnvResult", "EnvFeedback"} <= set(types)
@@ -29,7 +29,7 @@ def test_action_messages_round_trip():
 
 
 def test_fetch_reach_episodes_through_the_bridge_and_a_missing_server_is_one_line():
-    from binpick.ros.master import RosMaster
+    from binpick.integrations.ros1.master import RosMaster
 
     with RosMaster() as master:
         server = subprocess.Popen(CLI + ["ros", "serve", "binpick/FetchReach-v0", "--namespace", "/test/reach", "--master", master.uri],

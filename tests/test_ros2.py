@@ -19,7 +19,7 @@ ROS2_PYTHON = Path(sys.prefix).with_name(Path(sys.prefix).name + "-ros2") / "bin
 def _why_not() -> str | None:
     if not ROS2_PYTHON.is_file():
         return f"no ROS 2 interpreter at {ROS2_PYTHON} (scripts/setup.sh makes it; BINPICK_ROS2=0 skipped it)"
-    probe = subprocess.run([str(ROS2_PYTHON), "-c", "from binpick.ros2 import ros2_missing; print(ros2_missing() or '')"],
+    probe = subprocess.run([str(ROS2_PYTHON), "-c", "from binpick.integrations.ros2 import ros2_missing; print(ros2_missing() or '')"],
                            capture_output=True, text=True)
     if probe.returncode != 0 or probe.stdout.strip():
         return f"ROS 2 is not importable in {ROS2_PYTHON}: {(probe.stdout + probe.stderr).strip()[-200:]}"

@@ -17,7 +17,7 @@ import yaml
 from synthetic_coco import make_coco
 
 from binpick import jobs
-from binpick.errors import ConfigError
+from binpick.core.errors import ConfigError
 
 CLI = [sys.executable, "-c", "from binpick.cli import main; main()"]
 TINY_SAC = {"env": "FetchReach", "algorithm": "sac", "min_action_scale": 0.4, "checkpoint_every": 50,
@@ -115,8 +115,9 @@ def test_binpick_train_runs_each_job_and_resumes_it_after_ctrl_c_to_the_same_end
     assert process.poll() is None, f"{task} ended before its first checkpoint could be interrupted:\n{process.communicate()[1][-2000:]}"
     process.send_signal(signal.SIGINT)
     _, stderr = process.communicate(timeout=120)
-    assert process.returncode != 0, stderr[-2000:]
+    assert process.returncode == 130, stderr[-2000:]
     run = run_folder(config, runs)
+    assert "continue with: binpick train --resume" in stderr and str(run) in " ".join(stderr.split()), stderr[-2000:]
     stopped_at = jobs.progress(run)
     assert stopped_at is None or stopped_at < target, f"{task} had finished ({stopped_at}) before Ctrl-C"
     assert jobs.job_kind_of_run(run).task == task

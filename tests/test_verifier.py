@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from binpick.errors import ConfigError, InputFileError
+from binpick.core.errors import ConfigError, InputFileError
 
 
 def test_randomised_studios_differ_and_a_cut_out_photo_carries_its_product_as_alpha():

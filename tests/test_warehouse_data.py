@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from binpick.errors import ConfigError, InputFileError
+from binpick.core.errors import ConfigError, InputFileError
 from binpick.sim import Product, default_library, load_products
 from binpick.sim.bin_scene import BinWorld
 from binpick.sim.gripper import TopDownGrasp

@@ -18,7 +18,7 @@ import os
 import sys
 from pathlib import Path
 
-from binpick.config import load_run_config
+from binpick.core.config import load_run_config
 from binpick.detection.config import DetectConfig
 from binpick.detection.train import learnt_products
 from binpick.detection.weights_file import load_detector, read_detector_file, save_detector, weights_path

@@ -19,7 +19,7 @@ _ADDRESS = re.compile(r"(ray://)?(?P<host>[A-Za-z0-9][A-Za-z0-9.\-]*|\[[0-9A-Fa-
 def check_ray_address(address: str | None) -> str | None:
     """None (a private local cluster), ``auto``, or ``HOST:PORT`` / ``ray://HOST:PORT``; anything else
     is one line before Ray starts (Ray itself would retry a bad address for a long time)."""
-    from binpick.errors import ConfigError
+    from binpick.core.errors import ConfigError
 
     if address is None or address == "auto":
         return address
@@ -37,7 +37,7 @@ def probe_ray_address(address: str, timeout: float = 5.0) -> None:
     """Fail in one line, within ``timeout``, when nothing at a cluster address answers: nothing
     listening, or a peer that accepts the connection and then stays silent (Ray would wait on it far
     longer). A Ray head's GCS and client server speak gRPC, which answers an HTTP/2 greeting at once."""
-    from binpick.errors import ConfigError
+    from binpick.core.errors import ConfigError
 
     match = _ADDRESS.fullmatch(address)
     if match is None:

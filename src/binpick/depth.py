@@ -44,8 +44,8 @@ def as_camera_depth(depth: np.ndarray) -> np.ndarray:
 def read_depth(path: str | Path) -> np.ndarray:
     """A depth image in metres (float32): a 16-bit PNG in millimetres (the ROS / RealSense convention)
     or a ``.npy`` in metres (read without pickle). Wrong units or empty images are one clear line."""
-    from binpick.errors import InputFileError
-    from binpick.files import require_file
+    from binpick.core.errors import InputFileError
+    from binpick.core.files import require_file
 
     path = require_file(Path(path), "depth image")
     if path.suffix.lower() == ".npy":
@@ -58,7 +58,7 @@ def read_depth(path: str | Path) -> np.ndarray:
         except (ValueError, OSError, EOFError, MemoryError) as error:
             raise InputFileError(f"depth image {str(path)!r} is not a numeric .npy array ({str(error)[:80]})") from None
     else:
-        from binpick.files import opened_image
+        from binpick.core.files import opened_image
 
         with opened_image(path, "depth image") as image:
             raw = np.array(image)

@@ -16,9 +16,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from binpick.config import apply_overrides, from_dict, load_yaml
-from binpick.errors import ConfigError
-from binpick.runs import SILENT, RunCallback
+from binpick.core.config import apply_overrides, from_dict, load_yaml
+from binpick.core.errors import ConfigError
+from binpick.core.runs import SILENT, RunCallback
 
 TASK_KEY = "task"
 
@@ -136,7 +136,7 @@ def resume_job(run_dir: str | Path):
 def progress(run_dir: str | Path) -> int | None:
     """How far a run folder's job has come, in its own unit: simulator steps of RL (APRiL: of its
     policy stage), epochs of the trainers, scenes of a data set; None before anything is recorded."""
-    from binpick.files import read_json
+    from binpick.core.files import read_json
 
     run_dir = Path(run_dir)
     kind = job_kind_of_run(run_dir)

@@ -1,4 +1,4 @@
-"""What a person sees in a terminal: Rich progress bars for any job's :class:`~binpick.runs.RunCallback`.
+"""What a person sees in a terminal: Rich progress bars for any job's :class:`~binpick.core.runs.RunCallback`.
 
 The one place binpick sets up progress bars. ``binpick.cli`` and the benchmark scripts use it;
 library code only ever talks to a ``RunCallback``.
@@ -6,17 +6,21 @@ library code only ever talks to a ``RunCallback``.
 
 from __future__ import annotations
 
+import signal
+import threading
+
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from binpick.runs import RunCallback, Task
+from binpick.core.runs import RunCallback, Task
 
 
 class _RichTask(Task):
-    def __init__(self, progress: Progress, task_id) -> None:
-        self.progress, self.task_id = progress, task_id
+    def __init__(self, progress: Progress, task_id, owner: RichCallback) -> None:
+        self.progress, self.task_id, self.owner = progress, task_id, owner
 
     def update(self, done: int | None = None, *, advance: int = 0, total: int | None = None, status: str | None = None) -> None:
+        self.owner.stop_if_interrupted()
         fields = {} if status is None else {"status": status}
         if total is not None:
             fields["total"] = total
@@ -31,17 +35,23 @@ class _RichTask(Task):
 class RichCallback(RunCallback):
     """Progress bars (one per task, with a status column) and messages printed above them.
 
-    Use as a context manager: ``with RichCallback(console) as callback: job.run(callback)``."""
+    Use as a context manager: ``with RichCallback(console) as callback: job.run(callback)``. Inside it,
+    Ctrl-C (and SIGTERM, which a cluster's scheduler sends) is raised as ``KeyboardInterrupt`` and
+    remembered: Python drops a ``KeyboardInterrupt`` that lands in a
+    finaliser or weakref callback, so the next progress update raises it again, and a job stops at its
+    next step however its first interrupt was lost."""
 
     def __init__(self, console: Console | None = None) -> None:
         self.console = console or Console(markup=False)
+        self.interrupted = False
+        self._previous_handlers: dict[int, object] = {}
         self.progress = Progress(TextColumn("{task.description}", style="bold", markup=False), BarColumn(), MofNCompleteColumn(),
                                  TextColumn("{task.fields[status]}", markup=False), TimeElapsedColumn(), TimeRemainingColumn(),
                                  console=self.console)
 
     def task(self, label: str, total: int | None = None, done: int = 0) -> Task:
         self.progress.start()
-        return _RichTask(self.progress, self.progress.add_task(label, total=total, completed=done, status=""))
+        return _RichTask(self.progress, self.progress.add_task(label, total=total, completed=done, status=""), self)
 
     def message(self, text: str) -> None:
         self.progress.console.print(text, markup=False, highlight=False)
@@ -49,8 +59,22 @@ class RichCallback(RunCallback):
     def close(self) -> None:
         self.progress.stop()
 
+    def stop_if_interrupted(self) -> None:
+        if self.interrupted:
+            raise KeyboardInterrupt
+
+    def _on_ctrl_c(self, signum, frame) -> None:
+        self.interrupted = True
+        raise KeyboardInterrupt
+
     def __enter__(self) -> RichCallback:
+        if threading.current_thread() is threading.main_thread():
+            for number in (signal.SIGINT, signal.SIGTERM):
+                self._previous_handlers[number] = signal.signal(number, self._on_ctrl_c)
         return self
 
     def __exit__(self, *exc: object) -> None:
+        for number, handler in self._previous_handlers.items():
+            signal.signal(number, handler)
+        self._previous_handlers.clear()
         self.close()

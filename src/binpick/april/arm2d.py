@@ -24,10 +24,10 @@ from gymnasium import spaces
 from torch import nn
 from torch.nn import functional as F
 
-from binpick import tensorfile
+from binpick.core import tensorfile
 from binpick.envs.arm2d import VIEW_HALF_WIDTH, Arm2DEnv
-from binpick.errors import ConfigError, InputFileError
-from binpick.runs import SILENT, RunCallback
+from binpick.core.errors import ConfigError, InputFileError
+from binpick.core.runs import SILENT, RunCallback
 
 KEYPOINTS = ("elbow_1", "elbow_2", "end_point", "goal")
 FORMAT = "binpick-arm2d-keypoints-1"

@@ -8,9 +8,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from binpick.config import check_choice, check_range, load_config
-from binpick.errors import ConfigError
-from binpick.perception.autoencoder import PerceptionConfig
+from binpick.core.config import check_choice, check_range, load_config
+from binpick.core.errors import ConfigError
+from binpick.april.perception.autoencoder import PerceptionConfig
 
 
 POLICY_MODES = ("semantic", "latent", "state_plus_latent")

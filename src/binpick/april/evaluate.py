@@ -9,7 +9,7 @@ import numpy as np
 
 from binpick.april.observations import EncodedObservation, GoalRecorder, PixelsAsSemantic
 from binpick.rl.evaluate import evaluate_policy
-from binpick.runs import SILENT, RunCallback
+from binpick.core.runs import SILENT, RunCallback
 
 if TYPE_CHECKING:
     from binpick.april.pipeline import AprilRun
@@ -18,7 +18,7 @@ if TYPE_CHECKING:
 def deployment_env(run: AprilRun, runtime_input: str):
     """The env and policy exactly as deployed: ``state`` (ground truth, semantic modes) or ``pixels``."""
     from binpick.april.finetune import with_action_scale
-    from binpick.perception import load_perception, perception_path
+    from binpick.april.perception import load_perception, perception_path
     from binpick.rl.config import load_rl_config
     from binpick.rl.train import load_policy
     from binpick.rl.wrappers import SemanticState
@@ -49,7 +49,7 @@ def deployment_env(run: AprilRun, runtime_input: str):
 def load_latent_policy(run_dir: Path):
     """The SAC policy on φ_enc(I) of a latent-mode run, rebuilt from ``policy_latent.safetensors``."""
     from binpick.april.finetune import LATENT_POLICY_FILE
-    from binpick.errors import ConfigError
+    from binpick.core.errors import ConfigError
     from binpick.rl.persistence import load_saved_policy
 
     path = Path(run_dir) / LATENT_POLICY_FILE

@@ -19,12 +19,12 @@ from stable_baselines3 import SAC
 from stable_baselines3.common.callbacks import BaseCallback
 
 from binpick.april.observations import EncodedObservation, semantic_state
-from binpick.files import atomic_write_bytes, atomic_write_json
+from binpick.core.files import atomic_write_bytes, atomic_write_json
 from binpick.rl.demonstrations import cloning_loss
 from binpick.rl.persistence import SavedPolicy, save_policy
 from binpick.rl.heuristic import ObstacleDetour
 from binpick.rl.wrappers import MinActionScale, privileged_values, semantic_inputs
-from binpick.runs import SILENT, RunCallback, Task
+from binpick.core.runs import SILENT, RunCallback, Task
 
 LATENT_POLICY_FILE = "policy_latent.safetensors"  # SAC on φ_enc(I): weights + spaces, no pickle
 PRETRAINED_PERCEPTION_FILE = "perception_pretrained.safetensors"  # distill_encoder: the encoder before it
@@ -107,7 +107,7 @@ def latent_sac(run: AprilRun, env, rl_settings, tensorboard_log: str | None = No
 
 def finetune_latent_policy(run: AprilRun, semantic_run: str | None, callback: RunCallback = SILENT) -> dict[str, Any]:
     """Train (or fine-tune) SAC on encoded images; saves ``policy_latent.safetensors`` in the run folder."""
-    from binpick.perception import load_perception, perception_path
+    from binpick.april.perception import load_perception, perception_path
     from binpick.rl.config import load_rl_config
     from binpick.rl.train import load_policy
 
@@ -138,7 +138,7 @@ def finetune_latent_policy(run: AprilRun, semantic_run: str | None, callback: Ru
         teacher = ObstacleDetour(env.unwrapped.obstacle_half_size) if policy.teacher == "detour" else semantic
         result = distill_from_state_policy(model, teacher, env, run, callback, perception if joint else None)
         if joint:
-            from binpick.perception import save_perception
+            from binpick.april.perception import save_perception
 
             save_perception(perception.eval(), perception_path(run.run_dir))
     else:

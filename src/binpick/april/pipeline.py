@@ -25,10 +25,10 @@ import yaml
 
 from binpick.april.config import AprilConfig
 from binpick.april.observations import semantic_observation, semantic_state
-from binpick.config import load_run_config, to_dict
-from binpick.errors import ConfigError, InputFileError
-from binpick.files import atomic_write, atomic_write_json, read_json_object, read_npz
-from binpick.runs import SILENT, RunCallback, new_run_dir
+from binpick.core.config import load_run_config, to_dict
+from binpick.core.errors import ConfigError, InputFileError
+from binpick.core.files import atomic_write, atomic_write_json, read_json_object, read_npz
+from binpick.core.runs import SILENT, RunCallback, new_run_dir
 
 STAGES = ("collect", "perception", "policy", "refine", "finetune", "evaluate")
 CAMERA_KWARGS = ("views", "image", "image_size")  # how the world is seen, not what it is
@@ -166,7 +166,7 @@ class AprilRun:
         return {"sim_episodes": collect.episodes, "sim_steps": steps, "images": len(images), "policy": collect.policy}
 
     def stage_perception(self, callback: RunCallback) -> dict[str, Any]:
-        from binpick.perception import PERCEPTION_FILE, save_perception, train_perception
+        from binpick.april.perception import PERCEPTION_FILE, save_perception, train_perception
         from binpick.viz.april import plot_reconstructions
 
         data = read_npz(self.run_dir / "data" / "random.npz", "APRiL image data")
@@ -250,7 +250,7 @@ class AprilRun:
         on φ_enc(I) of the latest perception), images and true s̄ recorded, then more perception epochs
         on random + policy images; ``rounds`` times. Runs before any latent fine-tuning reads φ_enc."""
         from binpick.april.finetune import with_action_scale
-        from binpick.perception import PERCEPTION_FILE, load_perception, perception_path, save_perception, train_perception
+        from binpick.april.perception import PERCEPTION_FILE, load_perception, perception_path, save_perception, train_perception
         from binpick.rl.config import load_rl_config
         from binpick.rl.train import load_policy
         from binpick.rl.wrappers import privileged_values, semantic_inputs

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from binpick.errors import ConfigError
+from binpick.core.errors import ConfigError
 
 
 class Policy:
@@ -18,7 +18,7 @@ class Policy:
 
     def __init__(self, run_dir: Path) -> None:
         from binpick.april.pipeline import AprilRun
-        from binpick.perception import load_perception, perception_path
+        from binpick.april.perception import load_perception, perception_path
         from binpick.rl.config import load_rl_config
 
         run = AprilRun.resume(run_dir)

@@ -21,8 +21,8 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from binpick.files import atomic_write_json, read_json_object
-from binpick.runs import SILENT, RunCallback
+from binpick.core.files import atomic_write_json, read_json_object
+from binpick.core.runs import SILENT, RunCallback
 
 
 class ShiftedDomain(gym.Wrapper):
@@ -75,7 +75,7 @@ def transfer(run_dir: Path, out: Path, real_episodes: int = 25, eval_episodes: i
     from binpick.april.evaluate import deployment_env
     from binpick.april.observations import semantic_state
     from binpick.april.pipeline import AprilRun
-    from binpick.perception import PERCEPTION_FILE, load_perception, perception_path, save_perception, train_perception
+    from binpick.april.perception import PERCEPTION_FILE, load_perception, perception_path, save_perception, train_perception
     from binpick.rl.evaluate import evaluate_policy
 
     out = Path(out)

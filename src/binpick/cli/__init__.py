@@ -9,7 +9,7 @@ import typer
 
 from binpick.cli import april, data, detect, envs, pick, rl, ros, train  # noqa: F401  (each registers its commands)
 from binpick.cli.app import DEFAULT_POLICY, app, print_error, progress
-from binpick.errors import BinpickError
+from binpick.core.errors import BinpickError
 
 __all__ = ["DEFAULT_POLICY", "app", "main", "progress"]
 

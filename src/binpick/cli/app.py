@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated
 
 import typer
 from rich.console import Console
 
-from binpick.errors import ConfigError
-from binpick.files import atomic_write, check_output_file, parse_yaml
+from binpick.core.errors import ConfigError
+from binpick.core.files import atomic_write, check_output_file, parse_yaml
 from binpick.terminal import RichCallback
 
 app = typer.Typer(help="Learned bin picking: simulated worlds, RL, APRiL and repeated object detection.",
@@ -79,6 +81,18 @@ def parse_settings(pairs: list[str] | None) -> dict:
 def progress() -> RichCallback:
     """Progress bars on this command's console (``with progress() as callback: job.run(callback)``)."""
     return RichCallback(console)
+
+
+@contextmanager
+def job_progress(run_dir: Path, resume_command: str) -> Iterator[RichCallback]:
+    """Progress bars for a resumable job; Ctrl-C or SIGTERM ends it (exit 130) with the command that
+    continues it, after the job has written what it can."""
+    try:
+        with progress() as callback:
+            yield callback
+    except KeyboardInterrupt:
+        print_error(f"interrupted: {run_dir} keeps every checkpoint written; continue with: {resume_command}")
+        raise typer.Exit(130) from None
 
 
 ResumeOption = Annotated[Path | None, typer.Option(help="Run folder to continue from its latest checkpoint")]

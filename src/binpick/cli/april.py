@@ -16,11 +16,11 @@ from binpick.cli.app import (
     console,
     evaluate_with_progress,
     parse_settings,
-    progress,
+    job_progress,
     seed_option,
     start_or_resume,
 )
-from binpick.errors import ConfigError
+from binpick.core.errors import ConfigError
 
 
 @april_app.command("run")
@@ -35,7 +35,7 @@ def april_run(
 
     run = start_or_resume(AprilRun, config, resume, runs, load_april_config, parse_settings(settings),
                           where=lambda job: f" (done: {', '.join(job.stages) or 'nothing yet'})")
-    with progress() as callback:
+    with job_progress(run.run_dir, f"binpick april run --resume {run.run_dir}") as callback:
         result = run.run(callback)
     table = Table(title=f"{run.config.name}: average actions per episode")
     for column in ("row", "avg actions ± std", "success", "simulator episodes"):
@@ -55,7 +55,7 @@ def april_eval(
     """Evaluate a trained APRiL run from pixels or from the ground-truth state."""
     from binpick.april import AprilRun
     from binpick.april.evaluate import deployment_env
-    from binpick.config import check_choice, check_range
+    from binpick.core.config import check_choice, check_range
 
     check_range("episodes", episodes, 1, 1_000_000, integer=True)
     check_choice("--input", runtime_input, ["pixels", "state"])

@@ -14,12 +14,12 @@ from binpick.cli.app import (
     data_app,
     parse_pair,
     parse_settings,
-    progress,
+    job_progress,
     save_png,
     seed_option,
     warn,
 )
-from binpick.errors import ConfigError
+from binpick.core.errors import ConfigError
 
 
 @data_app.command("generate")
@@ -51,7 +51,7 @@ def data_generate(
                                                                      "--set val_fraction=0.25 (see GenerateConfig)")] = None,
 ) -> None:
     """Generate bin scenes (resumes after a kill), shop photos, COCO files and a data-set card."""
-    from binpick.config import from_dict
+    from binpick.core.config import from_dict
     from binpick.warehouse.dataset import DataGeneration, GenerateConfig
 
     if out.exists() and not out.is_dir():
@@ -65,7 +65,7 @@ def data_generate(
              "only_products": only_products, "val_fraction": val_fraction, "scenes_per_world": scenes_per_world, "photo_views": photo_views,
              "seed": seed}
     config = from_dict(GenerateConfig, flags | parse_settings(settings), where="data generate")  # validated once
-    with progress() as callback:
+    with job_progress(out, f"binpick data generate --out {out} (the same options), or binpick train --resume {out}") as callback:
         stats = DataGeneration.new(config).run(callback)
     _print_stats(stats, out)
     empty = [split for split in ("train", "val") if not stats["splits"].get(split)]

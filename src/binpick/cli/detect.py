@@ -22,7 +22,7 @@ from binpick.cli.app import (
     save_png,
 )
 from binpick.cli.train import run_task
-from binpick.files import atomic_write_json, ensure_dir
+from binpick.core.files import atomic_write_json, ensure_dir
 
 
 @detect_app.command("train")
@@ -116,7 +116,7 @@ def detect_predict(
     pickability: Annotated[bool, typer.Option(help="Re-score with the weights' pickability head, if they hold one (it needs --depth)")] = True,
 ) -> None:
     """Find the other instances of the query; prints JSON boxes (x, y, w, h) and scores."""
-    from binpick.config import check_range
+    from binpick.core.config import check_range
     from binpick.detection import Detector
     from binpick.detection.detector import PICKING
     from binpick.detection.predict import parse_box

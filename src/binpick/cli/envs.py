@@ -22,8 +22,8 @@ from binpick.cli.app import (
     save_png,
     seed_option,
 )
-from binpick.errors import ConfigError
-from binpick.files import atomic_write_json, check_output_file, ensure_dir
+from binpick.core.errors import ConfigError
+from binpick.core.files import atomic_write_json, check_output_file, ensure_dir
 
 
 @envs_app.command("list")
@@ -83,7 +83,7 @@ def envs_rollout(
     settings: SetOption = None,
 ) -> None:
     """Run a policy and print the thesis's metric: average episode length ± std and success rate."""
-    from binpick.config import check_choice, check_range
+    from binpick.core.config import check_choice, check_range
     from binpick.envs import make
     from binpick.rl.evaluate import evaluate_policy, random_policy
 
@@ -110,7 +110,7 @@ def tour(
     episodes: Annotated[int, typer.Option(help="Random-policy episodes per env")] = 10,
 ) -> None:
     """Render every env and roll a random policy in each: a quick check that simulation and rendering work."""
-    from binpick.config import check_range
+    from binpick.core.config import check_range
     from binpick.envs import ENV_IDS, make
     from binpick.rl.evaluate import evaluate_policy, random_policy
 

@@ -22,8 +22,8 @@ from binpick.cli.app import (
     save_png,
     seed_option,
 )
-from binpick.errors import ConfigError
-from binpick.files import check_output_file, ensure_dir
+from binpick.core.errors import ConfigError
+from binpick.core.files import check_output_file, ensure_dir
 
 
 @app.command("pick")
@@ -43,7 +43,7 @@ def pick(
     seed: Annotated[int, seed_option("Seed of the first order's bin")] = 0,
 ) -> None:
     """Fulfil orders end to end: shop photo -> ROD -> grasp chosen from depth -> grasp -> order tote."""
-    from binpick.config import check_range
+    from binpick.core.config import check_range
     from binpick.detection import Detector
     from binpick.detection.detector import PICKING
     from binpick.grasping import GraspPlanner
@@ -96,9 +96,9 @@ def plan(
     """Plan grasps from one real RGB-D frame: no simulator. Prints the best grasp; writes plan.json."""
     import numpy as np
 
-    from binpick.config import check_range
+    from binpick.core.config import check_range
     from binpick.detection.predict import parse_box
-    from binpick.files import atomic_write_text
+    from binpick.core.files import atomic_write_text
     from binpick.picking import Picker
     from binpick.picking.frames import read_frame, read_photo
 
@@ -188,7 +188,7 @@ def demo(
 ) -> None:
     """The main job: fulfil a handful of orders end to end with the shipped detector, products seen in
     its training and zero-shot ones, and write an HTML report with each order's detections and GIF."""
-    from binpick.config import check_range
+    from binpick.core.config import check_range
     from binpick.detection import Detector
     from binpick.detection.detector import PICKING
     from binpick.grasping import GraspPlanner

@@ -15,13 +15,14 @@ from binpick.cli.app import (
     console,
     evaluate_with_progress,
     parse_settings,
+    job_progress,
     progress,
     rl_app,
     seed_option,
     start_or_resume,
     warn,
 )
-from binpick.files import ensure_dir
+from binpick.core.files import ensure_dir
 
 
 @rl_app.command("train")
@@ -43,7 +44,7 @@ def rl_train(
     trainer = start_or_resume(RLRun, config, resume, runs, load_rl_config, overrides,
                               where=lambda job: f" at {job.steps_done} simulator steps")
     warn(never_learns(trainer.config))
-    with progress() as callback:
+    with job_progress(trainer.run_dir, f"binpick rl train --resume {trainer.run_dir}") as callback:
         metrics = trainer.run(callback)
     summary = (f"final success {metrics['final_success']:.0%}, average actions {metrics['final_avg_actions']:.2f} "
                f"± {metrics['final_std_actions']:.2f}")
@@ -63,17 +64,17 @@ def rl_distributed(
     seed: Annotated[int, seed_option("Seed")] = 0,
 ) -> None:
     """Learning from Ray simulator workers (thesis §6.1); a worker that dies is restarted and the run goes on."""
-    from binpick.config import check_choice
+    from binpick.core.config import check_choice
     from binpick.envs import resolve_env_id
 
     check_choice("algorithm", algorithm, ("sac", "a3c"))
     if algorithm == "sac":
-        from binpick.distributed.learner import DistributedConfig, train_distributed
+        from binpick.integrations.ray.learner import DistributedConfig, train_distributed
 
         config = DistributedConfig(env=resolve_env_id(env_id or "FetchReach"), workers=workers, total_timesteps=steps,
                                    address=address, seed=seed)
     else:
-        from binpick.distributed.a3c import DistributedA3CConfig, train_a3c_distributed
+        from binpick.integrations.ray.a3c import DistributedA3CConfig, train_a3c_distributed
 
         config = DistributedA3CConfig(env=resolve_env_id(env_id or "Arm2D"), workers=workers, total_timesteps=steps,
                                       address=address, seed=seed)
@@ -99,7 +100,7 @@ def rl_eval(
     env_id: Annotated[str | None, typer.Option("--env", help="Must match the env the run was trained on")] = None,
 ) -> None:
     """Evaluate a run's latest checkpoint: average actions ± std and success rate."""
-    from binpick.config import check_range
+    from binpick.core.config import check_range
     from binpick.rl.train import load_policy, make_env
 
     check_range("episodes", episodes, 1, 1_000_000, integer=True)

@@ -9,15 +9,15 @@ from typing import Annotated
 import typer
 
 from binpick.cli.app import DEFAULT_POLICY, console, product_library, ros2_app, ros_app
-from binpick.errors import ConfigError
-from binpick.files import atomic_write_json, check_output_file
+from binpick.core.errors import ConfigError
+from binpick.core.files import atomic_write_json, check_output_file
 
 MasterOption = Annotated[str | None, typer.Option("--master", help="ROS master URI (default: $ROS_MASTER_URI)")]
 NamespaceOption = Annotated[str, typer.Option(help="Action namespace clients connect to, e.g. /binpick/env")]
 
 
 def _check_timeout(timeout: float) -> float:
-    from binpick.config import check_range
+    from binpick.core.config import check_range
 
     return check_range("--timeout", timeout, 0.0, 3600.0, low_inclusive=False)
 
@@ -36,7 +36,7 @@ def _ros_environment(master: str | None, timeout: float) -> None:
     to ``timeout`` seconds for it to answer: rospy would wait forever."""
     import os
 
-    from binpick.ros import (
+    from binpick.integrations.ros1 import (
         check_master_uri,
         local_ros_environment,
         require_ros,
@@ -57,7 +57,7 @@ def ros_master(port: Annotated[int, typer.Option(min=1, max=65535, help="Port on
     """Run a ROS master on 127.0.0.1 until Ctrl-C or SIGTERM (both stop the master process too)."""
     import signal
 
-    from binpick.ros.master import RosMaster
+    from binpick.integrations.ros1.master import RosMaster
 
     def stop(*_: object) -> None:
         raise KeyboardInterrupt
@@ -84,7 +84,7 @@ def ros_serve(
     env_id = resolve_env_id(env_id)
     _check_namespace(namespace)
     _ros_environment(master, _check_timeout(timeout))
-    from binpick.ros.server import serve
+    from binpick.integrations.ros1.server import serve
 
     serve(env_id, namespace)
 
@@ -98,7 +98,7 @@ def ros_bench(
     timeout: Annotated[float, typer.Option(help="Seconds to wait for the server and for each result")] = 10.0,
 ) -> None:
     """Drive a served Fetch env over ROS with the scripted reach policy: success and round-trip latency."""
-    from binpick.config import check_range
+    from binpick.core.config import check_range
 
     check_range("episodes", episodes, 1, 100_000, integer=True)
     _check_namespace(namespace)
@@ -166,7 +166,7 @@ def ros_pick_node(
     pose, frame, picker, topics = _pick_node_setup(camera, namespace, colour_topic, depth_topic, info_topic, weights, grasp, grasp_weights)
     library = product_library(products_file)
     _ros_environment(master, _check_timeout(timeout))
-    from binpick.ros.pick_node import serve
+    from binpick.integrations.ros1.pick_node import serve
 
     serve(picker, pose, frame, namespace, topics, library)
 
@@ -180,10 +180,10 @@ def ros2_pick_node(
     grasp_weights: NodeGraspWeights = None,
 ) -> None:
     """Serve pick planning over ROS 2 (run with .venv-ros2/bin/binpick): camera topics in, grasp poses out."""
-    from binpick.ros2 import require_ros2
+    from binpick.integrations.ros2 import require_ros2
 
     require_ros2()
     pose, frame, picker, topics = _pick_node_setup(camera, namespace, colour_topic, depth_topic, info_topic, weights, grasp, grasp_weights)
-    from binpick.ros2.pick_node import serve
+    from binpick.integrations.ros2.pick_node import serve
 
     serve(picker, pose, frame, namespace, topics, product_library(products_file))

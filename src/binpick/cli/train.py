@@ -8,8 +8,8 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from binpick.cli.app import ConfigSetOption, app, console, parse_settings, progress
-from binpick.errors import ConfigError
+from binpick.cli.app import ConfigSetOption, app, console, job_progress, parse_settings
+from binpick.core.errors import ConfigError
 
 
 @app.command("train")
@@ -46,7 +46,7 @@ def train(
         kind, settings_ = jobs.load_job_config(config, parse_settings(settings))
         job = kind.job_class().new(settings_, runs)
         console.print(f"{kind.task}: {job.run_dir}")
-    with progress() as callback:
+    with job_progress(job.run_dir, f"binpick train --resume {job.run_dir}") as callback:
         metrics = job.run(callback)
     done = jobs.progress(job.run_dir)
     console.print(f"done: {'' if done is None else f'{done} {kind.steps_key}; '}{summary(metrics)}; run folder {job.run_dir}")
@@ -74,7 +74,7 @@ def run_task(task: str, config: Path | None, resume: Path | None, runs: Path, se
         console.print(f"run folder: {job.run_dir}")
     if before_run is not None:
         before_run(job)
-    with progress() as callback:
+    with job_progress(job.run_dir, f"binpick train --resume {job.run_dir}") as callback:
         return job, job.run(callback)
 
 

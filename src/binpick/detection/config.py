@@ -5,10 +5,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from binpick.config import check_range, load_config
+from binpick.core.config import check_range, load_config
 from binpick.detection.losses import LossWeights
 from binpick.detection.model import ModelSpec
-from binpick.errors import ConfigError
+from binpick.core.errors import ConfigError
 
 
 @dataclass(frozen=True)
@@ -69,7 +69,7 @@ class TrainConfig:
     seed: int = 0
 
     def __post_init__(self) -> None:
-        from binpick.config import check_choice
+        from binpick.core.config import check_choice
 
         check_choice("train.device", self.device, ("cpu", "cuda"))
         check_range("train.patience", self.patience, 0, 10_000, integer=True)

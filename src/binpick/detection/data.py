@@ -29,8 +29,8 @@ from binpick.detection.augment import (  # noqa: F401  (moved there; imported fr
     to_tensor,
 )
 from binpick.detection.depth import depth_input
-from binpick.errors import ConfigError
-from binpick.files import (  # read_image: re-exported for callers of detection.data
+from binpick.core.errors import ConfigError
+from binpick.core.files import (  # read_image: re-exported for callers of detection.data
     read_image,
     read_json,
 )
@@ -201,7 +201,7 @@ class RepeatedInstances:
         return ids
 
     def _task(self, image: dict, category: int, annotations: list[dict], others: list[dict]) -> Task | None:
-        from binpick.files import inside
+        from binpick.core.files import inside
 
         file = inside(self.root, image["file_name"], "image")
         name = self.categories[category]["name"].replace("/", "_")

@@ -20,8 +20,8 @@ import numpy as np
 
 from binpick.detection.model import DetectorNetwork
 from binpick.detection.predict import Prediction, predict
-from binpick.errors import ConfigError
-from binpick.runs import SILENT, RunCallback
+from binpick.core.errors import ConfigError
+from binpick.core.runs import SILENT, RunCallback
 
 # crop query (§5.3); shop-photo query (§6.3) on what Policy 1 (jaws along y) can pick; the same fine-tuned
 # on what binpick's default grasp policy (learnt) can pick: the one the pick pipeline uses
@@ -97,7 +97,7 @@ class Detector:
         """Boxes (x, y, w, h) and scores of the other instances the detector scores at least
         ``min_score`` (a pickability head then re-scores them, and may score them lower); the result
         plots and saves itself. ``depth`` (metres, or a 16-bit PNG in mm) is needed by detectors that read depth."""
-        from binpick.config import check_range
+        from binpick.core.config import check_range
 
         check_range("min_score", min_score, 0.0, 1.0)
         box = None if query_box is None else np.asarray(query_box, dtype=np.float32)
@@ -123,7 +123,7 @@ class Detector:
         """How many of ``source``'s scenes the last training set (still on disk) also held: data sets
         made with one generator ``--seed`` share scenes across their splits. None: unknown."""
         from binpick.detection.data import RepeatedInstances
-        from binpick.errors import BinpickError
+        from binpick.core.errors import BinpickError
 
         train = self.network.trained_config.get("data", {}).get("train")
         if not isinstance(train, str) or not Path(train).is_file() or not source.scene_seeds:

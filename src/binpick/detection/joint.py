@@ -5,8 +5,8 @@ from __future__ import annotations
 from typing import Any
 
 from binpick.detection.train import DetectorTrainer, loader
-from binpick.errors import ConfigError
-from binpick.runs import SILENT, RunCallback
+from binpick.core.errors import ConfigError
+from binpick.core.runs import SILENT, RunCallback
 
 
 class JointTraining:

@@ -37,7 +37,7 @@ class LossWeights:
     ignore_iou: float = 0.5
 
     def __post_init__(self) -> None:
-        from binpick.config import check_range
+        from binpick.core.config import check_range
 
         for name in ("bbox", "obj", "heatmap", "beta"):
             check_range(f"loss.{name}", getattr(self, name), 0, 1000)

@@ -80,7 +80,7 @@ class ModelSpec:
         return bool(self.photo_sizes)
 
     def check(self) -> None:
-        from binpick.errors import ConfigError
+        from binpick.core.errors import ConfigError
 
         if self.backbone not in BACKBONES:
             raise ConfigError(f"model.backbone must be one of {', '.join(BACKBONES)}, got {self.backbone!r}")
@@ -188,7 +188,7 @@ class DetectorNetwork(nn.Module):
             heatmaps.append(heatmap)
         if self.depth_encoder is not None:
             if depth is None:
-                from binpick.errors import ConfigError
+                from binpick.core.errors import ConfigError
 
                 raise ConfigError("this detector reads depth as well as colour: give the scene's depth image")
             fused = [f + g.to(f.dtype) for f, g in zip(fused, self.depth_encoder(depth.to(images.dtype)))]
@@ -255,7 +255,7 @@ class DetectorNetwork(nn.Module):
         what was found (a copy the head doubts still counts towards recall; dropping those products
         under the threshold cost 0.01 AP50 on the seen val tasks)."""
         if self.spec.pickability == "rgbd" and depth is None:
-            from binpick.errors import ConfigError
+            from binpick.core.errors import ConfigError
 
             raise ConfigError("this detector's pickability head reads depth: give the scene's depth image")
         queries = None

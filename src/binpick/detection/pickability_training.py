@@ -21,14 +21,14 @@ from typing import Any
 
 import torch
 
-from binpick import tensorfile
-from binpick.config import check_range, load_run_config, to_dict
+from binpick.core import tensorfile
+from binpick.core.config import check_range, load_run_config, to_dict
 from binpick.detection.data import RepeatedInstances, TaskDataset, check_disjoint
 from binpick.detection.model import DetectorNetwork
 from binpick.detection.pickability import PickabilityHead, head_auc, join_windows, labelled_windows, train_epoch
-from binpick.errors import ConfigError
-from binpick.files import atomic_write_text
-from binpick.runs import SILENT, RunCallback, commit_checkpoint, latest_checkpoint, new_run_dir
+from binpick.core.errors import ConfigError
+from binpick.core.files import atomic_write_text
+from binpick.core.runs import SILENT, RunCallback, commit_checkpoint, latest_checkpoint, new_run_dir
 
 CHECKPOINT_FORMAT = "binpick-pickability-checkpoint-1"
 WINDOWS_FORMAT = "binpick-pickability-windows-2"

@@ -14,7 +14,7 @@ from binpick.depth import read_depth
 from binpick.detection.data import crop_resize, query_photo, read_image, to_tensor
 from binpick.detection.depth import depth_input
 from binpick.detection.model import DetectorNetwork
-from binpick.errors import ConfigError
+from binpick.core.errors import ConfigError
 
 
 @dataclass
@@ -49,7 +49,7 @@ class Prediction:
 
     def save(self, path: str | Path, heatmaps: bool = False) -> Path:
         """:meth:`plot` (or :meth:`plot_heatmaps`) as a PNG file, written atomically."""
-        from binpick.files import atomic_write
+        from binpick.core.files import atomic_write
 
         picture = self.plot_heatmaps() if heatmaps else self.plot()
         return atomic_write(Path(path), lambda handle: Image.fromarray(picture).save(handle, format="PNG"))

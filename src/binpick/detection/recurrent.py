@@ -39,7 +39,7 @@ class RecurrentSpec:
     latent: int = 32  # the similarity network's latent space (§5.2.2)
 
     def check(self) -> None:
-        from binpick.errors import ConfigError
+        from binpick.core.errors import ConfigError
 
         if self.backbone not in BACKBONES:
             raise ConfigError(f"model.backbone must be one of {', '.join(BACKBONES)}, got {self.backbone!r}")

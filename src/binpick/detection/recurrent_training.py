@@ -17,10 +17,10 @@ from typing import Any
 
 import torch
 
-from binpick.config import check_range
+from binpick.core.config import check_range
 from binpick.detection.recurrent import LossWeights, RecurrentDetector, RecurrentSpec, recurrent_loss
-from binpick.errors import ConfigError
-from binpick.runs import SILENT, RunCallback
+from binpick.core.errors import ConfigError
+from binpick.core.runs import SILENT, RunCallback
 
 CHECKPOINT = "recurrent_checkpoint.safetensors"
 WEIGHTS = "recurrent.safetensors"
@@ -101,7 +101,7 @@ class RecurrentTrainConfig:
 
 def load_recurrent(path: str | Path) -> RecurrentDetector:
     """A trained recurrent detector from its weights file (or a run folder holding one)."""
-    from binpick import tensorfile
+    from binpick.core import tensorfile
 
     path = Path(path)
     if path.is_dir():
@@ -118,7 +118,7 @@ def load_recurrent(path: str | Path) -> RecurrentDetector:
 
 
 def save_recurrent(model: RecurrentDetector, path: Path, meta: dict[str, Any]) -> None:
-    from binpick import tensorfile
+    from binpick.core import tensorfile
 
     spec = asdict(model.spec)
     tensorfile.save(path, FORMAT_WEIGHTS, tensors=model.state_dict(),
@@ -155,7 +155,7 @@ def evaluate_recurrent(model: RecurrentDetector, dataset, tasks: int | None = No
 
 def train_recurrent(config: RecurrentTrainConfig, callback: RunCallback = SILENT) -> dict[str, Any]:
     """Train (or resume) to the image budget; save ``<out>/recurrent.safetensors`` and ``metrics.json``."""
-    from binpick import tensorfile
+    from binpick.core import tensorfile
     from binpick.detection.data import collate
 
     torch.manual_seed(config.seed)
@@ -186,7 +186,7 @@ def train_recurrent(config: RecurrentTrainConfig, callback: RunCallback = SILENT
         try:
             history, step = list(meta["history"]), int(meta["step"])
         except (KeyError, TypeError, ValueError):
-            from binpick.errors import InputFileError
+            from binpick.core.errors import InputFileError
 
             raise InputFileError(f"{where} is damaged: no step or history in its metadata") from None
 
@@ -242,14 +242,14 @@ def train_recurrent(config: RecurrentTrainConfig, callback: RunCallback = SILENT
                "images_seen": step * config.batch_size, "history": history}
     save_recurrent(model, out / WEIGHTS, {"trained_on": config.train, "targets": config.targets, "images_seen": step * config.batch_size,
                                           "val_ap50": val["ap50"]})
-    from binpick.files import atomic_write_text
+    from binpick.core.files import atomic_write_text
 
     atomic_write_text(out / "metrics.json", json.dumps(metrics, indent=2))
     return metrics
 
 
 class RecurrentRun:
-    """The recurrent detector's training as a job (:class:`binpick.runs.Job`): its folder is the config's
+    """The recurrent detector's training as a job (:class:`binpick.core.runs.Job`): its folder is the config's
     ``out`` (the weights, ``metrics.json``, the checkpoint and the config it was started with)."""
 
     def __init__(self, config: RecurrentTrainConfig) -> None:
@@ -260,7 +260,7 @@ class RecurrentRun:
         """``runs`` is not used: the run goes to ``config.out``, and a run there with another config is refused."""
         import yaml
 
-        from binpick.files import atomic_write_text, ensure_dir
+        from binpick.core.files import atomic_write_text, ensure_dir
 
         atomic_write_text(ensure_dir(Path(config.out)) / "config.yaml", yaml.safe_dump(json.loads(json.dumps(asdict(config))),
                                                                                      sort_keys=False))
@@ -269,7 +269,7 @@ class RecurrentRun:
     @classmethod
     def resume(cls, run_dir: Path) -> RecurrentRun:
         """Continue the run in ``run_dir`` with the config it was started with."""
-        from binpick.config import load_run_config
+        from binpick.core.config import load_run_config
 
         from dataclasses import replace
 

@@ -15,8 +15,8 @@ import numpy as np
 import torch
 import yaml
 
-from binpick import tensorfile
-from binpick.config import load_run_config, to_dict
+from binpick.core import tensorfile
+from binpick.core.config import load_run_config, to_dict
 from binpick.detection.config import DetectConfig
 from binpick.detection.data import (
     RehearsedTasks,
@@ -40,9 +40,9 @@ from binpick.detection.weights_file import (  # noqa: F401  (moved there; import
     save_detector,
     weights_path,
 )
-from binpick.errors import ConfigError, InputFileError
-from binpick.files import atomic_write_json, read_json, require_fields
-from binpick.runs import (
+from binpick.core.errors import ConfigError, InputFileError
+from binpick.core.files import atomic_write_json, read_json, require_fields
+from binpick.core.runs import (
     SILENT,
     RunCallback,
     Task,
@@ -112,7 +112,7 @@ def kmeans_anchors(sizes: np.ndarray, clusters: int = 3 * ANCHORS_PER_LEVEL, ite
 
 def fit_anchors(dataset: TaskDataset) -> torch.Tensor:
     """Anchors from the training boxes, in the pixels of the resized images the model sees."""
-    from binpick.files import opened_image
+    from binpick.core.files import opened_image
 
     with opened_image(dataset.source.tasks[0].file, "training image") as image:
         scale = dataset.size / float(max(image.size))  # a data set's images share one size
@@ -166,7 +166,7 @@ def evaluate_model(model: DetectorNetwork, dataset: TaskDataset, batch_size: int
 
 class DetectorTrainer:
     """``DetectorTrainer.new(config, runs).run()`` trains a new run; ``DetectorTrainer.resume(RUN)``
-    continues one from its latest checkpoint (see :class:`binpick.runs.Job`)."""
+    continues one from its latest checkpoint (see :class:`binpick.core.runs.Job`)."""
 
     def __init__(self, config: DetectConfig, resume: Path | None = None, runs: Path = Path("runs")) -> None:
         self.config = config

@@ -27,7 +27,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from binpick.errors import ConfigError, InputFileError
+from binpick.core.errors import ConfigError, InputFileError
 
 FORMAT = "binpick.product_verifier"
 SIDE = 64  # network input side, pixels
@@ -183,7 +183,7 @@ class ProductVerifier:
 
     @classmethod
     def load(cls, path: str | Path | None = None) -> ProductVerifier:
-        from binpick import tensorfile
+        from binpick.core import tensorfile
 
         path = Path(path) if path is not None else SHIPPED
         if path == SHIPPED and not path.is_file():
@@ -198,7 +198,7 @@ class ProductVerifier:
         return cls(net, meta)
 
     def save(self, path: str | Path, meta: dict | None = None) -> Path:
-        from binpick import tensorfile
+        from binpick.core import tensorfile
 
         return tensorfile.save(path, FORMAT, tensors=self.net.state_dict(), meta={"width": self.net.width, **self.meta, **(meta or {})})
 

@@ -24,11 +24,11 @@ import numpy as np
 import torch
 from torch.nn import functional as F
 
-from binpick.config import check_range
+from binpick.core.config import check_range
 from binpick.detection.verifier import (SIDE, STORED, ProductVerifier, VerifierNet, colour_features, illuminant, photo_input,
                                         to_tensor, window_input)
-from binpick.errors import ConfigError
-from binpick.runs import SILENT, RunCallback
+from binpick.core.errors import ConfigError
+from binpick.core.runs import SILENT, RunCallback
 
 CHECKPOINT = "verifier_checkpoint.safetensors"
 
@@ -88,7 +88,7 @@ def collect(data: str | Path, splits: tuple[str, ...], limit: int | None, min_vi
     """Windows of every instance (visible enough) in the first ``limit`` scenes of ``splits``."""
     from PIL import Image
 
-    from binpick.files import read_json
+    from binpick.core.files import read_json
 
     data = Path(data)
     if not (data / "dataset.json").is_file():
@@ -261,7 +261,7 @@ def scores(probabilities: np.ndarray, labels: np.ndarray, threshold: float = 0.5
 # ---------------------------------------------------------------------- the loop
 def train_verifier(config: VerifierTrainConfig, callback: RunCallback = SILENT) -> dict[str, Any]:
     """Train (or resume), calibrate, save ``<out>/product_verifier.safetensors`` and its metrics."""
-    from binpick import tensorfile
+    from binpick.core import tensorfile
 
     torch.set_num_threads(config.threads)
     out = Path(config.out)

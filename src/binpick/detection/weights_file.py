@@ -9,10 +9,10 @@ from typing import Any
 
 import torch
 
-from binpick import tensorfile
+from binpick.core import tensorfile
 from binpick.detection.model import DetectorNetwork, ModelSpec
-from binpick.errors import InputFileError
-from binpick.files import require_fields
+from binpick.core.errors import InputFileError
+from binpick.core.files import require_fields
 
 FORMAT = "binpick-detector-2"  # safetensors + JSON; "binpick-detector-1" was a torch pickle (.pt)
 WEIGHTS_FILE = "model.safetensors"

@@ -12,8 +12,8 @@ from dataclasses import dataclass
 import gymnasium as gym
 from gymnasium.envs.registration import register, registry
 
-from binpick.config import check_range
-from binpick.errors import ConfigError, UnknownEnvError
+from binpick.core.config import check_range
+from binpick.core.errors import ConfigError, UnknownEnvError
 
 
 @dataclass(frozen=True)
@@ -54,10 +54,10 @@ ENV_IDS: tuple[str, ...] = tuple(ENVS)
 for _spec in ENVS.values():
     if _spec.env_id not in registry:
         register(id=_spec.env_id, entry_point=_spec.entry_point, max_episode_steps=_spec.max_episode_steps)
-# The client side of the ROS bridge: any served binpick env, driven over ROS (binpick.ros.client).
+# The client side of the ROS bridge: any served binpick env, driven over ROS (binpick.integrations.ros1.client).
 # Not among ENV_IDS: it needs a running server, and the served env keeps its own time limit.
 if "binpick/Ros-v0" not in registry:
-    register(id="binpick/Ros-v0", entry_point="binpick.ros.client:RosEnv")
+    register(id="binpick/Ros-v0", entry_point="binpick.integrations.ros1.client:RosEnv")
 
 
 def env_spec(name: str) -> EnvSpec:

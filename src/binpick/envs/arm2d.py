@@ -21,10 +21,10 @@ import numpy as np
 from gymnasium import spaces
 from PIL import Image, ImageDraw
 
-from binpick.config import check_bool, check_choice, check_range, check_vector
+from binpick.core.config import check_bool, check_choice, check_range, check_vector
 from binpick.envs.goal_env import sparse_goal_reward
 from binpick.sim.camera import IMAGE_MODES, check_image_size, to_mode
-from binpick.errors import ConfigError
+from binpick.core.errors import ConfigError
 
 PLAY_HALF_WIDTH = 1.0  # the play area is [-1, 1]^2 in world units
 VIEW_HALF_WIDTH = 1.1  # the picture shows a small margin around it

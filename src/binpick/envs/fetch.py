@@ -18,8 +18,8 @@ from typing import Any
 import numpy as np
 from gymnasium.utils import EzPickle
 
-from binpick.config import check_bool, check_choice, check_range, check_vector
-from binpick.errors import ConfigError
+from binpick.core.config import check_bool, check_choice, check_range, check_vector
+from binpick.core.errors import ConfigError
 from binpick.envs.goal_env import ImageObservationMixin
 from binpick.sim.camera import CameraPose, check_image_size, import_mujoco
 

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
-from binpick.config import check_choice
+from binpick.core.config import check_choice
 from binpick.sim.camera import IMAGE_MODES, CameraPose, MujocoCamera, check_image_size
 
 

@@ -14,7 +14,7 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.utils import EzPickle
 
-from binpick.config import check_range
+from binpick.core.config import check_range
 from binpick.envs.goal_env import ImageObservationMixin, sparse_goal_reward
 from binpick.sim.camera import CameraPose, check_image_size, import_mujoco
 

@@ -8,7 +8,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from binpick.errors import InputFileError
+from binpick.core.errors import InputFileError
 
 _BIG = 1e30  # ±inf is written as ±1e30: JSON has no infinity
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from binpick.errors import ConfigError
+from binpick.core.errors import ConfigError
 
 
 MAX_SIDE = 16384  # pixels: the largest image side a calibration may describe

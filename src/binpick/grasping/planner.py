@@ -17,7 +17,7 @@ from enum import StrEnum
 
 import numpy as np
 
-from binpick.errors import ConfigError
+from binpick.core.errors import ConfigError
 from binpick.grasping.candidates import YAWS, GraspCandidate, JawGripper, Surface, grasp_candidates
 from binpick.grasping.frame import DepthFrame
 

@@ -104,15 +104,15 @@ class GraspQuality:
         return self.probabilities(*self.inputs(frame, candidates))
 
     def save(self, path: str | Path, meta: dict | None = None) -> Path:
-        from binpick import tensorfile
+        from binpick.core import tensorfile
 
         document = {"size": self.spec.size, "extent": self.spec.extent, "width": self.width, **self.meta, **(meta or {})}
         return tensorfile.save(path, FORMAT, tensors=self.net.state_dict(), meta=document)
 
     @classmethod
     def load(cls, path: str | Path) -> GraspQuality:
-        from binpick import tensorfile
-        from binpick.errors import InputFileError
+        from binpick.core import tensorfile
+        from binpick.core.errors import InputFileError
 
         tensors, meta, _ = tensorfile.load(path, FORMAT, "grasp-quality weights")
         spec = MapSpec(int(meta.get("size", 32)), float(meta.get("extent", 0.16)))

@@ -17,17 +17,17 @@ import numpy as np
 import torch
 from torch import nn
 
-from binpick import tensorfile
-from binpick.config import check_range, load_run_config, to_dict
-from binpick.errors import ConfigError, InputFileError
-from binpick.files import atomic_write_text, inside, read_json
+from binpick.core import tensorfile
+from binpick.core.config import check_range, load_run_config, to_dict
+from binpick.core.errors import ConfigError, InputFileError
+from binpick.core.files import atomic_write_text, inside, read_json
 from binpick.metrics import roc_auc
 from binpick.depth import read_depth
 from binpick.grasping.camera import PinholeCamera
 from binpick.grasping.candidates import Surface, describe, instance_surface
 from binpick.grasping.frame import DepthFrame
 from binpick.grasping.quality import FEATURES, GraspQuality, GraspQualityNet, MapSpec, grasp_features, height_map
-from binpick.runs import SILENT, RunCallback, commit_checkpoint, latest_checkpoint, new_run_dir
+from binpick.core.runs import SILENT, RunCallback, commit_checkpoint, latest_checkpoint, new_run_dir
 
 CHECKPOINT_FORMAT = "binpick-grasp-quality-checkpoint-1"
 

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from binpick.errors import ConfigError, InputFileError
+from binpick.core.errors import ConfigError, InputFileError
 from binpick.grasping.camera import PinholeCamera
 from binpick.picking.workspace import Workspace
 
@@ -149,7 +149,7 @@ def _numbers(data: dict, key: str, count: int | None, where: str) -> np.ndarray:
 def read_camera_info(path: str | Path) -> CameraInfo:
     """A ``camera_info`` YAML file with an optional ``camera_to_base`` (default: the camera is the
     base frame). Anything missing or malformed is one line naming the field."""
-    from binpick.files import read_yaml
+    from binpick.core.files import read_yaml
 
     where = repr(str(path))
     data = read_yaml(path, "camera file")  # a regular file, UTF-8, no key twice, no bomb
@@ -187,7 +187,7 @@ def read_camera_info(path: str | Path) -> CameraInfo:
 def write_camera_info(info: CameraInfo, path: str | Path) -> Path:
     import yaml
 
-    from binpick.files import atomic_write_text
+    from binpick.core.files import atomic_write_text
 
     path = Path(path)
     atomic_write_text(path, yaml.safe_dump(info.to_yaml_dict(), sort_keys=False, default_flow_style=None))

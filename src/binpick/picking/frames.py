@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from binpick.errors import InputFileError
+from binpick.core.errors import InputFileError
 from binpick.depth import read_depth
 from binpick.picking.camera_info import CameraInfo, read_camera_info
 from binpick.picking.picker import check_frame
@@ -34,7 +34,7 @@ def read_frame(rgb: str | Path, depth: str | Path, camera: str | Path) -> tuple[
 
 def read_photo(path: str | Path) -> np.ndarray:
     """A shop photo: RGBA where the file has transparency (its alpha marks the product), else RGB."""
-    from binpick.files import opened_image
+    from binpick.core.files import opened_image
 
     with opened_image(Path(path), "--photo") as image:
         transparent = image.mode in ("RGBA", "LA", "PA") or "transparency" in image.info

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from binpick.errors import BinpickError, InputFileError
+from binpick.core.errors import BinpickError, InputFileError
 from binpick.picking.camera_info import CameraInfo
 from binpick.picking.picker import Picker, Plans
 

@@ -23,7 +23,7 @@ import numpy as np
 import torch
 
 from binpick.detection.photos import photo_mask
-from binpick.errors import ConfigError, InputFileError
+from binpick.core.errors import ConfigError, InputFileError
 from binpick.grasping import DepthFrame, GraspChoice, GraspPlanner, PinholeCamera
 from binpick.picking.camera_info import CameraInfo
 from binpick.picking.colour import colour_histogram, colour_similarity, detection_mask

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from binpick.errors import ConfigError
+from binpick.core.errors import ConfigError
 
 NEAR, FAR = 0.05, 6.0  # metres along the optical axis: the default workspace is the view between them
 MAX_EXTENT = 20.0  # metres: no robot cell is larger

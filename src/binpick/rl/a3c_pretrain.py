@@ -18,9 +18,9 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from binpick.errors import ConfigError
+from binpick.core.errors import ConfigError
 from binpick.rl.a3c import ActorCritic
-from binpick.runs import Task
+from binpick.core.runs import Task
 
 
 @dataclass(frozen=True)

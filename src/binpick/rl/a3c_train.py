@@ -23,12 +23,12 @@ import torch.multiprocessing as mp
 import yaml
 from torch.utils.tensorboard import SummaryWriter
 
-from binpick import tensorfile
-from binpick.config import load_run_config, to_dict
-from binpick.errors import ConfigError, InputFileError, WorkerError
-from binpick.files import atomic_write_json, read_json_object, require_fields
+from binpick.core import tensorfile
+from binpick.core.config import load_run_config, to_dict
+from binpick.core.errors import ConfigError, InputFileError, WorkerError
+from binpick.core.files import atomic_write_json, read_json_object, require_fields
 from binpick.rl.a3c import A3CWorker, ActorCritic, SharedAdam, apply_gradients
-from binpick.runs import SILENT, RunCallback, Task, commit_checkpoint, latest_checkpoint, new_run_dir, removed_on_error
+from binpick.core.runs import SILENT, RunCallback, Task, commit_checkpoint, latest_checkpoint, new_run_dir, removed_on_error
 from binpick.rl.config import RLConfig
 from binpick.rl.curriculum import CurriculumProgress
 from binpick.rl.evaluate import evaluate_policy

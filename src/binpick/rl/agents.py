@@ -17,7 +17,7 @@ from stable_baselines3 import SAC
 from stable_baselines3.common.utils import polyak_update
 from stable_baselines3.common.callbacks import BaseCallback
 
-from binpick.config import check_range
+from binpick.core.config import check_range
 from binpick.rl.config import GPConfig
 from binpick.rl.dynamics import GPDynamics
 from binpick.rl.imagination import imagine_episodes

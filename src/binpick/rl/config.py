@@ -10,8 +10,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-from binpick.config import check_bool, check_choice, check_range, check_vector, load_config
-from binpick.errors import ConfigError
+from binpick.core.config import check_bool, check_choice, check_range, check_vector, load_config
+from binpick.core.errors import ConfigError
 
 ALGORITHMS = ("sac", "sb3_sac_her", "a3c", "dqn")
 MAX_SEED = 2**32 - 1  # NumPy's legacy seeding (used by SB3) takes 32-bit seeds

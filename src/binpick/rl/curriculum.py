@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
-from binpick.errors import InputFileError
+from binpick.core.errors import InputFileError
 from binpick.rl.config import CurriculumConfig
 
 

@@ -20,11 +20,11 @@ import gpytorch
 import numpy as np
 import torch
 
-from binpick import tensorfile
-from binpick.config import check_range
+from binpick.core import tensorfile
+from binpick.core.config import check_range
 from binpick.rl.config import GPConfig
-from binpick.errors import InputFileError
-from binpick.files import require_fields
+from binpick.core.errors import InputFileError
+from binpick.core.files import require_fields
 
 
 class _IndependentGPs(gpytorch.models.ExactGP):

@@ -14,7 +14,7 @@ from typing import Any, Protocol
 import gymnasium as gym
 import numpy as np
 
-from binpick.config import check_range
+from binpick.core.config import check_range
 
 
 class SupportsPredict(Protocol):

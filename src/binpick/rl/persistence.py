@@ -25,10 +25,10 @@ import torch
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.policies import BasePolicy
 
-from binpick import tensorfile
+from binpick.core import tensorfile
 from binpick.envs.spaces import build_space, describe_space
-from binpick.errors import InputFileError
-from binpick.files import atomic_write, atomic_write_json, read_json_object, read_npz, require_fields
+from binpick.core.errors import InputFileError
+from binpick.core.files import atomic_write, atomic_write_json, read_json_object, read_npz, require_fields
 
 ALGORITHM_FORMAT = "binpick-sb3-algorithm-1"
 POLICY_FORMAT = "binpick-sb3-policy-1"

@@ -23,8 +23,8 @@ from gymnasium import spaces
 from stable_baselines3.common.buffers import BaseBuffer, DictReplayBuffer
 from stable_baselines3.common.type_aliases import DictReplayBufferSamples
 
-from binpick.config import check_range
-from binpick.errors import ConfigError
+from binpick.core.config import check_range
+from binpick.core.errors import ConfigError
 from binpick.rl.config import ReplayConfig
 
 RewardFn = Callable[[np.ndarray, np.ndarray, Any], np.ndarray]

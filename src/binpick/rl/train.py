@@ -20,12 +20,12 @@ from stable_baselines3 import DQN, SAC, HerReplayBuffer
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 
-from binpick.config import load_run_config, to_dict
+from binpick.core.config import load_run_config, to_dict
 from binpick.envs import make
-from binpick.errors import ConfigError, InputFileError
-from binpick.files import atomic_write, atomic_write_json, read_json_object, read_npz, require_fields
+from binpick.core.errors import ConfigError, InputFileError
+from binpick.core.files import atomic_write, atomic_write_json, read_json_object, read_npz, require_fields
 from binpick.rl.agents import GoalSAC, GPImagination
-from binpick.runs import SILENT, RunCallback, Task, commit_checkpoint, latest_checkpoint, new_run_dir, removed_on_error
+from binpick.core.runs import SILENT, RunCallback, Task, commit_checkpoint, latest_checkpoint, new_run_dir, removed_on_error
 from binpick.rl.config import RLConfig
 from binpick.rl.curriculum import CurriculumProgress, GoalAreaCurriculum
 from binpick.rl.dynamics import GPDynamics
@@ -186,7 +186,7 @@ class Checkpoint(BaseCallback):
 
 
 class ReportProgress(BaseCallback):
-    """Simulator steps and the latest evaluation, to the run's :class:`~binpick.runs.Task`."""
+    """Simulator steps and the latest evaluation, to the run's :class:`~binpick.core.runs.Task`."""
 
     def __init__(self, task: Task, metrics: Metrics) -> None:
         super().__init__()
@@ -369,7 +369,7 @@ POLICY_FILE = "policy.safetensors"
 
 
 class RLRun:
-    """An RL run as one job (:class:`binpick.runs.Job`), whatever its algorithm: A3C trains with worker
+    """An RL run as one job (:class:`binpick.core.runs.Job`), whatever its algorithm: A3C trains with worker
     processes (:class:`~binpick.rl.a3c_train.A3CTrainer`), SAC / SB3 SAC+HER / DQN with :class:`Trainer`."""
 
     @staticmethod

@@ -8,8 +8,8 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from binpick.config import check_range
-from binpick.errors import ConfigError
+from binpick.core.config import check_range
+from binpick.core.errors import ConfigError
 
 
 class SemanticState(gym.ObservationWrapper):

@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from binpick.config import check_range
-from binpick.errors import RenderingUnavailableError
+from binpick.core.config import check_range
+from binpick.core.errors import RenderingUnavailableError
 
 IMAGE_MODES = ("rgb", "grey")
 MIN_IMAGE_SIZE, MAX_IMAGE_SIZE = 16, 1024

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from binpick.files import read_image
+from binpick.core.files import read_image
 from binpick.sim.products import ProductLibrary, product_dimensions
 
 

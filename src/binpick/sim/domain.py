@@ -26,8 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from binpick.config import check_pair, check_range, load_named, ranges_dict
-from binpick.errors import ConfigError
+from binpick.core.config import check_pair, check_range, load_named, ranges_dict
+from binpick.core.errors import ConfigError
 
 DOMAINS_DIR = Path(__file__).resolve().parent / "domains"  # the committed domains ship with the package
 TEXTURE_SIZE = 64  # side of each generated texture face (pixels)
@@ -225,7 +225,7 @@ def draw_lights(domain: DomainConfig, rng: np.random.Generator, model, count: in
 def _texture_image(path: str, size: int) -> np.ndarray:
     from PIL import Image
 
-    from binpick.files import opened_image
+    from binpick.core.files import opened_image
 
     with opened_image(path, "texture") as image:
         return np.asarray(image.convert("RGB").resize((size * 2, size * 2), Image.BILINEAR))

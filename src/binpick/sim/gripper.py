@@ -151,7 +151,7 @@ POLICIES = {"x": lambda: TopDownGrasp("x"), "y": lambda: TopDownGrasp("y")}
 
 
 def make_policies(names: list[str]) -> list[GraspPolicy]:
-    from binpick.errors import ConfigError
+    from binpick.core.errors import ConfigError
 
     unknown = [n for n in names if n not in POLICIES]
     if unknown:

@@ -14,8 +14,8 @@ def merged_obj(path: Path) -> tuple[str, str] | None:
     MuJoCo's OBJ reader renders only the first group of such files (pybullet's random shapes are
     convex decompositions of 4-8 parts), so these meshes are passed inline instead. None for a
     single-group file, which MuJoCo reads itself (keeping its texture coordinates)."""
-    from binpick.errors import ConfigError
-    from binpick.files import read_bytes
+    from binpick.core.errors import ConfigError
+    from binpick.core.files import read_bytes
 
     text = read_bytes(path, "mesh", max_bytes=256 << 20).decode("utf-8", errors="replace")
     if sum(line.startswith(("o ", "g ")) for line in text.splitlines()) <= 1:

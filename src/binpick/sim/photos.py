@@ -73,8 +73,8 @@ def shop_photo(product: Product, size: int = 256, with_mask: bool = False, style
     ((size, size, 4) for a cut-out style, alpha 255 on the product). With ``with_mask``, also the
     (size, size) bool mask of the product's pixels."""
     tint = np.asarray(style.tint)
-    floor_texture = (f'<texture name="studio_tex" type="2d" builtin="flat" rgb1="1 1 1" width="64" height="64"/>'
-                     f'<material name="studio" texture="studio_tex" texrepeat="4 4" rgba="1 1 1 1"/>'
+    floor_texture = ('<texture name="studio_tex" type="2d" builtin="flat" rgb1="1 1 1" width="64" height="64"/>'
+                     '<material name="studio" texture="studio_tex" texrepeat="4 4" rgba="1 1 1 1"/>'
                      if style.background_seed is not None else f'<material name="studio" rgba="{_fmt(style.background)} 1"/>')
     xml = f"""<mujoco><visual><global offwidth="{size}" offheight="{size}"/><quality shadowsize="2048"/>
   <headlight ambient="{_fmt(tint * style.ambient)}" diffuse="{_fmt(tint * style.diffuse)}"/></visual>

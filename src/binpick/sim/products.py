@@ -20,9 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
-from binpick.config import check_range
-from binpick.errors import ConfigError
-from binpick.files import parse_yaml, read_text
+from binpick.core.config import check_range
+from binpick.core.errors import ConfigError
+from binpick.core.files import parse_yaml, read_text
 from binpick.sim.mjcf_mesh import merged_obj
 
 
@@ -316,7 +316,7 @@ def load_products(path: str | Path, library: ProductLibrary | None = None) -> Pr
 
 def read_photo(path: Path):
     """RGB uint8 (H, W, 3) of a user's image file; one line naming the file if it cannot be read."""
-    from binpick.files import opened_image
+    from binpick.core.files import opened_image
 
     with opened_image(path, "image") as image:
         return np.asarray(image.convert("RGB"))

@@ -29,8 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
-from binpick.config import check_pair, load_named, ranges_dict
-from binpick.errors import ConfigError
+from binpick.core.config import check_pair, load_named, ranges_dict
+from binpick.core.errors import ConfigError
 from binpick.sim.domain import uniform as _draw
 
 SENSORS_DIR = Path(__file__).resolve().parent / "sensors"

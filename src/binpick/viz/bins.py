@@ -7,7 +7,6 @@ from pathlib import Path
 
 import numpy as np
 
-from binpick.errors import InputFileError
 
 COLOURS = {"pickable": (40, 200, 60), "unpickable": (230, 40, 40), "query": (40, 90, 255), "other": (150, 150, 150)}
 
@@ -24,7 +23,7 @@ def draw_boxes(image: np.ndarray, boxes: list[tuple[tuple[float, float, float, f
 
 
 def labelled_scene(data_dir: Path, record: dict, policy: str | None) -> np.ndarray:
-    from binpick.files import inside, opened_image
+    from binpick.core.files import inside, opened_image
 
     path = inside(data_dir, record["file_name"], "scene image")
     with opened_image(path, "scene image") as opened:

@@ -9,8 +9,8 @@ from typing import Any
 
 import numpy as np
 
-from binpick.errors import ConfigError, InputFileError
-from binpick.files import (
+from binpick.core.errors import ConfigError, InputFileError
+from binpick.core.files import (
     atomic_write_json,
     atomic_write_text,
     read_json_object,

@@ -26,9 +26,9 @@ from typing import Any
 
 import numpy as np
 
-from binpick.errors import ConfigError
-from binpick.files import atomic_write_json
-from binpick.runs import SILENT, RunCallback
+from binpick.core.errors import ConfigError
+from binpick.core.files import atomic_write_json
+from binpick.core.runs import SILENT, RunCallback
 from binpick.sim.products import ProductLibrary
 from binpick.warehouse.coco import (  # noqa: F401  (their home before the split)
     _ANNOTATION,
@@ -97,7 +97,7 @@ def prepare_output(config: GenerateConfig, library: ProductLibrary) -> Path:
 
 
 def _write_png(path: Path, array: np.ndarray) -> None:
-    from binpick.files import atomic_write_bytes
+    from binpick.core.files import atomic_write_bytes
 
     atomic_write_bytes(path, _png_bytes(array))
 
@@ -161,7 +161,7 @@ def generate_world(config: GenerateConfig, world: int, out: Path) -> list[dict[s
 
 def write_scene(out: Path, files: dict[str, bytes], record: dict[str, Any]) -> None:
     """A scene's images first, its JSON last and atomically: the scene now exists (resume relies on it)."""
-    from binpick.files import atomic_write_bytes, inside
+    from binpick.core.files import atomic_write_bytes, inside
 
     for name, data in files.items():  # names a worker sent: written only inside the data set
         target = inside(out, name, "scene file")
@@ -252,7 +252,7 @@ def scene_record(scene, index: int, split: str, config: GenerateConfig) -> dict[
 
 
 class DataGeneration:
-    """A data set as a job (:class:`binpick.runs.Job`): ``DataGeneration.new(config)`` checks the
+    """A data set as a job (:class:`binpick.core.runs.Job`): ``DataGeneration.new(config)`` checks the
     products and the output folder, ``DataGeneration.resume(folder)`` continues a killed run with the
     settings it was started with, ``run(callback)`` makes the missing scenes, photos and COCO files."""
 

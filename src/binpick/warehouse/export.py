@@ -13,8 +13,8 @@ from typing import Any
 
 import numpy as np
 
-from binpick.errors import ConfigError, OutputPathError
-from binpick.files import atomic_write, atomic_write_text, ensure_dir
+from binpick.core.errors import ConfigError, OutputPathError
+from binpick.core.files import atomic_write, atomic_write_text, ensure_dir
 from binpick.grasping import PinholeCamera
 from binpick.depth import depth_millimetres
 from binpick.picking.camera_info import CameraInfo, write_camera_info
@@ -71,7 +71,7 @@ def export_dataset_scene(data: Path, index: int, out: Path, library=None) -> Pat
     else:
         raise ConfigError(f"scene {index}'s product {target!r} is not in the product library and the data set has no photo of it")
     out = ensure_dir(Path(out), "--out")
-    from binpick.files import inside, require_file
+    from binpick.core.files import inside, require_file
 
     sources = [require_file(inside(data, record[key] if key in record else fallback, what), what) for key, fallback, what in
                (("file_name", None, "scene image"), ("depth_file", f"depth/{index:06d}.png", "depth image"))]

@@ -6,7 +6,7 @@ import json
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from binpick.errors import ConfigError
+from binpick.core.errors import ConfigError
 from binpick.sim.products import ProductLibrary, default_library, load_products
 
 FORMAT = "binpick-bins-1"
@@ -40,7 +40,7 @@ class GenerateConfig:
     seed: int = 0
 
     def __post_init__(self) -> None:
-        from binpick.config import check_range
+        from binpick.core.config import check_range
 
         check_range("scenes", self.scenes, 1, 10_000_000, integer=True)
         check_range("workers", self.workers, 1, 256, integer=True)
@@ -51,7 +51,7 @@ class GenerateConfig:
         check_range("photo_views", self.photo_views, 0, 64, integer=True)
         check_range("scenes_per_world", self.scenes_per_world, 1, 1000, integer=True)
         check_range("val_fraction", self.val_fraction, 0.0, 1.0)
-        from binpick.config import check_choice
+        from binpick.core.config import check_choice
 
         check_choice("split_rule", self.split_rule, ("even", "random"))
         object.__setattr__(self, "copies", tuple(self.copies))  # frozen: normalised once, here

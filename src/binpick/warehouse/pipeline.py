@@ -22,8 +22,8 @@ from typing import Any
 import numpy as np
 
 from binpick.detection.model import DetectorNetwork
-from binpick.errors import ConfigError
-from binpick.files import atomic_write, atomic_write_text, ensure_dir
+from binpick.core.errors import ConfigError
+from binpick.core.files import atomic_write, atomic_write_text, ensure_dir
 from binpick.sim.bin_scene import BinWorld, Scene
 from binpick.sim.mjcf import CameraSpec
 from binpick.sim.products import ProductLibrary, product_dimensions
@@ -240,7 +240,7 @@ class PickPipeline:
         would: plan on it (then on the copies of it the detector finds), execute the best feasible grasp, and after
         a failed one look at the bin again and plan anew, up to ``max_attempts`` grasps. When the box
         holds nothing any more (the instance left it), stop: nothing else is grasped in its place."""
-        from binpick.errors import InputFileError
+        from binpick.core.errors import InputFileError
 
         for attempt in range(self.max_attempts):
             camera = PinholeCamera.from_record(scene.camera)

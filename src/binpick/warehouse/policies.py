@@ -7,7 +7,7 @@ speed, the way the pipeline's picks are judged.
 
 from __future__ import annotations
 
-from binpick.errors import ConfigError
+from binpick.core.errors import ConfigError
 from binpick.grasping import GraspPlanner, GraspPolicyName, PinholeCamera
 from binpick.sim.gripper import POLICIES as SCRIPTED
 

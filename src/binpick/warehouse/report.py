@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from binpick.files import atomic_write_text
+from binpick.core.files import atomic_write_text
 
 
 def grasp_lines(attempts: list[dict[str, Any]]) -> list[str]:

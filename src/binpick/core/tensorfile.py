@@ -22,8 +22,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from binpick.errors import InputFileError
-from binpick.files import atomic_write_bytes, read_bytes, require_file
+from binpick.core.errors import InputFileError
+from binpick.core.files import atomic_write_bytes, read_bytes, require_file
 
 FORMAT_KEY = "binpick_format"
 META_KEY = "binpick_meta"

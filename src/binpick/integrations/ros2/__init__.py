@@ -8,7 +8,7 @@ path, without Debian's). Run it inside a network namespace that has only loopbac
 
 from __future__ import annotations
 
-from binpick.errors import BinpickError
+from binpick.core.errors import BinpickError
 
 WHEELS = ("ros-rclpy", "ros-std-msgs", "ros-sensor-msgs", "ros-geometry-msgs", "ros-rmw-fastrtps-cpp")
 

@@ -15,12 +15,12 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from binpick import tensorfile
-from binpick.config import check_range
-from binpick.errors import ConfigError
+from binpick.core import tensorfile
+from binpick.core.config import check_range
+from binpick.core.errors import ConfigError
 from binpick.cluster import check_ray_address
-from binpick.distributed.rollouts import RestartingActors
-from binpick.files import atomic_write_json
+from binpick.integrations.ray.rollouts import RestartingActors
+from binpick.core.files import atomic_write_json
 
 
 class A3CActor:

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import os
 
-from binpick.errors import BinpickError
+from binpick.core.errors import BinpickError
 
 DEBIAN_PACKAGES = ("python3-rospy", "python3-actionlib", "python3-rosmaster", "python3-genpy", "python3-genmsg",
                    "ros-std-msgs", "ros-actionlib-msgs", "python3-actionlib-msgs", "python3-std-msgs", "python3-sensor-msgs",
@@ -57,7 +57,7 @@ def check_master_uri(uri: str) -> str:
     """``http://HOST:PORT/`` with a port in 1..65535; anything else is one line."""
     from urllib.parse import urlsplit
 
-    from binpick.errors import ConfigError
+    from binpick.core.errors import ConfigError
 
     try:
         parts = urlsplit(uri)

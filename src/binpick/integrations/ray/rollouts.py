@@ -103,7 +103,7 @@ class RestartingActors:
     (to resend state the fresh process lacks)."""
 
     def __init__(self, actor_class: type, arguments: list[tuple], address: str | None = None) -> None:
-        from binpick.errors import ConfigError
+        from binpick.core.errors import ConfigError
 
         if not arguments:
             raise ConfigError("workers must be at least 1, got 0")

@@ -24,7 +24,7 @@ import numpy as np
 from binpick.picking.camera_info import CameraInfo
 from binpick.picking.node import (Goal, Guard, PlanRequests, colour_of, depth_of, describe, image_array, image_fields, parse_goal,
                                   parse_goal_json, photo_of, request_id_of)
-from binpick.ros2 import require_ros2
+from binpick.integrations.ros2 import require_ros2
 
 RELIABLE_DEPTH = 10
 

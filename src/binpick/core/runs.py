@@ -9,7 +9,7 @@ Checkpoints: write a whole folder, then switch to it with one atomic rename.
 ``checkpoints/ckpt-<steps>/`` is filled under a temporary name and renamed when complete; the
 one-line file ``checkpoints/latest`` names the current one and is replaced atomically. A ``kill -9``
 at any moment leaves either the previous checkpoint or the new one, never half of one. Single files
-are written atomically by :mod:`binpick.files` (text, JSON, bytes, npz) and :mod:`binpick.tensorfile`
+are written atomically by :mod:`binpick.core.files` (text, JSON, bytes, npz) and :mod:`binpick.core.tensorfile`
 (safetensors).
 
 Progress: library code never owns the terminal. A job reports through a :class:`RunCallback`; the
@@ -27,8 +27,8 @@ from typing import Any, Protocol
 from contextlib import contextmanager
 from pathlib import Path
 
-from binpick.errors import ConfigError, InputFileError
-from binpick.files import atomic_write_text, ensure_dir, fsync_dir, read_text
+from binpick.core.errors import ConfigError, InputFileError
+from binpick.core.files import atomic_write_text, ensure_dir, fsync_dir, read_text
 
 _NAME = re.compile(r"ckpt-\d{9}")
 

@@ -1,6 +1,6 @@
 """Validated configuration: range/choice checks and YAML -> dataclass loading.
 
-Each check raises :class:`~binpick.errors.ConfigError` with a single line naming the parameter,
+Each check raises :class:`~binpick.core.errors.ConfigError` with a single line naming the parameter,
 the value given and the allowed range, so a user never has to read a traceback to fix input.
 """
 
@@ -16,8 +16,8 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 
-from binpick.errors import ConfigError
-from binpick.files import parse_yaml, read_text
+from binpick.core.errors import ConfigError
+from binpick.core.files import parse_yaml, read_text
 
 T = TypeVar("T")
 

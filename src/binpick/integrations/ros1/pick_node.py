@@ -14,7 +14,7 @@ import numpy as np
 
 from binpick.picking.camera_info import CameraInfo
 from binpick.picking.node import Guard, PlanRequests, Topics, colour_of, depth_of, describe, image_array, image_fields, photo_of
-from binpick.ros import master_uri, require_ros, wait_for_master
+from binpick.integrations.ros1 import master_uri, require_ros, wait_for_master
 
 
 def stamp_seconds(header) -> float:
@@ -42,7 +42,7 @@ class PickNode:
         import rospy
         import sensor_msgs.msg
 
-        from binpick.ros.messages import plan_pick_action_types
+        from binpick.integrations.ros1.messages import plan_pick_action_types
 
         self.requests, self.camera_to_base, self.base_frame = requests, camera_to_base, base_frame
         self.namespace = namespace.rstrip("/")

@@ -15,8 +15,8 @@ import gymnasium as gym
 import numpy as np
 
 from binpick.envs.spaces import describe_space
-from binpick.ros import master_uri, require_ros, wait_for_master
-from binpick.ros.messages import env_action_types
+from binpick.integrations.ros1 import master_uri, require_ros, wait_for_master
+from binpick.integrations.ros1.messages import env_action_types
 
 
 def _jsonable(value: Any) -> Any:

@@ -1,7 +1,7 @@
 """A central off-policy learner fed by distributed simulators (thesis §6.1, Fig 6.1).
 
 Stable-Baselines3's SAC with HER learns; it never steps an env itself. Ray workers
-(:class:`~binpick.distributed.rollouts.DistributedRollouts`) play whole episodes with the latest
+(:class:`~binpick.integrations.ray.rollouts.DistributedRollouts`) play whole episodes with the latest
 policy and stream them in; every finished episode goes into the HER replay buffer and is followed
 by as many gradient steps as it had env steps, and every few episodes the workers get the new
 policy. A worker that dies costs its in-flight episode only.
@@ -17,10 +17,10 @@ from typing import Any
 
 import numpy as np
 
-from binpick.config import check_range
+from binpick.core.config import check_range
 from binpick.cluster import check_ray_address
-from binpick.distributed.rollouts import DistributedRollouts, Episode
-from binpick.files import atomic_write_json
+from binpick.integrations.ray.rollouts import DistributedRollouts, Episode
+from binpick.core.files import atomic_write_json
 
 
 @dataclass(frozen=True)

@@ -14,12 +14,12 @@ from typing import Any
 import numpy as np
 import torch
 
-from binpick import tensorfile
-from binpick.config import check_choice
-from binpick.errors import ConfigError, InputFileError
-from binpick.files import require_fields
-from binpick.perception.autoencoder import AutoPerception, PerceptionConfig
-from binpick.runs import SILENT, RunCallback
+from binpick.core import tensorfile
+from binpick.core.config import check_choice
+from binpick.core.errors import ConfigError, InputFileError
+from binpick.core.files import require_fields
+from binpick.april.perception.autoencoder import AutoPerception, PerceptionConfig
+from binpick.core.runs import SILENT, RunCallback
 
 
 def train_perception(

@@ -11,8 +11,8 @@ import tempfile
 import time
 import xmlrpc.client
 
-from binpick.errors import BinpickError
-from binpick.ros import local_ros_environment, require_ros
+from binpick.core.errors import BinpickError
+from binpick.integrations.ros1 import local_ros_environment, require_ros
 
 
 def free_port() -> int:

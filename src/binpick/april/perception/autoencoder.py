@@ -39,8 +39,8 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from binpick.config import check_choice, check_range
-from binpick.errors import ConfigError
+from binpick.core.config import check_choice, check_range
+from binpick.core.errors import ConfigError
 
 LAYERS = 6  # stride-2 convolutions in the encoder, transposed ones in the decoder (thesis §4.3.1)
 DRAW_AT = LAYERS - 2  # free keypoints enter the decoder before its last two layers (16 x 16 for 64 px)

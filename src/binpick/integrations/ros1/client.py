@@ -19,9 +19,9 @@ import gymnasium as gym
 import numpy as np
 
 from binpick.envs.spaces import build_space
-from binpick.errors import BinpickError
-from binpick.ros import master_uri, require_ros, wait_for_master
-from binpick.ros.messages import env_action_types
+from binpick.core.errors import BinpickError
+from binpick.integrations.ros1 import master_uri, require_ros, wait_for_master
+from binpick.integrations.ros1.messages import env_action_types
 
 
 def init_node_once(name: str = "binpick_client", timeout: float = 10.0) -> None:

@@ -3,7 +3,7 @@
 Writes go to a unique temporary file beside the target, are flushed to disk (``fsync``) and then
 renamed over it, so a crash or ``kill -9`` leaves the previous file or the new one, never half of
 one, and two writers never share a temporary name. Reads turn the ways a file can be wrong (missing,
-a folder, not UTF-8, not JSON) into an :class:`~binpick.errors.InputFileError` that names the file.
+a folder, not UTF-8, not JSON) into an :class:`~binpick.core.errors.InputFileError` that names the file.
 """
 
 from __future__ import annotations
@@ -16,9 +16,12 @@ import tempfile
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
-from binpick.errors import InputFileError, OutputPathError
+from binpick.core.errors import InputFileError, OutputPathError
+
+if TYPE_CHECKING:
+    import numpy as np
 
 
 def _reason(error: OSError) -> str:
@@ -158,7 +161,7 @@ def opened_image(path: str | Path, what: str = "image", max_pixels: int = MAX_IM
 
     from PIL import Image
 
-    from binpick.errors import BinpickError
+    from binpick.core.errors import BinpickError
 
     path = require_file(path, what)
     try:
