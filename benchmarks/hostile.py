@@ -133,7 +133,7 @@ def big_frame(folder: Path) -> list[str]:
     camera["image_width"], camera["image_height"] = 4000, 3000
     (folder / "camera.yaml").write_text(yaml.safe_dump(camera))
     return ["plan", "--rgb", str(folder / "rgb.png"), "--depth", str(folder / "depth.png"), "--camera", str(folder / "camera.yaml"),
-            "--query-box", ",".join(str(v * 6.25) for v in (393, 279, 93, 59)), "--out", str(folder / "plan.json")]
+            "--query-box", ",".join(str(v * 6.25) for v in (393, 279, 93, 59)), "--out", str(folder / "plan")]
 
 
 def ros_hostile(version: int) -> dict:
@@ -182,9 +182,9 @@ def main() -> None:
         args_ = [a.format(**paths) for a in argv]
         count(klass, run_in_process(args_, [f.format(**paths) for f in fragments]), " ".join(argv)[:120])
     print(f"corpus: {len(corpus.CASES)} cases in {time.time() - started:.0f} s", flush=True)
-    for argv in (["plan", "--sample", "--out", "plan.json"], ["plan", "--sample", "--out", "plan.json", "--overlay", "o.png"],
+    for argv in (["plan", "--sample", "--out", "plan"],
                  ["detect", "predict", str(SAMPLE / "rgb.png"), "--weights",
-                  str(ROOT / "src/binpick/detection/weights/rod_tiny_320.safetensors"), "--query-box", "393,279,93,59", "--out", "p.png"]):
+                  str(ROOT / "src/binpick/detection/weights/rod_tiny_320.safetensors"), "--query-box", "393,279,93,59", "--out", "predict"]):
         folder = Path(tempfile.mkdtemp(dir=work))
         count("faults", run_child(argv, ["File too large"], folder, full_disk), "full disk: " + " ".join(argv[:3]))
     server, port = silent_peer()

@@ -278,7 +278,7 @@ CASES: list[tuple[str, list[str], list[str]]] = [
     ("frames", plan_with(camera="{cam_duplicate_yaml}"), ["cam_duplicate.yaml", "image_width", "twice"]),
     ("frames", [*PLAN, "--query-box", "nan,1,5,5"], ["query box", "finite"]),
     ("frames", [*PLAN, "--query-box", "1,1,inf,5"], ["--query-box"]),
-    ("frames", [*PLAN, "--photo", "{rgb_png}", "--size", "nan,0.1,0.1"], ["--size"]),
+    ("frames", [*PLAN, "--photo", "{rgb_png}", "--product-size", "nan,0.1,0.1"], ["--product-size"]),
     ("frames", [*PLAN, "--query-box", "1e999,1,5,5"], ["--query-box"]),
     # configs
     ("configs", ["rl", "train", "{rl_deep_yaml}"], ["rl_deep.yaml", "nests"]),
@@ -316,7 +316,7 @@ CASES: list[tuple[str, list[str], list[str]]] = [
     ("data", ["detect", "predict", "{rgb_png}", "--weights", "{weights_huge_channels}", "--query-box", "1,1,5,5"], ["past 4096"]),
     ("data", ["data", "export", "{bins}", "--scene", "0", "--out", "{root}/export0"], ["lies outside"]),
     ("data", ["data", "export", "{bins}", "--scene", "1", "--out", "{root}/export1"], ["lies outside"]),
-    ("data", ["data", "show", "{bins}", "--index", "0", "--out", "{root}/show.png"], ["lies outside"]),
+    ("data", ["data", "show", "{bins}", "--scene", "0", "--out", "{root}/show"], ["lies outside"]),
     ("data", ["products", "list", "--products", "{products_duplicate_ids_yaml}"], ["mine/box", "twice"]),
     ("data", ["products", "list", "--products", "{products_empty_id_yaml}"], [".id must be a non-empty name"]),
     ("data", ["products", "list", "--products", "{products_shadow_yaml}"], ["robosuite/can", "built-in"]),

@@ -59,7 +59,7 @@ def main() -> None:
         try:
             out = Path(folder) / "bench.json"
             subprocess.run(CLI + ["ros", "bench", "--namespace", "/binpick/fetch_reach", "--episodes", str(args.episodes),
-                                  "--master", master.uri, "--json", str(out), "--timeout", "60"],
+                                  "--master", master.uri, "--out", folder, "--timeout", "60"],
                            env=master.environment, check=True, stdout=subprocess.DEVNULL)
             summary = json.loads(out.read_text())
         finally:

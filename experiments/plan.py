@@ -9,7 +9,7 @@
 ``files``: orders on the shifted-domain set-up (its camera, tote and light; its held-out products can,
 mug, toy), each bin planned twice: by the simulator pipeline (render -> Picker.plan on arrays ->
 execute) and by ``binpick plan`` on the bin's exported files (rgb.png, depth.png in mm, camera.yaml,
-photo.png, ``--size`` the product's catalogue dimensions as the pipeline checks them), whose plan.json
+photo.png, ``--product-size`` the product's catalogue dimensions as the pipeline checks them), whose plan.json
 the simulator then executes in the same bin. Both run the same planner; the rows say how often they
 placed and how often they agreed. ``--default-orders`` does the same on the default set-up (the
 products the detector was trained on), where the detector works. ``--sensor realistic`` runs each
@@ -109,7 +109,7 @@ def file_orders(domain: str, orders: int, sensor: str = "perfect") -> dict:
             size = ",".join(f"{v:.4f}" for v in product_dimensions(pipeline.library[product]))  # the catalogue's, as the pipeline checks
             ran = subprocess.run(CLI + ["plan", "--rgb", str(folder / "rgb.png"), "--depth", str(folder / "depth.png"),
                                         "--camera", str(folder / "camera.yaml"),
-                                        *[arg for path in photo_files for arg in ("--photo", str(path))], "--size", size, "--out", str(folder / "plan.json"), "--overlay", str(folder / "overlay.png")],
+                                        *[arg for path in photo_files for arg in ("--photo", str(path))], "--product-size", size, "--out", str(folder)],
                                  capture_output=True, text=True)
             cli_seconds.append(time.perf_counter() - tick)
             if ran.returncode != 0:

@@ -183,11 +183,11 @@ def test_plan_with_a_focal_length_of_1e_minus_6_is_one_line_and_never_a_pose(tmp
 
     camera = sample_camera(tmp_path, tiny_focal)
     code, err = run_cli(["plan", "--rgb", str(SAMPLE_FRAME / "rgb.png"), "--depth", str(SAMPLE_FRAME / "depth.png"),
-                         "--camera", str(camera), "--photo", str(SAMPLE_FRAME / "photo.png"), "--out", str(tmp_path / "plans.json")],
+                         "--camera", str(camera), "--photo", str(SAMPLE_FRAME / "photo.png"), "--out", str(tmp_path / "plans")],
                         capsys, monkeypatch)
     lines = [line for line in err.splitlines() if line.strip()]
     assert code == 2 and len(lines) == 1 and "focal length fx = 1e-06" in lines[0], err
-    assert not (tmp_path / "plans.json").exists()
+    assert not (tmp_path / "plans" / "plan.json").exists()
 
 
 def test_a_workspace_in_camera_yaml_rejects_grasps_outside_it(tmp_path):

@@ -108,7 +108,7 @@ def test_binpick_plan_on_an_exported_scene_matches_the_in_memory_plan(tmp_path, 
     box = ",".join(str(int(round(v))) for v in can.bbox)
     monkeypatch.setattr(sys, "argv", ["binpick", "plan", "--rgb", str(out / "rgb.png"), "--depth", str(out / "depth.png"),
                                       "--camera", str(out / "camera.yaml"), "--query-box", box, "--grasp", "analytic",
-                                      "--out", str(tmp_path / "plan.json"), "--overlay", str(tmp_path / "overlay.png")])
+                                      "--out", str(tmp_path)])
     with pytest.raises(SystemExit) as exit_info:
         main()
     assert exit_info.value.code == 0

@@ -11,6 +11,7 @@ reason; anything else new in the README is run automatically.
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import shlex
@@ -260,8 +261,12 @@ def test_every_readme_block_runs_on_tiny_settings(tmp_path):
         if language in ("bash", "python"):
             ran += run_block(language, text, tmp_path, environment)
     # what the README promises is there
-    assert (tmp_path / "frame.png").is_file() and (tmp_path / "frame_obs.png").is_file()
-    assert (tmp_path / "overlay.png").is_file() and (tmp_path / "heat.png").is_file()
+    assert (tmp_path / "runs" / "show" / "FetchReachObstacle-v0.png").is_file()
+    assert (tmp_path / "runs" / "show" / "FetchReachObstacle-v0_obs.png").is_file()
+    assert (tmp_path / "runs" / "predict" / "overlay.png").is_file() and (tmp_path / "runs" / "predict" / "heatmap.png").is_file()
+    for folder in ("sample", "pointed"):
+        assert json.loads((tmp_path / "runs" / folder / "plan.json").read_text())["plans"], folder
+    assert json.loads((tmp_path / "runs" / "detect" / "detections.json").read_text())["detections"]
     assert (tmp_path / "runs" / "milk_orders" / "results.json").is_file()
     assert len(ran) >= 25, ran
     print("\n".join(ran))

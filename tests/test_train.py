@@ -172,3 +172,62 @@ def test_binpick_train_in_python_takes_overrides_as_keywords(tmp_path):
     assert jobs.progress(run) == 2 and binpick.Detector.load(run).network is not None
     with pytest.raises(ConfigError, match="keeps its own config"):
         binpick.train(resume=run, train__epochs=3)
+
+
+def _rl_verb(tmp: Path):
+    """No periodic checkpoint before the end: only the interrupt's own keeps the steps."""
+    config = {"name": "verb_rl", "total_timesteps": 400, **TINY_SAC, "checkpoint_every": 100_000}
+    path = tmp / "rl.yaml"
+    path.write_text(yaml.safe_dump(config))
+    started = lambda run: (run / "tb").is_dir() and time.sleep(2) is None  # noqa: E731  (a few steps in)
+    return ["rl", "train", str(path), "--runs", str(tmp / "runs")], "rl train", 400, started
+
+
+def _detect_verb(tmp: Path):
+    config, target, ready = detect_setup(tmp)
+    config.pop("task")
+    path = tmp / "detect.yaml"
+    path.write_text(yaml.safe_dump(config))
+    return ["detect", "train", str(path), "--runs", str(tmp / "runs")], "train", target, ready
+
+
+def _data_verb(tmp: Path):
+    out = tmp / "bins"
+    argv = ["data", "generate", "--out", str(out), "--scenes", "6", "--scenes-per-world", "1", "--workers", "1", "--size", "64",
+            "--policies", "", "--copies", "2,3", "--distractors", "0,1"]
+    return argv, "train", 6, lambda run: len(list(run.glob("scenes/*.json"))) >= 1
+
+
+@pytest.mark.parametrize("verb", [_rl_verb, _detect_verb, _data_verb], ids=["rl-train", "detect-train", "data-generate"])
+def test_ctrl_c_on_a_training_verb_keeps_its_work_and_prints_the_command_that_finishes_it(verb, tmp_path):
+    argv, _, target, ready = verb(tmp_path)
+    environment = {**os.environ, "OMP_NUM_THREADS": "1", "COLUMNS": "400"}
+    process = subprocess.Popen([*CLI, *argv], cwd=tmp_path, env=environment, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    out = tmp_path / "bins" if argv[0] == "data" else None
+    deadline = time.monotonic() + 300
+    run = None
+    while time.monotonic() < deadline and process.poll() is None:
+        runs = sorted((tmp_path / "runs").glob("*/*")) if out is None else ([out] if (out / "dataset.json").is_file() else [])
+        run = runs[-1] if runs else None
+        if run is not None and ready(run):
+            break
+        time.sleep(0.02)
+    assert process.poll() is None, f"{argv[:2]} ended before it could be interrupted:\n{process.communicate()[1][-2000:]}"
+    process.send_signal(signal.SIGINT)
+    _, stderr = process.communicate(timeout=120)
+    assert process.returncode == 130, stderr[-2000:]
+    message = " ".join(stderr.split())
+    assert "continue with: binpick" in message, message
+    command = message.split("continue with: ", 1)[1].split(" (the same options)")[0].split(", or ")[0].split()
+    if argv[0] == "rl":  # the interrupt wrote the checkpoint: no periodic one comes before the end
+        from binpick.core.runs import latest_checkpoint
+
+        kept = int(latest_checkpoint(run / "checkpoints").name.removeprefix("ckpt-"))
+        assert 0 < kept < target, kept
+    else:
+        kept = jobs.progress(run)
+        assert kept is None or kept < target, kept
+    resumed = subprocess.run([*CLI, *command[1:]] if command[1:2] != ["data"] else [*CLI, *argv], cwd=tmp_path, env=environment,
+                             capture_output=True, text=True, timeout=600)
+    assert resumed.returncode == 0, resumed.stderr[-3000:]
+    assert jobs.progress(run) == target

@@ -218,13 +218,13 @@ def test_data_cli_generates_shows_and_reports_bad_input_in_one_line(tmp_path):
     result = run("generate", "--out", str(out), "--scenes", "2", "--policies", "", "--workers", "1", "--size", "64")
     assert result.returncode == 0, result.stderr
     assert "instances per image" in result.stdout
-    result = run("show", str(out), "--index", "1", "--out", str(tmp_path / "scene.png"))
-    assert result.returncode == 0 and (tmp_path / "scene.png").stat().st_size > 0
+    result = run("show", str(out), "--scene", "1", "--out", str(tmp_path))
+    assert result.returncode == 0 and (tmp_path / "scene_000001.png").stat().st_size > 0
     assert run("stats", str(out)).returncode == 0
     for args, message in [(("generate", "--out", str(tmp_path / "x"), "--policies", "z"), "unknown grasp policy 'z'"),
                           (("generate", "--out", str(tmp_path / "x"), "--held-out", "furniture"), "unknown product category 'furniture'"),
                           (("generate", "--out", str(tmp_path / "x"), "--targets", "acme/nothing"), "unknown product or category 'acme/nothing'"),
                           (("show", str(tmp_path)), "not a binpick data set"),
-                          (("show", str(out), "--index", "9"), "scene 9 is not in")]:
+                          (("show", str(out), "--scene", "9"), "scene 9 is not in")]:
         result = run(*args)
         assert result.returncode == 2 and message in result.stderr and "Traceback" not in result.stderr, (args, result.stderr)

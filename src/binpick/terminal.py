@@ -10,7 +10,14 @@ import signal
 import threading
 
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
 
 from binpick.core.runs import RunCallback, Task
 
@@ -36,10 +43,10 @@ class RichCallback(RunCallback):
     """Progress bars (one per task, with a status column) and messages printed above them.
 
     Use as a context manager: ``with RichCallback(console) as callback: job.run(callback)``. Inside it,
-    Ctrl-C (and SIGTERM, which a cluster's scheduler sends) is raised as ``KeyboardInterrupt`` and
-    remembered: Python drops a ``KeyboardInterrupt`` that lands in a
-    finaliser or weakref callback, so the next progress update raises it again, and a job stops at its
-    next step however its first interrupt was lost."""
+    the first Ctrl-C (or SIGTERM, which a cluster's scheduler sends) asks the job to stop: the next
+    progress update raises ``KeyboardInterrupt``, at a step boundary, where a job's state is whole and
+    it writes a checkpoint on its way out. A second Ctrl-C raises at once. (Raising from the handler
+    itself could land in a finaliser, where Python drops the exception and the job runs on.)"""
 
     def __init__(self, console: Console | None = None) -> None:
         self.console = console or Console(markup=False)
@@ -64,8 +71,11 @@ class RichCallback(RunCallback):
             raise KeyboardInterrupt
 
     def _on_ctrl_c(self, signum, frame) -> None:
+        if self.interrupted:  # the second: now
+            raise KeyboardInterrupt
         self.interrupted = True
-        raise KeyboardInterrupt
+        self.progress.console.print("stopping at the next step, with a checkpoint (Ctrl-C again: stop at once)",
+                                    markup=False, highlight=False)
 
     def __enter__(self) -> RichCallback:
         if threading.current_thread() is threading.main_thread():

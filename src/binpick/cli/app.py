@@ -135,14 +135,14 @@ def parse_pair(text: str, name: str) -> tuple[int, int]:
     return low, high
 
 
-def parse_dimensions(text: str) -> list[float]:
+def parse_dimensions(text: str, option: str = "--product-size") -> list[float]:
     """``L,W,H`` in metres, each in (0, 2]."""
     try:
         values = [float(v) for v in text.split(",")]
     except ValueError:
         values = []
     if len(values) != 3 or not all(0.0 < v <= 2.0 for v in values):
-        raise ConfigError(f"--size must be three lengths in metres L,W,H (each in (0, 2]), got {text!r}")
+        raise ConfigError(f"{option} must be three lengths in metres L,W,H (each in (0, 2]), got {text!r}")
     return values
 
 

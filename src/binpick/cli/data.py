@@ -12,14 +12,15 @@ from binpick.cli.app import (
     check_png_path,
     console,
     data_app,
+    job_progress,
     parse_pair,
     parse_settings,
-    job_progress,
     save_png,
     seed_option,
     warn,
 )
 from binpick.core.errors import ConfigError
+from binpick.core.files import ensure_dir
 
 
 @data_app.command("generate")
@@ -77,20 +78,20 @@ def data_generate(
 @data_app.command("show")
 def data_show(
     data: Annotated[Path, typer.Argument(help="Data-set folder")],
-    index: Annotated[int, typer.Option(help="Scene index")] = 0,
-    out: Annotated[Path, typer.Option(help="PNG to write")] = Path("scene.png"),
+    scene: Annotated[int, typer.Option(help="Scene index")] = 0,
+    out: Annotated[Path, typer.Option(help="Folder for scene_<index>.png")] = Path("."),
     policy: Annotated[str | None, typer.Option(help="Colour pickability by this policy (default: the first)")] = None,
 ) -> None:
     """Draw a scene's boxes: green pickable, red unpickable, blue the query, grey other products."""
     from binpick.viz.bins import labelled_scene
     from binpick.warehouse.dataset import read_scene
 
-    check_png_path(out)
-    record, policies = read_scene(data, index)
+    path = check_png_path(ensure_dir(out, "--out") / f"scene_{scene:06d}.png")
+    record, policies = read_scene(data, scene)
     if policy is not None and policy not in policies:
         raise ConfigError(f"--policy {policy!r}: this data set was labelled by {', '.join(policies) or 'no policy'}")
-    save_png(labelled_scene(data, record, policy or (policies[0] if policies else None)), out)
-    console.print(f"scene {index} ({record['target']}, {len(record['annotations'])} instances) -> {out}")
+    save_png(labelled_scene(data, record, policy or (policies[0] if policies else None)), path)
+    console.print(f"scene {scene} ({record['target']}, {len(record['annotations'])} instances) -> {path}")
 
 
 @data_app.command("export")

@@ -13,15 +13,16 @@ from binpick.cli.app import (
     ConfigSetOption,
     ResumeOption,
     RunsOption,
-    check_png_path,
     console,
     detect_app,
     fmt_metric,
     grasp_app,
     progress,
     save_png,
+    warn,
 )
 from binpick.cli.train import run_task
+from binpick.core.errors import ConfigError
 from binpick.core.files import atomic_write_json, ensure_dir
 
 
@@ -105,13 +106,14 @@ def detect_eval(
 
 @detect_app.command("predict")
 def detect_predict(
-    image: Annotated[Path, typer.Argument(help="Scene image (PNG/JPEG)")],
+    image: Annotated[Path | None, typer.Argument(help="Scene image (PNG/JPEG)")] = None,
+    sample: Annotated[bool, typer.Option(help="The sample frame that ships with binpick: its colour, depth and shop photo")] = False,
     weights: Annotated[Path | None, typer.Option(help="Run folder, model.safetensors or a shipped name (default: the shipped model for the query kind)")] = None,
     query_box: Annotated[str | None, typer.Option(help="Known instance x,y,w,h in pixels")] = None,
-    query_image: Annotated[Path | None, typer.Option(help="Product photo to look for (photo-conditioned models)")] = None,
+    photo: Annotated[Path | None, typer.Option(help="Shop photo of the product to look for (photo-conditioned models)")] = None,
     depth: Annotated[Path | None, typer.Option(help="The scene's depth: 16-bit PNG in mm or .npy in metres (detectors that read depth)")] = None,
-    out: Annotated[Path | None, typer.Option(help="Overlay PNG: query blue, detections orange with scores, a legend")] = None,
-    heatmap: Annotated[Path | None, typer.Option(help="PNG of the ROD levels' max heatmaps, titled, with a colour bar")] = None,
+    out: Annotated[Path | None, typer.Option(help="Folder for detections.json and overlay.png (query blue, detections orange with scores)")] = None,
+    heatmap: Annotated[bool, typer.Option(help="Also heatmap.png in --out: the ROD levels' max heatmaps, with a colour bar")] = False,
     min_score: Annotated[float, typer.Option(help="Detections below this score are not printed or drawn")] = 0.3,
     pickability: Annotated[bool, typer.Option(help="Re-score with the weights' pickability head, if they hold one (it needs --depth)")] = True,
 ) -> None:
@@ -122,20 +124,37 @@ def detect_predict(
     from binpick.detection.predict import parse_box
 
     check_range("--min-score", min_score, 0.0, 1.0)
-    for path, option in ((out, "--out"), (heatmap, "--heatmap")):
-        if path is not None:
-            check_png_path(path, option)
-    detector = Detector.load(weights or (PICKING if query_image is not None else "rod_tiny_320"), pickability=pickability)
+    if sample:
+        from binpick.samples import SAMPLE_FRAME
+
+        image, depth = image or SAMPLE_FRAME / "rgb.png", depth or SAMPLE_FRAME / "depth.png"
+        photo = photo if photo is not None or query_box is not None else SAMPLE_FRAME / "photo.png"
+    if image is None:
+        raise ConfigError("give the scene IMAGE (or --sample for the frame that ships with binpick)")
+    if heatmap and out is None:
+        raise ConfigError("--heatmap writes heatmap.png into --out: give --out FOLDER")
+    folder = None if out is None else ensure_dir(out, "--out")
+    detector = Detector.load(weights or (PICKING if photo is not None else "rod_tiny_320"), pickability=pickability)
     box = parse_box(query_box) if query_box is not None else None
     import warnings
 
     with warnings.catch_warnings(record=True) as notes:
         warnings.simplefilter("always")
-        prediction = detector.predict(image, box, query_image, min_score=min_score, depth=depth)
+        # scored down to 0.01 (greedy NMS keeps the same boxes above min_score), so a miss can say how close it came
+        prediction = detector.predict(image, box, photo, min_score=min(min_score, 0.01), depth=depth)
     for note in notes:
         console.print(f"note: {note.message}", style="yellow")
-    print(json.dumps(prediction.to_json(min_score)))  # as drawn: what still scores min_score after a head's second look
-    if out is not None:
-        save_png(prediction.plot(), out, "--out")
-    if heatmap is not None:
-        save_png(prediction.plot_heatmaps(), heatmap, "--heatmap")
+    found = prediction.to_json(min_score)  # as drawn: what still scores min_score after a head's second look
+    print(json.dumps(found))
+    if not found:
+        best = max((float(s) for s in prediction.scores), default=None)
+        warn(f"no detection scores {min_score}" + ("" if best is None else f"; the best scores {best:.3f}: "
+             f"--min-score {max(0.0, float(f'{best:.2f}') - 0.01):.2f} shows it"))
+    if folder is not None:
+        atomic_write_json(folder / "detections.json", {"image": str(image), "min_score": min_score, "detections": found})
+        save_png(prediction.plot(min_score), folder / "overlay.png", "--out")
+        written = ["detections.json", "overlay.png"]
+        if heatmap:
+            save_png(prediction.plot_heatmaps(), folder / "heatmap.png", "--out")
+            written.append("heatmap.png")
+        console.print(f"wrote {', '.join(written)} in {folder}")

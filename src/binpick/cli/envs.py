@@ -42,7 +42,7 @@ def envs_list() -> None:
 @envs_app.command("show")
 def envs_show(
     env_id: Annotated[str, typer.Argument(help="Env id, e.g. binpick/FetchReach-v0 or FetchReach")],
-    out: Annotated[Path, typer.Option("--out", "-o", help="PNG file to write")] = Path("frame.png"),
+    out: Annotated[Path, typer.Option("--out", "-o", help="Folder for <env>.png (and <env>_obs.png, the policy's image)")] = Path("."),
     seed: Annotated[int, seed_option("Reset seed")] = 0,
     size: Annotated[int, typer.Option(help="Frame side in pixels")] = 480,
     settings: SetOption = None,
@@ -52,7 +52,8 @@ def envs_show(
     from binpick.envs import env_spec, make, resolve_env_id
 
     env_id = resolve_env_id(env_id)
-    check_png_path(out)
+    frame_path = ensure_dir(out, "--out") / f"{env_id.split('/')[-1]}.png"
+    check_png_path(frame_path)
     kwargs = parse_settings(settings)
     own = sorted(set(kwargs) & {"render_mode", "render_size", "width", "height"})
     if own:
@@ -64,11 +65,11 @@ def envs_show(
         frame = env.render()
     finally:
         env.close()
-    save_png(frame, out)
-    console.print(f"wrote {out} ({frame.shape[1]}x{frame.shape[0]})")
+    save_png(frame, frame_path)
+    console.print(f"wrote {frame_path} ({frame.shape[1]}x{frame.shape[0]})")
     image = observation.get("image") if isinstance(observation, dict) else observation
     if image is not None:
-        obs_path = out.with_name(out.stem + "_obs" + out.suffix)
+        obs_path = frame_path.with_name(frame_path.stem + "_obs.png")
         save_png(image[..., 0] if image.shape[-1] == 1 else image, obs_path)
         console.print(f"wrote {obs_path} (image observation {image.shape[1]}x{image.shape[0]}x{image.shape[2]})")
 
@@ -79,7 +80,7 @@ def envs_rollout(
     policy: Annotated[str, typer.Option(help=f"Policy to run: {', '.join(POLICIES)}")] = "random",
     episodes: Annotated[int, typer.Option(help="Number of seeded episodes")] = 20,
     seed: Annotated[int, seed_option("Seed of the first episode (episode i uses seed+i)")] = 0,
-    json_out: Annotated[Path | None, typer.Option("--json", help="Also write the result as JSON here")] = None,
+    out: Annotated[Path | None, typer.Option(help="Also write rollout.json (the result) into this folder")] = None,
     settings: SetOption = None,
 ) -> None:
     """Run a policy and print the thesis's metric: average episode length ± std and success rate."""
@@ -89,8 +90,7 @@ def envs_rollout(
 
     check_choice("policy", policy, POLICIES)
     check_range("episodes", episodes, 1, None, integer=True)
-    if json_out is not None:
-        check_output_file(json_out, "--json")
+    json_out = None if out is None else check_output_file(ensure_dir(out, "--out") / "rollout.json", "--out")
     env = make(env_id, **parse_settings(settings))
     try:
         with progress() as callback, callback.task(f"{env.spec.id} · {policy}", episodes) as task:

@@ -84,16 +84,16 @@ def plan(
                                                        "first, then the copies of it that the detector finds)")] = None,
     copies_only: Annotated[bool, typer.Option(help="With --query-box: plan on the other copies only, not the instance "
                                                    "pointed at (repeated-object evaluation)")] = False,
-    out: Annotated[Path, typer.Option(help="plan.json: grasps (position, quaternion x,y,z,w in the base frame), scores, boxes")] = Path("plan.json"),
-    overlay: Annotated[Path | None, typer.Option(help="PNG of the frame with detections and the planned jaws, numbered")] = None,
+    out: Annotated[Path | None, typer.Option(help="Folder for plan.json (grasps: position, quaternion x,y,z,w in the base frame, "
+                                                  "scores, boxes) and overlay.png (default: runs/plan/<time>)")] = None,
     weights: Annotated[Path | None, typer.Option(help="Detector: run folder or .safetensors (default: the shipped one for the query)")] = None,
     grasp: Annotated[str, typer.Option(help="Grasp policy: learnt, analytic or fixed")] = DEFAULT_POLICY,
     grasp_weights: Annotated[Path | None, typer.Option(help="Grasp-quality weights for --grasp learnt (default: shipped)")] = None,
     max_grasps: Annotated[int, typer.Option(help="Plan grasps for this many detections (best first)")] = 3,
-    size: Annotated[str | None, typer.Option(help="The product's catalogue dimensions L,W,H in metres: instances clearly "
-                                                  "bigger are not grasped")] = None,
+    product_size: Annotated[str | None, typer.Option(help="The product's catalogue dimensions L,W,H in metres: instances "
+                                                          "clearly bigger are not grasped")] = None,
 ) -> None:
-    """Plan grasps from one real RGB-D frame: no simulator. Prints the best grasp; writes plan.json."""
+    """Plan grasps from one real RGB-D frame: no simulator. Prints the best grasp; writes plan.json and overlay.png."""
     import numpy as np
 
     from binpick.core.config import check_range
@@ -112,29 +112,25 @@ def plan(
         raise ConfigError("give the frame's --rgb, --depth and --camera (or --sample for the frame that ships with binpick)")
     if (not photo) == (query_box is None):
         raise ConfigError("give exactly one of --photo (the product's shop photo; repeatable) or --query-box x,y,w,h")
-    if out.suffix.lower() != ".json":
-        raise ConfigError(f"--out must end in .json, got {str(out)!r}")
-    check_output_file(out, "--out")
-    if overlay is not None:
-        check_png_path(overlay, "--overlay")
     box = parse_box(query_box) if query_box is not None else None
-    dimensions = parse_dimensions(size) if size is not None else None
+    dimensions = parse_dimensions(product_size, "--product-size") if product_size is not None else None
     colour, metres, info = read_frame(rgb, depth, camera)
     query = [read_photo(path) for path in photo] if photo else None
     if box is not None and (box[0] < 0 or box[1] < 0 or box[0] + box[2] > colour.shape[1] or box[1] + box[3] > colour.shape[0]):
         raise ConfigError(f"--query-box {query_box!r} lies outside the {colour.shape[1]}x{colour.shape[0]} colour image")
-    crop = weights if box is not None else None
-    picker = Picker.load(None if box is not None else weights, grasp, grasp_weights, crop_detector=crop, max_grasps=max_grasps)
     if copies_only and box is None:
         raise ConfigError("--copies-only goes with --query-box (the instance whose copies to plan on)")
+    folder = ensure_dir(out or Path("runs/plan") / time.strftime("%Y%m%d-%H%M%S"), "--out")  # inputs read: now the outputs
+    plan_path, overlay = check_output_file(folder / "plan.json", "--out"), check_png_path(folder / "overlay.png", "--out")
+    crop = weights if box is not None else None
+    picker = Picker.load(None if box is not None else weights, grasp, grasp_weights, crop_detector=crop, max_grasps=max_grasps)
     plans = picker.plan(colour, metres, info, photo=query, query_box=box, size=dimensions, copies_only=copies_only)
     result = {"inputs": {"rgb": str(rgb), "depth": str(depth), "camera": str(camera),
                          "photo": [str(path) for path in photo] if photo else None, "query_box": query_box, "copies_only": copies_only,
                          "size": dimensions},
-              "grasp_policy": grasp, **plans.to_json()}
-    atomic_write_text(out, json.dumps(result, indent=1))
-    if overlay is not None:
-        save_png(plans.plot(colour, info.camera, picker.grasp.gripper.opening, query, box), overlay, "--overlay")
+              "grasp_policy": picker.grasp.policy.value, **plans.to_json()}
+    atomic_write_text(plan_path, json.dumps(result, indent=1))
+    save_png(plans.plot(colour, info.camera, picker.grasp.gripper.opening, query, box), overlay, "--out")
     best = plans.grasps[0] if plans.grasps else None
     if best is None:
         reasons: dict[str, int] = {}
@@ -143,12 +139,12 @@ def plan(
                 reasons[k] = reasons.get(k, 0) + n
         why = [f"{plans.not_the_product} failed the product check"] if plans.not_the_product else []
         why += [f"{k} x{n}" for k, n in reasons.items()]
-        console.print(f"no feasible grasp: {plans.detections} detection(s){': ' + '; '.join(why) if why else ''} -> {out}", soft_wrap=True)
+        console.print(f"no feasible grasp: {plans.detections} detection(s){': ' + '; '.join(why) if why else ''} -> {folder}", soft_wrap=True)
     else:
         x, y, z = best.position
         console.print(f"{len(plans.grasps)} grasp(s) from {plans.detections} detections in {plans.timing_ms['total']:.0f} ms; best: "
                       f"({x:.3f}, {y:.3f}, {z:.3f}) m in {plans.frame}, yaw {np.degrees(best.yaw):.0f} deg, "
-                      f"width {100 * best.width:.1f} cm, score {best.score:.2f} -> {out}", soft_wrap=True)
+                      f"width {100 * best.width:.1f} cm, grasp quality {best.score:.2f} -> {plan_path}, {overlay}", soft_wrap=True)
 
 
 def _fulfil(pipeline, products: list[str], orders: int, seed: int, run_dir: Path) -> dict:

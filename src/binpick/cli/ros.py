@@ -10,7 +10,7 @@ import typer
 
 from binpick.cli.app import DEFAULT_POLICY, console, product_library, ros2_app, ros_app
 from binpick.core.errors import ConfigError
-from binpick.core.files import atomic_write_json, check_output_file
+from binpick.core.files import atomic_write_json, check_output_file, ensure_dir
 
 MasterOption = Annotated[str | None, typer.Option("--master", help="ROS master URI (default: $ROS_MASTER_URI)")]
 NamespaceOption = Annotated[str, typer.Option(help="Action namespace clients connect to, e.g. /binpick/env")]
@@ -94,7 +94,7 @@ def ros_bench(
     namespace: Annotated[str, typer.Option(help="Action namespace of a served Fetch env, e.g. /binpick/env")] = "/binpick/env",
     episodes: Annotated[int, typer.Option(help="Episodes of the scripted reach policy")] = 10,
     master: MasterOption = None,
-    json_out: Annotated[Path | None, typer.Option("--json", help="Also write the summary here")] = None,
+    out: Annotated[Path | None, typer.Option(help="Also write bench.json (the summary) into this folder")] = None,
     timeout: Annotated[float, typer.Option(help="Seconds to wait for the server and for each result")] = 10.0,
 ) -> None:
     """Drive a served Fetch env over ROS with the scripted reach policy: success and round-trip latency."""
@@ -102,8 +102,7 @@ def ros_bench(
 
     check_range("episodes", episodes, 1, 100_000, integer=True)
     _check_namespace(namespace)
-    if json_out is not None:
-        check_output_file(json_out, "--json")
+    json_out = None if out is None else check_output_file(ensure_dir(out, "--out") / "bench.json", "--out")
     _ros_environment(master, _check_timeout(timeout))
     import gymnasium as gym
     import numpy as np

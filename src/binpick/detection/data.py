@@ -150,7 +150,9 @@ class RepeatedInstances:
                  photos: str | Path | None = None) -> None:
         path = Path(annotations)
         if not path.exists():
-            raise ConfigError(f"annotations file {str(path)!r} does not exist")
+            hint = (f"; make the data set with: binpick data generate --out {path.parent}"
+                    if path.name.startswith("annotations_") and not (path.parent / "dataset.json").is_file() else "")
+            raise ConfigError(f"annotations file {str(path)!r} does not exist{hint}")
         coco = read_json(path, "annotations file")
         if not isinstance(coco, dict) or not {"images", "annotations", "categories"} <= set(coco):
             raise ConfigError(f"{path}: not a COCO detection file (needs images, annotations and categories)")

@@ -36,7 +36,9 @@ def shipped_weights(name: str) -> Path:
     stem = name.removesuffix(".safetensors")
     path = Path(str(files("binpick.detection") / "weights" / f"{stem}.safetensors"))
     if stem not in SHIPPED or not path.is_file():
-        raise ConfigError(f"no shipped detector weights named {name!r}; shipped: {', '.join(SHIPPED)}")
+        from binpick.core.config import did_you_mean
+
+        raise ConfigError(f"no shipped detector weights named {name!r}{did_you_mean(stem, SHIPPED)}; shipped: {', '.join(SHIPPED)}")
     return path
 
 
@@ -66,6 +68,11 @@ class Detector:
         path = Path(weights)
         if not path.exists() and str(weights).removesuffix(".safetensors") in SHIPPED:
             path = shipped_weights(str(weights))
+        elif not path.exists():
+            from binpick.core.config import did_you_mean
+
+            raise ConfigError(f"no detector weights at {str(weights)!r}: give a run folder, a .safetensors file or a shipped "
+                              f"name{did_you_mean(path.name.removesuffix('.safetensors'), SHIPPED)}; shipped: {', '.join(SHIPPED)}")
         network = load_detector(path)
         return cls(network if pickability else network.without_pickability(), path)
 

@@ -95,8 +95,10 @@ def predict(model: DetectorNetwork, image: np.ndarray | str | Path, query_box: n
         model = model.without_pickability()
     if model.spec.reads_depth:
         depth = read_depth(depth) if isinstance(depth, (str, Path)) else np.asarray(depth, dtype=np.float32)
-        if depth.shape != image.shape[:2]:
-            raise ConfigError(f"depth is {depth.shape[1]}x{depth.shape[0]} but the image is {image.shape[1]}x{image.shape[0]}")
+        (dh, dw), (ih, iw) = depth.shape[:2], image.shape[:2]
+        if depth.ndim != 2 or abs(dw * ih - iw * dh) > 0.01 * iw * dh:  # resized to the network's input: the aspect must agree
+            raise ConfigError(f"depth is {dw}x{dh} but the image is {iw}x{ih}: give depth registered to the colour image, "
+                              "at its size or one of the same aspect")
         heights = torch.from_numpy(depth_input(depth, model.image_size))[None, None]
     if (query_box is None) == (query_image is None):
         raise ConfigError("give exactly one of a query box or a query image")
@@ -109,7 +111,7 @@ def predict(model: DetectorNetwork, image: np.ndarray | str | Path, query_box: n
         query_box = np.asarray(query_box, dtype=np.float32)
         check_query_box(query_box, width, height)
         if model.spec.query == "photo":
-            raise ConfigError("this detector was trained on shop photos: give --query-image")
+            raise ConfigError("this detector was trained on shop photos: give --photo")
         box_xyxy = np.array([query_box[0], query_box[1], query_box[0] + query_box[2], query_box[1] + query_box[3]]) * scale
         query_pixels = crop_resize(resized, box_xyxy, model.query_size)
     else:

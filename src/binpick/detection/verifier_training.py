@@ -92,7 +92,7 @@ def collect(data: str | Path, splits: tuple[str, ...], limit: int | None, min_vi
 
     data = Path(data)
     if not (data / "dataset.json").is_file():
-        raise ConfigError(f"{str(data)!r} is not a binpick data set (no dataset.json)")
+        raise ConfigError(f"{str(data)!r} is not a binpick data set (no dataset.json); make one with: binpick data generate --out {data}")
     paths = sorted((data / "scenes").glob("*.json"))[:limit]
     if not paths:
         raise ConfigError(f"{str(data)!r} holds no scenes yet")

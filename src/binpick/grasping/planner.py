@@ -17,6 +17,7 @@ from enum import StrEnum
 
 import numpy as np
 
+from binpick.core.config import did_you_mean
 from binpick.core.errors import ConfigError
 from binpick.grasping.candidates import YAWS, GraspCandidate, JawGripper, Surface, grasp_candidates
 from binpick.grasping.frame import DepthFrame
@@ -29,6 +30,12 @@ class GraspPolicyName(StrEnum):
     FIXED = "fixed"
     ANALYTIC = "analytic"
     LEARNT = "learnt"
+
+    @classmethod
+    def _missing_(cls, value: object) -> GraspPolicyName | None:
+        """Case ignored, and American spelling taken: ``Learned`` is ``learnt``."""
+        text = str(value).strip().lower()
+        return cls.LEARNT if text == "learned" else next((p for p in cls if p.value == text), None)
 
 
 @dataclass
@@ -71,7 +78,8 @@ class GraspPlanner:
         try:
             self.policy = GraspPolicyName(policy)
         except ValueError:
-            raise ConfigError(f"unknown grasp policy {policy!r}; choose from {', '.join(p.value for p in GraspPolicyName)}") from None
+            names = [p.value for p in GraspPolicyName]
+            raise ConfigError(f"unknown grasp policy {policy!r}{did_you_mean(policy, names)}; choose from {', '.join(names)}") from None
         if self.policy is GraspPolicyName.LEARNT and quality is None:
             raise ConfigError("the learnt grasp policy needs a grasp-quality model (binpick.grasping.quality.GraspQuality.load)")
         self.quality, self.gripper, self.yaw_count = quality, gripper, yaw_count
@@ -80,6 +88,11 @@ class GraspPlanner:
     def load(cls, policy: str = "learnt", weights: str | Path | None = None, **options) -> GraspPlanner:
         """A planner for ``policy``; the learnt one with ``weights`` (default: the shipped model)."""
         quality = None
+        try:
+            policy = GraspPolicyName(policy)
+        except ValueError:
+            names = [p.value for p in GraspPolicyName]
+            raise ConfigError(f"unknown grasp policy {policy!r}{did_you_mean(policy, names)}; choose from {', '.join(names)}") from None
         if policy == GraspPolicyName.LEARNT:
             from binpick.grasping.quality import SHIPPED, GraspQuality
 
@@ -88,7 +101,7 @@ class GraspPlanner:
                                   "or choose the analytic policy")
             quality = GraspQuality.load(weights or SHIPPED)
         elif weights is not None:
-            raise ConfigError(f"grasp weights are for the learnt policy, not {policy!r}")
+            raise ConfigError(f"grasp weights are for the learnt policy, not {policy.value!r}")
         return cls(policy, quality, **options)
 
     def frame(self, depth: np.ndarray, camera) -> DepthFrame:

@@ -337,8 +337,12 @@ class Trainer:
         with callback.task(self.config.name, self.config.total_timesteps, int(self.model.num_timesteps)) as task:
             callbacks.append(ReportProgress(task, self.metrics))
             if remaining > 0:
-                self.model.learn(remaining, callback=CallbackList(callbacks), reset_num_timesteps=False,
-                                 tb_log_name=self.config.algorithm, log_interval=10)
+                try:
+                    self.model.learn(remaining, callback=CallbackList(callbacks), reset_num_timesteps=False,
+                                     tb_log_name=self.config.algorithm, log_interval=10)
+                except KeyboardInterrupt:  # Ctrl-C: keep the steps since the last checkpoint, then stop
+                    self.save_checkpoint()
+                    raise
         evaluated = [e["sim_steps"] for e in self.metrics.evaluations]
         if not evaluated or evaluated[-1] != self.model.num_timesteps:  # the final policy is always measured
             self._ensure_logger()

@@ -151,9 +151,10 @@ POLICIES = {"x": lambda: TopDownGrasp("x"), "y": lambda: TopDownGrasp("y")}
 
 
 def make_policies(names: list[str]) -> list[GraspPolicy]:
+    from binpick.core.config import did_you_mean
     from binpick.core.errors import ConfigError
 
     unknown = [n for n in names if n not in POLICIES]
     if unknown:
-        raise ConfigError(f"unknown grasp policy {unknown[0]!r}; choose from {', '.join(POLICIES)}")
+        raise ConfigError(f"unknown grasp policy {unknown[0]!r}{did_you_mean(unknown[0], POLICIES)}; choose from {', '.join(POLICIES)}")
     return [POLICIES[n]() for n in names]

@@ -61,7 +61,7 @@ class ProductLibrary:
 
     def __getitem__(self, product_id: str) -> Product:
         if product_id not in self.products:
-            raise ConfigError(f"unknown product {product_id!r}; known: {', '.join(sorted(self.products)[:12])}, ...")
+            raise ConfigError(f"unknown product {product_id!r}{self._nearest(product_id)}")
         return self.products[product_id]
 
     def __len__(self) -> int:
@@ -77,7 +77,10 @@ class ProductLibrary:
     def in_categories(self, categories: list[str]) -> list[Product]:
         unknown = sorted(set(categories) - set(self.categories))
         if unknown:
-            raise ConfigError(f"unknown product category {unknown[0]!r}; known: {', '.join(self.categories)}")
+            from binpick.core.config import did_you_mean
+
+            raise ConfigError(f"unknown product category {unknown[0]!r}{did_you_mean(unknown[0], self.categories)}; "
+                              f"known: {', '.join(self.categories)}")
         return [p for p in self.products.values() if p.category in categories]
 
     def add(self, product: Product) -> None:
@@ -85,20 +88,35 @@ class ProductLibrary:
 
     def resolve(self, name: str) -> list[str]:
         """Product ids for a name: a full id (``robosuite/cereal``), a short name when only one product
-        has it (``cereal``), or a product category (``box``: every product in it). Anything else is
-        one line that lists what would be accepted."""
+        has it (``cereal``), or a product category (``box``: every product in it), case ignored
+        (``Mug``). Anything else is one line with the nearest name, if one is near."""
         if name in self.products:
             return [name]
-        short = [pid for pid in self.products if pid.split("/")[-1] == name]
+        key = name.strip().lower()
+        exact = [pid for pid in self.products if pid.lower() == key]
+        if len(exact) == 1:
+            return exact
+        short = [pid for pid in self.products if pid.split("/")[-1].lower() == key]
         if len(short) == 1:
             return short
         if len(short) > 1:
             raise ConfigError(f"{name!r} is the short name of {', '.join(sorted(short))}: give the full id")
-        if name in self.categories:
-            return sorted(p.id for p in self.products.values() if p.category == name)
-        close = sorted(pid for pid in self.products if name.lower() in pid.lower())[:6]
-        hint = f"; did you mean {', '.join(close)}?" if close else "; `binpick products list` shows them all"
-        raise ConfigError(f"unknown product or category {name!r}{hint}")
+        category = [c for c in self.categories if c.lower() == key]
+        if category:
+            return sorted(p.id for p in self.products.values() if p.category == category[0])
+        raise ConfigError(f"unknown product or category {name!r}{self._nearest(name)}")
+
+    def _nearest(self, name: str) -> str:
+        """`` (did you mean ...?)`` from ids, unique short names and categories; else where to look."""
+        from binpick.core.config import did_you_mean
+
+        shorts = [pid.split("/")[-1] for pid in self.products]
+        names = [*self.products, *(s for s in shorts if shorts.count(s) == 1), *self.categories]
+        containing = sorted(pid for pid in self.products if name.strip().lower() in pid.lower())[:6]
+        if len(containing) > 1:
+            return f" (did you mean {', '.join(containing)}?)"
+        near = did_you_mean(name, names) or did_you_mean(name.split("/")[-1], names)
+        return near or "; `binpick products list` shows them all"
 
 
 def package_dir(name: str) -> Path | None:

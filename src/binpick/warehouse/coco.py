@@ -23,7 +23,7 @@ def open_dataset(data: Path) -> dict[str, Any]:
     """The manifest of a data-set folder, or one clear line saying why it is not one."""
     manifest = Path(data) / "dataset.json"
     if not manifest.is_file():
-        raise ConfigError(f"{str(data)!r} is not a binpick data set (no dataset.json)")
+        raise ConfigError(f"{str(data)!r} is not a binpick data set (no dataset.json); make one with: binpick data generate --out {data}")
     content = read_json_object(manifest, "data-set manifest", {"format": str, "config": dict, "products": list})
     if content["format"] != FORMAT:
         raise ConfigError(f"{manifest} is not a {FORMAT} data set")

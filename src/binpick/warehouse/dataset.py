@@ -119,7 +119,7 @@ def world_plan(config: GenerateConfig, library: ProductLibrary, world: int) -> t
     """The target product, distractor products and split of world ``world`` (deterministic)."""
     if config.domain_config.random_products:
         ids = [p.id for p in random_world_products(config, library, world)]
-        return ids[0], ids[1:], "val" if val_world(world, config.val_fraction) else "train"
+        return ids[0], ids[1:], "val" if val_world(world, config.val_fraction, world_count(config)) else "train"
     rng = np.random.default_rng([config.seed, world])
     candidates = target_products(config, library)
     target = candidates[rng.integers(len(candidates))]
@@ -132,15 +132,27 @@ def world_plan(config: GenerateConfig, library: ProductLibrary, world: int) -> t
     elif config.split_rule == "random":  # data sets made before binpick 0.2 (bins_2000 among them)
         split = "val" if rng.uniform() < config.val_fraction else "train"
     else:
-        split = "val" if val_world(world, config.val_fraction) else "train"
+        split = "val" if val_world(world, config.val_fraction, world_count(config)) else "train"
     return target, distractors, split
 
 
-def val_world(world: int, fraction: float) -> bool:
+def val_world(world: int, fraction: float, worlds: int | None = None) -> bool:
     """World ``world`` goes to val when the running count of ``fraction`` per world passes a whole
     number (half a step early): exactly that share of worlds, spread evenly, the first already at
-    world 1 for fraction 0.25 or world 4 for 0.1, and a world keeps its split when a set grows."""
-    return int((world + 1) * fraction + 0.5) > int(world * fraction + 0.5)
+    world 1 for fraction 0.25 or world 4 for 0.1, and a world keeps its split when a set grows. A set
+    of ``worlds`` too few to reach its first val world gives its last one to val (when it has two), so
+    a small set still has something to validate on."""
+    def even(w: int) -> bool:
+        return int((w + 1) * fraction + 0.5) > int(w * fraction + 0.5)
+
+    if even(world):
+        return True
+    return (worlds is not None and fraction > 0 and worlds >= 2 and world == worlds - 1
+            and not any(even(w) for w in range(worlds)))
+
+
+def world_count(config: GenerateConfig) -> int:
+    return -(-config.scenes // config.scenes_per_world)
 
 
 def missing_scenes(config: GenerateConfig, world: int, out: Path) -> list[int]:

@@ -7,6 +7,7 @@ speed, the way the pipeline's picks are judged.
 
 from __future__ import annotations
 
+from binpick.core.config import did_you_mean
 from binpick.core.errors import ConfigError
 from binpick.grasping import GraspPlanner, GraspPolicyName, PinholeCamera
 from binpick.sim.gripper import POLICIES as SCRIPTED
@@ -21,7 +22,8 @@ def policy_names() -> list[str]:
 def check_policies(names: list[str]) -> None:
     unknown = [n for n in names if n not in policy_names()]
     if unknown:
-        raise ConfigError(f"unknown grasp policy {unknown[0]!r}; choose from {', '.join(policy_names())}")
+        raise ConfigError(f"unknown grasp policy {unknown[0]!r}{did_you_mean(unknown[0], policy_names())}; "
+                          f"choose from {', '.join(policy_names())}")
 
 
 def make_policies(names: list[str]) -> list:
