@@ -54,6 +54,8 @@ def test_envs_rollout_prints_length_and_success_and_writes_json(tmp_path):
                            env={"COLUMNS": "200"})
     assert result.exit_code == 0, result.output
     assert "actions per episode" in result.output and "success" in result.output
+    assert "binpick/Reacher-v0 · random: 1/4 (25%)" in result.output  # output not a terminal: plain progress lines
+    assert "binpick/Reacher-v0 · random: 4/4 (100%)" in result.output
     summary = json.loads(out.read_text())
     assert summary["episodes"] == 4 and summary["max_episode_steps"] == 50
     assert 0 < summary["mean_length"] <= 50 and 0 <= summary["success_rate"] <= 1
@@ -120,3 +122,10 @@ def test_a_prediction_that_finds_nothing_says_its_best_score_and_the_threshold_t
     lowered = hint.rsplit("--min-score ", 1)[1].split()[0]
     shown = run_cli("detect", "predict", "--sample", "--min-score", lowered)
     assert json.loads(shown.stdout), shown.stderr
+
+
+def test_shell_completion_completes_verbs_and_options():
+    verbs = run_cli(env={"_BINPICK_COMPLETE": "complete_bash", "COMP_WORDS": "binpick de", "COMP_CWORD": "1"})
+    assert verbs.returncode == 0 and verbs.stdout.split() == ["demo", "detect"], verbs.stdout + verbs.stderr
+    option = run_cli(env={"_BINPICK_COMPLETE": "complete_bash", "COMP_WORDS": "binpick plan --pro", "COMP_CWORD": "2"})
+    assert option.stdout.split() == ["--product-size"]

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import signal
 import threading
+import time
 
 from rich.console import Console
 from rich.progress import (
@@ -34,8 +35,10 @@ class _RichTask(Task):
         if done is not None:
             fields["completed"] = done
         self.progress.update(self.task_id, advance=advance or None, **fields)
+        self.owner.log_line(self.task_id)
 
     def close(self) -> None:
+        self.owner.log_line(self.task_id, last=True)
         self.progress.stop_task(self.task_id)
 
 
@@ -48,13 +51,33 @@ class RichCallback(RunCallback):
     it writes a checkpoint on its way out. A second Ctrl-C raises at once. (Raising from the handler
     itself could land in a finaliser, where Python drops the exception and the job runs on.)"""
 
-    def __init__(self, console: Console | None = None) -> None:
+    def __init__(self, console: Console | None = None, log_every: float = 30.0) -> None:
         self.console = console or Console(markup=False)
         self.interrupted = False
         self._previous_handlers: dict[int, object] = {}
+        # output to a file or a pipe gets plain lines (first, every log_every seconds, last), as SB3's logger
+        # prints them, instead of bars that only a terminal redraws
+        self.plain, self.log_every = not self.console.is_terminal, log_every
+        self._logged: dict[object, float] = {}
         self.progress = Progress(TextColumn("{task.description}", style="bold", markup=False), BarColumn(), MofNCompleteColumn(),
                                  TextColumn("{task.fields[status]}", markup=False), TimeElapsedColumn(), TimeRemainingColumn(),
-                                 console=self.console)
+                                 console=self.console, disable=self.plain)
+
+    def log_line(self, task_id, last: bool = False) -> None:
+        """In plain mode, one line for the task: its first update, then every ``log_every`` s, and its end."""
+        if not self.plain:
+            return
+        now = time.monotonic()
+        first = task_id not in self._logged
+        if not (first or last or now - self._logged[task_id] >= self.log_every):
+            return
+        self._logged[task_id] = now
+        task = next(t for t in self.progress.tasks if t.id == task_id)
+        done = f"{task.completed:,.0f}" + (f"/{task.total:,.0f} ({task.percentage:.0f}%)" if task.total else "")
+        elapsed = f"{task.elapsed or 0.0:.0f} s"
+        remaining = f", {task.time_remaining:.0f} s left" if task.time_remaining is not None and not last else ""
+        status = f"  {task.fields['status']}" if task.fields.get("status") else ""
+        self.console.print(f"{task.description}: {done} in {elapsed}{remaining}{status}", markup=False, highlight=False, soft_wrap=True)
 
     def task(self, label: str, total: int | None = None, done: int = 0) -> Task:
         self.progress.start()

@@ -15,7 +15,7 @@ from binpick.core.files import atomic_write, check_output_file, parse_yaml
 from binpick.terminal import RichCallback
 
 app = typer.Typer(help="Learned bin picking: simulated worlds, RL, APRiL and repeated object detection.",
-                  no_args_is_help=True, pretty_exceptions_enable=False, add_completion=False)
+                  no_args_is_help=True, pretty_exceptions_enable=False, add_completion=True)
 envs_app = typer.Typer(help="The simulated worlds of the thesis (Gymnasium ids binpick/...).", no_args_is_help=True)
 app.add_typer(envs_app, name="envs")
 rl_app = typer.Typer(help="Reinforcement learning (thesis ch. 3): train and evaluate runs.", no_args_is_help=True)
@@ -48,7 +48,7 @@ def seed_option(text: str):
     return typer.Option("--seed", min=0, max=MAX_SEED, help=text)
 
 
-SetOption = Annotated[list[str] | None, typer.Option("--set", help="Env parameter KEY=VALUE (repeatable), e.g. --set goal_area=0.5")]
+SetOption = Annotated[list[str] | None, typer.Option("--set", metavar="KEY=VALUE", help="Env parameter KEY=VALUE (repeatable), e.g. --set goal_area=0.5")]
 POLICIES = ("random",)
 DEFAULT_POLICY = "learnt"  # the grasp policy of pick and demo: the best in results/grasp.json and results/pick.json
 
@@ -97,7 +97,7 @@ def job_progress(run_dir: Path, resume_command: str) -> Iterator[RichCallback]:
 
 ResumeOption = Annotated[Path | None, typer.Option(help="Run folder to continue from its latest checkpoint")]
 RunsOption = Annotated[Path, typer.Option(help="Where new run folders go")]
-ConfigSetOption = Annotated[list[str] | None, typer.Option("--set", help="Config override KEY=VALUE or SECTION.KEY=VALUE, applied "
+ConfigSetOption = Annotated[list[str] | None, typer.Option("--set", metavar="KEY=VALUE", help="Config override KEY=VALUE or SECTION.KEY=VALUE, applied "
                                                                         "before validation (repeatable), e.g. --set train.epochs=2")]
 
 

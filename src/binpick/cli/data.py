@@ -27,29 +27,25 @@ from binpick.core.files import ensure_dir
 def data_generate(
     out: Annotated[Path, typer.Option(help="Data-set folder (new, or one to resume)")],
     scenes: Annotated[int, typer.Option(help="Number of bin scenes")] = 100,
-    policies: Annotated[str, typer.Option(help="Grasp policies that label pickability, comma-separated: x, y (scripted, jaws along an axis), analytic, learnt (the grasp planner); '' for none")] = "x,y",
+    policies: Annotated[str, typer.Option(help="Policies that label pickability: x, y, analytic, learnt; '' none")] = "x,y",
     workers: Annotated[int, typer.Option(help="Parallel processes")] = 2,
-    grasp_trials: Annotated[int, typer.Option(help="Random grasp candidates from depth to execute per visible instance "
-                                                   "(grasp-quality training data); 0 for none")] = 0,
-    products: Annotated[Path | None, typer.Option(help="YAML of your own products (meshes, textures)")] = None,
-    only_products: Annotated[bool, typer.Option(help="Use only the products in --products")] = False,
+    grasp_trials: Annotated[int, typer.Option(help="Grasps tried per instance (grasp-quality data)")] = 0,
+    products: Annotated[Path | None, typer.Option(help="YAML of your own products")] = None,
+    only_products: Annotated[bool, typer.Option("--only-products", help="Only the products in --products")] = False,
     size: Annotated[int, typer.Option(help="Image size in pixels")] = 416,
-    copies: Annotated[str, typer.Option(help="Instances of the target product per bin, LOW,HIGH")] = "2,8",
+    copies: Annotated[str, typer.Option(help="Copies of the target per bin, LOW,HIGH")] = "2,8",
     distractors: Annotated[str, typer.Option(help="Other products per bin, LOW,HIGH")] = "0,3",
-    held_out: Annotated[str, typer.Option(help="Product categories for the zero-shot test split, comma-separated")] = "",
-    targets: Annotated[str, typer.Option(help="Products or categories to fill bins with, comma-separated (default: all)")] = "",
-    randomise: Annotated[bool, typer.Option(help="Randomise lighting and colours per world (older; see --domain)")] = False,
-    domain: Annotated[str, typer.Option(help="Scene look: default, random (domain randomisation), shifted, or a domain YAML file")] = "default",
-    sensor: Annotated[str, typer.Option(help="Depth camera: perfect (the renderer's depth), realistic (holes, noise, tilted "
-                                             "camera and tote, as a structured-light sensor gives it) or a sensor YAML file")] = "perfect",
-    address: Annotated[str | None, typer.Option(help="Run scene workers as Ray tasks: HOST:PORT of a Ray cluster, or local")] = None,
-    val_fraction: Annotated[float, typer.Option(help="Share of worlds (groups of --scenes-per-world scenes) in the val split")] = 0.1,
-    scenes_per_world: Annotated[int, typer.Option(help="Scenes made from one compiled world (one product); small sets: 1")] = 8,
-    photo_views: Annotated[int, typer.Option(help="Shop photos per product taken in randomised studios (light, background, "
-                                                  "viewpoint, framing, cut-out), besides the canonical one")] = 0,
+    held_out: Annotated[str, typer.Option(help="Categories for the zero-shot test split")] = "",
+    targets: Annotated[str, typer.Option(help="Products or categories to fill bins with")] = "",
+    randomise: Annotated[bool, typer.Option("--randomise", hidden=True, help="Randomise lighting and colours per world (older; see --domain)")] = False,
+    domain: Annotated[str, typer.Option(help="default, random, shifted or a domain YAML")] = "default",
+    sensor: Annotated[str, typer.Option(help="Depth: perfect, realistic (holes, noise, tilt) or a sensor YAML")] = "perfect",
+    address: Annotated[str | None, typer.Option(help="Ray cluster HOST:PORT, or local")] = None,
+    val_fraction: Annotated[float, typer.Option(help="Share of worlds in the val split")] = 0.1,
+    scenes_per_world: Annotated[int, typer.Option(help="Scenes per compiled world (one product)")] = 8,
+    photo_views: Annotated[int, typer.Option(help="Randomised studio photos per product")] = 0,
     seed: Annotated[int, seed_option("Seed")] = 0,
-    settings: Annotated[list[str] | None, typer.Option("--set", help="Any other generator setting KEY=VALUE, e.g. "
-                                                                     "--set val_fraction=0.25 (see GenerateConfig)")] = None,
+    settings: Annotated[list[str] | None, typer.Option("--set", metavar="KEY=VALUE", help="Any other setting (binpick train --list)")] = None,
 ) -> None:
     """Generate bin scenes (resumes after a kill), shop photos, COCO files and a data-set card."""
     from binpick.core.config import from_dict
@@ -98,7 +94,7 @@ def data_show(
 def data_export(
     data: Annotated[Path, typer.Argument(help="Data-set folder")],
     out: Annotated[Path, typer.Option(help="Folder for the files (one sub-folder per scene when several)")],
-    scene: Annotated[list[int] | None, typer.Option(help="Scene index (repeat for several; default: 0)")] = None,
+    scene: Annotated[list[int] | None, typer.Option(metavar="INDEX", help="Scene index (repeat for several; default: 0)")] = None,
 ) -> None:
     """Write scenes as a real RGB-D camera gives them: rgb.png, depth.png (16-bit mm), camera.yaml
     (ROS camera_info + camera_to_base), photo.png (the ordered product) and truth.json; try

@@ -107,13 +107,13 @@ def detect_eval(
 @detect_app.command("predict")
 def detect_predict(
     image: Annotated[Path | None, typer.Argument(help="Scene image (PNG/JPEG)")] = None,
-    sample: Annotated[bool, typer.Option(help="The sample frame that ships with binpick: its colour, depth and shop photo")] = False,
+    sample: Annotated[bool, typer.Option("--sample", help="The sample frame that ships with binpick: its colour, depth and shop photo")] = False,
     weights: Annotated[Path | None, typer.Option(help="Run folder, model.safetensors or a shipped name (default: the shipped model for the query kind)")] = None,
     query_box: Annotated[str | None, typer.Option(help="Known instance x,y,w,h in pixels")] = None,
     photo: Annotated[Path | None, typer.Option(help="Shop photo of the product to look for (photo-conditioned models)")] = None,
     depth: Annotated[Path | None, typer.Option(help="The scene's depth: 16-bit PNG in mm or .npy in metres (detectors that read depth)")] = None,
     out: Annotated[Path | None, typer.Option(help="Folder for detections.json and overlay.png (query blue, detections orange with scores)")] = None,
-    heatmap: Annotated[bool, typer.Option(help="Also heatmap.png in --out: the ROD levels' max heatmaps, with a colour bar")] = False,
+    heatmap: Annotated[bool, typer.Option("--heatmap", help="Also heatmap.png in --out: the ROD levels' max heatmaps, with a colour bar")] = False,
     min_score: Annotated[float, typer.Option(help="Detections below this score are not printed or drawn")] = 0.3,
     pickability: Annotated[bool, typer.Option(help="Re-score with the weights' pickability head, if they hold one (it needs --depth)")] = True,
 ) -> None:

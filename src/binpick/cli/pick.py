@@ -31,7 +31,7 @@ def pick(
     product: Annotated[str, typer.Option(help="Product(s) to order: ids, unique short names or categories, comma-separated "
                                               "(orders cycle through them); `binpick products list` shows them")],
     products_file: Annotated[Path | None, typer.Option("--products", help="YAML of your own products (as for data generate)")] = None,
-    photo: Annotated[list[Path] | None, typer.Option(help="Your own shop photo of the product; repeat for several views "
+    photo: Annotated[list[Path] | None, typer.Option(metavar="PNG", help="Your own shop photo of the product; repeat for several views "
                                                         "(default: rendered catalogue views)")] = None,
     orders: Annotated[int, typer.Option(help="Orders to fulfil (one new bin each)")] = 5,
     weights: Annotated[Path | None, typer.Option(help="Photo-conditioned detector: run folder or .safetensors (default: shipped)")] = None,
@@ -76,13 +76,13 @@ def plan(
     depth: Annotated[Path | None, typer.Option(help="Depth image: 16-bit PNG in millimetres or .npy in metres (0: no reading), "
                                                     "at the colour's size or one of the same aspect")] = None,
     camera: Annotated[Path | None, typer.Option(help="camera.yaml: ROS camera_info layout, plus camera_to_base (the camera's pose in the robot's base frame)")] = None,
-    sample: Annotated[bool, typer.Option(help="Plan on the sample frame that ships with binpick (a bin seen by a realistic "
+    sample: Annotated[bool, typer.Option("--sample", help="Plan on the sample frame that ships with binpick (a bin seen by a realistic "
                                               "RGB-D sensor, tilted; its shop photo unless --query-box)")] = False,
-    photo: Annotated[list[Path] | None, typer.Option(help="Shop photo of the ordered product (a transparent PNG's alpha marks the "
+    photo: Annotated[list[Path] | None, typer.Option(metavar="PNG", help="Shop photo of the ordered product (a transparent PNG's alpha marks the "
                                                         "product); repeat for several photos of it (the best match counts)")] = None,
     query_box: Annotated[str | None, typer.Option(help="Or: x,y,w,h of the instance to pick in the colour image (planned "
                                                        "first, then the copies of it that the detector finds)")] = None,
-    copies_only: Annotated[bool, typer.Option(help="With --query-box: plan on the other copies only, not the instance "
+    copies_only: Annotated[bool, typer.Option("--copies-only", help="With --query-box: plan on the other copies only, not the instance "
                                                    "pointed at (repeated-object evaluation)")] = False,
     out: Annotated[Path | None, typer.Option(help="Folder for plan.json (grasps: position, quaternion x,y,z,w in the base frame, "
                                                   "scores, boxes) and overlay.png (default: runs/plan/<time>)")] = None,

@@ -298,10 +298,13 @@ class DetectorTrainer:
                 self.train_set.set_epoch(self.epoch)
                 self.model.train()
                 sums: dict[str, float] = {}
+                batches = 0
                 for batch in loader(self.train_set, config.train.batch_size, True, config.train.workers, config.train.seed + self.epoch):
                     self.note_time(time.monotonic() - started)
                     self.train_step(batch, sums)
-                    task.update(self.step, status=f"epoch {self.epoch + 1}/{config.train.epochs} {self.status}")
+                    batches += 1
+                    task.update(self.step, status=f"epoch {self.epoch + 1}/{config.train.epochs} loss "
+                                                  f"{sums['total'] / batches:.3f} {self.status}")
                     if self.out_of_time(time.monotonic() - started):
                         break  # the epoch ends here: evaluate, keep the best, checkpoint
                 if self.end_epoch(sums, time.monotonic() - started):
