@@ -36,7 +36,7 @@ fi
 echo "== installing binpick and its pinned dependencies into $VENV"
 # torch first, pinned: the local CPU build. Anything unpinned would pull GBs of CUDA wheels.
 pip_quiet torch==2.13.0
-pip_quiet -e ".[test]"
+pip_quiet -e ".[test,onnx,rerun]"
 # robosuite only for its object meshes and textures (bottle, bread, can, cereal, lemon, milk): never
 # imported, so none of its dependencies (which would downgrade numpy) are needed.
 pip_quiet --no-deps robosuite==1.5.2

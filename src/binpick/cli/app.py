@@ -95,6 +95,14 @@ def job_progress(run_dir: Path, resume_command: str) -> Iterator[RichCallback]:
         raise typer.Exit(130) from None
 
 
+RuntimeOption = Annotated[str, typer.Option(help="Run the photo-conditioned detector in torch or onnx (ONNX Runtime; "
+                                                "pip install 'binpick[onnx]')")]
+
+
+RerunOption = Annotated[bool, typer.Option("--rerun", help="Also record each order in 3D to a Rerun .rrd file in the output "
+                                                           "folder (pip install 'binpick[rerun]')")]
+
+
 ResumeOption = Annotated[Path | None, typer.Option(help="Run folder to continue from its latest checkpoint")]
 RunsOption = Annotated[Path, typer.Option(help="Where new run folders go")]
 ConfigSetOption = Annotated[list[str] | None, typer.Option("--set", metavar="KEY=VALUE", help="Config override KEY=VALUE or SECTION.KEY=VALUE, applied "

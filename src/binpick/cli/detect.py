@@ -10,6 +10,7 @@ import typer
 from rich.table import Table
 
 from binpick.cli.app import (
+    RuntimeOption,
     ConfigSetOption,
     ResumeOption,
     RunsOption,
@@ -116,6 +117,7 @@ def detect_predict(
     heatmap: Annotated[bool, typer.Option("--heatmap", help="Also heatmap.png in --out: the ROD levels' max heatmaps, with a colour bar")] = False,
     min_score: Annotated[float, typer.Option(help="Detections below this score are not printed or drawn")] = 0.3,
     pickability: Annotated[bool, typer.Option(help="Re-score with the weights' pickability head, if they hold one (it needs --depth)")] = True,
+    runtime: RuntimeOption = "torch",
 ) -> None:
     """Find the other instances of the query; prints JSON boxes (x, y, w, h) and scores."""
     from binpick.core.config import check_range
@@ -134,7 +136,7 @@ def detect_predict(
     if heatmap and out is None:
         raise ConfigError("--heatmap writes heatmap.png into --out: give --out FOLDER")
     folder = None if out is None else ensure_dir(out, "--out")
-    detector = Detector.load(weights or (PICKING if photo is not None else "rod_tiny_320"), pickability=pickability)
+    detector = Detector.load(weights or (PICKING if photo is not None else "rod_tiny_320"), pickability=pickability, runtime=runtime)
     box = parse_box(query_box) if query_box is not None else None
     import warnings
 
@@ -158,3 +160,20 @@ def detect_predict(
             save_png(prediction.plot_heatmaps(), folder / "heatmap.png", "--out")
             written.append("heatmap.png")
         console.print(f"wrote {', '.join(written)} in {folder}")
+
+
+@detect_app.command("export")
+def detect_export(
+    weights: Annotated[Path, typer.Argument(help="Run folder, model.safetensors or a shipped name (rod_photo_learnt_tiny_320)")],
+    out: Annotated[Path, typer.Option(help="Folder for <name>.onnx")] = Path("."),
+    format: Annotated[str, typer.Option(help="Deployment format: onnx")] = "onnx",
+) -> None:
+    """Export a photo-conditioned detector for deployment (ONNX; run it with --runtime onnx or ONNX Runtime)."""
+    from binpick.detection import Detector
+
+    folder = ensure_dir(out, "--out")
+    detector = Detector.load(weights)
+    stem = weights.name.removesuffix(".safetensors") if weights.suffix in ("", ".safetensors") and not weights.is_dir() else weights.name
+    path = detector.export(format, folder / f"{stem}.{format}")
+    console.print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB): inputs images, photo_0..{len(detector.network.spec.photo_sizes) - 1}"
+                  f"{', depth' if detector.network.spec.depth else ''}; outputs boxes (xyxy pixels), scores")

@@ -12,6 +12,8 @@ from rich.table import Table
 from rich.text import Text
 
 from binpick.cli.app import (
+    RerunOption,
+    RuntimeOption,
     DEFAULT_POLICY,
     app,
     check_png_path,
@@ -41,6 +43,8 @@ def pick(
     out: Annotated[Path | None, typer.Option(help="Folder for per-order GIFs, overlays, results.json and report.html "
                                                   "(default: runs/pick/<time>)")] = None,
     seed: Annotated[int, seed_option("Seed of the first order's bin")] = 0,
+    runtime: RuntimeOption = "torch",
+    rerun: RerunOption = False,
 ) -> None:
     """Fulfil orders end to end: shop photo -> ROD -> grasp chosen from depth -> grasp -> order tote."""
     from binpick.core.config import check_range
@@ -66,8 +70,8 @@ def pick(
         for path in photo:
             read_image(path)  # unreadable -> one line now, not mid-run
         library.add(replace(library[products[0]], photos=tuple(photo)))
-    model = Detector.load(weights or PICKING).inference_network
-    _fulfil(PickPipeline(model, library, grasp=planner), products, orders, seed, run_dir)
+    model = Detector.load(weights or PICKING, runtime=runtime).inference_network
+    _fulfil(PickPipeline(model, library, grasp=planner), products, orders, seed, run_dir, rerun)
 
 
 @app.command("plan")
@@ -92,6 +96,8 @@ def plan(
     max_grasps: Annotated[int, typer.Option(help="Plan grasps for this many detections (best first)")] = 3,
     product_size: Annotated[str | None, typer.Option(help="The product's catalogue dimensions L,W,H in metres: instances "
                                                           "clearly bigger are not grasped")] = None,
+    runtime: RuntimeOption = "torch",
+    rerun: RerunOption = False,
 ) -> None:
     """Plan grasps from one real RGB-D frame: no simulator. Prints the best grasp; writes plan.json and overlay.png."""
     import numpy as np
@@ -123,13 +129,19 @@ def plan(
     folder = ensure_dir(out or Path("runs/plan") / time.strftime("%Y%m%d-%H%M%S"), "--out")  # inputs read: now the outputs
     plan_path, overlay = check_output_file(folder / "plan.json", "--out"), check_png_path(folder / "overlay.png", "--out")
     crop = weights if box is not None else None
-    picker = Picker.load(None if box is not None else weights, grasp, grasp_weights, crop_detector=crop, max_grasps=max_grasps)
+    picker = Picker.load(None if box is not None else weights, grasp, grasp_weights, crop_detector=crop, max_grasps=max_grasps,
+                         runtime=runtime)
     plans = picker.plan(colour, metres, info, photo=query, query_box=box, size=dimensions, copies_only=copies_only)
     result = {"inputs": {"rgb": str(rgb), "depth": str(depth), "camera": str(camera),
                          "photo": [str(path) for path in photo] if photo else None, "query_box": query_box, "copies_only": copies_only,
                          "size": dimensions},
               "grasp_policy": picker.grasp.policy.value, **plans.to_json()}
     atomic_write_text(plan_path, json.dumps(result, indent=1))
+    if rerun:
+        from binpick.viz.recording import OrderRecording
+
+        with OrderRecording(folder / "plan.rrd") as recording:
+            recording.frame(0, str(photo[0].name if photo else f"query box {query_box}"), colour, metres, info.camera, plans)
     save_png(plans.plot(colour, info.camera, picker.grasp.gripper.opening, query, box), overlay, "--out")
     best = plans.grasps[0] if plans.grasps else None
     if best is None:
@@ -147,8 +159,17 @@ def plan(
                       f"width {100 * best.width:.1f} cm, grasp quality {best.score:.2f} -> {plan_path}, {overlay}", soft_wrap=True)
 
 
-def _fulfil(pipeline, products: list[str], orders: int, seed: int, run_dir: Path) -> dict:
-    """Run the orders with a progress bar, then print their table and the summary."""
+def _fulfil(pipeline, products: list[str], orders: int, seed: int, run_dir: Path, rerun: bool = False) -> dict:
+    """Run the orders with a progress bar, then print their table and the summary (and, with
+    ``rerun``, record each order to run_dir/orders.rrd)."""
+    if rerun:
+        from binpick.viz.recording import OrderRecording
+
+        with OrderRecording(run_dir / "orders.rrd") as recording:
+            pipeline.recording = recording
+            summary = _fulfil(pipeline, products, orders, seed, run_dir)
+        console.print(f"3D recording: {run_dir / 'orders.rrd'} (rerun {run_dir / 'orders.rrd'})", soft_wrap=True)
+        return summary
     from binpick.warehouse.pipeline import fulfil
 
     table = Table(title=f"{orders} order{'s' if orders > 1 else ''}")
@@ -181,6 +202,7 @@ def demo(
     orders: Annotated[int, typer.Option(help="Orders to fulfil (products cycle through the demo's list)")] = 6,
     out: Annotated[Path | None, typer.Option(help="Folder for the report, GIFs and results.json (default: runs/demo/<time>)")] = None,
     seed: Annotated[int, seed_option("Seed of the first order's bin")] = 0,
+    rerun: RerunOption = False,
 ) -> None:
     """The main job: fulfil a handful of orders end to end with the shipped detector, products seen in
     its training and zero-shot ones, and write an HTML report with each order's detections and GIF."""
@@ -194,4 +216,4 @@ def demo(
     check_range("orders", orders, 1, 1000, integer=True)
     run_dir = ensure_dir(out or Path("runs/demo") / time.strftime("%Y%m%d-%H%M%S"), "--out")
     model = Detector.load(PICKING).inference_network
-    _fulfil(PickPipeline(model, default_library(), grasp=GraspPlanner.load(DEFAULT_POLICY)), list(DEMO_PRODUCTS), orders, seed, run_dir)
+    _fulfil(PickPipeline(model, default_library(), grasp=GraspPlanner.load(DEFAULT_POLICY)), list(DEMO_PRODUCTS), orders, seed, run_dir, rerun)

@@ -48,6 +48,7 @@ class Detector:
     def __init__(self, network: DetectorNetwork, source: Path | None = None, metrics: dict[str, Any] | None = None) -> None:
         self.network, self.source, self.metrics = network, source, metrics
         self._inference: DetectorNetwork | None = None
+        self.runtime = "torch"
 
     @property
     def inference_network(self) -> DetectorNetwork:
@@ -59,10 +60,10 @@ class Detector:
         return self._inference
 
     @classmethod
-    def load(cls, weights: str | Path = "rod_tiny_320", pickability: bool = True) -> Detector:
+    def load(cls, weights: str | Path = "rod_tiny_320", pickability: bool = True, runtime: str = "torch") -> Detector:
         """A shipped name, a ``.safetensors`` (or older ``.pt``) file, or a run folder. ``pickability=False``
         leaves out a pickability head the weights hold (binpick.detection.pickability): the detector's
-        own ranking, from colour alone."""
+        own ranking, from colour alone. ``runtime="onnx"``: predict through ONNX Runtime (:meth:`using`)."""
         from binpick.detection.train import load_detector
 
         path = Path(weights)
@@ -74,7 +75,35 @@ class Detector:
             raise ConfigError(f"no detector weights at {str(weights)!r}: give a run folder, a .safetensors file or a shipped "
                               f"name{did_you_mean(path.name.removesuffix('.safetensors'), SHIPPED)}; shipped: {', '.join(SHIPPED)}")
         network = load_detector(path)
-        return cls(network if pickability else network.without_pickability(), path)
+        return cls(network if pickability else network.without_pickability(), path).using(runtime)
+
+    def using(self, runtime: str) -> Detector:
+        """This detector predicting through ``runtime``: ``torch``, or ``onnx`` (ONNX Runtime on the graph
+        :meth:`export` writes, kept in binpick's cache; the same boxes, a pickability head's re-scoring
+        still in PyTorch)."""
+        from binpick.core.config import check_choice
+        from binpick.detection.onnx_runtime import RUNTIMES
+
+        check_choice("runtime", runtime, RUNTIMES)
+        self._inference = None
+        if runtime == "onnx":
+            from binpick.detection.onnx_runtime import OnnxNetwork, cached_export
+
+            network = self.network.for_inference()
+            self._inference = OnnxNetwork(network, cached_export(network))
+        self.runtime = runtime
+        return self
+
+    def export(self, format: str = "onnx", path: str | Path | None = None) -> Path:
+        """Write the detector for deployment: ``onnx`` (binpick.detection.onnx_runtime), to ``path``
+        (default: ``<weights name>.onnx`` here). Returns the file's path."""
+        from binpick.core.config import check_choice
+        from binpick.detection.onnx_runtime import export_onnx
+
+        check_choice("format", format, ("onnx",))
+        stem = (self.source.parent.name if self.source and self.source.name == "model.safetensors"
+                else self.source.stem if self.source else "detector")
+        return export_onnx(self.network, Path(path) if path is not None else Path(f"{stem}.onnx"))
 
     # ------------------------------------------------------------------ what it is
     @property

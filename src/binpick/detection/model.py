@@ -168,17 +168,28 @@ class DetectorNetwork(nn.Module):
                     for level, stride in zip(scene, STRIDES)]
         with running_statistics(self.backbone):
             if self.spec.photo_sizes:  # one kernel per photo size, in place of the D scales of one crop
-                side = scene[0].shape[-1] * STRIDES[0]  # the scene image's width
-                per_size = [self.features(F.interpolate(query_images, size=(s, s), mode="bilinear", align_corners=False, antialias=True))
-                            for s in (max(16, round(f * side)) for f in self.spec.photo_sizes)]
+                sized = (query_images if isinstance(query_images, (list, tuple))
+                         else self.sized_photos(query_images, int(scene[0].shape[-1]) * STRIDES[0]))
+                per_size = [self.features(photo) for photo in sized]
                 return [list(zip(*(level.unbind(0) for level in levels))) for levels in zip(*per_size)]
             query = self.features(query_images)
         return [list(level.unbind(0)) for level in query]
 
+    def photo_sides(self, scene_side: int) -> list[int]:
+        """The sides, in pixels, a shop photo is shrunk to for a scene ``scene_side`` pixels wide."""
+        return [max(16, round(f * scene_side)) for f in self.spec.photo_sizes]
+
+    def sized_photos(self, query_images: torch.Tensor, scene_side: int) -> list[torch.Tensor]:
+        """The query photos at each of :meth:`photo_sides` (antialiased: kept outside an exported graph,
+        which takes them as inputs, as ONNX's resize does not antialias the same way)."""
+        return [F.interpolate(query_images, size=(s, s), mode="bilinear", align_corners=False, antialias=True)
+                for s in self.photo_sides(scene_side)]
+
     def forward(self, images: torch.Tensor, query_boxes: torch.Tensor | None = None,
                 query_images: torch.Tensor | None = None, depth: torch.Tensor | None = None) -> dict[str, list]:
         """``depth``: (B, 1, H, W) height maps (:func:`binpick.detection.depth.depth_input`), for
-        detectors that read depth (``spec.depth``)."""
+        detectors that read depth (``spec.depth``). ``query_images`` of a model with ``photo_sizes``
+        may also come already sized (:meth:`sized_photos`)."""
         scene = self.features(images)
         queries = self.query_features(scene, query_boxes, query_images)
         fused, heatmaps = [], []
@@ -223,8 +234,16 @@ class DetectorNetwork(nn.Module):
         """Boxes and scores after NMS, per image, plus the heatmaps (for pictures like Fig 6.11)."""
         out = self.forward(images, query_boxes, query_images, depth)
         boxes, scores = (v.float().cpu() for v in self.decode(out["raw"]))  # NMS is sequential: on the CPU
+        results = self.select(boxes, scores, score_threshold, iou_threshold, max_detections)
+        if self.pickability is not None:
+            results = self.rescore(images, depth, results, query_boxes, query_images)
+        return results, out["heatmaps"]
+
+    def select(self, boxes: torch.Tensor, scores: torch.Tensor, score_threshold: float, iou_threshold: float,
+               max_detections: int) -> list[dict[str, torch.Tensor]]:
+        """Decoded boxes (B, N, 4) and scores (B, N) -> per image, those above the threshold after NMS."""
         results = []
-        for b in range(images.shape[0]):
+        for b in range(boxes.shape[0]):
             keep = scores[b] > score_threshold
             kept_boxes = boxes[b][keep].clamp(0, self.image_size)
             kept_scores = scores[b][keep]
@@ -232,9 +251,7 @@ class DetectorNetwork(nn.Module):
             kept_boxes, kept_scores = kept_boxes[best], kept_scores[best]
             order = nms(kept_boxes, kept_scores, iou_threshold)[:max_detections]
             results.append({"boxes": kept_boxes[order], "scores": kept_scores[order]})
-        if self.pickability is not None:
-            results = self.rescore(images, depth, results, query_boxes, query_images)
-        return results, out["heatmaps"]
+        return results
 
     def without_pickability(self) -> DetectorNetwork:
         """This network with its pickability head switched off (the same module objects, shared):

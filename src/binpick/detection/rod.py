@@ -40,7 +40,7 @@ def crop_features(features: torch.Tensor, box: torch.Tensor, stride: int) -> tor
 
 def scaled_kernels(crop: torch.Tensor, scales: tuple[float, ...]) -> list[torch.Tensor]:
     """The crop resized to each scale (Fig 5.6 D), at least 1 and at most ``MAX_KERNEL`` cells."""
-    _, h, w = crop.shape
+    h, w = (int(n) for n in crop.shape[1:])  # int(): constants when traced for export
     kernels = []
     for scale in scales:
         size = (_odd(h * scale), _odd(w * scale))
@@ -53,11 +53,11 @@ def _framed(kernels: list[torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
     """Kernels of different sizes in one odd-sized frame (B, C, K_h, K_w), each placed where
     PyTorch's 'same' padding would centre it alone (so even sizes keep their alignment), zeros
     elsewhere; and each kernel's own area (B,)."""
-    height = max(k.shape[1] for k in kernels) | 1  # the next odd number
-    width = max(k.shape[2] for k in kernels) | 1
+    height = max(int(k.shape[1]) for k in kernels) | 1  # the next odd number (int(): constants when traced)
+    width = max(int(k.shape[2]) for k in kernels) | 1
     framed, areas = [], []
     for k in kernels:
-        h, w = k.shape[1:]
+        h, w = int(k.shape[1]), int(k.shape[2])
         top, left = (height - 1) // 2 - (h - 1) // 2, (width - 1) // 2 - (w - 1) // 2
         framed.append(F.pad(k, (left, width - w - left, top, height - h - top)))
         areas.append(h * w)

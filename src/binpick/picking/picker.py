@@ -94,14 +94,15 @@ class Picker:
 
     @classmethod
     def load(cls, detector: str | Path | None = None, grasp: str = "learnt", grasp_weights: str | Path | None = None,
-             crop_detector: str | Path | None = None, **settings) -> Picker:
+             crop_detector: str | Path | None = None, runtime: str = "torch", **settings) -> Picker:
         """The photo-conditioned detector (default: shipped), the box-conditioned one for ``query_box``
-        (default: shipped, loaded when first needed) and the grasp policy (default: learnt, shipped)."""
+        (default: shipped, loaded when first needed) and the grasp policy (default: learnt, shipped).
+        ``runtime="onnx"`` runs the photo-conditioned detector in ONNX Runtime."""
         from binpick.detection import Detector
         from binpick.detection.detector import PICKING
 
         planner = GraspPlanner.load(grasp, grasp_weights)
-        network = Detector.load(detector or PICKING).inference_network
+        network = Detector.load(detector or PICKING, runtime=runtime).inference_network
         crop = Detector.load(crop_detector).inference_network if crop_detector is not None else None
         return cls(network, planner, crop, **settings)
 

@@ -115,6 +115,7 @@ class PickPipeline:
         self.copies, self.distractors, self.max_attempts = copies, distractors, max_attempts
         self.camera, self.oracle, self.domain, self.size_check, self.sensor = camera, oracle, domain, size_check, sensor
         self._photos: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
+        self.recording = None  # a binpick.viz.recording.OrderRecording: each order goes to it (binpick pick --rerun)
 
     @property
     def score_threshold(self) -> float:
@@ -193,6 +194,9 @@ class PickPipeline:
                 result.reason = Reason.NOT_THE_PRODUCT
             self.execute(world, scene, plans, result, on_frame=frame)
             frame()
+            if self.recording is not None:
+                self.recording.frame(order, product_id, scene.rgb, as_camera_depth(scene.depth), PinholeCamera.from_record(scene.camera),
+                                     plans, str(result.reason), result.attempts)
             if out is not None:
                 result.gif, result.overlay = self._write_pictures(out, order, product_id, scene, plans.boxes, plans.scores,
                                                                   frames, result.attempts)
