@@ -92,6 +92,19 @@ def test_the_demo_fulfils_an_order_with_the_shipped_detector(tmp_path):
     (order,) = written["orders"]
     assert order["product"] == "robosuite/milk" and order["seen"] is True  # the shipped weights know what they were trained on
     assert (run_dir / order["gif"]).is_file() and "report.html" in ran.stdout + ran.stderr
+    from PIL import Image
+
+    from binpick.warehouse.report import COLUMNS
+
+    report = (run_dir / "report.html").read_text()
+    assert all(f"<th>{column}</th>" in report for column in COLUMNS)  # the terminal table's columns
+    for key in ("overlay", "depth", "gif"):  # full size a click away, scaled to the page's width
+        assert f'<a href="{order[key]}"><img src="{order[key]}"' in report and (run_dir / order[key]).is_file()
+    assert "max-width" not in report.split("<body>")[1] and "width:100%" in report
+    assert {"depth", "detect", "grasp", "simulated picks"} <= set(order["timing_ms"]) and "time per stage: depth" in report
+    assert "detector score" in report and ("grasp quality" in report or not order["attempts"])
+    gif = Image.open(run_dir / order["gif"])
+    assert gif.size[1] > gif.size[0]  # the caption band under each frame
 
 
 def test_the_colour_check_tells_the_ordered_product_from_another_colour():

@@ -173,7 +173,9 @@ def _fulfil(pipeline, products: list[str], orders: int, seed: int, run_dir: Path
     from binpick.warehouse.pipeline import fulfil
 
     table = Table(title=f"{orders} order{'s' if orders > 1 else ''}")
-    for column in ("order", "product", "trained", "result", "grasps", "found", "s"):
+    from binpick.warehouse.report import COLUMNS
+
+    for column in COLUMNS:
         table.add_column(column, no_wrap=column != "result")  # long failure reasons wrap; the rest stays whole
     with progress() as callback, callback.task("orders", orders) as task:
 

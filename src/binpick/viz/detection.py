@@ -109,6 +109,36 @@ def heatmap_figure(heatmaps: list[np.ndarray], image: np.ndarray | None = None) 
     return picture
 
 
+def captioned(frame: np.ndarray, text: str) -> np.ndarray:
+    """A frame with ``text`` on a dark band along its bottom (a GIF's "attempt 1: slipped")."""
+    from PIL import Image, ImageDraw
+
+    height, width = frame.shape[:2]
+    band = max(14, height // 14)
+    picture = Image.new("RGB", (width, height + band), (20, 20, 20))
+    picture.paste(Image.fromarray(np.ascontiguousarray(frame[..., :3])), (0, 0))
+    ImageDraw.Draw(picture).text((6, height + band // 2), text, fill=(255, 255, 255), font=_font(max(10, band - 4)), anchor="lm")
+    return np.asarray(picture)
+
+
+def depth_picture(depth: np.ndarray) -> np.ndarray:
+    """Depth (metres; 0 or non-finite: no reading) as colours, near bright, far dark, holes black, with
+    its range written in a corner: what the grasp planner saw."""
+    import matplotlib
+    from PIL import Image, ImageDraw
+
+    depth = np.asarray(depth, dtype=np.float32)
+    valid = np.isfinite(depth) & (depth > 0)
+    near, far = (np.percentile(depth[valid], [2, 98]) if valid.any() else (0.0, 1.0))
+    scaled = np.clip((far - np.where(valid, depth, far)) / max(far - near, 1e-6), 0, 1)
+    colours = (matplotlib.colormaps["viridis"](scaled)[..., :3] * 255).astype(np.uint8)
+    colours[~valid] = 0
+    picture = Image.fromarray(colours)
+    font = _font(max(10, depth.shape[0] // 24))
+    _label(ImageDraw.Draw(picture), (4, 4), f"depth {near:.2f}-{far:.2f} m, holes black", (255, 255, 255), font)
+    return np.asarray(picture)
+
+
 def heatmap_image(heatmap: np.ndarray, size: int) -> np.ndarray:
     """A max heatmap (values in [-1, 1]) as an RGB image of ``size`` pixels (Fig 6.11's bottom row)."""
     import matplotlib

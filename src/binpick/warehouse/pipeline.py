@@ -64,6 +64,8 @@ class OrderResult:
     seconds: float = 0.0
     gif: str | None = None
     overlay: str | None = None
+    depth: str | None = None  # the depth picture beside the overlay
+    timing_ms: dict[str, float] = field(default_factory=dict)  # the planner's stages (depth, detect, check, grasp) and the simulator's
 
     @property
     def grasps(self) -> int:
@@ -180,9 +182,11 @@ class PickPipeline:
             overview = mujoco.Renderer(world.model, side, side)
             camera_id = world.model.camera("overview").id
 
+            caption = ["the bin"]
+
             def frame() -> None:
                 overview.update_scene(world.data, camera=camera_id)
-                frames.append(overview.render().copy())
+                frames.append((overview.render().copy(), caption[0]))
 
             scene = self.settle(world, rng, seed)
             frame()
@@ -192,14 +196,17 @@ class PickPipeline:
                                  seen=None if trained is None else product_id in trained, detections=plans.detections)
             if plans.detections and not plans:
                 result.reason = Reason.NOT_THE_PRODUCT
-            self.execute(world, scene, plans, result, on_frame=frame)
+            tick = time.perf_counter()
+            self.execute(world, scene, plans, result, on_frame=frame, on_caption=lambda text: caption.__setitem__(0, text))
+            result.timing_ms = {**plans.timing_ms, "simulated picks": round(1000 * (time.perf_counter() - tick), 1)}
+            caption[0] = f"order {order}: {result.reason}"
             frame()
             if self.recording is not None:
                 self.recording.frame(order, product_id, scene.rgb, as_camera_depth(scene.depth), PinholeCamera.from_record(scene.camera),
                                      plans, str(result.reason), result.attempts)
             if out is not None:
-                result.gif, result.overlay = self._write_pictures(out, order, product_id, scene, plans.boxes, plans.scores,
-                                                                  frames, result.attempts)
+                result.gif, result.overlay, result.depth = self._write_pictures(out, order, product_id, scene, plans.boxes,
+                                                                                plans.scores, frames, result.attempts)
         finally:
             if overview is not None:
                 overview.close()
@@ -218,9 +225,11 @@ class PickPipeline:
         return self.picker.plan(scene.rgb, depth, camera, photo=[image for image, _ in views],
                                 photo_product_mask=[mask for _, mask in views], size=size)
 
-    def execute(self, world: BinWorld, scene: Scene, plans: list[GraspPlan], result: OrderResult, on_frame=None) -> None:
+    def execute(self, world: BinWorld, scene: Scene, plans: list[GraspPlan], result: OrderResult, on_frame=None,
+                on_caption=None) -> None:
         """Try the plans in turn in the simulator until the ordered product lands in the order tote
-        (plans without a feasible grasp are recorded and cost no attempt)."""
+        (plans without a feasible grasp are recorded and cost no attempt); ``on_caption`` hears what the
+        frames show ("attempt 1", then "attempt 1: slipped")."""
         for plan in plans:
             if result.grasps >= self.max_attempts:
                 break
@@ -230,8 +239,16 @@ class PickPipeline:
                 result.reason = Reason.NO_GRASP
                 continue
             tips = self.tips(plan, scene)
+            attempt = result.grasps + 1
+            if on_caption is not None:
+                on_caption(f"attempt {attempt}")
             outcome = execute_pick(world, tips, plan.yaw, on_frame=on_frame)
             lifted = world.slots[outcome.lifted_slot].id if outcome.lifted_slot is not None else None
+            if on_caption is not None:
+                wrong = " (the wrong product)" if lifted not in (None, result.product) and outcome.placed else ""
+                on_caption(f"attempt {attempt}: {outcome.reason}{wrong}")
+                if on_frame is not None:
+                    on_frame()
             result.attempts.append(Attempt(plan.box, plan.score, plan.same_product, np.round(tips, 4).tolist(),
                                            outcome.reason, lifted, plan.yaw, plan.width, plan.quality, plan.rejected))
             if outcome.placed and lifted == result.product:
@@ -279,19 +296,23 @@ class PickPipeline:
         return np.array([i.bbox for i in mine], dtype=float).reshape(-1, 4), np.array([i.visible_fraction for i in mine])
 
     def _write_pictures(self, out: Path, order: int, product_id: str, scene: Scene, boxes, scores, frames,
-                        attempts: list[Attempt]) -> tuple[str, str]:
+                        attempts: list[Attempt]) -> tuple[str, str, str]:
         from PIL import Image
 
-        from binpick.viz.detection import draw_jaws, overlay
+        from binpick.viz.detection import captioned, depth_picture, draw_jaws, overlay
 
         name = f"order_{order:03d}_{product_id.replace('/', '_')}"
         picture = overlay(scene.rgb, boxes, scores, None, self.photo(product_id), min_score=self.picker.candidate_threshold)
         picture = draw_jaws(picture, self.jaws(scene, attempts))
         atomic_write(out / f"{name}.png", lambda handle: Image.fromarray(picture).save(handle, format="PNG"))
-        images = [Image.fromarray(f) for f in frames[::2] or frames]
+        depth = depth_picture(as_camera_depth(scene.depth))
+        atomic_write(out / f"{name}_depth.png", lambda handle: Image.fromarray(depth).save(handle, format="PNG"))
+        kept = [f for i, f in enumerate(frames) if i % 2 == 0 or i == len(frames) - 1 or f[1] != frames[i - 1][1]]
+        images = [Image.fromarray(captioned(image, text)) for image, text in kept]
         atomic_write(out / f"{name}.gif", lambda handle: images[0].save(handle, format="GIF", save_all=True,
-                                                                          append_images=images[1:], duration=80, loop=0))
-        return f"{name}.gif", f"{name}.png"
+                                                                          append_images=images[1:], duration=[80] * (len(images) - 1) + [1500],
+                                                                          loop=0))
+        return f"{name}.gif", f"{name}.png", f"{name}_depth.png"
 
     def jaws(self, scene: Scene, attempts: list[Attempt]) -> list:
         """Each grasp tried, as its open fingers' pixels: the jaw lines of the order's picture."""

@@ -24,34 +24,54 @@ def grasp_lines(attempts: list[dict[str, Any]]) -> list[str]:
 
 def grasp_line(number: int, attempt: dict[str, Any]) -> str:
     rejected = ", ".join(f"{html.escape(str(k))} {v}" for k, v in (attempt.get("rejected") or {}).items())
+    detector = "" if attempt.get("score") is None else f"detector score {attempt['score']:.2f}"
     if attempt["outcome"] == "no feasible grasp":
-        return f"skipped a detection: {rejected or 'no candidate'}"
-    quality = "" if attempt.get("quality") is None else f", score {attempt['quality']:.2f}"
+        return f"skipped a detection ({detector}): {rejected or 'no candidate'}"
+    quality = "" if attempt.get("quality") is None else f", grasp quality {attempt['quality']:.2f}"
     width = "" if attempt.get("width") is None else f", {attempt['width'] * 100:.1f} cm across"
-    return (f"{number}: yaw {np.degrees(attempt.get('yaw', 0.0)):.0f}°{width}{quality} → {html.escape(attempt['outcome'])}"
-            + (f" (not taken: {rejected})" if rejected else ""))
+    return (f"{number}: {detector}; yaw {np.degrees(attempt.get('yaw', 0.0)):.0f}°{width}{quality} → "
+            f"<b>{html.escape(attempt['outcome'])}</b>" + (f" (not taken: {rejected})" if rejected else ""))
+
+
+COLUMNS = ("order", "product", "trained", "result", "grasps", "detections", "seconds")  # as the terminal's table
+STYLE = """body{font-family:sans-serif;margin:1.5em auto;max-width:1800px;padding:0 1em;line-height:1.4}
+table.facts{border-collapse:collapse;margin:.4em 0} .facts td,.facts th{padding:3px 10px;border-bottom:1px solid #ddd;text-align:left}
+.order{border:1px solid #ccc;border-radius:6px;padding:.6em 1em;margin:1.2em 0}
+.pictures{display:grid;grid-template-columns:repeat(auto-fit,minmax(260px,1fr));gap:10px;margin:.6em 0}
+.pictures figure{margin:0} .pictures img{width:100%;height:auto;display:block;border:1px solid #ddd}
+figcaption{font-size:small;color:#555} .times{font-size:small;color:#444} .grasps{font-size:small}"""
+
+
+def order_section(order: dict[str, Any]) -> str:
+    outcome = "placed" if order["success"] else html.escape(order["reason"])
+    colour = "#1a7f37" if order["success"] else "#cf222e"
+    seen = {True: "yes", False: "no"}.get(order.get("seen"), "?")
+    grasps = sum(a["outcome"] != "no feasible grasp" for a in order["attempts"])
+    cells = [str(order["order"]), html.escape(order["product"]), seen, f"<b style='color:{colour}'>{outcome}</b>", str(grasps),
+             str(order["detections"]), f"{order['seconds']:.1f}"]
+    captions = {"overlay": "colour: detections (orange, detector score) and the grasps tried (jaws; green placed, red not)",
+                "depth": "depth as the planner saw it", "gif": "the picks, captioned per attempt"}
+    figures = "".join(f'<figure><a href="{html.escape(order[key])}"><img src="{html.escape(order[key])}" alt="{key}"></a>'
+                      f"<figcaption>{captions[key]} (click: full size)</figcaption></figure>"
+                      for key in ("overlay", "depth", "gif") if order.get(key))
+    times = " · ".join(f"{html.escape(stage)} {ms:,.0f} ms" for stage, ms in (order.get("timing_ms") or {}).items())
+    lines = "<br>".join(grasp_lines(order["attempts"])) or "no grasp tried"
+    return (f"<section class='order' id='order-{order['order']}'><table class='facts'><tr>{''.join(f'<th>{c}</th>' for c in COLUMNS)}</tr>"
+            f"<tr>{''.join(f'<td>{c}</td>' for c in cells)}</tr></table>"
+            f"<div class='pictures'>{figures}</div>"
+            + (f"<p class='times'>time per stage: {times}</p>" if times else "")
+            + f"<p class='grasps'>grasps tried (numbered as in the colour picture):<br>{lines}</p></section>")
 
 
 def write_report(folder: Path, summary: dict[str, Any], orders: list[dict[str, Any]], title: str = "binpick orders") -> Path:
-    rows = []
-    for order in orders:
-        outcome = "placed" if order["success"] else html.escape(order["reason"])
-        colour = "#1a7f37" if order["success"] else "#cf222e"
-        pictures = "".join(f'<img src="{html.escape(order[key])}" width="240">' for key in ("overlay", "gif") if order.get(key))
-        seen = {True: "seen", False: "held out"}.get(order.get("seen"), "?")
-        grasps = "<br>".join(grasp_lines(order["attempts"]))
-        rows.append(f"<tr><td>{order['order']}</td><td>{html.escape(order['product'])}</td><td>{seen}</td>"
-                    f"<td style='color:{colour}'><b>{outcome}</b></td><td>{sum(a['outcome'] != 'no feasible grasp' for a in order['attempts'])}</td>"
-                    f"<td>{order['detections']}</td><td>{order['seconds']:.1f}</td><td>{pictures}</td><td style='font-size:small'>{grasps}</td></tr>")
     right = "n/a" if summary.get("right_product") is None else f"{summary['right_product']:.0%}"
-    page = f"""<!doctype html><html><head><meta charset="utf-8"><title>{html.escape(title)}</title>
-<style>body{{font-family:sans-serif;margin:2em}} td,th{{padding:4px 10px;border-bottom:1px solid #ddd;vertical-align:top}}</style>
-</head><body><h1>{html.escape(title)}</h1>
+    page = f"""<!doctype html><html><head><meta charset="utf-8"><meta name="viewport" content="width=device-width, initial-scale=1">
+<title>{html.escape(title)}</title><style>{STYLE}</style></head><body><h1>{html.escape(title)}</h1>
 <p>Pick success <b>{summary['pick_success']:.0%}</b> · right product <b>{right}</b> · {summary['picks_per_min']} picks/min ·
 {summary['orders']} orders in {summary['wall_s']} s</p>
-<p>Each order: a new bin; the shop photo (top right of the left picture) conditions the detector; orange boxes are its
-detections with scores; lines across a product are the grasps tried (the open jaws; green: placed, red: not); the GIF
-shows the grasp and the carry to the order tote. Each grasp lists the candidates the policy did not take and why.</p>
-<table><tr><th>order</th><th>product</th><th>in training</th><th>result</th><th>grasps</th><th>detections</th><th>s</th><th>pictures</th><th>grasps tried (numbered as in the picture)</th></tr>
-{''.join(rows)}</table></body></html>"""
+<p>Each order: a new bin; the shop photo (top right of the colour picture) conditions the detector, whose detections are
+drawn in orange with the <b>detector score</b>; the grasp policy scores each detection's candidates (the <b>grasp
+quality</b>) and the jaws drawn across a product are the grasps tried. Beside it, the depth the grasp planner used, and the
+picks as the simulator ran them. Every picture opens full size.</p>
+{''.join(order_section(order) for order in orders)}</body></html>"""
     return atomic_write_text(Path(folder) / "report.html", page)
