@@ -300,6 +300,11 @@ CASES: list[tuple[list[str], list[str]]] = [
     (["ros", "bench", "--master", "http://127.0.0.1:11311/", "--timeout", "0"], ["--timeout"]),
     (["ros", "serve", "Arm2D", "--master", "http://127.0.0.1:99999/"], ["ROS master URI", "99999"]),
     (["ros", "serve", "Arm2D", "--namespace", "bad name!", "--master", "http://127.0.0.1:1/"], ["--namespace"]),
+    (["detect", "export", "rod_tiny_320", "--out", "{root}/exported"], ["photo-query ROD detectors"]),
+    (["detect", "export", "rod_photo_tiny", "--out", "{root}/exported"], ["did you mean 'rod_photo_tiny_320'"]),
+    (["detect", "export", "rod_photo_tiny_320", "--format", "openvino"], ["format must be one of 'onnx'"]),
+    (["checks", "--bogus"], ["No such option: --bogus"]),
+    (["plan", "--sample", "--runtime", "tensorrt", "--out", "{root}/never"], ["--runtime must be one of 'torch', 'onnx'"]),
     # markup characters in what the user typed are printed as typed
     (["envs", "show", "x[/]y"], ["unknown env id 'x[/]y'"]),
     (["rl", "train", "{root}/cfg[/bold].yaml"], ["cfg[/bold].yaml", "does not exist"]),

@@ -310,12 +310,12 @@ def test_cli_predict_and_bad_input_are_one_line(tmp_path):
     save_detector(model, tmp_path / "model.safetensors")
     image = str(tmp_path / "toy" / "images" / "0000.png")
     ok = subprocess.run(CLI + ["detect", "predict", image, "--weights", str(tmp_path / "model.safetensors"), "--query-box", "10,10,20,20",
-                               "--min-score", "0", "--out", str(tmp_path / "overlay.png"), "--heatmap", str(tmp_path / "h.png")],
+                               "--min-score", "0", "--out", str(tmp_path / "predicted"), "--heatmap"],
                         capture_output=True, text=True)
     assert ok.returncode == 0, ok.stderr
-    detections = json.loads(ok.stdout.strip().splitlines()[-1])
+    detections = json.loads(ok.stdout.strip().splitlines()[0])
     assert detections and set(detections[0]) == {"bbox", "score"}
-    assert (tmp_path / "overlay.png").is_file() and (tmp_path / "h.png").is_file()
+    assert all((tmp_path / "predicted" / name).is_file() for name in ("overlay.png", "heatmap.png", "detections.json"))
     (tmp_path / "empty.png").write_bytes(b"")
     other = DetectorNetwork(ModelSpec(backbone="darknet53"), 64)
     torch.save({"format": "binpick-detector-1", "spec": {**ModelSpec().__dict__, "scales": [0.5, 1.0, 2.0]}, "image_size": 64,

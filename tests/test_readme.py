@@ -255,7 +255,7 @@ def test_every_readme_block_runs_on_tiny_settings(tmp_path):
     blocks = readme_blocks()
     prepare(tmp_path, blocks)
     environment = {**os.environ, "ROS_HOME": str(tmp_path / "ros"), "ROS_LOG_DIR": str(tmp_path / "ros" / "log"),
-                   "COLUMNS": "120"}
+                   "COLUMNS": "120", "XDG_CACHE_HOME": str(tmp_path / "cache")}
     ran = []
     for language, text, line in blocks:
         if language in ("bash", "python"):

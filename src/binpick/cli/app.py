@@ -95,8 +95,14 @@ def job_progress(run_dir: Path, resume_command: str) -> Iterator[RichCallback]:
         raise typer.Exit(130) from None
 
 
-RuntimeOption = Annotated[str, typer.Option(help="Run the photo-conditioned detector in torch or onnx (ONNX Runtime; "
-                                                "pip install 'binpick[onnx]')")]
+def _check_runtime(value: str) -> str:
+    from binpick.core.config import check_choice
+
+    return check_choice("--runtime", value, ("torch", "onnx"))  # before any work (a plan's folder is made later)
+
+
+RuntimeOption = Annotated[str, typer.Option(callback=_check_runtime, help="Run the photo-conditioned detector in torch or onnx "
+                                                                         "(ONNX Runtime; pip install 'binpick[onnx]')")]
 
 
 RerunOption = Annotated[bool, typer.Option("--rerun", help="Also record each order in 3D to a Rerun .rrd file in the output "
