@@ -98,30 +98,46 @@ def run_folder(config: dict, runs: Path) -> Path | None:
     return found[-1] if found else None
 
 
+ENVIRONMENT = {**os.environ, "OMP_NUM_THREADS": "1", "COLUMNS": "400"}
+
+
+def interrupted(argv: list[str], cwd: Path, find_run, ready) -> tuple[Path, str]:
+    """Start ``argv``, send SIGINT once ``ready(run_folder, stdout_lines)`` holds (``ready(run)`` for
+    one argument); it must end with exit code 130. Returns the run folder and its stderr."""
+    import inspect
+    import threading
+
+    process = subprocess.Popen(argv, cwd=cwd, env=ENVIRONMENT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    lines: list[str] = []
+    reader = threading.Thread(target=lambda: lines.extend(iter(process.stdout.readline, "")), daemon=True)
+    reader.start()
+    takes_lines = len(inspect.signature(ready).parameters) == 2
+    deadline = time.monotonic() + 300
+    while time.monotonic() < deadline and process.poll() is None:
+        run = find_run()
+        if run is not None and (ready(run, list(lines)) if takes_lines else ready(run)):
+            break
+        time.sleep(0.02)
+    assert process.poll() is None, f"{argv[3:5]} ended before it could be interrupted:\n{process.stderr.read()[-2000:]}"
+    process.send_signal(signal.SIGINT)
+    stderr = process.stderr.read()
+    process.wait(timeout=120)
+    reader.join(timeout=10)
+    assert process.returncode == 130, stderr[-2000:]
+    return find_run(), stderr
+
+
 @pytest.mark.parametrize("task", list(SETUPS))
 def test_binpick_train_runs_each_job_and_resumes_it_after_ctrl_c_to_the_same_end(task, tmp_path):
     config, target, ready = SETUPS[task](tmp_path)
     path, runs = tmp_path / f"{task}.yaml", tmp_path / "runs"
     path.write_text(yaml.safe_dump(config))
-    environment = {**os.environ, "OMP_NUM_THREADS": "1", "COLUMNS": "400"}
-    process = subprocess.Popen([*CLI, "train", str(path), "--runs", str(runs)], cwd=tmp_path, env=environment,
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + 300
-    while time.monotonic() < deadline and process.poll() is None:
-        run = run_folder(config, runs)
-        if run is not None and ready(run):
-            break
-        time.sleep(0.02)
-    assert process.poll() is None, f"{task} ended before its first checkpoint could be interrupted:\n{process.communicate()[1][-2000:]}"
-    process.send_signal(signal.SIGINT)
-    _, stderr = process.communicate(timeout=120)
-    assert process.returncode == 130, stderr[-2000:]
-    run = run_folder(config, runs)
+    run, stderr = interrupted([*CLI, "train", str(path), "--runs", str(runs)], tmp_path, lambda: run_folder(config, runs), ready)
     assert "continue with: binpick train --resume" in stderr and str(run) in " ".join(stderr.split()), stderr[-2000:]
     stopped_at = jobs.progress(run)
     assert stopped_at is None or stopped_at < target, f"{task} had finished ({stopped_at}) before Ctrl-C"
     assert jobs.job_kind_of_run(run).task == task
-    resumed = subprocess.run([*CLI, "train", "--resume", str(run)], cwd=tmp_path, env=environment,
+    resumed = subprocess.run([*CLI, "train", "--resume", str(run)], cwd=tmp_path, env=ENVIRONMENT,
                              capture_output=True, text=True, timeout=600)
     assert resumed.returncode == 0, resumed.stderr[-3000:]
     assert f"resuming {run} ({task})" in resumed.stdout
@@ -179,7 +195,9 @@ def _rl_verb(tmp: Path):
     config = {"name": "verb_rl", "total_timesteps": 400, **TINY_SAC, "checkpoint_every": 100_000}
     path = tmp / "rl.yaml"
     path.write_text(yaml.safe_dump(config))
-    started = lambda run: (run / "tb").is_dir() and time.sleep(2) is None  # noqa: E731  (a few steps in)
+    def started(run: Path, stdout: list[str]) -> bool:  # its first step reported (output is not a terminal: plain lines)
+        return any(line.startswith("verb_rl: ") for line in stdout)
+
     return ["rl", "train", str(path), "--runs", str(tmp / "runs")], "rl train", 400, started
 
 
@@ -201,21 +219,13 @@ def _data_verb(tmp: Path):
 @pytest.mark.parametrize("verb", [_rl_verb, _detect_verb, _data_verb], ids=["rl-train", "detect-train", "data-generate"])
 def test_ctrl_c_on_a_training_verb_keeps_its_work_and_prints_the_command_that_finishes_it(verb, tmp_path):
     argv, _, target, ready = verb(tmp_path)
-    environment = {**os.environ, "OMP_NUM_THREADS": "1", "COLUMNS": "400"}
-    process = subprocess.Popen([*CLI, *argv], cwd=tmp_path, env=environment, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     out = tmp_path / "bins" if argv[0] == "data" else None
-    deadline = time.monotonic() + 300
-    run = None
-    while time.monotonic() < deadline and process.poll() is None:
+
+    def find() -> Path | None:
         runs = sorted((tmp_path / "runs").glob("*/*")) if out is None else ([out] if (out / "dataset.json").is_file() else [])
-        run = runs[-1] if runs else None
-        if run is not None and ready(run):
-            break
-        time.sleep(0.02)
-    assert process.poll() is None, f"{argv[:2]} ended before it could be interrupted:\n{process.communicate()[1][-2000:]}"
-    process.send_signal(signal.SIGINT)
-    _, stderr = process.communicate(timeout=120)
-    assert process.returncode == 130, stderr[-2000:]
+        return runs[-1] if runs else None
+
+    run, stderr = interrupted([*CLI, *argv], tmp_path, find, ready)
     message = " ".join(stderr.split())
     assert "continue with: binpick" in message, message
     command = message.split("continue with: ", 1)[1].split(" (the same options)")[0].split(", or ")[0].split()
@@ -227,7 +237,7 @@ def test_ctrl_c_on_a_training_verb_keeps_its_work_and_prints_the_command_that_fi
     else:
         kept = jobs.progress(run)
         assert kept is None or kept < target, kept
-    resumed = subprocess.run([*CLI, *command[1:]] if command[1:2] != ["data"] else [*CLI, *argv], cwd=tmp_path, env=environment,
+    resumed = subprocess.run([*CLI, *command[1:]] if command[1:2] != ["data"] else [*CLI, *argv], cwd=tmp_path, env=ENVIRONMENT,
                              capture_output=True, text=True, timeout=600)
     assert resumed.returncode == 0, resumed.stderr[-3000:]
     assert jobs.progress(run) == target
