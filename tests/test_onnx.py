@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 
@@ -21,15 +22,17 @@ CLI = [sys.executable, "-c", "from binpick.cli import main; main()"]
 
 
 @pytest.fixture(scope="module")
-def cache(tmp_path_factory):
-    return tmp_path_factory.mktemp("cache")
+def exported(tmp_path_factory):
+    """The picking detector exported once, by the command a user runs."""
+    folder = tmp_path_factory.mktemp("export")
+    ran = subprocess.run([*CLI, "detect", "export", PICKING, "--out", str(folder)], capture_output=True, text=True, timeout=300)
+    assert ran.returncode == 0, ran.stderr
+    return folder / f"{PICKING}.onnx"
 
 
 @pytest.fixture(scope="module")
-def detectors(cache):
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setenv("XDG_CACHE_HOME", str(cache))
-        return Detector.load(PICKING), Detector.load(PICKING, runtime="onnx")
+def detectors(exported):
+    return Detector.load(PICKING), Detector.load(PICKING).using("onnx", exported)
 
 
 def iou(a, b) -> float:
@@ -57,13 +60,13 @@ def test_onnx_finds_the_same_boxes_as_pytorch_on_frames_it_was_not_exported_with
     assert onnx_detector.runtime == "onnx" and type(onnx_detector.inference_network).__name__ == "OnnxNetwork"
 
 
-def test_the_export_is_a_checked_onnx_file_that_names_its_weights(detectors, tmp_path):
+def test_the_export_is_a_checked_onnx_file_that_names_its_weights(detectors, exported):
     import onnx
 
     from binpick.detection.onnx_runtime import read_metadata, weights_digest
 
     torch_detector, _ = detectors
-    path = torch_detector.export("onnx", tmp_path / "picking.onnx")
+    path = exported
     onnx.checker.check_model(str(path))
     meta = read_metadata(path)
     assert meta["weights"] == weights_digest(torch_detector.network) and meta["image_size"] == "320"
@@ -71,7 +74,7 @@ def test_the_export_is_a_checked_onnx_file_that_names_its_weights(detectors, tmp
     assert inputs == ["images", "photo_0", "photo_1", "photo_2", "photo_3"]
 
 
-def test_what_cannot_be_exported_or_loaded_is_one_line(detectors, tmp_path):
+def test_what_cannot_be_exported_or_loaded_is_one_line(detectors, exported, tmp_path):
     from binpick.detection.onnx_runtime import OnnxNetwork, read_metadata
 
     with pytest.raises(ConfigError, match="photo-query ROD detectors"):
@@ -81,13 +84,17 @@ def test_what_cannot_be_exported_or_loaded_is_one_line(detectors, tmp_path):
     (tmp_path / "junk.onnx").write_bytes(b"not a model")
     with pytest.raises(BinpickError, match="not an ONNX file"):
         read_metadata(tmp_path / "junk.onnx")
-    exported = detectors[0].export("onnx", tmp_path / "picking.onnx")
     other = Detector.load("rod_photo_tiny_320").inference_network
     with pytest.raises(ConfigError, match="exported from other weights"):
         OnnxNetwork(other, exported)
 
 
-def test_binpick_plan_with_onnx_plans_the_grasps_pytorch_plans(tmp_path, cache):
+def test_binpick_plan_with_onnx_plans_the_grasps_pytorch_plans(tmp_path, exported, detectors):
+    from binpick.detection.onnx_runtime import weights_digest
+
+    cache = tmp_path / "cache"  # the command finds its export in the cache, named by the weights' digest
+    (cache / "binpick" / "onnx").mkdir(parents=True)
+    shutil.copy(exported, cache / "binpick" / "onnx" / f"detector-{weights_digest(detectors[0].network)}.onnx")
     env = {**os.environ, "XDG_CACHE_HOME": str(cache)}
     for runtime in ("torch", "onnx"):
         ran = subprocess.run([*CLI, "plan", "--sample", "--out", str(tmp_path / runtime), "--runtime", runtime], capture_output=True,
@@ -96,6 +103,4 @@ def test_binpick_plan_with_onnx_plans_the_grasps_pytorch_plans(tmp_path, cache):
     a, b = (json.loads((tmp_path / r / "plan.json").read_text()) for r in ("torch", "onnx"))
     assert np.allclose([p["box"] for p in a["plans"]], [p["box"] for p in b["plans"]], atol=0.5)
     assert a["grasps"] == b["grasps"] >= 1
-    exported = subprocess.run([*CLI, "detect", "export", PICKING, "--out", str(tmp_path / "export")], capture_output=True,
-                              text=True, timeout=300, env=env)
-    assert exported.returncode == 0 and (tmp_path / "export" / f"{PICKING}.onnx").is_file(), exported.stderr
+    assert [p.name for p in (cache / "binpick" / "onnx").iterdir()] == [f"detector-{weights_digest(detectors[0].network)}.onnx"]

@@ -77,10 +77,10 @@ class Detector:
         network = load_detector(path)
         return cls(network if pickability else network.without_pickability(), path).using(runtime)
 
-    def using(self, runtime: str) -> Detector:
+    def using(self, runtime: str, onnx_file: str | Path | None = None) -> Detector:
         """This detector predicting through ``runtime``: ``torch``, or ``onnx`` (ONNX Runtime on the graph
-        :meth:`export` writes, kept in binpick's cache; the same boxes, a pickability head's re-scoring
-        still in PyTorch)."""
+        :meth:`export` writes, ``onnx_file`` or one kept in binpick's cache; the same boxes, a
+        pickability head's re-scoring still in PyTorch)."""
         from binpick.core.config import check_choice
         from binpick.detection.onnx_runtime import RUNTIMES
 
@@ -90,7 +90,7 @@ class Detector:
             from binpick.detection.onnx_runtime import OnnxNetwork, cached_export
 
             network = self.network.for_inference()
-            self._inference = OnnxNetwork(network, cached_export(network))
+            self._inference = OnnxNetwork(network, onnx_file if onnx_file is not None else cached_export(network))
         self.runtime = runtime
         return self
 
