@@ -304,6 +304,8 @@ CASES: list[tuple[list[str], list[str]]] = [
     (["detect", "export", "rod_photo_tiny", "--out", "{root}/exported"], ["did you mean 'rod_photo_tiny_320'"]),
     (["detect", "export", "rod_photo_tiny_320", "--format", "openvino"], ["format must be one of 'onnx'"]),
     (["checks", "--bogus"], ["No such option: --bogus"]),
+    (["plan", "--sample", "--out", "{root}/plan.json"], ["--out is a folder", "plan.json"]),
+    (["envs", "show", "Arm2D", "--out", "{root}/frame.png"], ["--out is a folder", "frame.png"]),
     (["plan", "--sample", "--runtime", "tensorrt", "--out", "{root}/never"], ["--runtime must be one of 'torch', 'onnx'"]),
     # markup characters in what the user typed are printed as typed
     (["envs", "show", "x[/]y"], ["unknown env id 'x[/]y'"]),

@@ -85,8 +85,8 @@ def test_bad_input_gives_one_line_and_exit_code_2(args, expected, tmp_path):
         assert fragment in lines[0]
 
 
-def test_missing_opengl_platform_names_the_fix():
-    result = run_cli("envs", "show", "FetchReach", "--out", "unused.png", env={"MUJOCO_GL": "bogus"})
+def test_missing_opengl_platform_names_the_fix(tmp_path):
+    result = run_cli("envs", "show", "FetchReach", "--out", str(tmp_path / "unused"), env={"MUJOCO_GL": "bogus"})
     assert result.returncode == 2
     assert "Traceback" not in result.stderr
     message = result.stderr.strip()

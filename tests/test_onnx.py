@@ -90,11 +90,11 @@ def test_what_cannot_be_exported_or_loaded_is_one_line(detectors, exported, tmp_
 
 
 def test_binpick_plan_with_onnx_plans_the_grasps_pytorch_plans(tmp_path, exported, detectors):
-    from binpick.detection.onnx_runtime import weights_digest
+    from binpick.detection.onnx_runtime import cache_name
 
     cache = tmp_path / "cache"  # the command finds its export in the cache, named by the weights' digest
     (cache / "binpick" / "onnx").mkdir(parents=True)
-    shutil.copy(exported, cache / "binpick" / "onnx" / f"detector-{weights_digest(detectors[0].network)}.onnx")
+    shutil.copy(exported, cache / "binpick" / "onnx" / cache_name(detectors[0].network))
     env = {**os.environ, "XDG_CACHE_HOME": str(cache)}
     for runtime in ("torch", "onnx"):
         ran = subprocess.run([*CLI, "plan", "--sample", "--out", str(tmp_path / runtime), "--runtime", runtime], capture_output=True,
@@ -103,4 +103,4 @@ def test_binpick_plan_with_onnx_plans_the_grasps_pytorch_plans(tmp_path, exporte
     a, b = (json.loads((tmp_path / r / "plan.json").read_text()) for r in ("torch", "onnx"))
     assert np.allclose([p["box"] for p in a["plans"]], [p["box"] for p in b["plans"]], atol=0.5)
     assert a["grasps"] == b["grasps"] >= 1
-    assert [p.name for p in (cache / "binpick" / "onnx").iterdir()] == [f"detector-{weights_digest(detectors[0].network)}.onnx"]
+    assert [p.name for p in (cache / "binpick" / "onnx").iterdir()] == [cache_name(detectors[0].network)]

@@ -101,13 +101,14 @@ def run_folder(config: dict, runs: Path) -> Path | None:
 ENVIRONMENT = {**os.environ, "OMP_NUM_THREADS": "1", "COLUMNS": "400"}
 
 
-def interrupted(argv: list[str], cwd: Path, find_run, ready) -> tuple[Path, str]:
+def interrupted(argv: list[str], cwd: Path, find_run, ready, group: bool = False) -> tuple[Path, str]:
     """Start ``argv``, send SIGINT once ``ready(run_folder, stdout_lines)`` holds (``ready(run)`` for
     one argument); it must end with exit code 130. Returns the run folder and its stderr."""
     import inspect
     import threading
 
-    process = subprocess.Popen(argv, cwd=cwd, env=ENVIRONMENT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    process = subprocess.Popen(argv, cwd=cwd, env=ENVIRONMENT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               start_new_session=group)
     lines: list[str] = []
     reader = threading.Thread(target=lambda: lines.extend(iter(process.stdout.readline, "")), daemon=True)
     reader.start()
@@ -119,7 +120,10 @@ def interrupted(argv: list[str], cwd: Path, find_run, ready) -> tuple[Path, str]
             break
         time.sleep(0.02)
     assert process.poll() is None, f"{argv[3:5]} ended before it could be interrupted:\n{process.stderr.read()[-2000:]}"
-    process.send_signal(signal.SIGINT)
+    if group:  # as a terminal's Ctrl-C: every process of the job (worker processes too) gets it
+        os.killpg(process.pid, signal.SIGINT)
+    else:
+        process.send_signal(signal.SIGINT)
     stderr = process.stderr.read()
     process.wait(timeout=120)
     reader.join(timeout=10)
@@ -241,3 +245,15 @@ def test_ctrl_c_on_a_training_verb_keeps_its_work_and_prints_the_command_that_fi
                              capture_output=True, text=True, timeout=600)
     assert resumed.returncode == 0, resumed.stderr[-3000:]
     assert jobs.progress(run) == target
+
+
+def test_ctrl_c_to_a_data_set_made_by_worker_processes_stops_them_all_at_once(tmp_path):
+    """Ctrl-C reaches the workers too: they ignore it, the main process stops them (no lost world to wait for)."""
+    argv, _, target, ready = _data_verb(tmp_path)
+    argv[argv.index("--workers") + 1] = "2"
+    argv[argv.index("--scenes") + 1] = "40"
+    started = time.monotonic()
+    run, stderr = interrupted([*CLI, *argv], tmp_path, lambda: tmp_path / "bins" if (tmp_path / "bins" / "dataset.json").is_file() else None,
+                              ready, group=True)
+    assert time.monotonic() - started < 120 and "continue with: binpick data generate" in " ".join(stderr.split())
+    assert 1 <= jobs.progress(run) < 40

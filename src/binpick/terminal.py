@@ -6,6 +6,7 @@ library code only ever talks to a ``RunCallback``.
 
 from __future__ import annotations
 
+import os
 import signal
 import threading
 import time
@@ -20,7 +21,7 @@ from rich.progress import (
     TimeRemainingColumn,
 )
 
-from binpick.core.runs import RunCallback, Task
+from binpick.core.runs import RunCallback, StopRequested, Task
 
 
 class _RichTask(Task):
@@ -91,19 +92,21 @@ class RichCallback(RunCallback):
 
     def stop_if_interrupted(self) -> None:
         if self.interrupted:
-            raise KeyboardInterrupt
+            raise StopRequested
 
     def _on_ctrl_c(self, signum, frame) -> None:
         if self.interrupted:  # the second: now
             raise KeyboardInterrupt
         self.interrupted = True
-        self.progress.console.print("stopping at the next step, with a checkpoint (Ctrl-C again: stop at once)",
-                                    markup=False, highlight=False)
+        # a plain write: printing through Rich here could wait on a lock the interrupted code holds
+        os.write(2, b"\nstopping at the next step (Ctrl-C again: stop at once)\n")
 
     def __enter__(self) -> RichCallback:
         if threading.current_thread() is threading.main_thread():
             for number in (signal.SIGINT, signal.SIGTERM):
-                self._previous_handlers[number] = signal.signal(number, self._on_ctrl_c)
+                previous = signal.getsignal(number)
+                if previous is not None and previous != signal.SIG_IGN and number not in self._previous_handlers:
+                    self._previous_handlers[number] = signal.signal(number, self._on_ctrl_c)
         return self
 
     def __exit__(self, *exc: object) -> None:

@@ -11,7 +11,7 @@ import typer
 from rich.console import Console
 
 from binpick.core.errors import ConfigError
-from binpick.core.files import atomic_write, check_output_file, parse_yaml
+from binpick.core.files import atomic_write, check_output_file, ensure_dir, parse_yaml
 from binpick.terminal import RichCallback
 
 app = typer.Typer(help="Learned bin picking: simulated worlds, RL, APRiL and repeated object detection.",
@@ -199,6 +199,14 @@ def warn(message: str | None) -> None:
     """``warning: <message>`` as one line on stderr (nothing for None)."""
     if message:
         Console(stderr=True, highlight=False).print(f"warning: {' '.join(message.split())}", markup=False, soft_wrap=True)
+
+
+def output_folder(path: Path, option: str = "--out") -> Path:
+    """``--out`` is a folder in every verb: a name like a file's (plan.json, frame.png) is what an older
+    binpick took, so say what changed rather than make a folder of that name."""
+    if Path(path).suffix.lower() in (".json", ".png", ".jpg", ".jpeg", ".gif", ".rrd", ".onnx"):
+        raise ConfigError(f"{option} is a folder (the command names its files in it), got {str(path)!r}")
+    return ensure_dir(path, option)
 
 
 def print_error(message: str) -> None:

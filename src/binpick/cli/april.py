@@ -15,8 +15,8 @@ from binpick.cli.app import (
     april_app,
     console,
     evaluate_with_progress,
-    parse_settings,
     job_progress,
+    parse_settings,
     seed_option,
     start_or_resume,
 )

@@ -13,6 +13,7 @@ from binpick.cli.app import (
     console,
     data_app,
     job_progress,
+    output_folder,
     parse_pair,
     parse_settings,
     save_png,
@@ -20,7 +21,6 @@ from binpick.cli.app import (
     warn,
 )
 from binpick.core.errors import ConfigError
-from binpick.core.files import ensure_dir
 
 
 @data_app.command("generate")
@@ -82,7 +82,7 @@ def data_show(
     from binpick.viz.bins import labelled_scene
     from binpick.warehouse.dataset import read_scene
 
-    path = check_png_path(ensure_dir(out, "--out") / f"scene_{scene:06d}.png")
+    path = check_png_path(output_folder(out) / f"scene_{scene:06d}.png")
     record, policies = read_scene(data, scene)
     if policy is not None and policy not in policies:
         raise ConfigError(f"--policy {policy!r}: this data set was labelled by {', '.join(policies) or 'no policy'}")

@@ -10,21 +10,22 @@ import typer
 from rich.table import Table
 
 from binpick.cli.app import (
-    RuntimeOption,
     ConfigSetOption,
     ResumeOption,
     RunsOption,
+    RuntimeOption,
     console,
     detect_app,
     fmt_metric,
     grasp_app,
+    output_folder,
     progress,
     save_png,
     warn,
 )
 from binpick.cli.train import run_task
 from binpick.core.errors import ConfigError
-from binpick.core.files import atomic_write_json, ensure_dir
+from binpick.core.files import atomic_write_json
 
 
 @detect_app.command("train")
@@ -83,7 +84,7 @@ def detect_eval(
     from binpick.detection import Detector
 
     if out is not None:
-        ensure_dir(out, "--out")
+        output_folder(out)
     detector = Detector.load(run, pickability=pickability)
     with progress() as callback:
         metrics = detector.val(data, targets, callback=callback)
@@ -135,7 +136,7 @@ def detect_predict(
         raise ConfigError("give the scene IMAGE (or --sample for the frame that ships with binpick)")
     if heatmap and out is None:
         raise ConfigError("--heatmap writes heatmap.png into --out: give --out FOLDER")
-    folder = None if out is None else ensure_dir(out, "--out")
+    folder = None if out is None else output_folder(out)
     detector = Detector.load(weights or (PICKING if photo is not None else "rod_tiny_320"), pickability=pickability, runtime=runtime)
     box = parse_box(query_box) if query_box is not None else None
     import warnings
@@ -171,7 +172,7 @@ def detect_export(
     """Export a photo-conditioned detector for deployment (ONNX; run it with --runtime onnx or ONNX Runtime)."""
     from binpick.detection import Detector
 
-    folder = ensure_dir(out, "--out")
+    folder = output_folder(out)
     detector = Detector.load(weights)
     stem = weights.name.removesuffix(".safetensors") if weights.suffix in ("", ".safetensors") and not weights.is_dir() else weights.name
     path = detector.export(format, folder / f"{stem}.{format}")

@@ -15,6 +15,7 @@ from binpick.cli.app import (
     check_png_path,
     console,
     envs_app,
+    output_folder,
     parse_settings,
     product_library,
     products_app,
@@ -52,7 +53,7 @@ def envs_show(
     from binpick.envs import env_spec, make, resolve_env_id
 
     env_id = resolve_env_id(env_id)
-    frame_path = ensure_dir(out, "--out") / f"{env_id.split('/')[-1]}.png"
+    frame_path = output_folder(out) / f"{env_id.split('/')[-1]}.png"
     check_png_path(frame_path)
     kwargs = parse_settings(settings)
     own = sorted(set(kwargs) & {"render_mode", "render_size", "width", "height"})
@@ -90,7 +91,7 @@ def envs_rollout(
 
     check_choice("policy", policy, POLICIES)
     check_range("episodes", episodes, 1, None, integer=True)
-    json_out = None if out is None else check_output_file(ensure_dir(out, "--out") / "rollout.json", "--out")
+    json_out = None if out is None else check_output_file(output_folder(out) / "rollout.json", "--out")
     env = make(env_id, **parse_settings(settings))
     try:
         with progress() as callback, callback.task(f"{env.spec.id} · {policy}", episodes) as task:

@@ -12,12 +12,13 @@ from rich.table import Table
 from rich.text import Text
 
 from binpick.cli.app import (
+    DEFAULT_POLICY,
     RerunOption,
     RuntimeOption,
-    DEFAULT_POLICY,
     app,
     check_png_path,
     console,
+    output_folder,
     parse_dimensions,
     product_library,
     progress,
@@ -103,8 +104,8 @@ def plan(
     import numpy as np
 
     from binpick.core.config import check_range
-    from binpick.detection.predict import parse_box
     from binpick.core.files import atomic_write_text
+    from binpick.detection.predict import parse_box
     from binpick.picking import Picker
     from binpick.picking.frames import read_frame, read_photo
 
@@ -126,7 +127,7 @@ def plan(
         raise ConfigError(f"--query-box {query_box!r} lies outside the {colour.shape[1]}x{colour.shape[0]} colour image")
     if copies_only and box is None:
         raise ConfigError("--copies-only goes with --query-box (the instance whose copies to plan on)")
-    folder = ensure_dir(out or Path("runs/plan") / time.strftime("%Y%m%d-%H%M%S"), "--out")  # inputs read: now the outputs
+    folder = output_folder(out or Path("runs/plan") / time.strftime("%Y%m%d-%H%M%S"))  # inputs read: now the outputs
     plan_path, overlay = check_output_file(folder / "plan.json", "--out"), check_png_path(folder / "overlay.png", "--out")
     crop = weights if box is not None else None
     picker = Picker.load(None if box is not None else weights, grasp, grasp_weights, crop_detector=crop, max_grasps=max_grasps,
@@ -138,10 +139,12 @@ def plan(
               "grasp_policy": picker.grasp.policy.value, **plans.to_json()}
     atomic_write_text(plan_path, json.dumps(result, indent=1))
     if rerun:
+        from binpick.picking.inputs import register_depth
         from binpick.viz.recording import OrderRecording
 
+        seen, depth_seen = info.rectify(colour, register_depth(metres, colour.shape[:2]))  # as the picker saw the frame
         with OrderRecording(folder / "plan.rrd") as recording:
-            recording.frame(0, str(photo[0].name if photo else f"query box {query_box}"), colour, metres, info.camera, plans)
+            recording.frame(0, str(photo[0].name if photo else f"query box {query_box}"), seen, depth_seen, info.camera, plans)
     save_png(plans.plot(colour, info.camera, picker.grasp.gripper.opening, query, box), overlay, "--out")
     best = plans.grasps[0] if plans.grasps else None
     if best is None:

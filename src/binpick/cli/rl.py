@@ -14,8 +14,8 @@ from binpick.cli.app import (
     RunsOption,
     console,
     evaluate_with_progress,
-    parse_settings,
     job_progress,
+    parse_settings,
     progress,
     rl_app,
     seed_option,
@@ -69,12 +69,18 @@ def rl_distributed(
 
     check_choice("algorithm", algorithm, ("sac", "a3c"))
     if algorithm == "sac":
-        from binpick.integrations.ray.learner import DistributedConfig, train_distributed
+        from binpick.integrations.ray.learner import (
+            DistributedConfig,
+            train_distributed,
+        )
 
         config = DistributedConfig(env=resolve_env_id(env_id or "FetchReach"), workers=workers, total_timesteps=steps,
                                    address=address, seed=seed)
     else:
-        from binpick.integrations.ray.a3c import DistributedA3CConfig, train_a3c_distributed
+        from binpick.integrations.ray.a3c import (
+            DistributedA3CConfig,
+            train_a3c_distributed,
+        )
 
         config = DistributedA3CConfig(env=resolve_env_id(env_id or "Arm2D"), workers=workers, total_timesteps=steps,
                                       address=address, seed=seed)

@@ -8,9 +8,17 @@ from typing import Annotated
 
 import typer
 
-from binpick.cli.app import DEFAULT_POLICY, RuntimeOption, console, product_library, ros2_app, ros_app
+from binpick.cli.app import (
+    DEFAULT_POLICY,
+    RuntimeOption,
+    console,
+    output_folder,
+    product_library,
+    ros2_app,
+    ros_app,
+)
 from binpick.core.errors import ConfigError
-from binpick.core.files import atomic_write_json, check_output_file, ensure_dir
+from binpick.core.files import atomic_write_json, check_output_file
 
 MasterOption = Annotated[str | None, typer.Option("--master", help="ROS master URI (default: $ROS_MASTER_URI)")]
 NamespaceOption = Annotated[str, typer.Option(help="Action namespace clients connect to, e.g. /binpick/env")]
@@ -102,7 +110,7 @@ def ros_bench(
 
     check_range("episodes", episodes, 1, 100_000, integer=True)
     _check_namespace(namespace)
-    json_out = None if out is None else check_output_file(ensure_dir(out, "--out") / "bench.json", "--out")
+    json_out = None if out is None else check_output_file(output_folder(out) / "bench.json", "--out")
     _ros_environment(master, _check_timeout(timeout))
     import gymnasium as gym
     import numpy as np

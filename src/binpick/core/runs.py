@@ -127,6 +127,11 @@ class Task:
         self.close()
 
 
+class StopRequested(KeyboardInterrupt):
+    """Ctrl-C (or SIGTERM) asked a job to stop, raised at a step boundary by its callback's next
+    progress update: the job's state is whole there, so it may checkpoint before it goes."""
+
+
 class RunCallback:
     """How a job reports: tasks with progress, and one-line messages. This base class is silent;
     ``binpick.cli`` passes one that draws Rich progress bars, tests and scripts may pass their own."""

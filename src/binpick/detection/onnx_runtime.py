@@ -148,11 +148,22 @@ def export_onnx(network: DetectorNetwork, path: str | Path) -> Path:
     return path
 
 
+def cache_name(network: DetectorNetwork) -> str:
+    """The cached graph's file name: the weights' digest and what the export makes of them."""
+    return f"detector-{weights_digest(network)}-{FORMAT}-opset{OPSET}.onnx"
+
+
 def cached_export(network: DetectorNetwork) -> Path:
     """The network's ONNX file in binpick's cache ($XDG_CACHE_HOME/binpick/onnx, keyed by the weights'
     digest), exported on first use (seconds)."""
-    cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "binpick" / "onnx"
-    path = cache / f"detector-{weights_digest(network)}.onnx"
+    try:
+        root = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    except RuntimeError:  # no home directory (a service account)
+        import tempfile
+
+        root = Path(tempfile.gettempdir())
+    cache = root / "binpick" / "onnx"
+    path = cache / cache_name(network)
     if not path.is_file():
         from binpick.core.files import ensure_dir
 

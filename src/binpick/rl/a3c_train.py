@@ -104,6 +104,9 @@ def _state_size(config: RLConfig, wrap_env: EnvWrapper | None = None) -> int:
 
 def _worker(rank: int, config: RLConfig, model: ActorCritic, optimizer: SharedAdam, counter, goal_area,
             stats_queue, stop, wrap_env: EnvWrapper | None = None) -> None:
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole process group: the trainer stops its workers
     torch.set_num_threads(1)
     a3c = config.a3c
     env_shape = make_env(config, wrap_env).observation_space.shape

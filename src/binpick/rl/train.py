@@ -21,19 +21,45 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 
 from binpick.core.config import load_run_config, to_dict
-from binpick.envs import make
 from binpick.core.errors import ConfigError, InputFileError
-from binpick.core.files import atomic_write, atomic_write_json, read_json_object, read_npz, require_fields
+from binpick.core.files import (
+    atomic_write,
+    atomic_write_json,
+    read_json_object,
+    read_npz,
+    require_fields,
+)
+from binpick.core.runs import (
+    SILENT,
+    RunCallback,
+    StopRequested,
+    Task,
+    commit_checkpoint,
+    latest_checkpoint,
+    new_run_dir,
+    removed_on_error,
+)
+from binpick.envs import make
 from binpick.rl.agents import GoalSAC, GPImagination
-from binpick.core.runs import SILENT, RunCallback, Task, commit_checkpoint, latest_checkpoint, new_run_dir, removed_on_error
 from binpick.rl.config import RLConfig
 from binpick.rl.curriculum import CurriculumProgress, GoalAreaCurriculum
 from binpick.rl.dynamics import GPDynamics
 from binpick.rl.evaluate import evaluate_policy
-from binpick.rl.persistence import (load_algorithm, load_replay, load_saved_policy, save_algorithm, save_policy,
-                                    save_replay)
+from binpick.rl.persistence import (
+    load_algorithm,
+    load_replay,
+    load_saved_policy,
+    save_algorithm,
+    save_policy,
+    save_replay,
+)
 from binpick.rl.replay import EpisodeReplayBuffer
-from binpick.rl.wrappers import MinActionScale, SemanticState, gripper_dims, needs_gripper
+from binpick.rl.wrappers import (
+    MinActionScale,
+    SemanticState,
+    gripper_dims,
+    needs_gripper,
+)
 
 
 def next_multiple(steps: int, every: int) -> int:
@@ -303,9 +329,13 @@ class Trainer:
     # ------------------------------------------------------------------ training
     def learn_from_demonstrations(self) -> None:
         """Thesis §4.5.3: heuristic episodes into the replay, then behaviour cloning of the actor."""
+        from binpick.rl.demonstrations import (
+            DemonstrationSet,
+            add_demonstrations,
+            behaviour_clone,
+            collect_demonstrations,
+        )
         from binpick.rl.heuristic import PickAndPlaceHeuristic
-        from binpick.rl.demonstrations import (DemonstrationSet, add_demonstrations, behaviour_clone,
-                                               collect_demonstrations)
 
         demos = self.config.demonstrations
         expert = PickAndPlaceHeuristic(noise=demos.noise, seed=self.config.seed)
@@ -340,7 +370,7 @@ class Trainer:
                 try:
                     self.model.learn(remaining, callback=CallbackList(callbacks), reset_num_timesteps=False,
                                      tb_log_name=self.config.algorithm, log_interval=10)
-                except KeyboardInterrupt:  # Ctrl-C: keep the steps since the last checkpoint, then stop
+                except StopRequested:  # Ctrl-C, at a step boundary: keep the steps since the last checkpoint, then stop
                     self.save_checkpoint()
                     raise
         evaluated = [e["sim_steps"] for e in self.metrics.evaluations]

@@ -113,7 +113,7 @@ class ProductLibrary:
         shorts = [pid.split("/")[-1] for pid in self.products]
         names = [*self.products, *(s for s in shorts if shorts.count(s) == 1), *self.categories]
         containing = sorted(pid for pid in self.products if name.strip().lower() in pid.lower())[:6]
-        if len(containing) > 1:
+        if containing:
             return f" (did you mean {', '.join(containing)}?)"
         near = did_you_mean(name, names) or did_you_mean(name.split("/")[-1], names)
         return near or "; `binpick products list` shows them all"

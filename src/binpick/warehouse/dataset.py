@@ -140,14 +140,15 @@ def val_world(world: int, fraction: float, worlds: int | None = None) -> bool:
     """World ``world`` goes to val when the running count of ``fraction`` per world passes a whole
     number (half a step early): exactly that share of worlds, spread evenly, the first already at
     world 1 for fraction 0.25 or world 4 for 0.1, and a world keeps its split when a set grows. A set
-    of ``worlds`` too few to reach its first val world gives its last one to val (when it has two), so
-    a small set still has something to validate on."""
+    of ``worlds`` too few to reach its first val world gives one to val (when it has two), so a small
+    set still has something to validate on: the last but one, which is whole (only the last world
+    can be short of scenes), so a set that grows later never splits one world across train and val."""
     def even(w: int) -> bool:
         return int((w + 1) * fraction + 0.5) > int(w * fraction + 0.5)
 
     if even(world):
         return True
-    return (worlds is not None and fraction > 0 and worlds >= 2 and world == worlds - 1
+    return (worlds is not None and fraction > 0 and worlds >= 2 and world == worlds - 2
             and not any(even(w) for w in range(worlds)))
 
 
@@ -306,8 +307,16 @@ class DataGeneration:
                 import multiprocessing
 
                 context = multiprocessing.get_context("spawn")  # MuJoCo/EGL contexts do not survive fork
-                with context.Pool(config.workers) as pool:
-                    for records in pool.imap_unordered(_generate_world_job, [(config, w, out) for w in worlds]):
+                # workers ignore Ctrl-C (it reaches the whole process group): this process stops them
+                with context.Pool(config.workers, initializer=_ignore_ctrl_c) as pool:
+                    results = pool.imap_unordered(_generate_world_job, [(config, w, out) for w in worlds])
+                    for _ in worlds:
+                        while True:
+                            try:
+                                records = results.next(timeout=1.0)
+                                break
+                            except multiprocessing.TimeoutError:
+                                task.update()  # a stop asked for meanwhile is raised here
                         task.update(advance=len(records))
         photos = write_photos(config, self.library, out, callback)
         return finalise(out) | {"photos": photos}
@@ -335,6 +344,12 @@ class DataGeneration:
         finally:
             if owns:
                 ray.shutdown()
+
+
+def _ignore_ctrl_c() -> None:
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _ray_world(config: GenerateConfig, world: int, indices: list[int]) -> list[tuple[dict[str, bytes], dict[str, Any]]]:
