@@ -101,6 +101,12 @@ def run_folder(config: dict, runs: Path) -> Path | None:
 ENVIRONMENT = {**os.environ, "OMP_NUM_THREADS": "1", "COLUMNS": "400"}
 
 
+def _foreground_ctrl_c() -> None:
+    """In the child: Ctrl-C as in a terminal's foreground job. A suite started in the background (``make
+    test &``) ignores SIGINT, children inherit that, and binpick leaves an ignored SIGINT ignored."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def interrupted(argv: list[str], cwd: Path, find_run, ready, group: bool = False) -> tuple[Path, str]:
     """Start ``argv``, send SIGINT once ``ready(run_folder, stdout_lines)`` holds (``ready(run)`` for
     one argument); it must end with exit code 130. Returns the run folder and its stderr."""
@@ -108,7 +114,7 @@ def interrupted(argv: list[str], cwd: Path, find_run, ready, group: bool = False
     import threading
 
     process = subprocess.Popen(argv, cwd=cwd, env=ENVIRONMENT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                               start_new_session=group)
+                               start_new_session=group, preexec_fn=_foreground_ctrl_c)
     lines: list[str] = []
     reader = threading.Thread(target=lambda: lines.extend(iter(process.stdout.readline, "")), daemon=True)
     reader.start()

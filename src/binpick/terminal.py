@@ -50,7 +50,8 @@ class RichCallback(RunCallback):
     the first Ctrl-C (or SIGTERM, which a cluster's scheduler sends) asks the job to stop: the next
     progress update raises ``KeyboardInterrupt``, at a step boundary, where a job's state is whole and
     it writes a checkpoint on its way out. A second Ctrl-C raises at once. (Raising from the handler
-    itself could land in a finaliser, where Python drops the exception and the job runs on.)"""
+    itself could land in a finaliser, where Python drops the exception and the job runs on.) A job
+    started with SIGINT ignored (``nohup ... &``) keeps ignoring it; SIGTERM still stops it."""
 
     def __init__(self, console: Console | None = None, log_every: float = 30.0) -> None:
         self.console = console or Console(markup=False)
