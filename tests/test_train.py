@@ -27,7 +27,7 @@ TINY_SAC = {"env": "FetchReach", "algorithm": "sac", "min_action_scale": 0.4, "c
             "sac": {"batch_size": 16, "net_arch": [8, 8]}, "eval": {"every": 100, "episodes": 1}}
 
 
-def checkpointed(run: Path) -> bool:
+def checkpointed(run: Path, stdout: list[str] = ()) -> bool:
     return any(not p.name.startswith(".partial") for p in run.glob("checkpoints/ckpt-*"))
 
 
@@ -44,7 +44,7 @@ def april_setup(tmp: Path):
               "perception_training": {"epochs": 1, "batch_size": 16},
               "policy": {"mode": "semantic", "rl_config": str(tmp / "policy.yaml"), "finetune_steps": 0},
               "eval": {"episodes": 1}}
-    return config, 300, lambda run: any(not p.name.startswith(".partial") for p in run.glob("rl/**/checkpoints/ckpt-*"))
+    return config, 300, lambda run, stdout=(): any(not p.name.startswith(".partial") for p in run.glob("rl/**/checkpoints/ckpt-*"))
 
 
 def detect_setup(tmp: Path):
@@ -84,7 +84,7 @@ def grasp_quality_setup(tmp: Path):
 def data_setup(tmp: Path):
     config = {"task": "data", "out": str(tmp / "bins"), "scenes": 6, "scenes_per_world": 1, "workers": 1, "image_size": 64,
               "policies": [], "copies": [2, 3], "distractors": [0, 1], "val_fraction": 0.34}
-    return config, 6, lambda run: len(list(run.glob("scenes/*.json"))) >= 1
+    return config, 6, lambda run, stdout=(): len(list(run.glob("scenes/*.json"))) >= 1
 
 
 SETUPS = {"rl": rl_setup, "april": april_setup, "detect": detect_setup, "pickability": pickability_setup,
@@ -108,9 +108,8 @@ def _foreground_ctrl_c() -> None:
 
 
 def interrupted(argv: list[str], cwd: Path, find_run, ready, group: bool = False) -> tuple[Path, str]:
-    """Start ``argv``, send SIGINT once ``ready(run_folder, stdout_lines)`` holds (``ready(run)`` for
-    one argument); it must end with exit code 130. Returns the run folder and its stderr."""
-    import inspect
+    """Start ``argv``, send SIGINT once ``ready(run_folder, stdout_lines)`` holds; it must end with exit
+    code 130. Returns the run folder and its stderr."""
     import threading
 
     process = subprocess.Popen(argv, cwd=cwd, env=ENVIRONMENT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
@@ -118,11 +117,10 @@ def interrupted(argv: list[str], cwd: Path, find_run, ready, group: bool = False
     lines: list[str] = []
     reader = threading.Thread(target=lambda: lines.extend(iter(process.stdout.readline, "")), daemon=True)
     reader.start()
-    takes_lines = len(inspect.signature(ready).parameters) == 2
     deadline = time.monotonic() + 300
     while time.monotonic() < deadline and process.poll() is None:
         run = find_run()
-        if run is not None and (ready(run, list(lines)) if takes_lines else ready(run)):
+        if run is not None and ready(run, list(lines)):
             break
         time.sleep(0.02)
     assert process.poll() is None, f"{argv[3:5]} ended before it could be interrupted:\n{process.stderr.read()[-2000:]}"
@@ -223,7 +221,7 @@ def _data_verb(tmp: Path):
     out = tmp / "bins"
     argv = ["data", "generate", "--out", str(out), "--scenes", "6", "--scenes-per-world", "1", "--workers", "1", "--size", "64",
             "--policies", "", "--copies", "2,3", "--distractors", "0,1"]
-    return argv, "train", 6, lambda run: len(list(run.glob("scenes/*.json"))) >= 1
+    return argv, "train", 6, lambda run, stdout=(): len(list(run.glob("scenes/*.json"))) >= 1
 
 
 @pytest.mark.parametrize("verb", [_rl_verb, _detect_verb, _data_verb], ids=["rl-train", "detect-train", "data-generate"])

@@ -174,7 +174,6 @@ def detect_export(
 
     folder = output_folder(out)
     detector = Detector.load(weights)
-    stem = weights.name.removesuffix(".safetensors") if weights.suffix in ("", ".safetensors") and not weights.is_dir() else weights.name
-    path = detector.export(format, folder / f"{stem}.{format}")
+    path = detector.export(format, folder)
     console.print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB): inputs images, photo_0..{len(detector.network.spec.photo_sizes) - 1}"
                   f"{', depth' if detector.network.spec.depth else ''}; outputs boxes (xyxy pixels), scores")

@@ -95,15 +95,16 @@ class Detector:
         return self
 
     def export(self, format: str = "onnx", path: str | Path | None = None) -> Path:
-        """Write the detector for deployment: ``onnx`` (binpick.detection.onnx_runtime), to ``path``
-        (default: ``<weights name>.onnx`` here). Returns the file's path."""
+        """Write the detector for deployment: ``onnx`` (binpick.detection.onnx_runtime), to ``path``, a
+        file or a folder for ``<weights name>.onnx`` (default: here). Returns the file's path."""
         from binpick.core.config import check_choice
         from binpick.detection.onnx_runtime import export_onnx
 
         check_choice("format", format, ("onnx",))
         stem = (self.source.parent.name if self.source and self.source.name == "model.safetensors"
                 else self.source.stem if self.source else "detector")
-        return export_onnx(self.network, Path(path) if path is not None else Path(f"{stem}.onnx"))
+        path = Path(path) if path is not None else Path(".")
+        return export_onnx(self.network, path / f"{stem}.{format}" if path.is_dir() else path)
 
     # ------------------------------------------------------------------ what it is
     @property
