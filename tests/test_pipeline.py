@@ -15,7 +15,8 @@ from binpick.sim import default_library
 from binpick.sim.bin_scene import BinWorld
 from binpick.grasping import DepthFrame, GraspPlanner, PinholeCamera
 from binpick.sim.mjcf import FLOOR_TOP, CameraSpec
-from binpick.warehouse.grasping import Reason, execute_pick, grasp_point, order_tote_xml, pixel_to_world
+from binpick.sim.order_tote import order_tote_xml
+from binpick.warehouse.grasping import Reason, execute_pick, grasp_point, pixel_to_world
 from binpick.warehouse.pipeline import PickPipeline, summarise
 
 CLI = [sys.executable, "-c", "from binpick.cli import main; main()"]

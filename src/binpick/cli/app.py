@@ -105,6 +105,21 @@ RuntimeOption = Annotated[str, typer.Option(callback=_check_runtime, help="Run t
                                                                          "(ONNX Runtime; pip install 'binpick[onnx]')")]
 
 
+def _check_robot(value: str) -> str:
+    from binpick.core.config import check_choice
+
+    return check_choice("--robot", value, ("floating", "panda"))
+
+
+RobotOption = Annotated[str, typer.Option(callback=_check_robot, help="What executes the picks: floating (a gripper alone, "
+                                                                     "fast) or panda (a Franka Panda arm: IK, timed motion, "
+                                                                     "its reach in the plan)")]
+
+PlanRobotOption = Annotated[str, typer.Option(callback=_check_robot, help="floating: any grasp goes; panda: only grasps the "
+                                                                         "Panda of binpick's cell can take (its base at x -0.52, "
+                                                                         "y 0.18 m in the base frame; the others are rejected "
+                                                                         "with the reason)")]
+
 RerunOption = Annotated[bool, typer.Option("--rerun", help="Also record each order in 3D to a Rerun .rrd file in the output "
                                                            "folder (pip install 'binpick[rerun]')")]
 

@@ -19,7 +19,7 @@ from rich.text import Text
 from binpick.cli.app import app, console
 
 PACKAGES = ("torch", "mujoco", "gymnasium", "gymnasium-robotics", "stable-baselines3", "gpytorch", "pycocotools",
-            "opencv-python-headless", "ray", "safetensors", "onnxruntime", "rerun-sdk")
+            "opencv-python-headless", "ray", "safetensors", "mink", "ruckig", "onnxruntime", "rerun-sdk")
 Check = tuple[str, str, str]  # (what, "ok" | "warn" | "fail", detail)
 
 
@@ -87,6 +87,20 @@ def _weights() -> Check:
     return "shipped weights", "ok", f"{len(SHIPPED)} detectors, the grasp-quality model and the product check"
 
 
+def _arm() -> Check:
+    """The Panda arm (--robot panda): robosuite's model files, mink's IK and Ruckig's timing, one IK solve."""
+    try:
+        from binpick.arm import ArmKinematics
+
+        started = time.perf_counter()
+        solution = ArmKinematics().solve([0.0, 0.0, 0.12], 0.0)
+        if not solution.ok:
+            return "Panda arm", "fail", "the arm's IK missed a grasp in the middle of the bin"
+        return "Panda arm", "ok", f"model, mink and Ruckig load; the cell and one IK solve in {time.perf_counter() - started:.1f} s"
+    except Exception as error:  # a missing model file or package is the finding
+        return "Panda arm", "warn", f"--robot panda unavailable: {type(error).__name__}: {error}"
+
+
 def _threads() -> Check:
     import torch
 
@@ -107,7 +121,7 @@ def _versions() -> Check:
     return "versions", "ok", detail + (f"; not installed: {', '.join(missing)}" if missing else "")
 
 
-CHECKS: tuple[Callable[[], Check], ...] = (_versions, _threads, _render, _weights, _ros1, _ros2)
+CHECKS: tuple[Callable[[], Check], ...] = (_versions, _threads, _render, _weights, _arm, _ros1, _ros2)
 
 
 def run_checks() -> list[Check]:

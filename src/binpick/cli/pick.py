@@ -13,7 +13,9 @@ from rich.text import Text
 
 from binpick.cli.app import (
     DEFAULT_POLICY,
+    PlanRobotOption,
     RerunOption,
+    RobotOption,
     RuntimeOption,
     app,
     check_png_path,
@@ -44,6 +46,7 @@ def pick(
     out: Annotated[Path | None, typer.Option(help="Folder for per-order GIFs, overlays, results.json and report.html "
                                                   "(default: runs/pick/<time>)")] = None,
     seed: Annotated[int, seed_option("Seed of the first order's bin")] = 0,
+    robot: RobotOption = "floating",
     runtime: RuntimeOption = "torch",
     rerun: RerunOption = False,
 ) -> None:
@@ -72,7 +75,7 @@ def pick(
             read_image(path)  # unreadable -> one line now, not mid-run
         library.add(replace(library[products[0]], photos=tuple(photo)))
     model = Detector.load(weights or PICKING, runtime=runtime).inference_network
-    _fulfil(PickPipeline(model, library, grasp=planner), products, orders, seed, run_dir, rerun)
+    _fulfil(PickPipeline(model, library, grasp=planner, robot=robot), products, orders, seed, run_dir, rerun)
 
 
 @app.command("plan")
@@ -97,6 +100,7 @@ def plan(
     max_grasps: Annotated[int, typer.Option(help="Plan grasps for this many detections (best first)")] = 3,
     product_size: Annotated[str | None, typer.Option(help="The product's catalogue dimensions L,W,H in metres: instances "
                                                           "clearly bigger are not grasped")] = None,
+    robot: PlanRobotOption = "floating",
     runtime: RuntimeOption = "torch",
     rerun: RerunOption = False,
 ) -> None:
@@ -130,13 +134,18 @@ def plan(
     folder = output_folder(out or Path("runs/plan") / time.strftime("%Y%m%d-%H%M%S"))  # inputs read: now the outputs
     plan_path, overlay = check_output_file(folder / "plan.json", "--out"), check_png_path(folder / "overlay.png", "--out")
     crop = weights if box is not None else None
+    reach = None
+    if robot == "panda":
+        from binpick.arm import MotionPlanner
+
+        reach = MotionPlanner().reach_check
     picker = Picker.load(None if box is not None else weights, grasp, grasp_weights, crop_detector=crop, max_grasps=max_grasps,
-                         runtime=runtime)
+                         runtime=runtime, reach=reach)
     plans = picker.plan(colour, metres, info, photo=query, query_box=box, size=dimensions, copies_only=copies_only)
     result = {"inputs": {"rgb": str(rgb), "depth": str(depth), "camera": str(camera),
                          "photo": [str(path) for path in photo] if photo else None, "query_box": query_box, "copies_only": copies_only,
                          "size": dimensions},
-              "grasp_policy": picker.grasp.policy.value, **plans.to_json()}
+              "grasp_policy": picker.grasp.policy.value, "robot": robot, **plans.to_json()}
     atomic_write_text(plan_path, json.dumps(result, indent=1))
     if rerun:
         from binpick.picking.inputs import register_depth
@@ -194,6 +203,12 @@ def _fulfil(pipeline, products: list[str], orders: int, seed: int, run_dir: Path
     right = "n/a" if summary["right_product"] is None else format(summary["right_product"], ".0%")
     console.print(f"pick success {summary['pick_success']:.0%}, right product {right}, {summary['picks_per_min']} picks/min, "
                   f"{summary['orders']} orders in {summary['wall_s']} s")
+    if "arm" in summary:
+        arm = summary["arm"]
+        cycle = "—" if arm["cycle_s_median"] is None else f"{arm['cycle_s_median']:.2f} s"
+        console.print(f"arm: cycle {cycle} per placed pick (median, robot time), {arm['picks_per_hour']:.0f} picks/h "
+                      f"of robot time, {arm['collisions']} collision(s), {sum(arm['dropped_for_reach'].values())} grasp(s) "
+                      "dropped for reach", soft_wrap=True)
     console.print(f"report: {run_dir / 'report.html'} (GIFs and results.json beside it)", soft_wrap=True)
     return summary
 
@@ -207,6 +222,7 @@ def demo(
     orders: Annotated[int, typer.Option(help="Orders to fulfil (products cycle through the demo's list)")] = 6,
     out: Annotated[Path | None, typer.Option(help="Folder for the report, GIFs and results.json (default: runs/demo/<time>)")] = None,
     seed: Annotated[int, seed_option("Seed of the first order's bin")] = 0,
+    robot: RobotOption = "floating",
     rerun: RerunOption = False,
 ) -> None:
     """The main job: fulfil a handful of orders end to end with the shipped detector, products seen in
@@ -221,4 +237,5 @@ def demo(
     check_range("orders", orders, 1, 1000, integer=True)
     run_dir = ensure_dir(out or Path("runs/demo") / time.strftime("%Y%m%d-%H%M%S"), "--out")
     model = Detector.load(PICKING).inference_network
-    _fulfil(PickPipeline(model, default_library(), grasp=GraspPlanner.load(DEFAULT_POLICY)), list(DEMO_PRODUCTS), orders, seed, run_dir, rerun)
+    _fulfil(PickPipeline(model, default_library(), grasp=GraspPlanner.load(DEFAULT_POLICY), robot=robot), list(DEMO_PRODUCTS),
+            orders, seed, run_dir, rerun)

@@ -55,6 +55,7 @@ VERIFIERS = ("learnt", "colour")
 # wrong-first orders staying 2 of 40, and changed nothing in binpick's own light (36 right first at every
 # threshold from 0.1 to 0.5). The colour check's is a histogram intersection, tuned in binpick's own light.
 THRESHOLDS = {"learnt": 0.2, "colour": 0.15}
+REACH_TRIES = 4  # candidates of one detection checked for the robot's reach before it is given up
 
 
 class Picker:
@@ -69,11 +70,16 @@ class Picker:
     check's score. ``copies_from_match`` (None: off): where the product check gives a photo detection
     at least this probability, the box-query detector is seeded with that instance's box to find its
     copies too (they join the photo's detections, checked the same way). Their values and why are in
-    :class:`binpick.warehouse.pipeline.PickPipeline`."""
+    :class:`binpick.warehouse.pipeline.PickPipeline`. ``reach`` (None: any grasp goes) is the robot's
+    reachability check, ``reach(position, yaw)`` -> ``(None, yaw it takes)`` or ``(reason, yaw)`` when
+    the arm cannot take that grasp (no IK solution, a collision on the way down, a wrist flip): a
+    detection's grasp the arm cannot take gives way to its next best candidate the arm can (up to
+    ``REACH_TRIES``); the reasons are counted with the plan's other rejections, and the plan's yaw is
+    the one the arm takes (the same jaws, perhaps a half turn round)."""
 
     def __init__(self, detector, grasp: GraspPlanner, crop_detector=None, score_threshold: float | None = None,
                  verifier="learnt", check: float | None = None, rank_from: float | None = 0.01, max_grasps: int = 3,
-                 workspace: Workspace | None = None, copies_from_match: float | None = None) -> None:
+                 workspace: Workspace | None = None, copies_from_match: float | None = None, reach=None) -> None:
         # a Detector (binpick.Detector.load(...)) or the network inside one
         detector, crop_detector = (getattr(d, "inference_network", d) for d in (detector, crop_detector))
         self.detector, self.crop_detector, self.grasp = detector, crop_detector, grasp
@@ -91,6 +97,9 @@ class Picker:
             raise ConfigError(f"max_grasps must be at least 1, got {max_grasps}")
         self.max_grasps = max_grasps
         self.copies_from_match = copies_from_match
+        # reach(position, yaw) -> (None, the yaw the robot takes) or (why it cannot take that grasp, yaw)
+        # (binpick.arm.MotionPlanner.reach_check)
+        self.reach = reach
 
     @classmethod
     def load(cls, detector: str | Path | None = None, grasp: str = "learnt", grasp_weights: str | Path | None = None,
@@ -303,11 +312,31 @@ class Picker:
         if chosen is not None and workspace is not None and not workspace.contains(chosen.position):
             plan.rejected = {**plan.rejected, OUTSIDE: 1}
             return plan
+        yaw = None if chosen is None else float(chosen.yaw)
+        if chosen is not None and self.reach is not None:
+            chosen, yaw, unreachable = self.reachable(choice, workspace)
+            for reason, count in unreachable.items():
+                plan.rejected[reason] = plan.rejected.get(reason, 0) + count
         if chosen is not None:
             plan.position = [round(float(v), 4) for v in chosen.position]
-            plan.yaw = round(float(chosen.yaw), 4)
+            plan.yaw = round(yaw, 4)
             plan.orientation = [round(v, 6) for v in grasp_orientation(plan.yaw)]
             plan.width = round(float(chosen.width), 4)
             plan.opening = float(self.grasp.gripper.opening)
             plan.quality = None if chosen.quality is None else round(float(chosen.quality), 4)
         return plan
+
+    def reachable(self, choice: GraspChoice, workspace: Workspace | None = None):
+        """The best of the detection's candidates the robot can take (the chosen one first, then the
+        other feasible ones inside the workspace, by quality), the jaw yaw the robot takes it with (the
+        candidate's, or the same jaws a half turn round), and the reasons the ones before it could not
+        be taken."""
+        others = sorted((c for c in choice.candidates if c is not choice.chosen and c.rejected is None and c.quality is not None
+                         and (workspace is None or workspace.contains(c.position))), key=lambda c: -c.quality)
+        unreachable: dict[str, int] = {}
+        for candidate in [choice.chosen, *others][:REACH_TRIES]:
+            reason, yaw = self.reach(candidate.position, float(candidate.yaw))
+            if reason is None:
+                return candidate, float(yaw), unreachable
+            unreachable[reason] = unreachable.get(reason, 0) + 1
+        return None, None, unreachable

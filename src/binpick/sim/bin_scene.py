@@ -59,7 +59,9 @@ class BinWorld:
     def __init__(self, target: Product, distractors: list[Product], max_copies: int = 8,
                  camera: CameraSpec = CameraSpec(), extra_worldbody: str = "", extra: str = "",
                  randomise_lighting: bool = False, gripper: bool = False, seed: int = 0,
-                 domain: DomainConfig | None = None, sensor: SensorConfig | None = None) -> None:
+                 domain: DomainConfig | None = None, sensor: SensorConfig | None = None, robot=None) -> None:
+        """``robot``: an arm to put in the scene (e.g. :class:`binpick.sim.panda.PandaArm`), with
+        ``attach(spec)`` before compiling and ``bind(model)`` after; it waits at its home posture."""
         self.target, self.distractors, self.camera = target, list(distractors), camera
         self.sensor = sensor if sensor is not None and sensor.realistic else None
         # the tote's tilt is the world's (one compiled model); drawn apart from the scenes' draws
@@ -88,8 +90,14 @@ class BinWorld:
             self.xml = self._random_world(assets, bodies, extra_worldbody, extra, rng)
         else:
             self.xml = scene_xml(assets, bodies, camera, extra_worldbody, extra, tote_tilt=self.tote_tilt, **lighting)
-        self.model = mujoco.MjModel.from_xml_string(self.xml)
+        if robot is None:
+            self.model = mujoco.MjModel.from_xml_string(self.xml)
+        else:
+            spec = mujoco.MjSpec.from_string(self.xml)
+            robot.attach(spec)
+            self.model = spec.compile()
         self.data = mujoco.MjData(self.model)
+        self.arm = robot.bind(self.model) if robot is not None else None
         self.body_ids = [self.model.body(f"slot{i}").id for i in range(len(self.slots))]
         self.qpos_adr = [self.model.jnt_qposadr[self.model.body_jntadr[b]] for b in self.body_ids]
         self.dof_adr = [self.model.jnt_dofadr[self.model.body_jntadr[b]] for b in self.body_ids]
@@ -268,6 +276,8 @@ class BinWorld:
     def _drop_and_settle(self, used: list[int], rng: np.random.Generator) -> bool:
         self.set_guards(True)
         mujoco.mj_resetData(self.model, self.data)
+        if self.arm is not None:
+            self.arm.hold(self.model, self.data)
         for slot in range(len(self.slots)):
             self._place(slot, self._parked(slot), (1, 0, 0, 0))
         hx, hy = self.half
@@ -311,6 +321,8 @@ class BinWorld:
         """Back to a settled scene (grasp trials start every attempt from the same state)."""
         mujoco.mj_resetData(self.model, self.data)
         self.data.qpos[:] = qpos
+        if self.arm is not None:  # the arm holds the posture it was in
+            self.arm.hold(self.model, self.data, qpos[self.arm.qpos])
         mujoco.mj_forward(self.model, self.data)
 
     def instance_centre_and_top(self, slot: int) -> tuple[np.ndarray, float]:

@@ -111,11 +111,16 @@ class TopDownGrasp:
             return self._attempt(world, slot, offset)
 
     def _attempt(self, world, slot: int, offset: tuple[float, float]) -> bool:
+        tips, yaw, top = self.grasp(world, slot, offset)
+        return lift_test(world, slot, tips, yaw, top)
+
+    def grasp(self, world, slot: int, offset: tuple[float, float] = (0.0, 0.0)) -> tuple[tuple[float, float, float], float, float]:
+        """(fingertips' midpoint, jaw yaw, the instance's top): above its centre, the tips a little
+        below the centre (but above the floor), so the jaws close across it."""
         centre, top = world.instance_centre_and_top(slot)
-        # fingertips a little below the centre (but above the floor), so the jaws close across it
         tips = max(FLOOR_TOP + 0.006, min(centre[2] - 0.01, top - 0.02))
         yaw = 0.0 if self.axis == "x" else np.pi / 2
-        return lift_test(world, slot, (centre[0] + offset[0], centre[1] + offset[1], tips), yaw, top)
+        return (float(centre[0] + offset[0]), float(centre[1] + offset[1]), float(tips)), yaw, top
 
 
 def lift_test(world, slot: int, tips, yaw: float, top: float | None = None, carry: bool = False) -> bool:

@@ -198,10 +198,15 @@ def world_sim(config: GenerateConfig, world: int, library: ProductLibrary | None
     else:
         products = [library[target]] + [library[d] for d in distractors]
     gripper = (bool(config.policies) or config.grasp_trials > 0) if gripper is None else gripper
+    robot = None
+    if gripper and config.robot == "panda":  # the arm makes the label grasps (it brings its own gripper)
+        from binpick.sim.panda import PandaArm
+
+        robot, gripper = PandaArm(), False
     sim = BinWorld(products[0], products[1:], max_copies=config.copies[1],
                    camera=CameraSpec(size=config.image_size), randomise_lighting=config.randomise,
                    gripper=gripper, seed=config.seed * 1_000_003 + world, domain=config.domain_config,
-                   sensor=config.sensor_config)
+                   sensor=config.sensor_config, robot=robot)
     return sim, products, split
 
 
@@ -222,7 +227,7 @@ def world_scenes(config: GenerateConfig, world: int, indices: list[int]):
     if not indices:
         return
     sim, products, split = world_sim(config, world)
-    policies = make_policies(config.policies)
+    policies = make_policies(config.policies, config.robot)
     try:
         photo = {}
         if config.domain_config.random_products:  # a world's own product has its own shop photos

@@ -37,6 +37,7 @@ class GenerateConfig:
     only_products: bool = False  # use only the user's products
     photo_size: int = 256
     photo_views: int = 0  # randomised studio photos per product besides the canonical one (photos/<product>/<k>.png)
+    robot: str = "floating"  # what the label grasps are made by: floating (the gripper alone) or panda (the arm, slower)
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -54,6 +55,10 @@ class GenerateConfig:
         from binpick.core.config import check_choice
 
         check_choice("split_rule", self.split_rule, ("even", "random"))
+        check_choice("robot", self.robot, ("floating", "panda"))
+        if self.robot == "panda" and self.grasp_trials:
+            raise ConfigError("grasp_trials are made by the floating gripper (the grasp-quality data): set robot: floating, "
+                              "or grasp_trials: 0 for labels made by the arm")
         object.__setattr__(self, "copies", tuple(self.copies))  # frozen: normalised once, here
         object.__setattr__(self, "distractors", tuple(self.distractors))
         if not 1 <= self.copies[0] <= self.copies[1] <= 16:
@@ -66,6 +71,9 @@ class GenerateConfig:
         from binpick.sim.sensor import load_sensor
 
         object.__setattr__(self, "_sensor", load_sensor(self.sensor))
+        if self.robot == "panda" and (self.domain_config.randomise or self.sensor_config.tilts_tote):
+            raise ConfigError("robot: panda works in binpick's own cell (the default domain, a level tote): the arm's "
+                              f"collision model does not follow domain {self.domain!r} or sensor {self.sensor!r}'s tote")
         if self.address not in (None, "local"):
             from binpick.cluster import check_ray_address
 
@@ -84,6 +92,8 @@ class GenerateConfig:
         data["copies"], data["distractors"] = list(self.copies), list(self.distractors)
         if not self.photo_views:  # data sets made before photo views resume as they were
             data.pop("photo_views")
+        if self.robot == "floating":  # data sets made before the arm resume as they were
+            data.pop("robot")
         data["domain_values"] = domain_dict(self.domain_config)  # so an edited domain file is noticed on resume
         if self.sensor_config.realistic:  # perfect depth adds nothing: data sets made before sensors resume as they were
             from binpick.sim.sensor import sensor_dict

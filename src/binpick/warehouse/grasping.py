@@ -5,7 +5,7 @@ a top-down grasp there, the carry to the order tote and the check of what happen
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from enum import StrEnum
 
 import mujoco
@@ -13,23 +13,9 @@ import numpy as np
 
 from binpick.sim.gripper import LIFT_SUCCESS, OPENING, TRIAL_TIMESTEP
 from binpick.sim.mjcf import FLOOR_TOP, CameraSpec
+from binpick.sim.order_tote import ORDER_HALF, ORDER_HEIGHT, ORDER_TOTE
 
-ORDER_TOTE = (0.0, 0.42)  # centre (x, y) of the customer's tote, beside the bin and out of the camera's view
-ORDER_HALF, ORDER_WALL, ORDER_HEIGHT = 0.09, 0.01, 0.08
 CARRY_HEIGHT = 0.42
-
-
-def order_tote_xml() -> str:
-    """The order tote (static geoms) and an overview camera that sees both totes, for the GIFs."""
-    x, y = ORDER_TOTE
-    h, t, z = ORDER_HALF, ORDER_WALL, ORDER_HEIGHT / 2
-    walls = [((x + h + t / 2, y), (t / 2, h + t)), ((x - h - t / 2, y), (t / 2, h + t)),
-             ((x, y + h + t / 2), (h, t / 2)), ((x, y - h - t / 2), (h, t / 2))]
-    geoms = [f'<geom name="order_floor" type="box" pos="{x} {y} 0.005" size="{h + t} {h + t} 0.005" rgba="0.85 0.55 0.2 1"/>']
-    geoms += [f'<geom name="order_wall{i}" type="box" pos="{px} {py} {z}" size="{sx} {sy} {z}" rgba="0.85 0.55 0.2 1"/>'
-              for i, ((px, py), (sx, sy)) in enumerate(walls)]
-    camera = '<camera name="overview" pos="0.9 0.21 1.0" xyaxes="0 1 0 -0.72 0 0.69" fovy="50"/>'
-    return "".join(geoms) + camera
 
 
 def pixel_to_world(u: float, v: float, depth: float, camera: CameraSpec) -> np.ndarray:
@@ -87,6 +73,11 @@ class PickOutcome:
     lifted_slot: int | None  # the instance that came up with the gripper, if any
     placed: bool  # it ended inside the order tote
     reason: Reason  # PLACED, MISSED, SLIPPED or DROPPED
+    motion_s: dict[str, float] = field(default_factory=dict)  # an arm's segments: simulated robot seconds each
+    planning_ms: float | None = None  # an arm's motion planning (IK and timing), wall milliseconds
+    collisions: list[list[str]] = field(default_factory=list)  # an arm's contacts with the table or totes: [arm part, fixed part, segment]
+    unreachable: str | None = None  # why the arm could not take the grasp (it then did not move)
+    grasp_error_mm: float | None = None  # an arm's gripper from the planned grasp when the fingers closed
 
 
 def fixed_tips(point: np.ndarray, depth_below_top: float) -> np.ndarray:
@@ -147,3 +138,95 @@ def execute_pick(world, tips: np.ndarray, yaw: float, on_frame: Callable[[], Non
         model.opt.timestep = settle_timestep
         gripper.teleport(data, (-3.0, 0.0, 0.5), 0.0)  # park out of view
         mujoco.mj_forward(model, data)
+
+
+def execute_arm_pick(world, planner, tips: np.ndarray, yaw: float, on_frame: Callable[[], None] | None = None,
+                     frame_every: float = 0.1) -> PickOutcome:
+    """The same pick by the arm in ``world`` (``world.arm``): every segment from its current posture
+    (home) to the order tote and back home, planned by ``planner`` (a :class:`binpick.arm.MotionPlanner`)
+    and executed by joint position targets at the simulator's step (the planner's ``period`` must be
+    the trial timestep: the robot seconds reported are its segments' durations). The lift is judged after the
+    lift segment (after a miss the arm opens and goes home); a product lower than the fingers by more
+    than the lift test's margin when the arm has lowered it over the order tote fell on the way. A
+    grasp the arm cannot reach is not executed (``unreachable`` says why)."""
+    from binpick.arm.controller import ArmController
+    from binpick.sim.panda import TIPS_BELOW
+
+    if abs(planner.period - TRIAL_TIMESTEP) > 1e-9:
+        raise ValueError(f"the arm's planner steps at {planner.period} s, the simulator at {TRIAL_TIMESTEP} s: make them equal")
+    model, data = world.model, world.data
+    settle_timestep = model.opt.timestep
+    model.opt.timestep = TRIAL_TIMESTEP
+    every = max(1, int(frame_every / TRIAL_TIMESTEP))
+    controller, steps = ArmController(world), [0]
+
+    def on_step() -> None:
+        steps[0] += 1
+        if on_frame is not None and steps[0] % every == 0:
+            on_frame()
+
+    def run(segments) -> None:
+        for segment in segments:
+            controller.run(segment, OPENING / 2 if segment.closed else 0.0, on_step=on_step)
+            outcome.motion_s[segment.name] = round(outcome.motion_s.get(segment.name, 0.0) + segment.duration, 3)
+
+    try:
+        heights = np.array([data.xpos[b][2] for b in world.body_ids])
+        motion = planner.pick(world.arm.joint_positions(data), np.asarray(tips, dtype=float) + [0.0, 0.0, TIPS_BELOW], yaw)
+        outcome = PickOutcome(None, False, Reason.MISSED, planning_ms=round(1000 * motion.planning_s, 1))
+        if not motion.reach.ok:
+            outcome.unreachable = motion.reach.reason
+            return outcome
+        names = [segment.name for segment in motion.segments]
+        closing, lifted = names.index("close"), names.index("lift") + 1
+        run(motion.segments[:closing])
+        planned, _ = planner.kinematics.gripper_pose(motion.segments[closing].q[-1])
+        outcome.grasp_error_mm = round(1000 * float(np.linalg.norm(data.xpos[world.arm.gripper_body] - planned)), 2)
+        run(motion.segments[closing:lifted])
+        rise = np.array([data.xpos[b][2] for b in world.body_ids]) - heights
+        slot = int(np.argmax(rise))
+        if rise[slot] < LIFT_SUCCESS:
+            outcome.reason = Reason.MISSED if rise.max() < 0.02 else Reason.SLIPPED
+            run(planner.back_home(world.arm.joint_positions(data)))
+        else:
+            lowered = names.index("lower") + 1
+            run(motion.segments[lifted:lowered])
+            fell = data.xpos[world.body_ids[slot]][2] < data.xpos[world.arm.gripper_body][2] - TIPS_BELOW - 0.15
+            run(motion.segments[lowered:])
+            x, y, z = data.xpos[world.body_ids[slot]]
+            inside = abs(x - ORDER_TOTE[0]) < ORDER_HALF and abs(y - ORDER_TOTE[1]) < ORDER_HALF and z < ORDER_HEIGHT + 0.1
+            outcome.lifted_slot, outcome.placed = slot, bool(inside and not fell)
+            outcome.reason = Reason.SLIPPED if fell else Reason.PLACED if inside else Reason.DROPPED
+        outcome.collisions = [list(pair) for pair in controller.collisions]
+        return outcome
+    finally:
+        model.opt.timestep = settle_timestep
+
+
+def arm_lift_test(world, planner, slot: int, tips, yaw: float) -> bool:
+    """A label grasp made by the arm (``data generate`` with ``robot: panda``): from home to the grasp,
+    close, lift, and carry to above the order tote, as the pipeline's picks go; True if instance
+    ``slot`` rose by LIFT_SUCCESS and is still in the jaws there. A grasp the arm cannot reach is no."""
+    from binpick.arm.controller import ArmController
+    from binpick.sim.panda import TIPS_BELOW
+
+    model, data = world.model, world.data
+    settle_timestep = model.opt.timestep
+    model.opt.timestep = TRIAL_TIMESTEP
+    try:
+        body = world.body_ids[slot]
+        start = float(data.xpos[body][2])
+        motion = planner.pick(world.arm.joint_positions(data), np.asarray(tips, dtype=float) + [0.0, 0.0, TIPS_BELOW], yaw)
+        if not motion.reach.ok:
+            return False
+        controller = ArmController(world)
+        for segment in motion.segments:
+            if segment.name == "lower":  # carried to above the order tote: judged there
+                break
+            controller.run(segment, OPENING / 2 if segment.closed else 0.0)
+            if segment.name == "lift" and data.xpos[body][2] - start < LIFT_SUCCESS:
+                return False
+        held = data.xpos[world.arm.gripper_body][2] - data.xpos[body][2] < 0.15  # still hanging in the jaws
+        return bool(np.isfinite(data.xpos[body][2]) and data.xpos[body][2] - start >= LIFT_SUCCESS and held)
+    finally:
+        model.opt.timestep = settle_timestep

@@ -32,9 +32,12 @@ from binpick.depth import as_camera_depth
 from binpick.picking import GraspPlan, Picker, Plans
 from binpick.picking.picker import jaw_pixels
 from binpick.detection.photos import photo_mask
-from binpick.warehouse.grasping import Reason, execute_pick, fixed_tips, grasp_point, half_height, order_tote_xml
+from binpick.sim.order_tote import order_tote_xml
+from binpick.sim.gripper import TRIAL_TIMESTEP
+from binpick.warehouse.grasping import Reason, execute_arm_pick, execute_pick, fixed_tips, grasp_point, half_height
 
 GIF_SIZE = 240
+ROBOTS = ("floating", "panda")  # what executes the picks: the floating gripper, or the Panda arm (binpick.arm)
 
 
 @dataclass
@@ -49,6 +52,10 @@ class Attempt:
     width: float | None = None  # the instance's width across the jaws (m)
     quality: float | None = None  # the grasp policy's score of the chosen candidate
     rejected: dict[str, int] = field(default_factory=dict)  # other candidates: reason -> count
+    motion_s: dict[str, float] = field(default_factory=dict)  # the arm's segments, simulated robot seconds (empty: floating gripper)
+    planning_ms: float | None = None  # the arm's motion planning (IK and timing)
+    collisions: list[list[str]] = field(default_factory=list)  # the arm touching the table or a tote: [arm part, fixed part, segment]
+    grasp_error_mm: float | None = None  # the arm's gripper from the planned grasp when the fingers closed
 
 
 @dataclass
@@ -66,6 +73,12 @@ class OrderResult:
     overlay: str | None = None
     depth: str | None = None  # the depth picture beside the overlay
     timing_ms: dict[str, float] = field(default_factory=dict)  # the planner's stages (depth, detect, check, grasp) and the simulator's
+    robot: str = "floating"  # what executed the picks: the floating gripper or an arm
+
+    @property
+    def robot_seconds(self) -> float:
+        """The arm's motion time over the order's grasps (simulated robot seconds; 0 for the floating gripper)."""
+        return round(sum(sum(a.motion_s.values()) for a in self.attempts), 3)
 
     @property
     def grasps(self) -> int:
@@ -104,14 +117,28 @@ class PickPipeline:
                  score_threshold: float | None = None, camera: CameraSpec = CameraSpec(size=416),
                  verifier="learnt", check: float | None = None, oracle: bool = False, rank_from: float | None = 0.01,
                  domain=None, size_check: bool = True, sensor=None, photos: str = "catalogue",
-                 copies_from_match: float | None = None) -> None:
+                 copies_from_match: float | None = None, robot: str = "floating") -> None:
         if detector.spec.query != "photo":
             raise ConfigError("the pick pipeline conditions on shop photos: give a detector trained with query: photo")
         planner = grasp if isinstance(grasp, GraspPlanner) else GraspPlanner.load(grasp)
         if photos not in ("catalogue", "canonical"):
             raise ConfigError(f"photos must be catalogue or canonical, got {photos!r}")
+        if robot not in ROBOTS:
+            from binpick.core.config import did_you_mean
+
+            raise ConfigError(f"unknown robot {robot!r}{did_you_mean(robot, ROBOTS)}; choose from {', '.join(ROBOTS)}")
+        if robot == "panda" and ((domain is not None and domain.randomise) or (sensor is not None and sensor.tilts_tote)):
+            raise ConfigError("the Panda works in binpick's own cell (the default domain, a level tote): its collision "
+                              "model does not follow a randomised domain or a tilted tote")
+        self.robot = robot
+        self.motion = None  # the arm's motion planner (binpick.arm.MotionPlanner); None: the floating gripper
+        if robot == "panda":
+            from binpick.arm import MotionPlanner
+
+            self.motion = MotionPlanner(period=TRIAL_TIMESTEP)
         self.picker = Picker(detector, planner, score_threshold=score_threshold, verifier=None if oracle else verifier,
-                             check=check, rank_from=rank_from, max_grasps=max_attempts, copies_from_match=copies_from_match)
+                             check=check, rank_from=rank_from, max_grasps=max_attempts, copies_from_match=copies_from_match,
+                             reach=self.motion.reach_check if self.motion is not None else None)
         self.photo_set = photos
         self.detector, self.library, self.grasp = detector, library, planner
         self.copies, self.distractors, self.max_attempts = copies, distractors, max_attempts
@@ -160,8 +187,13 @@ class PickPipeline:
         target = self.library[product_id]
         others = [p for p in sorted(self.library.products) if p != product_id]
         chosen = [self.library[others[i]] for i in rng.choice(len(others), size=self.distractors[1], replace=False)]
+        robot = None
+        if self.robot == "panda":
+            from binpick.sim.panda import PandaArm
+
+            robot = PandaArm()
         world = BinWorld(target, chosen, max_copies=self.copies[1], camera=self.camera, extra_worldbody=order_tote_xml(),
-                         gripper=True, seed=seed, domain=self.domain, sensor=self.sensor)
+                         gripper=robot is None, seed=seed, domain=self.domain, sensor=self.sensor, robot=robot)
         return world, rng
 
     def settle(self, world: BinWorld, rng: np.random.Generator, seed: int) -> Scene:
@@ -193,7 +225,8 @@ class PickPipeline:
             plans = self.plan(scene, product_id)
             trained = self.detector.trained_products
             result = OrderResult(order, product_id, seed, False, Reason.NO_DETECTION,
-                                 seen=None if trained is None else product_id in trained, detections=plans.detections)
+                                 seen=None if trained is None else product_id in trained, detections=plans.detections,
+                                 robot=self.robot)
             if plans.detections and not plans:
                 result.reason = Reason.NOT_THE_PRODUCT
             tick = time.perf_counter()
@@ -242,7 +275,16 @@ class PickPipeline:
             attempt = result.grasps + 1
             if on_caption is not None:
                 on_caption(f"attempt {attempt}")
-            outcome = execute_pick(world, tips, plan.yaw, on_frame=on_frame)
+            if self.motion is not None:
+                outcome = execute_arm_pick(world, self.motion, tips, plan.yaw, on_frame=on_frame)
+                if outcome.unreachable:  # the picker checked the reach; the lift, carry or way home may still fail
+                    rejected = {**plan.rejected, outcome.unreachable: plan.rejected.get(outcome.unreachable, 0) + 1}
+                    result.attempts.append(Attempt(plan.box, plan.score, plan.same_product, [], Reason.NO_GRASP, None,
+                                                   rejected=rejected))
+                    result.reason = Reason.NO_GRASP
+                    continue
+            else:
+                outcome = execute_pick(world, tips, plan.yaw, on_frame=on_frame)
             lifted = world.slots[outcome.lifted_slot].id if outcome.lifted_slot is not None else None
             if on_caption is not None:
                 wrong = " (the wrong product)" if lifted not in (None, result.product) and outcome.placed else ""
@@ -250,7 +292,8 @@ class PickPipeline:
                 if on_frame is not None:
                     on_frame()
             result.attempts.append(Attempt(plan.box, plan.score, plan.same_product, np.round(tips, 4).tolist(),
-                                           outcome.reason, lifted, plan.yaw, plan.width, plan.quality, plan.rejected))
+                                           outcome.reason, lifted, plan.yaw, plan.width, plan.quality, plan.rejected,
+                                           outcome.motion_s, outcome.planning_ms, outcome.collisions, outcome.grasp_error_mm))
             if outcome.placed and lifted == result.product:
                 result.success, result.reason = True, Reason.PLACED
                 return
@@ -387,13 +430,50 @@ def summarise(results: list[OrderResult], wall_seconds: float) -> dict[str, Any]
         placed[r.product][0] += int(r.success)
         placed[r.product][1] += 1
     by_product = {product: f"{done}/{total}" for product, (done, total) in sorted(placed.items())}
-    return {"orders": len(results), "pick_success": round(sum(r.success for r in results) / max(1, len(results)), 4),
+    summary = {"orders": len(results), "pick_success": round(sum(r.success for r in results) / max(1, len(results)), 4),
             "right_product": round(sum(lifted) / len(lifted), 4) if lifted else None, "lifts": len(lifted),
             "picks_per_min": round(60 * sum(r.success for r in results) / max(wall_seconds, 1e-9), 2),
             "orders_per_min": round(60 * len(results) / max(wall_seconds, 1e-9), 2),
             "attempts_per_order": round(float(np.mean([r.grasps for r in results])), 2) if results else 0.0,
             "reasons": reasons, "by_product": by_product, "wall_s": round(wall_seconds, 1)}
+    arm = arm_summary(results)
+    return summary | ({"arm": arm} if arm else {})
+
+
+def arm_summary(results: list[OrderResult]) -> dict[str, Any] | None:
+    """An arm's figures over the orders (None for the floating gripper): cycle time per placed pick
+    (simulated robot seconds, every segment from home back to home; ``_all``: every executed grasp,
+    misses, which go home from the lift, included), picks per hour of robot time
+    (placed orders over all motion, failed grasps included), the same with the planner's wall time
+    added (perception and motion planning on this machine, the arm waiting), contacts with the table
+    or totes, and the grasps dropped because the arm could not take them."""
+    picks = [a for r in results for a in r.attempts if a.motion_s]
+    if not picks:
+        return None
+    from binpick.arm import REACH_REASONS
+
+    cycles = [sum(a.motion_s.values()) for a in picks]
+    placed_cycles = [sum(a.motion_s.values()) for a in picks if a.outcome is Reason.PLACED]
+    errors = [a.grasp_error_mm for a in picks if a.grasp_error_mm is not None]
+    robot_seconds = float(sum(cycles))
+    placed = sum(r.success for r in results)
+    thinking = sum(sum(v for k, v in r.timing_ms.items() if k == "total") / 1000 + sum((a.planning_ms or 0) for a in r.attempts) / 1000
+                   for r in results)
+    segments = sorted({name for a in picks for name in a.motion_s})
+    dropped = {reason: sum(a.rejected.get(reason, 0) for r in results for a in r.attempts) for reason in REACH_REASONS}
+    per_100 = 100 / max(1, len(results))
+    return {"picks": len(picks), "cycle_s_median": round(float(np.median(placed_cycles)), 3) if placed_cycles else None,
+            "cycle_s_median_all": round(float(np.median(cycles)), 3), "cycle_s_mean_all": round(float(np.mean(cycles)), 3),
+            "robot_seconds": round(robot_seconds, 2), "picks_per_hour": round(3600 * placed / robot_seconds, 1),
+            "picks_per_hour_with_planning": round(3600 * placed / (robot_seconds + thinking), 1),
+            "segment_s_median": {name: round(float(np.median([a.motion_s[name] for a in picks if name in a.motion_s])), 3) for name in segments},
+            "planning_ms_median": round(float(np.median([a.planning_ms for a in picks if a.planning_ms is not None])), 1),
+            "grasp_error_mm_median": round(float(np.median(errors)), 2) if errors else None,
+            "grasp_error_mm_max": round(float(np.max(errors)), 2) if errors else None,
+            "collisions": sum(len(a.collisions) for a in picks), "picks_with_collisions": sum(bool(a.collisions) for a in picks),
+            "dropped_for_reach": dropped, "dropped_for_reach_per_100_orders": round(sum(dropped.values()) * per_100, 1),
+            "ik_failures_per_100_orders": round(dropped["no IK solution"] * per_100, 1)}
 
 
 def results_json(results: list[OrderResult]) -> list[dict[str, Any]]:
-    return [asdict(r) for r in results]
+    return [asdict(r) | ({"robot_seconds": r.robot_seconds} if r.robot != "floating" else {}) for r in results]

@@ -26,9 +26,36 @@ def check_policies(names: list[str]) -> None:
                           f"choose from {', '.join(policy_names())}")
 
 
-def make_policies(names: list[str]) -> list:
+def make_policies(names: list[str], robot: str = "floating") -> list:
+    """The labelling policies; with ``robot="panda"`` each policy's grasp is made by the arm."""
     check_policies(names)
-    return [PlannedGrasp(n) if n in PLANNED else SCRIPTED[n]() for n in names]
+    policies = [PlannedGrasp(n) if n in PLANNED else SCRIPTED[n]() for n in names]
+    if robot == "floating" or not policies:
+        return policies
+    from binpick.arm import MotionPlanner
+    from binpick.sim.gripper import TRIAL_TIMESTEP
+
+    motion = MotionPlanner(period=TRIAL_TIMESTEP)  # one cell model for all the policies
+    return [ArmGrasp(policy, motion) for policy in policies]
+
+
+class ArmGrasp:
+    """A labelling policy's grasp made by the arm: the policy chooses where (``grasp``), the arm goes
+    there from home, descends, closes, lifts and carries (:func:`binpick.warehouse.grasping.arm_lift_test`).
+    A grasp the arm cannot reach is not pickable by it."""
+
+    def __init__(self, policy, motion) -> None:
+        self.policy, self.motion, self.name = policy, motion, policy.name
+
+    def prepare(self, scene) -> None:
+        if hasattr(self.policy, "prepare"):
+            self.policy.prepare(scene)
+
+    def attempt(self, world, slot: int, offset: tuple[float, float] = (0.0, 0.0)) -> bool:
+        from binpick.warehouse.grasping import arm_lift_test
+
+        grasp = self.policy.grasp(world, slot, offset)
+        return grasp is not None and arm_lift_test(world, self.motion, slot, grasp[0], grasp[1])
 
 
 class PlannedGrasp:
@@ -44,15 +71,23 @@ class PlannedGrasp:
         frame = self.planner.frame(scene.depth, PinholeCamera.from_record(scene.camera))
         self._scene = (frame, {i.slot: i.bbox for i in scene.instances})
 
-    def attempt(self, world, slot: int, offset: tuple[float, float] = (0.0, 0.0)) -> bool:
-        from binpick.sim.gripper import lift_test, trial_timestep
-
+    def grasp(self, world, slot: int, offset: tuple[float, float] = (0.0, 0.0)):
+        """(fingertips' midpoint, jaw yaw, the instance's top) of the planner's grasp from depth, or
+        None when nothing is feasible (the pipeline would not try it either)."""
         if self._scene is None:
             raise RuntimeError("PlannedGrasp.prepare(scene) comes before attempt()")
         frame, boxes = self._scene
         chosen = self.planner.choose(frame, boxes[slot]).chosen
         if chosen is None:
-            return False  # nothing feasible: the pipeline would not try it either
+            return None
+        x, y, z = chosen.position
+        return (float(x + offset[0]), float(y + offset[1]), float(z)), float(chosen.yaw), float(chosen.top)
+
+    def attempt(self, world, slot: int, offset: tuple[float, float] = (0.0, 0.0)) -> bool:
+        from binpick.sim.gripper import lift_test, trial_timestep
+
+        grasp = self.grasp(world, slot, offset)
+        if grasp is None:
+            return False
         with trial_timestep(world.model):
-            x, y, z = chosen.position
-            return lift_test(world, slot, (x + offset[0], y + offset[1], z), chosen.yaw, chosen.top, carry=True)
+            return lift_test(world, slot, *grasp, carry=True)

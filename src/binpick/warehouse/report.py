@@ -33,6 +33,23 @@ def grasp_line(number: int, attempt: dict[str, Any]) -> str:
             f"<b>{html.escape(attempt['outcome'])}</b>" + (f" (not taken: {rejected})" if rejected else ""))
 
 
+def arm_lines(order: dict[str, Any]) -> str:
+    """An arm's motion per grasp: seconds per segment (simulated robot time), the cycle, planning time
+    and any contact with the table or a tote."""
+    lines, number = [], 0
+    for attempt in order["attempts"]:
+        number += attempt["outcome"] != "no feasible grasp"  # numbered as in the order's picture
+        if not attempt.get("motion_s"):
+            continue
+        segments = " · ".join(f"{html.escape(name)} {seconds:.2f}" for name, seconds in attempt["motion_s"].items())
+        touched = ", ".join(f"{html.escape(a)} touched {html.escape(b)} ({html.escape(segment)})"
+                            for a, b, segment in attempt.get("collisions") or [])
+        lines.append(f"arm, grasp {number}: cycle <b>{sum(attempt['motion_s'].values()):.2f} s</b> of robot time ({segments} s); "
+                     f"motion planning {attempt.get('planning_ms') or 0:.0f} ms; gripper {attempt.get('grasp_error_mm') or 0:.1f} mm "
+                     "from the planned grasp when it closed" + (f"; <b style='color:#cf222e'>{touched}</b>" if touched else ""))
+    return "<br>".join(lines)
+
+
 COLUMNS = ("order", "product", "trained", "result", "grasps", "detections", "seconds")  # as the terminal's table
 STYLE = """body{font-family:sans-serif;margin:1.5em auto;max-width:1800px;padding:0 1em;line-height:1.4}
 table.facts{border-collapse:collapse;margin:.4em 0} .facts td,.facts th{padding:3px 10px;border-bottom:1px solid #ddd;text-align:left}
@@ -55,12 +72,25 @@ def order_section(order: dict[str, Any]) -> str:
                       f"<figcaption>{captions[key]} (click: full size)</figcaption></figure>"
                       for key in ("overlay", "depth", "gif") if order.get(key))
     times = " · ".join(f"{html.escape(stage)} {ms:,.0f} ms" for stage, ms in (order.get("timing_ms") or {}).items())
+    motion = arm_lines(order)
     lines = "<br>".join(grasp_lines(order["attempts"])) or "no grasp tried"
     return (f"<section class='order' id='order-{order['order']}'><table class='facts'><tr>{''.join(f'<th>{c}</th>' for c in COLUMNS)}</tr>"
             f"<tr>{''.join(f'<td>{c}</td>' for c in cells)}</tr></table>"
             f"<div class='pictures'>{figures}</div>"
             + (f"<p class='times'>time per stage: {times}</p>" if times else "")
+            + (f"<p class='times'>{motion}</p>" if motion else "")
             + f"<p class='grasps'>grasps tried (numbered as in the colour picture):<br>{lines}</p></section>")
+
+
+def arm_summary_line(arm: dict[str, Any] | None) -> str:
+    if not arm:
+        return ""
+    dropped = sum(arm["dropped_for_reach"].values())
+    cycle = "—" if arm["cycle_s_median"] is None else f"{arm['cycle_s_median']:.2f} s"
+    return (f"<p>Panda arm: median cycle <b>{cycle}</b> per placed pick (simulated robot time, home to home; "
+            f"{arm['cycle_s_median_all']:.2f} s over every grasp) · "
+            f"<b>{arm['picks_per_hour']:.0f}</b> picks per hour of robot time ({arm['picks_per_hour_with_planning']:.0f} with this "
+            f"machine's perception and planning) · {arm['collisions']} collision(s) · {dropped} grasp(s) dropped for the arm's reach</p>")
 
 
 def write_report(folder: Path, summary: dict[str, Any], orders: list[dict[str, Any]], title: str = "binpick orders") -> Path:
@@ -68,7 +98,7 @@ def write_report(folder: Path, summary: dict[str, Any], orders: list[dict[str, A
     page = f"""<!doctype html><html><head><meta charset="utf-8"><meta name="viewport" content="width=device-width, initial-scale=1">
 <title>{html.escape(title)}</title><style>{STYLE}</style></head><body><h1>{html.escape(title)}</h1>
 <p>Pick success <b>{summary['pick_success']:.0%}</b> · right product <b>{right}</b> · {summary['picks_per_min']} picks/min ·
-{summary['orders']} orders in {summary['wall_s']} s</p>
+{summary['orders']} orders in {summary['wall_s']} s</p>{arm_summary_line(summary.get("arm"))}
 <p>Each order: a new bin; the shop photo (top right of the colour picture) conditions the detector, whose detections are
 drawn in orange with the <b>detector score</b>; the grasp policy scores each detection's candidates (the <b>grasp
 quality</b>) and the jaws drawn across a product are the grasps tried. Beside it, the depth the grasp planner used, and the

@@ -1,0 +1,218 @@
+"""A Franka Emika Panda on a pedestal beside the bin, carrying binpick's parallel-jaw gripper.
+
+The arm is robosuite's Panda model (meshes and kinematics; robosuite ships it, MIT licence; the package
+is never imported, only its files are read). Its torque motors are replaced by joint position
+actuators, so the arm is driven the way a Panda's joint impedance controller is: a joint target per
+control step. Gravity is compensated on the links, as the real controller does. The gripper is the
+floating gripper's own (same palm, fingers and 11 cm opening: the grasp planner's gripper model holds
+for both), on a 10 cm tool shaft so the wrist stays above the tote walls when the fingertips reach
+the floor.
+
+:data:`PANDA_LIMITS` are the Panda's published joint limits (Franka Control Interface documentation,
+"Robot and interface specifications", Panda): position ranges as in the model, velocity, acceleration
+and jerk per joint.
+
+The same arm goes into two models: the bin world (:class:`binpick.sim.bin_scene.BinWorld` with
+``robot=PandaArm()``), where it moves products, and the robot cell
+(:func:`robot_cell_spec`: arm, table, bin and order tote, no products), the kinematic model inverse
+kinematics and collision checks run on.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+
+from binpick.core.errors import ConfigError
+from binpick.sim.gripper import OPENING
+from binpick.sim.mjcf import tote
+from binpick.sim.order_tote import order_tote_xml
+from binpick.sim.products import package_dir
+
+JOINTS = tuple(f"joint{i}" for i in range(1, 8))
+
+
+@dataclass(frozen=True)
+class JointLimits:
+    """Per-joint limits of an arm (radians, rad/s, rad/s², rad/s³) and where they come from."""
+
+    lower: tuple[float, ...]
+    upper: tuple[float, ...]
+    velocity: tuple[float, ...]
+    acceleration: tuple[float, ...]
+    jerk: tuple[float, ...]
+    source: str
+
+
+PANDA_LIMITS = JointLimits(
+    lower=(-2.8973, -1.7628, -2.8973, -3.0718, -2.8973, -0.0175, -2.8973),
+    upper=(2.8973, 1.7628, 2.8973, -0.0698, 2.8973, 3.7525, 2.8973),
+    velocity=(2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61),
+    acceleration=(15.0, 7.5, 10.0, 12.5, 15.0, 20.0, 20.0),
+    jerk=(7500.0, 3750.0, 5000.0, 6250.0, 7500.0, 10000.0, 10000.0),
+    source="Franka Control Interface documentation, Robot and interface specifications (Panda): "
+           "joint position, velocity, acceleration and jerk limits",
+)
+
+# where the arm stands: its base beside the bin (x < 0, out of the overhead camera's view), between
+# the bin (centre 0, 0) and the order tote (0, 0.42), facing +x
+MOUNT = (-0.52, 0.18, 0.0)
+# a posture out of the overhead camera's view, the hand above the arm's own base
+HOME = (0.0, -1.12, 0.0, -2.13, 0.0, 1.01, 0.785)
+TOOL_SHAFT = 0.10  # from the hand flange to the gripper's palm (m)
+PALM_TOP = 0.062  # the palm's top above the fingers' centre, the gripper body's origin (binpick.sim.gripper)
+TOOL_LENGTH = TOOL_SHAFT + PALM_TOP  # flange to the fingers' centre
+TIPS_BELOW = 0.04  # fingertips below the fingers' centre
+# joint position (N m / rad) and velocity (N m s / rad) gains: at a sixth of these the fingertips overshot
+# the end of a descent by 6 mm and scraped the bin floor; at these, by under 2 mm (stable at the 4 ms step)
+KP = (27000.0, 27000.0, 21000.0, 21000.0, 12000.0, 12000.0, 6000.0)
+KV = (750.0, 750.0, 500.0, 500.0, 250.0, 250.0, 125.0)
+
+
+def panda_assets() -> str:
+    root = package_dir("robosuite")
+    path = root / "models" / "assets" / "robots" / "panda" / "robot.xml" if root else None
+    if path is None or not path.is_file():
+        raise ConfigError("the Panda arm needs robosuite's model files: pip install --no-deps robosuite==1.5.2 "
+                          "(make setup installs it)")
+    return str(path)
+
+
+def gripper_xml() -> str:
+    """binpick's gripper as a body of the arm's hand (no free joint, no mocap weld): palm, two
+    position-controlled fingers, and the tool shaft up to the flange. Same names as the floating one."""
+    half = OPENING / 2
+    finger = ('type="box" size="0.006 0.014 0.04" pos="0 0 0" rgba="0.6 0.6 0.62 1" mass="0.04" friction="2 0.02 0.001" '
+              'condim="6" priority="1" solref="0.004 1" solimp="0.95 0.99 0.001"')
+    shaft_z = PALM_TOP + TOOL_SHAFT / 2
+    return f"""<mujoco><worldbody>
+<body name="gripper">
+  <site name="tool" pos="0 0 0" size="0.005" rgba="1 0 0 0"/>
+  <geom name="palm" type="box" size="{half + 0.012} 0.014 0.012" pos="0 0 0.05" rgba="0.25 0.25 0.28 1" mass="0.4"/>
+  <geom name="shaft" type="cylinder" size="0.022 {TOOL_SHAFT / 2}" pos="0 0 {shaft_z}" rgba="0.3 0.3 0.32 1" mass="0.2"/>
+  <body name="finger_a" pos="{half + 0.006} 0 0">
+    <joint name="finger_a" type="slide" axis="-1 0 0" range="0 {half}" damping="2"/>
+    <geom name="finger_a" {finger}/>
+  </body>
+  <body name="finger_b" pos="{-half - 0.006} 0 0">
+    <joint name="finger_b" type="slide" axis="1 0 0" range="0 {half}" damping="2"/>
+    <geom name="finger_b" {finger}/>
+  </body>
+</body></worldbody>
+<actuator>
+  <position name="finger_a" joint="finger_a" kp="200" ctrlrange="0 {half}" forcerange="-12 12"/>
+  <position name="finger_b" joint="finger_b" kp="200" ctrlrange="0 {half}" forcerange="-12 12"/>
+</actuator></mujoco>"""
+
+
+def arm_spec(limits: JointLimits = PANDA_LIMITS) -> mujoco.MjSpec:
+    """The Panda with binpick's gripper: position actuators on its joints, gravity compensated."""
+    arm = mujoco.MjSpec.from_file(panda_assets())
+    for actuator in list(arm.actuators):
+        arm.delete(actuator)
+    # the collision meshes are drawn too: the visual ones (170 files) cost 2.5x the rendering time of a frame
+    for geom in list(arm.geoms):
+        if geom.contype == 0 and geom.conaffinity == 0:
+            arm.delete(geom)
+        else:
+            geom.rgba = [0.25, 0.25, 0.27, 1] if geom.name in ("link0_collision", "link7_collision") else [0.92, 0.92, 0.93, 1]
+    for asset in [*arm.meshes, *arm.materials]:
+        if asset.name.endswith(tuple(f"_{i}" for i in range(20))) or asset.name.endswith("_vis") or not asset.name.startswith("link"):
+            arm.delete(asset)
+    for body in arm.bodies:
+        if body.name.startswith("link") or body.name == "right_hand":
+            body.gravcomp = 1.0
+    for index, name in enumerate(JOINTS):
+        joint = arm.joint(name)
+        joint.armature = 0.1
+        actuator = arm.add_actuator(name=f"arm_{name}", target=name, trntype=mujoco.mjtTrn.mjTRN_JOINT)
+        actuator.set_to_position(kp=KP[index])
+        actuator.ctrlrange = [limits.lower[index], limits.upper[index]]
+        actuator.ctrllimited = True
+        # the velocity loop (damping on the error to the trajectory's velocity), as in a joint impedance controller
+        damper = arm.add_actuator(name=f"arm_{name}_velocity", target=name, trntype=mujoco.mjtTrn.mjTRN_JOINT)
+        damper.set_to_velocity(kv=KV[index])
+        damper.ctrlrange = [-limits.velocity[index], limits.velocity[index]]
+        damper.ctrllimited = True
+    for camera in list(arm.cameras):
+        arm.delete(camera)
+    site = arm.body("right_hand").add_site(name="flange", pos=[0, 0, TOOL_LENGTH], quat=[0, 1, 0, 0])
+    arm.attach(mujoco.MjSpec.from_string(gripper_xml()), prefix="", site=site)
+    return arm
+
+
+@dataclass
+class PandaArm:
+    """The Panda in a scene: ``attach(spec)`` puts it in before compiling; ``bind(model)`` finds its
+    joints and actuators; ``hold(data)`` sets it to its home posture, at rest."""
+
+    mount: tuple[float, float, float] = MOUNT
+    home: tuple[float, ...] = HOME
+    limits: JointLimits = PANDA_LIMITS
+    name: str = "panda"
+    qpos: np.ndarray = field(default_factory=lambda: np.zeros(0, int), repr=False)
+    dof: np.ndarray = field(default_factory=lambda: np.zeros(0, int), repr=False)
+    actuators: np.ndarray = field(default_factory=lambda: np.zeros(0, int), repr=False)
+    fingers: list[int] = field(default_factory=list, repr=False)
+    geoms: np.ndarray = field(default_factory=lambda: np.zeros(0, int), repr=False)
+
+    def attach(self, spec: mujoco.MjSpec) -> None:
+        frame = spec.worldbody.add_frame(pos=list(self.mount))
+        spec.attach(arm_spec(self.limits), prefix="", frame=frame)
+        spec.worldbody.add_geom(name="pedestal", type=mujoco.mjtGeom.mjGEOM_CYLINDER, size=[0.12, 0.005, 0],
+                                pos=[self.mount[0], self.mount[1], 0.005], rgba=[0.3, 0.3, 0.33, 1], contype=0, conaffinity=0)
+        overview = next((c for c in spec.cameras if c.name == "overview"), None)
+        if overview is not None:  # the pick GIFs' camera steps back to take in the arm too
+            overview.pos = [0.97, 0.2, 1.5]
+            overview.fovy = 52.0
+
+    def bind(self, model: mujoco.MjModel) -> PandaArm:
+        joints = [model.joint(name).id for name in JOINTS]
+        self.qpos = np.array([model.jnt_qposadr[j] for j in joints])
+        self.dof = np.array([model.jnt_dofadr[j] for j in joints])
+        self.actuators = np.array([model.actuator(f"arm_{name}").id for name in JOINTS])
+        self.velocity_actuators = np.array([model.actuator(f"arm_{name}_velocity").id for name in JOINTS])
+        self.fingers = [model.actuator("finger_a").id, model.actuator("finger_b").id]
+        self.finger_qpos = np.array([model.jnt_qposadr[model.joint(n).id] for n in ("finger_a", "finger_b")])
+        self.gripper_body = model.body("gripper").id
+        self.tool_site = model.site("tool").id
+        base = model.body("base").id
+        robot_bodies = {b for b in range(model.nbody) if _descends(model, b, base)}
+        self.geoms = np.array([g for g in range(model.ngeom) if model.geom_bodyid[g] in robot_bodies
+                               and (model.geom_contype[g] or model.geom_conaffinity[g])])
+        return self
+
+    def hold(self, model: mujoco.MjModel, data: mujoco.MjData, q=None) -> None:
+        q = np.asarray(self.home if q is None else q, dtype=float)
+        data.qpos[self.qpos] = q
+        data.qvel[self.dof] = 0.0
+        data.ctrl[self.actuators] = q
+        data.ctrl[self.velocity_actuators] = 0.0
+        data.qpos[self.finger_qpos] = 0.0
+        data.ctrl[self.fingers] = 0.0
+
+    def joint_positions(self, data: mujoco.MjData) -> np.ndarray:
+        return data.qpos[self.qpos].copy()
+
+
+def _descends(model: mujoco.MjModel, body: int, ancestor: int) -> bool:
+    while body > 0:
+        if body == ancestor:
+            return True
+        body = model.body_parentid[body]
+    return False
+
+
+def robot_cell_spec(arm: PandaArm | None = None, tote_tilt: tuple[float, float] = (0.0, 0.0)) -> mujoco.MjSpec:
+    """The arm and what it must not hit (table, bin, order tote), no products: the model inverse
+    kinematics and collision checks run on."""
+    xml = f"""<mujoco model="robot_cell"><compiler angle="radian" autolimits="true"/>
+  <asset><material name="bin" rgba="0.2 0.35 0.6 1"/></asset>
+  <worldbody><geom name="table" type="box" pos="0 0 -0.01" size="1.5 1.5 0.01"/>
+  {tote(tilt=tote_tilt).replace('name="bin_guard', 'contype="0" conaffinity="0" name="bin_guard')}
+  {order_tote_xml(camera=False)}</worldbody></mujoco>"""
+    spec = mujoco.MjSpec.from_string(xml)
+    (arm or PandaArm()).attach(spec)
+    return spec

@@ -1,0 +1,204 @@
+"""The Panda arm that executes picks: Ruckig's timing within the joint limits, mink's IK in the cell,
+reachability in the plan, an order picked by the arm, and a label grasp made by it."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from binpick.arm import MotionPlanner
+from binpick.arm.motion import ABOVE_WALLS, COLLIDES, NO_IK
+from binpick.arm.trajectory import joint_move, path_move
+from binpick.sim.panda import HOME, PANDA_LIMITS
+
+PERIOD = 0.004
+
+
+@pytest.fixture(scope="module")
+def planner() -> MotionPlanner:
+    return MotionPlanner(period=PERIOD)
+
+
+def within_limits(q: np.ndarray, start) -> None:
+    """Finite differences of the sampled targets stay within the Panda's velocity and acceleration limits."""
+    q = np.vstack([start, q])
+    velocity = np.diff(q, axis=0) / PERIOD
+    acceleration = np.diff(velocity, axis=0) / PERIOD
+    assert np.all(np.abs(velocity) <= np.array(PANDA_LIMITS.velocity) * 1.01 + 1e-6)
+    assert np.all(np.abs(acceleration) <= np.array(PANDA_LIMITS.acceleration) * 1.05 + 1e-3)
+
+
+def test_a_free_move_ends_where_asked_at_rest_and_never_exceeds_the_panda_limits():
+    start, end = np.array(HOME), np.array(HOME) + [1.2, 0.5, -0.4, 0.6, 1.0, -0.5, 2.0]
+    segment = joint_move("approach", start, end, PANDA_LIMITS, PERIOD)
+    assert np.allclose(segment.q[-1], end, atol=1e-9) and np.allclose(segment.qd[-1], 0.0, atol=1e-9)
+    within_limits(segment.q, start)
+    # joint 7 moves 2 rad: at 2.61 rad/s it cannot take less than 2 / 2.61 s
+    assert segment.duration >= 2.0 / PANDA_LIMITS.velocity[6]
+    slower = joint_move("approach", start, start + (end - start) * 2, PANDA_LIMITS, PERIOD)
+    assert slower.duration > segment.duration
+
+
+def test_the_arm_refuses_worlds_its_cell_does_not_model():
+    from binpick.core.errors import ConfigError
+    from binpick.detection.model import DetectorNetwork, ModelSpec
+    from binpick.sim import default_library
+    from binpick.sim.sensor import load_sensor
+    from binpick.warehouse.generation import GenerateConfig
+    from binpick.warehouse.pipeline import PickPipeline
+
+    with pytest.raises(ConfigError, match="level tote"):
+        PickPipeline(DetectorNetwork(ModelSpec(query="photo"), 64), default_library(procedural=0, shapes=0), grasp="analytic",
+                     robot="panda", sensor=load_sensor("realistic"))
+    with pytest.raises(ConfigError, match="grasp_trials"):
+        GenerateConfig(out="x", robot="panda", grasp_trials=2)
+    with pytest.raises(ConfigError, match="robot"):
+        GenerateConfig(out="x", robot="ur10")
+
+
+def test_a_path_move_follows_the_path_in_order_within_the_limits():
+    path = np.linspace(HOME, np.array(HOME) + [0.0, 0.3, 0.0, 0.4, 0.0, -0.2, 0.0], 9)
+    segment = path_move("descend", path, PANDA_LIMITS, PERIOD)
+    assert np.allclose(segment.q[-1], path[-1], atol=1e-6)
+    within_limits(segment.q, path[0])
+    progress = (segment.q[:, 3] - path[0, 3]) / 0.4  # one joint's share of the way: never goes back
+    assert np.all(np.diff(progress) >= -1e-9)
+
+
+def test_ik_puts_the_gripper_on_a_top_down_grasp_in_the_bin(planner):
+    kinematics = planner.kinematics
+    target = np.array([0.05, -0.06, 0.09])
+    solution = kinematics.solve(target, np.pi / 3)
+    assert solution.ok, solution
+    position, rotation = kinematics.gripper_pose(solution.q)
+    assert np.linalg.norm(position - target) < 0.003
+    assert rotation[2, 2] > 0.999  # palm up: the fingers point down
+    yaw = np.arctan2(rotation[1, 0], rotation[0, 0])
+    assert abs((yaw - np.pi / 3 + np.pi / 2) % np.pi - np.pi / 2) < 0.03  # the jaws close along the asked yaw (mod a half turn)
+    lower, upper = np.array(PANDA_LIMITS.lower), np.array(PANDA_LIMITS.upper)
+    assert np.all(solution.q >= lower - 1e-6) and np.all(solution.q <= upper + 1e-6)
+
+
+def test_reach_says_why_a_grasp_cannot_be_taken(planner):
+    assert planner.reach([0.0, 0.0, 0.09], 0.0).ok
+    assert planner.reach([1.3, -0.6, 0.09], 0.0).reason == NO_IK  # beyond the arm's reach
+    # jaws across the bin wall, fingertips near the floor: the gripper would go through the wall
+    assert planner.reach([0.205, 0.0, 0.07], 0.0).reason == COLLIDES
+    reach = planner.reach([0.0, 0.0, 0.09], 0.0)
+    assert not planner._flipped(reach.descent[0])
+    flipped = reach.descent[0].copy()
+    flipped[4] += np.pi  # the wrist turned over
+    assert planner._flipped(flipped)
+
+
+def test_a_pick_motion_has_every_segment_and_returns_home(planner):
+    motion = planner.pick(HOME, [0.02, 0.03, 0.1], 0.3)
+    assert motion.reach.ok
+    names = [s.name for s in motion.segments]
+    for name in ("approach", "descend", "close", "lift", "carry", "lower", "release", "return"):
+        assert name in names
+    assert np.allclose(motion.segments[-1].q[-1], HOME, atol=1e-6)
+    kinematics = planner.kinematics
+    bottom, _ = kinematics.gripper_pose(motion.segment("descend").q[-1])
+    assert np.linalg.norm(bottom - [0.02, 0.03, 0.1]) < 0.004
+    top, _ = kinematics.gripper_pose(motion.segment("descend").q[0])
+    assert abs(top[2] - max(0.25, ABOVE_WALLS)) < 0.004 and np.linalg.norm(top[:2] - bottom[:2]) < 0.004  # straight down
+    assert not any(planner.touches(s, every=5) for s in motion.segments)
+    before = np.asarray(HOME, dtype=float)
+    for segment in motion.segments:  # the straight segments too (a spline through the IK postures)
+        within_limits(segment.q, before)
+        before = segment.q[-1]
+    assert 2.0 < sum(s.duration for s in motion.segments) < 8.0
+
+
+def test_the_fingertips_stop_short_of_the_bin_floor(planner):
+    from binpick.arm.motion import FLOOR_MARGIN
+    from binpick.sim.mjcf import FLOOR_TOP
+
+    motion = planner.pick(HOME, [0.0, 0.0, FLOOR_TOP + 0.04], 0.0)  # tips asked onto the floor itself
+    bottom, _ = planner.kinematics.gripper_pose(motion.segment("descend").q[-1])
+    assert bottom[2] - 0.04 >= FLOOR_TOP + FLOOR_MARGIN - 0.002
+
+
+def test_the_picker_gives_an_unreachable_grasp_way_to_the_next_candidate():
+    from binpick.grasping import GraspPlanner
+    from binpick.picking import Picker
+    from binpick.picking.frames import read_frame
+    from binpick.picking.plans import grasp_orientation
+    from binpick.samples import SAMPLE_FRAME
+
+    rgb, depth, camera = read_frame(SAMPLE_FRAME / "rgb.png", SAMPLE_FRAME / "depth.png", SAMPLE_FRAME / "camera.yaml")
+    box = np.array([[392.48, 176.5, 104.46, 72.66]])  # a detection of the sample frame's product
+    free = Picker(None, GraspPlanner.load("analytic"), verifier=None).plan(rgb, depth, camera, boxes=(box, np.ones(1)))
+    assert free[0].feasible
+    first = tuple(free[0].position)
+
+    asked, yaws = [], []
+
+    def reach(position, yaw):
+        asked.append(tuple(np.round(position, 4)))
+        yaws.append(yaw)
+        return (None, yaw + np.pi) if len(asked) > 1 else (NO_IK, yaw)  # the best candidate is out of reach; the next is, jaws turned
+
+    plans = Picker(None, GraspPlanner.load("analytic"), verifier=None, reach=reach).plan(rgb, depth, camera, boxes=(box, np.ones(1)))
+    assert plans[0].feasible and plans[0].rejected.get(NO_IK) == 1 and tuple(plans[0].position) != first
+    assert abs(plans[0].yaw - (yaws[1] + np.pi)) < 1e-3  # the plan's yaw is the one the arm takes
+    assert np.allclose(plans[0].orientation, grasp_orientation(plans[0].yaw), atol=1e-5)
+    never = Picker(None, GraspPlanner.load("analytic"), verifier=None, reach=lambda p, y: (COLLIDES, y)).plan(rgb, depth, camera, boxes=(box, np.ones(1)))
+    assert not never[0].feasible and never[0].rejected.get(COLLIDES, 0) >= 1
+    assert json.loads(json.dumps(never.to_json()))["plans"][0]["rejected"][COLLIDES] >= 1
+
+
+def test_one_order_is_picked_and_placed_by_the_arm(tmp_path):
+    from binpick.detection.model import DetectorNetwork, ModelSpec
+    from binpick.sim import default_library
+    from binpick.sim.mjcf import CameraSpec
+    from binpick.warehouse.pipeline import PickPipeline, fulfil
+
+    detector = DetectorNetwork(ModelSpec(query="photo"), 128).eval()
+    pipeline = PickPipeline(detector, default_library(procedural=0, shapes=0), grasp="analytic", oracle=True, max_attempts=2,
+                            camera=CameraSpec(size=160), robot="panda")  # the simulator's boxes: the arm's own test
+    summary, results = fulfil(pipeline, ["robosuite/can"], 1, 3, tmp_path)
+    order = results[0]
+    assert order.success, order
+    attempt = next(a for a in order.attempts if a.motion_s)
+    assert {"approach", "descend", "close", "lift", "carry", "lower", "release", "return"} <= set(attempt.motion_s)
+    assert attempt.collisions == [] and attempt.planning_ms > 0
+    arm = summary["arm"]
+    assert arm["collisions"] == 0 and 2.0 < arm["cycle_s_median"] < 8.0 and arm["picks_per_hour"] > 300
+    saved = json.loads((tmp_path / "results.json").read_text())
+    assert saved["orders"][0]["robot"] == "panda" and saved["orders"][0]["robot_seconds"] > 2.0
+    assert (tmp_path / order.gif).stat().st_size > 10_000
+    assert "cycle" in (tmp_path / "report.html").read_text()
+
+
+def test_the_arm_makes_label_grasps():
+    from binpick.sim import default_library
+    from binpick.sim.bin_scene import BinWorld
+    from binpick.sim.gripper import TopDownGrasp
+    from binpick.sim.mjcf import CameraSpec
+    from binpick.sim.panda import PandaArm
+    from binpick.warehouse.grasping import arm_lift_test
+    from binpick.warehouse.policies import ArmGrasp, make_policies
+
+    library = default_library(procedural=0, shapes=0)
+    world = BinWorld(library["robosuite/can"], [], max_copies=2, camera=CameraSpec(size=128), robot=PandaArm(), seed=3)
+    try:
+        scene = world.scene(2, 0, seed=3)
+        world.set_guards(False)
+        planner = MotionPlanner(period=PERIOD)
+        central = min(scene.instances, key=lambda i: np.hypot(*i.position[:2]))
+        outcomes = {}
+        for axis in ("x", "x", "y"):  # x twice: from the same saved state, the same outcome
+            world.restore(scene.state)
+            outcomes.setdefault(axis, []).append(ArmGrasp(TopDownGrasp(axis), planner).attempt(world, central.slot))
+        assert outcomes["x"][0] == outcomes["x"][1]
+        assert outcomes["x"][0] or outcomes["y"][0]  # a lone can in the middle of the bin: one of the two grasps holds it
+        world.restore(scene.state)
+        assert not arm_lift_test(world, planner, central.slot, (1.4, 0.0, 0.05), 0.0)  # out of reach: not pickable by it
+        assert np.allclose(world.arm.joint_positions(world.data), HOME, atol=2e-3)  # and the arm never moved
+    finally:
+        world.close()
+    assert all(isinstance(p, ArmGrasp) for p in make_policies(["x", "y"], "panda"))
