@@ -254,7 +254,9 @@ def arm_section(arm: dict) -> str:
         "Ruckig within the Panda's published joint limits, executed by joint position targets at the simulator's 4 ms step; "
         "the picker drops grasps the arm cannot take (no IK solution, a collision on the way down, a wrist flip) and takes "
         "the detection's next best candidate. Cycle time: simulated robot seconds from home (out of the camera's view) "
-        "back to home.", "",
+        "back to home. The bins settle from the same seeds with the arm in the model, so a few piles differ slightly "
+        "from the floating gripper's (MuJoCo's solver does not give the same floats with more bodies in the model); "
+        "wall seconds are this 2-core machine's, each run under its own load.", "",
         "| orders | n | placed (arm) | placed (floating) | difference | right product | cycle s (median) | wall s per order, arm / floating | outcomes |",
         "|---|---|---|---|---|---|---|---|---|",
         row("seen in training", arm["seen"]), row("held out (zero-shot)", arm["held_out"]), "",
