@@ -62,6 +62,10 @@ SKIPPED = {
         "a node that serves until stopped; tests/test_ros2.py runs the whole loop through it in a namespace",
     "python experiments/plan.py files": "a benchmark (50 orders, each planned twice); tests/test_picking.py runs its pieces",
     "python experiments/plan.py latency": "a benchmark on an idle machine; tests/test_ros.py and test_ros2.py run its loops",
+    "binpick train configs/detection/rod_warehouse.yaml --address local --workers 2": "Ray Train on the full config "
+        "(hours); tests/test_ray_train.py trains a small detector on one and two Ray workers, one of them killed",
+    "binpick train configs/detection/rod_warehouse.yaml --address A_HOST:6379 --workers 8": "needs a cluster",
+    "binpick train --resume runs/rod_warehouse/<time> --address A_HOST:6379 --workers 8": "needs a cluster",
     "python experiments/pick.py --robot panda --orders 50": "a benchmark (100 orders with the arm); tests/test_arm.py runs one",
     "python experiments/grasp.py eval": "a benchmark (40 bins of held-out products, the shipped grasp model); "
                                        "tests/test_grasping.py runs its pieces",

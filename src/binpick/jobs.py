@@ -151,19 +151,52 @@ def progress(run_dir: str | Path) -> int | None:
     return int(value) if isinstance(value, (int, float)) else None
 
 
+ON_RAY = ("detect",)  # the jobs that run on a Ray cluster (address=...) so far
+
+
+def check_ray_job(kind: JobKind, address: str | None, workers: int) -> None:
+    """One line, before any run folder is made, for a job or cluster address Ray cannot take."""
+    from binpick.core.config import check_range
+
+    check_range("workers", workers, 1, 4096, integer=True)
+    if address is None:
+        if workers != 1:
+            raise ConfigError("--workers goes with --address (a Ray cluster; local: one on this machine)")
+        return
+    if kind.task not in ON_RAY:
+        raise ConfigError(f"--address runs {', '.join(ON_RAY)} jobs on Ray so far; a {kind.task} job trains here (without --address)")
+    if address != "local":
+        from binpick.cluster import check_ray_address
+
+        check_ray_address(address)
+
+
+def run_job(job, callback: RunCallback = SILENT, address: str | None = None, workers: int = 1, threads: int = 1) -> dict[str, Any]:
+    """Run ``job`` here, or with ``address`` (``local``: a private cluster on this machine; ``auto``,
+    ``HOST:PORT``, ``ray://HOST:PORT``) data-parallel on ``workers`` Ray Train workers of ``threads``
+    CPU threads each, with the same run folder, checkpoints and resume as here."""
+    check_ray_job(job_kind_of_run(job.run_dir), address, workers)
+    if address is None:
+        return job.run(callback)
+    from binpick.integrations.ray.training import train_detector_on_ray
+
+    callback.message(f"training {job.run_dir} on Ray: {workers} worker(s) of {threads} thread(s)")
+    return train_detector_on_ray(job.run_dir, workers, address, threads)
+
+
 def train(config: str | Path | None = None, *, resume: str | Path | None = None, runs: str | Path = "runs",
-          callback: RunCallback = SILENT, **overrides: Any) -> dict[str, Any]:
+          callback: RunCallback = SILENT, address: str | None = None, workers: int = 1, **overrides: Any) -> dict[str, Any]:
     """Train whatever ``config`` describes (``task:`` picks the job), or continue ``resume``'s run;
-    keyword overrides use ``SECTION__KEY`` for ``SECTION.KEY`` (``train__epochs=2``). Returns the
-    job's metrics."""
+    keyword overrides use ``SECTION__KEY`` for ``SECTION.KEY`` (``train__epochs=2``). With
+    ``address``, on a Ray cluster (:func:`run_job`). Returns the job's metrics."""
     if (config is None) == (resume is None):
         raise ConfigError("give either a config file to start a run or resume=RUN_DIR to continue one")
     if resume is not None:
         if overrides:
             raise ConfigError("overrides apply to new runs; a resumed run keeps its own config")
-        return resume_job(resume).run(callback)
+        return run_job(resume_job(resume), callback, address, workers)
     dotted = {key.replace("__", "."): value for key, value in overrides.items()}
-    return new_job(config, runs, dotted).run(callback)
+    return run_job(new_job(config, runs, dotted), callback, address, workers)
 
 
 def describe() -> list[tuple[str, str, list[str]]]:

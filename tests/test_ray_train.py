@@ -1,0 +1,100 @@
+"""Detector training on a Ray cluster (Ray Train, gloo, loopback only): one worker is the local run, two
+share each step, a worker killed mid-run is replaced and the run ends as an uninterrupted one does."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+from synthetic_coco import make_coco
+
+from binpick.core.config import from_dict
+from binpick.core.errors import ConfigError
+from binpick.core.files import read_json
+from binpick.detection.config import DetectConfig
+from binpick.detection.train import WEIGHTS_FILE, DetectorTrainer
+
+CLI = [sys.executable, "-c", "from binpick.cli import main; main()"]
+
+
+@pytest.fixture(scope="module")
+def ray_cluster():
+    """One private cluster (127.0.0.1) for the module: every run joins it instead of starting its own."""
+    import ray
+
+    from binpick.cluster import start_ray
+
+    start_ray(None, 2)
+    yield
+    ray.shutdown()
+
+
+def tiny_config(tmp: Path, epochs: int) -> DetectConfig:
+    coco = make_coco(tmp / "coco", images=8, size=64, seed=1)
+    return from_dict(DetectConfig, {
+        "name": "tiny_detect", "data": {"train": str(coco), "val": str(coco), "targets": "all", "image_size": 64, "augment": False},
+        "train": {"epochs": epochs, "batch_size": 4, "warmup_steps": 1, "eval_every": 1, "workers": 0, "threads": 1}}, where="test")
+
+
+def test_one_ray_worker_trains_exactly_the_local_run(tmp_path, ray_cluster):
+    from binpick.integrations.ray.training import train_detector_on_ray
+
+    config = tiny_config(tmp_path, epochs=2)
+    local = DetectorTrainer.new(config, tmp_path / "local").run()
+    run_dir = DetectorTrainer.new(config, tmp_path / "ray").run_dir
+    remote = train_detector_on_ray(run_dir, workers=1)
+    assert [h["loss_total"] for h in remote["history"]] == pytest.approx([h["loss_total"] for h in local["history"]], rel=1e-6)
+    assert remote["final"]["ap50"] == pytest.approx(local["final"]["ap50"], abs=1e-9)
+    for name in ("metrics.json", WEIGHTS_FILE, "config.yaml"):
+        assert (run_dir / name).is_file(), name
+    assert list((run_dir / "tb").iterdir()) and list((run_dir / "checkpoints").glob("ckpt-*"))
+
+
+def kill_a_worker_after_the_first_checkpoint(run_dir: Path, killed: list[int]) -> None:
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and not list((run_dir / "checkpoints").glob("ckpt-*")):
+        time.sleep(0.05)
+    pids = subprocess.run(["pgrep", "-f", "RayTrainWorker"], capture_output=True, text=True).stdout.split()
+    if pids:
+        os.kill(int(pids[-1]), signal.SIGKILL)
+        killed.append(int(pids[-1]))
+
+
+def test_two_workers_share_the_steps_and_a_killed_worker_is_replaced(tmp_path, ray_cluster):
+    from binpick.integrations.ray.training import train_detector_on_ray
+
+    epochs = 10
+    run_dir = DetectorTrainer.new(tiny_config(tmp_path, epochs), tmp_path / "ray").run_dir
+    killed: list[int] = []
+    watcher = threading.Thread(target=kill_a_worker_after_the_first_checkpoint, args=(run_dir, killed), daemon=True)
+    watcher.start()
+    metrics = train_detector_on_ray(run_dir, workers=2)
+    watcher.join(timeout=5)
+    assert killed, "no Ray Train worker was found to kill"
+    assert metrics["epochs"] == epochs and metrics["steps"] == epochs * 2  # 8 images, global batch 4: as a local run
+    assert [h["epoch"] for h in metrics["history"]] == list(range(1, epochs + 1))  # no evaluation lost or repeated
+    assert all(h.get("ap50") is not None for h in metrics["history"])
+    assert read_json(run_dir / "metrics.json")["steps"] == epochs * 2
+
+
+def test_ray_options_are_checked_before_a_run_folder_is_made(tmp_path):
+    from binpick import jobs
+
+    with pytest.raises(ConfigError, match="--workers goes with --address"):
+        jobs.check_ray_job(jobs.KINDS["detect"], None, 2)
+    with pytest.raises(ConfigError, match="rl job trains here"):
+        jobs.check_ray_job(jobs.KINDS["rl"], "local", 2)
+    with pytest.raises(ConfigError, match="HOST:PORT"):
+        jobs.check_ray_job(jobs.KINDS["detect"], "not an address", 2)
+    config = tmp_path / "rl.yaml"
+    config.write_text("task: rl\nname: x\nenv: FetchReach\n")
+    result = subprocess.run([*CLI, "train", str(config), "--address", "local", "--workers", "2", "--runs", str(tmp_path / "runs")],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode != 0 and "rl job trains here" in result.stderr and "Traceback" not in result.stderr
+    assert not (tmp_path / "runs").exists()
