@@ -39,7 +39,7 @@ def make_data(scenes: int) -> None:
 
 def train(mode: str, epochs: int) -> dict:
     from binpick import jobs
-    from binpick.integrations.ray.training import train_detector_on_ray
+    from binpick.integrations.ray.training import train_on_ray
 
     overrides = {"data.train": str(DATA / "annotations_train.json"), "data.val": str(DATA / "annotations_val.json"),
                  "data.targets": "all", "train.epochs": epochs, "train.eval_every": epochs, "train.workers": 0,
@@ -50,7 +50,7 @@ def train(mode: str, epochs: int) -> dict:
         metrics = job.run()
     else:
         workers = int(mode.split("_")[1])
-        metrics = train_detector_on_ray(job.run_dir, workers, threads=2 // workers)
+        metrics = train_on_ray(job.run_dir, jobs.KINDS["detect"].job, workers, threads=2 // workers)
     wall = time.perf_counter() - started
     images = metrics["final"]["images_seen"]
     row = {"ap50": round(metrics["final"]["ap50"], 4), "images": images, "wall_s": round(wall, 1),

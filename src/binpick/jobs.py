@@ -151,7 +151,7 @@ def progress(run_dir: str | Path) -> int | None:
     return int(value) if isinstance(value, (int, float)) else None
 
 
-ON_RAY = ("detect",)  # the jobs that run on a Ray cluster (address=...) so far
+ON_RAY = ("detect", "pickability", "grasp_quality")  # the jobs Ray Train runs data-parallel (address=...)
 
 
 def check_ray_job(kind: JobKind, address: str | None, workers: int) -> None:
@@ -178,10 +178,10 @@ def run_job(job, callback: RunCallback = SILENT, address: str | None = None, wor
     check_ray_job(job_kind_of_run(job.run_dir), address, workers)
     if address is None:
         return job.run(callback)
-    from binpick.integrations.ray.training import train_detector_on_ray
+    from binpick.integrations.ray.training import train_on_ray
 
     callback.message(f"training {job.run_dir} on Ray: {workers} worker(s) of {threads} thread(s)")
-    return train_detector_on_ray(job.run_dir, workers, address, threads)
+    return train_on_ray(job.run_dir, job_kind_of_run(job.run_dir).job, workers, address, threads)
 
 
 def train(config: str | Path | None = None, *, resume: str | Path | None = None, runs: str | Path = "runs",

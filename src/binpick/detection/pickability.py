@@ -28,6 +28,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from binpick.core.data_parallel import ALONE, Group
 from binpick.metrics import roc_auc
 
 WINDOW = 0.31  # the window's side as a share of the image's side (about 13 cm of binpick's default bin)
@@ -269,25 +270,30 @@ def head_auc(head: PickabilityHead, windows: dict[str, torch.Tensor], batch: int
 
 
 def train_epoch(head: PickabilityHead, optimiser: torch.optim.Optimizer, schedule, windows: dict[str, torch.Tensor],
-                generator: torch.Generator, batch: int = 128, progress: Callable[[int], None] | None = None) -> float:
-    """One pass in random order with mirror flips (jaws along y stay along y); the mean loss."""
+                generator: torch.Generator, batch: int = 128, progress: Callable[[int], None] | None = None,
+                group: Group = ALONE) -> float:
+    """One pass in random order with mirror flips (jaws along y stay along y); the mean loss. In a
+    data-parallel group every process draws the same order and flips and trains on its part of each
+    batch, gradients averaged: the step a single process takes."""
     head.train()
     labels = windows["labels"]
     order = torch.randperm(len(labels), generator=generator)
     losses = []
     for start in range(0, len(order) - batch + 1, batch):
         idx = order[start:start + batch]
+        flip_across = torch.rand(len(idx), generator=generator) < 0.5
+        flip_along = torch.rand(len(idx), generator=generator) < 0.5
+        idx, flip_across, flip_along = group.part(idx), group.part(flip_across), group.part(flip_along)
         x = assemble(windows["colour"][idx], windows["height"][idx], head.depth)
-        flip = torch.rand(len(idx), generator=generator) < 0.5
-        x[flip] = x[flip].flip(3)
-        flip = torch.rand(len(idx), generator=generator) < 0.5
-        x[flip] = x[flip].flip(2)
+        x[flip_across] = x[flip_across].flip(3)
+        x[flip_along] = x[flip_along].flip(2)
         if head.factorised:
             loss = factorised_loss(*head.parts(x, _queries(head, windows, idx)), labels[idx], windows["same"][idx])
         else:
             loss = F.binary_cross_entropy_with_logits(head(x, _queries(head, windows, idx)), labels[idx])
         optimiser.zero_grad()
         loss.backward()
+        group.average_gradients(head.parameters())
         optimiser.step()
         schedule.step()
         losses.append(loss.item())

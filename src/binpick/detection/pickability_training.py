@@ -23,6 +23,7 @@ import torch
 
 from binpick.core import tensorfile
 from binpick.core.config import check_range, load_run_config, to_dict
+from binpick.core.data_parallel import ALONE, Group
 from binpick.detection.data import RepeatedInstances, TaskDataset, check_disjoint
 from binpick.detection.model import DetectorNetwork
 from binpick.detection.pickability import PickabilityHead, head_auc, join_windows, labelled_windows, train_epoch
@@ -118,6 +119,7 @@ class PickabilityTrainer:
         self.head = self.network.pickability
         self.optimiser = torch.optim.AdamW(self.head.parameters(), lr=config.lr, weight_decay=config.weight_decay)
         self.epoch, self.best_auc, self.history = 0, -1.0, []
+        self.group = ALONE  # data-parallel training (distribute()): this process's place among others
         checkpoint = latest_checkpoint(self.run_dir / "checkpoints")
         if checkpoint is None and config.init:
             self._start_from(config.init)
@@ -149,6 +151,16 @@ class PickabilityTrainer:
             missing, unexpected = ["(shapes differ)"], []
         if unexpected or any(not key.startswith("pick.") for key in missing):
             raise ConfigError(f"init: the head in {weights} is not of this config's kind (depth, query, width)")
+
+    def distribute(self) -> PickabilityTrainer:
+        """Train as one process of a data-parallel group (:mod:`binpick.core.data_parallel`; Ray Train
+        starts it): rank 0 cuts the windows into the run folder once while the others wait, then every
+        process reads them, trains on its part of each batch (the same order and flips in all) with
+        gradients averaged, so each step is the single process's; rank 0 evaluates and writes."""
+        self.group = Group.joined()
+        self.group.split(self.config.batch_size)
+        self.group.share([*self.head.parameters(), *self.head.buffers()])
+        return self
 
     @classmethod
     def new(cls, config: PickabilityConfig, runs: Path = Path("runs")) -> PickabilityTrainer:
@@ -221,7 +233,12 @@ class PickabilityTrainer:
 
         config = self.config
         torch.set_num_threads(config.threads)
-        windows = self._windows(callback)
+        group = self.group
+        if group.lead:
+            windows = self._windows(callback)
+        group.wait()  # rank 0 has cut the windows (or found them); the others read them now
+        if not group.lead:
+            windows = self._windows(callback)
 
         def split(name: str) -> dict[str, torch.Tensor]:
             return {key[len(name) + 1:]: value for key, value in windows.items() if key.startswith(name + "_")}
@@ -236,13 +253,16 @@ class PickabilityTrainer:
                          f"{len(windows['val_labels'])} val windows")
         per_epoch = max(1, len(labels) // config.batch_size)
         schedule = _Schedule(self.optimiser, config, per_epoch, self.epoch * per_epoch)
-        writer = SummaryWriter(str(self.run_dir / "tb"))
+        writer = SummaryWriter(str(self.run_dir / "tb")) if group.lead else None
         try:
             with callback.task(f"pickability head ({len(labels)} windows)", config.epochs, self.epoch) as task:
                 while self.epoch < config.epochs:
                     generator = torch.Generator().manual_seed(config.seed * 10_007 + self.epoch)
-                    loss = train_epoch(self.head, self.optimiser, schedule, split("train"), generator, config.batch_size)
+                    loss = train_epoch(self.head, self.optimiser, schedule, split("train"), generator, config.batch_size,
+                                       group=group)
                     self.epoch += 1
+                    if not group.lead:  # rank 0 evaluates and writes; the others go on to the next epoch
+                        continue
                     auc = head_auc(self.head, split("val"))
                     row = {"epoch": self.epoch, "loss": loss, "val_auc": round(auc, 4)}
                     self.history.append(row)
@@ -254,7 +274,10 @@ class PickabilityTrainer:
                     self._checkpoint()
                     task.update(self.epoch, status=f"loss {loss:.3f} val AUC {auc:.3f}")
         finally:
-            writer.close()
+            if writer is not None:
+                writer.close()
+        if not group.lead:
+            return {}
         best = self.run_dir / "best.safetensors"
         if best.is_file():  # kept: a resumed finished run writes the same model again
             copy = self.run_dir / "model.safetensors.tmp"

@@ -17,6 +17,7 @@ import yaml
 
 from binpick.core import tensorfile
 from binpick.core.config import load_run_config, to_dict
+from binpick.core.data_parallel import ALONE, Group
 from binpick.detection.config import DetectConfig
 from binpick.detection.data import (
     RehearsedTasks,
@@ -178,7 +179,7 @@ class DetectorTrainer:
         self.steps_per_epoch = -(-len(self.train_set) // config.train.batch_size)
         self.total_steps = self.steps_per_epoch * config.train.epochs
         self.time_used = 0.0  # of train.max_minutes in this invocation (the learning rate anneals by it too)
-        self.rank, self.world = 0, 1  # data-parallel training (distribute()): this process's place among them
+        self.group = ALONE  # data-parallel training (distribute()): this process's place among others
         self.epoch, self.step, self.history = 0, 0, []
         checkpoint = latest_checkpoint(resume / "checkpoints") if resume is not None else None
         if checkpoint is not None:
@@ -209,42 +210,25 @@ class DetectorTrainer:
 
     def distribute(self) -> DetectorTrainer:
         """Train as one of the processes of a ``torch.distributed`` group (Ray Train starts them, gloo
-        on CPUs): every process starts from rank 0's weights, reads its shard of each epoch (a
-        :class:`~torch.utils.data.DistributedSampler` on the run's seed) in batches of
-        ``batch_size / world``, and averages its gradients with the others' after each backward pass,
-        so a step sees the config's batch size and the learning-rate schedule is the single
-        process's. Rank 0 alone evaluates and writes (checkpoints, TensorBoard, weights); the others
-        wait for it, and all follow its decision to stop."""
-        import torch.distributed as dist
-
-        if not dist.is_initialized():
-            raise ConfigError("distribute() needs a torch.distributed process group (binpick train --address starts one)")
-        self.rank, self.world = dist.get_rank(), dist.get_world_size()
-        if self.config.train.batch_size % self.world:
-            raise ConfigError(f"train.batch_size {self.config.train.batch_size} does not split over {self.world} workers: "
-                              "give a multiple of the worker count")
-        for tensor in [*self.model.parameters(), *self.model.buffers()]:
-            dist.broadcast(tensor.data, 0)
+        on CPUs; :mod:`binpick.core.data_parallel`): every process starts from rank 0's weights, reads
+        its shard of each epoch (a :class:`~torch.utils.data.DistributedSampler` on the run's seed) in
+        batches of ``batch_size / world`` and averages its gradients with the others', so a step sees
+        the config's batch size and the learning-rate schedule is the single process's. Rank 0 alone
+        evaluates and writes (checkpoints, TensorBoard, weights); the others follow its decision to stop."""
+        self.group = Group.joined()
+        self.group.split(self.config.train.batch_size, "train.batch_size")
+        self.group.share([*self.model.parameters(), *self.model.buffers()])
         return self
-
-    def _agree(self, flag: bool) -> bool:
-        """Rank 0's ``flag`` on every rank (a single process: ``flag``)."""
-        if self.world == 1:
-            return flag
-        import torch.distributed as dist
-
-        value = torch.tensor([float(flag)])
-        dist.broadcast(value, 0)
-        return bool(value.item())
 
     def _loader(self) -> torch.utils.data.DataLoader:
         """This process's batches of the epoch: all of them, or its shard in distributed training."""
         train = self.config.train
-        if self.world == 1:
+        group = self.group
+        if group.world == 1:
             return loader(self.train_set, train.batch_size, True, train.workers, train.seed + self.epoch)
-        sampler = torch.utils.data.DistributedSampler(self.train_set, self.world, self.rank, shuffle=True, seed=train.seed)
+        sampler = torch.utils.data.DistributedSampler(self.train_set, group.world, group.rank, shuffle=True, seed=train.seed)
         sampler.set_epoch(self.epoch)
-        return torch.utils.data.DataLoader(self.train_set, batch_size=train.batch_size // self.world, sampler=sampler,
+        return torch.utils.data.DataLoader(self.train_set, batch_size=group.split(train.batch_size), sampler=sampler,
                                            num_workers=train.workers, collate_fn=collate)
 
     def _load_checkpoint(self, checkpoint: Path) -> None:
@@ -346,19 +330,19 @@ class DetectorTrainer:
                     batches += 1
                     task.update(self.step, status=f"epoch {self.epoch + 1}/{config.train.epochs} loss "
                                                   f"{sums['total'] / batches:.3f} {self.status}")
-                    if self._agree(self.out_of_time(time.monotonic() - started)):
+                    if self.group.agree(self.out_of_time(time.monotonic() - started)):
                         break  # the epoch ends here: evaluate, keep the best, checkpoint
-                if self._agree(self.end_epoch(sums, time.monotonic() - started)):
+                if self.group.agree(self.end_epoch(sums, time.monotonic() - started)):
                     break
         finally:
             if self.writer is not None:
                 self.writer.close()
-        return self.finish() if self.rank == 0 else {}
+        return self.finish() if self.group.lead else {}
 
     def open_log(self) -> None:
         from torch.utils.tensorboard import SummaryWriter
 
-        self.writer = SummaryWriter(str(self.run_dir / "tb")) if self.rank == 0 else None
+        self.writer = SummaryWriter(str(self.run_dir / "tb")) if self.group.lead else None
         self.status, self.stale = "", 0
 
     def train_step(self, batch: dict, sums: dict[str, float]) -> None:
@@ -370,8 +354,7 @@ class DetectorTrainer:
         losses = rod_loss(self.model, out, batch["targets"], self.config.loss)
         self.optimizer.zero_grad(set_to_none=True)
         losses["total"].backward()
-        if self.world > 1:
-            self._average_gradients()
+        self.group.average_gradients(self.model.parameters())
         torch.nn.utils.clip_grad_norm_(self.model.parameters(), 10.0)
         self.optimizer.step()
         self.step += 1
@@ -379,20 +362,6 @@ class DetectorTrainer:
             sums[key] = sums.get(key, 0.0) + float(value.detach())
             if self.writer is not None:
                 self.writer.add_scalar(f"loss/{key}", float(value.detach()), self.step)
-
-    def _average_gradients(self) -> None:
-        """Every process's gradients averaged (one all-reduce over a flat buffer): the step the whole batch gives."""
-        import torch.distributed as dist
-
-        params = [p for p in self.model.parameters() if p.requires_grad]
-        grads = [p.grad if p.grad is not None else torch.zeros_like(p) for p in params]
-        flat = torch.cat([g.reshape(-1) for g in grads])
-        dist.all_reduce(flat)
-        flat /= self.world
-        offset = 0
-        for p, g in zip(params, grads):
-            p.grad = flat[offset:offset + g.numel()].view_as(g).clone()
-            offset += g.numel()
 
     def out_of_time(self, elapsed: float) -> bool:
         limit = self.config.train.max_minutes
@@ -409,7 +378,7 @@ class DetectorTrainer:
         config = self.config
         self.epoch += 1
         out_of_time = self.out_of_time(elapsed)
-        if self.rank != 0:  # rank 0 evaluates and writes; the others wait for it (_agree) and follow
+        if not self.group.lead:  # rank 0 evaluates and writes; the others wait for it (agree) and follow
             return out_of_time
         record = {"epoch": self.epoch, "step": self.step, "images_seen": self.step * config.train.batch_size,
                   **{f"loss_{k}": v / self.steps_per_epoch for k, v in sums.items()}}

@@ -19,6 +19,7 @@ from torch import nn
 
 from binpick.core import tensorfile
 from binpick.core.config import check_range, load_run_config, to_dict
+from binpick.core.data_parallel import ALONE, Group
 from binpick.core.errors import ConfigError, InputFileError
 from binpick.core.files import atomic_write_text, inside, read_json
 from binpick.metrics import roc_auc
@@ -119,12 +120,22 @@ class QualityTrainer:
         self.quality = GraspQuality(GraspQualityNet(MapSpec().size, config.width), MapSpec(), config.width)
         self.optimizer = torch.optim.AdamW(self.quality.net.parameters(), lr=config.lr, weight_decay=config.weight_decay)
         self.epoch, self.best_auc, self.history = 0, -1.0, []
+        self.group = ALONE  # data-parallel training (distribute()): this process's place among others
         checkpoint = latest_checkpoint(self.run_dir / "checkpoints")
         if checkpoint is not None:
             _, meta, state = tensorfile.load(checkpoint / "state.safetensors", CHECKPOINT_FORMAT, "grasp-quality checkpoint")
             self.quality.net.load_state_dict(state["net"])
             self.optimizer.load_state_dict(state["optimizer"])
             self.epoch, self.best_auc, self.history = int(meta["epoch"]), float(meta["best_auc"]), list(meta["history"])
+
+    def distribute(self) -> QualityTrainer:
+        """Train as one process of a data-parallel group (:mod:`binpick.core.data_parallel`; Ray Train
+        starts it): every process reads the trials, draws the same order and flips, trains on its part
+        of each batch with gradients averaged (the single process's step); rank 0 evaluates and writes."""
+        self.group = Group.joined()
+        self.group.split(self.config.batch_size)
+        self.group.share([*self.quality.net.parameters(), *self.quality.net.buffers()])
+        return self
 
     @classmethod
     def new(cls, config: QualityTrainConfig, runs: Path = Path("runs")) -> QualityTrainer:
@@ -152,7 +163,8 @@ class QualityTrainer:
         rng = np.random.default_rng([config.seed, self.epoch])
         positive = float(train.labels.mean())
         loss_fn = nn.BCEWithLogitsLoss(pos_weight=torch.tensor((1 - positive) / max(positive, 1e-3)))
-        writer = SummaryWriter(str(self.run_dir / "tb"))
+        group = self.group
+        writer = SummaryWriter(str(self.run_dir / "tb")) if group.lead else None
         maps, features, labels = torch.from_numpy(train.maps), torch.from_numpy(train.features), torch.from_numpy(train.labels)
         try:
             with callback.task(f"grasp quality ({len(train)} trials)", config.epochs, self.epoch) as task:
@@ -161,7 +173,7 @@ class QualityTrainer:
                     order = torch.from_numpy(rng.permutation(len(train)))
                     losses = []
                     for start in range(0, len(order) - config.batch_size + 1, config.batch_size):
-                        batch = order[start:start + config.batch_size]
+                        batch = group.part(order[start:start + config.batch_size])
                         x = maps[batch][:, None]
                         # the jaws are symmetric: a grasp mirrored along or across them is the same grasp
                         if rng.random() < 0.5:
@@ -171,9 +183,12 @@ class QualityTrainer:
                         loss = loss_fn(net(x, features[batch]), labels[batch])
                         self.optimizer.zero_grad()
                         loss.backward()
+                        group.average_gradients(net.parameters())
                         self.optimizer.step()
                         losses.append(loss.item())
                     self.epoch += 1
+                    if not group.lead:  # rank 0 evaluates and writes; the others go on to the next epoch
+                        continue
                     self.quality.net.eval()
                     scores = self.quality.probabilities(val.maps, val.features)
                     auc = roc_auc(val.labels, scores)
@@ -188,7 +203,10 @@ class QualityTrainer:
                     self._checkpoint()
                     task.update(self.epoch, status=f"loss {row['loss']:.3f} val AUC {auc if auc is None else round(auc, 3)}")
         finally:
-            writer.close()
+            if writer is not None:
+                writer.close()
+        if not group.lead:
+            return {}
         best = GraspQuality.load(self.run_dir / "best.safetensors")
         best.save(self.run_dir / "model.safetensors", {"data": config.data_sets, "train_trials": len(train),
                                                        "train_success_rate": round(positive, 4)})
