@@ -165,7 +165,10 @@ def main() -> None:
     parser.add_argument("--steps-scale", type=float, default=1.0, help="scale every config's total_timesteps")
     parser.add_argument("--report-only", action="store_true", help="rewrite the docs table from the JSON, run nothing")
     parser.add_argument("--fresh", action="store_true", help="start new run folders rather than continue the latest with the same config")
+    parser.add_argument("--address", default=None, help="A3C's rollout workers as Ray actors on this cluster (local: one on "
+                                                        "this machine); rows are stored as KEY_ray, runs in runs/bench_ray")
     args = parser.parse_args()
+    bench = _common.ROOT / "runs" / ("bench" if args.address is None else "bench_ray")
     path = _common.RESULTS / "rl_arm2d.json"
     results = json.loads(path.read_text()) if path.exists() else {}
     measured: dict = {}
@@ -199,10 +202,17 @@ def main() -> None:
                 if not KEYPOINTS.is_file():
                     sys.exit(f"{key} reads the state with {KEYPOINTS}: make it with experiments/rl_arm2d_april.py first")
                 wrap_env = ReadStateOffPixels(str(KEYPOINTS))
-            trainer = (continued(config, args.fresh, wrap_env)
-                       or trainer_for(config, _common.ROOT / "runs" / "bench", wrap_env=wrap_env))
+            trainer = (continued(config, args.fresh, wrap_env, bench)
+                       or trainer_for(config, bench, wrap_env=wrap_env))
             with RichCallback() as callback:
-                metrics = trainer.run(callback)
+                if args.address is None:
+                    metrics = trainer.run(callback)
+                else:
+                    from binpick.integrations.ray.a3c import learn_on_ray
+
+                    if config.algorithm != "a3c":
+                        sys.exit(f"--address runs A3C's workers on Ray; {key} is {config.algorithm}")
+                    metrics = trainer.run(callback, learn=learn_on_ray(args.address))
             policy, _ = load_policy(trainer.run_dir)
             made = {"sim_steps": metrics["sim_steps"], "wall_seconds": metrics["wall_seconds"],
                     "run_dir": str(trainer.run_dir.relative_to(_common.ROOT)),
@@ -225,8 +235,12 @@ def main() -> None:
                 results["dqn_epsilon_greedy"] = evaluate(policy, area, epsilon=0.05) | {
                     k: results[key][k] for k in ("sim_steps", "wall_seconds", "run_dir")}
         print(key, results[key], flush=True)
-        measured |= {k: v for k, v in results.items()
-                     if k == key or k.startswith((f"{key}_", *(key.replace("whole_area", end) for end in ("stages", "training_stages"))))}
+        mine = {k: v for k, v in results.items()
+                if k == key or k.startswith((f"{key}_", *(key.replace("whole_area", end) for end in ("stages", "training_stages"))))}
+        if args.address is not None:  # beside the local rows, not over them
+            mine = {f"{k}_ray": v for k, v in mine.items() if not k.endswith("_ray")}
+            results = json.loads(path.read_text()) if path.exists() else {}
+        measured |= mine
         results = merge_rows(measured)
 
     def cell(key: str) -> str:
@@ -460,9 +474,9 @@ def main() -> None:
     ]))
 
 
-def continued(config: RLConfig, fresh: bool, wrap_env=None):
+def continued(config: RLConfig, fresh: bool, wrap_env=None, bench: Path = _common.ROOT / "runs" / "bench"):
     """The trainer of the latest run of this very config (it resumes from its last checkpoint), or None."""
-    latest = None if fresh else _common.latest_run(_common.ROOT / "runs" / "bench", config.name)
+    latest = None if fresh else _common.latest_run(bench, config.name)
     if latest is None or load_run_config(RLConfig, latest) != config:
         return None
     print(f"{config.name}: continuing {latest.relative_to(_common.ROOT)}", flush=True)

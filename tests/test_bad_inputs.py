@@ -237,7 +237,7 @@ CASES: list[tuple[list[str], list[str]]] = [
     (["envs", "rollout", "Arm2D", "--set", "link_lengths=[0.3, x, 0.2]"], ["link_lengths[1]", "number"]),
     (["envs", "rollout", "Arm2D", "--set", "goal_conditioned=maybe"], ["goal_conditioned must be true or false"]),
     (["envs", "show", "FetchReach", "--set", "render_mode=human"], ["--set render_mode", "--size"]),
-    (["rl", "distributed", "--algorithm", "a3c", "--env", "FetchReach"], ["A3C", "Arm2D", "binpick/FetchReach-v0"]),
+    (["rl", "distributed", "--algorithm", "a3c", "--env", "FetchReach"], ["a3c", "discrete actions", "Arm2D"]),
     (["envs", "rollout", "Arm2D", "--episodes", "0"], ["episodes", ">= 1"]),
     (["envs", "tour", "--episodes", "0", "--out", "{root}/tour"], ["episodes", "[1, 10000]"]),
     (["rl", "eval", "{rl_dangling}", "--episodes", "0"], ["episodes"]),

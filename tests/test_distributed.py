@@ -36,15 +36,57 @@ def test_a_killed_worker_is_restarted_and_the_run_finishes(tmp_path):
     assert policy.action_space.shape == (4,) and "desired_goal" in policy.observation_space.spaces
 
 
+A3C = {"task": "rl", "name": "a3c_ray", "env": "Arm2D", "env_kwargs": {"image_size": 32, "tolerance": 0.2}, "algorithm": "a3c",
+       "total_timesteps": 400, "checkpoint_every": 200, "a3c": {"workers": 2, "n_steps": 15},
+       "eval": {"every": 100, "episodes": 2}}
+
+
+@pytest.fixture(scope="module")
+def ray_cluster():
+    """One private cluster (127.0.0.1) for the A3C runs: each joins it instead of starting its own."""
+    import ray
+
+    from binpick.cluster import start_ray
+
+    start_ray(None, 2)
+    yield
+    ray.shutdown()
+
+
 @pytest.mark.slow
-def test_a3c_workers_as_ray_actors_send_gradients_to_the_learner(tmp_path):
-    from binpick.integrations.ray.a3c import DistributedA3CConfig, train_a3c_distributed
+def test_a3c_from_an_rl_yaml_on_ray_actors_ends_as_a_run_without_the_fault(tmp_path, ray_cluster):
+    """The same RL YAML as a local run, its workers as Ray actors: the run folder, checkpoints and
+    metrics a local run writes; evaluations at exact multiples of eval.every and the exact step budget,
+    with or without a rollout worker killed mid-run."""
+    import yaml
 
-    seen = []
-    metrics = train_a3c_distributed(DistributedA3CConfig(workers=2, total_timesteps=120, n_steps=20, eval_episodes=1),
-                                    tmp_path / "a3c", on_update=lambda steps, pool: seen.append(steps))
-    assert metrics["env_steps"] >= 120 and metrics["updates"] == len(seen) >= 6 and seen == sorted(seen)
-    from binpick.core import tensorfile
+    from binpick import jobs
+    from binpick.integrations.ray.a3c import learn_on_ray
+    from binpick.rl.a3c_train import A3CTrainer
+    from binpick.rl.config import RLConfig
+    from binpick.core.config import from_dict
 
-    weights, meta, _ = tensorfile.load(tmp_path / "a3c" / "model.safetensors", "binpick-a3c-model-1")
-    assert meta["config"]["workers"] == 2 and any(v.abs().sum() > 0 for v in weights.values())
+    path = tmp_path / "a3c.yaml"
+    path.write_text(yaml.safe_dump(A3C))
+    plain = jobs.train(path, runs=tmp_path / "plain", address="local")  # what `binpick train a3c.yaml --address local` runs
+    steps = [e["sim_steps"] for e in plain["evaluations"]]
+    assert plain["sim_steps"] == 400 and steps == [100, 200, 300, 400]
+    (run,) = (tmp_path / "plain" / "a3c_ray").iterdir()
+    assert (run / "metrics.json").is_file() and (run / "curves.png").is_file() and list((run / "tb").iterdir())
+    assert (run / "checkpoints" / "latest").read_text().strip() == "ckpt-000000400"
+
+    killed: list[int] = []
+
+    def kill_one_mid_run(trainer, actors) -> None:
+        if not killed and trainer.steps >= 150:
+            pid = actors.pids()[1]
+            os.kill(pid, signal.SIGKILL)
+            killed.append(pid)
+
+    config = from_dict(RLConfig, {k: v for k, v in A3C.items() if k != "task"}, where="test")
+    trainer = A3CTrainer.new(config, tmp_path / "faulty")
+    faulty = trainer.run(learn=learn_on_ray("local", on_update=kill_one_mid_run))
+    assert killed, "no rollout worker was killed"
+    assert faulty["sim_steps"] == plain["sim_steps"] and [e["sim_steps"] for e in faulty["evaluations"]] == steps
+    assert faulty["worker_restarts"] == 1 and faulty["lost_rollouts"] >= 1
+    assert faulty["episodes"] > 0 and all(0 <= e["success_rate"] <= 1 for e in faulty["evaluations"])

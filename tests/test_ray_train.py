@@ -131,13 +131,15 @@ def test_ray_options_are_checked_before_a_run_folder_is_made(tmp_path):
 
     with pytest.raises(ConfigError, match="--workers goes with --address"):
         jobs.check_ray_job(jobs.KINDS["detect"], None, 2)
-    with pytest.raises(ConfigError, match="rl job trains here"):
+    with pytest.raises(ConfigError, match="data job trains here"):
+        jobs.check_ray_job(jobs.KINDS["data"], "local", 1)
+    with pytest.raises(ConfigError, match="a3c.workers"):  # A3C's rollout workers come from its own config
         jobs.check_ray_job(jobs.KINDS["rl"], "local", 2)
     with pytest.raises(ConfigError, match="HOST:PORT"):
         jobs.check_ray_job(jobs.KINDS["detect"], "not an address", 2)
     config = tmp_path / "rl.yaml"
     config.write_text("task: rl\nname: x\nenv: FetchReach\n")
-    result = subprocess.run([*CLI, "train", str(config), "--address", "local", "--workers", "2", "--runs", str(tmp_path / "runs")],
+    result = subprocess.run([*CLI, "train", str(config), "--address", "local", "--runs", str(tmp_path / "runs")],
                             capture_output=True, text=True, timeout=120)
-    assert result.returncode != 0 and "rl job trains here" in result.stderr and "Traceback" not in result.stderr
+    assert result.returncode != 0 and "rl job (sac) trains here" in result.stderr and "Traceback" not in result.stderr
     assert not (tmp_path / "runs").exists()

@@ -122,6 +122,15 @@ def job_kind_of_run(run_dir: str | Path) -> JobKind:
     return fits[0]
 
 
+def run_config(run_dir: str | Path, kind: JobKind) -> Any:
+    """The validated config a run folder was started with (None for a data set or an APRiL run)."""
+    if kind.task in ("data", "april"):
+        return None
+    from binpick.core.config import load_run_config
+
+    return load_run_config(kind.config_class(), Path(run_dir))
+
+
 def new_job(config: str | Path, runs: str | Path = "runs", overrides: dict[str, Any] | None = None):
     """A new run of the job a config file describes (its folder is made under ``runs``)."""
     kind, settings = load_job_config(config, overrides)
@@ -151,11 +160,13 @@ def progress(run_dir: str | Path) -> int | None:
     return int(value) if isinstance(value, (int, float)) else None
 
 
-ON_RAY = ("detect", "pickability", "grasp_quality")  # the jobs Ray Train runs data-parallel (address=...)
+ON_RAY_TRAIN = ("detect", "pickability", "grasp_quality")  # data-parallel on Ray Train workers (address=...)
+ON_RAY = (*ON_RAY_TRAIN, "rl")  # rl: A3C, its rollout workers as Ray actors
 
 
-def check_ray_job(kind: JobKind, address: str | None, workers: int) -> None:
-    """One line, before any run folder is made, for a job or cluster address Ray cannot take."""
+def check_ray_job(kind: JobKind, address: str | None, workers: int, config: Any = None) -> None:
+    """One line, before any run folder is made, for a job, config or cluster address Ray cannot take
+    (``config``: the job's validated config, where known)."""
     from binpick.core.config import check_range
 
     check_range("workers", workers, 1, 4096, integer=True)
@@ -165,6 +176,12 @@ def check_ray_job(kind: JobKind, address: str | None, workers: int) -> None:
         return
     if kind.task not in ON_RAY:
         raise ConfigError(f"--address runs {', '.join(ON_RAY)} jobs on Ray so far; a {kind.task} job trains here (without --address)")
+    if kind.task == "rl":
+        algorithm = getattr(config, "algorithm", "a3c")
+        if algorithm != "a3c":
+            raise ConfigError(f"--address runs A3C's rollout workers on Ray so far; this rl job ({algorithm}) trains here (without --address)")
+        if workers != 1:
+            raise ConfigError("an A3C run's rollout workers are its a3c.workers, on Ray as here: --set a3c.workers=N instead of --workers")
     if address != "local":
         from binpick.cluster import check_ray_address
 
@@ -175,13 +192,19 @@ def run_job(job, callback: RunCallback = SILENT, address: str | None = None, wor
     """Run ``job`` here, or with ``address`` (``local``: a private cluster on this machine; ``auto``,
     ``HOST:PORT``, ``ray://HOST:PORT``) data-parallel on ``workers`` Ray Train workers of ``threads``
     CPU threads each, with the same run folder, checkpoints and resume as here."""
-    check_ray_job(job_kind_of_run(job.run_dir), address, workers)
+    kind = job_kind_of_run(job.run_dir)
+    check_ray_job(kind, address, workers, getattr(job, "config", None))
     if address is None:
         return job.run(callback)
+    if kind.task == "rl":
+        from binpick.integrations.ray.a3c import learn_on_ray
+
+        callback.message(f"training {job.run_dir} on Ray: {job.config.a3c.workers} rollout worker(s) as actors")
+        return job.run(callback, learn=learn_on_ray(address))
     from binpick.integrations.ray.training import train_on_ray
 
     callback.message(f"training {job.run_dir} on Ray: {workers} worker(s) of {threads} thread(s)")
-    return train_on_ray(job.run_dir, job_kind_of_run(job.run_dir).job, workers, address, threads)
+    return train_on_ray(job.run_dir, kind.job, workers, address, threads)
 
 
 def train(config: str | Path | None = None, *, resume: str | Path | None = None, runs: str | Path = "runs",
@@ -196,7 +219,9 @@ def train(config: str | Path | None = None, *, resume: str | Path | None = None,
             raise ConfigError("overrides apply to new runs; a resumed run keeps its own config")
         return run_job(resume_job(resume), callback, address, workers)
     dotted = {key.replace("__", "."): value for key, value in overrides.items()}
-    return run_job(new_job(config, runs, dotted), callback, address, workers)
+    kind, settings = load_job_config(config, dotted)
+    check_ray_job(kind, address, workers, settings)  # before a run folder is made
+    return run_job(kind.job_class().new(settings, Path(runs)), callback, address, workers)
 
 
 def describe() -> list[tuple[str, str, list[str]]]:

@@ -64,6 +64,7 @@ def rl_distributed(
     seed: Annotated[int, seed_option("Seed")] = 0,
 ) -> None:
     """Learning from Ray simulator workers (thesis §6.1); a worker that dies is restarted and the run goes on."""
+    from binpick.cluster import check_ray_address
     from binpick.core.config import check_choice
     from binpick.envs import resolve_env_id
 
@@ -76,25 +77,29 @@ def rl_distributed(
 
         config = DistributedConfig(env=resolve_env_id(env_id or "FetchReach"), workers=workers, total_timesteps=steps,
                                    address=address, seed=seed)
-    else:
-        from binpick.integrations.ray.a3c import (
-            DistributedA3CConfig,
-            train_a3c_distributed,
-        )
+    else:  # A3C: a run folder like any RL run's (binpick train CONFIG --address ... takes a whole RL YAML)
+        from binpick.core.config import from_dict
+        from binpick.integrations.ray.a3c import learn_on_ray
+        from binpick.rl.a3c_train import A3CTrainer
+        from binpick.rl.config import RLConfig
 
-        config = DistributedA3CConfig(env=resolve_env_id(env_id or "Arm2D"), workers=workers, total_timesteps=steps,
-                                      address=address, seed=seed)
-    if algorithm == "sac" and steps <= config.learning_starts:
+        config = from_dict(RLConfig, {"name": "a3c_distributed", "env": resolve_env_id(env_id or "Arm2D"), "algorithm": "a3c",
+                                      "total_timesteps": steps, "seed": seed, "a3c": {"workers": workers}}, where="rl distributed")
+        check_ray_address(address)
+        trainer = A3CTrainer.new(config, ensure_dir(out, "--out"))
+        with progress() as callback:
+            metrics = trainer.run(callback, learn=learn_on_ray(address))
+        console.print(f"{metrics['sim_steps']} env steps in {metrics['wall_seconds']} s "
+                      f"({metrics.get('worker_restarts', 0)} worker restart(s)); final success {metrics['final_success']:.0%}, "
+                      f"{metrics['final_avg_actions']:.1f} actions; wrote {trainer.run_dir}")
+        return
+    if steps <= config.learning_starts:
         warn(f"--steps {steps} ends before the learner's first update (after {config.learning_starts} steps): "
              "the policy will not learn")
     run_dir = ensure_dir(out, "--out") / time.strftime("%Y%m%d-%H%M%S")  # written when the run ends
     with progress() as callback, callback.task(f"{algorithm}, {workers} workers", steps) as task:
-        if algorithm == "sac":
-            metrics = train_distributed(config, run_dir, on_episode=lambda _e, _r, model: task.update(model.num_timesteps))
-        else:
-            metrics = train_a3c_distributed(config, run_dir, on_update=lambda done, _pool: task.update(done))
-    lost = metrics.get("lost_episodes", metrics.get("lost_rollouts"))
-    console.print(f"{metrics['env_steps']} env steps in {metrics['wall_s']} s ({lost} lost to dead workers); "
+        metrics = train_distributed(config, run_dir, on_episode=lambda _e, _r, model: task.update(model.num_timesteps))
+    console.print(f"{metrics['env_steps']} env steps in {metrics['wall_s']} s ({metrics['lost_episodes']} lost to dead workers); "
                   f"final success {metrics['final_success']:.0%}, {metrics['final_avg_actions']:.1f} actions; wrote {run_dir}")
 
 

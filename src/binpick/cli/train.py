@@ -20,9 +20,10 @@ def train(
     runs: Annotated[Path, typer.Option(help="Where new run folders go (a data set goes to its config's out)")] = Path("runs"),
     settings: ConfigSetOption = None,
     list_tasks: Annotated[bool, typer.Option("--list", help="List the tasks and their config keys, then exit")] = False,
-    address: Annotated[str | None, typer.Option(help="Train on a Ray cluster (detect jobs so far): local (one on this "
-                                                     "machine), auto, HOST:PORT or ray://HOST:PORT")] = None,
-    workers: Annotated[int, typer.Option(help="Ray Train workers (data-parallel) with --address")] = 1,
+    address: Annotated[str | None, typer.Option(help="Train on a Ray cluster (detect, pickability, grasp_quality; rl "
+                                                     "with A3C): local (one on this machine), auto, HOST:PORT or ray://HOST:PORT")] = None,
+    workers: Annotated[int, typer.Option(help="Ray Train workers (data-parallel) with --address; A3C's "
+                                                    "rollout workers are its a3c.workers")] = 1,
 ) -> None:
     """Train what CONFIG describes, or continue a run with --resume: checkpoints, TensorBoard and metrics.json
     in runs/<name>/<time>/; Ctrl-C or a crash loses at most the work since the last checkpoint."""
@@ -42,13 +43,13 @@ def train(
         if settings:
             raise ConfigError("--set applies to new runs; a resumed run keeps its config.yaml")
         kind = jobs.job_kind_of_run(resume)
-        jobs.check_ray_job(kind, address, workers)
+        jobs.check_ray_job(kind, address, workers, jobs.run_config(resume, kind))
         job = kind.job_class().resume(resume)
         done = jobs.progress(resume)
         console.print(f"resuming {resume} ({kind.task}){'' if done is None else f' at {done} {kind.steps_key}'}")
     else:
         kind, settings_ = jobs.load_job_config(config, parse_settings(settings))
-        jobs.check_ray_job(kind, address, workers)
+        jobs.check_ray_job(kind, address, workers, settings_)
         job = kind.job_class().new(settings_, runs)
         console.print(f"{kind.task}: {job.run_dir}")
     again = f"binpick train --resume {job.run_dir}" + (f" --address {address} --workers {workers}" if address else "")

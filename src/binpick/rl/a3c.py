@@ -212,13 +212,14 @@ class A3CWorker:
         self.observation, info = self.env.reset(seed=self.seed + 100_003 * self._episode)
         self.semantic = info.get(self.state_key)
 
-    def compute_gradients(self, weights: dict[str, torch.Tensor]) -> tuple[list[torch.Tensor], RolloutStats]:
-        """Play up to n_steps with ``weights`` and return the A3C gradients (Eq 3.5-3.7)."""
+    def compute_gradients(self, weights: dict[str, torch.Tensor], max_steps: int | None = None) -> tuple[list[torch.Tensor], RolloutStats]:
+        """Play up to n_steps (fewer with ``max_steps``: a learner that stops at an exact step count)
+        with ``weights`` and return the A3C gradients (Eq 3.5-3.7)."""
         self.model.load_state_dict(weights)
         stats = RolloutStats()
         images, actions, rewards, semantic = [], [], [], []
         done = False
-        for _ in range(self.n_steps):
+        for _ in range(self.n_steps if max_steps is None else max(1, min(self.n_steps, max_steps))):
             images.append(self.observation)
             semantic.append(self.semantic)
             action = self.model.act(self.observation)

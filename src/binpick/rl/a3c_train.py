@@ -102,34 +102,53 @@ def _state_size(config: RLConfig, wrap_env: EnvWrapper | None = None) -> int:
     return int(np.asarray(state).size)
 
 
+def make_worker(config: RLConfig, rank: int, state_size: int, wrap_env: EnvWrapper | None = None, start_step: int = 0,
+                restarts: int = 0) -> A3CWorker:
+    """One A3C worker of the run (its simulator and its copy of the network), seeded by its rank, the
+    step it starts at and how often its process was started again, so no two play the same episodes."""
+    a3c = config.a3c
+    env_shape = make_env(config, wrap_env).observation_space.shape
+    return A3CWorker(lambda: make_env(config, wrap_env), env_shape, 6,
+                     seed=config.seed * 1000 + rank * 7919 + start_step + restarts * 1_000_003,
+                     n_steps=a3c.n_steps, gamma=a3c.gamma, entropy_beta=a3c.entropy_beta,
+                     value_coef=a3c.value_coef, max_grad_norm=a3c.max_grad_norm, reward_scale=a3c.reward_scale,
+                     encoder=a3c.encoder, state_weight=a3c.state_weight, state_size=state_size,
+                     state_key=a3c.state_key, policy_input=a3c.policy_input, detach_perception=a3c.detach_perception,
+                     hidden_layers=a3c.hidden_layers)
+
+
+def set_goal_area(worker: A3CWorker, area: float, current: float) -> float:
+    """The worker's goal area becomes ``area`` between episodes only (the one it plays now otherwise)."""
+    if area != current and worker._episode_steps == 0:
+        worker.env.unwrapped.set_goal_area(area)
+        worker.reset_env()
+        return area
+    return current
+
+
 def _worker(rank: int, config: RLConfig, model: ActorCritic, optimizer: SharedAdam, counter, goal_area,
             stats_queue, stop, wrap_env: EnvWrapper | None = None) -> None:
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole process group: the trainer stops its workers
     torch.set_num_threads(1)
-    a3c = config.a3c
-    env_shape = make_env(config, wrap_env).observation_space.shape
-    worker = A3CWorker(lambda: make_env(config, wrap_env), env_shape, 6, seed=config.seed * 1000 + rank * 7919 + counter.value,
-                       n_steps=a3c.n_steps, gamma=a3c.gamma, entropy_beta=a3c.entropy_beta,
-                       value_coef=a3c.value_coef, max_grad_norm=a3c.max_grad_norm, reward_scale=a3c.reward_scale,
-                       encoder=a3c.encoder, state_weight=a3c.state_weight, state_size=model.state_size,
-                       state_key=a3c.state_key, policy_input=a3c.policy_input, detach_perception=a3c.detach_perception,
-                       hidden_layers=a3c.hidden_layers)
+    worker = make_worker(config, rank, model.state_size, wrap_env, counter.value)
     area, trainer = -1.0, multiprocessing.parent_process()
     while not stop.is_set() and counter.value < config.total_timesteps:
         if trainer is not None and not trainer.is_alive():  # killed (daemon workers outlive a SIGKILL): nobody saves this
             return
-        if goal_area.value != area and worker._episode_steps == 0:  # change the area between episodes only
-            area = goal_area.value
-            worker.env.unwrapped.set_goal_area(area)
-            worker.reset_env()
+        area = set_goal_area(worker, goal_area.value, area)
         gradients, stats = worker.compute_gradients(model.state_dict())
         apply_gradients(model, optimizer, gradients)
         with counter.get_lock():
             counter.value += stats.steps
-        stats_queue.put((rank, stats.finished_lengths, stats.finished_successes, stats.policy_loss,
-                         stats.value_loss, stats.entropy, stats.state_loss, area))
+        stats_queue.put(rollout_record(stats, area))
+
+
+def rollout_record(stats, area: float) -> tuple:
+    """What the trainer learns of one rollout: finished episodes, losses and the goal area it played in."""
+    return (stats.finished_lengths, stats.finished_successes, stats.policy_loss, stats.value_loss, stats.entropy,
+            stats.state_loss, area)
 
 
 def _source_checkpoint(config: RLConfig) -> Path:
@@ -145,6 +164,24 @@ def _source_checkpoint(config: RLConfig) -> Path:
     if checkpoint is None:
         raise ConfigError(f"init_from: run {source} has no checkpoint yet")
     return checkpoint
+
+
+class TrainingLog:
+    """What one training session keeps beside the run's state: TensorBoard, its clock (carried over
+    from earlier sessions), the episode lengths seen, and the next evaluation and checkpoint steps."""
+
+    def __init__(self, run_dir: Path, steps: int, wall_seconds: float, eval_every: int, save_every: int) -> None:
+        self.writer = SummaryWriter(str(run_dir / "tb"))
+        self.started = time.perf_counter() - wall_seconds
+        self.next_eval = (steps // eval_every + 1) * eval_every
+        self.next_save = (steps // save_every + 1) * save_every
+        self.lengths: list[int] = []
+
+    def elapsed(self) -> float:
+        return time.perf_counter() - self.started
+
+    def close(self) -> None:
+        self.writer.close()
 
 
 class A3CTrainer:
@@ -254,13 +291,15 @@ class A3CTrainer:
                 "mean_length": result.mean_length, "std_length": result.std_length}
 
     # ------------------------------------------------------------------ training
-    def run(self, callback: RunCallback = SILENT) -> dict[str, Any]:
+    def run(self, callback: RunCallback = SILENT, learn: Callable[[A3CTrainer, Task], None] | None = None) -> dict[str, Any]:
+        """Pre-train perception if asked, train to ``total_timesteps`` with the run's workers (``learn``:
+        another way to play the rollouts, e.g. Ray actors, sharing :meth:`take`), measure, write outputs."""
         torch.set_num_threads(1)  # the workers need the cores; evaluation is one small forward pass a step
         if self.config.a3c.pretrain_pictures and self.steps == 0 and "pretrain" not in self.metrics:
             self._pretrain(callback)
         if self.steps < self.config.total_timesteps:
             with callback.task(self.config.name, self.config.total_timesteps, self.steps) as task:
-                self._train(task)
+                (learn or A3CTrainer._train)(self, task)
         evaluations = self.metrics["evaluations"]
         if not evaluations or evaluations[-1]["sim_steps"] != self.steps:  # the final policy is always measured
             evaluations.append(self.evaluate(self.goal_area(self.steps)))
@@ -290,59 +329,68 @@ class A3CTrainer:
         workers = [context.Process(target=_worker, args=(rank, self.config, self.model, self.optimizer, counter,
                                                          goal_area, stats_queue, stop, self.wrap_env), daemon=True)
                    for rank in range(self.config.a3c.workers)]
-        writer = SummaryWriter(str(self.run_dir / "tb"))
-        started = time.perf_counter() - self.metrics["wall_seconds"]
-        every, save_every = self.config.eval.every, self.config.checkpoint_every
-        next_eval = (self.steps // every + 1) * every
-        next_save = (self.steps // save_every + 1) * save_every
-        lengths: list[int] = []
+        log = self.open_log()
         for worker in workers:
             worker.start()
         try:
             while any(w.is_alive() for w in workers) and self.steps < self.config.total_timesteps:
                 try:
-                    rank, finished, successes, policy_loss, value_loss, entropy, state_loss, area = stats_queue.get(timeout=1.0)
+                    record = stats_queue.get(timeout=1.0)
                 except queue.Empty:
                     continue
                 self.steps = counter.value
-                for length in finished:
-                    lengths.append(length)
-                    self.metrics["episodes"] += 1
-                    writer.add_scalar("episode/length", length, self.steps)
-                if self.curriculum.record(self.steps, finished, area):  # re-converged: the next stage ramps in
-                    writer.add_scalar("curriculum/stage", self.curriculum.stage, self.steps)
-                goal_area.value = self.goal_area(self.steps)
-                writer.add_scalar("loss/policy", policy_loss, self.steps)
-                writer.add_scalar("loss/value", value_loss, self.steps)
-                writer.add_scalar("loss/entropy", entropy, self.steps)
-                if self.state_size:
-                    writer.add_scalar("loss/state", state_loss, self.steps)
-                writer.add_scalar("curriculum/goal_area", goal_area.value, self.steps)
-                recent = f"last 100 episodes {np.mean(lengths[-100:]):.1f} actions" if lengths else ""
-                task.update(self.steps, status=f"area {goal_area.value:.2f} · {recent}")
-                if self.steps >= next_eval:
-                    next_eval += every
-                    row = self.evaluate(goal_area.value)
-                    self.metrics["evaluations"].append(row)
-                    writer.add_scalar("eval/avg_actions", row["mean_length"], self.steps)
-                    writer.add_scalar("eval/success_rate", row["success_rate"], self.steps)
-                if self.steps >= next_save:
-                    next_save += save_every
-                    self.metrics["wall_seconds"] = time.perf_counter() - started
-                    self.save_checkpoint()
+                goal_area.value = self.take(record, log, task)
         finally:
             stop.set()
             for worker in workers:
                 worker.join(timeout=10)
                 if worker.is_alive():
                     worker.terminate()
-            writer.close()
+            log.close()
         self.steps = counter.value
-        self.metrics["wall_seconds"] = time.perf_counter() - started
+        self.metrics["wall_seconds"] = log.elapsed()
         failed = [worker.exitcode for worker in workers if worker.exitcode]
         if self.steps < self.config.total_timesteps and failed:  # not a finished run: no final evaluation, no metrics
             raise WorkerError(f"A3C workers exited with an error (exit codes {failed}, traceback above) at step "
                               f"{self.steps:,}; {self.run_dir} resumes from its last checkpoint (binpick rl train --resume)")
+
+    def open_log(self) -> TrainingLog:
+        """TensorBoard, the wall clock and the next evaluation and checkpoint, from where the run stands."""
+        return TrainingLog(self.run_dir, self.steps, self.metrics["wall_seconds"], self.config.eval.every,
+                           self.config.checkpoint_every)
+
+    def take(self, record: tuple, log: TrainingLog, task: Task) -> float:
+        """One rollout's record (:func:`rollout_record`) at ``self.steps``: episodes, curriculum, losses,
+        progress, then the evaluation and checkpoint that are due. Returns the goal area from now on
+        (the local workers and the Ray learner share this bookkeeping)."""
+        finished, successes, policy_loss, value_loss, entropy, state_loss, area = record
+        writer = log.writer
+        for length in finished:
+            log.lengths.append(length)
+            self.metrics["episodes"] += 1
+            writer.add_scalar("episode/length", length, self.steps)
+        if self.curriculum.record(self.steps, finished, area):  # re-converged: the next stage ramps in
+            writer.add_scalar("curriculum/stage", self.curriculum.stage, self.steps)
+        now = self.goal_area(self.steps)
+        writer.add_scalar("loss/policy", policy_loss, self.steps)
+        writer.add_scalar("loss/value", value_loss, self.steps)
+        writer.add_scalar("loss/entropy", entropy, self.steps)
+        if self.state_size:
+            writer.add_scalar("loss/state", state_loss, self.steps)
+        writer.add_scalar("curriculum/goal_area", now, self.steps)
+        recent = f"last 100 episodes {np.mean(log.lengths[-100:]):.1f} actions" if log.lengths else ""
+        task.update(self.steps, status=f"area {now:.2f} · {recent}")
+        if self.steps >= log.next_eval:
+            log.next_eval += self.config.eval.every
+            row = self.evaluate(now)
+            self.metrics["evaluations"].append(row)
+            writer.add_scalar("eval/avg_actions", row["mean_length"], self.steps)
+            writer.add_scalar("eval/success_rate", row["success_rate"], self.steps)
+        if self.steps >= log.next_save:
+            log.next_save += self.config.checkpoint_every
+            self.metrics["wall_seconds"] = log.elapsed()
+            self.save_checkpoint()
+        return now
 
     def write_outputs(self) -> dict[str, Any]:
         from binpick.viz.plots import plot_learning_curve
@@ -353,6 +401,7 @@ class A3CTrainer:
                 "final_success": last["success_rate"], "final_avg_actions": last["mean_length"],
                 "final_std_actions": last["std_length"], "wall_seconds": round(self.metrics["wall_seconds"], 1),
                 "curriculum_advanced_at": list(self.curriculum.advanced_at),
+                **{key: self.metrics[key] for key in ("worker_restarts", "lost_rollouts") if key in self.metrics},
                 **({"pretrain": self.metrics["pretrain"]} if "pretrain" in self.metrics else {}),
                 "evaluations": self.metrics["evaluations"]}
         atomic_write_json(self.run_dir / "metrics.json", data)

@@ -1,115 +1,107 @@
-"""A3C with its workers as Ray actors (thesis §3.1.2 over §6.1's distributed simulators).
+"""A3C with its workers as Ray actors (thesis §3.1.2 over §6.1's distributed simulators), from the same
+RL config and into the same run folder as a local run (``binpick train CONFIG --address ...``).
 
-Each actor owns a simulator and an :class:`~binpick.rl.a3c.A3CWorker`: given the global weights it
-plays up to n steps and returns gradients (Eq 3.5-3.7). The learner applies whichever worker's
-gradients arrive first and sends that worker the new weights — asynchronous, as A3C is, but across
-processes or machines instead of threads sharing memory. A worker that dies is restarted; its
-rollout is lost.
+Each actor owns a simulator and an :class:`~binpick.rl.a3c.A3CWorker` built as a local worker is
+(:func:`binpick.rl.a3c_train.make_worker`: encoder, state head, policy input, layers, reward scale):
+given the global weights and the curriculum's goal area it plays up to ``n_steps`` and returns
+gradients (Eq 3.5-3.7). The learner on the driver applies whichever gradients arrive first and hands
+out step budgets so that no rollout crosses the next evaluation, checkpoint or the end: evaluations
+fall on exact multiples of ``eval.every`` and the run ends at exactly ``total_timesteps``. A worker that
+dies is restarted by Ray (its process seeded anew); the steps of its lost rollout are handed out
+again, so the run's steps and evaluations are those of a run without the fault. Curriculum,
+TensorBoard, evaluations, checkpoints and outputs are the local trainer's own
+(:meth:`binpick.rl.a3c_train.A3CTrainer.take`); ``--resume`` continues either way.
 """
 
 from __future__ import annotations
 
 import os
-import time
-from dataclasses import asdict, dataclass
-from pathlib import Path
+from collections.abc import Callable
 from typing import Any
 
-from binpick.core import tensorfile
-from binpick.core.config import check_range
-from binpick.core.errors import ConfigError
-from binpick.cluster import check_ray_address
+from binpick.core.errors import WorkerError
 from binpick.integrations.ray.rollouts import RestartingActors
-from binpick.core.files import atomic_write_json
 
 
 class A3CActor:
-    def __init__(self, env_id: str, env_kwargs: dict, seed: int, a3c: dict) -> None:
+    """One rollout worker of an A3C run, in its own process."""
+
+    def __init__(self, config, rank: int, state_size: int, wrap_env, start_step: int) -> None:
         os.environ.setdefault("MUJOCO_GL", "egl")
+        import ray
         import torch
 
-        from binpick.envs import make
-        from binpick.rl.a3c import A3CWorker
+        from binpick.rl.a3c_train import make_worker
 
         torch.set_num_threads(1)
-        probe = make(env_id, **env_kwargs)
-        shape, actions = probe.observation_space.shape, int(probe.action_space.n)
-        probe.close()
-        self.worker = A3CWorker(lambda: make(env_id, **env_kwargs), shape, actions, seed=seed, **a3c)
+        # a process Ray started again after a death plays other episodes than the one it replaces
+        restarts = 1 + os.getpid() % 997 if ray.get_runtime_context().was_current_actor_reconstructed else 0
+        self.worker = make_worker(config, rank, state_size, wrap_env, start_step, restarts)
+        self.area = -1.0
 
     def pid(self) -> int:
         return os.getpid()
 
-    def gradients(self, weights):
-        return self.worker.compute_gradients(weights)
+    def gradients(self, weights, area: float, max_steps: int) -> tuple[list, int, tuple]:
+        """Gradients of a rollout of at most ``max_steps`` in goal area ``area`` (from the next episode)."""
+        from binpick.rl.a3c_train import rollout_record, set_goal_area
+
+        self.area = set_goal_area(self.worker, area, self.area)
+        gradients, stats = self.worker.compute_gradients(weights, max_steps)
+        return gradients, stats.steps, rollout_record(stats, self.area)
 
 
-@dataclass(frozen=True)
-class DistributedA3CConfig:
-    env: str = "binpick/Arm2D-v0"
-    workers: int = 2
-    total_timesteps: int = 20_000
-    lr: float = 1e-4
-    n_steps: int = 20
-    eval_episodes: int = 20
-    address: str | None = None
-    seed: int = 0
+def learn_on_ray(address: str | None = None, on_update: Callable[[Any, RestartingActors], None] | None = None):
+    """The ``learn`` of :meth:`A3CTrainer.run <binpick.rl.a3c_train.A3CTrainer.run>` that plays the run's
+    ``a3c.workers`` rollouts on Ray actors (``address`` None or ``local``: a private cluster on this
+    machine, 127.0.0.1 only). ``on_update(trainer, actors)`` runs after every applied rollout."""
 
-    def __post_init__(self) -> None:
-        check_range("workers", self.workers, 1, 4096, integer=True)
-        check_range("total_timesteps", self.total_timesteps, 1, 10**9, integer=True)
-        check_range("seed", self.seed, 0, 2**32 - 1, integer=True)
-        check_ray_address(self.address)
-        from binpick.envs import env_spec, resolve_env_id
+    def learn(trainer, task) -> None:
+        _learn(trainer, task, None if address == "local" else address, on_update)
 
-        object.__setattr__(self, "env", resolve_env_id(self.env))
-        if not env_spec(self.env).discrete_actions:
-            raise ConfigError(f"A3C learns from images with discrete actions (Arm2D); {self.env} has continuous ones")
+    return learn
 
 
-def train_a3c_distributed(config: DistributedA3CConfig, out: Path | None = None, on_update=None) -> dict[str, Any]:
-    """Train; returns metrics (and writes the network and metrics.json to ``out``)."""
+def _learn(trainer, task, address: str | None, on_update) -> None:
     import ray
-    import torch
 
-    from binpick.envs import make
-    from binpick.rl.a3c import ActorCritic, apply_gradients
-    from binpick.rl.evaluate import evaluate_policy
+    from binpick.rl.a3c import apply_gradients
 
-    torch.manual_seed(config.seed)
-    local = make(config.env)
-    model = ActorCritic(local.observation_space.shape, int(local.action_space.n))
-    optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
-    arguments = [(config.env, {}, config.seed * 1000 + 7919 * i, {"n_steps": config.n_steps}) for i in range(config.workers)]
-    pool = RestartingActors(A3CActor, arguments, config.address)
-    latest = {"weights": ray.put(model.state_dict())}
-    steps, updates, lengths, successes = 0, 0, [], []
-    started = time.perf_counter()
+    config = trainer.config
+    total, n_steps = config.total_timesteps, config.a3c.n_steps
+    arguments = [(config, rank, trainer.state_size, trainer.wrap_env, trainer.steps) for rank in range(config.a3c.workers)]
+    pool = RestartingActors(A3CActor, arguments, address)
+    log = trainer.open_log()
+    weights = ray.put(trainer.model.state_dict())
+    area = trainer.goal_area(trainer.steps)
+    budgets: dict[int, int] = {}  # steps handed to each busy worker
+    restarts_before = trainer.metrics.get("worker_restarts", 0)
     try:
-        for _, (gradients, stats) in pool.results(lambda actor: actor.gradients.remote(latest["weights"])):
-            apply_gradients(model, optimizer, gradients)
-            latest["weights"] = ray.put(model.state_dict())
-            steps += stats.steps
-            updates += 1
-            lengths += stats.finished_lengths
-            successes += stats.finished_successes
+        while trainer.steps < total:
+            boundary = min(total, log.next_eval, log.next_save)  # no rollout crosses an evaluation, a checkpoint or the end
+            room = boundary - trainer.steps - sum(budgets.values())
+            for index in pool.idle():
+                grant = min(n_steps, room)
+                if grant <= 0:
+                    break
+                pool.start(index, pool.actors[index].gradients.remote(weights, area, grant))
+                budgets[index], room = grant, room - grant
+            if not pool.in_flight:
+                raise WorkerError(f"A3C on Ray: no rollout to wait for at step {trainer.steps:,} (boundary {boundary:,})")
+            index, result, ok = pool.next_result()
+            budgets.pop(index, None)
+            if not ok:  # the worker died with its rollout: Ray restarts it, the steps are handed out again
+                trainer.metrics["lost_rollouts"] = trainer.metrics.get("lost_rollouts", 0) + 1
+                trainer.metrics["worker_restarts"] = restarts_before + pool.deaths
+                continue
+            gradients, steps, record = result
+            apply_gradients(trainer.model, trainer.optimizer, gradients)
+            weights = ray.put(trainer.model.state_dict())
+            trainer.steps += steps
+            area = trainer.take(record, log, task)
             if on_update is not None:
-                on_update(steps, pool)
-            if steps >= config.total_timesteps:
-                break
-        elapsed = time.perf_counter() - started
+                on_update(trainer, pool)
     finally:
         pool.close()
-    evaluation = evaluate_policy(lambda observation: model.act(observation, deterministic=True), local,
-                                 episodes=config.eval_episodes, seed=10_000)
-    local.close()
-    metrics = {"config": asdict(config), "env_steps": steps, "updates": updates, "episodes": len(lengths),
-               "lost_rollouts": pool.deaths, "worker_restarts": pool.deaths, "wall_s": round(elapsed, 1),
-               "env_steps_per_s_with_learning": round(steps / elapsed, 1),
-               "training_success": round(sum(successes) / max(1, len(successes)), 3),
-               "final_success": evaluation.success_rate, "final_avg_actions": evaluation.mean_length}
-    if out is not None:
-        tensorfile.save(out / "model.safetensors", "binpick-a3c-model-1", tensors=model.state_dict(),
-                        meta={"config": asdict(config), "observation_shape": list(local.observation_space.shape)})
-        atomic_write_json(out / "metrics.json", metrics)
-    return metrics
+        log.close()
+    trainer.metrics["wall_seconds"] = log.elapsed()

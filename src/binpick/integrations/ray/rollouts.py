@@ -130,31 +130,47 @@ class RestartingActors:
                     raise
                 time.sleep(0.2)
 
-    def results(self, submit, on_restart=None) -> Iterator[tuple[int, Any]]:
-        """``submit(actor)`` starts a task on an actor and returns its object ref."""
+    def start(self, index: int, ref: Any) -> None:
+        """A task (its object ref) now runs on worker ``index``."""
+        self.in_flight[ref] = index
+
+    def idle(self) -> list[int]:
+        """Workers with no task running."""
+        busy = set(self.in_flight.values())
+        return [index for index in range(len(self.actors)) if index not in busy]
+
+    def next_result(self) -> tuple[int, Any, bool]:
+        """The next task to end: ``(worker index, result, True)``, or ``(index, None, False)`` when the
+        worker died with it (Ray restarts the worker; a death is counted once however many tasks it
+        loses while restarting)."""
         import ray
         from ray.exceptions import ActorUnavailableError, RayActorError
 
-        for index, actor in enumerate(self.actors):
-            if index not in self.in_flight.values():
-                self.in_flight[submit(actor)] = index
+        ready, _ = ray.wait(list(self.in_flight), num_returns=1)
+        index = self.in_flight.pop(ready[0])
+        try:
+            result = ray.get(ready[0])
+        except (RayActorError, ActorUnavailableError):
+            if index not in self.recovering:
+                self.deaths += 1
+                self.recovering.add(index)
+            time.sleep(0.2)
+            return index, None, False
+        self.recovering.discard(index)
+        return index, result, True
+
+    def results(self, submit, on_restart=None) -> Iterator[tuple[int, Any]]:
+        """``submit(actor)`` starts a task on an actor and returns its object ref; every worker is kept
+        busy and the results are yielded as they come; a lost task is started again."""
+        for index in self.idle():
+            self.start(index, submit(self.actors[index]))
         while True:
-            ready, _ = ray.wait(list(self.in_flight), num_returns=1)
-            index = self.in_flight.pop(ready[0])
-            try:
-                result = ray.get(ready[0])
-            except (RayActorError, ActorUnavailableError):  # the worker died mid-task: Ray restarts it
-                if index not in self.recovering:  # its task is lost (later failures: still restarting)
-                    self.deaths += 1
-                    self.recovering.add(index)
-                time.sleep(0.2)
-                if on_restart is not None:
-                    on_restart(index)
-                self.in_flight[submit(self.actors[index])] = index
-                continue
-            self.recovering.discard(index)
-            self.in_flight[submit(self.actors[index])] = index
-            yield index, result
+            index, result, ok = self.next_result()
+            if not ok and on_restart is not None:
+                on_restart(index)
+            self.start(index, submit(self.actors[index]))
+            if ok:
+                yield index, result
 
     def close(self) -> None:
         import ray
