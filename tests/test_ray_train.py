@@ -126,6 +126,43 @@ def test_two_workers_take_the_local_grasp_quality_run_s_steps(tmp_path, ray_clus
     assert remote["best_val_auc"] == pytest.approx(local["best_val_auc"], abs=1e-6)
 
 
+def _descendants(root: int) -> set[int]:
+    children: dict[int, list[int]] = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                parent = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            except (OSError, IndexError, ValueError):
+                continue
+            children.setdefault(parent, []).append(int(entry.name))
+    found, stack = set(), [root]
+    while stack:
+        pid = stack.pop()
+        found.add(pid)
+        stack.extend(children.get(pid, []))
+    return found
+
+
+def test_the_private_cluster_listens_on_loopback_only(ray_cluster):
+    """Every Ray process of the private cluster (this process's children) announces and listens on 127.0.0.1."""
+    import ray
+
+    @ray.remote
+    def pid() -> int:
+        return os.getpid()
+
+    workers = set(ray.get([pid.remote() for _ in range(4)]))
+    assert {node["NodeManagerAddress"] for node in ray.nodes()} == {"127.0.0.1"}
+    ours = _descendants(os.getpid())
+    assert workers <= ours
+    listening = subprocess.run(["ss", "-ltnpH"], capture_output=True, text=True, check=True).stdout.splitlines()
+    mine = [line for line in listening if any(f"pid={p}," in line for p in ours)]
+    assert len(mine) >= 4, listening  # the GCS, the raylet, the workers
+    for line in mine:
+        local = line.split()[3].rsplit(":", 1)[0]
+        assert local in ("127.0.0.1", "[::ffff:127.0.0.1]"), line
+
+
 def test_ray_options_are_checked_before_a_run_folder_is_made(tmp_path):
     from binpick import jobs
 

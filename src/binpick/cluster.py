@@ -64,14 +64,21 @@ def start_ray(address: str | None, workers: int) -> bool:
     """Connect to ``address`` (checked and probed first) or start a private local cluster of
     ``workers`` CPUs on 127.0.0.1. Returns whether this call started Ray (and must shut it down)."""
     if address is None:
-        os.environ.setdefault(LOCAL_ONLY_ENV, "0")
+        os.environ[LOCAL_ONLY_ENV] = "0"  # for the processes Ray starts
     import ray
+
+    if address is None:  # Ray read the variable when this process imported it, maybe before now
+        from ray._private import ray_constants
+
+        ray_constants.ENABLE_RAY_CLUSTER = False
 
     if address is not None:
         probe_ray_address(check_ray_address(address))
     if ray.is_initialized():
         return False
-    options = {"address": address} if address else {"num_cpus": workers}
+    # a private cluster: every Ray process listens on, and announces, 127.0.0.1 only (without the node
+    # address Ray takes the machine's network address and its servers listen on every interface)
+    options = {"address": address} if address else {"num_cpus": workers, "_node_ip_address": "127.0.0.1"}
     ray.init(include_dashboard=False, log_to_driver=False, logging_level="ERROR",
              runtime_env={"env_vars": {"MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}}, **options)
     return True
