@@ -66,6 +66,8 @@ SKIPPED = {
         "(hours); tests/test_ray_train.py trains a small detector on one and two Ray workers, one of them killed",
     "binpick train configs/detection/rod_warehouse.yaml --address A_HOST:6379 --workers 8": "needs a cluster",
     "binpick train --resume runs/rod_warehouse/<time> --address A_HOST:6379 --workers 8": "needs a cluster",
+    "binpick train configs/rl/rl_arm2d_curriculum_keypoints_bottleneck_deep.yaml --address A_HOST:6379 --set a3c.workers=16":
+        "needs a cluster (tests/test_distributed.py runs an A3C YAML on local Ray actors)",
     "python experiments/pick.py --robot panda --orders 50": "a benchmark (100 orders with the arm); tests/test_arm.py runs one",
     "python experiments/grasp.py eval": "a benchmark (40 bins of held-out products, the shipped grasp model); "
                                        "tests/test_grasping.py runs its pieces",
