@@ -58,6 +58,19 @@ def make_data(scenes: int) -> None:
     DataGeneration.new(config).run()
 
 
+def ours(pid: int) -> bool:
+    """Whether process ``pid`` descends from this one (a worker of this benchmark's private cluster)."""
+    me = os.getpid()
+    while pid > 1:
+        if pid == me:
+            return True
+        try:
+            pid = int(open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[1])
+        except (OSError, IndexError, ValueError):
+            return False
+    return False
+
+
 def timed(mode: str, job, threads: int) -> tuple[dict, float]:
     from binpick import jobs
 
@@ -136,12 +149,15 @@ def a3c(steps: int) -> dict:
 
 def rollout_fault(steps: int, uninterrupted: dict) -> dict:
     killed: list[int] = []
+    pids: list[int] = []
 
     def kill_one(trainer, actors) -> None:
-        if not killed and trainer.steps >= steps // 3:
-            pid = actors.pids()[1]
-            os.kill(pid, signal.SIGKILL)
-            killed.append(pid)
+        """Actor 1 SIGKILLed while a rollout of its is in flight (so that rollout is lost)."""
+        if not pids:
+            pids.extend(actors.pids())  # asked once: a pid call waits behind the actor's rollout
+        if not killed and trainer.steps >= steps // 3 and 1 in actors.in_flight.values():
+            os.kill(pids[1], signal.SIGKILL)
+            killed.append(pids[1])
 
     faulty = a3c_run(steps, 2, on_ray=True, on_update=kill_one)
     same = faulty["sim_steps"] == uninterrupted["sim_steps"] and faulty["evaluations_at"] == uninterrupted["evaluations_at"]
@@ -165,7 +181,8 @@ def detector_fault(epochs: int) -> dict:
             deadline = time.monotonic() + 1800
             while time.monotonic() < deadline and not list((job.run_dir / "checkpoints").glob("ckpt-*")):
                 time.sleep(0.1)
-            pids = subprocess.run(["pgrep", "-f", "RayTrainWorker"], capture_output=True, text=True).stdout.split()
+            found = subprocess.run(["pgrep", "-f", "RayTrainWorker"], capture_output=True, text=True).stdout.split()
+            pids = [pid for pid in found if ours(int(pid))]  # this benchmark's workers, no one else's
             if pids:
                 os.kill(int(pids[-1]), signal.SIGKILL)
                 killed.append(int(pids[-1]))

@@ -202,6 +202,8 @@ def main() -> None:
                 if not KEYPOINTS.is_file():
                     sys.exit(f"{key} reads the state with {KEYPOINTS}: make it with experiments/rl_arm2d_april.py first")
                 wrap_env = ReadStateOffPixels(str(KEYPOINTS))
+            if args.address is not None and config.algorithm != "a3c":
+                sys.exit(f"--address runs A3C's workers on Ray; {key} is {config.algorithm}")
             trainer = (continued(config, args.fresh, wrap_env, bench)
                        or trainer_for(config, bench, wrap_env=wrap_env))
             with RichCallback() as callback:
@@ -210,8 +212,6 @@ def main() -> None:
                 else:
                     from binpick.integrations.ray.a3c import learn_on_ray
 
-                    if config.algorithm != "a3c":
-                        sys.exit(f"--address runs A3C's workers on Ray; {key} is {config.algorithm}")
                     metrics = trainer.run(callback, learn=learn_on_ray(args.address))
             policy, _ = load_policy(trainer.run_dir)
             made = {"sim_steps": metrics["sim_steps"], "wall_seconds": metrics["wall_seconds"],

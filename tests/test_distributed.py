@@ -76,12 +76,15 @@ def test_a3c_from_an_rl_yaml_on_ray_actors_ends_as_a_run_without_the_fault(tmp_p
     assert (run / "checkpoints" / "latest").read_text().strip() == "ckpt-000000400"
 
     killed: list[int] = []
+    pids: list[int] = []
 
     def kill_one_mid_run(trainer, actors) -> None:
-        if not killed and trainer.steps >= 150:
-            pid = actors.pids()[1]
-            os.kill(pid, signal.SIGKILL)
-            killed.append(pid)
+        """Worker 1 SIGKILLed while a rollout of its is in flight (so that rollout is lost)."""
+        if not pids:
+            pids.extend(actors.pids())  # asked once: a pid call waits behind the worker's rollout
+        if not killed and trainer.steps >= 150 and 1 in actors.in_flight.values():
+            os.kill(pids[1], signal.SIGKILL)
+            killed.append(pids[1])
 
     config = from_dict(RLConfig, {k: v for k, v in A3C.items() if k != "task"}, where="test")
     trainer = A3CTrainer.new(config, tmp_path / "faulty")
@@ -90,3 +93,39 @@ def test_a3c_from_an_rl_yaml_on_ray_actors_ends_as_a_run_without_the_fault(tmp_p
     assert faulty["sim_steps"] == plain["sim_steps"] and [e["sim_steps"] for e in faulty["evaluations"]] == steps
     assert faulty["worker_restarts"] == 1 and faulty["lost_rollouts"] >= 1
     assert faulty["episodes"] > 0 and all(0 <= e["success_rate"] <= 1 for e in faulty["evaluations"])
+
+
+@pytest.mark.slow
+def test_a_killed_driver_resumes_on_ray_with_the_steps_and_evaluations_of_an_uninterrupted_run(tmp_path):
+    """`binpick train A3C.yaml --address local` killed (driver and its private cluster, SIGKILL) after its
+    first checkpoint; `binpick train --resume RUN --address local` ends at the exact budget with every
+    evaluation once, at the steps an uninterrupted run has."""
+    import json
+    import subprocess
+    import sys
+    import time
+
+    import yaml
+
+    cli = [sys.executable, "-c", "from binpick.cli import main; main()"]
+    path = tmp_path / "a3c.yaml"
+    path.write_text(yaml.safe_dump({**A3C, "total_timesteps": 600, "checkpoint_every": 200, "eval": {"every": 200, "episodes": 1}}))
+    driver = subprocess.Popen([*cli, "train", str(path), "--address", "local", "--runs", str(tmp_path / "runs")],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
+    deadline = time.monotonic() + 240
+    latest = None
+    while time.monotonic() < deadline and driver.poll() is None:
+        found = list((tmp_path / "runs" / "a3c_ray").glob("*/checkpoints/latest"))
+        if found:
+            latest = found[0]
+            break
+        time.sleep(0.1)
+    assert latest is not None, driver.stderr.read().decode()[-2000:] if driver.poll() is not None else "no checkpoint in time"
+    os.killpg(driver.pid, signal.SIGKILL)  # the driver and the Ray processes it started
+    driver.wait(timeout=30)
+    run = latest.parents[1]
+    assert not (run / "metrics.json").exists()  # it did not finish
+    resumed = subprocess.run([*cli, "train", "--resume", str(run), "--address", "local"], capture_output=True, text=True, timeout=300)
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["sim_steps"] == 600 and [e["sim_steps"] for e in metrics["evaluations"]] == [200, 400, 600]

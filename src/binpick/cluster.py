@@ -79,6 +79,8 @@ def start_ray(address: str | None, workers: int) -> bool:
     # a private cluster: every Ray process listens on, and announces, 127.0.0.1 only (without the node
     # address Ray takes the machine's network address and its servers listen on every interface)
     options = {"address": address} if address else {"num_cpus": workers, "_node_ip_address": "127.0.0.1"}
-    ray.init(include_dashboard=False, log_to_driver=False, logging_level="ERROR",
-             runtime_env={"env_vars": {"MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}}, **options)
+    env_vars = {"MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+    if address is None:  # gloo (data-parallel training) on the loopback interface too, whatever the host name resolves to
+        env_vars["GLOO_SOCKET_IFNAME"] = "lo"
+    ray.init(include_dashboard=False, log_to_driver=False, logging_level="ERROR", runtime_env={"env_vars": env_vars}, **options)
     return True

@@ -85,7 +85,7 @@ def rl_distributed(
 
         config = from_dict(RLConfig, {"name": "a3c_distributed", "env": resolve_env_id(env_id or "Arm2D"), "algorithm": "a3c",
                                       "total_timesteps": steps, "seed": seed, "a3c": {"workers": workers}}, where="rl distributed")
-        check_ray_address(address)
+        check_ray_address(None if address == "local" else address)
         trainer = A3CTrainer.new(config, ensure_dir(out, "--out"))
         with progress() as callback:
             metrics = trainer.run(callback, learn=learn_on_ray(address))

@@ -274,7 +274,8 @@ def train_epoch(head: PickabilityHead, optimiser: torch.optim.Optimizer, schedul
                 group: Group = ALONE) -> float:
     """One pass in random order with mirror flips (jaws along y stay along y); the mean loss. In a
     data-parallel group every process draws the same order and flips and trains on its part of each
-    batch, gradients averaged: the step a single process takes."""
+    batch, gradients averaged: close to the step a single process takes, not equal to it (batch norm
+    sees each part's statistics, and the factorised head's pick term averages over each part's copies)."""
     head.train()
     labels = windows["labels"]
     order = torch.randperm(len(labels), generator=generator)

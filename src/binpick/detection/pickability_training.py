@@ -156,7 +156,9 @@ class PickabilityTrainer:
         """Train as one process of a data-parallel group (:mod:`binpick.core.data_parallel`; Ray Train
         starts it): rank 0 cuts the windows into the run folder once while the others wait, then every
         process reads them, trains on its part of each batch (the same order and flips in all) with
-        gradients averaged, so each step is the single process's; rank 0 evaluates and writes."""
+        gradients averaged; rank 0 evaluates and writes. Batch norm keeps each process's statistics (as
+        PyTorch's DDP does on CPUs), so with several processes a step is close to, not equal to, one
+        process's."""
         self.group = Group.joined()
         self.group.split(self.config.batch_size)
         self.group.share([*self.head.parameters(), *self.head.buffers()])

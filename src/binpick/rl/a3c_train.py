@@ -339,7 +339,7 @@ class A3CTrainer:
                 except queue.Empty:
                     continue
                 self.steps = counter.value
-                goal_area.value = self.take(record, log, task)
+                self.take(record, log, task, on_area=lambda area: setattr(goal_area, "value", area))
         finally:
             stop.set()
             for worker in workers:
@@ -359,9 +359,10 @@ class A3CTrainer:
         return TrainingLog(self.run_dir, self.steps, self.metrics["wall_seconds"], self.config.eval.every,
                            self.config.checkpoint_every)
 
-    def take(self, record: tuple, log: TrainingLog, task: Task) -> float:
+    def take(self, record: tuple, log: TrainingLog, task: Task, on_area: Callable[[float], None] | None = None) -> float:
         """One rollout's record (:func:`rollout_record`) at ``self.steps``: episodes, curriculum, losses,
-        progress, then the evaluation and checkpoint that are due. Returns the goal area from now on
+        progress, then the evaluation and checkpoint that are due. Returns the goal area from now on,
+        given to ``on_area`` first, before any evaluation, so workers still playing meanwhile play it
         (the local workers and the Ray learner share this bookkeeping)."""
         finished, successes, policy_loss, value_loss, entropy, state_loss, area = record
         writer = log.writer
@@ -372,6 +373,8 @@ class A3CTrainer:
         if self.curriculum.record(self.steps, finished, area):  # re-converged: the next stage ramps in
             writer.add_scalar("curriculum/stage", self.curriculum.stage, self.steps)
         now = self.goal_area(self.steps)
+        if on_area is not None:
+            on_area(now)
         writer.add_scalar("loss/policy", policy_loss, self.steps)
         writer.add_scalar("loss/value", value_loss, self.steps)
         writer.add_scalar("loss/entropy", entropy, self.steps)

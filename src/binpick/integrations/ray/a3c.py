@@ -16,11 +16,15 @@ TensorBoard, evaluations, checkpoints and outputs are the local trainer's own
 from __future__ import annotations
 
 import os
+import time
 from collections.abc import Callable
 from typing import Any
 
 from binpick.core.errors import WorkerError
 from binpick.integrations.ray.rollouts import RestartingActors
+
+FAILING_S = 120.0  # a worker whose rollouts all fail for this long (it cannot start, or dies each time) fails the run
+WAIT_S = 600.0  # no rollout back from any worker for this long fails the run (a restart that cannot be placed)
 
 
 class A3CActor:
@@ -75,7 +79,11 @@ def _learn(trainer, task, address: str | None, on_update) -> None:
     weights = ray.put(trainer.model.state_dict())
     area = trainer.goal_area(trainer.steps)
     budgets: dict[int, int] = {}  # steps handed to each busy worker
-    restarts_before = trainer.metrics.get("worker_restarts", 0)
+    failing_since: dict[int, float] = {}  # workers whose rollouts fail, since when (cleared by a success)
+    trainer.metrics.setdefault("worker_restarts", 0)
+    trainer.metrics.setdefault("lost_rollouts", 0)
+    restarts_before = trainer.metrics["worker_restarts"]
+    resume = f"{trainer.run_dir} resumes from its last checkpoint (binpick train --resume RUN --address ...)"
     try:
         while trainer.steps < total:
             boundary = min(total, log.next_eval, log.next_save)  # no rollout crosses an evaluation, a checkpoint or the end
@@ -88,12 +96,21 @@ def _learn(trainer, task, address: str | None, on_update) -> None:
                 budgets[index], room = grant, room - grant
             if not pool.in_flight:
                 raise WorkerError(f"A3C on Ray: no rollout to wait for at step {trainer.steps:,} (boundary {boundary:,})")
-            index, result, ok = pool.next_result()
+            try:
+                index, result, ok = pool.next_result(timeout=WAIT_S)
+            except TimeoutError:
+                raise WorkerError(f"A3C on Ray: no rollout came back within {WAIT_S:.0f} s at step {trainer.steps:,} "
+                                  f"(a worker that cannot be restarted?); {resume}") from None
             budgets.pop(index, None)
             if not ok:  # the worker died with its rollout: Ray restarts it, the steps are handed out again
-                trainer.metrics["lost_rollouts"] = trainer.metrics.get("lost_rollouts", 0) + 1
+                trainer.metrics["lost_rollouts"] += 1
                 trainer.metrics["worker_restarts"] = restarts_before + pool.deaths
+                since = failing_since.setdefault(index, time.monotonic())
+                if time.monotonic() - since > FAILING_S:
+                    raise WorkerError(f"A3C on Ray: every rollout of worker {index} failed for {FAILING_S:.0f} s at step "
+                                      f"{trainer.steps:,} (its simulator cannot start there?); {resume}")
                 continue
+            failing_since.pop(index, None)
             gradients, steps, record = result
             apply_gradients(trainer.model, trainer.optimizer, gradients)
             weights = ray.put(trainer.model.state_dict())

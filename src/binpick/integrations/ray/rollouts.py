@@ -139,14 +139,16 @@ class RestartingActors:
         busy = set(self.in_flight.values())
         return [index for index in range(len(self.actors)) if index not in busy]
 
-    def next_result(self) -> tuple[int, Any, bool]:
+    def next_result(self, timeout: float | None = None) -> tuple[int, Any, bool]:
         """The next task to end: ``(worker index, result, True)``, or ``(index, None, False)`` when the
         worker died with it (Ray restarts the worker; a death is counted once however many tasks it
-        loses while restarting)."""
+        loses while restarting). No task ending within ``timeout`` seconds is a :class:`TimeoutError`."""
         import ray
         from ray.exceptions import ActorUnavailableError, RayActorError
 
-        ready, _ = ray.wait(list(self.in_flight), num_returns=1)
+        ready, _ = ray.wait(list(self.in_flight), num_returns=1, timeout=timeout)
+        if not ready:
+            raise TimeoutError(f"no worker finished a task within {timeout:.0f} s")
         index = self.in_flight.pop(ready[0])
         try:
             result = ray.get(ready[0])
