@@ -212,7 +212,10 @@ def write(result: dict, args) -> None:
              f"`python benchmarks/ray_jobs_scaling.py --scenes {args.scenes} --epochs {args.epochs} --a3c-steps {args.a3c_steps}`: "
              "a private Ray cluster on this 2-core machine (127.0.0.1); each job against a plain local run with the same "
              f"data, seed and budget. Load average while measuring: {result['load_average']} (other work shared the cores: "
-             "the rates compare the modes, not the machine's best).", "",
+             "the rates compare the modes, not the machine's best). Ray runs its worker processes at nice 15: under load "
+             "they yield the cores to every normal-priority process, so rows measured beside other work (a high load "
+             "average above) can differ several-fold for that reason alone; only rows measured on a quiet machine "
+             "show scaling.", "",
              "| job | run | quality | items/s | wall s |", "|---|---|---|---|---|"]
     names = {"local": "local, 2 threads", "workers_1": "Ray, 1 worker × 2 threads", "workers_2": "Ray, 2 workers × 1 thread"}
     for job, quality, rate, what in (("pickability", "val_auc", "windows_per_s", "val ROC AUC"),
