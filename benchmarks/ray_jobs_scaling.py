@@ -232,8 +232,10 @@ def write(result: dict, args) -> None:
     lines += ["", "Items per second: pickability windows, grasp trials or simulator steps trained on over the run's wall time "
               f"(Ray's start-up included). 2 workers over 1 on the same 2 cores: pickability {eff['pickability']:.2f}, "
               f"grasp quality {eff['grasp_quality']:.2f}, A3C {eff['a3c']:.2f} (detector, measured on a quiet machine: its own "
-              "section, 1.06). Two processes on the same two cores cannot do more work than one using both; a ratio far from "
-              "1 here is the load's doing, not scaling. On N machines a data-parallel "
+              "section, 1.06). Two data-parallel processes on the same two cores cannot do more work than one using both "
+              "(under other load a ratio far from 1 is the load's doing). A3C is different: with one rollout actor the "
+              "actor waits while the learner applies its gradients and the learner waits for the next rollout, so one core "
+              "idles; a second actor fills it. On N machines a data-parallel "
               "job gains while a step's compute outweighs its all-reduce, and A3C gains roughly with the actors' cores until "
               "the learner's one-rollout-at-a-time update saturates: a projection, not measured here.", "",
               "Faults (`faults` in results/ray_scaling.json):", ""]

@@ -1,5 +1,6 @@
-"""Ray simulator workers (thesis §6.1): episodes stream to the SAC + HER learner, and a worker killed
-mid-run is restarted while the run finishes, losing only its in-flight episode."""
+"""RL on Ray actors (thesis §6.1): the sac learner (GP + HER) fed by simulator actors and A3C's rollout
+workers, each from the same RL YAML and into the same run folder as a local run; a simulator or worker
+killed mid-run is restarted and the run ends with the steps and evaluations of a run without the fault."""
 
 from __future__ import annotations
 
@@ -8,32 +9,95 @@ import signal
 
 import pytest
 
-from binpick.integrations.ray.learner import DistributedConfig, train_distributed
+from binpick.core.errors import WorkerError
+
+GP_HER = {"task": "rl", "name": "gp_her_ray", "env": "FetchReach", "env_kwargs": {"terminate_on_success": False},
+          "algorithm": "sac", "total_timesteps": 300,
+          "checkpoint_every": 100, "replay": {"capacity_episodes": 200, "her_additions": 2},
+          "gp": {"enabled": True, "warmup_episodes": 2, "refit_every": 100, "imagined_per_real": 2, "batch_episodes": 20,
+                 "max_points": 100, "iterations": 5},
+          "sac": {"batch_size": 32, "net_arch": [16, 16], "gradient_steps": 1}, "eval": {"every": 100, "episodes": 2}}
 
 
 @pytest.mark.slow
-def test_a_killed_worker_is_restarted_and_the_run_finishes(tmp_path):
-    killed, back = [], set()
+def test_gp_her_from_an_rl_yaml_on_ray_simulators_ends_as_a_run_without_the_fault(tmp_path, ray_cluster):
+    """`binpick train GP_HER.yaml --address local --workers 2`: the learner here, two simulators as actors;
+    with one simulator SIGKILLed mid-episode the run has the same steps and evaluations, one restart, and
+    the lost episode is not in the replay."""
+    import json
 
-    def on_episode(episode, rollouts, model):
-        assert episode.steps > 0 and len(episode.observations) == episode.steps
-        if not killed and model.num_timesteps >= 100:
-            pid = rollouts.worker_pids()[0]
-            os.kill(pid, signal.SIGKILL)
-            killed.append(pid)
-            back.add(rollouts.worker_pids()[0])  # waits while Ray restarts the worker
+    import yaml
 
-    config = DistributedConfig(workers=2, total_timesteps=800, learning_starts=100, batch_size=32, eval_episodes=2)
-    metrics = train_distributed(config, tmp_path / "run", on_episode=on_episode)
-    assert killed and metrics["env_steps"] >= 800
-    assert back - set(killed), "worker 0 did not come back in a new process"
-    # its episode in flight is lost, unless the kill came before the worker had started it
-    assert metrics["worker_restarts"] <= 1 and metrics["lost_episodes"] <= 1
-    assert sum(metrics["steps_per_worker"].values()) == metrics["env_steps"]
-    from binpick.rl.persistence import load_saved_policy
+    from binpick import jobs
+    from binpick.core.config import from_dict
+    from binpick.integrations.ray.envs import RayVecEnv
+    from binpick.rl.config import RLConfig
+    from binpick.rl.train import Trainer
 
-    policy = load_saved_policy(tmp_path / "run" / "policy.safetensors")
-    assert policy.action_space.shape == (4,) and "desired_goal" in policy.observation_space.spaces
+    path = tmp_path / "gp_her.yaml"
+    path.write_text(yaml.safe_dump(GP_HER))
+    plain = jobs.train(path, runs=tmp_path / "plain", address="local", workers=2)
+    steps = [e["sim_steps"] for e in plain["evaluations"]]
+    assert plain["sim_steps"] == 300 and steps == [100, 200, 300] and plain["worker_restarts"] == 0
+    assert plain["gp_fits"] >= 1 and plain["imagined_episodes"] > 0 and plain["gradient_steps"] > 0
+    assert plain["sim_episodes"] == 6  # 3 whole 50-step episodes on each of 2 simulators
+    (run,) = (tmp_path / "plain" / "gp_her_ray").iterdir()
+    assert json.loads((run / "metrics.json").read_text())["sim_steps"] == 300 and (run / "curves.png").is_file()
+    assert (run / "checkpoints" / "latest").read_text().strip() == "ckpt-000000300" and list((run / "tb").iterdir())
+
+    class KillOneMidEpisode(RayVecEnv):
+        vector_steps, killed = 0, []
+
+        def step_wait(self):
+            self.vector_steps += 1
+            if self.vector_steps == 60:  # step 10 of simulator 0's second episode
+                pid = self.pids()[0]
+                os.kill(pid, signal.SIGKILL)
+                self.killed.append(pid)
+            return super().step_wait()
+
+    config = from_dict(RLConfig, {k: v for k, v in GP_HER.items() if k != "task"}, where="test")
+    trainer = Trainer.new(config, tmp_path / "faulty")
+    envs = KillOneMidEpisode(config, 2, None, trainer.env)
+    faulty = trainer.run(envs=envs)
+    assert envs.killed, "no simulator was killed"
+    assert faulty["sim_steps"] == 300 and [e["sim_steps"] for e in faulty["evaluations"]] == steps
+    assert faulty["worker_restarts"] == 1
+    assert faulty["sim_episodes"] == 5  # simulator 0's second episode was lost (its 10 steps are not in the replay)
+    assert trainer.model.replay_buffer.real_transitions == 5 * 50
+
+
+def test_a_simulator_that_cannot_start_fails_in_one_line(ray_cluster):
+    """An actor whose __init__ raises is not restarted for ever: the error names its cause at once."""
+    from types import SimpleNamespace
+
+    from binpick.envs import make
+    from binpick.integrations.ray.envs import RayVecEnv
+
+    broken = SimpleNamespace(algorithm="sac", env="binpick/NoSuchEnv-v0", env_kwargs={}, semantic_state=False,
+                             min_action_scale=0.0)
+    with pytest.raises(WorkerError, match="could not start on Ray: .*NoSuchEnv") as raised:
+        RayVecEnv(broken, 1, None, make("FetchReach"))
+    assert "\n" not in str(raised.value)
+
+
+def test_an_a3c_worker_that_cannot_start_fails_in_one_line(ray_cluster):
+    from binpick.integrations.ray.actors import RestartingActors
+
+    class Broken:
+        def __init__(self) -> None:
+            raise RuntimeError("no simulator here")
+
+        def play(self) -> int:
+            return 1
+
+    pool = RestartingActors(Broken, [()])
+    try:
+        pool.start(0, pool.actors[0].play.remote())
+        with pytest.raises(WorkerError, match="worker 0 could not start on Ray: .*no simulator here"):
+            pool.next_result(timeout=60)
+    finally:
+        pool.close()
 
 
 A3C = {"task": "rl", "name": "a3c_ray", "env": "Arm2D", "env_kwargs": {"image_size": 32, "tolerance": 0.2}, "algorithm": "a3c",

@@ -59,6 +59,20 @@ def test_one_ray_worker_trains_exactly_the_local_run(tmp_path, ray_cluster):
     assert list((run_dir / "tb").iterdir()) and list((run_dir / "checkpoints").glob("ckpt-*"))
 
 
+def test_a_worker_s_own_error_is_raised_as_it_was_without_restarts_that_cannot_mend_it(tmp_path, ray_cluster):
+    """A damaged data file met by the workers (not by the driver, which made the run before): the driver
+    raises binpick's error from the worker in one line; the restarts end at once, nothing trains."""
+    from binpick.core.errors import InputFileError
+
+    config = tiny_config(tmp_path, epochs=1)
+    run_dir = DetectorTrainer.new(config, tmp_path / "ray").run_dir
+    Path(config.data.train).write_text("{not json")
+    with pytest.raises(InputFileError, match="annotations.json") as raised:
+        train_on_ray(run_dir, DETECT, workers=1)
+    assert "\n" not in str(raised.value) and "Traceback" not in str(raised.value)
+    assert not list((run_dir / "checkpoints").glob("ckpt-*")) and not (run_dir / "metrics.json").exists()
+
+
 def kill_a_worker_after_the_first_checkpoint(run_dir: Path, killed: list[int]) -> None:
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and not list((run_dir / "checkpoints").glob("ckpt-*")):
@@ -175,8 +189,8 @@ def test_ray_options_are_checked_before_a_run_folder_is_made(tmp_path):
     with pytest.raises(ConfigError, match="HOST:PORT"):
         jobs.check_ray_job(jobs.KINDS["detect"], "not an address", 2)
     config = tmp_path / "rl.yaml"
-    config.write_text("task: rl\nname: x\nenv: FetchReach\n")
+    config.write_text("task: rl\nname: x\nenv: FetchReach\nalgorithm: sb3_sac_her\n")  # sac and a3c run on Ray
     result = subprocess.run([*CLI, "train", str(config), "--address", "local", "--runs", str(tmp_path / "runs")],
                             capture_output=True, text=True, timeout=120)
-    assert result.returncode != 0 and "rl job (sac) trains here" in result.stderr and "Traceback" not in result.stderr
+    assert result.returncode != 0 and "rl job (sb3_sac_her) trains here" in result.stderr and "Traceback" not in result.stderr
     assert not (tmp_path / "runs").exists()

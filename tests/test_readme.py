@@ -68,6 +68,8 @@ SKIPPED = {
     "binpick train --resume runs/rod_warehouse/<time> --address A_HOST:6379 --workers 8": "needs a cluster",
     "binpick train configs/rl/rl_arm2d_curriculum_keypoints_bottleneck_deep.yaml --address A_HOST:6379 --set a3c.workers=16":
         "needs a cluster (tests/test_distributed.py runs an A3C YAML on local Ray actors)",
+    "binpick train configs/rl/rl_fetchreach_gp_her.yaml --address A_HOST:6379 --workers 8": "needs a cluster "
+        "(tests/test_distributed.py runs a GP + HER YAML on local Ray simulator actors)",
     "python experiments/pick.py --robot panda --orders 50": "a benchmark (100 orders with the arm); tests/test_arm.py runs one",
     "python experiments/grasp.py eval": "a benchmark (40 bins of held-out products, the shipped grasp model); "
                                        "tests/test_grasping.py runs its pieces",

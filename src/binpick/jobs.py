@@ -161,7 +161,7 @@ def progress(run_dir: str | Path) -> int | None:
 
 
 ON_RAY_TRAIN = ("detect", "pickability", "grasp_quality")  # data-parallel on Ray Train workers (address=...)
-ON_RAY = (*ON_RAY_TRAIN, "rl")  # rl: A3C, its rollout workers as Ray actors
+ON_RAY = (*ON_RAY_TRAIN, "rl")  # rl: A3C's rollout workers, or SAC's (GP + HER) simulators, as Ray actors
 
 
 def check_ray_job(kind: JobKind, address: str | None, workers: int, config: Any = None) -> None:
@@ -178,9 +178,10 @@ def check_ray_job(kind: JobKind, address: str | None, workers: int, config: Any 
         raise ConfigError(f"--address runs {', '.join(ON_RAY)} jobs on Ray so far; a {kind.task} job trains here (without --address)")
     if kind.task == "rl":
         algorithm = getattr(config, "algorithm", "a3c")
-        if algorithm != "a3c":
-            raise ConfigError(f"--address runs A3C's rollout workers on Ray so far; this rl job ({algorithm}) trains here (without --address)")
-        if workers != 1:
+        if algorithm not in ("a3c", "sac"):
+            raise ConfigError(f"--address runs A3C's rollout workers and the sac learner's (GP + HER) simulators on Ray; "
+                              f"this rl job ({algorithm}) trains here (without --address)")
+        if algorithm == "a3c" and workers != 1:
             raise ConfigError("an A3C run's rollout workers are its a3c.workers, on Ray as here: --set a3c.workers=N instead of --workers")
     if address != "local":
         from binpick.cluster import check_ray_address
@@ -190,17 +191,23 @@ def check_ray_job(kind: JobKind, address: str | None, workers: int, config: Any 
 
 def run_job(job, callback: RunCallback = SILENT, address: str | None = None, workers: int = 1, threads: int = 1) -> dict[str, Any]:
     """Run ``job`` here, or with ``address`` (``local``: a private cluster on this machine; ``auto``,
-    ``HOST:PORT``, ``ray://HOST:PORT``) data-parallel on ``workers`` Ray Train workers of ``threads``
-    CPU threads each, with the same run folder, checkpoints and resume as here."""
+    ``HOST:PORT``, ``ray://HOST:PORT``) on Ray, with the same run folder, checkpoints and resume as here:
+    trainers data-parallel on ``workers`` Ray Train workers of ``threads`` CPU threads each; A3C with its
+    ``a3c.workers`` as actors; the sac learner (GP + HER) here, fed by ``workers`` simulator actors."""
     kind = job_kind_of_run(job.run_dir)
     check_ray_job(kind, address, workers, getattr(job, "config", None))
     if address is None:
         return job.run(callback)
-    if kind.task == "rl":
+    if kind.task == "rl" and job.config.algorithm == "a3c":
         from binpick.integrations.ray.a3c import learn_on_ray
 
         callback.message(f"training {job.run_dir} on Ray: {job.config.a3c.workers} rollout worker(s) as actors")
         return job.run(callback, learn=learn_on_ray(address))
+    if kind.task == "rl":
+        from binpick.integrations.ray.envs import RayVecEnv
+
+        callback.message(f"training {job.run_dir} on Ray: {workers} simulator(s) as actors, the learner here")
+        return job.run(callback, envs=RayVecEnv(job.config, workers, None if address == "local" else address, job.env))
     from binpick.integrations.ray.training import train_on_ray
 
     callback.message(f"training {job.run_dir} on Ray: {workers} worker(s) of {threads} thread(s)")

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 from typing import Annotated
 
@@ -55,52 +54,49 @@ def rl_train(
 
 @rl_app.command("distributed")
 def rl_distributed(
-    algorithm: Annotated[str, typer.Option(help="sac (SAC + HER learner fed whole episodes) or a3c (workers send gradients)")] = "sac",
+    algorithm: Annotated[str, typer.Option(help="sac (GP + HER learner here, fed by simulator actors) or a3c (actors send gradients)")] = "sac",
     env_id: Annotated[str | None, typer.Option("--env", help="Env (default: FetchReach for sac, Arm2D for a3c)")] = None,
     workers: Annotated[int, typer.Option(help="Simulators, one Ray actor (process) each")] = 2,
-    steps: Annotated[int, typer.Option(help="Env steps the workers play")] = 5000,
+    steps: Annotated[int, typer.Option(help="Simulator steps of the run")] = 5000,
     address: Annotated[str | None, typer.Option(help="Ray cluster to join (HOST:6379, from `ray start --head`); default: a local one")] = None,
-    out: Annotated[Path, typer.Option(help="Folder for the model and metrics.json")] = Path("runs/distributed"),
+    out: Annotated[Path, typer.Option(help="Folder the run folder is made in")] = Path("runs/distributed"),
     seed: Annotated[int, seed_option("Seed")] = 0,
 ) -> None:
-    """Learning from Ray simulator workers (thesis §6.1); a worker that dies is restarted and the run goes on."""
-    from binpick.cluster import check_ray_address
-    from binpick.core.config import check_choice
+    """A small RL run with its simulators on Ray (thesis §6.1); a simulator that dies is restarted and the run
+    goes on. A whole RL YAML runs the same way: binpick train CONFIG --address ... [--workers N]."""
+    from binpick.cluster import check_ray_address, probe_ray_address
+    from binpick.core.config import check_choice, check_range, from_dict
     from binpick.envs import resolve_env_id
+    from binpick.rl.config import RLConfig, never_learns
+    from binpick.rl.train import trainer_for
 
     check_choice("algorithm", algorithm, ("sac", "a3c"))
+    check_range("workers", workers, 1, 4096, integer=True)
+    if address not in (None, "local"):
+        probe_ray_address(check_ray_address(address))  # before a run folder is made
     if algorithm == "sac":
-        from binpick.integrations.ray.learner import (
-            DistributedConfig,
-            train_distributed,
-        )
+        settings = {"name": "sac_distributed", "env": resolve_env_id(env_id or "FetchReach"), "algorithm": "sac",
+                    "total_timesteps": steps, "seed": seed, "gp": {"enabled": True},
+                    "eval": {"every": max(steps // 5, 1), "episodes": 20}}
+    else:
+        settings = {"name": "a3c_distributed", "env": resolve_env_id(env_id or "Arm2D"), "algorithm": "a3c",
+                    "total_timesteps": steps, "seed": seed, "a3c": {"workers": workers}}
+    config = from_dict(RLConfig, settings, where="rl distributed")
+    warn(never_learns(config))
+    trainer = trainer_for(config, ensure_dir(out, "--out"))
+    with progress() as callback:
+        if algorithm == "sac":
+            from binpick.integrations.ray.envs import RayVecEnv
 
-        config = DistributedConfig(env=resolve_env_id(env_id or "FetchReach"), workers=workers, total_timesteps=steps,
-                                   address=address, seed=seed)
-    else:  # A3C: a run folder like any RL run's (binpick train CONFIG --address ... takes a whole RL YAML)
-        from binpick.core.config import from_dict
-        from binpick.integrations.ray.a3c import learn_on_ray
-        from binpick.rl.a3c_train import A3CTrainer
-        from binpick.rl.config import RLConfig
+            metrics = trainer.run(callback, envs=RayVecEnv(config, workers, None if address == "local" else address,
+                                                           trainer.env))
+        else:
+            from binpick.integrations.ray.a3c import learn_on_ray
 
-        config = from_dict(RLConfig, {"name": "a3c_distributed", "env": resolve_env_id(env_id or "Arm2D"), "algorithm": "a3c",
-                                      "total_timesteps": steps, "seed": seed, "a3c": {"workers": workers}}, where="rl distributed")
-        check_ray_address(None if address == "local" else address)
-        trainer = A3CTrainer.new(config, ensure_dir(out, "--out"))
-        with progress() as callback:
             metrics = trainer.run(callback, learn=learn_on_ray(address))
-        console.print(f"{metrics['sim_steps']} env steps in {metrics['wall_seconds']} s "
-                      f"({metrics.get('worker_restarts', 0)} worker restart(s)); final success {metrics['final_success']:.0%}, "
-                      f"{metrics['final_avg_actions']:.1f} actions; wrote {trainer.run_dir}")
-        return
-    if steps <= config.learning_starts:
-        warn(f"--steps {steps} ends before the learner's first update (after {config.learning_starts} steps): "
-             "the policy will not learn")
-    run_dir = ensure_dir(out, "--out") / time.strftime("%Y%m%d-%H%M%S")  # written when the run ends
-    with progress() as callback, callback.task(f"{algorithm}, {workers} workers", steps) as task:
-        metrics = train_distributed(config, run_dir, on_episode=lambda _e, _r, model: task.update(model.num_timesteps))
-    console.print(f"{metrics['env_steps']} env steps in {metrics['wall_s']} s ({metrics['lost_episodes']} lost to dead workers); "
-                  f"final success {metrics['final_success']:.0%}, {metrics['final_avg_actions']:.1f} actions; wrote {run_dir}")
+    restarts = metrics.get("worker_restarts", 0)
+    console.print(f"{metrics['sim_steps']} simulator steps in {metrics['wall_seconds']} s ({restarts} simulator restart(s)); "
+                  f"final success {metrics['final_success']:.0%}, {metrics['final_avg_actions']:.1f} actions; wrote {trainer.run_dir}")
 
 
 @rl_app.command("eval")

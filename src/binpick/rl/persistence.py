@@ -45,6 +45,19 @@ def save_algorithm(model: BaseAlgorithm, path: Path) -> None:
     tensorfile.save(path, ALGORITHM_FORMAT, state=state, meta={"algorithm": type(model).__name__, "counters": counters})
 
 
+def copy_algorithm(source: BaseAlgorithm, target: BaseAlgorithm) -> None:
+    """What :func:`save_algorithm` keeps, from one model into another built the same way (e.g. for
+    another number of simulators), in memory."""
+    _, variables = source._get_torch_save_params()
+    target.set_parameters(source.get_parameters(), exact_match=True, device="cpu")
+    with torch.no_grad():
+        for name in variables:
+            getattr(target, name).copy_(getattr(source, name))
+    for name in COUNTERS:
+        if hasattr(source, name):
+            setattr(target, name, int(getattr(source, name)))
+
+
 def load_algorithm(model: BaseAlgorithm, path: Path) -> None:
     """Restore what :func:`save_algorithm` wrote into ``model``, built the same way from the run's config."""
     _, meta, state = tensorfile.load(path, ALGORITHM_FORMAT, "RL checkpoint")

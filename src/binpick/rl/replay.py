@@ -29,6 +29,7 @@ from binpick.rl.config import ReplayConfig
 
 RewardFn = Callable[[np.ndarray, np.ndarray, Any], np.ndarray]
 KEYS = ("observation", "achieved_goal", "desired_goal")
+LOST = "episode_lost"  # info key of a step whose simulator died: the episode it ended is dropped
 
 
 @dataclass
@@ -131,6 +132,9 @@ class EpisodeReplayBuffer(DictReplayBuffer):
     def add(self, obs, next_obs, action, reward, done, infos) -> None:  # type: ignore[override]
         """SB3's per-step hook: grow each env's open episode; store it (plus HER copies) when it ends."""
         for env in range(self.n_envs):
+            if infos[env].get(LOST):  # its simulator's process died: the episode is dropped, no step invented
+                self._open[env] = self._empty_episode()
+                continue
             episode = self._open[env]
             if not episode["actions"]:
                 episode["observation"].append(np.array(obs["observation"][env], np.float32))
@@ -147,6 +151,11 @@ class EpisodeReplayBuffer(DictReplayBuffer):
                     origin="real",
                 )
                 self._open[env] = self._empty_episode()
+
+    def for_envs(self, n_envs: int) -> None:
+        """Take steps from ``n_envs`` simulators from now on (episodes still open are dropped)."""
+        self.n_envs = int(n_envs)
+        self._open = [self._empty_episode() for _ in range(self.n_envs)]
 
     def add_episode(self, episode: Episode, origin: str = "real", relabel: bool = True) -> int:
         """Store an episode and, if it failed and ``relabel``, its α_HER hindsight copies.

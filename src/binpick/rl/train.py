@@ -46,6 +46,7 @@ from binpick.rl.curriculum import CurriculumProgress, GoalAreaCurriculum
 from binpick.rl.dynamics import GPDynamics
 from binpick.rl.evaluate import evaluate_policy
 from binpick.rl.persistence import (
+    copy_algorithm,
     load_algorithm,
     load_replay,
     load_saved_policy,
@@ -90,7 +91,12 @@ def make_env(config: RLConfig, wrap_env=None) -> gym.Env:
     return env
 
 
-def build_model(config: RLConfig, env: gym.Env, tensorboard: str | None) -> BaseAlgorithm:
+def build_model(config: RLConfig, env: gym.Env, tensorboard: str | None, envs=None) -> BaseAlgorithm:
+    """The run's learner on ``env`` (the run's env; its reward and episode length for the replay), or on
+    ``envs``, a ``VecEnv`` of several simulators of it (Ray actors): then ``sac.gradient_steps`` are per
+    simulator step, as in a local run, so one vector step of N simulators is followed by N times as many."""
+    if envs is not None and config.algorithm != "sac":
+        raise ConfigError(f"several simulators feed the sac learner (GP + HER) only; this run is {config.algorithm}")
     if config.algorithm == "dqn":
         dqn = config.dqn
         return DQN("CnnPolicy", env, buffer_size=dqn.buffer_size, target_update_interval=dqn.target_update_interval,
@@ -99,8 +105,9 @@ def build_model(config: RLConfig, env: gym.Env, tensorboard: str | None) -> Base
                    exploration_fraction=dqn.exploration_fraction, exploration_final_eps=dqn.exploration_final_eps,
                    optimize_memory_usage=False, seed=config.seed, tensorboard_log=tensorboard, device="cpu")
     sac = config.sac
+    simulators = envs.num_envs if envs is not None else 1
     common = dict(learning_rate=sac.learning_rate, batch_size=sac.batch_size, gamma=sac.gamma, tau=sac.tau,
-                  gradient_steps=sac.gradient_steps, learning_starts=sac.learning_starts, ent_coef=sac.ent_coef,
+                  gradient_steps=sac.gradient_steps * simulators, learning_starts=sac.learning_starts, ent_coef=sac.ent_coef,
                   seed=config.seed,
                   policy_kwargs={"net_arch": list(sac.net_arch)}, tensorboard_log=tensorboard, device="cpu")
     if config.algorithm == "sb3_sac_her":
@@ -113,7 +120,8 @@ def build_model(config: RLConfig, env: gym.Env, tensorboard: str | None) -> Base
                   seed=config.seed)
     if config.gp.enabled:
         common["learning_starts"] = config.gp.warmup_episodes * env.spec.max_episode_steps
-    return GoalSAC("MultiInputPolicy", env, replay_buffer_class=EpisodeReplayBuffer, replay_buffer_kwargs=replay, **common)
+    return GoalSAC("MultiInputPolicy", env if envs is None else envs, replay_buffer_class=EpisodeReplayBuffer,
+                   replay_buffer_kwargs=replay, **common)
 
 
 @dataclass
@@ -127,6 +135,7 @@ class Metrics:
     demo_steps: int = 0
     bc_final_loss: float | None = None
     wall_seconds: float = 0.0
+    worker_restarts: int = 0  # simulator processes (Ray actors) that died and were started again, each losing its episode
 
     def to_dict(self, config: RLConfig, model: SAC, gp: GPImagination | None) -> dict[str, Any]:
         buffer = model.replay_buffer
@@ -138,7 +147,8 @@ class Metrics:
                 "gradient_steps": int(model._n_updates), "wall_seconds": round(self.wall_seconds, 1),
                 "evaluations": self.evaluations}
         data["gradient_steps_to_5_actions"] = self.gradient_steps_to_5_actions
-        data.update(demo_episodes=self.demo_episodes, demo_steps=self.demo_steps, bc_final_loss=self.bc_final_loss)
+        data.update(demo_episodes=self.demo_episodes, demo_steps=self.demo_steps, bc_final_loss=self.bc_final_loss,
+                    worker_restarts=self.worker_restarts)
         if isinstance(buffer, EpisodeReplayBuffer):
             data.update(sim_episodes=buffer.added["real"], her_episodes=buffer.added["her"],
                         imagined_episodes=buffer.added["imagined"], episodes_when_training_started=buffer.added_when_ready)
@@ -168,8 +178,8 @@ class Evaluate(BaseCallback):
         self._next = next_multiple(self.model.num_timesteps, self.config.eval.every)  # right after a resume too
 
     def _on_step(self) -> bool:
-        if self.num_timesteps >= self._next:
-            self._next += self.config.eval.every
+        if self.num_timesteps >= self._next:  # (N simulators: the first vector step at or past the multiple)
+            self._next = next_multiple(self.num_timesteps, self.config.eval.every)
             self.evaluate()
             if stopped_early(self.config, self.metrics):
                 return False  # SB3 ends learn() when a callback returns False
@@ -206,7 +216,7 @@ class Checkpoint(BaseCallback):
 
     def _on_step(self) -> bool:
         if self.num_timesteps >= self._next:
-            self._next += self.trainer.config.checkpoint_every
+            self._next = next_multiple(self.num_timesteps, self.trainer.config.checkpoint_every)
             self.trainer.save_checkpoint()
         return True
 
@@ -233,18 +243,36 @@ class Trainer:
         self.metrics = Metrics()
         self.curriculum = CurriculumProgress(config.curriculum)  # where the goal-area curriculum stands
         self._started: float | None = None  # perf_counter() minus the wall time of earlier sessions
+        self._envs, self._restarts_before = None, 0  # simulators as Ray actors (run(envs=...)), their restarts before
         self.env = make_env(config)
-        self.model = build_model(config, self.env, str(self.run_dir / "tb"))
-        if config.actor_noise.enabled:
-            noise = config.actor_noise
-            self.model.perturb_actor_inputs((noise.gripper, noise.achieved, noise.goal),
-                                            gripper_dims(needs_gripper(config.env), config.gripper_opening))
+        self.model = self._new_model()
         self.gp = None
         if config.gp.enabled:
             dynamics = GPDynamics(config.gp.max_points, config.gp.iterations, seed=config.seed)
             self.gp = GPImagination(config.gp.warmup_episodes, config.gp.refit_every, config.gp.imagined_per_real,
                                     config.gp.batch_episodes, dynamics, seed=config.seed,
                                     fill_until_ready=config.gp.fill_until_ready)
+
+    def _new_model(self, envs=None) -> BaseAlgorithm:
+        model = build_model(self.config, self.env, str(self.run_dir / "tb"), envs)
+        if self.config.actor_noise.enabled:
+            noise = self.config.actor_noise
+            model.perturb_actor_inputs((noise.gripper, noise.achieved, noise.goal),
+                                       gripper_dims(needs_gripper(self.config.env), self.config.gripper_opening))
+        return model
+
+    def train_on(self, envs) -> None:
+        """Learn from ``envs`` from now on: a ``VecEnv`` of several simulators of this run's env (Ray actors,
+        :class:`binpick.integrations.ray.envs.RayVecEnv`), or None for the run's own env again. The learner
+        is built again for their number and takes over the current one's weights, optimisers, counters,
+        replay and demonstrations."""
+        old = self.model
+        self.model = self._new_model(envs)
+        copy_algorithm(old, self.model)
+        old.replay_buffer.for_envs(1 if envs is None else envs.num_envs)
+        self.model.replay_buffer = old.replay_buffer
+        if getattr(old, "demonstrations", None) is not None:
+            self.model.keep_cloning(old.demonstrations, old.bc_alpha, old.bc_likelihood_weight, old.bc_q_filter)
 
     @property
     def steps_done(self) -> int:
@@ -269,6 +297,7 @@ class Trainer:
         """Everything a resume needs, in files that hold no code (see :mod:`binpick.rl.persistence`)."""
         if self._started is not None:  # wall time carries over resumes
             self.metrics.wall_seconds = time.perf_counter() - self._started
+        self._count_restarts()
 
         def write(folder: Path) -> None:
             save_algorithm(self.model, folder / ALGORITHM_FILE)
@@ -351,7 +380,25 @@ class Trainer:
         self.metrics.demo_episodes, self.metrics.demo_steps = len(episodes), steps
         self.metrics.bc_final_loss = losses[-1] if losses else None
 
-    def run(self, callback: RunCallback = SILENT) -> dict[str, Any]:
+    def run(self, callback: RunCallback = SILENT, envs=None) -> dict[str, Any]:
+        """Train to ``total_timesteps`` on the run's env, or on ``envs`` (see :meth:`train_on`; closed at the end)."""
+        if envs is not None:
+            self._envs, self._restarts_before = envs, self.metrics.worker_restarts
+            try:
+                self.train_on(envs)
+                return self._run(callback)
+            finally:
+                envs.close()
+                self._envs = None
+                self.train_on(None)  # the trainer can run again, here
+        return self._run(callback)
+
+    def _count_restarts(self) -> None:
+        """``metrics.worker_restarts`` up to date while the simulators are actors that Ray restarts."""
+        if self._envs is not None:
+            self.metrics.worker_restarts = self._restarts_before + int(getattr(self._envs, "deaths", 0))
+
+    def _run(self, callback: RunCallback) -> dict[str, Any]:
         torch.set_num_threads(1)  # small networks: threads cost more than they give on 2 cores
         remaining = 0 if stopped_early(self.config, self.metrics) else self.config.total_timesteps - int(self.model.num_timesteps)
         self._started = time.perf_counter() - self.metrics.wall_seconds
@@ -389,6 +436,7 @@ class Trainer:
             self.model.set_logger(configure_logger(0, str(self.run_dir / "tb"), self.config.algorithm, False))
 
     def write_outputs(self) -> dict[str, Any]:
+        self._count_restarts()
         data = self.metrics.to_dict(self.config, self.model, self.gp)
         atomic_write_json(self.run_dir / "metrics.json", data)
         from binpick.viz.plots import plot_learning_curve

@@ -21,7 +21,7 @@ from collections.abc import Callable
 from typing import Any
 
 from binpick.core.errors import WorkerError
-from binpick.integrations.ray.rollouts import RestartingActors
+from binpick.integrations.ray.actors import RestartingActors
 
 FAILING_S = 120.0  # a worker whose rollouts all fail for this long (it cannot start, or dies each time) fails the run
 WAIT_S = 600.0  # no rollout back from any worker for this long fails the run (a restart that cannot be placed)
