@@ -86,8 +86,9 @@ TINY: list[tuple[str, str]] = [
     (r"--scenes 6000\b", "--scenes 16"),  # the larger fine-tuning set: two worlds
     (r"--scenes 2000\b", "--scenes 24"),  # 3 worlds of 8: one each for val, test and train (split_rule=random)
     (r"--policies x,y", "--policies y"),  # the one the rod_* configs and `data show --policy y` read
-    (r"--scenes 400\b", "--scenes 6 --scenes-per-world 1 --val-fraction 0.34"),
-    (r"--scenes 800\b", "--scenes 6 --scenes-per-world 1 --val-fraction 0.5"),  # grasp trials: train and val worlds
+    (r"--scenes 400\b", "--scenes 4 --scenes-per-world 1 --val-fraction 0.5"),
+    (r"--scenes 800\b", "--scenes 4 --scenes-per-world 1 --val-fraction 0.5"),  # grasp trials: train and val worlds
+    (r"--photo-views \d+", "--photo-views 1"),  # a randomised studio photo per product (each view renders them all)
     (r"--grasp-trials \d+", "--grasp-trials 1"),
     (r"--workers \d+", "--workers 1"),
     (r"--orders \d+", "--orders 1"),
