@@ -77,7 +77,7 @@ def rl_distributed(
     if algorithm == "sac":
         settings = {"name": "sac_distributed", "env": resolve_env_id(env_id or "FetchReach"), "algorithm": "sac",
                     "total_timesteps": steps, "seed": seed, "gp": {"enabled": True},
-                    "eval": {"every": steps, "episodes": 20}}  # one evaluation: the final policy
+                    "eval": {"every": max(steps, 1), "episodes": 20}}  # one evaluation: the final policy
     else:
         settings = {"name": "a3c_distributed", "env": resolve_env_id(env_id or "Arm2D"), "algorithm": "a3c",
                     "total_timesteps": steps, "seed": seed, "a3c": {"workers": workers}}
