@@ -70,6 +70,14 @@ SKIPPED = {
         "needs a cluster (tests/test_distributed.py runs an A3C YAML on local Ray actors)",
     "binpick train configs/rl/rl_fetchreach_gp_her.yaml --address A_HOST:6379 --workers 8": "needs a cluster "
         "(tests/test_distributed.py runs a GP + HER YAML on local Ray simulator actors)",
+    "binpick data generate --out runs/data/bins_learnt_3000 --scenes 3000 --policies learnt --held-out can,mug,toy "
+    "--set split_rule=random --address A_HOST:6379": "needs a cluster (tests/test_domain.py runs Ray scene workers locally)",
+    "binpick data generate --out runs/data/bins_learnt --scenes 1000 --policies learnt --held-out can,mug,toy "
+    "--set split_rule=random --address A_HOST:6379": "needs a cluster",
+    "binpick train configs/detection/rod_finetune_photo_learnt.yaml --address A_HOST:6379 --workers 8": "needs a cluster "
+        "(tests/test_ray_train.py trains a small detector on local Ray Train workers)",
+    "python tools/ship_weights.py runs/rod_finetune_photo_learnt/<time> rod_photo_learnt_tiny_320 0.1": "needs the "
+        "cluster training above",
     "python experiments/pick.py --robot panda --orders 50": "a benchmark (100 orders with the arm); tests/test_arm.py runs one",
     "python experiments/grasp.py eval": "a benchmark (40 bins of held-out products, the shipped grasp model); "
                                        "tests/test_grasping.py runs its pieces",
