@@ -1,7 +1,7 @@
 """The arm's controller in the simulator: joint targets (and the trajectory's velocities) every step.
 
-The world steps at its own timestep, each step taking the next row of the segment; the fingers get
-their target alongside. Contacts between the arm (links, shaft, palm, fingers) and the cell's fixed
+The world steps at its own timestep, each step taking the next row of the segment; the hand grips
+(fingers closed, or the vacuum on) through the segments that say so. Contacts between the arm (links, shaft, palm, fingers) and the cell's fixed
 things (table, bin, order tote) are counted as collisions while it moves.
 """
 
@@ -26,14 +26,16 @@ class ArmController:
         self.robot = np.array([g for g in self.arm.geoms if self.model.geom(int(g)).name != "link0_collision"])
         self.collisions: list[tuple[str, str, str]] = []  # (robot geom, fixed geom, segment), once per segment and pair
 
-    def run(self, segment: Segment, fingers: float, on_step: Callable[[], None] | None = None, check_every: int = 1) -> None:
+    def run(self, segment: Segment, on_step: Callable[[], None] | None = None, check_every: int = 1) -> None:
         model, data, arm = self.model, self.data, self.arm
+        hand = arm.hand
         seen: set[tuple[str, str]] = set()
         for step, (q, qd) in enumerate(zip(segment.q, segment.qd)):
             data.ctrl[arm.actuators] = q
             data.ctrl[arm.velocity_actuators] = qd
-            data.ctrl[arm.fingers] = fingers
+            hand.command(data, segment.closed)
             mujoco.mj_step(model, data)
+            hand.after_step(data)
             if step % check_every == 0:
                 seen.update(self.touching())
             if on_step is not None:

@@ -58,10 +58,12 @@ class BinWorld:
 
     def __init__(self, target: Product, distractors: list[Product], max_copies: int = 8,
                  camera: CameraSpec = CameraSpec(), extra_worldbody: str = "", extra: str = "",
-                 randomise_lighting: bool = False, gripper: bool = False, seed: int = 0,
+                 randomise_lighting: bool = False, gripper: bool | str = False, seed: int = 0,
                  domain: DomainConfig | None = None, sensor: SensorConfig | None = None, robot=None) -> None:
         """``robot``: an arm to put in the scene (e.g. :class:`binpick.sim.panda.PandaArm`), with
-        ``attach(spec)`` before compiling and ``bind(model)`` after; it waits at its home posture."""
+        ``attach(spec)`` before compiling and ``bind(model)`` after; it waits at its home posture.
+        ``gripper``: the floating hand's tools (jaws, suction or both; True: jaws), when there is no arm
+        (an arm carries its own hand)."""
         self.target, self.distractors, self.camera = target, list(distractors), camera
         self.sensor = sensor if sensor is not None and sensor.realistic else None
         # the tote's tilt is the world's (one compiled model); drawn apart from the scenes' draws
@@ -82,10 +84,16 @@ class BinWorld:
             direction = np.array([rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5), -1.0])
             lighting = dict(light_dir=direction, light_diffuse=[rng.uniform(0.4, 0.9)] * 3,
                             table_rgba=(*rng.uniform(0.3, 0.8, 3), 1.0), bin_rgba=(*rng.uniform(0.1, 0.7, 3), 1.0))
+        gripper = "jaws" if gripper is True else gripper or None
         if gripper:
-            from binpick.sim.gripper import GRIPPER_BODY, GRIPPER_EXTRA
+            from binpick.sim.gripper import floating_hand
 
-            extra_worldbody, extra = extra_worldbody + GRIPPER_BODY, extra + GRIPPER_EXTRA
+            hand_body, hand_extra = floating_hand(gripper, len(self.slots))
+            extra_worldbody, extra = extra_worldbody + hand_body, extra + hand_extra
+        elif robot is not None and getattr(robot, "gripper", "jaws") != "jaws":
+            from binpick.sim.hand import suction_welds
+
+            extra += suction_welds(len(self.slots))
         if self.domain is not None:
             self.xml = self._random_world(assets, bodies, extra_worldbody, extra, rng)
         else:
@@ -116,7 +124,9 @@ class BinWorld:
         if gripper:
             from binpick.sim.gripper import Gripper
 
-            self.gripper = Gripper(self.model)
+            self.gripper = Gripper(self.model, gripper, self.body_ids)
+        if self.arm is not None:
+            self.arm.bind_hand(self.model, self.body_ids)
         if self.domain is not None:  # generated textures go in before a renderer uploads them
             self._fill_textures(products, prefixes)
         self.renderer = mujoco.Renderer(self.model, camera.size, camera.size)
@@ -323,7 +333,14 @@ class BinWorld:
         self.data.qpos[:] = qpos
         if self.arm is not None:  # the arm holds the posture it was in
             self.arm.hold(self.model, self.data, qpos[self.arm.qpos])
+        if self.hand is not None:  # open, no seal (the reset took every suction weld off)
+            self.hand.reset(self.data)
         mujoco.mj_forward(self.model, self.data)
+
+    @property
+    def hand(self):
+        """The hand that picks: the floating gripper's, or the arm's (None: no hand)."""
+        return self.gripper if self.gripper is not None else (self.arm.hand if self.arm is not None else None)
 
     def instance_centre_and_top(self, slot: int) -> tuple[np.ndarray, float]:
         """The instance's centre and the height of its top (world axis-aligned box of its geoms)."""

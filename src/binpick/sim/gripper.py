@@ -19,35 +19,35 @@ from typing import Protocol
 import mujoco
 import numpy as np
 
+from binpick.grippers import Jaws
+from binpick.sim.hand import Hand
 from binpick.sim.mjcf import FLOOR_TOP
 
 PARK = (-3.0, 0.0, 0.5)  # the gripper waits out of the camera's view
-OPENING = 0.11  # jaw opening when open (m)
+OPENING = Jaws().opening  # jaw opening when open (m)
 LIFT_SUCCESS = 0.10  # the object must rise this much ...
 HOLD_SECONDS = 1.0  # ... and stay held this long
 CARRY_TRIAL = (0.0, 0.2, 0.5)  # a grasp trial's carry: dx, dy (m) in seconds, the pick pipeline's 0.4 m/s
 TRIAL_TIMESTEP = 0.004  # trials step at 4 ms (scenes settle at 2 ms): same pick rates, half the cost
+SUCTION_PRESS = 0.006  # m: a suction pick drives the lip this far past the surface it aims at (the bellows give)
 
-GRIPPER_BODY = f"""
+
+
+def floating_hand(gripper: str = "jaws", slots: int = 0) -> tuple[str, str]:
+    """(worldbody XML, other XML) of the floating hand carrying ``gripper`` (jaws, suction or both):
+    a free body welded to a mocap target, its fingers' and cup rod's actuators, and, with a cup, one
+    inactive suction weld per product slot (``slots`` of them)."""
+    from binpick.sim.hand import hand_actuators, hand_contacts, hand_xml, suction_welds
+
+    body = f"""
 <body name="gripper_target" mocap="true" pos="{PARK[0]} {PARK[1]} {PARK[2]}"/>
 <body name="gripper" pos="{PARK[0]} {PARK[1]} {PARK[2]}">
   <freejoint name="gripper_free"/>
-  <geom name="palm" type="box" size="{OPENING / 2 + 0.012} 0.014 0.012" pos="0 0 0.05" rgba="0.25 0.25 0.28 1" mass="0.4"/>
-  <body name="finger_a" pos="{OPENING / 2 + 0.006} 0 0">
-    <joint name="finger_a" type="slide" axis="-1 0 0" range="0 {OPENING / 2}" damping="2"/>
-    <geom type="box" size="0.006 0.014 0.04" pos="0 0 0" rgba="0.6 0.6 0.62 1" mass="0.04" friction="2 0.02 0.001" condim="6" priority="1" solref="0.004 1" solimp="0.95 0.99 0.001"/>
-  </body>
-  <body name="finger_b" pos="{-OPENING / 2 - 0.006} 0 0">
-    <joint name="finger_b" type="slide" axis="1 0 0" range="0 {OPENING / 2}" damping="2"/>
-    <geom type="box" size="0.006 0.014 0.04" pos="0 0 0" rgba="0.6 0.6 0.62 1" mass="0.04" friction="2 0.02 0.001" condim="6" priority="1" solref="0.004 1" solimp="0.95 0.99 0.001"/>
-  </body>
+  {hand_xml(gripper)}
 </body>"""
-GRIPPER_EXTRA = f"""
-<equality><weld body1="gripper_target" body2="gripper" solref="0.02 1"/></equality>
-<actuator>
-  <position name="finger_a" joint="finger_a" kp="200" ctrlrange="0 {OPENING / 2}" forcerange="-12 12"/>
-  <position name="finger_b" joint="finger_b" kp="200" ctrlrange="0 {OPENING / 2}" forcerange="-12 12"/>
-</actuator>"""
+    extra = ('<equality><weld body1="gripper_target" body2="gripper" solref="0.02 1"/></equality>'
+             + hand_actuators(gripper) + hand_contacts(gripper) + (suction_welds(slots) if gripper != "jaws" else ""))
+    return body, extra
 
 
 class GraspPolicy(Protocol):
@@ -58,15 +58,15 @@ class GraspPolicy(Protocol):
         ``offset`` (m, world x and y) shifts the jaws' centre from where the policy puts it."""
 
 
-class Gripper:
-    """Handles to the gripper inside a :class:`~binpick.sim.bin_scene.BinWorld` model."""
+class Gripper(Hand):
+    """The floating hand inside a :class:`~binpick.sim.bin_scene.BinWorld` model: a :class:`Hand`
+    moved by its mocap target."""
 
-    def __init__(self, model: mujoco.MjModel) -> None:
-        self.model = model
+    def __init__(self, model: mujoco.MjModel, gripper: str = "jaws", slot_bodies: list[int] | None = None) -> None:
+        super().__init__(model, gripper, slot_bodies)
         self.mocap = model.body_mocapid[model.body("gripper_target").id]
         joint = model.joint("gripper_free")
         self.qpos, self.dof = model.jnt_qposadr[joint.id], model.jnt_dofadr[joint.id]
-        self.fingers = [model.actuator("finger_a").id, model.actuator("finger_b").id]
 
     def teleport(self, data: mujoco.MjData, position, yaw: float) -> None:
         quaternion = np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
@@ -76,15 +76,18 @@ class Gripper:
         data.qpos[self.qpos + 3:self.qpos + 7] = quaternion
         data.qvel[self.dof:self.dof + 6] = 0.0
 
-    def move(self, data: mujoco.MjData, target, seconds: float, close: float | None = None) -> None:
-        """Move the mocap target in a straight line over ``seconds`` (fingers to ``close`` if given)."""
+    def move(self, data: mujoco.MjData, target, seconds: float, close: bool | None = None, on_step=None) -> None:
+        """Move the mocap target in a straight line over ``seconds`` (grip on or off if ``close`` is given)."""
         start = data.mocap_pos[self.mocap].copy()
         steps = max(1, int(seconds / self.model.opt.timestep))
         for step in range(steps):
             data.mocap_pos[self.mocap] = start + (np.asarray(target) - start) * (step + 1) / steps
             if close is not None:
-                data.ctrl[self.fingers] = close
+                self.command(data, close)
             mujoco.mj_step(self.model, data)
+            self.after_step(data)
+            if on_step is not None:
+                on_step(step)
 
 
 @contextmanager
@@ -123,33 +126,39 @@ class TopDownGrasp:
         return (float(centre[0] + offset[0]), float(centre[1] + offset[1]), float(tips)), yaw, top
 
 
-def lift_test(world, slot: int, tips, yaw: float, top: float | None = None, carry: bool = False) -> bool:
-    """A top-down grasp from the world's current state: fingertips' midpoint to ``tips`` (world xyz),
-    jaws closing along ``yaw`` (radians about z), close, lift 15 cm, hold; True if instance ``slot``
-    rose by LIFT_SUCCESS and stayed. With ``carry``, it must also stay through a sideways carry at
-    the pick pipeline's speed (grasps that lift but slip on the way to the order tote fail). Call it
-    inside ``with trial_timestep(world.model)``."""
+def lift_test(world, slot: int, tips, yaw: float, top: float | None = None, carry: bool = False,
+              tool: str = "jaws") -> bool:
+    """A top-down grasp from the world's current state with ``tool``: its point (the fingertips'
+    midpoint, or the cup's lip) to ``tips`` (world xyz), jaws closing along ``yaw`` (radians about z),
+    grip, lift 15 cm, hold; True if instance ``slot`` rose by LIFT_SUCCESS and stayed. With ``carry``,
+    it must also stay through a sideways carry at the pick pipeline's speed (grasps that lift but slip
+    on the way to the order tote fail). A suction cup is pressed SUCTION_PRESS into the surface (its
+    bellows give). Call it inside ``with trial_timestep(world.model)``."""
     model, data, gripper = world.model, world.data, world.gripper
     body = world.body_ids[slot]
     start_height = data.xpos[body][2]
+    gripper.use(data, tool)
+    below = gripper.tool_point_below()
     x, y, z = (float(v) for v in tips)
-    above = np.array([x, y, (top if top is not None else z + 0.04) + 0.12])
+    above = np.array([x, y, (top if top is not None else z) + below + 0.08])
     gripper.teleport(data, above, yaw)
-    data.ctrl[gripper.fingers] = 0.0
     mujoco.mj_forward(model, data)
-    grasp = [x, y, z + 0.04]  # the gripper's origin is the fingers' centre, 4 cm above the tips
-    gripper.move(data, grasp, 0.3, close=0.0)
-    gripper.move(data, grasp, 0.3, close=OPENING / 2)
-    lifted_to = [x, y, z + 0.04 + 0.15]
-    gripper.move(data, lifted_to, 0.5, close=OPENING / 2)
-    if not data.xpos[body][2] - start_height >= LIFT_SUCCESS / 2:
-        return False  # not even half-way up: no need to simulate the hold
-    gripper.move(data, lifted_to, HOLD_SECONDS, close=OPENING / 2)
-    if carry:
-        gripper.move(data, [x + CARRY_TRIAL[0], y + CARRY_TRIAL[1], lifted_to[2]], CARRY_TRIAL[2], close=OPENING / 2)
-        gripper.move(data, data.mocap_pos[gripper.mocap].copy(), 0.3, close=OPENING / 2)
-    lifted = data.xpos[body][2] - start_height
-    return bool(np.isfinite(lifted) and lifted >= LIFT_SUCCESS)
+    grasp = [x, y, z + below - (SUCTION_PRESS if tool == "suction" else 0.0)]
+    gripper.move(data, grasp, 0.3, close=False)
+    gripper.move(data, grasp, 0.3, close=True)
+    lifted_to = [x, y, z + below + 0.15]
+    gripper.move(data, lifted_to, 0.5, close=True)
+    try:
+        if not data.xpos[body][2] - start_height >= LIFT_SUCCESS / 2:
+            return False  # not even half-way up: no need to simulate the hold
+        gripper.move(data, lifted_to, HOLD_SECONDS, close=True)
+        if carry:
+            gripper.move(data, [x + CARRY_TRIAL[0], y + CARRY_TRIAL[1], lifted_to[2]], CARRY_TRIAL[2], close=True)
+            gripper.move(data, data.mocap_pos[gripper.mocap].copy(), 0.3, close=True)
+        lifted = data.xpos[body][2] - start_height
+        return bool(np.isfinite(lifted) and lifted >= LIFT_SUCCESS)
+    finally:
+        gripper.command(data, False)
 
 
 POLICIES = {"x": lambda: TopDownGrasp("x"), "y": lambda: TopDownGrasp("y")}

@@ -26,7 +26,6 @@ import mujoco
 import numpy as np
 
 from binpick.core.errors import ConfigError
-from binpick.sim.gripper import OPENING
 from binpick.sim.mjcf import tote
 from binpick.sim.order_tote import order_tote_xml
 from binpick.sim.products import package_dir
@@ -80,35 +79,24 @@ def panda_assets() -> str:
     return str(path)
 
 
-def gripper_xml() -> str:
-    """binpick's gripper as a body of the arm's hand (no free joint, no mocap weld): palm, two
-    position-controlled fingers, and the tool shaft up to the flange. Same names as the floating one."""
-    half = OPENING / 2
-    finger = ('type="box" size="0.006 0.014 0.04" pos="0 0 0" rgba="0.6 0.6 0.62 1" mass="0.04" friction="2 0.02 0.001" '
-              'condim="6" priority="1" solref="0.004 1" solimp="0.95 0.99 0.001"')
+def gripper_xml(gripper: str = "jaws") -> str:
+    """binpick's hand as a body of the arm's hand (no free joint, no mocap weld): palm, the fingers and
+    the cup ``gripper`` asks for (:mod:`binpick.sim.hand`), and the tool shaft up to the flange."""
+    from binpick.sim.hand import HAND_GROUP, hand_actuators, hand_contacts, hand_xml
+
     shaft_z = PALM_TOP + TOOL_SHAFT / 2
     return f"""<mujoco><worldbody>
 <body name="gripper">
   <site name="tool" pos="0 0 0" size="0.005" rgba="1 0 0 0"/>
-  <geom name="palm" type="box" size="{half + 0.012} 0.014 0.012" pos="0 0 0.05" rgba="0.25 0.25 0.28 1" mass="0.4"/>
-  <geom name="shaft" type="cylinder" size="0.022 {TOOL_SHAFT / 2}" pos="0 0 {shaft_z}" rgba="0.3 0.3 0.32 1" mass="0.2"/>
-  <body name="finger_a" pos="{half + 0.006} 0 0">
-    <joint name="finger_a" type="slide" axis="-1 0 0" range="0 {half}" damping="2"/>
-    <geom name="finger_a" {finger}/>
-  </body>
-  <body name="finger_b" pos="{-half - 0.006} 0 0">
-    <joint name="finger_b" type="slide" axis="1 0 0" range="0 {half}" damping="2"/>
-    <geom name="finger_b" {finger}/>
-  </body>
+  <geom name="shaft" type="cylinder" size="0.022 {TOOL_SHAFT / 2}" pos="0 0 {shaft_z}" rgba="0.3 0.3 0.32 1" mass="0.2" group="{HAND_GROUP}"/>
+  {hand_xml(gripper)}
 </body></worldbody>
-<actuator>
-  <position name="finger_a" joint="finger_a" kp="200" ctrlrange="0 {half}" forcerange="-12 12"/>
-  <position name="finger_b" joint="finger_b" kp="200" ctrlrange="0 {half}" forcerange="-12 12"/>
-</actuator></mujoco>"""
+{hand_actuators(gripper)}{hand_contacts(gripper)}</mujoco>"""
 
 
-def arm_spec(limits: JointLimits = PANDA_LIMITS) -> mujoco.MjSpec:
-    """The Panda with binpick's gripper: position actuators on its joints, gravity compensated."""
+def arm_spec(limits: JointLimits = PANDA_LIMITS, gripper: str = "jaws") -> mujoco.MjSpec:
+    """The Panda with binpick's hand (``gripper``: jaws, suction or both): position actuators on its
+    joints, gravity compensated."""
     arm = mujoco.MjSpec.from_file(panda_assets())
     for actuator in list(arm.actuators):
         arm.delete(actuator)
@@ -139,7 +127,7 @@ def arm_spec(limits: JointLimits = PANDA_LIMITS) -> mujoco.MjSpec:
     for camera in list(arm.cameras):
         arm.delete(camera)
     site = arm.body("right_hand").add_site(name="flange", pos=[0, 0, TOOL_LENGTH], quat=[0, 1, 0, 0])
-    arm.attach(mujoco.MjSpec.from_string(gripper_xml()), prefix="", site=site)
+    arm.attach(mujoco.MjSpec.from_string(gripper_xml(gripper)), prefix="", site=site)
     return arm
 
 
@@ -152,15 +140,15 @@ class PandaArm:
     home: tuple[float, ...] = HOME
     limits: JointLimits = PANDA_LIMITS
     name: str = "panda"
+    gripper: str = "jaws"  # the hand's tools: jaws, suction or both
     qpos: np.ndarray = field(default_factory=lambda: np.zeros(0, int), repr=False)
     dof: np.ndarray = field(default_factory=lambda: np.zeros(0, int), repr=False)
     actuators: np.ndarray = field(default_factory=lambda: np.zeros(0, int), repr=False)
-    fingers: list[int] = field(default_factory=list, repr=False)
     geoms: np.ndarray = field(default_factory=lambda: np.zeros(0, int), repr=False)
 
     def attach(self, spec: mujoco.MjSpec) -> None:
         frame = spec.worldbody.add_frame(pos=list(self.mount))
-        spec.attach(arm_spec(self.limits), prefix="", frame=frame)
+        spec.attach(arm_spec(self.limits, self.gripper), prefix="", frame=frame)
         spec.worldbody.add_geom(name="pedestal", type=mujoco.mjtGeom.mjGEOM_CYLINDER, size=[0.12, 0.005, 0],
                                 pos=[self.mount[0], self.mount[1], 0.005], rgba=[0.3, 0.3, 0.33, 1], contype=0, conaffinity=0)
         overview = next((c for c in spec.cameras if c.name == "overview"), None)
@@ -174,8 +162,9 @@ class PandaArm:
         self.dof = np.array([model.jnt_dofadr[j] for j in joints])
         self.actuators = np.array([model.actuator(f"arm_{name}").id for name in JOINTS])
         self.velocity_actuators = np.array([model.actuator(f"arm_{name}_velocity").id for name in JOINTS])
-        self.fingers = [model.actuator("finger_a").id, model.actuator("finger_b").id]
-        self.finger_qpos = np.array([model.jnt_qposadr[model.joint(n).id] for n in ("finger_a", "finger_b")])
+        self.hand_joints = np.array([model.jnt_qposadr[model.joint(n).id] for n in ("finger_a", "finger_b", "bellows")
+                                     if _has_joint(model, n)], dtype=int)
+        self.hand = None  # bind_hand: once the scene's product slots are known
         self.gripper_body = model.body("gripper").id
         self.tool_site = model.site("tool").id
         base = model.body("base").id
@@ -190,11 +179,22 @@ class PandaArm:
         data.qvel[self.dof] = 0.0
         data.ctrl[self.actuators] = q
         data.ctrl[self.velocity_actuators] = 0.0
-        data.qpos[self.finger_qpos] = 0.0
-        data.ctrl[self.fingers] = 0.0
+        data.qpos[self.hand_joints] = 0.0
+        if self.hand is not None:
+            self.hand.reset(data)
+
+    def bind_hand(self, model: mujoco.MjModel, slot_bodies: list[int] | None = None) -> None:
+        """The arm's hand (:class:`binpick.sim.hand.Hand`), its vacuum welded to ``slot_bodies``."""
+        from binpick.sim.hand import Hand
+
+        self.hand = Hand(model, self.gripper, slot_bodies)
 
     def joint_positions(self, data: mujoco.MjData) -> np.ndarray:
         return data.qpos[self.qpos].copy()
+
+
+def _has_joint(model: mujoco.MjModel, name: str) -> bool:
+    return mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name) >= 0
 
 
 def _descends(model: mujoco.MjModel, body: int, ancestor: int) -> bool:

@@ -11,7 +11,7 @@ from enum import StrEnum
 import mujoco
 import numpy as np
 
-from binpick.sim.gripper import LIFT_SUCCESS, OPENING, TRIAL_TIMESTEP
+from binpick.sim.gripper import LIFT_SUCCESS, PARK, SUCTION_PRESS, TRIAL_TIMESTEP
 from binpick.sim.mjcf import FLOOR_TOP, CameraSpec
 from binpick.sim.order_tote import ORDER_HALF, ORDER_HEIGHT, ORDER_TOTE
 
@@ -78,6 +78,7 @@ class PickOutcome:
     collisions: list[list[str]] = field(default_factory=list)  # an arm's contacts with the table or totes: [arm part, fixed part, segment]
     unreachable: str | None = None  # why the arm could not take the grasp (it then did not move)
     grasp_error_mm: float | None = None  # an arm's gripper from the planned grasp when the fingers closed
+    why: str | None = None  # a suction pick's failure in the vacuum's words: no seal (and why), or the seal let go
 
 
 def fixed_tips(point: np.ndarray, depth_below_top: float) -> np.ndarray:
@@ -88,69 +89,74 @@ def fixed_tips(point: np.ndarray, depth_below_top: float) -> np.ndarray:
 
 
 def execute_pick(world, tips: np.ndarray, yaw: float, on_frame: Callable[[], None] | None = None,
-                 frame_every: float = 0.1) -> PickOutcome:
-    """Top-down grasp with the fingertips' midpoint at ``tips`` (world xyz) and the jaws closing along
-    ``yaw`` (radians about z), lift, carry to the order tote, release, and report what happened."""
+                 frame_every: float = 0.1, tool: str = "jaws") -> PickOutcome:
+    """Top-down grasp with ``tool``'s point (the fingertips' midpoint, or the suction cup's lip) at
+    ``tips`` (world xyz) and the jaws closing along ``yaw`` (radians about z), lift, carry to the order
+    tote, release, and report what happened."""
     model, data, gripper = world.model, world.data, world.gripper
     settle_timestep = model.opt.timestep
     model.opt.timestep = TRIAL_TIMESTEP
     every = max(1, int(frame_every / TRIAL_TIMESTEP))
 
-    def move(target, seconds: float, close: float) -> None:
-        start = data.mocap_pos[gripper.mocap].copy()
-        steps = max(1, int(seconds / model.opt.timestep))
-        for step in range(steps):
-            data.mocap_pos[gripper.mocap] = start + (np.asarray(target) - start) * (step + 1) / steps
-            data.ctrl[gripper.fingers] = close
-            mujoco.mj_step(model, data)
-            if on_frame is not None and step % every == 0:
-                on_frame()
+    def move(target, seconds: float, grip: bool) -> None:
+        gripper.move(data, target, seconds, close=grip,
+                     on_step=None if on_frame is None else lambda step: on_frame() if step % every == 0 else None)
 
     try:
         heights = np.array([data.xpos[b][2] for b in world.body_ids])
+        gripper.use(data, tool)
+        below = gripper.tool_point_below()
         point = np.asarray(tips, dtype=float)
-        grasp = np.array([point[0], point[1], point[2] + 0.04])
+        grasp = np.array([point[0], point[1], point[2] + below])
+        reach = grasp - [0, 0, SUCTION_PRESS if tool == "suction" else 0.0]  # a cup is pressed on (its bellows give)
         gripper.teleport(data, grasp + [0, 0, 0.15], yaw)
         mujoco.mj_forward(model, data)
-        move(grasp, 0.4, 0.0)
-        move(grasp, 0.3, OPENING / 2)
-        move(grasp + [0, 0, 0.15], 0.5, OPENING / 2)
-        move(grasp + [0, 0, 0.15], 0.5, OPENING / 2)  # hold: does it stay in the jaws?
+        move(reach, 0.4, False)
+        move(reach, 0.3, True)
+        move(grasp + [0, 0, 0.15], 0.5, True)
+        move(grasp + [0, 0, 0.15], 0.5, True)  # hold: does it stay in the jaws, on the cup?
         rise = np.array([data.xpos[b][2] for b in world.body_ids]) - heights
         slot = int(np.argmax(rise))
         if rise[slot] < LIFT_SUCCESS:
-            return PickOutcome(None, False, Reason.MISSED if rise.max() < 0.02 else Reason.SLIPPED)
+            return PickOutcome(None, False, Reason.MISSED if rise.max() < 0.02 else Reason.SLIPPED,
+                               why=suction_why(gripper, tool))
         carry = np.array([point[0], point[1], CARRY_HEIGHT])
-        move(carry, 0.5, OPENING / 2)
+        move(carry, 0.5, True)
         above_order = np.array([ORDER_TOTE[0], ORDER_TOTE[1], CARRY_HEIGHT])
-        move(above_order, 1.0, OPENING / 2)
+        move(above_order, 1.0, True)
         lowered = above_order - [0, 0, 0.2]
-        move(lowered, 0.5, OPENING / 2)
-        if data.xpos[world.body_ids[slot]][2] < lowered[2] - 0.15:
-            return PickOutcome(slot, False, Reason.SLIPPED)  # fell on the way
-        move(lowered, 0.4, 0.0)  # open
-        move(above_order, 0.3, 0.0)
-        move(above_order, 0.6, 0.0)  # let it settle
+        move(lowered, 0.5, True)
+        if data.xpos[world.body_ids[slot]][2] < lowered[2] - (0.15 if tool == "jaws" else below + 0.15):
+            return PickOutcome(slot, False, Reason.SLIPPED, why=suction_why(gripper, tool))  # fell on the way
+        move(lowered, 0.4, False)  # let go
+        move(above_order, 0.3, False)
+        move(above_order, 0.6, False)  # let it settle
         x, y, z = data.xpos[world.body_ids[slot]]
         inside = abs(x - ORDER_TOTE[0]) < ORDER_HALF and abs(y - ORDER_TOTE[1]) < ORDER_HALF and z < ORDER_HEIGHT + 0.1
         return PickOutcome(slot, bool(inside), Reason.PLACED if inside else Reason.DROPPED)
     finally:
         model.opt.timestep = settle_timestep
-        gripper.teleport(data, (-3.0, 0.0, 0.5), 0.0)  # park out of view
+        gripper.reset(data)
+        gripper.teleport(data, PARK, 0.0)  # park out of view
         mujoco.mj_forward(model, data)
 
 
+def suction_why(hand, tool: str) -> str | None:
+    """Why a suction pick failed, in the vacuum's words (no seal, or the seal let go); None for jaws."""
+    return hand.vacuum.why if tool == "suction" and hand.vacuum is not None else None
+
+
 def execute_arm_pick(world, planner, tips: np.ndarray, yaw: float, on_frame: Callable[[], None] | None = None,
-                     frame_every: float = 0.1) -> PickOutcome:
+                     frame_every: float = 0.1, tool: str = "jaws") -> PickOutcome:
     """The same pick by the arm in ``world`` (``world.arm``): every segment from its current posture
     (home) to the order tote and back home, planned by ``planner`` (a :class:`binpick.arm.MotionPlanner`)
     and executed by joint position targets at the simulator's step (the planner's ``period`` must be
     the trial timestep: the robot seconds reported are its segments' durations). The lift is judged after the
     lift segment (after a miss the arm opens and goes home); a product lower than the fingers by more
     than the lift test's margin when the arm has lowered it over the order tote fell on the way. A
-    grasp the arm cannot reach is not executed (``unreachable`` says why)."""
+    grasp the arm cannot reach is not executed (``unreachable`` says why). ``tool``: which of the hand's
+    tools takes the grasp (its point at ``tips``)."""
     from binpick.arm.controller import ArmController
-    from binpick.sim.panda import TIPS_BELOW
 
     if abs(planner.period - TRIAL_TIMESTEP) > 1e-9:
         raise ValueError(f"the arm's planner steps at {planner.period} s, the simulator at {TRIAL_TIMESTEP} s: make them equal")
@@ -167,12 +173,16 @@ def execute_arm_pick(world, planner, tips: np.ndarray, yaw: float, on_frame: Cal
 
     def run(segments) -> None:
         for segment in segments:
-            controller.run(segment, OPENING / 2 if segment.closed else 0.0, on_step=on_step)
+            controller.run(segment, on_step=on_step)
             outcome.motion_s[segment.name] = round(outcome.motion_s.get(segment.name, 0.0) + segment.duration, 3)
 
+    hand = world.arm.hand
     try:
         heights = np.array([data.xpos[b][2] for b in world.body_ids])
-        motion = planner.pick(world.arm.joint_positions(data), np.asarray(tips, dtype=float) + [0.0, 0.0, TIPS_BELOW], yaw)
+        hand.use(data, tool)
+        below = hand.tool_point_below()
+        press = SUCTION_PRESS if tool == "suction" else 0.0
+        motion = planner.pick(world.arm.joint_positions(data), np.asarray(tips, dtype=float) + [0.0, 0.0, below - press], yaw)
         outcome = PickOutcome(None, False, Reason.MISSED, planning_ms=round(1000 * motion.planning_s, 1))
         if not motion.reach.ok:
             outcome.unreachable = motion.reach.reason
@@ -187,11 +197,13 @@ def execute_arm_pick(world, planner, tips: np.ndarray, yaw: float, on_frame: Cal
         slot = int(np.argmax(rise))
         if rise[slot] < LIFT_SUCCESS:
             outcome.reason = Reason.MISSED if rise.max() < 0.02 else Reason.SLIPPED
+            outcome.why = suction_why(hand, tool)
             run(planner.back_home(world.arm.joint_positions(data)))
         else:
             lowered = names.index("lower") + 1
             run(motion.segments[lifted:lowered])
-            fell = data.xpos[world.body_ids[slot]][2] < data.xpos[world.arm.gripper_body][2] - TIPS_BELOW - 0.15
+            fell = data.xpos[world.body_ids[slot]][2] < data.xpos[world.arm.gripper_body][2] - below - 0.15
+            outcome.why = suction_why(hand, tool) if fell else None
             run(motion.segments[lowered:])
             x, y, z = data.xpos[world.body_ids[slot]]
             inside = abs(x - ORDER_TOTE[0]) < ORDER_HALF and abs(y - ORDER_TOTE[1]) < ORDER_HALF and z < ORDER_HEIGHT + 0.1
@@ -200,15 +212,15 @@ def execute_arm_pick(world, planner, tips: np.ndarray, yaw: float, on_frame: Cal
         outcome.collisions = [list(pair) for pair in controller.collisions]
         return outcome
     finally:
+        hand.reset(data)
         model.opt.timestep = settle_timestep
 
 
-def arm_lift_test(world, planner, slot: int, tips, yaw: float) -> bool:
+def arm_lift_test(world, planner, slot: int, tips, yaw: float, tool: str = "jaws") -> bool:
     """A label grasp made by the arm (``data generate`` with ``robot: panda``): from home to the grasp,
     close, lift, and carry to above the order tote, as the pipeline's picks go; True if instance
     ``slot`` rose by LIFT_SUCCESS and is still in the jaws there. A grasp the arm cannot reach is no."""
     from binpick.arm.controller import ArmController
-    from binpick.sim.panda import TIPS_BELOW
 
     model, data = world.model, world.data
     settle_timestep = model.opt.timestep
@@ -216,17 +228,22 @@ def arm_lift_test(world, planner, slot: int, tips, yaw: float) -> bool:
     try:
         body = world.body_ids[slot]
         start = float(data.xpos[body][2])
-        motion = planner.pick(world.arm.joint_positions(data), np.asarray(tips, dtype=float) + [0.0, 0.0, TIPS_BELOW], yaw)
+        hand = world.arm.hand
+        hand.use(data, tool)
+        below = hand.tool_point_below()
+        press = SUCTION_PRESS if tool == "suction" else 0.0
+        motion = planner.pick(world.arm.joint_positions(data), np.asarray(tips, dtype=float) + [0.0, 0.0, below - press], yaw)
         if not motion.reach.ok:
             return False
         controller = ArmController(world)
         for segment in motion.segments:
             if segment.name == "lower":  # carried to above the order tote: judged there
                 break
-            controller.run(segment, OPENING / 2 if segment.closed else 0.0)
+            controller.run(segment)
             if segment.name == "lift" and data.xpos[body][2] - start < LIFT_SUCCESS:
                 return False
-        held = data.xpos[world.arm.gripper_body][2] - data.xpos[body][2] < 0.15  # still hanging in the jaws
+        held = data.xpos[world.arm.gripper_body][2] - data.xpos[body][2] < below + 0.11  # still hanging in the jaws, on the cup
         return bool(np.isfinite(data.xpos[body][2]) and data.xpos[body][2] - start >= LIFT_SUCCESS and held)
     finally:
+        world.arm.hand.reset(data)
         model.opt.timestep = settle_timestep

@@ -1,0 +1,70 @@
+"""The tools a picking cell carries: parallel jaws, a suction cup, or both on one hand. Their geometry
+and limits live here once, for the simulator that builds and drives them and for the planner that
+judges grasps from depth (which must not import the simulator).
+
+Both tools approach from above. A grasp's ``position`` is the tool's point: the fingertips' midpoint
+for the jaws, the centre of the cup's lip for suction. On the hand that carries both (a cup on a rod
+between the fingers, as hybrid warehouse grippers have), the rod pushes the cup ``cup_reach`` below the
+fingertips for a suction pick, so the open fingers stay clear of the face the cup seals on.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+GRIPPERS = ("jaws", "suction", "both")  # what a cell carries
+TOOLS = ("jaws", "suction")  # what one grasp uses
+TIPS_BELOW = 0.04  # the tool point below the hand's origin (the fingers' centre; the cup's lip on a suction-only hand)
+
+
+@dataclass(frozen=True)
+class Jaws:
+    """The parallel-jaw gripper's geometry, metres (binpick's simulated one by default)."""
+
+    opening: float = 0.11  # distance between the open fingers' inner faces
+    finger_thickness: float = 0.012  # along the closing direction
+    finger_width: float = 0.028  # across it
+    finger_length: float = 0.08
+    margin: float = 0.008  # the widest object it takes is opening - margin
+
+
+@dataclass(frozen=True)
+class SuctionCup:
+    """A bellows suction cup and its vacuum (binpick's simulated one by default; a 30 mm cup).
+
+    It seals where its lip's ring lies on one object's surface that is flat enough: the ring's heights
+    within ``compliance`` of a plane (peak to peak), the surface inside it bulging into the cup by no
+    more than ``depth``, tilted at most ``max_tilt`` degrees from the cup's axis. The seal holds while
+    the load on it stays inside the wrench the vacuum resists (Dex-Net 3.0's soft ring contact): a
+    pull ``f_n`` up to ``vacuum_force``, a shear up to ``friction`` times the force still pressing the
+    lip (``vacuum_force - f_n``), and a moment about the lip up to that force times the radius (the
+    cup peels beyond it). A heavy object held far from its centre of mass fails by the moment."""
+
+    radius: float = 0.015  # the lip's radius (m)
+    compliance: float = 0.003  # m: how far the lip's ring may leave a plane and still seal
+    depth: float = 0.003  # m: how far the surface may bulge into the cup inside the ring
+    max_tilt: float = 30.0  # degrees between the sealed surface's normal and the cup's axis
+    vacuum_force: float = 30.0  # N: the pull the seal holds (about 60 kPa over the lip, less leakage)
+    friction: float = 0.8  # the lip's rubber on the product
+    cup_reach: float = 0.04  # m: the cup below the fingertips on a hand that carries both tools
+
+    @property
+    def area(self) -> float:
+        return math.pi * self.radius ** 2
+
+
+def tools_of(gripper: str) -> tuple[str, ...]:
+    """The tools a cell's ``gripper`` (jaws, suction or both) gives: ("jaws",), ("suction",) or both."""
+    from binpick.core.config import check_choice
+
+    check_choice("gripper", gripper, GRIPPERS)
+    return TOOLS if gripper == "both" else (gripper,)
+
+
+def tool_point_below(gripper: str, tool: str) -> float:
+    """How far below the hand's origin ``tool``'s point is on a ``gripper`` hand: the fingertips and a
+    suction-only hand's lip 4 cm; the cup pushed out below the fingertips on a hand with both."""
+    if tool == "suction" and gripper == "both":
+        return TIPS_BELOW + SuctionCup().cup_reach
+    return TIPS_BELOW
