@@ -159,7 +159,7 @@ def test_one_order_is_picked_and_placed_by_the_arm(tmp_path):
 
     detector = DetectorNetwork(ModelSpec(query="photo"), 128).eval()
     pipeline = PickPipeline(detector, default_library(procedural=0, shapes=0), grasp="analytic", oracle=True, max_attempts=2,
-                            camera=CameraSpec(size=160), robot="panda")  # the simulator's boxes: the arm's own test
+                            camera=CameraSpec(size=160), robot="panda", gripper="jaws")  # the simulator's boxes: the arm's own test
     summary, results = fulfil(pipeline, ["robosuite/can"], 1, 3, tmp_path)
     order = results[0]
     assert order.success, order
@@ -172,6 +172,24 @@ def test_one_order_is_picked_and_placed_by_the_arm(tmp_path):
     assert saved["orders"][0]["robot"] == "panda" and saved["orders"][0]["robot_seconds"] > 2.0
     assert (tmp_path / order.gif).stat().st_size > 10_000
     assert "cycle" in (tmp_path / "report.html").read_text()
+
+
+def test_the_arm_picks_with_its_suction_cup(tmp_path):
+    from binpick.detection.model import DetectorNetwork, ModelSpec
+    from binpick.sim import default_library
+    from binpick.sim.mjcf import CameraSpec
+    from binpick.warehouse.grasping import Reason
+    from binpick.warehouse.pipeline import PickPipeline, fulfil
+
+    detector = DetectorNetwork(ModelSpec(query="photo"), 128).eval()
+    pipeline = PickPipeline(detector, default_library(procedural=0, shapes=0), grasp="learnt", oracle=True, max_attempts=3,
+                            camera=CameraSpec(size=160), robot="panda", gripper="suction")
+    summary, results = fulfil(pipeline, ["robosuite/milk"], 1, 3, tmp_path)
+    tried = [a for a in results[0].attempts if a.motion_s]
+    assert tried and all(a.tool == "suction" and a.collisions == [] for a in tried)
+    assert results[0].success and tried[-1].outcome is Reason.PLACED, results[0]
+    assert {"approach", "descend", "close", "lift", "carry", "lower", "release", "return"} <= set(tried[-1].motion_s)
+    assert summary["by_tool"]["suction"]["placed"] == 1
 
 
 def test_the_arm_makes_label_grasps():

@@ -12,7 +12,7 @@ from binpick.sim.bin_scene import BinWorld
 from binpick.sim.gripper import lift_test, trial_timestep
 from binpick.sim.mjcf import CameraSpec
 from binpick.sim.products import Product
-from binpick.sim.suction import RING, ring_offsets, seal_test
+from binpick.grippers import RING, ring_offsets, seal_test
 
 
 def surface_below(world: BinWorld, x: float, y: float) -> tuple[float, int]:

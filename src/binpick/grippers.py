@@ -13,8 +13,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
 GRIPPERS = ("jaws", "suction", "both")  # what a cell carries
 TOOLS = ("jaws", "suction")  # what one grasp uses
+RING = 16  # points round the cup's lip where its seal is judged
+INNER = 7  # points inside it (the centre and a ring at half the radius)
 TIPS_BELOW = 0.04  # the tool point below the hand's origin (the fingers' centre; the cup's lip on a suction-only hand)
 
 
@@ -68,3 +72,64 @@ def tool_point_below(gripper: str, tool: str) -> float:
     if tool == "suction" and gripper == "both":
         return TIPS_BELOW + SuctionCup().cup_reach
     return TIPS_BELOW
+
+
+def ring_offsets(radius: float) -> np.ndarray:
+    """The lip's ring and the points inside it, in the cup's plane: (RING + INNER, 2)."""
+    angles = np.linspace(0, 2 * np.pi, RING, endpoint=False)
+    inner = np.linspace(0, 2 * np.pi, INNER - 1, endpoint=False)
+    return np.concatenate([radius * np.stack([np.cos(angles), np.sin(angles)], 1), [[0.0, 0.0]],
+                           radius / 2 * np.stack([np.cos(inner), np.sin(inner)], 1)])
+
+
+@dataclass(frozen=True)
+class Seal:
+    """What a cup's lip would meet at one place (:func:`seal_geometry`): the share of the ring and the
+    points inside it that lie on the product under the centre, how far the ring's heights leave their
+    best plane (peak to peak, m), that plane's tilt from the cup's axis (degrees), how far the surface
+    inside bulges above it towards the cup (m), and the gap from the lip to the plane (m; > 0: the
+    surface lies below the lip)."""
+
+    coverage: float
+    planarity: float
+    tilt: float
+    bulge: float
+    gap: float
+
+
+def seal_geometry(heights: np.ndarray, same: np.ndarray, radius: float) -> Seal:
+    """The :class:`Seal` of a surface seen at :func:`ring_offsets` (``heights`` along the cup's axis
+    relative to the lip, NaN where nothing was seen; ``same``: the point lies on the product under the
+    cup's centre). Points not seen or on another product leave the fit (and lower ``coverage``)."""
+    heights = np.asarray(heights, dtype=float)
+    good = np.isfinite(heights) & np.asarray(same, bool)
+    coverage = float(good.mean())
+    ring = good[:RING]
+    if ring.sum() < 4:
+        return Seal(coverage, float("inf"), 90.0, float("inf"), float("inf"))
+    offsets = ring_offsets(radius)
+    design = np.column_stack([offsets, np.ones(len(offsets))])
+    (a, b, c), *_ = np.linalg.lstsq(design[:RING][ring], heights[:RING][ring], rcond=None)
+    plane = design @ np.array([a, b, c])
+    residual = heights[:RING][ring] - plane[:RING][ring]
+    inside = good[RING:]
+    bulge = float((heights[RING:][inside] - plane[RING:][inside]).max()) if inside.any() else 0.0
+    return Seal(coverage, float(np.ptp(residual)), float(np.degrees(np.arctan(np.hypot(a, b)))), bulge, float(-c))
+
+
+def seal_test(heights: np.ndarray, same: np.ndarray, cup: SuctionCup, touch: float = 0.002) -> str | None:
+    """Whether a lip seals on a surface seen at :func:`ring_offsets` (see :func:`seal_geometry`): None
+    when it does, else why not. The lip must also be within ``touch`` of the surface's plane. The
+    simulator's vacuum seals by this test."""
+    seal = seal_geometry(heights, same, cup.radius)
+    if seal.coverage < 1.0:
+        return "the ring leaves the product"
+    if seal.planarity > cup.compliance:
+        return "the ring is not flat"
+    if seal.tilt > cup.max_tilt:
+        return "the surface is tilted too far"
+    if seal.bulge > cup.depth:
+        return "the surface bulges into the cup"
+    if seal.gap > touch:
+        return "the lip does not touch"
+    return None

@@ -16,3 +16,43 @@ def roc_auc(labels: np.ndarray, scores: np.ndarray) -> float | None:
     average_rank = np.cumsum(counts) - (counts - 1) / 2  # 1-based ranks, ties averaged
     ranks = average_rank[inverse.reshape(-1)]
     return float((ranks[positive].sum() - n_pos * (n_pos + 1) / 2) / (n_pos * n_neg))
+
+
+def calibration_error(labels: np.ndarray, probabilities: np.ndarray, bins: int = 10) -> float | None:
+    """Expected calibration error: over ``bins`` equal-width bins of predicted probability, the mean
+    gap between predicted and observed success, weighted by each bin's share (None: no data)."""
+    labels, probabilities = np.asarray(labels, dtype=float), np.asarray(probabilities, dtype=float)
+    if not len(labels):
+        return None
+    index = np.minimum((probabilities * bins).astype(int), bins - 1)
+    return float(sum(abs(probabilities[index == b].mean() - labels[index == b].mean()) * (index == b).mean()
+                     for b in range(bins) if (index == b).any()))
+
+
+def reliability(labels: np.ndarray, probabilities: np.ndarray, bins: int = 10) -> list[dict]:
+    """Predicted against observed success per bin of predicted probability: the reliability diagram's
+    points (bin range, count, mean prediction, observed rate)."""
+    labels, probabilities = np.asarray(labels, dtype=float), np.asarray(probabilities, dtype=float)
+    index = np.minimum((probabilities * bins).astype(int), bins - 1)
+    return [{"bin": [round(b / bins, 2), round((b + 1) / bins, 2)], "count": int((index == b).sum()),
+             "predicted": round(float(probabilities[index == b].mean()), 4), "observed": round(float(labels[index == b].mean()), 4)}
+            for b in range(bins) if (index == b).any()]
+
+
+def fit_platt(logits: np.ndarray, labels: np.ndarray, iterations: int = 200) -> tuple[float, float]:
+    """(temperature, bias) such that sigmoid(logit / temperature + bias) best predicts ``labels`` (log
+    loss; Platt scaling): a model trained on reweighted classes, or overconfident, made calibrated."""
+    logits, labels = np.asarray(logits, dtype=float), np.asarray(labels, dtype=float)
+    scale, bias = 1.0, 0.0
+    for _ in range(iterations):  # Newton's method on the two parameters (a convex problem)
+        z = np.clip(logits * scale + bias, -30, 30)
+        p = 1.0 / (1.0 + np.exp(-z))
+        gradient = np.array([np.sum((p - labels) * logits), np.sum(p - labels)])
+        w = p * (1 - p) + 1e-9
+        hessian = np.array([[np.sum(w * logits * logits), np.sum(w * logits)], [np.sum(w * logits), np.sum(w)]]) + 1e-6 * np.eye(2)
+        step = np.linalg.solve(hessian, gradient)
+        scale, bias = scale - step[0], bias - step[1]
+        if np.abs(step).max() < 1e-8:
+            break
+    scale = float(np.clip(scale, 0.05, 20.0))
+    return 1.0 / scale, float(bias)

@@ -26,7 +26,8 @@ from binpick.arm.kinematics import NOMINAL, ArmKinematics
 from binpick.arm.trajectory import Segment, joint_move, path_move
 from binpick.sim.order_tote import ORDER_TOTE
 from binpick.sim.mjcf import BIN_WALL_HEIGHT, FLOOR_TOP
-from binpick.sim.panda import TIPS_BELOW
+from binpick.grippers import tool_point_below
+from binpick.sim.panda import PandaArm
 
 NO_IK = "no IK solution"
 COLLIDES = "arm collides on the way down"
@@ -34,13 +35,14 @@ WRIST_FLIP = "needs a wrist flip"
 REACH_REASONS = (NO_IK, COLLIDES, WRIST_FLIP)
 
 APPROACH_HEIGHT = 0.15  # the pre-grasp pose above the grasp (m), as the floating gripper's ...
-ABOVE_WALLS = BIN_WALL_HEIGHT + FLOOR_TOP + 0.05 + TIPS_BELOW  # ... or higher: fingertips 5 cm above the bin walls
+WALLS_CLEARANCE = 0.05  # ... or higher: the tool's point 5 cm above the bin walls
+ABOVE_WALLS = BIN_WALL_HEIGHT + FLOOR_TOP + WALLS_CLEARANCE + tool_point_below("jaws", "jaws")  # the jaws' hand origin there
 LINE_STEP = 0.02  # IK points along straight segments (m)
 LIFT_TO = 0.32  # the gripper's centre after the lift (at least 15 cm up): products clear the bin walls
 CARRY_HEIGHT = 0.42  # the detour height when a free move would touch something
 RELEASE_HEIGHT = 0.22  # the gripper's centre when it opens above the order tote
 CLOSE_SECONDS, OPEN_SECONDS = 0.35, 0.3  # the fingers closing and opening (the arm stands still)
-FLOOR_MARGIN = 0.008  # the fingertips stop at least this far above the cell's bin floor (the arm tracks within 2 mm)
+FLOOR_MARGIN = 0.008  # the tool's point stops at least this far above the cell's bin floor (the arm tracks within 2 mm)
 WRIST_TURN = np.pi / 2 + 0.2  # joint 5 or 7 further than this from the nominal posture: a wrist flip
 
 
@@ -85,12 +87,14 @@ def _wrap(angle: float) -> float:
 
 
 class MotionPlanner:
-    """``MotionPlanner().reach(centre, yaw)`` and ``.pick(start, centre, yaw)`` for the gripper's centre
-    (between the fingers, world m) at a top-down grasp with jaws along ``yaw``; ``period``: the
-    controller's (the simulator's) step."""
+    """``MotionPlanner().reach(centre, yaw)`` and ``.pick(start, centre, yaw)`` for the hand's origin
+    (the fingers' centre, world m) at a top-down grasp with the hand's x axis along ``yaw``; ``period``:
+    the controller's (the simulator's) step; ``gripper``: the hand's tools (jaws, suction or both), whose
+    points lie at their own depths below the origin (``tool`` of each call)."""
 
-    def __init__(self, kinematics: ArmKinematics | None = None, period: float = 0.004) -> None:
-        self.kinematics = kinematics or ArmKinematics()
+    def __init__(self, kinematics: ArmKinematics | None = None, period: float = 0.004, gripper: str = "jaws") -> None:
+        self.gripper = gripper
+        self.kinematics = kinematics or ArmKinematics(PandaArm(gripper=gripper))
         self.limits = self.kinematics.arm.limits
         self.period = period
         self.home = np.asarray(self.kinematics.arm.home, dtype=float)
@@ -99,19 +103,23 @@ class MotionPlanner:
         self.wrist_yaw = float(np.arctan2(rotation[1, 0], rotation[0, 0]))  # the jaws' yaw with the wrist mid-range
         self._answers: dict[tuple, Reach] = {}
 
-    def reach(self, centre, yaw: float) -> Reach:
+    def below(self, tool: str) -> float:
+        """The tool's point below the hand's origin."""
+        return tool_point_below(self.gripper, tool)
+
+    def reach(self, centre, yaw: float, tool: str = "jaws") -> Reach:
         """Can the arm go straight down onto this grasp? Both jaw directions (yaw and yaw + π close the
         same jaws) are tried, the one nearer the wrist's mid-range first; the answer's ``yaw`` is the
         one the arm takes. The last answers are kept: the picker asks before the pick is executed."""
         started = time.perf_counter()
-        centre = self.clear_of_floor(np.asarray(centre, dtype=float))
-        key = (*np.round(centre, 4), round(float(yaw), 4))
+        centre = self.clear_of_floor(np.asarray(centre, dtype=float), tool)
+        key = (*np.round(centre, 4), round(float(yaw), 4), tool)
         if key in self._answers:
             return self._answers[key]
         yaws = sorted((yaw, yaw + np.pi), key=lambda y: abs(_wrap(y - self.wrist_yaw)))
         reasons = []
         for option in yaws:
-            reach = self._descent(centre, _wrap(option))
+            reach = self._descent(centre, _wrap(option), tool)
             if reach.ok:
                 break
             reasons.append(reach.reason)
@@ -123,15 +131,16 @@ class MotionPlanner:
             self._answers.pop(next(iter(self._answers)))
         return reach
 
-    def reach_check(self, tips, yaw: float) -> tuple[str | None, float]:
-        """The picker's check (:class:`binpick.picking.Picker` ``reach``) for a grasp with the
-        fingertips' midpoint at ``tips``: (None, the jaw yaw the arm takes) if it can take it, else
-        (why not, ``yaw``)."""
-        reach = self.reach(np.asarray(tips, dtype=float) + [0.0, 0.0, TIPS_BELOW], yaw)
+    def reach_check(self, tips, yaw: float, tool: str = "jaws") -> tuple[str | None, float]:
+        """The picker's check (:class:`binpick.picking.Picker` ``reach``) for a grasp with ``tool``'s
+        point (the fingertips' midpoint, the cup's lip) at ``tips``: (None, the yaw the arm takes) if it
+        can take it, else (why not, ``yaw``)."""
+        reach = self.reach(np.asarray(tips, dtype=float) + [0.0, 0.0, self.below(tool)], yaw, tool)
         return reach.reason, reach.yaw
 
-    def _descent(self, centre: np.ndarray, yaw: float) -> Reach:
-        above = np.array([centre[0], centre[1], max(centre[2] + APPROACH_HEIGHT, ABOVE_WALLS)])
+    def _descent(self, centre: np.ndarray, yaw: float, tool: str = "jaws") -> Reach:
+        above_walls = BIN_WALL_HEIGHT + FLOOR_TOP + WALLS_CLEARANCE + self.below(tool)
+        above = np.array([centre[0], centre[1], max(centre[2] + APPROACH_HEIGHT, above_walls)])
         postures: list[np.ndarray] = []
         previous: np.ndarray | None = None
         for point in line(above, centre):
@@ -147,22 +156,21 @@ class MotionPlanner:
             previous = solution.q
         return Reach(None, yaw, postures)
 
-    @staticmethod
-    def clear_of_floor(centre: np.ndarray) -> np.ndarray:
-        """The grasp's centre, raised if its fingertips would come within FLOOR_MARGIN of the bin floor."""
-        return np.array([centre[0], centre[1], max(float(centre[2]), FLOOR_TOP + FLOOR_MARGIN + TIPS_BELOW)])
+    def clear_of_floor(self, centre: np.ndarray, tool: str = "jaws") -> np.ndarray:
+        """The grasp's centre, raised if the tool's point would come within FLOOR_MARGIN of the bin floor."""
+        return np.array([centre[0], centre[1], max(float(centre[2]), FLOOR_TOP + FLOOR_MARGIN + self.below(tool))])
 
     def _flipped(self, q: np.ndarray) -> bool:
         """Joint 5 turned more than a quarter turn from the nominal posture: the wrist turned over."""
         return bool(abs(q[4] - self.nominal[4]) > WRIST_TURN)
 
-    def pick(self, start, centre, yaw: float, place=ORDER_TOTE) -> PickMotion:
+    def pick(self, start, centre, yaw: float, place=ORDER_TOTE, tool: str = "jaws") -> PickMotion:
         """Every segment of a pick from posture ``start``. An unreachable grasp raises nothing: the
         motion's ``reach.reason`` says why (and it has no segments), as for a lift, carry or lowering
         that has no IK solution or a free move that touches the cell on every way tried."""
         started = time.perf_counter()
-        centre = self.clear_of_floor(np.asarray(centre, dtype=float))
-        reach = self.reach(centre, yaw)
+        centre = self.clear_of_floor(np.asarray(centre, dtype=float), tool)
+        reach = self.reach(centre, yaw, tool)
         if not reach.ok:
             return PickMotion([], reach, time.perf_counter() - started)
         descent = reach.descent

@@ -50,7 +50,8 @@ def seed_option(text: str):
 
 SetOption = Annotated[list[str] | None, typer.Option("--set", metavar="KEY=VALUE", help="Env parameter KEY=VALUE (repeatable), e.g. --set goal_area=0.5")]
 POLICIES = ("random",)
-DEFAULT_POLICY = "learnt"  # the grasp policy of pick and demo: the best in results/grasp.json and results/pick.json
+DEFAULT_POLICY = "learnt"
+DEFAULT_GRIPPER = "both"  # the hand the demo, picks and plans use unless told: jaws and a suction cup  # the grasp policy of pick and demo: the best in results/grasp.json and results/pick.json
 
 
 def _print_version(value: bool) -> None:
@@ -103,6 +104,17 @@ def _check_runtime(value: str) -> str:
 
 RuntimeOption = Annotated[str, typer.Option(callback=_check_runtime, help="Run the photo-conditioned detector in torch or onnx "
                                                                          "(ONNX Runtime; pip install 'binpick[onnx]')")]
+
+
+def _check_gripper(value: str) -> str:
+    from binpick.core.config import check_choice
+    from binpick.grippers import GRIPPERS
+
+    return check_choice("--gripper", value, GRIPPERS)
+
+
+GripperOption = Annotated[str, typer.Option(callback=_check_gripper, help="The hand's tools: jaws, suction (a cup) or both "
+                                                                         "(the planner chooses per detection; grasps only for tools the hand has)")]
 
 
 def _check_robot(value: str) -> str:

@@ -44,6 +44,7 @@ def data_generate(
     val_fraction: Annotated[float, typer.Option(help="Share of worlds in the val split")] = 0.1,
     scenes_per_world: Annotated[int, typer.Option(help="Scenes per compiled world (one product)")] = 8,
     photo_views: Annotated[int, typer.Option(help="Randomised studio photos per product")] = 0,
+    gripper: Annotated[str, typer.Option(help="The hand's tools: jaws, suction or both (grasp trials with each)")] = "jaws",
     robot: Annotated[str, typer.Option(help="Who makes the label grasps: floating (the gripper alone) or panda (the arm: "
                                             "'pickable' by this arm; slower)")] = "floating",
     seed: Annotated[int, seed_option("Seed")] = 0,
@@ -62,7 +63,7 @@ def data_generate(
              "address": address,
              "targets": [t for t in targets.split(",") if t], "products": str(products) if products else None,
              "only_products": only_products, "val_fraction": val_fraction, "scenes_per_world": scenes_per_world, "photo_views": photo_views,
-             "robot": robot, "seed": seed}
+             "robot": robot, "gripper": gripper, "seed": seed}
     config = from_dict(GenerateConfig, flags | parse_settings(settings), where="data generate")  # validated once
     with job_progress(out, f"binpick data generate --out {out} (the same options), or binpick train --resume {out}") as callback:
         stats = DataGeneration.new(config).run(callback)

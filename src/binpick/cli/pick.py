@@ -12,7 +12,9 @@ from rich.table import Table
 from rich.text import Text
 
 from binpick.cli.app import (
+    DEFAULT_GRIPPER,
     DEFAULT_POLICY,
+    GripperOption,
     PlanRobotOption,
     RerunOption,
     RobotOption,
@@ -47,6 +49,7 @@ def pick(
                                                   "(default: runs/pick/<time>)")] = None,
     seed: Annotated[int, seed_option("Seed of the first order's bin")] = 0,
     robot: RobotOption = "floating",
+    gripper: GripperOption = DEFAULT_GRIPPER,
     runtime: RuntimeOption = "torch",
     rerun: RerunOption = False,
 ) -> None:
@@ -58,7 +61,7 @@ def pick(
     from binpick.warehouse.pipeline import PickPipeline
 
     check_range("orders", orders, 1, 100_000, integer=True)
-    planner = GraspPlanner.load(grasp, grasp_weights)  # a bad policy or weights file: one line, before any work
+    planner = GraspPlanner.load(grasp, grasp_weights, hand=gripper)  # a bad policy or weights file: one line, before any work
     run_dir = ensure_dir(out or Path("runs/pick") / time.strftime("%Y%m%d-%H%M%S"), "--out")
     library = product_library(products_file)
     products = [pid for name in product.split(",") if name.strip() for pid in library.resolve(name.strip())]
@@ -75,7 +78,7 @@ def pick(
             read_image(path)  # unreadable -> one line now, not mid-run
         library.add(replace(library[products[0]], photos=tuple(photo)))
     model = Detector.load(weights or PICKING, runtime=runtime).inference_network
-    _fulfil(PickPipeline(model, library, grasp=planner, robot=robot), products, orders, seed, run_dir, rerun)
+    _fulfil(PickPipeline(model, library, grasp=planner, robot=robot, gripper=gripper), products, orders, seed, run_dir, rerun)
 
 
 @app.command("plan")
@@ -101,6 +104,7 @@ def plan(
     product_size: Annotated[str | None, typer.Option(help="The product's catalogue dimensions L,W,H in metres: instances "
                                                           "clearly bigger are not grasped")] = None,
     robot: PlanRobotOption = "floating",
+    gripper: GripperOption = DEFAULT_GRIPPER,
     runtime: RuntimeOption = "torch",
     rerun: RerunOption = False,
 ) -> None:
@@ -138,14 +142,14 @@ def plan(
     if robot == "panda":
         from binpick.arm import MotionPlanner
 
-        reach = MotionPlanner().reach_check
+        reach = MotionPlanner(gripper=gripper).reach_check
     picker = Picker.load(None if box is not None else weights, grasp, grasp_weights, crop_detector=crop, max_grasps=max_grasps,
-                         runtime=runtime, reach=reach)
+                         runtime=runtime, reach=reach, gripper=gripper)
     plans = picker.plan(colour, metres, info, photo=query, query_box=box, size=dimensions, copies_only=copies_only)
     result = {"inputs": {"rgb": str(rgb), "depth": str(depth), "camera": str(camera),
                          "photo": [str(path) for path in photo] if photo else None, "query_box": query_box, "copies_only": copies_only,
                          "size": dimensions},
-              "grasp_policy": picker.grasp.policy.value, "robot": robot, **plans.to_json()}
+              "grasp_policy": picker.grasp.policy.value, "robot": robot, "gripper": gripper, **plans.to_json()}
     atomic_write_text(plan_path, json.dumps(result, indent=1))
     if rerun:
         from binpick.picking.inputs import register_depth
@@ -166,9 +170,12 @@ def plan(
         console.print(f"no feasible grasp: {plans.detections} detection(s){': ' + '; '.join(why) if why else ''} -> {folder}", soft_wrap=True)
     else:
         x, y, z = best.position
+        how = (f"jaws at yaw {np.degrees(best.yaw):.0f} deg, {100 * best.width:.1f} cm across" if best.tool == "jaws"
+               else "suction cup on the surface")
+        quality = "" if best.quality is None else f", predicted success {best.quality:.2f}"
         console.print(f"{len(plans.grasps)} grasp(s) from {plans.detections} detections in {plans.timing_ms['total']:.0f} ms; best: "
-                      f"({x:.3f}, {y:.3f}, {z:.3f}) m in {plans.frame}, yaw {np.degrees(best.yaw):.0f} deg, "
-                      f"width {100 * best.width:.1f} cm, grasp quality {best.score:.2f} -> {plan_path}, {overlay}", soft_wrap=True)
+                      f"({x:.3f}, {y:.3f}, {z:.3f}) m in {plans.frame}, {how}{quality}, detector score {best.score:.2f} "
+                      f"-> {plan_path}, {overlay}", soft_wrap=True)
 
 
 def _fulfil(pipeline, products: list[str], orders: int, seed: int, run_dir: Path, rerun: bool = False) -> dict:
@@ -223,6 +230,7 @@ def demo(
     out: Annotated[Path | None, typer.Option(help="Folder for the report, GIFs and results.json (default: runs/demo/<time>)")] = None,
     seed: Annotated[int, seed_option("Seed of the first order's bin")] = 0,
     robot: RobotOption = "floating",
+    gripper: GripperOption = DEFAULT_GRIPPER,
     rerun: RerunOption = False,
 ) -> None:
     """The main job: fulfil a handful of orders end to end with the shipped detector, products seen in
@@ -237,5 +245,5 @@ def demo(
     check_range("orders", orders, 1, 1000, integer=True)
     run_dir = ensure_dir(out or Path("runs/demo") / time.strftime("%Y%m%d-%H%M%S"), "--out")
     model = Detector.load(PICKING).inference_network
-    _fulfil(PickPipeline(model, default_library(), grasp=GraspPlanner.load(DEFAULT_POLICY), robot=robot), list(DEMO_PRODUCTS),
-            orders, seed, run_dir, rerun)
+    _fulfil(PickPipeline(model, default_library(), grasp=GraspPlanner.load(DEFAULT_POLICY, hand=gripper), robot=robot,
+                         gripper=gripper), list(DEMO_PRODUCTS), orders, seed, run_dir, rerun)

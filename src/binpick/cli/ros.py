@@ -9,7 +9,9 @@ from typing import Annotated
 import typer
 
 from binpick.cli.app import (
+    DEFAULT_GRIPPER,
     DEFAULT_POLICY,
+    GripperOption,
     PlanRobotOption,
     RuntimeOption,
     console,
@@ -142,7 +144,7 @@ COLOUR, DEPTH, INFO = "/camera/color/image_raw", "/camera/aligned_depth_to_color
 
 
 def _pick_node_setup(camera: Path | None, namespace: str, colour: str, depth: str, info: str, weights: Path | None, grasp: str,
-                     grasp_weights: Path | None, runtime: str = "torch", robot: str = "floating"):
+                     grasp_weights: Path | None, runtime: str = "torch", robot: str = "floating", gripper: str = "both"):
     """Checked names, then the extrinsic (a camera.yaml's camera_to_base; identity without one), the
     picker and the topics: everything a pick node needs before ROS starts."""
     import numpy as np
@@ -161,8 +163,8 @@ def _pick_node_setup(camera: Path | None, namespace: str, colour: str, depth: st
     if robot == "panda":  # grasps the arm cannot take are rejected in the result, with the reason
         from binpick.arm import MotionPlanner
 
-        reach = MotionPlanner().reach_check
-    picker = Picker.load(weights, grasp, grasp_weights, workspace=workspace, runtime=runtime, reach=reach)
+        reach = MotionPlanner(gripper=gripper).reach_check
+    picker = Picker.load(weights, grasp, grasp_weights, workspace=workspace, runtime=runtime, reach=reach, gripper=gripper)
     return pose, frame, picker, Topics(colour, depth, info)
 
 
@@ -173,12 +175,13 @@ def ros_pick_node(
     colour_topic: ColourTopic = COLOUR, depth_topic: DepthTopic = DEPTH, info_topic: InfoTopic = INFO,
     products_file: NodeProducts = None, weights: NodeWeights = None, grasp: NodeGrasp = DEFAULT_POLICY,
     grasp_weights: NodeGraspWeights = None, runtime: RuntimeOption = "torch", robot: PlanRobotOption = "floating",
+    gripper: GripperOption = DEFAULT_GRIPPER,
     master: MasterOption = None,
     timeout: Annotated[float, typer.Option(help="Seconds to wait for the ROS master")] = 10.0,
 ) -> None:
     """Serve pick planning over ROS 1: camera topics in, a PlanPick action (grasp poses in the base frame) out."""
     pose, frame, picker, topics = _pick_node_setup(camera, namespace, colour_topic, depth_topic, info_topic, weights, grasp, grasp_weights,
-                                                   runtime, robot)
+                                                   runtime, robot, gripper)
     library = product_library(products_file)
     _ros_environment(master, _check_timeout(timeout))
     from binpick.integrations.ros1.pick_node import serve
@@ -193,13 +196,14 @@ def ros2_pick_node(
     colour_topic: ColourTopic = COLOUR, depth_topic: DepthTopic = DEPTH, info_topic: InfoTopic = INFO,
     products_file: NodeProducts = None, weights: NodeWeights = None, grasp: NodeGrasp = DEFAULT_POLICY,
     grasp_weights: NodeGraspWeights = None, runtime: RuntimeOption = "torch", robot: PlanRobotOption = "floating",
+    gripper: GripperOption = DEFAULT_GRIPPER,
 ) -> None:
     """Serve pick planning over ROS 2 (run with .venv-ros2/bin/binpick): camera topics in, grasp poses out."""
     from binpick.integrations.ros2 import require_ros2
 
     require_ros2()
     pose, frame, picker, topics = _pick_node_setup(camera, namespace, colour_topic, depth_topic, info_topic, weights, grasp, grasp_weights,
-                                                   runtime, robot)
+                                                   runtime, robot, gripper)
     from binpick.integrations.ros2.pick_node import serve
 
     serve(picker, pose, frame, namespace, topics, product_library(products_file))

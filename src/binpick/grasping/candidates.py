@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 
 from binpick.grasping.frame import DepthFrame
+from binpick.grippers import Jaws
 
 FLOOR_CLEARANCE = 0.006  # fingertips stop this far above the surface the instance rests on
 PALM_REACH = 0.07  # fingertips at most this far under the instance's top (8 cm fingers, the palm above them)
@@ -31,14 +32,7 @@ SHIFT = 0.01  # m: candidates also move the jaws' centre this far either way alo
 YAWS = 12  # even yaws over 180 degrees (15 degrees apart), plus the minor axis
 
 
-@dataclass(frozen=True)
-class JawGripper:
-    """The parallel-jaw gripper's geometry, metres (binpick's simulated one by default)."""
-
-    opening: float = 0.11  # distance between the open fingers' inner faces
-    finger_thickness: float = 0.012  # along the closing direction
-    finger_width: float = 0.028  # across it
-    margin: float = 0.008  # the widest object it takes is opening - margin
+JawGripper = Jaws  # the parallel-jaw gripper's geometry (binpick.grippers.Jaws)
 
 
 @dataclass
@@ -51,6 +45,19 @@ class Surface:
     support: float  # world z of what it rests on (at its centre)
     minor_yaw: float  # closing across the surface's narrow direction (principal minor axis)
     elongation: float  # major / minor standard deviation (1: round)
+    mask: np.ndarray | None = None  # the instance's pixels in the crop round its box (bool)
+    origin: tuple[int, int] = (0, 0)  # the crop's first row and column in the frame
+
+    def on_instance(self, pixels: np.ndarray) -> np.ndarray:
+        """Whether each pixel (..., 2) as (u, v) lies on the instance's pixels."""
+        if self.mask is None:
+            return np.ones(pixels.shape[:-1], bool)
+        u = np.rint(pixels[..., 0]) - self.origin[1]
+        v = np.rint(pixels[..., 1]) - self.origin[0]
+        inside = np.isfinite(u) & np.isfinite(v) & (u >= 0) & (v >= 0) & (u < self.mask.shape[1]) & (v < self.mask.shape[0])
+        result = np.zeros(pixels.shape[:-1], bool)
+        result[inside] = self.mask[v[inside].astype(int), u[inside].astype(int)]
+        return result
 
     @property
     def height(self) -> float:
@@ -84,10 +91,12 @@ class GraspCandidate:
     support: float
     rejected: str | None = None  # why it is not tried (None: feasible)
     quality: float | None = None  # the policy's score, where it scored it
-    kind: str = "even"  # even (jaws centred on the instance), shifted, raised (tips lifted clear), given
+    kind: str = "even"  # even (jaws centred on the instance), shifted, raised (tips lifted clear), given; suction
+    tool: str = "jaws"  # jaws, or suction (position: the cup's lip on the surface; width 0)
+    seal: object | None = None  # a suction grasp's binpick.grasping.suction.SuctionFeatures
 
     def to_json(self) -> dict:
-        return {"position": [round(float(v), 4) for v in self.position], "yaw": round(float(self.yaw), 4),
+        return {"tool": self.tool, "position": [round(float(v), 4) for v in self.position], "yaw": round(float(self.yaw), 4),
                 "width": round(float(self.width), 4), "clearance": round(float(self.clearance), 4),
                 "quality": None if self.quality is None else round(float(self.quality), 4), "rejected": self.rejected}
 
@@ -228,16 +237,18 @@ def instance_surface(frame: DepthFrame, box) -> Surface | None:
     minor_yaw = float(np.mod(np.arctan2(major[1], major[0]) + np.pi / 2, np.pi))
     elongation = float(np.sqrt(max(values[1], 1e-12) / max(values[0], 1e-12)))
     base = float(frame.support_z(centre))  # heights above the plane back to world z, at the instance
-    return Surface(xy, centre, top + base, support + base, minor_yaw, elongation)
+    return Surface(xy, centre, top + base, support + base, minor_yaw, elongation, mask, (r0, c0))
 
 
-def surface_heights(frame: DepthFrame, xy: np.ndarray, z_ref) -> tuple[np.ndarray, np.ndarray]:
+def surface_heights(frame: DepthFrame, xy: np.ndarray, z_ref, pixels_out: list | None = None) -> tuple[np.ndarray, np.ndarray]:
     """World z of the surface seen at world ``xy`` (N, 2): the pixel where (x, y, z_ref) projects,
     its back-projected height (holes filled), and whether the sensor read that pixel. NaN (and not
-    read) outside the image."""
+    read) outside the image. ``pixels_out`` (a list) receives the (N, 2) pixels."""
     xy = np.asarray(xy, dtype=float)
     world = np.concatenate([xy, np.broadcast_to(np.asarray(z_ref, dtype=float), (len(xy),))[:, None]], axis=1)
     pixels, _ = frame.camera.project(world)
+    if pixels_out is not None:
+        pixels_out.append(pixels)
     u, v = np.rint(pixels[:, 0]), np.rint(pixels[:, 1])
     points = frame.points
     inside = np.isfinite(u) & np.isfinite(v) & (u >= 0) & (v >= 0) & (u < points.shape[1]) & (v < points.shape[0])
@@ -345,13 +356,14 @@ def describe(frame: DepthFrame, surface: Surface, centre, yaw: float, tips: floa
 
 
 def grasp_candidates(frame: DepthFrame, box, gripper: JawGripper = JawGripper(), count: int = YAWS,
-                     offsets: np.ndarray | None = None) -> tuple[Surface | None, list[GraspCandidate]]:
+                     offsets: np.ndarray | None = None, surface: Surface | None = None) -> tuple[Surface | None, list[GraspCandidate]]:
     """Candidates for the instance in ``box``: per yaw (:func:`yaws`), the jaws centred on the
     instance's extent across them and shifted SHIFT either way along the closing direction (and at
     ``offsets``, (K, 2) world xy shifts from the instance's centre, if given), each with its width,
     clearance and the reason it is rejected; blocked ones also with their tips lifted clear. The
-    first candidate is the even grasp across the minor axis. Empty when depth shows nothing in the box."""
-    surface = instance_surface(frame, box)
+    first candidate is the even grasp across the minor axis. Empty when depth shows nothing in the box.
+    ``surface``: the instance's, where the caller found it already."""
+    surface = surface if surface is not None else instance_surface(frame, box)
     if surface is None:
         return None, []
     directions = np.array(yaws(count, surface))

@@ -7,6 +7,12 @@
   whose width fits the jaws and whose fingers have room to descend (largest clearance first);
 - ``learnt``: a grasp-quality network (GQ-CNN style, :mod:`binpick.grasping.quality`) trained on
   simulated trials scores every feasible candidate.
+
+A cell whose hand carries a suction cup (``hand``: suction, or both) also gets suction candidates
+(:mod:`binpick.grasping.suction`), scored by the learnt suction-quality model where one is given and
+by the seal-and-wrench prior otherwise; with both tools the candidate with the highest predicted
+success wins, whichever tool it is for (Dex-Net 4.0's ambidextrous policy). A grasp for a tool the
+hand does not carry is never made.
 """
 
 from __future__ import annotations
@@ -19,11 +25,13 @@ import numpy as np
 
 from binpick.core.config import did_you_mean
 from binpick.core.errors import ConfigError
-from binpick.grasping.candidates import YAWS, GraspCandidate, JawGripper, Surface, grasp_candidates
+from binpick.grasping.candidates import YAWS, GraspCandidate, JawGripper, Surface, grasp_candidates, instance_surface
 from binpick.grasping.frame import DepthFrame
+from binpick.grippers import SuctionCup, tools_of
 
 
 NOTHING_THERE = "depth shows nothing standing out in the box"
+JAWS_PRIOR = 0.59  # feasible jaw grasps that held in the simulated trials the quality model learnt from
 
 
 class GraspPolicyName(StrEnum):
@@ -74,7 +82,9 @@ class GraspPlanner:
     ``frame`` is the depth frame made ready once (:meth:`DepthFrame.from_depth`: holes filled, the
     support plane found) and shared by every detection."""
 
-    def __init__(self, policy: str = "analytic", quality=None, gripper: JawGripper = JawGripper(), yaw_count: int = YAWS) -> None:
+    def __init__(self, policy: str = "analytic", quality=None, gripper: JawGripper = JawGripper(), yaw_count: int = YAWS,
+                 hand: str = "jaws", suction_quality=None, cup: SuctionCup = SuctionCup()) -> None:
+        self.hand, self.tools = hand, tools_of(hand)
         try:
             self.policy = GraspPolicyName(policy)
         except ValueError:
@@ -82,11 +92,15 @@ class GraspPlanner:
             raise ConfigError(f"unknown grasp policy {policy!r}{did_you_mean(policy, names)}; choose from {', '.join(names)}") from None
         if self.policy is GraspPolicyName.LEARNT and quality is None:
             raise ConfigError("the learnt grasp policy needs a grasp-quality model (binpick.grasping.quality.GraspQuality.load)")
+        if self.policy is GraspPolicyName.FIXED and "suction" in self.tools:
+            raise ConfigError("the fixed grasp policy is the jaws along y: give it a hand with jaws only (--gripper jaws)")
         self.quality, self.gripper, self.yaw_count = quality, gripper, yaw_count
+        self.suction_quality, self.cup = suction_quality, cup
 
     @classmethod
-    def load(cls, policy: str = "learnt", weights: str | Path | None = None, **options) -> GraspPlanner:
-        """A planner for ``policy``; the learnt one with ``weights`` (default: the shipped model)."""
+    def load(cls, policy: str = "learnt", weights: str | Path | None = None, hand: str = "jaws", **options) -> GraspPlanner:
+        """A planner for ``policy`` and a ``hand`` carrying jaws, suction or both; the learnt one with
+        ``weights`` (default: the shipped model), and the shipped suction-quality model where there is one."""
         quality = None
         try:
             policy = GraspPolicyName(policy)
@@ -102,31 +116,61 @@ class GraspPlanner:
             quality = GraspQuality.load(weights or SHIPPED)
         elif weights is not None:
             raise ConfigError(f"grasp weights are for the learnt policy, not {policy.value!r}")
-        return cls(policy, quality, **options)
+        if "suction" in tools_of(hand) and policy == GraspPolicyName.LEARNT and "suction_quality" not in options:
+            from binpick.grasping.suction_quality import SHIPPED as SUCTION_SHIPPED, SuctionQuality
+
+            options["suction_quality"] = SuctionQuality.load(SUCTION_SHIPPED) if SUCTION_SHIPPED.is_file() else None
+        return cls(policy, quality, hand=hand, **options)
 
     def frame(self, depth: np.ndarray, camera) -> DepthFrame:
         """A depth image (metres, 0: no reading) made ready for :meth:`choose`."""
         return DepthFrame.from_depth(depth, camera)
 
     def choose(self, frame: DepthFrame, box) -> GraspChoice:
-        surface, candidates = grasp_candidates(frame, box, self.gripper, self.yaw_count)
+        surface = instance_surface(frame, box)
         if surface is None:
             return GraspChoice(None, [], NOTHING_THERE)
+        candidates: list[GraspCandidate] = []
+        if "jaws" in self.tools:
+            candidates += grasp_candidates(frame, box, self.gripper, self.yaw_count, surface=surface)[1]
         if self.policy is GraspPolicyName.FIXED:  # [0] is the minor axis; the jaws along y, centred
             fixed = min((c for c in candidates[1:] if c.kind == "even"), key=lambda c: abs(c.yaw - np.pi / 2))
             fixed.quality = None
             return GraspChoice(fixed, candidates, surface=surface)  # today's grasp: tried whatever the checks say
+        if "suction" in self.tools:
+            from binpick.grasping.suction import suction_candidates
+
+            candidates += suction_candidates(frame, surface, self.cup, self.hand, self.gripper)
         feasible = [c for c in candidates if c.rejected is None]
         if not feasible:
             choice = GraspChoice(None, candidates, surface=surface)
             choice.reason = "no candidate fits: " + ", ".join(f"{n} {k}" for k, n in choice.rejections().items())
             return choice
-        if self.policy is GraspPolicyName.ANALYTIC:
-            for candidate in feasible:
-                candidate.quality = analytic_score(candidate, surface)
-        else:
-            scores = self.quality.score(frame, feasible)
-            for candidate, score in zip(feasible, scores):
-                candidate.quality = float(score)
+        self.score(frame, surface, feasible)
         best = max(feasible, key=lambda c: c.quality)
         return GraspChoice(best, candidates, surface=surface)
+
+    def score(self, frame: DepthFrame, surface: Surface, candidates: list[GraspCandidate]) -> None:
+        """Each candidate's quality: for the jaws the policy's (the learnt one a success probability), for
+        suction the learnt suction model's probability or the seal-and-wrench prior's. With both tools
+        and the analytic jaws policy, whose score is no probability, a feasible jaw grasp counts as
+        JAWS_PRIOR (the share of feasible jaw grasps that held in simulated trials)."""
+        jaws = [c for c in candidates if c.tool == "jaws"]
+        cups = [c for c in candidates if c.tool == "suction"]
+        if jaws and self.policy is GraspPolicyName.ANALYTIC:
+            for candidate in jaws:
+                candidate.quality = analytic_score(candidate, surface)
+                if cups:  # ranked against suction: a probability, the analytic order kept within the jaws
+                    candidate.quality = JAWS_PRIOR + 0.01 * np.tanh(candidate.quality)
+        elif jaws:
+            for candidate, score in zip(jaws, self.quality.score(frame, jaws)):
+                candidate.quality = float(score)
+        if cups:
+            if self.suction_quality is not None:
+                scores = self.suction_quality.score(frame, cups)
+            else:
+                from binpick.grasping.suction import analytic_probability
+
+                scores = [analytic_probability(c.seal, self.cup) for c in cups]
+            for candidate, score in zip(cups, scores):
+                candidate.quality = float(score)

@@ -93,10 +93,18 @@ class GraspQuality:
         features = np.stack([grasp_features(c.width, c.clearance, c.position[2], c.top, c.support) for c in candidates])
         return maps, features
 
+    @property
+    def calibration(self) -> tuple[float, float]:
+        """(temperature, bias): probability = sigmoid(logit / temperature + bias); (1, 0) for weights
+        trained before calibration (their classes reweighted: their probabilities run low)."""
+        calibration = self.meta.get("calibration") or {}
+        return float(calibration.get("temperature", 1.0)), float(calibration.get("bias", 0.0))
+
     @torch.no_grad()
     def probabilities(self, maps: np.ndarray, features: np.ndarray) -> np.ndarray:
+        temperature, bias = self.calibration
         logits = self.net(torch.from_numpy(maps)[:, None], torch.from_numpy(features))
-        return torch.sigmoid(logits).numpy()
+        return torch.sigmoid(logits / temperature + bias).numpy()
 
     def score(self, frame: DepthFrame, candidates: list[GraspCandidate]) -> np.ndarray:
         if not candidates:

@@ -1,8 +1,12 @@
-"""Training the grasp-quality network on simulated trials (``binpick data generate --grasp-trials N``).
+"""Training a grasp-quality network on simulated trials (``binpick data generate --grasp-trials N``):
+the jaws' (``tool: jaws``) or the suction cup's (``tool: suction``, trials made with ``--gripper
+suction`` or ``both``).
 
 A job in binpick's run layer: ``QualityTrainer.new(config, runs).run(callback)`` or
 ``QualityTrainer.resume(run_dir)``; a checkpoint per epoch, TensorBoard scalars, the weights with the
-best validation ROC AUC kept as ``best.safetensors`` and written as ``model.safetensors`` at the end.
+best validation ROC AUC kept as ``best.safetensors`` and written as ``model.safetensors`` at the end,
+with a calibration fitted on the validation trials (a temperature and a bias, Platt scaling): the
+planner ranks the two tools' grasps by these probabilities, so they must mean what they say.
 Splits come from the data set: train, val (other worlds) and test (held-out product categories).
 """
 
@@ -22,12 +26,13 @@ from binpick.core.config import check_range, load_run_config, to_dict
 from binpick.core.data_parallel import ALONE, Group
 from binpick.core.errors import ConfigError, InputFileError
 from binpick.core.files import atomic_write_text, inside, read_json
-from binpick.metrics import roc_auc
+from binpick.metrics import calibration_error, fit_platt, roc_auc
 from binpick.depth import read_depth
 from binpick.grasping.camera import PinholeCamera
 from binpick.grasping.candidates import Surface, describe, instance_surface
 from binpick.grasping.frame import DepthFrame
 from binpick.grasping.quality import FEATURES, GraspQuality, GraspQualityNet, MapSpec, grasp_features, height_map
+from binpick.grippers import TOOLS
 from binpick.core.runs import SILENT, RunCallback, commit_checkpoint, latest_checkpoint, new_run_dir
 
 CHECKPOINT_FORMAT = "binpick-grasp-quality-checkpoint-1"
@@ -44,8 +49,13 @@ class QualityTrainConfig:
     width: int = 16  # channels of the first convolution
     threads: int = 2
     seed: int = 0
+    tool: str = "jaws"  # whose trials and model: jaws or suction
+    balance: bool = True  # weigh the classes equally in the loss (the calibration fitted afterwards undoes the shift)
 
     def __post_init__(self) -> None:
+        from binpick.core.config import check_choice
+
+        check_choice("tool", self.tool, TOOLS)
         check_range("epochs", self.epochs, 1, 10_000, integer=True)
         check_range("batch_size", self.batch_size, 2, 65_536, integer=True)
         check_range("lr", self.lr, 0.0, 1.0, low_inclusive=False)
@@ -71,11 +81,13 @@ class TrialSet:
         return len(self.labels)
 
 
-def load_trials(data: str | Path | list, split: str, spec: MapSpec = MapSpec()) -> TrialSet:
-    """Every recorded trial of the data set's ``split`` scenes (of several data sets: all of theirs),
-    as height maps, features and outcomes."""
+def load_trials(data: str | Path | list, split: str, spec=None, tool: str = "jaws") -> TrialSet:
+    """Every recorded trial of ``tool`` in the data set's ``split`` scenes (of several data sets: all of
+    theirs), as height maps, features and outcomes."""
+    if spec is None:
+        spec = MapSpec() if tool == "jaws" else _suction_spec()
     if isinstance(data, (list, tuple)):
-        parts = [load_trials(one, split, spec) for one in data]
+        parts = [load_trials(one, split, spec, tool) for one in data]
         return TrialSet(np.concatenate([p.maps for p in parts]), np.concatenate([p.features for p in parts]),
                         np.concatenate([p.labels for p in parts]), [name for p in parts for name in p.products])
     data = Path(data)
@@ -83,6 +95,8 @@ def load_trials(data: str | Path | list, split: str, spec: MapSpec = MapSpec()) 
     if not scenes:
         raise InputFileError(f"{str(data)!r} holds no scenes: make them with binpick data generate --grasp-trials N")
     maps, features, labels, products = [], [], [], []
+    card = data / "dataset.json"  # the hand the trials were made with (a both-hand's fingers ride above its cup)
+    gripper = (read_json(card, "data-set card").get("config") or {}).get("gripper", "jaws") if card.is_file() else "jaws"
     for path in scenes:
         record = read_json(path, "scene file")
         if record.get("split") != split or not record.get("grasp_trials"):
@@ -92,6 +106,8 @@ def load_trials(data: str | Path | list, split: str, spec: MapSpec = MapSpec()) 
         boxes = {a["slot"]: a["bbox"] for a in record["annotations"]}
         surfaces: dict[int, Surface | None] = {}
         for trial in record["grasp_trials"]:
+            if trial.get("tool", "jaws") != tool:
+                continue
             # what the executed grasp (position, yaw) was, described by today's candidate code
             slot = trial["slot"]
             if slot not in surfaces:
@@ -100,6 +116,18 @@ def load_trials(data: str | Path | list, split: str, spec: MapSpec = MapSpec()) 
             if surface is None:
                 continue
             position = np.array(trial["position"])
+            if tool == "suction":
+                from binpick.grasping.suction import describe_suction
+                from binpick.grasping.suction_quality import suction_maps
+
+                described = describe_suction(frame, surface, position[None, :2], gripper=gripper)
+                if not described:
+                    continue
+                maps.append(suction_maps(frame, [described[0].position], spec)[0])
+                features.append(described[0].seal.vector())
+                labels.append(float(trial["success"]))
+                products.append(trial["product"])
+                continue
             candidate = describe(frame, surface, position, trial["yaw"], position[2])
             maps.append(height_map(frame, position, trial["yaw"], surface.top, surface.support, spec))
             clearance = candidate.clearance if np.isfinite(candidate.clearance) else -0.05
@@ -107,8 +135,44 @@ def load_trials(data: str | Path | list, split: str, spec: MapSpec = MapSpec()) 
             labels.append(float(trial["success"]))
             products.append(trial["product"])
     size = spec.size
-    return TrialSet(np.array(maps, dtype=np.float32).reshape(-1, size, size), np.array(features, dtype=np.float32).reshape(-1, FEATURES),
+    count = FEATURES if tool == "jaws" else _suction_features()
+    return TrialSet(np.array(maps, dtype=np.float32).reshape(-1, size, size), np.array(features, dtype=np.float32).reshape(-1, count),
                     np.array(labels, dtype=np.float32), products)
+
+
+def _suction_spec():
+    from binpick.grasping.suction_quality import SuctionMapSpec
+
+    return SuctionMapSpec()
+
+
+def _suction_features() -> int:
+    from binpick.grasping.suction import FEATURES as SUCTION_FEATURES
+
+    return SUCTION_FEATURES
+
+
+def new_model(tool: str, width: int):
+    """An untrained quality model for ``tool``: the jaws' GQ-CNN-style network or the suction cup's."""
+    if tool == "jaws":
+        return GraspQuality(GraspQualityNet(MapSpec().size, width), MapSpec(), width)
+    from binpick.grasping.suction_quality import SuctionMapSpec, SuctionQuality, SuctionQualityNet
+
+    return SuctionQuality(SuctionQualityNet(SuctionMapSpec().size, width), SuctionMapSpec(), width)
+
+
+def load_model(tool: str, path: Path):
+    if tool == "jaws":
+        return GraspQuality.load(path)
+    from binpick.grasping.suction_quality import SuctionQuality
+
+    return SuctionQuality.load(path)
+
+
+def logits_of(model, maps: np.ndarray, features: np.ndarray) -> np.ndarray:
+    """The model's raw logits (before any calibration)."""
+    with torch.no_grad():
+        return model.net(torch.from_numpy(maps)[:, None], torch.from_numpy(features)).numpy()
 
 
 class QualityTrainer:
@@ -117,7 +181,7 @@ class QualityTrainer:
     def __init__(self, config: QualityTrainConfig, run_dir: Path) -> None:
         self.config, self.run_dir = config, Path(run_dir)
         torch.manual_seed(config.seed)
-        self.quality = GraspQuality(GraspQualityNet(MapSpec().size, config.width), MapSpec(), config.width)
+        self.quality = new_model(config.tool, config.width)
         self.optimizer = torch.optim.AdamW(self.quality.net.parameters(), lr=config.lr, weight_decay=config.weight_decay)
         self.epoch, self.best_auc, self.history = 0, -1.0, []
         self.group = ALONE  # data-parallel training (distribute()): this process's place among others
@@ -155,19 +219,20 @@ class QualityTrainer:
 
         config = self.config
         torch.set_num_threads(config.threads)
-        callback.message(f"reading trials from {', '.join(config.data_sets)}")
-        train, val = load_trials(config.data_sets, "train"), load_trials(config.data_sets, "val")
+        callback.message(f"reading {config.tool} trials from {', '.join(config.data_sets)}")
+        train, val = load_trials(config.data_sets, "train", tool=config.tool), load_trials(config.data_sets, "val", tool=config.tool)
         if len(train) < config.batch_size or len(val) == 0:
             raise ConfigError(f"{config.data!r} has {len(train)} train and {len(val)} val trials: "
                               f"too few (more scenes, or a larger --grasp-trials)")
         rng = np.random.default_rng([config.seed, self.epoch])
         positive = float(train.labels.mean())
-        loss_fn = nn.BCEWithLogitsLoss(pos_weight=torch.tensor((1 - positive) / max(positive, 1e-3)))
+        weight = torch.tensor((1 - positive) / max(positive, 1e-3) if config.balance else 1.0)
+        loss_fn = nn.BCEWithLogitsLoss(pos_weight=weight)
         group = self.group
         writer = SummaryWriter(str(self.run_dir / "tb")) if group.lead else None
         maps, features, labels = torch.from_numpy(train.maps), torch.from_numpy(train.features), torch.from_numpy(train.labels)
         try:
-            with callback.task(f"grasp quality ({len(train)} trials)", config.epochs, self.epoch) as task:
+            with callback.task(f"{config.tool} quality ({len(train)} trials)", config.epochs, self.epoch) as task:
                 while self.epoch < config.epochs:
                     net = self.quality.net.train()
                     order = torch.from_numpy(rng.permutation(len(train)))
@@ -175,11 +240,14 @@ class QualityTrainer:
                     for start in range(0, len(order) - config.batch_size + 1, config.batch_size):
                         batch = group.part(order[start:start + config.batch_size])
                         x = maps[batch][:, None]
-                        # the jaws are symmetric: a grasp mirrored along or across them is the same grasp
+                        # the jaws are symmetric: a grasp mirrored along or across them is the same grasp;
+                        # a round cup sees the same surface turned or mirrored
                         if rng.random() < 0.5:
                             x = x.flip(3)
                         if rng.random() < 0.5:
                             x = x.flip(2)
+                        if config.tool == "suction":
+                            x = torch.rot90(x, int(rng.integers(4)), dims=(2, 3))
                         loss = loss_fn(net(x, features[batch]), labels[batch])
                         self.optimizer.zero_grad()
                         loss.backward()
@@ -190,7 +258,7 @@ class QualityTrainer:
                     if not group.lead:  # rank 0 evaluates and writes; the others go on to the next epoch
                         continue
                     self.quality.net.eval()
-                    scores = self.quality.probabilities(val.maps, val.features)
+                    scores = logits_of(self.quality, val.maps, val.features)
                     auc = roc_auc(val.labels, scores)
                     row = {"epoch": self.epoch, "loss": float(np.mean(losses)), "val_auc": auc}
                     self.history.append(row)
@@ -207,16 +275,30 @@ class QualityTrainer:
                 writer.close()
         if not group.lead:
             return {}
-        best = GraspQuality.load(self.run_dir / "best.safetensors")
-        best.save(self.run_dir / "model.safetensors", {"data": config.data_sets, "train_trials": len(train),
+        best = load_model(config.tool, self.run_dir / "best.safetensors")
+        calibration = calibrate(best, val)
+        best.meta["calibration"] = calibration
+        best.save(self.run_dir / "model.safetensors", {"data": config.data_sets, "train_trials": len(train), "tool": config.tool,
                                                        "train_success_rate": round(positive, 4)})
-        metrics = {"name": config.name, "epochs": self.epoch, "best_val_auc": self.best_auc if self.best_auc >= 0 else None,
+        metrics = {"name": config.name, "tool": config.tool, "epochs": self.epoch,
+                   "best_val_auc": self.best_auc if self.best_auc >= 0 else None, "calibration": calibration,
                    "history": self.history}
         atomic_write_text(self.run_dir / "metrics.json", json.dumps(metrics, indent=2))
         return metrics
 
-    def _checkpoint(self) -> None:
+    def _checkpoint(self) -> None:  # noqa: D401
         state = {"net": self.quality.net.state_dict(), "optimizer": self.optimizer.state_dict()}
         meta = {"epoch": self.epoch, "best_auc": self.best_auc, "history": self.history}
         commit_checkpoint(self.run_dir / "checkpoints", self.epoch,
                           lambda folder: tensorfile.save(folder / "state.safetensors", CHECKPOINT_FORMAT, meta=meta, state=state))
+
+
+def calibrate(model, trials: TrialSet) -> dict[str, float]:
+    """Platt scaling on ``trials`` (the validation split): the temperature and bias that make the
+    model's probabilities match the observed success, with the calibration error before and after."""
+    logits = logits_of(model, trials.maps, trials.features)
+    before = 1.0 / (1.0 + np.exp(-logits))
+    temperature, bias = fit_platt(logits, trials.labels)
+    after = 1.0 / (1.0 + np.exp(-(logits / temperature + bias)))
+    return {"temperature": round(temperature, 4), "bias": round(bias, 4), "trials": len(trials),
+            "ece_before": round(calibration_error(trials.labels, before), 4), "ece_after": round(calibration_error(trials.labels, after), 4)}

@@ -56,6 +56,7 @@ VERIFIERS = ("learnt", "colour")
 # threshold from 0.1 to 0.5). The colour check's is a histogram intersection, tuned in binpick's own light.
 THRESHOLDS = {"learnt": 0.2, "colour": 0.15}
 REACH_TRIES = 4  # candidates of one detection checked for the robot's reach before it is given up
+DEFAULT_GRIPPER = "both"  # the hand binpick plans for unless told: jaws and a suction cup
 
 
 class Picker:
@@ -71,7 +72,8 @@ class Picker:
     at least this probability, the box-query detector is seeded with that instance's box to find its
     copies too (they join the photo's detections, checked the same way). Their values and why are in
     :class:`binpick.warehouse.pipeline.PickPipeline`. ``reach`` (None: any grasp goes) is the robot's
-    reachability check, ``reach(position, yaw)`` -> ``(None, yaw it takes)`` or ``(reason, yaw)`` when
+    reachability check, ``reach(position, yaw)`` (``reach(position, yaw, "suction")`` for a suction
+    grasp) -> ``(None, yaw it takes)`` or ``(reason, yaw)`` when
     the arm cannot take that grasp (no IK solution, a collision on the way down, a wrist flip): a
     detection's grasp the arm cannot take gives way to its next best candidate the arm can (up to
     ``REACH_TRIES``); the reasons are counted with the plan's other rejections, and the plan's yaw is
@@ -103,14 +105,16 @@ class Picker:
 
     @classmethod
     def load(cls, detector: str | Path | None = None, grasp: str = "learnt", grasp_weights: str | Path | None = None,
-             crop_detector: str | Path | None = None, runtime: str = "torch", **settings) -> Picker:
+             crop_detector: str | Path | None = None, runtime: str = "torch", gripper: str = DEFAULT_GRIPPER,
+             **settings) -> Picker:
         """The photo-conditioned detector (default: shipped), the box-conditioned one for ``query_box``
-        (default: shipped, loaded when first needed) and the grasp policy (default: learnt, shipped).
+        (default: shipped, loaded when first needed) and the grasp policy (default: learnt, shipped) for
+        a hand carrying ``gripper`` (jaws, suction or both: grasps only for the tools it has).
         ``runtime="onnx"`` runs the photo-conditioned detector in ONNX Runtime."""
         from binpick.detection import Detector
         from binpick.detection.detector import PICKING
 
-        planner = GraspPlanner.load(grasp, grasp_weights)
+        planner = GraspPlanner.load(grasp, grasp_weights, hand=gripper)
         network = Detector.load(detector or PICKING, runtime=runtime).inference_network
         crop = Detector.load(crop_detector).inference_network if crop_detector is not None else None
         return cls(network, planner, crop, **settings)
@@ -313,16 +317,20 @@ class Picker:
             plan.rejected = {**plan.rejected, OUTSIDE: 1}
             return plan
         yaw = None if chosen is None else float(chosen.yaw)
+        if chosen is not None and chosen.tool not in self.grasp.tools:  # never a grasp for a tool the cell lacks
+            raise AssertionError(f"the planner chose a {chosen.tool} grasp for a hand with {', '.join(self.grasp.tools)}")
         if chosen is not None and self.reach is not None:
             chosen, yaw, unreachable = self.reachable(choice, workspace)
             for reason, count in unreachable.items():
                 plan.rejected[reason] = plan.rejected.get(reason, 0) + count
         if chosen is not None:
+            plan.tool = chosen.tool
             plan.position = [round(float(v), 4) for v in chosen.position]
             plan.yaw = round(yaw, 4)
             plan.orientation = [round(v, 6) for v in grasp_orientation(plan.yaw)]
-            plan.width = round(float(chosen.width), 4)
-            plan.opening = float(self.grasp.gripper.opening)
+            if chosen.tool == "jaws":
+                plan.width = round(float(chosen.width), 4)
+                plan.opening = float(self.grasp.gripper.opening)
             plan.quality = None if chosen.quality is None else round(float(chosen.quality), 4)
         return plan
 
@@ -335,7 +343,9 @@ class Picker:
                          and (workspace is None or workspace.contains(c.position))), key=lambda c: -c.quality)
         unreachable: dict[str, int] = {}
         for candidate in [choice.chosen, *others][:REACH_TRIES]:
-            reason, yaw = self.reach(candidate.position, float(candidate.yaw))
+            # a jaw grasp is asked as before (position, yaw); a suction grasp names its tool (its point lies lower on the hand)
+            reason, yaw = (self.reach(candidate.position, float(candidate.yaw)) if candidate.tool == "jaws"
+                           else self.reach(candidate.position, float(candidate.yaw), candidate.tool))
             if reason is None:
                 return candidate, float(yaw), unreachable
             unreachable[reason] = unreachable.get(reason, 0) + 1

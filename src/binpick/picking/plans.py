@@ -42,14 +42,15 @@ class GraspPlan:
     box: list[float]  # x, y, w, h pixels in the (rectified) colour image
     score: float  # the detector's
     same_product: float | None  # the product check's: P(the ordered product) from photos, colour similarity to a query box; None: not checked
-    position: list[float] | None = None  # fingertips' midpoint, base frame (m)
+    position: list[float] | None = None  # the tool's point, base frame (m): the fingertips' midpoint, or the cup's lip on the surface
     orientation: list[float] | None = None  # gripper frame, quaternion x, y, z, w in the base frame
     approach: list[float] = field(default_factory=lambda: list(APPROACH))
-    yaw: float | None = None  # the jaws' closing direction about the base's z (rad)
-    width: float | None = None  # the instance's width across the jaws (m)
-    opening: float | None = None  # how far to open the jaws before descending (m)
-    quality: float | None = None  # the grasp policy's score of the chosen candidate
+    yaw: float | None = None  # the jaws' closing direction (the hand's x axis) about the base's z (rad)
+    width: float | None = None  # the instance's width across the jaws (m; None for suction)
+    opening: float | None = None  # how far to open the jaws before descending (m; None for suction)
+    quality: float | None = None  # the grasp policy's score of the chosen candidate (a success probability but for the analytic jaws)
     rejected: dict[str, int] = field(default_factory=dict)
+    tool: str | None = None  # the tool the grasp is for: jaws or suction (None: no grasp)
 
     @property
     def feasible(self) -> bool:
@@ -94,8 +95,24 @@ class Plans(list):
         photo = None if photo is None else split_photo(photo)[0]
         picture = overlay(rgb, boxes, np.array([p.score for p in self]), query_box, photo, min_score=0.0)
         jaws = [(*jaw_pixels(camera, plan.position, plan.yaw, opening), True, str(number))
-                for number, plan in enumerate(self.grasps, start=1)]
-        return draw_jaws(picture, jaws)
+                for number, plan in enumerate(self.grasps, start=1) if plan.tool != "suction"]
+        cups = [(*cup_pixels(camera, plan.position), True, str(number))
+                for number, plan in enumerate(self.grasps, start=1) if plan.tool == "suction"]
+        return draw_cups(draw_jaws(picture, jaws), cups)
+
+
+def cup_pixels(camera: PinholeCamera, position, radius: float = 0.015) -> tuple[np.ndarray, float]:
+    """A suction grasp's cup in the image: the lip's centre (u, v) and its radius in pixels."""
+    centre = np.asarray(position, dtype=float)
+    (middle, edge), _ = camera.project(np.stack([centre, centre + [radius, 0.0, 0.0]]))
+    return middle, float(max(2.0, np.linalg.norm(edge - middle)))
+
+
+def draw_cups(picture: np.ndarray, cups: list) -> np.ndarray:
+    """``picture`` with each suction grasp's lip drawn as a circle and numbered (green: tried first)."""
+    from binpick.viz.detection import draw_cups as draw
+
+    return draw(picture, cups)
 
 
 def jaw_pixels(camera: PinholeCamera, position, yaw: float, opening: float) -> tuple[np.ndarray, np.ndarray]:

@@ -14,7 +14,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from binpick.grippers import TIPS_BELOW, Jaws, SuctionCup, tool_point_below, tools_of
+from binpick.grippers import Jaws, SuctionCup, tool_point_below, tools_of
 
 JAWS, CUP = Jaws(), SuctionCup()
 HAND_GROUP = 3
@@ -146,11 +146,3 @@ class Hand:
     def held(self) -> int | None:
         """The product slot the vacuum holds (None: none, or jaws)."""
         return self.vacuum.sealed if self.vacuum is not None else None
-
-
-def tool_point(data: mujoco.MjData, hand_body: int, below: float) -> np.ndarray:
-    """World position of a point ``below`` the hand's origin along its own -z."""
-    return data.xpos[hand_body] - data.xmat[hand_body].reshape(3, 3)[:, 2] * below
-
-
-__all__ = ["Hand", "hand_xml", "hand_actuators", "hand_contacts", "suction_welds", "TIPS_BELOW"]

@@ -26,6 +26,7 @@ import mujoco
 import numpy as np
 
 from binpick.core.errors import ConfigError
+from binpick.grippers import TIPS_BELOW  # noqa: F401  (the fingertips below the fingers' centre; imported from here too)
 from binpick.sim.mjcf import tote
 from binpick.sim.order_tote import order_tote_xml
 from binpick.sim.products import package_dir
@@ -63,7 +64,6 @@ HOME = (0.0, -1.12, 0.0, -2.13, 0.0, 1.01, 0.785)
 TOOL_SHAFT = 0.10  # from the hand flange to the gripper's palm (m)
 PALM_TOP = 0.062  # the palm's top above the fingers' centre, the gripper body's origin (binpick.sim.gripper)
 TOOL_LENGTH = TOOL_SHAFT + PALM_TOP  # flange to the fingers' centre
-TIPS_BELOW = 0.04  # fingertips below the fingers' centre
 # joint position (N m / rad) and velocity (N m s / rad) gains: at a sixth of these the fingertips overshot
 # the end of a descent by 6 mm and scraped the bin floor; at these, by under 2 mm (stable at the 4 ms step)
 KP = (27000.0, 27000.0, 21000.0, 21000.0, 12000.0, 12000.0, 6000.0)

@@ -15,45 +15,11 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from binpick.grippers import SuctionCup
+from binpick.grippers import RING, SuctionCup, ring_offsets, seal_test
 
-RING = 16  # rays round the lip
-INNER = 7  # rays inside it (centre and a ring at half the radius)
-REACH = 0.03  # m a ray travels from above the lip: the surface may lie up to ~1.5 cm under the lip ...
-TOUCH = 0.002  # ... but the lip seals only once it is this close to the fitted plane
+REACH = 0.03  # m a ray travels from above the lip: it sees the surface from 1.5 cm above the lip to 1.5 cm below
 RETRY_EVERY = 5  # steps between seal tests while the vacuum is on and nothing is sealed
 OVERLOAD_STEPS = 5  # steps in a row over the vacuum's limits before the seal lets go (about 20 ms)
-
-
-def ring_offsets(radius: float) -> np.ndarray:
-    """The lip's ring and the points inside it, in the cup's plane: (RING + INNER, 2)."""
-    angles = np.linspace(0, 2 * np.pi, RING, endpoint=False)
-    inner = np.linspace(0, 2 * np.pi, INNER - 1, endpoint=False)
-    return np.concatenate([radius * np.stack([np.cos(angles), np.sin(angles)], 1), [[0.0, 0.0]],
-                           radius / 2 * np.stack([np.cos(inner), np.sin(inner)], 1)])
-
-
-def seal_test(heights: np.ndarray, same: np.ndarray, cup: SuctionCup) -> str | None:
-    """Whether a lip seals on a surface seen at :func:`ring_offsets` (``heights`` along the cup's axis,
-    relative to the lip, NaN where nothing; ``same``: the point lies on the product under the cup's
-    centre). None when it seals, else why not. Shared by the simulator's seal and its tests."""
-    ring, inside = heights[:RING], heights[RING:]
-    if not (np.isfinite(heights).all() and same.all()):
-        return "the ring leaves the product"
-    offsets = ring_offsets(cup.radius)
-    design = np.column_stack([offsets[:RING], np.ones(RING)])
-    (a, b, c), *_ = np.linalg.lstsq(design, ring, rcond=None)
-    residual = ring - design @ np.array([a, b, c])
-    if np.ptp(residual) > cup.compliance:
-        return "the ring is not flat"
-    if np.degrees(np.arctan(np.hypot(a, b))) > cup.max_tilt:
-        return "the surface is tilted too far"
-    bulge = inside - np.column_stack([offsets[RING:], np.ones(len(inside))]) @ np.array([a, b, c])
-    if bulge.max() > cup.depth:
-        return "the surface bulges into the cup"
-    if c < -TOUCH:
-        return "the lip does not touch"
-    return None
 
 
 class Vacuum:

@@ -80,6 +80,24 @@ def draw_jaws(image: np.ndarray, jaws: list[tuple[np.ndarray, np.ndarray, bool, 
     return np.asarray(picture)
 
 
+def draw_cups(image: np.ndarray, cups: list[tuple[np.ndarray, float, bool, str]]) -> np.ndarray:
+    """Suction grasps drawn as the cup's lip: for each ``(centre, radius, succeeded, label)`` (pixels),
+    a circle with a dot at its centre, green where the grasp placed the product and red where it did
+    not, and its label beside it."""
+    from PIL import Image, ImageDraw
+
+    picture = Image.fromarray(image)
+    draw = ImageDraw.Draw(picture)
+    width = max(2, image.shape[1] // 200)
+    font = _font(max(11, image.shape[1] // 32))
+    for centre, radius, succeeded, label in cups:
+        (u, v), colour = np.asarray(centre, dtype=float), GREEN if succeeded else RED
+        draw.ellipse([u - radius, v - radius, u + radius, v + radius], outline=colour, width=width)
+        draw.ellipse([u - width, v - width, u + width, v + width], fill=colour)
+        _label(draw, (u + radius + 2, v - radius - 2), label, colour, font)
+    return np.asarray(picture)
+
+
 def heatmap_figure(heatmaps: list[np.ndarray], image: np.ndarray | None = None) -> np.ndarray:
     """The ROD modules' max heatmaps (Eq 5.12; Fig 6.11's bottom row) as one RGB picture: the scene,
     then one panel per pyramid level with its title and a shared colour bar of the correlation."""

@@ -198,11 +198,12 @@ def world_sim(config: GenerateConfig, world: int, library: ProductLibrary | None
     else:
         products = [library[target]] + [library[d] for d in distractors]
     gripper = (bool(config.policies) or config.grasp_trials > 0) if gripper is None else gripper
+    gripper = config.gripper if gripper is True else gripper
     robot = None
     if gripper and config.robot == "panda":  # the arm makes the label grasps (it brings its own gripper)
         from binpick.sim.panda import PandaArm
 
-        robot, gripper = PandaArm(), False
+        robot, gripper = PandaArm(gripper=config.gripper), False
     sim = BinWorld(products[0], products[1:], max_copies=config.copies[1],
                    camera=CameraSpec(size=config.image_size), randomise_lighting=config.randomise,
                    gripper=gripper, seed=config.seed * 1_000_003 + world, domain=config.domain_config,
@@ -237,7 +238,7 @@ def world_scenes(config: GenerateConfig, world: int, indices: list[int]):
             record = scene_record(scene, index, split, config)
             label_pickability(sim, scene, record, policies, rng, config.label_trials, config.label_jitter)
             if config.grasp_trials:
-                record_grasp_trials(sim, scene, record, config.grasp_trials, rng)
+                record_grasp_trials(sim, scene, record, config.grasp_trials, rng, config.gripper)
             files = {**photo, f"images/{index:06d}.png": _png_bytes(scene.rgb),
                      f"depth/{index:06d}.png": _png_bytes(np.clip(scene.depth * 1000.0, 0, 65535).astype(np.uint16))}
             query = next((a for a in record["annotations"] if a["is_query"]), None)

@@ -38,6 +38,7 @@ class GenerateConfig:
     photo_size: int = 256
     photo_views: int = 0  # randomised studio photos per product besides the canonical one (photos/<product>/<k>.png)
     robot: str = "floating"  # what the label grasps are made by: floating (the gripper alone) or panda (the arm, slower)
+    gripper: str = "jaws"  # the hand's tools (jaws, suction, both): grasp trials are made with each tool it carries
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -56,6 +57,11 @@ class GenerateConfig:
 
         check_choice("split_rule", self.split_rule, ("even", "random"))
         check_choice("robot", self.robot, ("floating", "panda"))
+        from binpick.grippers import GRIPPERS
+
+        check_choice("gripper", self.gripper, GRIPPERS)
+        if self.gripper == "suction" and self.policies:
+            raise ConfigError("the labelling policies grasp with jaws: give gripper: jaws or both, or policies: [] for suction trials alone")
         if self.robot == "panda" and self.grasp_trials:
             raise ConfigError("grasp_trials are made by the floating gripper (the grasp-quality data): set robot: floating, "
                               "or grasp_trials: 0 for labels made by the arm")
@@ -94,6 +100,8 @@ class GenerateConfig:
             data.pop("photo_views")
         if self.robot == "floating":  # data sets made before the arm resume as they were
             data.pop("robot")
+        if self.gripper == "jaws":  # data sets made before the suction cup resume as they were
+            data.pop("gripper")
         data["domain_values"] = domain_dict(self.domain_config)  # so an edited domain file is noticed on resume
         if self.sensor_config.realistic:  # perfect depth adds nothing: data sets made before sensors resume as they were
             from binpick.sim.sensor import sensor_dict

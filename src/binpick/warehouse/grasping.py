@@ -182,7 +182,8 @@ def execute_arm_pick(world, planner, tips: np.ndarray, yaw: float, on_frame: Cal
         hand.use(data, tool)
         below = hand.tool_point_below()
         press = SUCTION_PRESS if tool == "suction" else 0.0
-        motion = planner.pick(world.arm.joint_positions(data), np.asarray(tips, dtype=float) + [0.0, 0.0, below - press], yaw)
+        motion = planner.pick(world.arm.joint_positions(data), np.asarray(tips, dtype=float) + [0.0, 0.0, below - press], yaw,
+                              tool=tool)
         outcome = PickOutcome(None, False, Reason.MISSED, planning_ms=round(1000 * motion.planning_s, 1))
         if not motion.reach.ok:
             outcome.unreachable = motion.reach.reason
@@ -232,7 +233,8 @@ def arm_lift_test(world, planner, slot: int, tips, yaw: float, tool: str = "jaws
         hand.use(data, tool)
         below = hand.tool_point_below()
         press = SUCTION_PRESS if tool == "suction" else 0.0
-        motion = planner.pick(world.arm.joint_positions(data), np.asarray(tips, dtype=float) + [0.0, 0.0, below - press], yaw)
+        motion = planner.pick(world.arm.joint_positions(data), np.asarray(tips, dtype=float) + [0.0, 0.0, below - press], yaw,
+                              tool=tool)
         if not motion.reach.ok:
             return False
         controller = ArmController(world)

@@ -67,15 +67,22 @@ def label_pickability(sim, scene, record: dict[str, Any], policies, rng: np.rand
 
 TRIAL_OFFSET = 0.012  # random shifts of the jaws' centre (m) beside the even-squeeze positions
 TRIAL_VISIBLE = 0.3  # instances less visible than this get no trials (depth shows too little of them)
+SUCTION_LIKELY = 6  # suction trials favour the candidates the prior ranks this high
 
 
-def record_grasp_trials(sim, scene, record: dict[str, Any], trials: int, rng: np.random.Generator) -> None:
-    """Grasp-quality data (Dex-Net 2.0's recipe, on binpick's bins): per visible instance, ``trials``
-    candidates from depth alone (:func:`binpick.grasping.grasp_candidates`: all yaws, the even-squeeze
-    centre and random shifts), three in four drawn among the feasible ones, each executed from the
-    saved scene state; the outcome is whether that instance rose and stayed in the jaws through a
-    carry at the pick pipeline's speed."""
+def record_grasp_trials(sim, scene, record: dict[str, Any], trials: int, rng: np.random.Generator,
+                        gripper: str = "jaws") -> None:
+    """Grasp-quality data (Dex-Net 2.0's recipe, on binpick's bins): per visible instance and tool of
+    the hand (``gripper``: jaws, suction or both), ``trials`` candidates from depth alone (jaws:
+    :func:`binpick.grasping.grasp_candidates`, all yaws, the even-squeeze centre and random shifts;
+    suction: :func:`binpick.grasping.suction.suction_candidates`, points on the instance), three in
+    four drawn among the feasible ones, each executed from the saved scene state; the outcome is
+    whether that instance rose and stayed in the jaws (on the cup) through a carry at the pick
+    pipeline's speed."""
     from binpick.grasping import DepthFrame, JawGripper, PinholeCamera, grasp_candidates
+    from binpick.grasping.candidates import instance_surface
+    from binpick.grasping.suction import analytic_probability, suction_candidates
+    from binpick.grippers import tools_of
     from binpick.sim.gripper import lift_test, trial_timestep
 
     frame = DepthFrame.from_depth(scene.depth, PinholeCamera.from_record(scene.camera))
@@ -84,19 +91,34 @@ def record_grasp_trials(sim, scene, record: dict[str, Any], trials: int, rng: np
     for annotation in record["annotations"]:
         if annotation["visible_fraction"] < TRIAL_VISIBLE:
             continue
-        offsets = rng.uniform(-TRIAL_OFFSET, TRIAL_OFFSET, size=(2, 2))
-        _, candidates = grasp_candidates(frame, annotation["bbox"], JawGripper(), offsets=offsets)
-        if not candidates:
+        offsets = rng.uniform(-TRIAL_OFFSET, TRIAL_OFFSET, size=(2, 2)) if "jaws" in tools_of(gripper) else None
+        surface = instance_surface(frame, annotation["bbox"])
+        if surface is None:
             continue
-        feasible = [c for c in candidates if c.rejected is None]
-        for _ in range(trials):
-            pool = feasible if feasible and rng.random() < 0.75 else candidates
-            candidate = pool[int(rng.integers(len(pool)))]
-            sim.restore(scene.state)
-            with trial_timestep(sim.model):
-                success = lift_test(sim, annotation["slot"], candidate.position, candidate.yaw, candidate.top, carry=True)
-            results.append({"slot": annotation["slot"], "product": annotation["product"], **candidate.to_json(),
-                            "top": round(candidate.top, 4), "support": round(candidate.support, 4), "success": success})
+        for tool in tools_of(gripper):
+            if tool == "jaws":
+                _, candidates = grasp_candidates(frame, annotation["bbox"], JawGripper(), offsets=offsets, surface=surface)
+            else:
+                candidates = suction_candidates(frame, surface, gripper=gripper)
+            if not candidates:
+                continue
+            feasible = [c for c in candidates if c.rejected is None]
+            likely = sorted(feasible, key=lambda c: -analytic_probability(c.seal))[:SUCTION_LIKELY] if tool == "suction" else []
+            for _ in range(trials):
+                draw = rng.random()
+                # suction: half the trials among the few the seal-and-wrench prior likes best (most suction
+                # candidates fail; the model must learn where the planner chooses), a quarter among the rest
+                pool = likely if likely and draw < 0.5 else feasible if feasible and draw < 0.75 else candidates
+                candidate = pool[int(rng.integers(len(pool)))]
+                sim.restore(scene.state)
+                with trial_timestep(sim.model):
+                    success = lift_test(sim, annotation["slot"], candidate.position, candidate.yaw, candidate.top, carry=True,
+                                        tool=tool)
+                trial = {"slot": annotation["slot"], "product": annotation["product"], **candidate.to_json(),
+                         "top": round(candidate.top, 4), "support": round(candidate.support, 4), "success": success}
+                if tool == "suction":
+                    trial["why"] = sim.hand.vacuum.why
+                results.append(trial)
     record["grasp_trials"] = results
 
 

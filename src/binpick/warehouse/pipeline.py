@@ -30,7 +30,7 @@ from binpick.sim.products import ProductLibrary, product_dimensions
 from binpick.grasping import DepthFrame, GraspChoice, GraspPlanner, GraspPolicyName, PinholeCamera
 from binpick.depth import as_camera_depth
 from binpick.picking import GraspPlan, Picker, Plans
-from binpick.picking.picker import jaw_pixels
+from binpick.picking.plans import cup_pixels, jaw_pixels
 from binpick.detection.photos import photo_mask
 from binpick.sim.order_tote import order_tote_xml
 from binpick.sim.gripper import TRIAL_TIMESTEP
@@ -45,7 +45,7 @@ class Attempt:
     box: list[float]
     score: float
     same_product: float | None  # the product check's score (None: not checked)
-    grasp_point: list[float]  # the fingertips' midpoint, world xyz
+    grasp_point: list[float]  # the tool's point, world xyz: the fingertips' midpoint, or the cup's lip
     outcome: Reason
     lifted_product: str | None
     yaw: float = 0.0  # the jaws' closing direction, radians about z
@@ -56,6 +56,8 @@ class Attempt:
     planning_ms: float | None = None  # the arm's motion planning (IK and timing)
     collisions: list[list[str]] = field(default_factory=list)  # the arm touching the table or a tote: [arm part, fixed part, segment]
     grasp_error_mm: float | None = None  # the arm's gripper from the planned grasp when the fingers closed
+    tool: str | None = None  # the tool the grasp used: jaws or suction (None: no grasp)
+    why: str | None = None  # a failed suction grasp in the vacuum's words: why it did not seal, or that it let go
 
 
 @dataclass
@@ -74,6 +76,7 @@ class OrderResult:
     depth: str | None = None  # the depth picture beside the overlay
     timing_ms: dict[str, float] = field(default_factory=dict)  # the planner's stages (depth, detect, check, grasp) and the simulator's
     robot: str = "floating"  # what executed the picks: the floating gripper or an arm
+    gripper: str = "jaws"  # the hand's tools: jaws, suction or both
 
     @property
     def robot_seconds(self) -> float:
@@ -110,17 +113,25 @@ class PickPipeline:
     the shifted-domain test set's camera, tote and light; ``sensor`` (a
     :class:`binpick.sim.sensor.SensorConfig`) gives its depth as a real sensor would, holes and noise,
     from a tilted camera over a tote that may not be level. ``size_check`` gives the picker the ordered
-    product's catalogue dimensions, so instances clearly bigger than it are not grasped."""
+    product's catalogue dimensions, so instances clearly bigger than it are not grasped. ``gripper``:
+    the hand's tools (jaws, suction or both: the planner chooses per detection, and the hand picks with
+    the tool the plan names)."""
 
     def __init__(self, detector: DetectorNetwork, library: ProductLibrary, grasp: GraspPlanner | str = "learnt",
                  copies: tuple[int, int] = (3, 6), distractors: tuple[int, int] = (2, 3), max_attempts: int = 3,
                  score_threshold: float | None = None, camera: CameraSpec = CameraSpec(size=416),
                  verifier="learnt", check: float | None = None, oracle: bool = False, rank_from: float | None = 0.01,
                  domain=None, size_check: bool = True, sensor=None, photos: str = "catalogue",
-                 copies_from_match: float | None = None, robot: str = "floating") -> None:
+                 copies_from_match: float | None = None, robot: str = "floating", gripper: str = "both") -> None:
         if detector.spec.query != "photo":
             raise ConfigError("the pick pipeline conditions on shop photos: give a detector trained with query: photo")
-        planner = grasp if isinstance(grasp, GraspPlanner) else GraspPlanner.load(grasp)
+        from binpick.grippers import tools_of
+
+        tools_of(gripper)  # a bad name is one line, now
+        planner = grasp if isinstance(grasp, GraspPlanner) else GraspPlanner.load(grasp, hand=gripper)
+        if planner.hand != gripper:
+            raise ConfigError(f"the grasp planner plans for a hand with {planner.hand}, the cell's carries {gripper}")
+        self.gripper = gripper
         if photos not in ("catalogue", "canonical"):
             raise ConfigError(f"photos must be catalogue or canonical, got {photos!r}")
         if robot not in ROBOTS:
@@ -135,7 +146,7 @@ class PickPipeline:
         if robot == "panda":
             from binpick.arm import MotionPlanner
 
-            self.motion = MotionPlanner(period=TRIAL_TIMESTEP)
+            self.motion = MotionPlanner(period=TRIAL_TIMESTEP, gripper=gripper)
         self.picker = Picker(detector, planner, score_threshold=score_threshold, verifier=None if oracle else verifier,
                              check=check, rank_from=rank_from, max_grasps=max_attempts, copies_from_match=copies_from_match,
                              reach=self.motion.reach_check if self.motion is not None else None)
@@ -191,9 +202,10 @@ class PickPipeline:
         if self.robot == "panda":
             from binpick.sim.panda import PandaArm
 
-            robot = PandaArm()
+            robot = PandaArm(gripper=self.gripper)
         world = BinWorld(target, chosen, max_copies=self.copies[1], camera=self.camera, extra_worldbody=order_tote_xml(),
-                         gripper=robot is None, seed=seed, domain=self.domain, sensor=self.sensor, robot=robot)
+                         gripper=self.gripper if robot is None else False, seed=seed, domain=self.domain, sensor=self.sensor,
+                         robot=robot)
         return world, rng
 
     def settle(self, world: BinWorld, rng: np.random.Generator, seed: int) -> Scene:
@@ -226,7 +238,7 @@ class PickPipeline:
             trained = self.detector.trained_products
             result = OrderResult(order, product_id, seed, False, Reason.NO_DETECTION,
                                  seen=None if trained is None else product_id in trained, detections=plans.detections,
-                                 robot=self.robot)
+                                 robot=self.robot, gripper=self.gripper)
             if plans.detections and not plans:
                 result.reason = Reason.NOT_THE_PRODUCT
             tick = time.perf_counter()
@@ -272,11 +284,12 @@ class PickPipeline:
                 result.reason = Reason.NO_GRASP
                 continue
             tips = self.tips(plan, scene)
+            tool = plan.tool or "jaws"
             attempt = result.grasps + 1
             if on_caption is not None:
-                on_caption(f"attempt {attempt}")
+                on_caption(f"attempt {attempt} ({tool})")
             if self.motion is not None:
-                outcome = execute_arm_pick(world, self.motion, tips, plan.yaw, on_frame=on_frame)
+                outcome = execute_arm_pick(world, self.motion, tips, plan.yaw, on_frame=on_frame, tool=tool)
                 if outcome.unreachable:  # the picker checked the reach; the lift, carry or way home may still fail
                     rejected = {**plan.rejected, outcome.unreachable: plan.rejected.get(outcome.unreachable, 0) + 1}
                     result.attempts.append(Attempt(plan.box, plan.score, plan.same_product, [], Reason.NO_GRASP, None,
@@ -284,16 +297,17 @@ class PickPipeline:
                     result.reason = Reason.NO_GRASP
                     continue
             else:
-                outcome = execute_pick(world, tips, plan.yaw, on_frame=on_frame)
+                outcome = execute_pick(world, tips, plan.yaw, on_frame=on_frame, tool=tool)
             lifted = world.slots[outcome.lifted_slot].id if outcome.lifted_slot is not None else None
             if on_caption is not None:
-                wrong = " (the wrong product)" if lifted not in (None, result.product) and outcome.placed else ""
-                on_caption(f"attempt {attempt}: {outcome.reason}{wrong}")
+                wrong = f" ({lifted.split('/')[-1]}, not the ordered product)" if lifted not in (None, result.product) and outcome.placed else ""
+                on_caption(f"attempt {attempt} ({tool}): {outcome.reason}{wrong}")
                 if on_frame is not None:
                     on_frame()
             result.attempts.append(Attempt(plan.box, plan.score, plan.same_product, np.round(tips, 4).tolist(),
                                            outcome.reason, lifted, plan.yaw, plan.width, plan.quality, plan.rejected,
-                                           outcome.motion_s, outcome.planning_ms, outcome.collisions, outcome.grasp_error_mm))
+                                           outcome.motion_s, outcome.planning_ms, outcome.collisions, outcome.grasp_error_mm,
+                                           tool, outcome.why))
             if outcome.placed and lifted == result.product:
                 result.success, result.reason = True, Reason.PLACED
                 return
@@ -342,11 +356,11 @@ class PickPipeline:
                         attempts: list[Attempt]) -> tuple[str, str, str]:
         from PIL import Image
 
-        from binpick.viz.detection import captioned, depth_picture, draw_jaws, overlay
+        from binpick.viz.detection import captioned, depth_picture, draw_cups, draw_jaws, overlay
 
         name = f"order_{order:03d}_{product_id.replace('/', '_')}"
         picture = overlay(scene.rgb, boxes, scores, None, self.photo(product_id), min_score=self.picker.candidate_threshold)
-        picture = draw_jaws(picture, self.jaws(scene, attempts))
+        picture = draw_cups(draw_jaws(picture, self.jaws(scene, attempts)), self.cups(scene, attempts))
         atomic_write(out / f"{name}.png", lambda handle: Image.fromarray(picture).save(handle, format="PNG"))
         depth = depth_picture(as_camera_depth(scene.depth))
         atomic_write(out / f"{name}_depth.png", lambda handle: Image.fromarray(depth).save(handle, format="PNG"))
@@ -358,11 +372,18 @@ class PickPipeline:
         return f"{name}.gif", f"{name}.png", f"{name}_depth.png"
 
     def jaws(self, scene: Scene, attempts: list[Attempt]) -> list:
-        """Each grasp tried, as its open fingers' pixels: the jaw lines of the order's picture."""
+        """Each jaw grasp tried, as its open fingers' pixels: the jaw lines of the order's picture."""
         camera, opening = PinholeCamera.from_record(scene.camera), self.grasp.gripper.opening
         tried = (a for a in attempts if a.outcome is not Reason.NO_GRASP)
         return [(*jaw_pixels(camera, attempt.grasp_point, attempt.yaw, opening), attempt.outcome is Reason.PLACED, str(number))
-                for number, attempt in enumerate(tried, start=1)]
+                for number, attempt in enumerate(tried, start=1) if attempt.tool != "suction"]
+
+    def cups(self, scene: Scene, attempts: list[Attempt]) -> list:
+        """Each suction grasp tried, as its cup's lip in pixels: the circles of the order's picture."""
+        camera = PinholeCamera.from_record(scene.camera)
+        tried = (a for a in attempts if a.outcome is not Reason.NO_GRASP)
+        return [(*cup_pixels(camera, attempt.grasp_point), attempt.outcome is Reason.PLACED, str(number))
+                for number, attempt in enumerate(tried, start=1) if attempt.tool == "suction"]
 
 
 def plan_grasp(planner: GraspPlanner, frame: DepthFrame, box, scene: Scene, overhead: CameraSpec) -> tuple[GraspChoice, np.ndarray | None]:
@@ -435,9 +456,24 @@ def summarise(results: list[OrderResult], wall_seconds: float) -> dict[str, Any]
             "picks_per_min": round(60 * sum(r.success for r in results) / max(wall_seconds, 1e-9), 2),
             "orders_per_min": round(60 * len(results) / max(wall_seconds, 1e-9), 2),
             "attempts_per_order": round(float(np.mean([r.grasps for r in results])), 2) if results else 0.0,
-            "reasons": reasons, "by_product": by_product, "wall_s": round(wall_seconds, 1)}
+            "reasons": reasons, "by_product": by_product, "wall_s": round(wall_seconds, 1),
+            "by_tool": tool_summary(results)}
     arm = arm_summary(results)
     return summary | ({"arm": arm} if arm else {})
+
+
+def tool_summary(results: list[OrderResult]) -> dict[str, dict[str, Any]]:
+    """Per tool: grasps executed with it, how many placed the ordered product, and its success rate
+    (a grasp that placed another product counts as a failure)."""
+    tools: dict[str, list[int]] = {}
+    for r in results:
+        for a in r.attempts:
+            if a.outcome is Reason.NO_GRASP or a.tool is None:
+                continue
+            counts = tools.setdefault(a.tool, [0, 0])
+            counts[0] += 1
+            counts[1] += int(a.outcome is Reason.PLACED and a.lifted_product == r.product)
+    return {tool: {"grasps": n, "placed": k, "success": round(k / n, 4)} for tool, (n, k) in sorted(tools.items())}
 
 
 def arm_summary(results: list[OrderResult]) -> dict[str, Any] | None:

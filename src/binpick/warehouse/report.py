@@ -12,25 +12,38 @@ import numpy as np
 from binpick.core.files import atomic_write_text
 
 
-def grasp_lines(attempts: list[dict[str, Any]]) -> list[str]:
-    """Per attempt, the grasp chosen (yaw, width, score) and its outcome, or why none was feasible;
-    grasps are numbered as in the order's picture."""
+def grasp_lines(attempts: list[dict[str, Any]], product: str | None = None) -> list[str]:
+    """Per attempt, the grasp chosen (tool, yaw, width, predicted success) and its outcome, or why none
+    was feasible; grasps are numbered as in the order's picture. A grasp that moved another product
+    than the ordered ``product`` says which."""
     lines, number = [], 0
     for attempt in attempts:
         number += attempt["outcome"] != "no feasible grasp"
-        lines.append(grasp_line(number, attempt))
+        lines.append(grasp_line(number, attempt, product))
     return lines
 
 
-def grasp_line(number: int, attempt: dict[str, Any]) -> str:
+def grasp_line(number: int, attempt: dict[str, Any], product: str | None = None) -> str:
     rejected = ", ".join(f"{html.escape(str(k))} {v}" for k, v in (attempt.get("rejected") or {}).items())
     detector = "" if attempt.get("score") is None else f"detector score {attempt['score']:.2f}"
     if attempt["outcome"] == "no feasible grasp":
         return f"skipped a detection ({detector}): {rejected or 'no candidate'}"
-    quality = "" if attempt.get("quality") is None else f", grasp quality {attempt['quality']:.2f}"
-    width = "" if attempt.get("width") is None else f", {attempt['width'] * 100:.1f} cm across"
-    return (f"{number}: {detector}; yaw {np.degrees(attempt.get('yaw', 0.0)):.0f}°{width}{quality} → "
-            f"<b>{html.escape(attempt['outcome'])}</b>" + (f" (not taken: {rejected})" if rejected else ""))
+    quality = "" if attempt.get("quality") is None else f", predicted success {attempt['quality']:.2f}"
+    tool = attempt.get("tool") or "jaws"
+    if tool == "suction":
+        how = "suction cup"
+    else:
+        width = "" if attempt.get("width") is None else f", {attempt['width'] * 100:.1f} cm across"
+        how = f"jaws at yaw {np.degrees(attempt.get('yaw', 0.0)):.0f}°{width}"
+    lifted = attempt.get("lifted_product")
+    outcome, colour = html.escape(attempt["outcome"]), ""
+    if lifted is not None and product is not None and lifted != product:
+        outcome, colour = f"{outcome}: {html.escape(lifted)}, not the ordered product", " style='color:#cf222e'"
+    elif attempt["outcome"] != "placed":
+        colour = " style='color:#cf222e'"
+    why = f" ({html.escape(attempt['why'])})" if attempt.get("why") else ""
+    return (f"{number}: {detector}; {how}{quality} → <b{colour}>{outcome}</b>{why}"
+            + (f" (not taken: {rejected})" if rejected else ""))
 
 
 def arm_lines(order: dict[str, Any]) -> str:
@@ -66,14 +79,14 @@ def order_section(order: dict[str, Any]) -> str:
     grasps = sum(a["outcome"] != "no feasible grasp" for a in order["attempts"])
     cells = [str(order["order"]), html.escape(order["product"]), seen, f"<b style='color:{colour}'>{outcome}</b>", str(grasps),
              str(order["detections"]), f"{order['seconds']:.1f}"]
-    captions = {"overlay": "colour: detections (orange, detector score) and the grasps tried (jaws; green placed, red not)",
+    captions = {"overlay": "colour: detections (orange, detector score) and the grasps tried (jaws as bars, the suction cup as a circle; green placed, red not)",
                 "depth": "depth as the planner saw it", "gif": "the picks, captioned per attempt"}
     figures = "".join(f'<figure><a href="{html.escape(order[key])}"><img src="{html.escape(order[key])}" alt="{key}"></a>'
                       f"<figcaption>{captions[key]} (click: full size)</figcaption></figure>"
                       for key in ("overlay", "depth", "gif") if order.get(key))
     times = " · ".join(f"{html.escape(stage)} {ms:,.0f} ms" for stage, ms in (order.get("timing_ms") or {}).items())
     motion = arm_lines(order)
-    lines = "<br>".join(grasp_lines(order["attempts"])) or "no grasp tried"
+    lines = "<br>".join(grasp_lines(order["attempts"], order.get("product"))) or "no grasp tried"
     return (f"<section class='order' id='order-{order['order']}'><table class='facts'><tr>{''.join(f'<th>{c}</th>' for c in COLUMNS)}</tr>"
             f"<tr>{''.join(f'<td>{c}</td>' for c in cells)}</tr></table>"
             f"<div class='pictures'>{figures}</div>"

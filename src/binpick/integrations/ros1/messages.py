@@ -36,10 +36,11 @@ float32[] size            # the product's catalogue dimensions (m, 3 numbers); e
 float32[] query_box       # or x, y, w, h (pixels of the colour image) of the instance to pick; empty: none
 bool copies_only          # with query_box: plan on the other copies only, not the instance pointed at
 """
-PICK_RESULT = """geometry_msgs/PoseStamped[] grasps  # gripper pose (z along the approach, x across the jaws), best first
+PICK_RESULT = """geometry_msgs/PoseStamped[] grasps  # the tool's pose (z along the approach, x across the jaws), best first
+string[] tools           # the tool each grasp is for: jaws or suction (the pose is the fingertips' midpoint or the cup's lip)
 float32[] scores         # detector scores
-float32[] qualities      # grasp-quality scores
-float32[] widths         # the instance's width across the jaws (m)
+float32[] qualities      # predicted success of each grasp
+float32[] widths         # the instance's width across the jaws (m; NaN for suction)
 float32 opening          # how far to open the jaws (m)
 string plans_json        # everything: boxes, product check, rejected candidates, timing
 """

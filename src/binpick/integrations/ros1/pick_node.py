@@ -97,7 +97,8 @@ class PickNode:
             result.grasps = [pose_stamped(p, plans.frame, stamp) for p in plans.grasps]
             result.scores = [p.score for p in plans.grasps]
             result.qualities = [p.quality if p.quality is not None else float("nan") for p in plans.grasps]
-            result.widths = [p.width for p in plans.grasps]
+            result.tools = [p.tool or "jaws" for p in plans.grasps]
+            result.widths = [p.width if p.width is not None else float("nan") for p in plans.grasps]
             result.opening = float(self.requests.picker.grasp.gripper.opening)
             result.plans_json = json.dumps({**plans.to_json(), "stamp": frame.stamp})
             handle.set_succeeded(result)

@@ -8,7 +8,7 @@ as standard messages on ``<namespace>/...``:
 - ``goal`` (``std_msgs/String``, JSON ``{"id", "product_id", "max_grasps", "size", "query_box", "copies_only"}``) or ``goal_photo``
   (``sensor_msgs/Image``, the shop photo; ``header.frame_id`` is the request id, or that JSON);
 - ``result`` (``std_msgs/String``, JSON ``{"id", "status", "text", "grasps": [{position, orientation,
-  score, quality, width}], "opening", "plans"}``): the ROS 1 result's fields, same values;
+  score, quality, width, tool}], "opening", "plans"}``): the ROS 1 result's fields, same values;
 - ``grasps`` (``geometry_msgs/PoseArray`` in the base frame, best first, for RViz) and ``overlay``;
 - ``dropped`` (``std_msgs/String``, JSON ``{topic: count}``): camera messages the node could not use, when the counts change.
 """
@@ -94,8 +94,8 @@ def make_node(requests: PlanRequests, camera_to_base: np.ndarray, base_frame: st
 
     def answer(goal: Goal) -> None:
         frame, plans = requests.plan(goal.product_id, goal.photo, goal.max_grasps, goal.size, goal.query_box, goal.copies_only)
-        grasps = [{"position": p.position, "orientation": p.orientation, "score": p.score, "quality": p.quality, "width": p.width}
-                  for p in plans.grasps]
+        grasps = [{"tool": p.tool, "position": p.position, "orientation": p.orientation, "score": p.score, "quality": p.quality,
+                   "width": p.width} for p in plans.grasps]
         answer_text = json.dumps({"id": goal.id, "status": "succeeded", "text": "", "frame": plans.frame, "stamp": frame.stamp,
                                   "grasps": grasps, "opening": float(requests.picker.grasp.gripper.opening), "plans": plans.to_json()})
         array_message = geometry_msgs.msg.PoseArray()
