@@ -29,6 +29,7 @@ MIN_GRIP = 0.015  # fingertips at least this far under the instance's top
 # the time (80% with clear fingers); beyond 3 cm, 39%.
 BLOCK_TOLERANCE = 0.03
 SHIFT = 0.01  # m: candidates also move the jaws' centre this far either way along the closing direction
+ON_INSTANCE_SPACING, ON_INSTANCE_POINTS = 0.012, 13  # the instance's centre and 12 points on it: where an off-centre one straddles it
 YAWS = 12  # even yaws over 180 degrees (15 degrees apart), plus the minor axis
 
 
@@ -91,7 +92,7 @@ class GraspCandidate:
     support: float
     rejected: str | None = None  # why it is not tried (None: feasible)
     quality: float | None = None  # the policy's score, where it scored it
-    kind: str = "even"  # even (jaws centred on the instance), shifted, raised (tips lifted clear), given; suction
+    kind: str = "even"  # even (jaws centred on the instance), shifted, raised (tips lifted clear), on instance, given; suction
     tool: str = "jaws"  # jaws, or suction (position: the cup's lip on the surface; width 0)
     seal: object | None = None  # a suction grasp's binpick.grasping.suction.SuctionFeatures
 
@@ -221,6 +222,8 @@ def instance_surface(frame: DepthFrame, box) -> Surface | None:
     top = float(np.nanpercentile(inner, 95))
     around = heights[r0:r1, c0:c1]
     support = float(np.nanpercentile(around, 5))
+    if top - support < 0.005 and np.isfinite(z).any():  # a ring or a U: the box's middle is background
+        top = float(np.nanpercentile(z, 95))
     if top - support < 0.005:
         return None
     mask = instance_mask(around, support, top, (x - c0, y - r0, w, h))
@@ -238,6 +241,27 @@ def instance_surface(frame: DepthFrame, box) -> Surface | None:
     elongation = float(np.sqrt(max(values[1], 1e-12) / max(values[0], 1e-12)))
     base = float(frame.support_z(centre))  # heights above the plane back to world z, at the instance
     return Surface(xy, centre, top + base, support + base, minor_yaw, elongation, mask, (r0, c0))
+
+
+def points_on_instance(surface: Surface, spacing: float = 0.01, limit: int = 48) -> np.ndarray:
+    """World xy points on the instance ``spacing`` apart (one per cell of a grid over its pixels, the
+    cell's mean), its centre first, then nearest the centre first; at most ``limit``."""
+    cells = np.floor((surface.xy - surface.centre) / spacing).astype(int)
+    _, inverse, counts = np.unique(cells, axis=0, return_inverse=True, return_counts=True)
+    inverse = inverse.reshape(-1)
+    sums = np.zeros((counts.size, 2))
+    np.add.at(sums, inverse, surface.xy)
+    centres = sums / counts[:, None]
+    centres = centres[counts >= max(1, int(np.median(counts) * 0.3))]  # cells the instance barely touches go
+    order = np.argsort(np.linalg.norm(centres - surface.centre, axis=1))
+    return np.concatenate([surface.centre[None], centres[order]])[:limit]
+
+
+def on_instance(frame: DepthFrame, surface: Surface, xy: np.ndarray) -> np.ndarray:
+    """Whether each world point (N, 2) at the instance's top lies on the instance's own pixels."""
+    xy = np.asarray(xy, dtype=float).reshape(-1, 2)
+    pixels, _ = frame.camera.project(np.concatenate([xy, np.full((len(xy), 1), surface.top)], axis=1))
+    return surface.on_instance(pixels)
 
 
 def surface_heights(frame: DepthFrame, xy: np.ndarray, z_ref, pixels_out: list | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -377,11 +401,27 @@ def grasp_candidates(frame: DepthFrame, box, gripper: JawGripper = JawGripper(),
         angles.append(directions)
         widths.append(width)
         kinds += ["shifted"] * len(directions)
+    # a thin, curved or coiled instance (a cable, a ring, a U) has its centre off its own pixels: the jaws
+    # then also straddle points on it, where a finger's band may cross it alone
+    centred = bool(on_instance(frame, surface, surface.centre[None])[0])
+    if not centred:
+        for point in points_on_instance(surface, ON_INSTANCE_SPACING, ON_INSTANCE_POINTS)[1:]:
+            at = np.repeat(point[None], len(directions), axis=0)
+            centres.append(at)
+            angles.append(directions)
+            widths.append(widths_across(surface, at, directions, gripper)[0])
+            kinds += ["on instance"] * len(directions)
     for offset in ([] if offsets is None else np.asarray(offsets, dtype=float).reshape(-1, 2)):
         shifted = np.repeat((surface.centre + offset)[None], len(directions), axis=0)
         centres.append(shifted)
         angles.append(directions)
         widths.append(widths_across(surface, shifted, directions, gripper)[0])
         kinds += ["offset"] * len(directions)
-    return surface, describe_many(frame, surface, np.concatenate(centres), np.concatenate(angles), gripper=gripper,
-                                  kinds=kinds, raise_blocked=True, widths=np.concatenate(widths))
+    candidates = describe_many(frame, surface, np.concatenate(centres), np.concatenate(angles), gripper=gripper,
+                               kinds=kinds, raise_blocked=True, widths=np.concatenate(widths))
+    if not centred:  # jaws centred on background inside or beside the instance are not tried
+        centre_on = on_instance(frame, surface, np.array([c.position[:2] for c in candidates]))
+        for candidate, on in zip(candidates, centre_on):
+            if not on and candidate.rejected is None:
+                candidate.rejected = "centre off the instance"
+    return surface, candidates

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from binpick.grasping.candidates import GraspCandidate, Surface, finger_heights, surface_heights
+from binpick.grasping.candidates import GraspCandidate, Surface, finger_heights, points_on_instance, surface_heights
 from binpick.grasping.frame import DepthFrame
 from binpick.grippers import Jaws, SuctionCup, ring_offsets, seal_geometry
 
@@ -75,25 +75,11 @@ def moment_ratio(mass: float, lever: float, cup: SuctionCup) -> float:
     return float(weight * lever / (pressing * cup.radius))
 
 
-def candidate_centres(surface: Surface, spacing: float = SPACING, limit: int = MAX_CANDIDATES) -> np.ndarray:
-    """Points on the instance a centimetre apart (one per cell of a grid over its pixels, the cell's
-    mean), nearest its centre first; at most ``limit``."""
-    cells = np.floor((surface.xy - surface.centre) / spacing).astype(int)
-    _, inverse, counts = np.unique(cells, axis=0, return_inverse=True, return_counts=True)
-    inverse = inverse.reshape(-1)
-    sums = np.zeros((counts.size, 2))
-    np.add.at(sums, inverse, surface.xy)
-    centres = sums / counts[:, None]
-    centres = centres[counts >= max(1, int(np.median(counts) * 0.3))]  # cells the instance barely touches go
-    order = np.argsort(np.linalg.norm(centres - surface.centre, axis=1))
-    return np.concatenate([surface.centre[None], centres[order]])[:limit]
-
-
 def suction_candidates(frame: DepthFrame, surface: Surface, cup: SuctionCup = SuctionCup(), gripper: str = "suction",
                        jaws: Jaws = Jaws()) -> list[GraspCandidate]:
     """Suction grasps on the instance whose depth ``surface`` this is (:func:`instance_surface`), each
     with its :class:`SuctionFeatures` (``seal``) and the reason it is not tried (None: feasible)."""
-    return describe_suction(frame, surface, candidate_centres(surface), cup, gripper, jaws)
+    return describe_suction(frame, surface, points_on_instance(surface, SPACING, MAX_CANDIDATES), cup, gripper, jaws)
 
 
 def describe_suction(frame: DepthFrame, surface: Surface, centres: np.ndarray, cup: SuctionCup = SuctionCup(),

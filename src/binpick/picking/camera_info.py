@@ -97,6 +97,17 @@ class CameraInfo:
         pose = np.eye(4) if camera_to_base is None else np.asarray(camera_to_base, dtype=float)
         return cls(PinholeCamera(K.reshape(3, 3), width, height, pose), D, distortion_model, base_frame)
 
+    def scaled(self, width: int, height: int) -> CameraInfo:
+        """The same camera seen at ``width`` x ``height`` pixels (the same field of view): K scaled about
+        pixel centres; the distortion coefficients, which act on normalised coordinates, unchanged."""
+        from dataclasses import replace
+
+        sx, sy = width / self.camera.width, height / self.camera.height
+        K = np.array(self.camera.K, dtype=float)
+        K[0, 0], K[0, 1], K[0, 2] = K[0, 0] * sx, K[0, 1] * sx, (K[0, 2] + 0.5) * sx - 0.5
+        K[1, 1], K[1, 2] = K[1, 1] * sy, (K[1, 2] + 0.5) * sy - 0.5
+        return replace(self, camera=PinholeCamera(K, int(width), int(height), self.camera.camera_to_world))
+
     def rectify(self, rgb: np.ndarray, depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Undistorted colour (bilinear) and depth (nearest: never a depth between two surfaces),
         with the same K; unchanged when the camera has no distortion."""

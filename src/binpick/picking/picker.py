@@ -28,6 +28,7 @@ from binpick.grasping import DepthFrame, GraspChoice, GraspPlanner, PinholeCamer
 from binpick.picking.camera_info import CameraInfo
 from binpick.picking.colour import colour_histogram, colour_similarity, detection_mask
 from binpick.picking.inputs import (  # noqa: F401  (moved there; imported from here too)
+    WORKING_PIXELS,
     as_camera_info,
     as_photos,
     as_query_box,
@@ -36,6 +37,8 @@ from binpick.picking.inputs import (  # noqa: F401  (moved there; imported from 
     register_depth,
     same_aspect,
     split_photo,
+    to_working_size,
+    working_size,
 )
 from binpick.picking.plans import (  # noqa: F401  (moved there; imported from here too)
     APPROACH,
@@ -81,7 +84,8 @@ class Picker:
 
     def __init__(self, detector, grasp: GraspPlanner, crop_detector=None, score_threshold: float | None = None,
                  verifier="learnt", check: float | None = None, rank_from: float | None = 0.01, max_grasps: int = 3,
-                 workspace: Workspace | None = None, copies_from_match: float | None = None, reach=None) -> None:
+                 workspace: Workspace | None = None, copies_from_match: float | None = None, reach=None,
+                 working_pixels: int | None = WORKING_PIXELS) -> None:
         # a Detector (binpick.Detector.load(...)) or the network inside one
         detector, crop_detector = (getattr(d, "inference_network", d) for d in (detector, crop_detector))
         self.detector, self.crop_detector, self.grasp = detector, crop_detector, grasp
@@ -102,6 +106,7 @@ class Picker:
         # reach(position, yaw) -> (None, the yaw the robot takes) or (why it cannot take that grasp, yaw)
         # (binpick.arm.MotionPlanner.reach_check)
         self.reach = reach
+        self.working_pixels = working_pixels  # larger frames are planned at this many pixels (None: at their own size)
 
     @classmethod
     def load(cls, detector: str | Path | None = None, grasp: str = "learnt", grasp_weights: str | Path | None = None,
@@ -169,14 +174,23 @@ class Picker:
     def _plan(self, rgb, depth, camera, photo, query_box, photo_product_mask, boxes, max_grasps, size, copies_only) -> Plans:
         info = as_camera_info(camera)
         check_frame(rgb, depth, info.camera)
-        depth = register_depth(np.asarray(depth), np.asarray(rgb).shape[:2])
+        full = (info.camera.width, info.camera.height)
         if query_box is not None:
-            query_box = as_query_box(query_box, info.camera.width, info.camera.height)
+            query_box = as_query_box(query_box, *full)
         photos = as_photos(photo, photo_product_mask)
         if boxes is None and (not photos) == (query_box is None):
             raise ConfigError("give exactly one of a shop photo (or several of one product) or a query box")
         timing: dict[str, float] = {}
         started = time.perf_counter()
+        work = working_size(*full, self.working_pixels)
+        scale = np.array([work[0] / full[0], work[1] / full[1]] * 2)  # full-frame pixels (x, y, w, h) -> working ones
+        if work != full:
+            rgb, depth = to_working_size(np.asarray(rgb), np.asarray(depth), work)
+            info = info.scaled(*work)
+            query_box = None if query_box is None else np.asarray(query_box, dtype=float) * scale
+            boxes = None if boxes is None else (np.asarray(boxes[0], dtype=float).reshape(-1, 4) * scale, boxes[1])
+        else:
+            depth = register_depth(np.asarray(depth), np.asarray(rgb).shape[:2])
         rgb, depth = info.rectify(np.asarray(rgb), np.asarray(depth, dtype=np.float32))
         frame = self.grasp.frame(depth, info.camera)  # once per frame: holes filled, support plane found
         workspace = self.workspace or info.workspace or Workspace.around_view(info.camera)
@@ -214,6 +228,10 @@ class Picker:
             plans.append(self.plan_detection(frame, box, float(score), same, size, workspace=workspace))
         timing["grasp"] = 1000 * (time.perf_counter() - tick)
         timing["total"] = 1000 * (time.perf_counter() - started)
+        if work != full:  # boxes back in the caller's pixels (grasp poses are in the base frame: unchanged)
+            for plan in plans:
+                plan.box = [round(float(v), 2) for v in np.asarray(plan.box, dtype=float) / scale]
+            found = np.asarray(found, dtype=float).reshape(-1, 4) / scale
         return Plans(plans, info.base_frame, {k: round(v, 2) for k, v in timing.items()}, found, scores, not_the_product)
 
     def detect(self, rgb: np.ndarray, frame: DepthFrame, photos: list[tuple[np.ndarray, np.ndarray | None]],
