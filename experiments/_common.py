@@ -24,6 +24,26 @@ def peak_rss_mib() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
+LOAD_AT_START = os.getloadavg()[0]  # the machine's load when this script started (its own work not yet in it)
+
+
+def provenance() -> dict:
+    """What a figure was measured with: the commit (and whether the tree had changes), the command
+    line, the machine's load average when the script started and now, and when."""
+    import subprocess
+
+    def git(*args: str) -> str:
+        try:
+            return subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True, timeout=30).stdout.strip()
+        except (OSError, subprocess.SubprocessError):
+            return ""
+
+    return {"commit": git("rev-parse", "HEAD") or None, "dirty": bool(git("status", "--porcelain", "--untracked-files=no")),
+            "command": " ".join([Path(sys.argv[0]).name if sys.argv else "python", *sys.argv[1:]]),
+            "load_average_start": round(LOAD_AT_START, 2), "load_average_end": round(os.getloadavg()[0], 2),
+            "utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+
+
 def machine() -> dict:
     import mujoco
     import numpy
@@ -77,7 +97,8 @@ def write_result(name: str, payload: dict) -> Path:
     from binpick.core.files import atomic_write_text
 
     path = RESULTS / f"{name}.json"
-    return atomic_write_text(path, json.dumps({"benchmark": name, "machine": machine(), **payload}, indent=2) + "\n")
+    return atomic_write_text(path, json.dumps({"benchmark": name, "machine": machine(), **payload, "provenance": provenance()},
+                                              indent=2) + "\n")
 
 
 def write_section(name: str, markdown: str) -> None:

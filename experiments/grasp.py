@@ -13,6 +13,10 @@
     binpick detect pickability configs/detection/pickability_photo_learnt_window.yaml --runs runs/grasp   # the shipped second look
     binpick detect pickability configs/detection/pickability_photo_learnt.yaml --runs runs/grasp   # one that also sees the photo
     python experiments/grasp.py pickability --head RUN [--head RUN]             # ... a row per head
+    binpick train configs/data/grasp_trials_both_realistic.yaml                # trials with the jaws and the suction cup
+    python experiments/grasp.py suction      # configs/grasping/suction_quality.yaml: trains, ships the suction model
+    python experiments/grasp.py calibrate    # the shipped jaws model's probabilities calibrated on those trials
+    python experiments/grasp.py tools        # results/grasp.json held_out_trials_by_tool: AUC and calibration error per tool
 
 ``eval`` reports (a) the model's ROC AUC on the held-out categories' trials (test split: products it
 never trained on), next to the analytic score's; (b) top-1 success: in new bins of held-out products,
@@ -59,6 +63,83 @@ def train() -> None:
     SHIPPED.parent.mkdir(parents=True, exist_ok=True)
     model.save(SHIPPED, {"run": str(trainer.run_dir.relative_to(_common.ROOT)), "held_out_categories": HELD_OUT})
     print(f"shipped {SHIPPED.relative_to(_common.ROOT)} ({SHIPPED.stat().st_size / 1024:.0f} KiB)", flush=True)
+
+
+def train_suction() -> None:
+    """configs/grasping/suction_quality.yaml (resumed if its newest run stopped), then shipped beside the jaws' model
+    where it is no worse on the held-out trials than the one shipped (or none is)."""
+    from binpick.core.config import load_config
+    from binpick.grasping.suction_quality import SHIPPED, SuctionQuality
+    from binpick.grasping.training import QualityTrainConfig, QualityTrainer, load_trials
+    from binpick.metrics import calibration_error, roc_auc
+    from binpick.terminal import RichCallback
+
+    folder = run_folder(RUNS, "suction_quality")
+    if folder is not None and not finished(folder):
+        trainer = QualityTrainer.resume(folder)
+    else:
+        trainer = QualityTrainer.new(load_config(QualityTrainConfig, _common.recipe("suction_quality")[0]), RUNS)
+    with RichCallback() as callback:
+        metrics = trainer.run(callback)
+    print(f"best val AUC {metrics['best_val_auc']} after {metrics['epochs']} epochs in {trainer.run_dir}; "
+          f"calibration {metrics['calibration']}", flush=True)
+    candidate = SuctionQuality.load(trainer.run_dir / "model.safetensors")
+    test = load_trials(trainer.config.data_sets, "test", tool="suction")
+    scored = {"candidate": candidate.probabilities(test.maps, test.features)}
+    if SHIPPED.is_file():
+        scored["shipped"] = SuctionQuality.load(SHIPPED).probabilities(test.maps, test.features)
+    figures = {name: {"auc": roc_auc(test.labels, p), "ece": calibration_error(test.labels, p)} for name, p in scored.items()}
+    print(f"held-out suction trials ({len(test)}): {figures}", flush=True)
+    if "shipped" in figures and figures["candidate"]["auc"] < figures["shipped"]["auc"]:
+        raise SystemExit(f"not shipped: the candidate's held-out AUC {figures['candidate']['auc']:.3f} is below the shipped "
+                         f"model's {figures['shipped']['auc']:.3f}")
+    SHIPPED.parent.mkdir(parents=True, exist_ok=True)
+    candidate.save(SHIPPED, {"run": str(trainer.run_dir.relative_to(_common.ROOT)), "held_out_categories": HELD_OUT,
+                             "held_out_trials": {"trials": len(test), **figures["candidate"]}})
+    print(f"shipped {SHIPPED.relative_to(_common.ROOT)} ({SHIPPED.stat().st_size / 1024:.0f} KiB)", flush=True)
+
+
+def calibrate_jaws(data: list[Path]) -> None:
+    """The shipped jaws model's probabilities calibrated (Platt scaling on the val trials of ``data``; its
+    ranking, and so its AUC, unchanged), its calibration error before and after on their test trials."""
+    from binpick.grasping.quality import SHIPPED, GraspQuality
+    from binpick.grasping.training import calibrate, load_trials
+    from binpick.metrics import calibration_error, roc_auc
+
+    model = GraspQuality.load(SHIPPED)
+    model.meta.pop("calibration", None)
+    fitted = calibrate(model, load_trials([str(d) for d in data], "val", tool="jaws"))
+    test = load_trials([str(d) for d in data], "test", tool="jaws")
+    before = GraspQuality.load(SHIPPED)
+    before.meta.pop("calibration", None)
+    model.meta["calibration"] = {**fitted, "data": [str(d.relative_to(_common.ROOT) if d.is_absolute() else d) for d in data]}
+    raw, calibrated = before.probabilities(test.maps, test.features), model.probabilities(test.maps, test.features)
+    print(f"jaws, {len(test)} held-out trials: AUC {roc_auc(test.labels, raw):.4f} -> {roc_auc(test.labels, calibrated):.4f}, "
+          f"ECE {calibration_error(test.labels, raw):.4f} -> {calibration_error(test.labels, calibrated):.4f}", flush=True)
+    model.save(SHIPPED)
+    print(f"calibration written into {SHIPPED.relative_to(_common.ROOT)}: {model.meta['calibration']}", flush=True)
+
+
+def tool_trials(data: list[Path]) -> dict:
+    """Each tool's shipped model on the held-out trials of ``data`` (test split: categories it never trained
+    on): ROC AUC, expected calibration error and the reliability bins."""
+    from binpick.grasping.quality import SHIPPED as JAWS, GraspQuality
+    from binpick.grasping.suction_quality import SHIPPED as SUCTION, SuctionQuality
+    from binpick.grasping.training import load_trials
+    from binpick.metrics import calibration_error, reliability, roc_auc
+
+    rows = {}
+    for tool, path, kind in (("jaws", JAWS, GraspQuality), ("suction", SUCTION, SuctionQuality)):
+        if not path.is_file():
+            continue
+        trials = load_trials([str(d) for d in data], "test", tool=tool)
+        if not len(trials):
+            continue
+        p = kind.load(path).probabilities(trials.maps, trials.features)
+        rows[tool] = {"trials": len(trials), "success_rate": round(float(trials.labels.mean()), 4),
+                      "roc_auc": round(roc_auc(trials.labels, p), 4), "ece": round(calibration_error(trials.labels, p), 4),
+                      "reliability": reliability(trials.labels, p)}
+    return rows
 
 
 def held_out_auc(data: Path) -> dict:
@@ -346,7 +427,7 @@ def pickability(heads_given: list[str] | None = None) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("phase", choices=["train", "eval", "pickability"])
+    parser.add_argument("phase", choices=["train", "eval", "pickability", "suction", "calibrate", "tools"])
     parser.add_argument("--data", type=Path, action="append", help="eval: data sets of grasp trials whose held-out "
                                                                   "products' trials to score (repeatable; default: the realistic one)")
     parser.add_argument("--bins", type=int, default=40)
@@ -354,10 +435,26 @@ def main() -> None:
                                                         "of configs/detection/pickability_photo_learnt.yaml (a folder, or 'newest' under runs/grasp); repeatable")
     args = parser.parse_args()
     os.chdir(_common.ROOT)
+    both = [_common.ROOT / "runs" / "data" / "grasp_trials_both_realistic"]
     if args.phase == "train":
         train()
     elif args.phase == "pickability":
         pickability(args.head)
+    elif args.phase == "suction":
+        train_suction()
+    elif args.phase == "calibrate":
+        calibrate_jaws(args.data or both)
+    elif args.phase == "tools":
+        import json
+
+        path = _common.RESULTS / "grasp.json"
+        result = json.loads(path.read_text()) if path.is_file() else {}
+        for key in ("benchmark", "machine", "provenance"):
+            result.pop(key, None)
+        result["held_out_trials_by_tool"] = {"data": [str(d.relative_to(_common.ROOT)) for d in (args.data or both)],
+                                             **tool_trials(args.data or both)}
+        _common.write_result("grasp", result)
+        print(json.dumps(result["held_out_trials_by_tool"], indent=1)[:3000], flush=True)
     else:
         evaluate(args.data or [DATA], args.bins)
 

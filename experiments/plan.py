@@ -53,6 +53,9 @@ def load() -> dict:
     return json.loads(path.read_text()) if path.is_file() else {}
 
 
+GRIPPER = "both"  # the hand's tools (--gripper)
+
+
 def pipeline_for(domain: str, sensor: str = "perfect", **options):
     from binpick.cli import DEFAULT_POLICY
     from binpick.detection import Detector
@@ -64,7 +67,7 @@ def pipeline_for(domain: str, sensor: str = "perfect", **options):
     from binpick.warehouse.pipeline import PickPipeline
 
     model = Detector.load(PICKING).network
-    return PickPipeline(model, default_library(), grasp=GraspPlanner.load(DEFAULT_POLICY),
+    return PickPipeline(model, default_library(), grasp=GraspPlanner.load(DEFAULT_POLICY, hand=GRIPPER),
                         domain=None if domain == "default" else load_domain(domain), sensor=load_sensor(sensor), **options)
 
 
@@ -347,7 +350,10 @@ def main() -> None:
     parser.add_argument("--photos", default="catalogue", choices=("catalogue", "canonical"), help="sim: the order's photos")
     parser.add_argument("--copies-from-match", type=float, default=None, help="sim: seed the box query from the surest match")
     parser.add_argument("--check", type=float, default=None, help="sim: the product check's threshold (default: the check's own)")
+    parser.add_argument("--gripper", default="both", choices=("jaws", "suction", "both"), help="the hand's tools")
     args = parser.parse_args()
+    global GRIPPER
+    GRIPPER = args.gripper
     result = load()
     by_sensor = result.setdefault("file_orders_by_sensor", {})
     if args.stage == "files":

@@ -60,6 +60,14 @@ VERIFIERS = ("learnt", "colour")
 THRESHOLDS = {"learnt": 0.2, "colour": 0.15}
 REACH_TRIES = 4  # candidates of one detection checked for the robot's reach before it is given up
 DEFAULT_GRIPPER = "both"  # the hand binpick plans for unless told: jaws and a suction cup
+FIND_AGAIN_RADIUS = 1.0  # a pointed instance found again lies within this many of its old box's diagonals
+
+
+def instance_surface_absent(frame: DepthFrame, box) -> bool:
+    """Depth shows nothing standing out in ``box`` (the floor where the instance was)."""
+    from binpick.grasping.candidates import instance_surface
+
+    return instance_surface(frame, box) is None
 
 
 class Picker:
@@ -309,6 +317,44 @@ class Picker:
             self.verifier = ProductVerifier.load()
         probabilities = self.verifier.probabilities([image for image, _ in photos], [mask for _, mask in photos], rgb, depth, boxes)
         return [float(p) for p in probabilities]
+
+    def find_again(self, previous_rgb: np.ndarray, previous_depth: np.ndarray, previous_box, rgb: np.ndarray, depth: np.ndarray,
+                   camera: CameraInfo | PinholeCamera) -> np.ndarray | None:
+        """Where the instance a person pointed at (``previous_box`` in the previous frame) is in a new
+        frame of the same camera, after a grasp moved things: the box-conditioned detector on the new
+        frame, queried with the old box, finds what looks like what lies there now; of its detections,
+        the one nearest the old box whose colours match the instance's in the previous frame (the same
+        light) is it. None when nothing near matches (it left, or lies in the order tote)."""
+        from binpick.detection.ops import box_iou, xywh_to_xyxy
+        from binpick.detection.predict import predict
+
+        info = as_camera_info(camera)
+        box = np.asarray(as_query_box(previous_box, info.camera.width, info.camera.height), dtype=float)
+        with one_blas_thread():
+            before = self.grasp.frame(register_depth(np.asarray(previous_depth), np.asarray(previous_rgb).shape[:2]), info.camera)
+            mask = detection_mask(before.heights, box)
+            histogram = colour_histogram(np.asarray(previous_rgb), mask if mask.any() else None)
+            frame = self.grasp.frame(register_depth(np.asarray(depth), np.asarray(rgb).shape[:2]), info.camera)
+            prediction = predict(self._detector_for(box), np.asarray(rgb), query_box=box, score_threshold=self.candidate_threshold,
+                                 depth=frame.filled)
+            found = np.concatenate([prediction.boxes.reshape(-1, 4), box[None]])  # the old box itself: it may not have moved
+            scores = np.concatenate([prediction.scores.reshape(-1), [1.0]])
+            overlap = box_iou(xywh_to_xyxy(torch.as_tensor(found, dtype=torch.float32)),
+                              xywh_to_xyxy(torch.as_tensor(box[None], dtype=torch.float32)))[:, 0].numpy()
+            centre = box[:2] + box[2:] / 2
+            distance = np.linalg.norm(found[:, :2] + found[:, 2:] / 2 - centre, axis=1) / max(float(np.hypot(*box[2:])), 1.0)
+            near = (overlap > 0.05) | (distance < FIND_AGAIN_RADIUS)
+            best, best_score = None, 0.0
+            for candidate, score, close, reach in zip(found, scores, near, distance):
+                if not close or candidate[2] < 2 or candidate[3] < 2:
+                    continue
+                same = colour_similarity(histogram, np.asarray(rgb), frame.heights, candidate)
+                if same < THRESHOLDS["colour"] or instance_surface_absent(frame, candidate):
+                    continue
+                value = same * (1.0 - 0.5 * min(reach / FIND_AGAIN_RADIUS, 1.0)) * (0.5 + 0.5 * float(score))
+                if value > best_score:
+                    best, best_score = candidate, value
+        return None if best is None else np.round(best, 2)
 
     def pointed_instance(self, frame: DepthFrame, query_box) -> GraspChoice:
         """The grasp for the instance a query box points at; a box over nothing standing out (only the

@@ -77,6 +77,8 @@ class OrderResult:
     timing_ms: dict[str, float] = field(default_factory=dict)  # the planner's stages (depth, detect, check, grasp) and the simulator's
     robot: str = "floating"  # what executed the picks: the floating gripper or an arm
     gripper: str = "jaws"  # the hand's tools: jaws, suction or both
+    found_again: list = field(default_factory=list)  # a pointed pick's instance after each failed grasp: its box in the new frame (None: not found)
+    looked_again: int = 0  # new frames taken after failed grasps (each planned anew)
 
     @property
     def robot_seconds(self) -> float:
@@ -115,23 +117,27 @@ class PickPipeline:
     from a tilted camera over a tote that may not be level. ``size_check`` gives the picker the ordered
     product's catalogue dimensions, so instances clearly bigger than it are not grasped. ``gripper``:
     the hand's tools (jaws, suction or both: the planner chooses per detection, and the hand picks with
-    the tool the plan names)."""
+    the tool the plan names); None: the given planner's, or both."""
 
     def __init__(self, detector: DetectorNetwork, library: ProductLibrary, grasp: GraspPlanner | str = "learnt",
                  copies: tuple[int, int] = (3, 6), distractors: tuple[int, int] = (2, 3), max_attempts: int = 3,
                  score_threshold: float | None = None, camera: CameraSpec = CameraSpec(size=416),
                  verifier="learnt", check: float | None = None, oracle: bool = False, rank_from: float | None = 0.01,
                  domain=None, size_check: bool = True, sensor=None, photos: str = "catalogue",
-                 copies_from_match: float | None = None, robot: str = "floating", gripper: str = "both") -> None:
+                 copies_from_match: float | None = None, robot: str = "floating", gripper: str | None = None,
+                 look_again: bool = True) -> None:
         if detector.spec.query != "photo":
             raise ConfigError("the pick pipeline conditions on shop photos: give a detector trained with query: photo")
         from binpick.grippers import tools_of
 
+        if gripper is None:
+            gripper = grasp.hand if isinstance(grasp, GraspPlanner) else "both"
         tools_of(gripper)  # a bad name is one line, now
         planner = grasp if isinstance(grasp, GraspPlanner) else GraspPlanner.load(grasp, hand=gripper)
         if planner.hand != gripper:
             raise ConfigError(f"the grasp planner plans for a hand with {planner.hand}, the cell's carries {gripper}")
         self.gripper = gripper
+        self.look_again = look_again  # after a failed grasp: a new frame and new plans (False: the first frame's plans go on)
         if photos not in ("catalogue", "canonical"):
             raise ConfigError(f"photos must be catalogue or canonical, got {photos!r}")
         if robot not in ROBOTS:
@@ -242,7 +248,13 @@ class PickPipeline:
             if plans.detections and not plans:
                 result.reason = Reason.NOT_THE_PRODUCT
             tick = time.perf_counter()
-            self.execute(world, scene, plans, result, on_frame=frame, on_caption=lambda text: caption.__setitem__(0, text))
+
+            def look_again(attempt: int) -> tuple[Scene, Plans]:  # after a failed grasp the bin has changed: a new frame
+                seen = world.look_again(scene, seed * 31 + attempt)
+                return seen, self.plan(seen, product_id)
+
+            self.execute(world, scene, plans, result, on_frame=frame, on_caption=lambda text: caption.__setitem__(0, text),
+                         look_again=look_again if self.look_again else None)
             result.timing_ms = {**plans.timing_ms, "simulated picks": round(1000 * (time.perf_counter() - tick), 1)}
             caption[0] = f"order {order}: {result.reason}"
             frame()
@@ -271,13 +283,16 @@ class PickPipeline:
                                 photo_product_mask=[mask for _, mask in views], size=size)
 
     def execute(self, world: BinWorld, scene: Scene, plans: list[GraspPlan], result: OrderResult, on_frame=None,
-                on_caption=None) -> None:
+                on_caption=None, look_again=None) -> None:
         """Try the plans in turn in the simulator until the ordered product lands in the order tote
         (plans without a feasible grasp are recorded and cost no attempt); ``on_caption`` hears what the
-        frames show ("attempt 1", then "attempt 1: slipped")."""
-        for plan in plans:
-            if result.grasps >= self.max_attempts:
-                break
+        frames show ("attempt 1 (jaws)", then "attempt 1 (jaws): slipped"). ``look_again(attempt)`` (if
+        given) -> (a new frame, its plans): after a failed grasp the robot looks at the bin again and
+        goes on with the new plans, as a real cell does (a slipped product has moved; the old frame's
+        plans would aim where it was)."""
+        queue = list(plans)
+        while queue and result.grasps < self.max_attempts:
+            plan = queue.pop(0)
             if not plan.feasible:
                 result.attempts.append(Attempt(plan.box, plan.score, plan.same_product, [], Reason.NO_GRASP, None,
                                                rejected=plan.rejected))
@@ -312,12 +327,18 @@ class PickPipeline:
                 result.success, result.reason = True, Reason.PLACED
                 return
             result.reason = Reason.WRONG_PRODUCT if lifted not in (None, result.product) else outcome.reason
+            if look_again is not None and result.grasps < self.max_attempts:
+                scene, replanned = look_again(result.grasps)
+                result.looked_again += 1
+                queue = list(replanned)
 
     def pick_pointed(self, world: BinWorld, scene: Scene, query_box, result: OrderResult) -> None:
         """Pick the instance a person pointed at (``query_box``, pixels of ``scene``'s frame) as a robot
-        would: plan on it (then on the copies of it the detector finds), execute the best feasible grasp, and after
-        a failed one look at the bin again and plan anew, up to ``max_attempts`` grasps. When the box
-        holds nothing any more (the instance left it), stop: nothing else is grasped in its place."""
+        would: plan on it (then on the copies of it the detector finds), execute the best feasible grasp,
+        and after a failed one look at the bin again, find the instance again near where it was (the
+        box-conditioned detector on the new frame, :meth:`Picker.find_again`) and plan anew, up to
+        ``max_attempts`` grasps. When it is not found again (it left), stop: nothing else is grasped
+        in its place."""
         from binpick.core.errors import InputFileError
 
         for attempt in range(self.max_attempts):
@@ -336,7 +357,13 @@ class PickPipeline:
             self.execute(world, scene, [chosen], result)
             if result.success:
                 return
-            scene = world.look_again(scene, result.seed * 31 + attempt + 1)
+            seen = world.look_again(scene, result.seed * 31 + attempt + 1)
+            again = self.picker.find_again(scene.rgb, as_camera_depth(scene.depth), query_box, seen.rgb,
+                                           as_camera_depth(seen.depth), camera)
+            result.found_again.append(None if again is None else [float(v) for v in again])
+            if again is None:
+                break
+            scene, query_box = seen, again
 
     def tips(self, plan: GraspPlan, scene: Scene) -> np.ndarray:
         """Where the fingertips go. The fixed policy keeps the grasp point and depth it had before the
