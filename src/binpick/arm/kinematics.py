@@ -59,6 +59,11 @@ class ArmKinematics:
         self.obstacles = {self.model.geom(name).id for name in OBSTACLES}
         # the base stands on the table: its own contact with it is no collision
         self.robot = {int(g) for g in self.arm.geoms if self.model.geom(int(g)).name != "link0_collision"}
+        self.extend = None  # (qpos address, stroke) of a both-hand's cup rod
+        if mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_JOINT, "cup_extend") >= 0:
+            joint = self.model.joint("cup_extend")
+            self.extend = (int(self.model.jnt_qposadr[joint.id]), float(joint.range[1]))
+        self.tool = "jaws"
         self.frame = mink.FrameTask("gripper", "body", position_cost=1.0, orientation_cost=1.0)
         self.posture = mink.PostureTask(self.model, cost=1e-3)
         self.nominal = self.full(NOMINAL)
@@ -70,10 +75,17 @@ class ArmKinematics:
                                                     minimum_distance_from_collisions=0.005,
                                                     collision_detection_distance=0.03)]
 
+    def use(self, tool: str) -> None:
+        """Check collisions with the hand as ``tool`` needs it: on a hand with both tools, the cup pushed
+        out below the fingertips for suction, drawn in for the jaws."""
+        self.tool = tool
+
     def full(self, q) -> np.ndarray:
-        """The cell's configuration vector for arm joints ``q`` (fingers open)."""
+        """The cell's configuration vector for arm joints ``q`` (fingers open; the cup rod as the tool in use needs it)."""
         vector = np.zeros(self.model.nq)
         vector[self.arm.qpos] = q
+        if self.extend is not None and getattr(self, "tool", "jaws") == "suction":
+            vector[self.extend[0]] = self.extend[1]
         return vector
 
     def solve(self, position, yaw: float, start=None, iterations: int = 150, avoid: bool = True) -> Solution:

@@ -112,6 +112,7 @@ class MotionPlanner:
         same jaws) are tried, the one nearer the wrist's mid-range first; the answer's ``yaw`` is the
         one the arm takes. The last answers are kept: the picker asks before the pick is executed."""
         started = time.perf_counter()
+        self.kinematics.use(tool)
         centre = self.clear_of_floor(np.asarray(centre, dtype=float), tool)
         key = (*np.round(centre, 4), round(float(yaw), 4), tool)
         if key in self._answers:
@@ -170,7 +171,7 @@ class MotionPlanner:
         that has no IK solution or a free move that touches the cell on every way tried."""
         started = time.perf_counter()
         centre = self.clear_of_floor(np.asarray(centre, dtype=float), tool)
-        reach = self.reach(centre, yaw, tool)
+        reach = self.reach(centre, yaw, tool)  # (the kinematics now check the hand as the tool needs it)
         if not reach.ok:
             return PickMotion([], reach, time.perf_counter() - started)
         descent = reach.descent
