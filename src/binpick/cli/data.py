@@ -39,7 +39,8 @@ def data_generate(
     targets: Annotated[str, typer.Option(help="Products or categories to fill bins with")] = "",
     randomise: Annotated[bool, typer.Option("--randomise", hidden=True, help="Randomise lighting and colours per world (older; see --domain)")] = False,
     domain: Annotated[str, typer.Option(help="default, random, shifted or a domain YAML")] = "default",
-    sensor: Annotated[str, typer.Option(help="Depth: perfect, realistic (holes, noise, tilt) or a sensor YAML")] = "perfect",
+    sensor: Annotated[str, typer.Option(help="Depth: perfect, realistic (structured light: holes, noise, tilt), stereo, tof "
+                                            "or a sensor YAML")] = "perfect",
     address: Annotated[str | None, typer.Option(help="Ray cluster HOST:PORT, or local")] = None,
     val_fraction: Annotated[float, typer.Option(help="Share of worlds in the val split")] = 0.1,
     scenes_per_world: Annotated[int, typer.Option(help="Scenes per compiled world (one product)")] = 8,
