@@ -28,6 +28,8 @@ MIN_GRIP = 0.015  # fingertips at least this far under the instance's top
 # simulated trials, grasps whose fingers met surfaces 0.5-3 cm above the tips still held 65-68% of
 # the time (80% with clear fingers); beyond 3 cm, 39%.
 BLOCK_TOLERANCE = 0.03
+ON_TOP = 0.01  # m: another object this far above the instance's top, between the open jaws, is taken instead of it
+ON_TOP_REASON = "another object on it, between the jaws"
 SHIFT = 0.01  # m: candidates also move the jaws' centre this far either way along the closing direction
 ON_INSTANCE_SPACING, ON_INSTANCE_POINTS = 0.012, 13  # the instance's centre and 12 points on it: where an off-centre one straddles it
 YAWS = 12  # even yaws over 180 degrees (15 degrees apart), plus the minor axis
@@ -307,6 +309,23 @@ def finger_heights(frame: DepthFrame, centres: np.ndarray, yaws: np.ndarray, gri
     return np.max(judged, axis=2), seen
 
 
+def something_on_top(frame: DepthFrame, surface: Surface, centres: np.ndarray, yaws: np.ndarray, gripper: JawGripper) -> np.ndarray:
+    """For N grasps: whether another object lies between the open jaws above the instance's top (read
+    pixels off the instance, ON_TOP higher than its top): the jaws would close on it, not the instance
+    under it, and carry the wrong product to the customer."""
+    d = np.stack([np.cos(yaws), np.sin(yaws)], axis=1)
+    j = np.stack([-d[:, 1], d[:, 0]], axis=1)
+    inner = gripper.opening / 2 - gripper.finger_thickness
+    a = np.linspace(-inner, inner, 9)
+    b = np.linspace(-gripper.finger_width / 2, gripper.finger_width / 2, 3)
+    grid = centres[:, None, None, :] + a[None, :, None, None] * d[:, None, None, :] + b[None, None, :, None] * j[:, None, None, :]
+    pixels: list = []
+    heights, read = surface_heights(frame, grid.reshape(-1, 2), surface.top, pixels)
+    other = ~surface.on_instance(pixels[0])
+    above = read & other & np.isfinite(heights) & (heights > surface.top + ON_TOP)
+    return above.reshape(len(centres), -1).sum(axis=1) >= 2
+
+
 def widths_across(surface: Surface, centres: np.ndarray, yaws: np.ndarray, gripper: JawGripper) -> tuple[np.ndarray, np.ndarray]:
     """For N grasps: the instance's extent along each closing direction within the fingers' band,
     and the offset of that extent's midpoint from the centre (where the jaws squeeze evenly)."""
@@ -351,10 +370,17 @@ def describe_many(frame: DepthFrame, surface: Surface, centres, yaws_, tips=None
         tip_z = np.where(seen, np.clip(highest + 0.003, deepest, shallowest), deepest)
     candidates = [_candidate(centres[i], yaws_[i], tip_z[i], width[i], highest[i], seen[i], surface, gripper, kinds[i])
                   for i in range(len(centres))]
+    # something else lying on the instance, between the jaws: they would take it instead
+    covered = something_on_top(frame, surface, centres, yaws_, gripper) if surface.mask is not None else np.zeros(len(centres), bool)
+    for i in np.flatnonzero(covered):
+        if candidates[i].rejected is None:
+            candidates[i].rejected = ON_TOP_REASON
     if raise_blocked and not given:
         limit = max(shallowest, surface.top - MIN_GRIP)
         for i in np.flatnonzero(seen & (highest + 0.003 > shallowest + 0.005) & (highest + 0.003 <= limit)):
             candidates.append(_candidate(centres[i], yaws_[i], highest[i] + 0.003, width[i], highest[i], True, surface, gripper, "raised"))
+            if covered[i] and candidates[-1].rejected is None:
+                candidates[-1].rejected = ON_TOP_REASON
     return candidates
 
 
