@@ -15,7 +15,8 @@
     python experiments/grasp.py pickability --head RUN [--head RUN]             # ... a row per head
     binpick train configs/data/grasp_trials_both_realistic.yaml                # trials with the jaws and the suction cup
     python experiments/grasp.py suction      # configs/grasping/suction_quality.yaml: trains, ships the suction model
-    python experiments/grasp.py calibrate    # the shipped jaws model's probabilities calibrated on those trials
+    python experiments/grasp.py jaws         # the jaws' model trained further on them (boxes at their share), shipped if no worse
+    python experiments/grasp.py calibrate    # or: the shipped jaws model's probabilities calibrated on those trials alone
     python experiments/grasp.py tools        # results/grasp.json held_out_trials_by_tool: AUC and calibration error per tool
 
 ``eval`` reports (a) the model's ROC AUC on the held-out categories' trials (test split: products it
@@ -65,38 +66,42 @@ def train() -> None:
     print(f"shipped {SHIPPED.relative_to(_common.ROOT)} ({SHIPPED.stat().st_size / 1024:.0f} KiB)", flush=True)
 
 
-def train_suction() -> None:
-    """configs/grasping/suction_quality.yaml (resumed if its newest run stopped), then shipped beside the jaws' model
-    where it is no worse on the held-out trials than the one shipped (or none is)."""
+def train_and_ship(tool: str, name: str) -> None:
+    """configs/grasping/<name>.yaml (resumed if its newest run stopped), then shipped as ``tool``'s model
+    where it is no worse on the held-out trials (test split: categories it never trained on) than the one
+    shipped (or none is); the comparison is kept with the weights."""
     from binpick.core.config import load_config
-    from binpick.grasping.suction_quality import SHIPPED, SuctionQuality
-    from binpick.grasping.training import QualityTrainConfig, QualityTrainer, load_trials
+    from binpick.grasping.quality import SHIPPED as JAWS
+    from binpick.grasping.suction_quality import SHIPPED as SUCTION
+    from binpick.grasping.training import QualityTrainConfig, QualityTrainer, load_model, load_trials
     from binpick.metrics import calibration_error, roc_auc
     from binpick.terminal import RichCallback
 
-    folder = run_folder(RUNS, "suction_quality")
+    shipped = JAWS if tool == "jaws" else SUCTION
+    folder = run_folder(RUNS, name)
     if folder is not None and not finished(folder):
         trainer = QualityTrainer.resume(folder)
     else:
-        trainer = QualityTrainer.new(load_config(QualityTrainConfig, _common.recipe("suction_quality")[0]), RUNS)
+        trainer = QualityTrainer.new(load_config(QualityTrainConfig, _common.recipe(name)[0]), RUNS)
     with RichCallback() as callback:
         metrics = trainer.run(callback)
     print(f"best val AUC {metrics['best_val_auc']} after {metrics['epochs']} epochs in {trainer.run_dir}; "
           f"calibration {metrics['calibration']}", flush=True)
-    candidate = SuctionQuality.load(trainer.run_dir / "model.safetensors")
-    test = load_trials(trainer.config.data_sets, "test", tool="suction")
+    candidate = load_model(tool, trainer.run_dir / "model.safetensors")
+    test = load_trials(trainer.config.data_sets, "test", tool=tool)
     scored = {"candidate": candidate.probabilities(test.maps, test.features)}
-    if SHIPPED.is_file():
-        scored["shipped"] = SuctionQuality.load(SHIPPED).probabilities(test.maps, test.features)
-    figures = {name: {"auc": roc_auc(test.labels, p), "ece": calibration_error(test.labels, p)} for name, p in scored.items()}
-    print(f"held-out suction trials ({len(test)}): {figures}", flush=True)
+    if shipped.is_file():
+        scored["shipped"] = load_model(tool, shipped).probabilities(test.maps, test.features)
+    figures = {key: {"auc": round(roc_auc(test.labels, p), 4), "ece": round(calibration_error(test.labels, p), 4)}
+               for key, p in scored.items()}
+    print(f"held-out {tool} trials ({len(test)}): {figures}", flush=True)
     if "shipped" in figures and figures["candidate"]["auc"] < figures["shipped"]["auc"]:
-        raise SystemExit(f"not shipped: the candidate's held-out AUC {figures['candidate']['auc']:.3f} is below the shipped "
-                         f"model's {figures['shipped']['auc']:.3f}")
-    SHIPPED.parent.mkdir(parents=True, exist_ok=True)
-    candidate.save(SHIPPED, {"run": str(trainer.run_dir.relative_to(_common.ROOT)), "held_out_categories": HELD_OUT,
-                             "held_out_trials": {"trials": len(test), **figures["candidate"]}})
-    print(f"shipped {SHIPPED.relative_to(_common.ROOT)} ({SHIPPED.stat().st_size / 1024:.0f} KiB)", flush=True)
+        raise SystemExit(f"not shipped: the candidate's held-out AUC {figures['candidate']['auc']:.4f} is below the shipped "
+                         f"model's {figures['shipped']['auc']:.4f}")
+    shipped.parent.mkdir(parents=True, exist_ok=True)
+    candidate.save(shipped, {"run": str(trainer.run_dir.relative_to(_common.ROOT)), "held_out_categories": HELD_OUT,
+                             "compared_on": {"trials": len(test), "data": trainer.config.data_sets, **figures}})
+    print(f"shipped {shipped.relative_to(_common.ROOT)} ({shipped.stat().st_size / 1024:.0f} KiB)", flush=True)
 
 
 def calibrate_jaws(data: list[Path]) -> None:
@@ -427,7 +432,7 @@ def pickability(heads_given: list[str] | None = None) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("phase", choices=["train", "eval", "pickability", "suction", "calibrate", "tools"])
+    parser.add_argument("phase", choices=["train", "eval", "pickability", "suction", "jaws", "calibrate", "tools"])
     parser.add_argument("--data", type=Path, action="append", help="eval: data sets of grasp trials whose held-out "
                                                                   "products' trials to score (repeatable; default: the realistic one)")
     parser.add_argument("--bins", type=int, default=40)
@@ -441,7 +446,9 @@ def main() -> None:
     elif args.phase == "pickability":
         pickability(args.head)
     elif args.phase == "suction":
-        train_suction()
+        train_and_ship("suction", "suction_quality")
+    elif args.phase == "jaws":
+        train_and_ship("jaws", "grasp_quality_boxes")
     elif args.phase == "calibrate":
         calibrate_jaws(args.data or both)
     elif args.phase == "tools":

@@ -51,6 +51,7 @@ class QualityTrainConfig:
     seed: int = 0
     tool: str = "jaws"  # whose trials and model: jaws or suction
     balance: bool = True  # weigh the classes equally in the loss (the calibration fitted afterwards undoes the shift)
+    init_from: str | None = None  # weights to start from (a model.safetensors or shipped weights of the same tool): more trials on a trained model
 
     def __post_init__(self) -> None:
         from binpick.core.config import check_choice
@@ -185,6 +186,11 @@ class QualityTrainer:
         self.optimizer = torch.optim.AdamW(self.quality.net.parameters(), lr=config.lr, weight_decay=config.weight_decay)
         self.epoch, self.best_auc, self.history = 0, -1.0, []
         self.group = ALONE  # data-parallel training (distribute()): this process's place among others
+        if config.init_from is not None:
+            start = load_model(config.tool, Path(config.init_from))
+            if start.width != config.width:
+                raise ConfigError(f"init_from {config.init_from!r} has width {start.width}, the config {config.width}")
+            self.quality.net.load_state_dict(start.net.state_dict())
         checkpoint = latest_checkpoint(self.run_dir / "checkpoints")
         if checkpoint is not None:
             _, meta, state = tensorfile.load(checkpoint / "state.safetensors", CHECKPOINT_FORMAT, "grasp-quality checkpoint")
@@ -208,6 +214,8 @@ class QualityTrainer:
         for data in config.data_sets:
             if not (Path(data) / "scenes").is_dir():
                 raise ConfigError(f"data {data!r} is not a data set folder (binpick data generate --grasp-trials N)")
+        if config.init_from is not None and not Path(config.init_from).is_file():
+            raise ConfigError(f"init_from {config.init_from!r} is not a weights file")
         return cls(config, new_run_dir(Path(runs), config.name, yaml.safe_dump(to_dict(config), sort_keys=False)))
 
     @classmethod
