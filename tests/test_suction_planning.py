@@ -98,3 +98,41 @@ def test_a_thin_u_shaped_object_is_grasped_on_itself_not_on_the_background_insid
         choice = GraspPlanner("analytic", hand=hand).choose(frame, box)
         assert choice.chosen is not None and on_instance(frame, surface, choice.chosen.position[None, :2])[0], hand
         assert choice.rejections().get("centre off the instance", 0) > 0 or hand == "both"
+
+
+def test_suction_trials_are_recorded_and_a_calibrated_suction_model_trains_on_them(tmp_path):
+    from binpick.grasping.suction_quality import SuctionQuality
+    from binpick.grasping.training import QualityTrainConfig, QualityTrainer, load_trials
+    from binpick.warehouse.dataset import DataGeneration, GenerateConfig
+
+    data = tmp_path / "trials"
+    DataGeneration.new(GenerateConfig(out=str(data), scenes=2, policies=[], grasp_trials=3, workers=1, image_size=128, gripper="suction",
+                                      copies=(2, 3), distractors=(0, 1), targets=["procedural_box", "can"], scenes_per_world=1,
+                                      val_fraction=0.5)).run()
+    records = [__import__("json").loads(p.read_text()) for p in sorted((data / "scenes").glob("*.json"))]
+    trials = [t for r in records for t in r["grasp_trials"]]
+    assert trials and all(t["tool"] == "suction" and t["width"] == 0.0 for t in trials)
+    assert all((t["why"] is None) == t["success"] or t["success"] is False for t in trials)  # a failure says why (or the load let go)
+    train = load_trials(data, "train", tool="suction")
+    assert len(train) and train.maps.shape[1:] == (24, 24) and train.features.shape[1] == 9 and np.isfinite(train.features).all()
+    assert not len(load_trials(data, "train", tool="jaws"))  # a suction-only hand made no jaw trials
+    run = QualityTrainer.new(QualityTrainConfig(data=str(data), tool="suction", balance=False, epochs=1, batch_size=2, width=4,
+                                                threads=1), tmp_path / "runs")
+    metrics = run.run()
+    model = SuctionQuality.load(run.run_dir / "model.safetensors")
+    assert set(metrics["calibration"]) >= {"temperature", "bias", "ece_before", "ece_after"} and model.calibration[0] > 0
+    with pytest.raises(ConfigError, match="tool"):
+        QualityTrainConfig(data=str(data), tool="magnet")
+
+
+def test_platt_scaling_recovers_a_known_miscalibration():
+    from binpick.metrics import calibration_error, fit_platt, reliability
+
+    rng = np.random.default_rng(0)
+    logits = rng.normal(0.0, 3.0, 4000)
+    labels = (rng.random(4000) < 1 / (1 + np.exp(-(0.5 * logits - 1.0)))).astype(float)  # the truth: half the logit, minus 1
+    temperature, bias = fit_platt(logits, labels)
+    assert abs(temperature - 2.0) < 0.2 and abs(bias + 1.0) < 0.15
+    raw, fixed = 1 / (1 + np.exp(-logits)), 1 / (1 + np.exp(-(logits / temperature + bias)))
+    assert calibration_error(labels, fixed) < 0.03 < calibration_error(labels, raw)
+    assert sum(row["count"] for row in reliability(labels, fixed)) == 4000

@@ -74,17 +74,21 @@ def _weights() -> Check:
     from binpick.detection.detector import SHIPPED, shipped_weights
     from binpick.detection.verifier import SHIPPED as VERIFIER
     from binpick.detection.weights_file import read_detector_file
-    from binpick.grasping.quality import SHIPPED as GRASP
+    from binpick.grasping.quality import SHIPPED as GRASP, GraspQuality
+    from binpick.grasping.suction_quality import SHIPPED as SUCTION, SuctionQuality
 
     try:
         for name in SHIPPED:
             read_detector_file(shipped_weights(name))
-        missing = [path.name for path in (GRASP, VERIFIER) if not path.is_file()]
+        missing = [path.name for path in (GRASP, SUCTION, VERIFIER) if not path.is_file()]
+        if not missing:
+            GraspQuality.load(GRASP)
+            SuctionQuality.load(SUCTION)
     except Exception as error:  # a damaged or missing file is the finding
         return "shipped weights", "fail", f"{error} (reinstall binpick)"
     if missing:
         return "shipped weights", "fail", f"missing {', '.join(missing)} (reinstall binpick)"
-    return "shipped weights", "ok", f"{len(SHIPPED)} detectors, the grasp-quality model and the product check"
+    return "shipped weights", "ok", f"{len(SHIPPED)} detectors, the jaws' and the suction cup's quality models and the product check"
 
 
 def _arm() -> Check:
