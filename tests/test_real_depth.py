@@ -237,3 +237,45 @@ def test_the_pipeline_picks_the_pointed_instance_and_nothing_else():
         world.close()
     lifted = [a.lifted_product for a in result.attempts if a.lifted_product is not None]
     assert result.success and set(lifted) == {"robosuite/can"}, result
+
+
+def test_a_pointed_instance_that_moved_is_found_again_near_its_old_box():
+    from binpick.detection import Detector
+    from binpick.detection.detector import PICKING
+    from binpick.depth import as_camera_depth
+    from binpick.grasping import PinholeCamera
+    from binpick.picking import Picker
+    from binpick.sim import default_library
+    from binpick.sim.mjcf import CameraSpec
+    from binpick.warehouse.pipeline import PickPipeline
+
+    library = default_library(procedural=0, shapes=0)
+    pipeline = PickPipeline(Detector.load(PICKING).network, library, copies=(1, 1), distractors=(2, 2),
+                            camera=CameraSpec(size=256), sensor=load_sensor("realistic"))
+    world, rng = pipeline.build_world("robosuite/can", 7)
+    try:
+        scene = pipeline.settle(world, rng, 7)
+        (can,) = [i for i in scene.instances if i.product_id == "robosuite/can"]
+        adr = world.qpos_adr[can.slot]
+        world.data.qpos[adr:adr + 2] += [0.03, -0.02]  # a failed grasp pushed it 3.6 cm aside
+        import mujoco
+
+        mujoco.mj_forward(world.model, world.data)
+        moved = world.look_again(scene, 1)
+        (now,) = [i for i in moved.instances if i.product_id == "robosuite/can"]
+        picker = Picker.load(gripper="both")
+        camera = PinholeCamera.from_record(scene.camera)
+        found = picker.find_again(scene.rgb, as_camera_depth(scene.depth), can.bbox, moved.rgb, as_camera_depth(moved.depth), camera)
+        assert found is not None
+        x0, y0, x1, y1 = now.bbox[0], now.bbox[1], now.bbox[0] + now.bbox[2], now.bbox[1] + now.bbox[3]
+        fx0, fy0, fx1, fy1 = found[0], found[1], found[0] + found[2], found[1] + found[3]
+        overlap = max(0, min(x1, fx1) - max(x0, fx0)) * max(0, min(y1, fy1) - max(y0, fy0))
+        union = now.bbox[2] * now.bbox[3] + found[2] * found[3] - overlap
+        assert overlap / union > 0.5, (found, now.bbox)
+        # the instance gone (carried off): nothing is found in its place
+        world.data.qpos[adr:adr + 3] = [3.0, 0.0, 0.5]
+        mujoco.mj_forward(world.model, world.data)
+        gone = world.look_again(scene, 2)
+        assert picker.find_again(scene.rgb, as_camera_depth(scene.depth), can.bbox, gone.rgb, as_camera_depth(gone.depth), camera) is None
+    finally:
+        world.close()

@@ -61,6 +61,9 @@ THRESHOLDS = {"learnt": 0.2, "colour": 0.15}
 REACH_TRIES = 4  # candidates of one detection checked for the robot's reach before it is given up
 DEFAULT_GRIPPER = "both"  # the hand binpick plans for unless told: jaws and a suction cup
 FIND_AGAIN_RADIUS = 1.0  # a pointed instance found again lies within this many of its old box's diagonals
+# ... and its colours match its own in the previous frame this well (histogram intersection, same light): the
+# instance moved 3.6 cm matched itself at 0.90, a neighbour where it had been 0.29 (tests/test_real_depth.py)
+FIND_AGAIN_COLOUR = 0.5
 
 
 def instance_surface_absent(frame: DepthFrame, box) -> bool:
@@ -322,34 +325,47 @@ class Picker:
                    camera: CameraInfo | PinholeCamera) -> np.ndarray | None:
         """Where the instance a person pointed at (``previous_box`` in the previous frame) is in a new
         frame of the same camera, after a grasp moved things: the box-conditioned detector on the new
-        frame, queried with the old box, finds what looks like what lies there now; of its detections,
-        the one nearest the old box whose colours match the instance's in the previous frame (the same
-        light) is it. None when nothing near matches (it left, or lies in the order tote)."""
+        frame, queried with the instance as it looked (its crop from the previous frame, shown to the
+        detector in the new frame's corner farthest from it: the crop query reads the frame's own
+        features); of the detections, the one nearest the old box whose colours match the instance's in
+        the previous frame (the same light) is it. None when nothing near matches (it left)."""
         from binpick.detection.ops import box_iou, xywh_to_xyxy
         from binpick.detection.predict import predict
 
         info = as_camera_info(camera)
-        box = np.asarray(as_query_box(previous_box, info.camera.width, info.camera.height), dtype=float)
+        width, height = info.camera.width, info.camera.height
+        box = np.asarray(as_query_box(previous_box, width, height), dtype=float)
+        previous_rgb, rgb = np.asarray(previous_rgb), np.asarray(rgb)
+        x, y, w, h = (int(round(v)) for v in box)
+        w, h = max(2, min(w, width // 2 - 4)), max(2, min(h, height // 2 - 4))
+        crop = previous_rgb[y:y + h, x:x + w]
+        corners = [(2, 2), (width - w - 2, 2), (2, height - h - 2), (width - w - 2, height - h - 2)]
+        centre = box[:2] + box[2:] / 2
+        cx, cy = max(corners, key=lambda c: np.hypot(c[0] + w / 2 - centre[0], c[1] + h / 2 - centre[1]))
+        shown = rgb.copy()
+        shown[cy:cy + crop.shape[0], cx:cx + crop.shape[1]] = crop
+        query = np.array([cx, cy, crop.shape[1], crop.shape[0]], dtype=float)
         with one_blas_thread():
-            before = self.grasp.frame(register_depth(np.asarray(previous_depth), np.asarray(previous_rgb).shape[:2]), info.camera)
+            before = self.grasp.frame(register_depth(np.asarray(previous_depth), previous_rgb.shape[:2]), info.camera)
             mask = detection_mask(before.heights, box)
-            histogram = colour_histogram(np.asarray(previous_rgb), mask if mask.any() else None)
-            frame = self.grasp.frame(register_depth(np.asarray(depth), np.asarray(rgb).shape[:2]), info.camera)
-            prediction = predict(self._detector_for(box), np.asarray(rgb), query_box=box, score_threshold=self.candidate_threshold,
+            histogram = colour_histogram(previous_rgb, mask if mask.any() else None)
+            frame = self.grasp.frame(register_depth(np.asarray(depth), rgb.shape[:2]), info.camera)
+            prediction = predict(self._detector_for(query), shown, query_box=query, score_threshold=self.candidate_threshold,
                                  depth=frame.filled)
-            found = np.concatenate([prediction.boxes.reshape(-1, 4), box[None]])  # the old box itself: it may not have moved
-            scores = np.concatenate([prediction.scores.reshape(-1), [1.0]])
+            found, scores = prediction.boxes.reshape(-1, 4), prediction.scores.reshape(-1)
+            if not len(found):
+                return None
+            shown_at = box_iou(xywh_to_xyxy(torch.as_tensor(found, dtype=torch.float32)),
+                               xywh_to_xyxy(torch.as_tensor(query[None], dtype=torch.float32)))[:, 0].numpy()
             overlap = box_iou(xywh_to_xyxy(torch.as_tensor(found, dtype=torch.float32)),
                               xywh_to_xyxy(torch.as_tensor(box[None], dtype=torch.float32)))[:, 0].numpy()
-            centre = box[:2] + box[2:] / 2
             distance = np.linalg.norm(found[:, :2] + found[:, 2:] / 2 - centre, axis=1) / max(float(np.hypot(*box[2:])), 1.0)
-            near = (overlap > 0.05) | (distance < FIND_AGAIN_RADIUS)
             best, best_score = None, 0.0
-            for candidate, score, close, reach in zip(found, scores, near, distance):
-                if not close or candidate[2] < 2 or candidate[3] < 2:
+            for candidate, score, shown_iou, iou, reach in zip(found, scores, shown_at, overlap, distance):
+                if shown_iou > 0.1 or not (iou > 0.05 or reach < FIND_AGAIN_RADIUS) or candidate[2] < 2 or candidate[3] < 2:
                     continue
-                same = colour_similarity(histogram, np.asarray(rgb), frame.heights, candidate)
-                if same < THRESHOLDS["colour"] or instance_surface_absent(frame, candidate):
+                same = colour_similarity(histogram, rgb, frame.heights, candidate)
+                if same < FIND_AGAIN_COLOUR or instance_surface_absent(frame, candidate):
                     continue
                 value = same * (1.0 - 0.5 * min(reach / FIND_AGAIN_RADIUS, 1.0)) * (0.5 + 0.5 * float(score))
                 if value > best_score:
