@@ -64,6 +64,8 @@ def main() -> None:
     parser.add_argument("--tool-rows", action="store_true", help="also the seen and held-out orders with each other hand (by_gripper)")
     parser.add_argument("--per-product", type=int, default=0, metavar="N",
                         help="also N orders of every product, seen and held out, with --gripper (by_product)")
+    parser.add_argument("--skip-main", action="store_true", help="keep results/pick.json's seen, held-out and oracle rows "
+                                                                  "(made with the same --gripper and --orders) and run only the extra rows")
     args = parser.parse_args()
 
     import torch
@@ -101,14 +103,16 @@ def main() -> None:
         result["before"] = previous["before"]
     if "arm" in previous:  # the arm's rows (--robot panda) stay until that run is made again
         result["arm"] = previous["arm"]
-    executed: dict[str, list] = {}  # hand -> every order run with it (for by_category and the calibration)
+    if args.skip_main:
+        if previous.get("gripper") != args.gripper or any(k not in previous for k in ("seen", "held_out")):
+            sys.exit(f"--skip-main keeps rows made with --gripper {args.gripper}: results/pick.json has none")
+        result.update({k: previous[k] for k in ("seen", "held_out", "oracle", "oracle_by_policy") if k in previous})
+        groups = []
     for group, products, oracle, name in groups:
         pipeline = PickPipeline(model, library, grasp=planners[name], oracle=oracle)
         seed = SEEDS["seen" if oracle else group]  # the oracle gets the very bins the detector got
-        summary, orders_run = fulfil(pipeline, products, args.orders, seed, args.out / group,
-                                     on_order=report_progress(group, args.orders), title=f"binpick: {group.replace('_', ' ')} ({name} grasps)")
-        if not oracle:
-            executed.setdefault(args.gripper, []).extend(orders_run)
+        summary, _ = fulfil(pipeline, products, args.orders, seed, args.out / group,
+                            on_order=report_progress(group, args.orders), title=f"binpick: {group.replace('_', ' ')} ({name} grasps)")
         row = {"products": len(products), "grasp": name, "gripper": pipeline.gripper, **summary}
         if oracle:
             result.setdefault("oracle_by_policy", {})[name] = row
@@ -123,10 +127,9 @@ def main() -> None:
             planner = GraspPlanner.load(policy, hand=gripper)
             for group, products in (("seen", seen), ("held_out", held_out)):
                 pipeline = PickPipeline(model, library, grasp=planner, gripper=gripper)
-                summary, orders_run = fulfil(pipeline, products, args.orders, SEEDS[group], args.out / f"{gripper}_{group}",
-                                             on_order=report_progress(f"{gripper} {group}", args.orders),
-                                             title=f"binpick: {group.replace('_', ' ')} ({gripper})")
-                executed.setdefault(gripper, []).extend(orders_run)
+                summary, _ = fulfil(pipeline, products, args.orders, SEEDS[group], args.out / f"{gripper}_{group}",
+                                    on_order=report_progress(f"{gripper} {group}", args.orders),
+                                    title=f"binpick: {group.replace('_', ' ')} ({gripper})")
                 result["by_gripper"].setdefault(gripper, {})[group] = {"products": len(products), "grasp": policy, "gripper": gripper, **summary}
                 print(gripper, group, json.dumps({k: summary[k] for k in ("orders", "pick_success", "right_product", "reasons")}), flush=True)
     elif "by_gripper" in previous:  # the other hands' rows stay until they are run again
@@ -135,6 +138,7 @@ def main() -> None:
         result["by_product"] = per_product_rows(model, library, policy, args.gripper, seen, held_out, args.per_product, args.out)
     elif "by_product" in previous:
         result["by_product"] = previous["by_product"]
+    executed = executed_orders(args.out, args.gripper, result.get("by_gripper") or {})
     if executed:
         result["by_category"] = category_rows(library, executed)
         result["calibration"] = calibration_rows(executed)
@@ -179,27 +183,39 @@ def per_product_rows(model, library, policy: str, gripper: str, seen: list[str],
     return rows
 
 
-def category_rows(library, executed: dict[str, list]) -> dict:
+def executed_orders(out: Path, gripper: str, rows: dict) -> dict[str, list[dict]]:
+    """Every seen and held-out order behind the rows in ``rows`` (hand -> groups), read back from their
+    results.json under ``out``: the main rows' folders (``seen``, ``held_out``) for ``gripper``, the
+    others' ``<hand>_<group>``."""
+    orders: dict[str, list[dict]] = {}
+    for hand, groups in rows.items():
+        for group in groups:
+            path = out / (group if hand == gripper else f"{hand}_{group}") / "results.json"
+            if path.is_file():
+                orders.setdefault(hand, []).extend(json.loads(path.read_text())["orders"])
+    return orders
+
+
+def category_rows(library, executed: dict[str, list[dict]]) -> dict:
     """Placed share per shape (boxes, cylinders, spheres, irregular) for each hand that ran the seen and held-out orders."""
     rows: dict = {}
     for gripper, orders in executed.items():
         for shape in SHAPES:
-            mine = [o for o in orders if shape_of(library[o.product].category) == shape]
+            mine = [o for o in orders if shape_of(library[o["product"]].category) == shape]
             if mine:
-                rows.setdefault(shape, {})[gripper] = {"orders": len(mine), "pick_success": round(sum(o.success for o in mine) / len(mine), 4)}
+                rows.setdefault(shape, {})[gripper] = {"orders": len(mine), "pick_success": round(sum(o["success"] for o in mine) / len(mine), 4)}
     return rows
 
 
-def calibration_rows(executed: dict[str, list]) -> dict:
+def calibration_rows(executed: dict[str, list[dict]]) -> dict:
     """Each tool's quality model on the grasps the picks executed: predicted success against what
     happened (placed), its expected calibration error and reliability bins."""
     from binpick.metrics import calibration_error, reliability
-    from binpick.warehouse.grasping import Reason
 
     rows = {}
     for tool in ("jaws", "suction"):
-        pairs = [(a.quality, a.outcome is Reason.PLACED) for orders in executed.values() for o in orders for a in o.attempts
-                 if a.tool == tool and a.quality is not None and a.outcome is not Reason.NO_GRASP]
+        pairs = [(a["quality"], a["outcome"] == "placed") for orders in executed.values() for o in orders for a in o["attempts"]
+                 if a.get("tool") == tool and a.get("quality") is not None and a["outcome"] != "no feasible grasp"]
         if pairs:
             predicted, placed = np.array([p for p, _ in pairs]), np.array([float(k) for _, k in pairs])
             rows[tool] = {"grasps": len(pairs), "predicted_mean": round(float(predicted.mean()), 4), "placed": round(float(placed.mean()), 4),
