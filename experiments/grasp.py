@@ -92,10 +92,15 @@ def train_and_ship(tool: str, name: str) -> None:
     scored = {"candidate": candidate.probabilities(test.maps, test.features)}
     if shipped.is_file():
         scored["shipped"] = load_model(tool, shipped).probabilities(test.maps, test.features)
-    figures = {key: {"auc": round(roc_auc(test.labels, p), 4), "ece": round(calibration_error(test.labels, p), 4)}
+    def rounded(value):
+        return None if value is None else round(value, 4)
+
+    figures = {key: {"auc": rounded(roc_auc(test.labels, p)), "ece": rounded(calibration_error(test.labels, p))}
                for key, p in scored.items()}
+    if figures["candidate"]["auc"] is None:
+        raise SystemExit(f"the held-out {tool} trials hold one outcome only ({len(test)} trials): no AUC to compare; more scenes")
     print(f"held-out {tool} trials ({len(test)}): {figures}", flush=True)
-    if "shipped" in figures and figures["candidate"]["auc"] < figures["shipped"]["auc"]:
+    if "shipped" in figures and figures["shipped"]["auc"] is not None and figures["candidate"]["auc"] < figures["shipped"]["auc"]:
         raise SystemExit(f"not shipped: the candidate's held-out AUC {figures['candidate']['auc']:.4f} is below the shipped "
                          f"model's {figures['shipped']['auc']:.4f}")
     shipped.parent.mkdir(parents=True, exist_ok=True)
@@ -141,8 +146,9 @@ def tool_trials(data: list[Path]) -> dict:
         if not len(trials):
             continue
         p = kind.load(path).probabilities(trials.maps, trials.features)
+        auc = roc_auc(trials.labels, p)
         rows[tool] = {"trials": len(trials), "success_rate": round(float(trials.labels.mean()), 4),
-                      "roc_auc": round(roc_auc(trials.labels, p), 4), "ece": round(calibration_error(trials.labels, p), 4),
+                      "roc_auc": None if auc is None else round(auc, 4), "ece": round(calibration_error(trials.labels, p), 4),
                       "reliability": reliability(trials.labels, p)}
     return rows
 

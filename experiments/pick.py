@@ -106,6 +106,8 @@ def main() -> None:
     if args.skip_main:
         if previous.get("gripper") != args.gripper or any(k not in previous for k in ("seen", "held_out")):
             sys.exit(f"--skip-main keeps rows made with --gripper {args.gripper}: results/pick.json has none")
+        if previous["seen"].get("orders") != args.orders:
+            sys.exit(f"--skip-main keeps rows of {previous['seen'].get('orders')} orders: give --orders {previous['seen'].get('orders')}")
         result.update({k: previous[k] for k in ("seen", "held_out", "oracle", "oracle_by_policy") if k in previous})
         groups = []
     for group, products, oracle, name in groups:
@@ -113,7 +115,7 @@ def main() -> None:
         seed = SEEDS["seen" if oracle else group]  # the oracle gets the very bins the detector got
         summary, _ = fulfil(pipeline, products, args.orders, seed, args.out / group,
                             on_order=report_progress(group, args.orders), title=f"binpick: {group.replace('_', ' ')} ({name} grasps)")
-        row = {"products": len(products), "grasp": name, "gripper": pipeline.gripper, **summary}
+        row = {"products": len(products), "grasp": name, "gripper": pipeline.gripper, "folder": str(args.out / group), **summary}
         if oracle:
             result.setdefault("oracle_by_policy", {})[name] = row
         if group.startswith("oracle_"):
@@ -130,7 +132,8 @@ def main() -> None:
                 summary, _ = fulfil(pipeline, products, args.orders, SEEDS[group], args.out / f"{gripper}_{group}",
                                     on_order=report_progress(f"{gripper} {group}", args.orders),
                                     title=f"binpick: {group.replace('_', ' ')} ({gripper})")
-                result["by_gripper"].setdefault(gripper, {})[group] = {"products": len(products), "grasp": policy, "gripper": gripper, **summary}
+                result["by_gripper"].setdefault(gripper, {})[group] = {"products": len(products), "grasp": policy, "gripper": gripper,
+                                                                       "folder": str(args.out / f"{gripper}_{group}"), **summary}
                 print(gripper, group, json.dumps({k: summary[k] for k in ("orders", "pick_success", "right_product", "reasons")}), flush=True)
     elif "by_gripper" in previous:  # the other hands' rows stay until they are run again
         result["by_gripper"] = {**previous["by_gripper"], **result["by_gripper"]}
@@ -138,13 +141,14 @@ def main() -> None:
         result["by_product"] = per_product_rows(model, library, policy, args.gripper, seen, held_out, args.per_product, args.out)
     elif "by_product" in previous:
         result["by_product"] = previous["by_product"]
-    executed = executed_orders(args.out, args.gripper, result.get("by_gripper") or {})
+    executed = executed_orders(result.get("by_gripper") or {})
     if executed:
         result["by_category"] = category_rows(library, executed)
         result["calibration"] = calibration_rows(executed)
     for group in ("seen", "held_out"):  # the arm's rows compare with these floating-gripper rows from now on
         if group in result.get("arm", {}) and group in result:
             result["arm"][group]["floating"] = floating_row(result[group])
+    pipeline = PickPipeline(model, library, grasp=planners[policy])  # the settings every row shares
     result.update({"weights": str(args.weights.relative_to(_common.ROOT) if args.weights.is_absolute() else args.weights),
                    "grasp": f"{policy} (binpick.grasping), up to 3 grasps down the ranked detections (detections without a feasible grasp skipped)",
                    "verifier": "learnt" if not isinstance(pipeline.picker.verifier, str) else pipeline.picker.verifier,
@@ -183,15 +187,13 @@ def per_product_rows(model, library, policy: str, gripper: str, seen: list[str],
     return rows
 
 
-def executed_orders(out: Path, gripper: str, rows: dict) -> dict[str, list[dict]]:
-    """Every seen and held-out order behind the rows in ``rows`` (hand -> groups), read back from their
-    results.json under ``out``: the main rows' folders (``seen``, ``held_out``) for ``gripper``, the
-    others' ``<hand>_<group>``."""
+def executed_orders(rows: dict) -> dict[str, list[dict]]:
+    """Every order behind the rows in ``rows`` (hand -> groups), read back from each row's results.json."""
     orders: dict[str, list[dict]] = {}
     for hand, groups in rows.items():
-        for group in groups:
-            path = out / (group if hand == gripper else f"{hand}_{group}") / "results.json"
-            if path.is_file():
+        for row in groups.values():
+            path = Path(row.get("folder") or "") / "results.json"
+            if row.get("folder") and path.is_file():
                 orders.setdefault(hand, []).extend(json.loads(path.read_text())["orders"])
     return orders
 
@@ -209,12 +211,13 @@ def category_rows(library, executed: dict[str, list[dict]]) -> dict:
 
 def calibration_rows(executed: dict[str, list[dict]]) -> dict:
     """Each tool's quality model on the grasps the picks executed: predicted success against what
-    happened (placed), its expected calibration error and reliability bins."""
+    happened (the ordered product placed), its expected calibration error and reliability bins."""
     from binpick.metrics import calibration_error, reliability
 
     rows = {}
     for tool in ("jaws", "suction"):
-        pairs = [(a["quality"], a["outcome"] == "placed") for orders in executed.values() for o in orders for a in o["attempts"]
+        pairs = [(a["quality"], a["outcome"] == "placed" and a.get("lifted_product") == o["product"])
+                 for orders in executed.values() for o in orders for a in o["attempts"]
                  if a.get("tool") == tool and a.get("quality") is not None and a["outcome"] != "no feasible grasp"]
         if pairs:
             predicted, placed = np.array([p for p, _ in pairs]), np.array([float(k) for _, k in pairs])

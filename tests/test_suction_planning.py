@@ -81,7 +81,7 @@ def test_a_bad_gripper_name_is_one_line():
     with pytest.raises(ConfigError, match="gripper"):
         GraspPlanner("analytic", hand="vacuum")
     with pytest.raises(ConfigError, match="fixed grasp policy"):
-        GraspPlanner("fixed", hand="both")
+        GraspPlanner("fixed", hand="suction")
 
 
 def test_a_thin_u_shaped_object_is_grasped_on_itself_not_on_the_background_inside_it():

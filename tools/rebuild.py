@@ -201,7 +201,11 @@ def status(recipe: Recipe, state: State) -> None:
     for step in recipe.steps:
         record = state.step(step.name)
         what = step.train or " ".join(step.run)
-        print(f"  {step.name:<14} {record['status']:<12} {record.get('seconds', 0) / 3600:6.2f} h  {what}"
+        seconds = record.get("seconds", 0)
+        if record["status"] == "running" and record.get("attempts"):  # this attempt's time so far
+            started = time.mktime(time.strptime(record["attempts"][-1]["started_utc"], "%Y-%m-%dT%H:%M:%SZ")) - time.timezone
+            seconds += max(0.0, time.time() - started)
+        print(f"  {step.name:<14} {record['status']:<12} {seconds / 3600:6.2f} h  {what}"
               f"{'  -> ' + record['run'] if record.get('run') else ''}")
 
 
@@ -210,7 +214,8 @@ def main() -> None:
     parser.add_argument("recipe", help="a recipe in configs/rebuild (photo, crop, ...)")
     parser.add_argument("--status", action="store_true", help="show the steps and stop")
     parser.add_argument("--until", help="stop after this step")
-    parser.add_argument("--again", nargs="*", default=[], metavar="STEP", help="run these steps again (a new run folder)")
+    parser.add_argument("--again", nargs="*", default=[], metavar="STEP",
+                        help="run these steps and every later one again (new run folders)")
     args = parser.parse_args()
     os.chdir(ROOT)
     recipe = Recipe.load(args.recipe)
@@ -229,8 +234,14 @@ def main() -> None:
         fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
         raise SystemExit(f"another rebuild of {recipe.name} is running (runs/rebuild/{recipe.name}/lock)") from None
-    for name in args.again:
-        state.data["steps"][name] = {"status": "pending", "seconds": 0.0, "attempts": []}
+    if args.again:  # a step made anew makes every later step anew too (they read its run folder)
+        first = min(names.index(name) for name in args.again)
+        for name in names[first:]:
+            if state.step(name)["status"] != "pending":
+                train = recipe.steps[names.index(name)].train
+                print(f"== {name}: made anew" + (" (a data set resumes its folder: delete it to make it again)"
+                                                 if train and data_out(train) else ""), flush=True)
+            state.data["steps"][name] = {"status": "pending", "seconds": 0.0, "attempts": []}
     state.save()
     for step in recipe.steps:
         if state.step(step.name)["status"] == "done":

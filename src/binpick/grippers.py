@@ -52,6 +52,7 @@ class SuctionCup:
     vacuum_force: float = 30.0  # N: the pull the seal holds (about 60 kPa over the lip, less leakage)
     friction: float = 0.8  # the lip's rubber on the product
     cup_reach: float = 0.04  # m: the cup below the fingertips on a hand that carries both tools
+    press: float = 0.006  # m: a pick drives the lip this far past the surface it aims at (the bellows give)
 
     @property
     def area(self) -> float:

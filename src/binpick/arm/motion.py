@@ -26,7 +26,7 @@ from binpick.arm.kinematics import NOMINAL, ArmKinematics
 from binpick.arm.trajectory import Segment, joint_move, path_move
 from binpick.sim.order_tote import ORDER_TOTE
 from binpick.sim.mjcf import BIN_WALL_HEIGHT, FLOOR_TOP
-from binpick.grippers import tool_point_below
+from binpick.grippers import SuctionCup, tool_point_below
 from binpick.sim.panda import PandaArm
 
 NO_IK = "no IK solution"
@@ -136,7 +136,8 @@ class MotionPlanner:
         """The picker's check (:class:`binpick.picking.Picker` ``reach``) for a grasp with ``tool``'s
         point (the fingertips' midpoint, the cup's lip) at ``tips``: (None, the yaw the arm takes) if it
         can take it, else (why not, ``yaw``)."""
-        reach = self.reach(np.asarray(tips, dtype=float) + [0.0, 0.0, self.below(tool)], yaw, tool)
+        press = SuctionCup().press if tool == "suction" else 0.0  # as execute_arm_pick sends it: the cup pressed on
+        reach = self.reach(np.asarray(tips, dtype=float) + [0.0, 0.0, self.below(tool) - press], yaw, tool)
         return reach.reason, reach.yaw
 
     def _descent(self, centre: np.ndarray, yaw: float, tool: str = "jaws") -> Reach:

@@ -100,7 +100,8 @@ class GraspCandidate:
 
     def to_json(self) -> dict:
         return {"tool": self.tool, "position": [round(float(v), 4) for v in self.position], "yaw": round(float(self.yaw), 4),
-                "width": round(float(self.width), 4), "clearance": round(float(self.clearance), 4),
+                "width": round(float(self.width), 4),
+                "clearance": round(float(self.clearance), 4) if np.isfinite(self.clearance) else None,
                 "quality": None if self.quality is None else round(float(self.quality), 4), "rejected": self.rejected}
 
 

@@ -92,8 +92,8 @@ class GraspPlanner:
             raise ConfigError(f"unknown grasp policy {policy!r}{did_you_mean(policy, names)}; choose from {', '.join(names)}") from None
         if self.policy is GraspPolicyName.LEARNT and quality is None:
             raise ConfigError("the learnt grasp policy needs a grasp-quality model (binpick.grasping.quality.GraspQuality.load)")
-        if self.policy is GraspPolicyName.FIXED and "suction" in self.tools:
-            raise ConfigError("the fixed grasp policy is the jaws along y: give it a hand with jaws only (--gripper jaws)")
+        if self.policy is GraspPolicyName.FIXED and "jaws" not in self.tools:
+            raise ConfigError("the fixed grasp policy is the jaws along y: give it a hand with jaws (--gripper jaws or both)")
         self.quality, self.gripper, self.yaw_count = quality, gripper, yaw_count
         self.suction_quality, self.cup = suction_quality, cup
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from binpick.grasping.candidates import GraspCandidate, Surface, finger_heights, points_on_instance, surface_heights
+from binpick.grasping.candidates import BLOCK_TOLERANCE, GraspCandidate, Surface, finger_heights, points_on_instance, surface_heights
 from binpick.grasping.frame import DepthFrame
 from binpick.grippers import Jaws, SuctionCup, ring_offsets, seal_geometry
 
@@ -120,6 +120,8 @@ def describe_suction(frame: DepthFrame, surface: Surface, centres: np.ndarray, c
             candidate.rejected = f"the cup's ring leaves the instance ({100 * seal.coverage:.0f}% on it)"
         elif not np.isfinite(clearance):
             candidate.rejected = "the hand outside the camera's view"
+        elif clearance < -BLOCK_TOLERANCE:
+            candidate.rejected = f"hand blocked ({-clearance * 100:.1f} cm into a taller neighbour)"
         result.append(candidate)
     return result
 
@@ -129,6 +131,7 @@ def hand_clearance(frame: DepthFrame, centres: np.ndarray, lips: np.ndarray, gri
     """Per suction grasp, the hand's yaw and how far above the highest surface under it the hand's
     lowest part stays: the open fingers (``cup_reach`` above the lip) on a hand with both tools, at
     the yaw that clears most; the palm on a suction-only hand."""
+    lips = lips - cup.press  # the hand goes the press lower than the lip's plan
     if gripper == "both":
         best_yaw, best = np.zeros(len(centres)), np.full(len(centres), -np.inf)
         tips = lips + cup.cup_reach

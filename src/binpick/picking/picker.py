@@ -193,16 +193,11 @@ class Picker:
             raise ConfigError("give exactly one of a shop photo (or several of one product) or a query box")
         timing: dict[str, float] = {}
         started = time.perf_counter()
-        work = working_size(*full, self.working_pixels)
-        scale = np.array([work[0] / full[0], work[1] / full[1]] * 2)  # full-frame pixels (x, y, w, h) -> working ones
+        rgb, depth, info, scale = self.working_frame(rgb, depth, info)
+        work = (info.camera.width, info.camera.height)
         if work != full:
-            rgb, depth = to_working_size(np.asarray(rgb), np.asarray(depth), work)
-            info = info.scaled(*work)
             query_box = None if query_box is None else np.asarray(query_box, dtype=float) * scale
             boxes = None if boxes is None else (np.asarray(boxes[0], dtype=float).reshape(-1, 4) * scale, boxes[1])
-        else:
-            depth = register_depth(np.asarray(depth), np.asarray(rgb).shape[:2])
-        rgb, depth = info.rectify(np.asarray(rgb), np.asarray(depth, dtype=np.float32))
         frame = self.grasp.frame(depth, info.camera)  # once per frame: holes filled, support plane found
         workspace = self.workspace or info.workspace or Workspace.around_view(info.camera)
         timing["depth"] = 1000 * (time.perf_counter() - started)
@@ -244,6 +239,21 @@ class Picker:
                 plan.box = [round(float(v), 2) for v in np.asarray(plan.box, dtype=float) / scale]
             found = np.asarray(found, dtype=float).reshape(-1, 4) / scale
         return Plans(plans, info.base_frame, {k: round(v, 2) for k, v in timing.items()}, found, scores, not_the_product)
+
+    def working_frame(self, rgb, depth, info: CameraInfo) -> tuple[np.ndarray, np.ndarray, CameraInfo, np.ndarray]:
+        """A frame as the planner works on it: at the working resolution (more pixels add time, not
+        grasps), depth registered to the colour's size, both rectified; with the camera at that size and
+        the scale from the caller's pixels (x, y, w, h) to the working ones."""
+        full = (info.camera.width, info.camera.height)
+        work = working_size(*full, self.working_pixels)
+        scale = np.array([work[0] / full[0], work[1] / full[1]] * 2)
+        if work != full:
+            rgb, depth = to_working_size(np.asarray(rgb), np.asarray(depth), work)
+            info = info.scaled(*work)
+        else:
+            depth = register_depth(np.asarray(depth), np.asarray(rgb).shape[:2])
+        rgb, depth = info.rectify(np.asarray(rgb), np.asarray(depth, dtype=np.float32))
+        return rgb, depth, info, scale
 
     def detect(self, rgb: np.ndarray, frame: DepthFrame, photos: list[tuple[np.ndarray, np.ndarray | None]],
                query_box) -> tuple[np.ndarray, np.ndarray]:
@@ -333,9 +343,13 @@ class Picker:
         from binpick.detection.predict import predict
 
         info = as_camera_info(camera)
+        check_frame(previous_rgb, previous_depth, info.camera)
+        check_frame(rgb, depth, info.camera)
+        box = np.asarray(as_query_box(previous_box, info.camera.width, info.camera.height), dtype=float)
+        previous_rgb, previous_depth, _, _ = self.working_frame(previous_rgb, previous_depth, info)
+        rgb, depth, info, scale = self.working_frame(rgb, depth, info)  # as the plans saw them: boxes in the same pixels
+        box = box * scale
         width, height = info.camera.width, info.camera.height
-        box = np.asarray(as_query_box(previous_box, width, height), dtype=float)
-        previous_rgb, rgb = np.asarray(previous_rgb), np.asarray(rgb)
         x, y, w, h = (int(round(v)) for v in box)
         w, h = max(2, min(w, width // 2 - 4)), max(2, min(h, height // 2 - 4))
         crop = previous_rgb[y:y + h, x:x + w]
@@ -346,10 +360,10 @@ class Picker:
         shown[cy:cy + crop.shape[0], cx:cx + crop.shape[1]] = crop
         query = np.array([cx, cy, crop.shape[1], crop.shape[0]], dtype=float)
         with one_blas_thread():
-            before = self.grasp.frame(register_depth(np.asarray(previous_depth), previous_rgb.shape[:2]), info.camera)
+            before = self.grasp.frame(previous_depth, info.camera)
             mask = detection_mask(before.heights, box)
             histogram = colour_histogram(previous_rgb, mask if mask.any() else None)
-            frame = self.grasp.frame(register_depth(np.asarray(depth), rgb.shape[:2]), info.camera)
+            frame = self.grasp.frame(depth, info.camera)
             prediction = predict(self._detector_for(query), shown, query_box=query, score_threshold=self.candidate_threshold,
                                  depth=frame.filled)
             found, scores = prediction.boxes.reshape(-1, 4), prediction.scores.reshape(-1)
@@ -370,7 +384,7 @@ class Picker:
                 value = same * (1.0 - 0.5 * min(reach / FIND_AGAIN_RADIUS, 1.0)) * (0.5 + 0.5 * float(score))
                 if value > best_score:
                     best, best_score = candidate, value
-        return None if best is None else np.round(best, 2)
+        return None if best is None else np.round(best / scale, 2)
 
     def pointed_instance(self, frame: DepthFrame, query_box) -> GraspChoice:
         """The grasp for the instance a query box points at; a box over nothing standing out (only the

@@ -19,7 +19,7 @@ from typing import Protocol
 import mujoco
 import numpy as np
 
-from binpick.grippers import Jaws
+from binpick.grippers import Jaws, SuctionCup
 from binpick.sim.hand import Hand
 from binpick.sim.mjcf import FLOOR_TOP
 
@@ -29,7 +29,7 @@ LIFT_SUCCESS = 0.10  # the object must rise this much ...
 HOLD_SECONDS = 1.0  # ... and stay held this long
 CARRY_TRIAL = (0.0, 0.2, 0.5)  # a grasp trial's carry: dx, dy (m) in seconds, the pick pipeline's 0.4 m/s
 TRIAL_TIMESTEP = 0.004  # trials step at 4 ms (scenes settle at 2 ms): same pick rates, half the cost
-SUCTION_PRESS = 0.006  # m: a suction pick drives the lip this far past the surface it aims at (the bellows give)
+SUCTION_PRESS = SuctionCup().press  # m: a suction pick drives the lip this far past the surface it aims at (the bellows give)
 
 
 

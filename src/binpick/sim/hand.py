@@ -22,7 +22,8 @@ PALM_Z = 0.05  # the palm's centre above the hand's origin (the fingers' centre)
 PALM_HALF_HEIGHT = 0.012
 CUP_HALF_HEIGHT = 0.005  # the cup's body above its lip
 BELLOWS = 0.012  # m the bellows compress
-RETRACTED = 0.025  # the lip above the hand's origin with the cup drawn in (a hand with both tools)
+RETRACTED = 0.034  # the lip above the hand's origin with the cup drawn into the palm (a hand with both tools): above
+# the highest top a jaw grasp lets between the fingers (PALM_REACH under the top: 0.03 above the origin)
 FINGER = ('type="box" size="{t} {w} {l}" pos="0 0 0" rgba="0.6 0.6 0.62 1" mass="0.04" friction="2 0.02 0.001" '
           'condim="6" priority="1" solref="0.004 1" solimp="0.95 0.99 0.001" group="3"')
 
@@ -107,8 +108,8 @@ class Hand:
         """Ready ``tool`` for the next pick: open, vacuum off, the cup pushed out for suction or drawn in."""
         if tool not in self.tools:
             raise ValueError(f"this hand carries {' and '.join(self.tools)}, not {tool}")
+        self.command(data, False)  # let go with the tool in use first
         self.tool = tool
-        self.command(data, False)
         if self.extend is not None:
             stroke = self.model.actuator_ctrlrange[self.extend][1]
             data.ctrl[self.extend] = stroke if tool == "suction" else 0.0
