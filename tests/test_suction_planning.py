@@ -136,3 +136,13 @@ def test_platt_scaling_recovers_a_known_miscalibration():
     raw, fixed = 1 / (1 + np.exp(-logits)), 1 / (1 + np.exp(-(logits / temperature + bias)))
     assert calibration_error(labels, fixed) < 0.03 < calibration_error(labels, raw)
     assert sum(row["count"] for row in reliability(labels, fixed)) == 4000
+
+
+def test_a_grasp_that_failed_makes_its_tool_count_for_less_there():
+    block = (-0.04, 0.04, -0.03, 0.03, 0.05)  # 8 x 6 cm: the jaws fit it and the cup seals on its top
+    frame = frame_of(scene_depth([block]))
+    box = box_of(camera(), *block)
+    planner = GraspPlanner("analytic", hand="both")
+    first = planner.choose(frame, box).chosen
+    again = planner.choose(frame, box, failed=[(first.position, first.tool)]).chosen
+    assert again is not None and (again.tool != first.tool or np.linalg.norm(again.position[:2] - first.position[:2]) >= 0.03)

@@ -32,6 +32,7 @@ from binpick.grippers import SuctionCup, tools_of
 
 NOTHING_THERE = "depth shows nothing standing out in the box"
 JAWS_PRIOR = 0.59  # feasible jaw grasps that held in the simulated trials the quality model learnt from
+FAILED_RADIUS, FAILED_FACTOR = 0.03, 0.35  # m, and the share of its quality a candidate keeps near a failed grasp of its tool
 
 
 class GraspPolicyName(StrEnum):
@@ -126,7 +127,11 @@ class GraspPlanner:
         """A depth image (metres, 0: no reading) made ready for :meth:`choose`."""
         return DepthFrame.from_depth(depth, camera)
 
-    def choose(self, frame: DepthFrame, box) -> GraspChoice:
+    def choose(self, frame: DepthFrame, box, failed=()) -> GraspChoice:
+        """The best feasible candidate for the instance in ``box``. ``failed``: (base-frame position, tool)
+        of grasps that failed on this bin since: a candidate of that tool within FAILED_RADIUS of one counts
+        FAILED_FACTOR of its quality (what failed there once is likely to fail again: try the other tool,
+        or another place)."""
         surface = instance_surface(frame, box)
         if surface is None:
             return GraspChoice(None, [], NOTHING_THERE)
@@ -147,6 +152,10 @@ class GraspPlanner:
             choice.reason = "no candidate fits: " + ", ".join(f"{n} {k}" for k, n in choice.rejections().items())
             return choice
         self.score(frame, surface, feasible)
+        for position, tool in failed:
+            for candidate in feasible:
+                if candidate.tool == tool and np.linalg.norm(candidate.position[:2] - np.asarray(position)[:2]) < FAILED_RADIUS:
+                    candidate.quality *= FAILED_FACTOR
         best = max(feasible, key=lambda c: c.quality)
         return GraspChoice(best, candidates, surface=surface)
 

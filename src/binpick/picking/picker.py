@@ -165,7 +165,7 @@ class Picker:
 
     def plan(self, rgb: np.ndarray, depth: np.ndarray, camera: CameraInfo | PinholeCamera, photo=None,
              query_box=None, *, photo_product_mask=None, boxes: tuple[np.ndarray, np.ndarray] | None = None,
-             max_grasps: int | None = None, size=None, copies_only: bool = False) -> Plans:
+             max_grasps: int | None = None, size=None, copies_only: bool = False, failed=()) -> Plans:
         """Grasps for the product in ``photo`` (or the one inside ``query_box``, x, y, w, h pixels) in
         one frame: ``rgb`` uint8 (H, W, 3), ``depth`` metres (H, W, 0 = no reading), registered to the
         colour camera (at its size, or one of the same aspect). ``boxes`` (boxes, scores) skips
@@ -178,8 +178,12 @@ class Picker:
 
         A ``query_box`` points at one instance: it is planned first, then the copies the detector
         finds of it. ``copies_only`` plans on the other copies alone (the thesis's evaluation of
-        repeated-object detection). A query box with no object under it is one clear line."""
+        repeated-object detection). A query box with no object under it is one clear line. ``failed``:
+        grasps that failed since (base-frame positions and their tools, ``[(position, tool), ...]``): a
+        candidate of that tool where one failed counts for less (a regrasp tries the other tool or another
+        place; :meth:`binpick.grasping.GraspPlanner.choose`)."""
         with one_blas_thread():
+            self._failed = [(np.asarray(position, dtype=float), str(tool)) for position, tool in failed]
             return self._plan(rgb, depth, camera, photo, query_box, photo_product_mask, boxes, max_grasps, size, copies_only)
 
     def _plan(self, rgb, depth, camera, photo, query_box, photo_product_mask, boxes, max_grasps, size, copies_only) -> Plans:
@@ -389,7 +393,7 @@ class Picker:
     def pointed_instance(self, frame: DepthFrame, query_box) -> GraspChoice:
         """The grasp for the instance a query box points at; a box over nothing standing out (only the
         floor beneath it in depth) is one clear line."""
-        choice = self.grasp.choose(frame, query_box)
+        choice = self.grasp.choose(frame, query_box, failed=getattr(self, "_failed", ()))
         if choice.surface is None:
             x, y, w, h = (float(v) for v in query_box)
             raise InputFileError(f"the query box {x:g},{y:g},{w:g},{h:g} lies on no object: depth shows only the surface "
@@ -400,7 +404,7 @@ class Picker:
                        choice: GraspChoice | None = None, workspace: Workspace | None = None) -> GraspPlan:
         """The plan for one detection: its best grasp, unless the instance is larger than the ordered
         product or the grasp lies outside ``workspace`` (then rejected, with the reason, and no pose)."""
-        choice = choice if choice is not None else self.grasp.choose(frame, box)
+        choice = choice if choice is not None else self.grasp.choose(frame, box, failed=getattr(self, "_failed", ()))
         plan = GraspPlan([round(float(v), 2) for v in box], round(score, 4), None if similarity is None else round(similarity, 3),
                          rejected=choice.rejections())
         if size is not None and choice.surface is not None and larger_than(choice.surface, size):

@@ -2,8 +2,9 @@
 conditioning -> ranked detections of pickable instances -> a product check against the photos -> the
 best one's 3D grasp point from depth -> a top-down grasp -> carried to the order tote -> verified.
 Each detection gets a grasp from the grasp planner (:mod:`binpick.grasping`, depth only); detections
-without a feasible one are skipped. After a failed attempt the next detection is tried, up to
-``max_attempts`` grasps. The planning is :class:`binpick.picking.Picker`'s, the same code a real
+without a feasible one are skipped. After a failed attempt the robot looks at the bin again and plans
+anew (a grasp of the same tool where one just failed counts for less), up to ``max_attempts``
+grasps. The planning is :class:`binpick.picking.Picker`'s, the same code a real
 camera's frames go through (`binpick plan`, the ROS nodes); this module renders and executes.
 
 Each order is a new bin: K copies of the ordered product and some other products, settled from a
@@ -251,7 +252,8 @@ class PickPipeline:
 
             def look_again(attempt: int) -> tuple[Scene, Plans]:  # after a failed grasp the bin has changed: a new frame
                 seen = world.look_again(scene, seed * 31 + attempt)
-                return seen, self.plan(seen, product_id)
+                failed = [(a.grasp_point, a.tool) for a in result.attempts if a.tool is not None and a.outcome is not Reason.PLACED]
+                return seen, self.plan(seen, product_id, failed)
 
             self.execute(world, scene, plans, result, on_frame=frame, on_caption=lambda text: caption.__setitem__(0, text),
                          look_again=look_again if self.look_again else None)
@@ -271,16 +273,16 @@ class PickPipeline:
         result.seconds = round(time.perf_counter() - started, 2)
         return result
 
-    def plan(self, scene: Scene, product_id: str) -> Plans:
+    def plan(self, scene: Scene, product_id: str, failed=()) -> Plans:
         """The picker's plans for the scene's frame as a real camera would give it: depth in whole
         millimetres (a 16-bit frame), so the plan is the one `binpick plan` makes from its files."""
         views = self.photos_and_masks(product_id)
         camera, depth = PinholeCamera.from_record(scene.camera), as_camera_depth(scene.depth)
         if self.oracle:
-            return self.picker.plan(scene.rgb, depth, camera, boxes=self.oracle_boxes(scene, product_id))
+            return self.picker.plan(scene.rgb, depth, camera, boxes=self.oracle_boxes(scene, product_id), failed=failed)
         size = product_dimensions(self.library[product_id]) if self.size_check else None
         return self.picker.plan(scene.rgb, depth, camera, photo=[image for image, _ in views],
-                                photo_product_mask=[mask for _, mask in views], size=size)
+                                photo_product_mask=[mask for _, mask in views], size=size, failed=failed)
 
     def execute(self, world: BinWorld, scene: Scene, plans: list[GraspPlan], result: OrderResult, on_frame=None,
                 on_caption=None, look_again=None) -> None:
@@ -344,7 +346,9 @@ class PickPipeline:
         for attempt in range(self.max_attempts):
             camera = PinholeCamera.from_record(scene.camera)
             try:
-                plans = self.picker.plan(scene.rgb, as_camera_depth(scene.depth), camera, query_box=query_box, max_grasps=1)
+                failed = [(a.grasp_point, a.tool) for a in result.attempts if a.tool is not None and a.outcome is not Reason.PLACED]
+                plans = self.picker.plan(scene.rgb, as_camera_depth(scene.depth), camera, query_box=query_box, max_grasps=1,
+                                         failed=failed)
             except InputFileError:  # nothing stands in the box any more
                 break
             result.detections = max(result.detections, plans.detections)
