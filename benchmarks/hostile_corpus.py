@@ -200,6 +200,16 @@ def make_corpus(root: Path) -> dict[str, str]:
     Image.fromarray(np.full((64, 64, 3), 120, np.uint8)).save(data / "images" / "000001.png")
     paths["bins"] = data
 
+    # grasp-quality weights whose header lies about the network
+    from binpick.grasping.quality import FORMAT as GRASP_FORMAT, SHIPPED as GRASP
+
+    grasp_tensors, grasp_meta, _ = tensorfile.load(GRASP, GRASP_FORMAT, "grasp-quality weights")
+    for name, change in (("size_text", {"size": "abc"}), ("size_null", {"size": None}), ("width_negative", {"width": -5}),
+                         ("extent_nan", {"extent": float("nan")}), ("temperature_zero", {"calibration": {"temperature": 0.0}})):
+        path = root / f"grasp_{name}.safetensors"
+        tensorfile.save(path, GRASP_FORMAT, tensors=grasp_tensors, meta={**grasp_meta, **change})
+        paths[f"grasp_{name}"] = path
+
     # products files
     (root / "box.obj").write_text("v 0 0 0\nv 0.05 0 0\nv 0 0.05 0\nv 0 0 0.05\nf 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n")
     (root / "bad_face.obj").write_text("v 0 0 0\nv 0.05 0 0\nv 0 0.05 0\nf 1 2 x\n")
@@ -326,4 +336,9 @@ CASES: list[tuple[str, list[str], list[str]]] = [
     ("data", ["products", "list", "--products", "{products_deep_yaml}"], ["products_deep.yaml", "nests"]),
     ("data", ["products", "list", "--products", "{products_alias_bomb_yaml}"], ["aliases"]),
     ("data", ["products", "list", "--products", "{fifo_products_yaml}"], ["not a regular file"]),
+    ("data", [*PLAN, "--photo", "{rgb_png}", "--grasp-weights", "{grasp_size_text}"], ["grasp_size_text", "size", "'abc'"]),
+    ("data", [*PLAN, "--photo", "{rgb_png}", "--grasp-weights", "{grasp_size_null}"], ["grasp_size_null", "size", "None"]),
+    ("data", [*PLAN, "--photo", "{rgb_png}", "--grasp-weights", "{grasp_width_negative}"], ["grasp_width_negative", "width", "-5"]),
+    ("data", [*PLAN, "--photo", "{rgb_png}", "--grasp-weights", "{grasp_extent_nan}"], ["grasp_extent_nan", "extent", "nan"]),
+    ("data", [*PLAN, "--photo", "{rgb_png}", "--grasp-weights", "{grasp_temperature_zero}"], ["grasp_temperature_zero", "temperature"]),
 ]

@@ -78,6 +78,34 @@ class GraspQualityNet(nn.Module):
         return self.head(torch.cat([self.conv(maps).flatten(1), features], dim=1)).squeeze(1)
 
 
+def map_settings(meta: dict, path, what: str, size: int, extent: float, width: int) -> tuple[int, float, int]:
+    """A quality model's height-map size (cells), extent (m) and network width from its weights' JSON,
+    checked: a file whose header says ``size: "abc"``, ``width: -5`` or ``extent: NaN`` is one line,
+    not a traceback or a model that scores every grasp 1.0."""
+    import math
+
+    from binpick.core.errors import InputFileError
+
+    def number(key: str, default, kind, low, high):
+        value = meta.get(key, default)
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or (kind is int and value != int(value)) \
+                or not math.isfinite(value) or not low <= value <= high:
+            raise InputFileError(f"{what} weights {str(path)!r}: {key} must be {'a whole number' if kind is int else 'a number'} "
+                                 f"from {low} to {high}, got {value!r}")
+        return kind(value)
+
+    calibration = meta.get("calibration")
+    if calibration is not None:
+        if not isinstance(calibration, dict):
+            raise InputFileError(f"{what} weights {str(path)!r}: calibration must be a mapping, got {calibration!r}")
+        number_of = {"temperature": (1.0, 0.05, 20.0), "bias": (0.0, -20.0, 20.0)}
+        for key, (default, low, high) in number_of.items():
+            value = calibration.get(key, default)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or not low <= value <= high:
+                raise InputFileError(f"{what} weights {str(path)!r}: calibration {key} must be a number from {low} to {high}, got {value!r}")
+    return number("size", size, int, 8, 256), number("extent", extent, float, 0.01, 1.0), number("width", width, int, 1, 256)
+
+
 class GraspQuality:
     """``GraspQuality.load(path).score(frame, candidates)``: success probabilities."""
 
@@ -123,8 +151,8 @@ class GraspQuality:
         from binpick.core.errors import InputFileError
 
         tensors, meta, _ = tensorfile.load(path, FORMAT, "grasp-quality weights")
-        spec = MapSpec(int(meta.get("size", 32)), float(meta.get("extent", 0.16)))
-        quality = cls(None, spec, int(meta.get("width", 16)), meta)
+        size, extent, width = map_settings(meta, path, "grasp-quality", 32, 0.16, 16)
+        quality = cls(None, MapSpec(size, extent), width, meta)
         try:
             quality.net.load_state_dict({k: v.float() for k, v in tensors.items()})
         except RuntimeError as error:

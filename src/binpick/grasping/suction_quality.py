@@ -17,6 +17,7 @@ from torch import nn
 
 from binpick.grasping.candidates import GraspCandidate, surface_heights
 from binpick.grasping.frame import DepthFrame
+from binpick.grasping.quality import map_settings
 from binpick.grasping.suction import FEATURES
 
 FORMAT = "binpick-suction-quality-1"
@@ -103,8 +104,8 @@ class SuctionQuality:
         from binpick.core.errors import InputFileError
 
         tensors, meta, _ = tensorfile.load(path, FORMAT, "suction-quality weights")
-        spec = SuctionMapSpec(int(meta.get("size", 24)), float(meta.get("extent", 0.06)))
-        quality = cls(None, spec, int(meta.get("width", 12)), meta)
+        size, extent, width = map_settings(meta, path, "suction-quality", 24, 0.06, 12)
+        quality = cls(None, SuctionMapSpec(size, extent), width, meta)
         try:
             quality.net.load_state_dict({k: v.float() for k, v in tensors.items()})
         except RuntimeError as error:
