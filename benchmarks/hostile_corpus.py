@@ -66,6 +66,8 @@ def make_corpus(root: Path) -> dict[str, str]:
     # a good 64x64 frame: colour, depth (mm), calibration, photo
     Image.fromarray(np.full((64, 64, 3), 120, np.uint8)).save(root / "rgb.png")
     paths["rgb_png"] = root / "rgb.png"
+    Image.fromarray(np.zeros((64, 64, 4), np.uint8)).save(root / "transparent.png")  # a cut-out with nothing cut out
+    paths["transparent_png"] = root / "transparent.png"
     Image.fromarray(np.full((64, 64), 800, np.uint16)).save(root / "depth.png")
     paths["depth_png"] = root / "depth.png"
     camera = {"image_width": 64, "image_height": 64, "camera_matrix": {"rows": 3, "cols": 3, "data": [60, 0, 32, 0, 60, 32, 0, 0, 1]}}
@@ -110,6 +112,7 @@ def make_corpus(root: Path) -> dict[str, str]:
     camera_file("cam_focal_huge.yaml", camera_matrix=k | {"data": [1e9, 0, 32, 0, 1e9, 32, 0, 0, 1]})
     camera_file("cam_centre_off.yaml", camera_matrix=k | {"data": [60, 0, 900, 0, 60, 32, 0, 0, 1]})
     camera_file("cam_last_row.yaml", camera_matrix=k | {"data": [60, 0, 32, 0, 60, 32, 0, 0, 2]})
+    camera_file("cam_skew.yaml", camera_matrix=k | {"data": [60, 5000, 32, 0, 60, 32, 0, 0, 1]})
     camera_file("cam_d_short.yaml", distortion_model="plumb_bob", distortion_coefficients={"data": [0.1, 0.2, 0.0]})
     camera_file("cam_d_long.yaml", distortion_model="equidistant", distortion_coefficients={"data": [0.1] * 7})
     camera_file("cam_d_none.yaml", distortion_model="none", distortion_coefficients={"data": [0.3, 0, 0, 0, 0]})
@@ -246,6 +249,7 @@ CASES: list[tuple[str, list[str], list[str]]] = [
     ("files", plan_with(rgb="{big_png}"), ["big.png", "9000x9000", "more than binpick decodes"]),
     ("files", plan_with(depth="{bomb_png}"), ["depth image", "more pixels than binpick decodes"]),
     ("files", [*PLAN, "--photo", "{bomb_png}"], ["--photo", "more pixels than binpick decodes"]),
+    ("files", [*PLAN, "--photo", "{transparent_png}"], ["transparent all over"]),
     ("files", ["detect", "predict", "{bomb_png}", "--weights", "{weights}", "--query-box", "1,1,5,5"], ["bomb.png", "more pixels"]),
     ("files", ["products", "list", "--products", "{products_bomb_photo_yaml}"], ["bomb.png", "more pixels"]),
     ("files", plan_with(rgb="{truncated_png}"), ["truncated.png"]),
@@ -272,6 +276,7 @@ CASES: list[tuple[str, list[str], list[str]]] = [
     ("frames", plan_with(camera="{cam_focal_huge_yaml}"), ["focal length fx = 1e+09"]),
     ("frames", plan_with(camera="{cam_centre_off_yaml}"), ["principal point"]),
     ("frames", plan_with(camera="{cam_last_row_yaml}"), ["[0, 0, 1]"]),
+    ("frames", plan_with(camera="{cam_skew_yaml}"), ["skew s = 5000"]),
     ("frames", plan_with(camera="{cam_d_short_yaml}"), ["plumb_bob takes 4 or 5 or 8 or 12 or 14 coefficients, got 3"]),
     ("frames", plan_with(camera="{cam_d_long_yaml}"), ["equidistant takes 4 or 5 or 8 coefficients, got 7"]),
     ("frames", plan_with(camera="{cam_d_none_yaml}"), ["non-zero coefficients"]),
@@ -298,6 +303,10 @@ CASES: list[tuple[str, list[str], list[str]]] = [
     ("configs", ["rl", "train", "{rl_python_tag_yaml}"], ["rl_python_tag.yaml"]),
     ("configs", ["rl", "train", "{fifo_yaml}"], ["fifo.yaml", "not a regular file"]),
     ("configs", ["rl", "train", "{rl_yaml}", "--set", "name=[unclosed"], ["--set", "name"]),
+    ("configs", [*PLAN, *BOX, "--out", ""], ["--out is empty"]),
+    ("configs", ["rl", "train", "{rl_yaml}", "--set", "sac.net_arch=[8, .nan]"], ["net_arch[1]", "nan"]),
+    ("configs", ["data", "generate", "--out", "{root}/nan_data", "--set", "copies=[2, .nan]"], ["copies", "nan"]),
+    ("configs", ["rl", "train", "{rl_yaml}", "--runs="], ["--runs is empty"]),
     ("configs", ["rl", "train", "{rl_yaml}", "--set", "seed=!!python/object/apply:os.getcwd []"], ["--set", "seed"]),
     ("configs", ["rl", "train", "{rl_yaml}", "--set", "total_timesteps=" + "9" * 100_000], ["--set", "total_timesteps"]),
     ("configs", ["rl", "train", "{rl_yaml}", "--set", "env_kwargs=" + "[" * 20_000 + "]" * 20_000], ["--set", "env_kwargs"]),

@@ -175,14 +175,31 @@ def _write(folder: Path, config: dict) -> Path:
     return path
 
 
-CONFIGS = sorted((Path(__file__).resolve().parents[1] / "configs").rglob("*.yaml"))
+CONFIGS = sorted(p for p in (Path(__file__).resolve().parents[1] / "configs").rglob("*.yaml") if p.parent.name != "rebuild")
+RECIPES = sorted((Path(__file__).resolve().parents[1] / "configs" / "rebuild").glob("*.yaml"))
 
 
 @pytest.mark.parametrize("path", CONFIGS, ids=[p.stem for p in CONFIGS])
 def test_every_config_in_the_repository_loads_as_its_job(path):
     kind, _ = jobs.load_job_config(path)
     assert path.parent.name == {"rl": "rl", "april": "april", "detect": "detection", "recurrent": "detection",
-                                "pickability": "detection", "grasp_quality": "grasping"}[kind.task]
+                                "pickability": "detection", "grasp_quality": "grasping", "data": "data"}[kind.task]
+
+
+@pytest.mark.parametrize("path", RECIPES, ids=[p.stem for p in RECIPES])
+def test_every_rebuild_recipe_names_configs_that_load(path):
+    import importlib.util
+    import sys
+
+    spec = importlib.util.spec_from_file_location("binpick_rebuild_tool", path.parents[2] / "tools" / "rebuild.py")
+    rebuild = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = rebuild  # its dataclasses look their module up
+    spec.loader.exec_module(rebuild)
+    recipe = rebuild.Recipe.load(path.stem)
+    assert recipe.steps
+    for step in recipe.steps:
+        if step.train:
+            jobs.load_job_config(path.parents[2] / step.train)  # every config it trains loads as its job
 
 
 def test_binpick_train_in_python_takes_overrides_as_keywords(tmp_path):

@@ -9,9 +9,21 @@ import typer
 
 from binpick.cli import april, checks, data, detect, envs, pick, rl, ros, train  # noqa: F401  (each registers its commands)
 from binpick.cli.app import DEFAULT_POLICY, app, print_error, progress
-from binpick.core.errors import BinpickError
+from binpick.core.errors import BinpickError, ConfigError
 
 __all__ = ["DEFAULT_POLICY", "app", "main", "progress"]
+
+
+FOLDER_OPTIONS = ("--out", "--runs")  # where output goes: an empty value would silently mean the current folder
+
+
+def refuse_empty_folders(argv: list[str]) -> None:
+    """``--out ''`` is a mistake (a shell variable that was not set), not the current folder: one line."""
+    for index, argument in enumerate(argv):
+        name, equals, value = argument.partition("=")
+        if name in FOLDER_OPTIONS and ((equals and not value.strip()) or
+                                       (not equals and index + 1 < len(argv) and not argv[index + 1].strip())):
+            raise ConfigError(f"{name} is empty: give a folder (., for the current one)")
 
 
 def main() -> None:
@@ -20,6 +32,7 @@ def main() -> None:
     Click's usage errors (a bad option value, a missing argument) are printed the same way as
     binpick's own, instead of Typer's boxed panel."""
     try:
+        refuse_empty_folders(sys.argv[1:])
         code = app(prog_name="binpick", standalone_mode=False)
     except typer.TyperException as error:  # Click's errors, as Typer vendors Click
         context = getattr(error, "ctx", None)

@@ -28,6 +28,7 @@ from binpick.cli.app import (
     progress,
     save_png,
     seed_option,
+    warn,
 )
 from binpick.core.errors import ConfigError
 from binpick.core.files import check_output_file, ensure_dir
@@ -137,6 +138,9 @@ def plan(
         raise ConfigError("--copies-only goes with --query-box (the instance whose copies to plan on)")
     folder = output_folder(out or Path("runs/plan") / time.strftime("%Y%m%d-%H%M%S"))  # inputs read: now the outputs
     plan_path, overlay = check_output_file(folder / "plan.json", "--out"), check_png_path(folder / "overlay.png", "--out")
+    if metres.shape != colour.shape[:2]:  # registered at another resolution: planned, but said so
+        warn(f"depth is {metres.shape[1]}x{metres.shape[0]}, the colour {colour.shape[1]}x{colour.shape[0]}: depth is resampled to "
+             "the colour's pixels (nearest reading); check it is registered to the colour camera")
     crop = weights if box is not None else None
     reach = None
     if robot == "panda":

@@ -175,6 +175,8 @@ def _convert(hint: Any, value: Any, where: str) -> Any:
     if hint is float:
         if isinstance(value, bool) or not isinstance(value, numbers.Real):
             raise ConfigError(f"{where} must be a number, got {value!r}")
+        if not math.isfinite(value):  # NaN passes every comparison a range check makes: refused here, once for all
+            raise ConfigError(f"{where} must be a finite number, got {value!r}")
         return float(value)
     if hint is str:
         if value is None:  # YAML's empty value, and --set KEY= on the command line

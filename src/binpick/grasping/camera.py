@@ -21,6 +21,9 @@ MAX_TRANSLATION = 100.0  # metres between the camera and the frame it is calibra
 ROTATION_TOLERANCE = 0.02  # R^T R within this of I: a hand-eye matrix printed to 2 decimals passes, a scaled one not
 
 
+MAX_SKEW = 0.05  # |s| / fx: real sensors' pixel axes are at right angles (a calibrated skew is 0 or nearly)
+
+
 def check_intrinsics(K: np.ndarray, width: int, height: int) -> None:
     """A pinhole K a real camera can have: finite, the last row 0 0 1, focal lengths that give a field
     of view within ``FIELD_OF_VIEW`` and a principal point on the image. A calibration outside these
@@ -36,6 +39,9 @@ def check_intrinsics(K: np.ndarray, width: int, height: int) -> None:
                               f"{side} px (expected {low:.3g} to {high:.3g} px)")
     if not (0 <= K[0, 2] <= width and 0 <= K[1, 2] <= height):
         raise ConfigError(f"camera principal point ({K[0, 2]:g}, {K[1, 2]:g}) lies outside the {width}x{height} image")
+    if abs(K[0, 1]) > MAX_SKEW * K[0, 0]:  # pixels whose axes are not at right angles: no camera made today
+        raise ConfigError(f"camera skew s = {K[0, 1]:g} px is more than {MAX_SKEW:g} of fx = {K[0, 0]:g} px (calibrations "
+                          "give 0 or nearly: is the matrix row-major, [[fx, s, cx], [0, fy, cy], [0, 0, 1]]?)")
 
 
 def check_rigid(pose: np.ndarray, name: str) -> None:

@@ -17,7 +17,10 @@ def split_photo(photo: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
     photo = np.asarray(photo)
     if photo.ndim == 3 and photo.shape[2] == 4:
         alpha = photo[..., 3] > 127
-        return np.ascontiguousarray(photo[..., :3]), None if alpha.all() or not alpha.any() else alpha
+        if not alpha.any():
+            raise InputFileError("the shop photo is transparent all over: its alpha marks no product pixel (give the "
+                                 "product's cut-out, or the photo without alpha)")
+        return np.ascontiguousarray(photo[..., :3]), None if alpha.all() else alpha
     return photo, None
 
 
@@ -44,6 +47,8 @@ def as_photos(photo, masks) -> list[tuple[np.ndarray, np.ndarray | None]]:
             mask = np.asarray(mask, bool)
             if mask.shape != rgb.shape[:2]:
                 raise ConfigError(f"a product mask is {mask.shape[1]}x{mask.shape[0]} but its photo is {rgb.shape[1]}x{rgb.shape[0]}")
+            if not mask.any():
+                raise InputFileError("a product mask marks no pixel of its photo: give the product's pixels, or no mask")
         pairs.append((rgb, alpha if mask is None else mask))
     return pairs
 
