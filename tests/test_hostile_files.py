@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import os
 import resource
 import signal
 import socket
@@ -105,6 +106,104 @@ def silent_peer():
     server.close()
     for connection in held:
         connection.close()
+
+
+@pytest.fixture
+def garbage_peer():
+    """A listener on 127.0.0.1 that answers every connection with bytes of no protocol, then holds it open."""
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(16)
+    held: list[socket.socket] = []
+
+    def accept() -> None:
+        while True:
+            try:
+                connection = server.accept()[0]
+                connection.sendall(b"\x00\xffgarbage, not a protocol\r\n" * 8)
+                held.append(connection)
+            except OSError:
+                return
+
+    threading.Thread(target=accept, daemon=True).start()
+    yield server.getsockname()[1]
+    server.close()
+    for connection in held:
+        connection.close()
+
+
+@pytest.fixture
+def stalling_master():
+    """An XML-RPC peer on 127.0.0.1 that answers getPid as a ROS master does and then never answers again."""
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(16)
+    held: list[socket.socket] = []
+    answer = (b"HTTP/1.0 200 OK\r\nContent-Type: text/xml\r\n\r\n<?xml version='1.0'?><methodResponse><params><param><value>"
+              b"<array><data><value><int>1</int></value><value><string>ok</string></value><value><int>42</int></value>"
+              b"</data></array></value></param></params></methodResponse>")
+
+    def handle(connection: socket.socket) -> None:
+        request = b""
+        connection.settimeout(10)
+        try:
+            while b"</methodCall>" not in request:
+                chunk = connection.recv(4096)
+                if not chunk:
+                    return
+                request += chunk
+        except OSError:
+            return
+        if b"getPid" in request:
+            connection.sendall(answer)
+            connection.close()
+        else:
+            held.append(connection)  # a stall: the request is read and never answered
+
+    def accept() -> None:
+        while True:
+            try:
+                connection = server.accept()[0]
+            except OSError:
+                return
+            threading.Thread(target=handle, args=(connection,), daemon=True).start()
+
+    threading.Thread(target=accept, daemon=True).start()
+    yield server.getsockname()[1]
+    server.close()
+    for connection in held:
+        connection.close()
+
+
+@pytest.mark.timeout(120)
+@pytest.mark.parametrize("args", [
+    ["ros", "pick-node", "--master", "http://127.0.0.1:{port}/", "--timeout", "3", "--camera", str(SAMPLE / "camera.yaml")],
+    ["ros", "serve", "FetchReach", "--master", "http://127.0.0.1:{port}/", "--timeout", "3"],
+    ["ros", "bench", "--master", "http://127.0.0.1:{port}/", "--timeout", "3"],
+], ids=["pick-node", "serve", "bench"])
+def test_a_ros_master_that_answers_then_stalls_ends_in_one_line_within_the_timeout(args, stalling_master, tmp_path):
+    started = time.monotonic()
+    ran = subprocess.run([*CLI, *[a.format(port=stalling_master) for a in args]], capture_output=True, text=True, timeout=100,
+                         cwd=tmp_path, env=os.environ | {"ROS_HOME": str(tmp_path), "ROS_LOG_DIR": str(tmp_path / "log")})
+    lines = [line for line in ran.stderr.splitlines() if line.strip() and not line.startswith("[")]
+    assert ran.returncode == 2 and "Traceback" not in ran.stderr and len(lines) == 1, ran.stderr[-800:]
+    assert "stopped answering" in lines[0] and time.monotonic() - started < 30
+
+
+@pytest.mark.timeout(120)
+@pytest.mark.parametrize("args,fragment", [
+    (["train", "{config}", "--runs", "{tmp}/runs", "--address", "127.0.0.1:{port}"], "not as a Ray cluster does"),
+    (["ros", "pick-node", "--master", "http://127.0.0.1:{port}/", "--camera", str(SAMPLE / "camera.yaml")], "ROS master"),
+], ids=["ray", "ros-master"])
+def test_a_peer_that_answers_garbage_ends_in_one_line_within_the_timeout(args, fragment, garbage_peer, tmp_path):
+    config = tmp_path / "rl.yaml"
+    config.write_text("task: rl\nname: tiny\nenv: FetchReach\nalgorithm: sac\ntotal_timesteps: 200\n")
+    started = time.monotonic()
+    ran = subprocess.run([*CLI, *[a.format(port=garbage_peer, tmp=tmp_path, config=config) for a in args]], capture_output=True,
+                         text=True, timeout=100, cwd=tmp_path)
+    lines = [line for line in ran.stderr.splitlines() if line.strip()]
+    assert ran.returncode == 2 and "Traceback" not in ran.stderr and len(lines) == 1, ran.stderr[-800:]
+    assert fragment in lines[0] and time.monotonic() - started < 60
 
 
 @pytest.mark.timeout(120)

@@ -76,6 +76,9 @@ SKIPPED = {
     "--set split_rule=random --address A_HOST:6379": "needs a cluster",
     "binpick train configs/detection/rod_finetune_photo_learnt.yaml --address A_HOST:6379 --workers 8": "needs a cluster "
         "(tests/test_ray_train.py trains a small detector on local Ray Train workers)",
+    "nohup python tools/rebuild.py photo > runs/rebuild/photo.log 2>&1": "hours of CPU (tests/test_train.py checks every "
+        "recipe's configs; the --status line runs here)",
+    "python tools/rebuild.py photo --again finetune": "makes a fine-tune anew, after the hours of the line above",
     "python tools/ship_weights.py runs/rod_finetune_photo_learnt/<time> rod_photo_learnt_tiny_320 0.1": "needs the "
         "cluster training above",
     "python experiments/pick.py --robot panda --orders 50": "a benchmark (100 orders with the arm); tests/test_arm.py runs one",
@@ -169,8 +172,9 @@ def resolve_times(command: str, folder: Path) -> str:
 
 
 def prepare(folder: Path, blocks) -> None:
-    """What the README assumes a reader has: the repository's configs, and the products YAML with its files."""
+    """What the README assumes a reader has: the repository's configs and tools, and the products YAML with its files."""
     shutil.copytree(ROOT / "configs", folder / "configs")
+    shutil.copytree(ROOT / "tools", folder / "tools", ignore=shutil.ignore_patterns("__pycache__"))
     settings = {"name": "tiny_rl", "env": "FetchReach", "min_action_scale": 0.4, "gp": {"enabled": True}}
     for key, value in TINY_RL.items():
         section, _, leaf = key.rpartition(".")

@@ -52,12 +52,15 @@ def probe_ray_address(address: str, timeout: float = 5.0) -> None:
         try:
             connection.settimeout(timeout)
             connection.sendall(HTTP2_HELLO)
-            connection.recv(64)  # any answer (or a close) is a live peer; silence until the timeout is not
+            answer = connection.recv(64)  # a gRPC server answers with an HTTP/2 SETTINGS frame (type 4) at once
         except TimeoutError:
             raise ConfigError(f"the peer at {address} accepted the connection but did not answer within {timeout:.0f} s: "
                               "not a Ray cluster (start one with `ray start --head`)") from None
         except OSError:
             return  # reset by a peer that spoke first (e.g. TLS): Ray itself will say what it is
+    if answer and not (len(answer) >= 9 and answer[3] == 0x04):  # (a close without a word: Ray will say what it is)
+        raise ConfigError(f"the peer at {address} answered, but not as a Ray cluster does (its first bytes "
+                          f"{answer[:12]!r} are no HTTP/2 frame): start one with `ray start --head`, or give the head's HOST:PORT")
 
 
 def start_ray(address: str | None, workers: int) -> bool:
@@ -82,5 +85,11 @@ def start_ray(address: str | None, workers: int) -> bool:
     env_vars = {"MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
     if address is None:  # gloo (data-parallel training) on the loopback interface too, whatever the host name resolves to
         env_vars["GLOO_SOCKET_IFNAME"] = "lo"
-    ray.init(include_dashboard=False, log_to_driver=False, logging_level="ERROR", runtime_env={"env_vars": env_vars}, **options)
+    try:
+        ray.init(include_dashboard=False, log_to_driver=False, logging_level="ERROR", runtime_env={"env_vars": env_vars}, **options)
+    except ConnectionError as error:  # --address auto with no cluster running here
+        from binpick.core.errors import ConfigError
+
+        raise ConfigError(f"no Ray cluster to join at --address {address}: start one with `ray start --head` "
+                          f"(Ray: {str(error).splitlines()[0][:120]})") from None
     return True

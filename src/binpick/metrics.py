@@ -41,18 +41,26 @@ def reliability(labels: np.ndarray, probabilities: np.ndarray, bins: int = 10) -
 
 def fit_platt(logits: np.ndarray, labels: np.ndarray, iterations: int = 200) -> tuple[float, float]:
     """(temperature, bias) such that sigmoid(logit / temperature + bias) best predicts ``labels`` (log
-    loss; Platt scaling): a model trained on reweighted classes, or overconfident, made calibrated."""
+    loss; Platt scaling): a model trained on reweighted classes, or overconfident, made calibrated.
+
+    Platt's smoothed targets ((N+ + 1) / (N+ + 2) for a success, 1 / (N- + 2) for a failure) keep the
+    optimum finite when the scores separate the classes (a few trials), and the result is held to the
+    range a weights file may carry (temperature 0.05..20, bias -20..20)."""
     logits, labels = np.asarray(logits, dtype=float), np.asarray(labels, dtype=float)
+    positives, negatives = float(np.sum(labels > 0.5)), float(np.sum(labels <= 0.5))
+    targets = np.where(labels > 0.5, (positives + 1) / (positives + 2), 1 / (negatives + 2))
     scale, bias = 1.0, 0.0
     for _ in range(iterations):  # Newton's method on the two parameters (a convex problem)
         z = np.clip(logits * scale + bias, -30, 30)
         p = 1.0 / (1.0 + np.exp(-z))
-        gradient = np.array([np.sum((p - labels) * logits), np.sum(p - labels)])
+        gradient = np.array([np.sum((p - targets) * logits), np.sum(p - targets)])
         w = p * (1 - p) + 1e-9
         hessian = np.array([[np.sum(w * logits * logits), np.sum(w * logits)], [np.sum(w * logits), np.sum(w)]]) + 1e-6 * np.eye(2)
         step = np.linalg.solve(hessian, gradient)
+        step *= min(1.0, 5.0 / max(np.abs(step).max(), 1e-12))  # damped: no leap out of the basin
         scale, bias = scale - step[0], bias - step[1]
         if np.abs(step).max() < 1e-8:
             break
     scale = float(np.clip(scale, 0.05, 20.0))
+    bias = float(np.clip(bias, -20.0, 20.0))
     return 1.0 / scale, float(bias)

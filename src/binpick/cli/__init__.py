@@ -3,6 +3,7 @@ options, makes one library call and prints the result)."""
 
 from __future__ import annotations
 
+import os
 import sys
 
 import typer
@@ -48,6 +49,10 @@ def main() -> None:
         sys.exit(130)
     except BinpickError as error:
         print_error(str(error))
+        if type(error).__name__ == "StalledPeer":  # threads blocked on the peer would keep the interpreter from exiting
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(2)
         sys.exit(2)
     sys.exit(code if isinstance(code, int) else 0)
 

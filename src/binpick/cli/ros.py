@@ -97,7 +97,7 @@ def ros_serve(
     _ros_environment(master, _check_timeout(timeout))
     from binpick.integrations.ros1.server import serve
 
-    serve(env_id, namespace)
+    serve(env_id, namespace, master_timeout=timeout)
 
 
 @ros_app.command("bench")
@@ -186,7 +186,7 @@ def ros_pick_node(
     _ros_environment(master, _check_timeout(timeout))
     from binpick.integrations.ros1.pick_node import serve
 
-    serve(picker, pose, frame, namespace, topics, library)
+    serve(picker, pose, frame, namespace, topics, library, master_timeout=timeout)
 
 
 @ros2_app.command("pick-node")

@@ -22,6 +22,43 @@ class RosUnavailable(BinpickError):
     """ROS 1's Python packages cannot be imported."""
 
 
+class StalledPeer(BinpickError):
+    """A peer answered and then stopped answering: threads blocked on it keep the process from exiting
+    normally, so the command line leaves at once after saying so."""
+
+
+def init_node_within(name: str, timeout: float, signals: bool = True) -> None:
+    """``rospy.init_node`` that gives up after ``timeout`` seconds: rospy retries a master that answered
+    once and then stalls for ever (its registration calls have no timeout). With ``signals``, Ctrl-C and
+    SIGTERM shut the node down as rospy's own handlers would (those can only be installed from the main
+    thread, and the node starts in another so that it can be waited for)."""
+    import threading
+
+    import rospy
+
+    done, failures = threading.Event(), []
+
+    def start() -> None:
+        try:
+            rospy.init_node(name, anonymous=True, disable_signals=True)
+        except BaseException as error:  # noqa: BLE001 - handed to the caller's thread
+            failures.append(error)
+        finally:
+            done.set()
+
+    threading.Thread(target=start, name="binpick-init-node", daemon=True).start()
+    if not done.wait(timeout):
+        raise StalledPeer(f"the ROS master at {master_uri()} answered, then stopped answering: the node did not register "
+                          f"within {timeout:g} s (restart the master, or give --master a working one)")
+    if failures:
+        raise failures[0]
+    if signals:
+        import signal
+
+        for number in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(number, lambda signum, frame: rospy.signal_shutdown(f"signal {signum}"))
+
+
 def ros_missing() -> str | None:
     """Why the bridge cannot run here, or None when it can."""
     try:
@@ -74,9 +111,11 @@ def wait_for_master(uri: str, timeout: float) -> None:
 
     rospy itself retries an absent master forever (``init_node`` blocks), so every binpick node
     asks first."""
+    import http.client
     import socket
     import time
     import xmlrpc.client
+    from xml.parsers.expat import ExpatError
 
     check_master_uri(uri)
     deadline = time.monotonic() + timeout
@@ -89,12 +128,17 @@ def wait_for_master(uri: str, timeout: float) -> None:
         previous = socket.getdefaulttimeout()
         socket.setdefaulttimeout(max(0.1, min(remaining, 2.0)))
         try:
-            code, _, _ = xmlrpc.client.ServerProxy(uri).getPid("/binpick")
+            answer = xmlrpc.client.ServerProxy(uri).getPid("/binpick")
+            code = answer[0] if isinstance(answer, (list, tuple)) and len(answer) == 3 else None
             if code == 1:
                 return
-            reason = f"getPid answered code {code}"
+            raise BinpickError(f"the peer at {uri} answered getPid with {str(answer)[:60]!r}, not as a ROS master does: "
+                               "give --master the URI of a running ROS master")
         except (OSError, xmlrpc.client.Error) as error:
             reason = getattr(error, "strerror", None) or type(error).__name__
+        except (http.client.HTTPException, ExpatError, ValueError, TypeError) as error:  # it spoke, but no XML-RPC
+            raise BinpickError(f"the peer at {uri} answered, but not as a ROS master does ({type(error).__name__}: "
+                               f"{str(error)[:60]!r}): give --master the URI of a running ROS master") from None
         finally:
             socket.setdefaulttimeout(previous)
         time.sleep(min(0.2, max(0.0, deadline - time.monotonic())))

@@ -20,7 +20,7 @@ import numpy as np
 
 from binpick.envs.spaces import build_space
 from binpick.core.errors import BinpickError
-from binpick.integrations.ros1 import master_uri, require_ros, wait_for_master
+from binpick.integrations.ros1 import init_node_within, master_uri, require_ros, wait_for_master
 from binpick.integrations.ros1.messages import env_action_types
 
 
@@ -31,7 +31,7 @@ def init_node_once(name: str = "binpick_client", timeout: float = 10.0) -> None:
 
     if not rospy.core.is_initialized():
         wait_for_master(master_uri(), timeout)
-        rospy.init_node(name, anonymous=True, disable_signals=True)
+        init_node_within(name, timeout, signals=False)
 
 
 class RosEnv(gym.Env):

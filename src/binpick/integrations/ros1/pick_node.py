@@ -14,7 +14,7 @@ import numpy as np
 
 from binpick.picking.camera_info import CameraInfo
 from binpick.picking.node import Guard, PlanRequests, Topics, colour_of, depth_of, describe, image_array, image_fields, photo_of
-from binpick.integrations.ros1 import master_uri, require_ros, wait_for_master
+from binpick.integrations.ros1 import init_node_within, master_uri, require_ros, wait_for_master
 
 
 def stamp_seconds(header) -> float:
@@ -132,7 +132,7 @@ def serve(picker, camera_to_base: np.ndarray, base_frame: str, namespace: str, t
     import rospy
 
     wait_for_master(master_uri(), master_timeout)
-    rospy.init_node(node_name, anonymous=True, disable_signals=False)
+    init_node_within(node_name, master_timeout)
     picker.warm_up()
     from binpick.sim.catalogue import Catalogue
 

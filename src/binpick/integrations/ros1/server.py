@@ -15,7 +15,7 @@ import gymnasium as gym
 import numpy as np
 
 from binpick.envs.spaces import describe_space
-from binpick.integrations.ros1 import master_uri, require_ros, wait_for_master
+from binpick.integrations.ros1 import init_node_within, master_uri, require_ros, wait_for_master
 from binpick.integrations.ros1.messages import env_action_types
 
 
@@ -96,7 +96,7 @@ def serve(env_id: str, namespace: str, node_name: str = "binpick_env_server", ma
 
     wait_for_master(master_uri(), master_timeout)
     env = make(env_id, **env_kwargs)
-    rospy.init_node(node_name, anonymous=True, disable_signals=False)
+    init_node_within(node_name, master_timeout)
     server = EnvActionServer(env, namespace)
     rospy.loginfo("binpick: serving %s at %s", env_id, namespace)
     try:
