@@ -11,7 +11,7 @@ demo: $(STAMP)
 	$(VENV)/bin/binpick demo
 
 test: $(STAMP)
-	$(VENV)/bin/python -m pytest -q -n 2 --dist worksteal  # one test process per core
+	$(VENV)/bin/python -m pytest -q -n 2 --dist worksteal --durations=15  # one test process per core; the 15 slowest named
 
 bench: $(STAMP)
 	$(VENV)/bin/python benchmarks/env_speed.py

@@ -154,7 +154,7 @@ def ros_hostile(version: int) -> dict:
             "good_goal_after": "placed" if summary["placed"] == summary["orders"] else "not placed",
             "node_alive": hostile["node_alive_at_end"], "tracebacks_in_node_log": hostile["tracebacks_in_node_log"],
             "camera_warnings_in_node_log": hostile["camera_warnings_in_node_log"],
-            "camera_messages_dropped": hostile["camera_messages_dropped"], "interfaces": summary["interfaces"],
+            "camera_messages_dropped": hostile["camera_messages_dropped"], "camera_internal_errors": hostile.get("camera_internal_errors", 0), "interfaces": summary["interfaces"],
             "node_log_tail": ran.stderr.strip().splitlines()[-3:]}
 
 
@@ -200,7 +200,8 @@ def main() -> None:
     for name, tally in ros.items():  # every hostile message is a case: a bad goal must be answered with its reason; a
         # bad camera message dropped (the node counts what it drops and prints it when it stops; no traceback, the node
         # alive and the good goal after them placed)
-        healthy = (tally.get("node_alive") and tally.get("good_goal_after") == "placed" and tally.get("tracebacks_in_node_log") == 0)
+        healthy = (tally.get("node_alive") and tally.get("good_goal_after") == "placed" and tally.get("tracebacks_in_node_log") == 0
+                   and tally.get("camera_internal_errors", 0) == 0)  # an internal error is a failure, never a refusal
         answered = tally.get("goals_answered_with_reason", 0) if healthy else 0
         for index in range(tally.get("goals", 0)):
             count("ros_messages", "one_line" if index < answered else "silent_acceptance", f"{name} goal {index}")

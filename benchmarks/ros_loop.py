@@ -59,6 +59,8 @@ class Ros1:
 
         self.dropped: dict[str, int] = {}
         rospy.Subscriber("/binpick/plan_pick/dropped", std_msgs.msg.String, lambda m: self.dropped.update(json.loads(m.data)))
+        self.errors: dict[str, int] = {}
+        rospy.Subscriber("/binpick/plan_pick/errors", std_msgs.msg.String, lambda m: self.errors.update(json.loads(m.data)))
         self.client = actionlib.ActionClient("/binpick/plan_pick", self.types["PlanPickAction"])
         deadline = time.monotonic() + timeout
         while not self.client.wait_for_server(rospy.Duration(1.0)):
@@ -190,6 +192,9 @@ class Ros2:
         self.dropped: dict[str, int] = {}
         self.client.create_subscription(std_msgs.msg.String, "/binpick/plan_pick/dropped",
                                         lambda m: self.dropped.update(json.loads(m.data)), 10)
+        self.errors: dict[str, int] = {}
+        self.client.create_subscription(std_msgs.msg.String, "/binpick/plan_pick/errors",
+                                        lambda m: self.errors.update(json.loads(m.data)), 10)
         self.executor = rclpy.executors.SingleThreadedExecutor()
         self.executor.add_node(self.client)
         self.spinner = threading.Thread(target=self.executor.spin, daemon=True)
@@ -380,14 +385,19 @@ def run_hostile(ros, version: int, rgb, K, stamp: float, timeout: float) -> dict
         # loaded machine (both cores training) 50 ms apart lost 2 of 16 before the node's callback saw them
         time.sleep(0.2)
     deadline = time.monotonic() + 15.0  # the node reports what it dropped twice a second, later when starved
-    while sum(n for topic, n in ros.dropped.items() if topic.startswith("/camera/")) < len(camera) and time.monotonic() < deadline:
+    def on_camera(counts: dict[str, int]) -> int:
+        return sum(n for topic, n in counts.items() if topic.startswith("/camera/"))
+
+    while on_camera(ros.dropped) + on_camera(ros.errors) < len(camera) and time.monotonic() < deadline:
         time.sleep(0.1)
-    camera_dropped = sum(n for topic, n in ros.dropped.items() if topic.startswith("/camera/"))
+    camera_dropped, camera_errors = on_camera(ros.dropped), on_camera(ros.errors)
     goals = []
     for name, fields in hostile_goals(version, width, height):
         answer = ros.raw_goal(dict(fields), min(timeout, 30.0))
         goals.append({"case": name, "status": answer["status"], "text": str(answer.get("text", ""))[:200]})
-    return {"camera_messages": len(camera), "camera_messages_dropped": camera_dropped, "goals": len(goals),
+    # refused: binpick named what was wrong; internal errors: the node's own code raised (a bug, never a refusal)
+    return {"camera_messages": len(camera), "camera_messages_dropped": camera_dropped, "camera_internal_errors": camera_errors,
+            "goals": len(goals),
             # answered with binpick's own reason, not an exception's name (a crash caught at the last moment)
             "answered_with_reason": sum(g["status"] == "aborted" and bool(g["text"].strip())
                                         and not re.match(r"[A-Z]\w*(Error|Exception):", g["text"]) for g in goals),

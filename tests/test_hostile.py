@@ -222,15 +222,29 @@ def test_a_frame_stamped_in_the_future_does_not_pin_the_planner():
         frames.add_depth(float("nan"), np.ones((5, 7)))
 
 
-def test_the_guard_drops_bad_camera_messages_with_throttled_warnings():
+def test_the_guard_drops_refused_camera_messages_with_throttled_warnings_and_counts_its_own_errors_apart():
     warnings: list[str] = []
     guard = Guard(warnings.append, every=60.0)
     seen: list[int] = []
-    callback = guard.frames("/camera/color/image_raw", lambda message: seen.append(1 // message))
-    for message in (0, 0, 1, 0):
-        callback(message)  # 1 // 0 raises: dropped, never raised
-    assert seen == [1] and guard.dropped == {"/camera/color/image_raw": 3} and len(warnings) == 1
-    assert "ZeroDivisionError" in warnings[0]
+
+    def callback(message: int) -> None:
+        if message == 0:
+            raise InputFileError("image of 0x0 pixels: each side must be 1 to 8192")  # refused: binpick's reason
+        if message < 0:
+            seen.append(1 // (message + 1))  # a bug in the node: ZeroDivisionError
+        seen.append(message)
+
+    guarded = guard.frames("/camera/color/image_raw", callback)
+    for message in (0, 0, 1, 0, -1):
+        guarded(message)  # never raised
+    assert seen == [1] and guard.dropped == {"/camera/color/image_raw": 3} and guard.errors == {"/camera/color/image_raw": 1}
+    refused = [w for w in warnings if "dropped a message" in w]
+    assert len(refused) == 1 and "0x0 pixels" in refused[0]  # throttled: one line for three refusals
+    internal = [w for w in warnings if "internal error" in w]
+    assert len(internal) == 1 and "Traceback" in internal[0] and "ZeroDivisionError" in internal[0]  # in the node's log
+    assert [json.loads(text) for text in guard.report()] == [{"/camera/color/image_raw": 3}, {"/camera/color/image_raw": 1}]
+    assert guard.report() is None  # nothing new since
+    assert "dropped 3 messages" in guard.summary() and "1 internal errors" in guard.summary()
 
 
 @settings(max_examples=200, deadline=None)

@@ -257,6 +257,8 @@ def run_block(language: str, text: str, folder: Path, environment: dict) -> list
                 continue
             if words[0] == "binpick":
                 words = [sys.executable, "-c", "from binpick.cli import main; main()", *words[1:]]
+            elif words[0] == "python":  # the reader's python is the one binpick is installed in
+                words = [sys.executable, *words[1:]]
             if command.endswith("&"):
                 background.append(subprocess.Popen(words, cwd=folder, env=environment, stdout=subprocess.DEVNULL,
                                                    stderr=subprocess.DEVNULL, start_new_session=True))

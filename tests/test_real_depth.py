@@ -279,3 +279,44 @@ def test_a_pointed_instance_that_moved_is_found_again_near_its_old_box():
         assert picker.find_again(scene.rgb, as_camera_depth(scene.depth), can.bbox, gone.rgb, as_camera_depth(gone.depth), camera) is None
     finally:
         world.close()
+
+
+def _squares_frame(squares, size: int = 200):
+    """A grey floor 1 m under a camera looking straight down, with coloured squares 4 cm tall."""
+    from binpick.grasping import DepthFrame, PinholeCamera
+
+    camera = PinholeCamera(np.array([[300.0, 0, size / 2], [0, 300.0, size / 2], [0, 0, 1]]), size, size,
+                           np.array([[1.0, 0, 0, 0], [0, -1, 0, 0], [0, 0, -1, 1.0], [0, 0, 0, 1]]))
+    rgb = np.full((size, size, 3), 128, np.uint8)
+    depth = np.ones((size, size), np.float32)
+    for (x, y, w, h), colour in squares:
+        rgb[y:y + h, x:x + w] = colour
+        depth[y:y + h, x:x + w] = 0.96
+    return rgb, DepthFrame.from_depth(depth, camera)
+
+
+def test_a_pointed_instance_pushed_far_is_found_by_its_colours_and_two_look_alikes_are_never_guessed():
+    from binpick.picking.colour import colour_histogram
+    from binpick.picking.picker import found_by_colour, instance_pixels, middle_of
+
+    green, red = (20, 170, 30), (200, 30, 30)
+    box = np.array([40.0, 40.0, 30.0, 30.0])
+    before_rgb, before = _squares_frame([((40, 40, 30, 30), green), ((130, 40, 30, 30), red)])
+    pixels = instance_pixels(before, box)
+    assert 0.6 * 900 < pixels.sum() <= 900 + 4 * 31  # the square's own pixels, not the floor round it
+    histogram = colour_histogram(before_rgb, pixels)
+    template = middle_of(before_rgb, box)
+    # pushed 2.4 box diagonals away, beside a red product: found where it is now
+    rgb, frame = _squares_frame([((130, 120, 30, 30), green), ((130, 40, 30, 30), red)])
+    found = found_by_colour(histogram, rgb, frame, box, int(pixels.sum()), template)
+    assert found is not None and abs(found[0] - 130) <= 3 and abs(found[1] - 120) <= 3, found
+    # a second green square of its size and look: colour, size and picture cannot tell them apart
+    rgb, frame = _squares_frame([((130, 120, 30, 30), green), ((40, 150, 30, 30), green), ((130, 40, 30, 30), red)])
+    assert found_by_colour(histogram, rgb, frame, box, int(pixels.sum()), template) is None
+    # one of them clearly larger: the one of its size is it
+    rgb, frame = _squares_frame([((130, 120, 30, 30), green), ((20, 130, 42, 42), green), ((130, 40, 30, 30), red)])
+    found = found_by_colour(histogram, rgb, frame, box, int(pixels.sum()), template)
+    assert found is not None and abs(found[0] - 130) <= 3, found
+    # gone: nothing green standing anywhere
+    rgb, frame = _squares_frame([((130, 40, 30, 30), red)])
+    assert found_by_colour(histogram, rgb, frame, box, int(pixels.sum()), template) is None

@@ -45,6 +45,7 @@ def test_a_bin_is_picked_through_the_ros2_node_inside_a_loopback_only_namespace(
     hostile = summary["hostile"]  # bad camera messages and goals sent to the running node before the first good goal
     assert hostile["goals"] >= 20 and hostile["answered_with_reason"] == hostile["goals"], hostile["goal_answers"]
     assert hostile["camera_messages"] >= 15 and hostile["camera_messages_dropped"] == hostile["camera_messages"]  # each one refused
+    assert hostile["camera_internal_errors"] == 0  # none of them failed inside the node
     assert hostile["node_alive_at_end"] and hostile["tracebacks_in_node_log"] == 0
     assert summary["overlays"] >= 1 and summary["overlay_size"] == [416, 416]  # the node's picture of its plan
 

@@ -9,6 +9,7 @@ import json
 import math
 import numbers
 import threading
+import traceback
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -185,18 +186,28 @@ def parse_goal_json(text: str) -> dict:
 
 
 class Guard:
-    """Runs a node's callbacks so that none can take the node down: a bad camera message is dropped
-    with a warning (at most one per ``every`` seconds per topic, and a count), a bad goal is answered
-    by the caller's ``on_error``."""
+    """Runs a node's callbacks so that none can take the node down: a camera message binpick refuses
+    (a bad encoding, size or stamp: a :class:`BinpickError`) is dropped with a one-line warning (at
+    most one per ``every`` seconds per topic, and a count); any other exception is the node's own bug,
+    counted apart as an internal error with its traceback in the node's log, so that a crash is never
+    mistaken for a clean refusal. A bad goal is answered by the caller's ``on_error``."""
 
     def __init__(self, warn: Callable[[str], None], every: float = 5.0) -> None:
         self.warn, self.every = warn, every
-        self.dropped: dict[str, int] = {}
+        self.dropped: dict[str, int] = {}  # refused input, per topic
+        self.errors: dict[str, int] = {}  # internal errors, per topic
         self._last: dict[str, float] = {}
         self._lock = threading.Lock()
-        self._published = 0  # how many drops the last report covered
+        self._published = (0, 0)  # (refused, errors) the last report covered
 
     def drop(self, topic: str, error: BaseException) -> None:
+        if not isinstance(error, BinpickError):
+            with self._lock:
+                self.errors[topic] = self.errors.get(topic, 0) + 1
+                count = self.errors[topic]
+            trace = "".join(traceback.format_exception(type(error), error, error.__traceback__)).rstrip()
+            self.warn(f"binpick: internal error on {topic} ({count} so far), the message dropped:\n{trace}")
+            return
         with self._lock:
             self.dropped[topic] = self.dropped.get(topic, 0) + 1
             now = time.monotonic()
@@ -206,22 +217,23 @@ class Guard:
             count = self.dropped[topic]
         self.warn(f"binpick: dropped a message on {topic} ({count} so far): {describe(error)}")
 
-    def report(self) -> str | None:
-        """JSON of the drop counts per topic when they changed since the last report (for the
-        node's ``dropped`` topic), else None."""
+    def report(self) -> tuple[str, str] | None:
+        """JSON of the refused and of the internal-error counts per topic (for the node's ``dropped``
+        and ``errors`` topics) when either changed since the last report, else None."""
         with self._lock:
-            total = sum(self.dropped.values())
-            if total == self._published:
+            totals = (sum(self.dropped.values()), sum(self.errors.values()))
+            if totals == self._published:
                 return None
-            self._published = total
-            return json.dumps(dict(sorted(self.dropped.items())))
+            self._published = totals
+            return json.dumps(dict(sorted(self.dropped.items()))), json.dumps(dict(sorted(self.errors.items())))
 
     def summary(self) -> str:
-        """What was dropped, per topic (a node prints it when it stops)."""
+        """What was refused and what failed inside, per topic (a node prints it when it stops)."""
         with self._lock:
-            counts = dict(self.dropped)
-        return "; ".join(f"binpick: dropped {count} messages on {topic}" for topic, count in sorted(counts.items())) or \
-            "binpick: dropped no messages"
+            dropped, errors = dict(self.dropped), dict(self.errors)
+        lines = [f"binpick: dropped {count} messages on {topic}" for topic, count in sorted(dropped.items())]
+        lines += [f"binpick: {count} internal errors on {topic} (their tracebacks above)" for topic, count in sorted(errors.items())]
+        return "; ".join(lines) or "binpick: dropped no messages"
 
     def frames(self, topic: str, callback: Callable) -> Callable:
         """``callback`` for camera messages on ``topic``, dropping the ones it cannot take."""

@@ -61,16 +61,19 @@ class PickNode:
         import std_msgs.msg
 
         self.dropped = rospy.Publisher(f"{self.namespace}/dropped", std_msgs.msg.String, queue_size=2, latch=True)
+        self.errors = rospy.Publisher(f"{self.namespace}/errors", std_msgs.msg.String, queue_size=2, latch=True)
         self.string = std_msgs.msg.String
-        self.timer = rospy.Timer(rospy.Duration(0.5), self._report_drops)  # camera messages it could not use, JSON {topic: count}
+        # camera messages it refused (dropped) and those its own code failed on (errors), JSON {topic: count}
+        self.timer = rospy.Timer(rospy.Duration(0.5), self._report_drops)
         self.server = actionlib.ActionServer(self.namespace, self.types["PlanPickAction"], self._on_goal, auto_start=False)
         self.server.start()
         self.stamps: dict[float, object] = {}
 
     def _report_drops(self, _event=None) -> None:
-        text = self.guard.report()
-        if text is not None:
-            self.dropped.publish(self.string(data=text))
+        counts = self.guard.report()
+        if counts is not None:
+            self.dropped.publish(self.string(data=counts[0]))
+            self.errors.publish(self.string(data=counts[1]))
 
     @staticmethod
     def _pixels(message) -> np.ndarray:

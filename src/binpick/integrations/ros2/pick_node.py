@@ -10,7 +10,8 @@ as standard messages on ``<namespace>/...``:
 - ``result`` (``std_msgs/String``, JSON ``{"id", "status", "text", "grasps": [{position, orientation,
   score, quality, width, tool}], "opening", "plans"}``): the ROS 1 result's fields, same values;
 - ``grasps`` (``geometry_msgs/PoseArray`` in the base frame, best first, for RViz) and ``overlay``;
-- ``dropped`` (``std_msgs/String``, JSON ``{topic: count}``): camera messages the node could not use, when the counts change.
+- ``dropped`` (``std_msgs/String``, JSON ``{topic: count}``): camera messages the node refused, when the counts change
+- ``errors`` (``std_msgs/String``, JSON ``{topic: count}``): camera messages the node's own code failed on (tracebacks in its log).
 """
 
 from __future__ import annotations
@@ -81,11 +82,13 @@ def make_node(requests: PlanRequests, camera_to_base: np.ndarray, base_frame: st
     poses = node.create_publisher(geometry_msgs.msg.PoseArray, f"{namespace}/grasps", RELIABLE_DEPTH)
     overlay = node.create_publisher(sensor_msgs.msg.Image, f"{namespace}/overlay", 1)
     dropped = node.create_publisher(std_msgs.msg.String, f"{namespace}/dropped", RELIABLE_DEPTH)
+    errors = node.create_publisher(std_msgs.msg.String, f"{namespace}/errors", RELIABLE_DEPTH)
 
-    def report_drops() -> None:  # what the camera topics brought that could not be used, twice a second when it changes
-        text = guard.report()
-        if text is not None:
-            dropped.publish(std_msgs.msg.String(data=text))
+    def report_drops() -> None:  # camera messages refused (dropped) and failed on inside (errors), twice a second when it changes
+        counts = guard.report()
+        if counts is not None:
+            dropped.publish(std_msgs.msg.String(data=counts[0]))
+            errors.publish(std_msgs.msg.String(data=counts[1]))
 
     node.create_timer(0.5, report_drops)
 
