@@ -132,3 +132,5 @@ def test_the_colour_check_tells_the_ordered_product_from_another_colour():
     user_photo = np.full((40, 40, 3), 235, np.uint8)
     user_photo[10:20, 5:30] = (200, 30, 30)  # a red product on a light grey background
     assert photo_mask(user_photo).sum() == 250 and photo_mask(user_photo)[15, 10]
+    assert photo_mask(np.full((40, 40, 3), (200, 30, 30), np.uint8)).all()  # a crop of the product itself: all of it
+    assert photo_mask(np.full((40, 40, 3), 250, np.uint8)).all()  # white on white: all of it, never an empty mask

@@ -20,7 +20,8 @@ def photo_mask(photo: np.ndarray) -> np.ndarray:
     """The product's pixels in a shop photo: the alpha channel of a cut-out RGBA photo; on a light plain
     background (most of the border light), what is not bright and grey; on another background, what
     differs from the photo's border (a plain one: by colour distance; a textured one: GrabCut, the
-    border as probable background)."""
+    border as probable background). A photo in which nothing differs from its border is a crop of
+    the product itself: all of it (an empty mask would describe no product)."""
     photo = np.asarray(photo)
     if photo.ndim == 3 and photo.shape[2] == 4:
         return photo[..., 3] > 127
@@ -30,7 +31,7 @@ def photo_mask(photo: np.ndarray) -> np.ndarray:
     edge = max(2, min(rgb.shape[:2]) // 40)
     border = np.ones(rgb.shape[:2], bool)
     border[edge:-edge, edge:-edge] = False
-    if light[border].mean() > 0.5:  # a studio's white: the product may touch the frame (a tight crop)
+    if light[border].mean() > 0.5 and not light.all():  # a studio's white: the product may touch the frame (a tight crop)
         return ~light
     lab = cv2.cvtColor(rgb, cv2.COLOR_RGB2LAB).astype(np.float32)
     lab[..., 0] *= 0.5  # a shadow on the background differs from it mostly in lightness
@@ -39,9 +40,10 @@ def photo_mask(photo: np.ndarray) -> np.ndarray:
     spread = float(np.percentile(distance[border], 90))
     plain = distance > max(18.0, 2.0 * spread)
     if spread < 12.0:  # a plain background
-        return plain
+        return plain if plain.any() else np.ones_like(plain)  # nothing differs from the border: the product fills it
     found = _grabcut(rgb, border)
-    return found if found.mean() > 0.01 else plain
+    found = found if found.mean() > 0.01 else plain
+    return found if found.any() else np.ones_like(found)
 
 
 def _grabcut(rgb: np.ndarray, border: np.ndarray) -> np.ndarray:
