@@ -79,6 +79,12 @@ SKIPPED = {
     "nohup python tools/rebuild.py photo > runs/rebuild/photo.log 2>&1": "hours of CPU (tests/test_train.py checks every "
         "recipe's configs; the --status line runs here)",
     "python tools/rebuild.py photo --again finetune": "makes a fine-tune anew, after the hours of the line above",
+    "binpick demo --gripper jaws": "the demo with another hand (tests/test_suction_planning.py plans for a jaws-only cell)",
+    "binpick data generate --out runs/data/grasp_trials_both_realistic --scenes 600 --policies '' --grasp-trials 3 --gripper both "
+    "--copies 3,6 --distractors 2,3 --held-out can,mug,toy --sensor realistic --workers 1": "hours of trials "
+        "(tests/test_suction_planning.py records suction trials on a tiny set and trains on them)",
+    "python experiments/grasp.py suction": "a benchmark on the trials above",
+    "python experiments/grasp.py calibrate": "a benchmark on the trials above",
     "python tools/ship_weights.py runs/rod_finetune_photo_learnt/<time> rod_photo_learnt_tiny_320 0.1": "needs the "
         "cluster training above",
     "python experiments/pick.py --robot panda --orders 50": "a benchmark (100 orders with the arm); tests/test_arm.py runs one",
@@ -139,7 +145,7 @@ def readme_blocks() -> list[tuple[str, str, str]]:
 def commands(block: str) -> list[str]:
     """The block's command lines, comments removed (``#`` outside quotes ends a command)."""
     result = []
-    for line in block.splitlines():
+    for line in re.sub(r"\s*\\\n\s*", " ", block).splitlines():  # a line ending in a backslash goes on in the next
         command = re.split(r"\s+#\s", " " + line.strip() + " ", maxsplit=1)[0].strip()
         if command and not command.startswith("#"):
             result.append(command)
