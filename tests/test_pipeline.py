@@ -134,3 +134,41 @@ def test_the_colour_check_tells_the_ordered_product_from_another_colour():
     assert photo_mask(user_photo).sum() == 250 and photo_mask(user_photo)[15, 10]
     assert photo_mask(np.full((40, 40, 3), (200, 30, 30), np.uint8)).all()  # a crop of the product itself: all of it
     assert photo_mask(np.full((40, 40, 3), 250, np.uint8)).all()  # white on white: all of it, never an empty mask
+
+
+def test_an_order_that_lifts_another_product_says_so_in_results_the_table_and_the_report():
+    from binpick.depth import as_camera_depth
+    from binpick.warehouse.pipeline import OrderResult, results_json
+    from binpick.warehouse.report import order_outcome, order_section
+
+    detector = DetectorNetwork(ModelSpec(query="photo"), 128).eval()
+    pipeline = PickPipeline(detector, default_library(procedural=0, shapes=0), max_attempts=1, camera=CameraSpec(size=160),
+                            verifier=None, copies=(1, 1), distractors=(2, 2), look_again=False)
+    lifted = None
+    for seed in range(4):  # a grasp aimed at another product's instance (as a confused detector would aim it)
+        world, rng = pipeline.build_world("robosuite/can", seed)
+        try:
+            scene = pipeline.settle(world, rng, seed)
+            frame = pipeline.picker.grasp.frame(as_camera_depth(scene.depth), PinholeCamera.from_record(scene.camera))
+            for other in (i for i in scene.instances if i.product_id != "robosuite/can" and i.visible_fraction > 0.8):
+                plan = pipeline.picker.plan_detection(frame, other.bbox, 0.9, None)
+                if not plan.feasible:
+                    continue
+                world.restore(scene.state)
+                result = OrderResult(0, "robosuite/can", seed, False, Reason.NO_DETECTION)
+                pipeline.execute(world, scene, [plan], result)
+                lifted = result.attempts[-1].lifted_product
+                if lifted is not None:
+                    break
+        finally:
+            world.close()
+        if lifted is not None:
+            break
+    assert lifted not in (None, "robosuite/can")
+    (order,) = results_json([result])
+    assert not order["success"] and order["reason"] == "wrong product"
+    attempt = order["attempts"][-1]
+    assert attempt["lifted_product"] == lifted and attempt["outcome"] in ("wrong product", "slipped", "dropped outside the order tote")
+    assert order_outcome(order) == f"wrong product: {lifted} lifted"  # the terminal table's cell, and the report's
+    page = order_section({**order, "seconds": 1.0, "detections": 1})
+    assert f"color:#cf222e'>wrong product: {lifted} lifted</b>" in page and f"{lifted} lifted, not the ordered product" in page

@@ -196,7 +196,8 @@ def _fulfil(pipeline, products: list[str], orders: int, seed: int, run_dir: Path
     from binpick.warehouse.pipeline import fulfil
 
     table = Table(title=f"{orders} order{'s' if orders > 1 else ''}")
-    from binpick.warehouse.report import COLUMNS
+    from binpick.warehouse.pipeline import results_json
+    from binpick.warehouse.report import COLUMNS, order_outcome
 
     for column in COLUMNS:
         table.add_column(column, no_wrap=column != "result")  # long failure reasons wrap; the rest stays whole
@@ -204,7 +205,8 @@ def _fulfil(pipeline, products: list[str], orders: int, seed: int, run_dir: Path
 
         def row(result) -> None:
             seen = "?" if result.seen is None else "yes" if result.seen else "no"
-            outcome = Text("placed", style="green") if result.success else Text(str(result.reason), style="red")
+            words = order_outcome(results_json([result])[0])  # as the report says it: a wrong product is named
+            outcome = Text(words, style="green" if result.success else "red")
             table.add_row(str(result.order), result.product, seen, outcome,
                           str(result.grasps), str(result.detections), f"{result.seconds:.1f}")
             task.update(advance=1)

@@ -321,14 +321,15 @@ class PickPipeline:
                 on_caption(f"attempt {attempt} ({tool}): {outcome.reason}{wrong}")
                 if on_frame is not None:
                     on_frame()
+            wrong = lifted not in (None, result.product)
             result.attempts.append(Attempt(plan.box, plan.score, plan.same_product, np.round(tips, 4).tolist(),
-                                           outcome.reason, lifted, plan.yaw, plan.width, plan.quality, plan.rejected,
+                                           Reason.WRONG_PRODUCT if wrong and outcome.placed else outcome.reason, lifted, plan.yaw, plan.width, plan.quality, plan.rejected,
                                            outcome.motion_s, outcome.planning_ms, outcome.collisions, outcome.grasp_error_mm,
                                            tool, outcome.why))
             if outcome.placed and lifted == result.product:
                 result.success, result.reason = True, Reason.PLACED
                 return
-            result.reason = Reason.WRONG_PRODUCT if lifted not in (None, result.product) else outcome.reason
+            result.reason = Reason.WRONG_PRODUCT if wrong else outcome.reason
             if look_again is not None and result.grasps < self.max_attempts:
                 scene, replanned = look_again(result.grasps)
                 result.looked_again += 1

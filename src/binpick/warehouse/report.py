@@ -38,7 +38,7 @@ def grasp_line(number: int, attempt: dict[str, Any], product: str | None = None)
     lifted = attempt.get("lifted_product")
     outcome, colour = html.escape(attempt["outcome"]), ""
     if lifted is not None and product is not None and lifted != product:
-        outcome, colour = f"{outcome}: {html.escape(lifted)}, not the ordered product", " style='color:#cf222e'"
+        outcome, colour = f"{outcome}: {html.escape(lifted)} lifted, not the ordered product", " style='color:#cf222e'"
     elif attempt["outcome"] != "placed":
         colour = " style='color:#cf222e'"
     why = f" ({html.escape(attempt['why'])})" if attempt.get("why") else ""
@@ -72,8 +72,19 @@ table.facts{border-collapse:collapse;margin:.4em 0} .facts td,.facts th{padding:
 figcaption{font-size:small;color:#555} .times{font-size:small;color:#444} .grasps{font-size:small}"""
 
 
+def order_outcome(order: dict[str, Any]) -> str:
+    """An order's result as the terminal table and the report show it: "placed", or why not; an order
+    that put another product in the tote names it ("wrong product: lego lifted")."""
+    if order["success"]:
+        return "placed"
+    wrong = [a.get("lifted_product") for a in order["attempts"] if a.get("lifted_product") not in (None, order["product"])]
+    if order["reason"] == "wrong product" and wrong:
+        return f"wrong product: {wrong[-1]} lifted"
+    return str(order["reason"])
+
+
 def order_section(order: dict[str, Any]) -> str:
-    outcome = "placed" if order["success"] else html.escape(order["reason"])
+    outcome = html.escape(order_outcome(order))
     colour = "#1a7f37" if order["success"] else "#cf222e"
     seen = {True: "yes", False: "no"}.get(order.get("seen"), "?")
     grasps = sum(a["outcome"] != "no feasible grasp" for a in order["attempts"])
