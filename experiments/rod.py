@@ -124,12 +124,18 @@ def parse_overrides(items: list[str] | None) -> dict:
 def main() -> None:
     global DATA
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("phase", choices=["train", "pretrain", "finetune", "report", "generalise", "latency", "photo", "ship-photo"])
+    parser.add_argument("phase", choices=["train", "pretrain", "finetune", "report", "generalise", "latency", "photo", "ship-photo",
+                                          "ship-best"])
     parser.add_argument("--weights", nargs="*", default=["rod_photo_tiny_320", "rod_photo_learnt_tiny_320"],
                         help="photo: photo-query weights to score (shipped names, files or run folders)")
     parser.add_argument("--run", type=Path, help="ship-photo: the photo-query run folder to ship")
     parser.add_argument("--head-from", default="rod_photo_learnt_tiny_320",
                         help="ship-photo: weights whose pickability head the picking detector carries")
+    parser.add_argument("--candidates", nargs="*", type=Path, default=[],
+                        help="ship-best: photo-query run folders measured by `photo`; the one whose worst AP50 is highest is shipped")
+    parser.add_argument("--reason", help="ship-best: why a candidate worse than the shipped weights on some set ships anyway "
+                        "(kept in the weights)")
+    parser.add_argument("--recipe", help="ship-best: the rebuild recipe that made the candidates (kept in the weights)")
     parser.add_argument("--row-of", help="photo: whose row is photo.seen/held_out/shifted_domain (default: the picking detector)")
     parser.add_argument("--runs", type=Path, default=_common.ROOT / "runs" / "rod")
     parser.add_argument("--only", nargs="*")
@@ -159,6 +165,8 @@ def main() -> None:
         if args.run is None:
             raise SystemExit("ship-photo needs --run RUN_FOLDER")
         ship_photo(args.run, args.head_from)
+    elif args.phase == "ship-best":
+        ship_best(args.candidates, args.head_from, args.reason, args.recipe)
     else:
         report(args.runs)
 
@@ -635,7 +643,7 @@ def photo_rows(weights: list[str], row_of: str | None) -> None:
     write_generalisation_markdown(result, written)
 
 
-def ship_photo(run: Path, head_from: str) -> None:
+def ship_photo(run: Path, head_from: str, shipping: dict | None = None) -> None:
     """Ship a photo-query run as the two photo weights: ``rod_photo_tiny_320`` (the run as trained) and
     the picking detector ``rod_photo_learnt_tiny_320``: the same network carrying the pickability head
     of ``head_from``. The head reads each detection's window (colour, height map, box), not the
@@ -657,6 +665,8 @@ def ship_photo(run: Path, head_from: str) -> None:
     extra = {k: meta[k] for k in ("config", "trained_products", "trained_domains") if k in meta}
     extra |= {"source_run": str(run.relative_to(_common.ROOT)) if run.is_absolute() else str(run),
               "score_threshold": head_meta.get("score_threshold", 0.1)}
+    if shipping is not None:  # how it was chosen and what it was compared with, kept with the weights
+        extra["shipping"] = shipping
     save_detector(network, weights / "rod_photo_tiny_320.safetensors", extra, half=True)
     network.pickability = carrier.pickability
     network.spec = replace(network.spec, pickability=carrier.spec.pickability, pickability_width=carrier.spec.pickability_width,
@@ -666,6 +676,60 @@ def ship_photo(run: Path, head_from: str) -> None:
     head["carried_from"] = head.get("carried_from") or head_meta.get("source_run") or str(head_from)  # the run that trained it
     save_detector(network, weights / f"{PICKING}.safetensors", extra | {"pickability": head}, half=True)
     print(f"shipped rod_photo_tiny_320 and {PICKING} from {run} (pickability head from {head_from})", flush=True)
+
+
+SHIP_SETS = ("seen", "held_out", "shifted")  # the standard sets a photo detector is judged on (AP50)
+
+
+def run_key(run: Path) -> str:
+    """The name ``photo`` files a run folder's row under: ``runs/<name>/<time>`` -> ``<name>``."""
+    return Path(run).resolve().parent.name
+
+
+def worse_sets(candidate: dict, shipped: dict) -> list[str]:
+    """The standard sets on which ``candidate`` scores a lower AP50 than ``shipped``, as
+    ``"held_out 0.69 < 0.75"``."""
+    return [f"{name} {candidate[name]['ap50']:.3f} < {shipped[name]['ap50']:.3f}" for name in SHIP_SETS
+            if (candidate.get(name) or {}).get("ap50") is not None and (shipped.get(name) or {}).get("ap50") is not None
+            and candidate[name]["ap50"] < shipped[name]["ap50"]]
+
+
+def ship_best(candidates: list[Path], head_from: str, reason: str | None, recipe: str | None) -> None:
+    """Ship the candidate whose **worst** AP50 over seen, held-out and shifted (``photo.by_weights`` of
+    results/rod.json, measured by ``photo``) is highest, not the best on seen; refused when it is worse
+    than the shipped picking detector on any of those sets, unless ``reason`` says why (kept in the
+    weights with the scores compared, the recipe and the commit)."""
+    import json
+
+    from binpick.detection.detector import PICKING
+
+    if not candidates:
+        raise SystemExit("ship-best needs --candidates RUN_FOLDER ...")
+    rows = (json.loads((_common.RESULTS / "rod.json").read_text()).get("photo") or {}).get("by_weights") or {}
+    missing = [str(run) for run in candidates if run_key(run) not in rows]
+    if missing:
+        raise SystemExit(f"not measured: {', '.join(missing)}: python experiments/rod.py photo --weights {' '.join(missing)} {PICKING}")
+    if PICKING not in rows:
+        raise SystemExit(f"the shipped {PICKING} was not measured: python experiments/rod.py photo --weights {PICKING}")
+
+    def worst(row: dict) -> float:
+        return min((row.get(name) or {}).get("ap50") or 0.0 for name in SHIP_SETS)
+
+    scored = sorted(candidates, key=lambda run: -worst(rows[run_key(run)]))
+    best = scored[0]
+    chosen, shipped = rows[run_key(best)], rows[PICKING]
+    worse = worse_sets(chosen, shipped)
+    summary = ", ".join(f"{run_key(run)} {worst(rows[run_key(run)]):.3f}" for run in scored)
+    print(f"worst AP50 of seen / held-out / shifted: {summary}; shipped {PICKING} {worst(shipped):.3f}", flush=True)
+    if worse and not reason:
+        raise SystemExit(f"not shipped: {run_key(best)} is worse than the shipped {PICKING} on {'; '.join(worse)} "
+                         "(give --reason TEXT to ship it anyway; the reason is kept in the weights)")
+    ship_photo(best, head_from, {
+        "chosen_by": "the highest worst AP50 of seen, held-out and shifted (experiments/rod.py ship-best)",
+        "candidates": {run_key(run): round(worst(rows[run_key(run)]), 4) for run in scored},
+        "scores": {name: (chosen.get(name) or {}).get("ap50") for name in SHIP_SETS},
+        "replaced": {name: (shipped.get(name) or {}).get("ap50") for name in SHIP_SETS},
+        "worse_on": worse, "reason": reason, "recipe": recipe, "commit": _common.provenance().get("commit")})
 
 
 def remeasure_latency(runs: Path) -> None:

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import fcntl
+import json
 import os
 import re
 import shlex
@@ -155,6 +156,27 @@ def command_for(step: Step, state: State, runs: Path) -> list[str]:
     return [*BINPICK, "train", step.train, "--runs", str(runs.relative_to(ROOT)), *settings]
 
 
+def count_lost_attempts(record: dict, running: bool = False) -> None:
+    """Attempts whose process died with its machine (no exit recorded) still ran: their hours count, up
+    to the last file written in the step's run folder before the next attempt began (their last sign
+    of life). ``running``: the last attempt is this process's own, not lost."""
+    attempts = record["attempts"][:-1] if running else record["attempts"]
+    folder = ROOT / record["run"] if record.get("run") else None
+    written = [p.stat().st_mtime for p in folder.rglob("*") if p.is_file()] if folder is not None and folder.is_dir() else []
+
+    def utc(text: str) -> float:
+        return time.mktime(time.strptime(text, "%Y-%m-%dT%H:%M:%SZ")) - time.timezone
+
+    for index, attempt in enumerate(attempts):
+        if "exit" in attempt:
+            continue
+        started = utc(attempt["started_utc"])
+        until = utc(record["attempts"][index + 1]["started_utc"]) if index + 1 < len(record["attempts"]) else time.time()
+        seconds = max(0.0, max((t for t in written if t <= until), default=started) - started)
+        attempt |= {"seconds": round(seconds, 1), "exit": None, "lost": True}
+        record["seconds"] = round(record.get("seconds", 0.0) + seconds, 1)
+
+
 def run_step(step: Step, state: State, runs: Path) -> None:
     record = state.step(step.name)
     argv = command_for(step, state, runs)
@@ -163,6 +185,7 @@ def run_step(step: Step, state: State, runs: Path) -> None:
     out = data_out(step.train) if step.train else None
     if out and not record.get("run"):
         record["run"] = out
+    count_lost_attempts(record)
     started = time.time()
     attempt = {"command": shown, "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(started)), "commit": commit()}
     record["attempts"].append(attempt)
@@ -182,6 +205,7 @@ def run_step(step: Step, state: State, runs: Path) -> None:
         child.terminate()
         child.wait()
     seconds = time.time() - started
+    count_lost_attempts(record, running=True)  # an attempt lost before this one began (a state from older code)
     record["seconds"] = round(record.get("seconds", 0.0) + seconds, 1)
     attempt |= {"seconds": round(seconds, 1), "exit": child.returncode}
     done = child.returncode == 0 and (not step.train or (record.get("run") and finished(ROOT / record["run"])))
@@ -201,7 +225,9 @@ def status(recipe: Recipe, state: State) -> None:
     for step in recipe.steps:
         record = state.step(step.name)
         what = step.train or " ".join(step.run)
-        seconds = record.get("seconds", 0)
+        counted = json.loads(json.dumps(record))  # lost attempts' hours shown, not written (the run writes them)
+        count_lost_attempts(counted, running=record["status"] == "running")
+        seconds = counted.get("seconds", 0)
         if record["status"] == "running" and record.get("attempts"):  # this attempt's time so far
             started = time.mktime(time.strptime(record["attempts"][-1]["started_utc"], "%Y-%m-%dT%H:%M:%SZ")) - time.timezone
             seconds += max(0.0, time.time() - started)

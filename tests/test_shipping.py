@@ -1,0 +1,63 @@
+"""Shipping a detector: the candidate whose worst standard set is highest, refused where it is worse
+than the shipped weights on any set unless a reason is given, and the choice kept with the weights."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
+
+
+def _scores(seen: float, held_out: float, shifted: float) -> dict:
+    return {"seen": {"ap50": seen}, "held_out": {"ap50": held_out}, "shifted": {"ap50": shifted}}
+
+
+@pytest.fixture
+def rod(tmp_path, monkeypatch):
+    import _common
+    import rod as rod_module
+
+    rows = {"rod_photo_learnt_tiny_320": _scores(0.68, 0.69, 0.30),
+            "pretrain": _scores(0.51, 0.56, 0.67),  # best on shifted, worst on seen
+            "finetune": _scores(0.86, 0.81, 0.62),  # the highest worst: 0.62
+            "finetune_plain": _scores(0.90, 0.80, 0.32)}  # best on seen, not shipped for it
+    (tmp_path / "rod.json").write_text(json.dumps({"photo": {"by_weights": rows}}))
+    monkeypatch.setattr(_common, "RESULTS", tmp_path)
+    shipped: list[tuple[Path, dict]] = []
+    monkeypatch.setattr(rod_module, "ship_photo", lambda run, head_from, shipping=None: shipped.append((run, shipping)))
+    return rod_module, rows, shipped
+
+
+def test_the_candidate_with_the_highest_worst_set_ships_with_its_comparison(rod, tmp_path):
+    rod_module, _, shipped = rod
+    runs = [tmp_path / name / "20261206-000000" for name in ("pretrain", "finetune", "finetune_plain")]
+    rod_module.ship_best(runs, "rod_photo_learnt_tiny_320", None, "photo")
+    (run, meta), = shipped
+    assert run == runs[1] and meta["worse_on"] == [] and meta["reason"] is None and meta["recipe"] == "photo"
+    assert meta["candidates"] == {"finetune": 0.62, "finetune_plain": 0.32, "pretrain": 0.51}
+    assert meta["scores"] == {"seen": 0.86, "held_out": 0.81, "shifted": 0.62} and meta["replaced"]["seen"] == 0.68
+
+
+def test_a_candidate_worse_on_any_set_is_refused_unless_a_reason_is_given(rod, tmp_path):
+    rod_module, rows, shipped = rod
+    rows["rod_photo_learnt_tiny_320"] = _scores(0.83, 0.75, 0.40)
+    (tmp_path / "rod.json").write_text(json.dumps({"photo": {"by_weights": rows}}))
+    runs = [tmp_path / "pretrain" / "t", tmp_path / "finetune_plain" / "t"]  # worst: 0.51 and 0.32
+    with pytest.raises(SystemExit, match=r"not shipped: pretrain is worse than the shipped rod_photo_learnt_tiny_320 on "
+                                         r"seen 0\.510 < 0\.830; held_out 0\.560 < 0\.750"):
+        rod_module.ship_best(runs, "rod_photo_learnt_tiny_320", None, None)
+    assert not shipped
+    rod_module.ship_best(runs, "rod_photo_learnt_tiny_320", "the shifted set-up matters more than seen bins here", None)
+    (run, meta), = shipped
+    assert run == runs[0] and meta["reason"].startswith("the shifted") and len(meta["worse_on"]) == 2
+
+
+def test_a_candidate_not_yet_measured_is_named_with_the_command_that_measures_it(rod, tmp_path):
+    rod_module, _, shipped = rod
+    with pytest.raises(SystemExit, match=r"not measured: .*never_measured.*python experiments/rod.py photo --weights"):
+        rod_module.ship_best([tmp_path / "never_measured" / "t"], "rod_photo_learnt_tiny_320", None, None)
+    assert not shipped
