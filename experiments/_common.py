@@ -93,12 +93,35 @@ def training_scalars(run: Path, *tags: str, optional: tuple[str, ...] = ()) -> d
             for tag in (*tags, *(tag for tag in optional if tag in found))}
 
 
+ROW_SKIP = ("benchmark", "machine", "provenance", "provenance_by_row")
+
+
 def write_result(name: str, payload: dict) -> Path:
+    """results/NAME.json: the payload, the machine and this run's provenance; and per top-level row
+    (``provenance_by_row``) the provenance of the run that measured it: this run's for the rows it
+    changed, the earlier one for rows it kept as they were, so a row measured on older code than its
+    neighbours says so."""
     from binpick.core.files import atomic_write_text
 
     path = RESULTS / f"{name}.json"
-    return atomic_write_text(path, json.dumps({"benchmark": name, "machine": machine(), **payload, "provenance": provenance()},
-                                              indent=2) + "\n")
+    now = provenance()
+    try:
+        previous = json.loads(path.read_text())
+    except (OSError, ValueError):
+        previous = {}
+    earlier = previous.get("provenance_by_row") or {}
+    if not earlier and previous.get("provenance"):  # written before rows had their own: its last writer, said so
+        earlier = {key: {**previous["provenance"], "inferred": "the file's last writer; the row may be older"} for key in previous
+                   if key not in ROW_SKIP}
+    by_row = {}
+    for key, value in payload.items():
+        if key in ROW_SKIP:
+            continue
+        kept = key in previous and json.dumps(previous[key], sort_keys=True) == json.dumps(value, sort_keys=True)
+        by_row[key] = earlier.get(key, {"commit": None, "note": "measured before results recorded provenance"}) if kept else now
+    body = {key: value for key, value in payload.items() if key not in ROW_SKIP}
+    return atomic_write_text(path, json.dumps({"benchmark": name, "machine": machine(), **body, "provenance": now,
+                                               "provenance_by_row": by_row}, indent=2) + "\n")
 
 
 def write_section(name: str, markdown: str) -> None:

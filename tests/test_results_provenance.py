@@ -1,0 +1,26 @@
+"""Every results row says what it was measured with: a run's rows carry its provenance, rows it kept
+as they were keep the provenance of the run that measured them."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
+
+
+def test_rows_a_run_changed_carry_its_provenance_and_kept_rows_keep_theirs(tmp_path, monkeypatch):
+    import _common
+
+    monkeypatch.setattr(_common, "RESULTS", tmp_path)
+    (tmp_path / "x.json").write_text(json.dumps({"old": 1, "provenance": {"commit": "aaa"}}))  # before rows had their own
+    monkeypatch.setattr(_common, "provenance", lambda: {"commit": "bbb"})
+    _common.write_result("x", {"old": 1, "new": 2})
+    written = json.loads((tmp_path / "x.json").read_text())
+    assert written["provenance"] == {"commit": "bbb"} and written["provenance_by_row"]["new"] == {"commit": "bbb"}
+    assert written["provenance_by_row"]["old"]["commit"] == "aaa" and "inferred" in written["provenance_by_row"]["old"]
+    monkeypatch.setattr(_common, "provenance", lambda: {"commit": "ccc"})
+    _common.write_result("x", {**{k: v for k, v in written.items() if k not in ("benchmark", "machine")}, "old": 3})
+    again = json.loads((tmp_path / "x.json").read_text())["provenance_by_row"]
+    assert again == {"old": {"commit": "ccc"}, "new": {"commit": "bbb"}}  # re-measured; kept from the run that made it
