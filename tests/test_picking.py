@@ -85,7 +85,7 @@ def test_the_planner_imports_no_simulator():
     assert ran.returncode == 0, ran.stderr
 
 
-def test_binpick_plan_on_an_exported_scene_matches_the_in_memory_plan(tmp_path, monkeypatch):
+def test_binpick_plan_on_an_exported_scene_matches_the_in_memory_plan(tmp_path, monkeypatch, capsys):
     """A simulated bin exported as a camera's files: the CLI plans from the files what the picker plans
     from the arrays (depth rounded to millimetres moves a grasp by at most a few millimetres)."""
     from binpick.cli import main
@@ -114,6 +114,8 @@ def test_binpick_plan_on_an_exported_scene_matches_the_in_memory_plan(tmp_path, 
     assert exit_info.value.code == 0
     written = json.loads((tmp_path / "plan.json").read_text())
     assert written["frame"] == "world" and (tmp_path / "overlay.png").is_file()
+    said = capsys.readouterr().out  # the terminal counts as the overlay's caption does: planned of all detections
+    assert f"from {len(written['plans'])} planned of {written['detections']} detections" in " ".join(said.split())
     rgb, depth, info = read_frame(out / "rgb.png", out / "depth.png", out / "camera.yaml")
     assert np.array_equal(rgb, scene.rgb) and np.abs(depth - scene.depth).max() <= 0.0005
     picker = Picker.load(grasp="analytic")

@@ -177,7 +177,8 @@ def plan(
         how = (f"jaws at yaw {np.degrees(best.yaw):.0f} deg, {100 * best.width:.1f} cm across" if best.tool == "jaws"
                else "suction cup on the surface")
         quality = "" if best.quality is None else f", predicted success {best.quality:.2f}"
-        console.print(f"{len(plans.grasps)} grasp(s) from {plans.detections} detections in {plans.timing_ms['total']:.0f} ms; best: "
+        console.print(f"{len(plans.grasps)} grasp(s) from {len(plans)} planned of {plans.detections} detections in "
+                      f"{plans.timing_ms['total']:.0f} ms; best: "
                       f"({x:.3f}, {y:.3f}, {z:.3f}) m in {plans.frame}, {how}{quality}, detector score {best.score:.2f} "
                       f"-> {plan_path}, {overlay}", soft_wrap=True)
 

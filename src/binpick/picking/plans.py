@@ -93,7 +93,9 @@ class Plans(list):
         if isinstance(photo, (list, tuple)):  # several photos of the product: the first is shown
             photo = photo[0] if photo else None
         photo = None if photo is None else split_photo(photo)[0]
-        picture = overlay(rgb, boxes, np.array([p.score for p in self]), query_box, photo, min_score=0.0)
+        picture = overlay(rgb, boxes, np.array([p.score for p in self]), query_box, photo, min_score=0.0,
+                          legend=f"{len(self)} planned of {self.detections} detections (orange, detector score); "
+                                 f"{len(self.grasps)} grasps (green)")
         jaws = [(*jaw_pixels(camera, plan.position, plan.yaw, opening), True, str(number))
                 for number, plan in enumerate(self.grasps, start=1) if plan.tool != "suction"]
         cups = [(*cup_pixels(camera, plan.position), True, str(number))

@@ -25,9 +25,10 @@ def _label(draw, xy: tuple[float, float], text: str, colour, font) -> None:
 
 
 def overlay(image: np.ndarray, boxes: np.ndarray, scores: np.ndarray, query_box: np.ndarray | None = None,
-            query_image: np.ndarray | None = None, min_score: float = 0.3) -> np.ndarray:
+            query_image: np.ndarray | None = None, min_score: float = 0.3, legend: str | None = None) -> np.ndarray:
     """Detections scoring at least ``min_score`` in orange with their scores, the query box in blue,
-    a photo query inset at the top right, and a legend. Boxes are x, y, w, h. Line widths and text
+    a photo query inset at the top right, and a legend (``legend`` says what the boxes are where they
+    are not all the detections: a plan's). Boxes are x, y, w, h. Line widths and text
     scale with the image, so a 416 px scene and a 1920 px camera frame both read well."""
     from PIL import Image, ImageDraw
 
@@ -50,8 +51,8 @@ def overlay(image: np.ndarray, boxes: np.ndarray, scores: np.ndarray, query_box:
         picture.paste(inset, (image.shape[1] - side - 4, 4))
         draw.rectangle([image.shape[1] - side - 5, 3, image.shape[1] - 4, side + 4], outline=BLUE, width=2)
     query = "query: photo (inset)" if query_image is not None else "query: blue box"
-    _label(draw, (6, image.shape[0] - font.size - 8), f"{query}; {shown} detections >= {min_score:.2f} (orange)",
-           (235, 235, 235), font)
+    what = legend or f"{shown} detections >= {min_score:.2f} (orange, detector score)"
+    _label(draw, (6, image.shape[0] - font.size - 8), f"{query}; {what}", (235, 235, 235), font)
     return np.asarray(picture)
 
 
