@@ -206,8 +206,10 @@ def main() -> None:
         for index in range(tally.get("goals", 0)):
             count("ros_messages", "one_line" if index < answered else "silent_acceptance", f"{name} goal {index}")
         dropped = tally.get("camera_messages_dropped", 0) if healthy else 0  # counted by the node, printed when it stops
+        internal = tally.get("camera_internal_errors", 0)  # the node's own code failed on them: tracebacks, not silence
         for index in range(tally.get("camera_messages", 0)):
-            count("ros_messages", "one_line" if index < dropped else "silent_acceptance", f"{name} camera message {index}")
+            outcome = "one_line" if index < dropped else "traceback" if index < dropped + internal else "silent_acceptance"
+            count("ros_messages", outcome, f"{name} camera message {index}")
     big = work / "big"
     big.mkdir()
     plan_rss, plan_code, plan_line = peak_rss_mib(big_frame(big), big)

@@ -626,7 +626,8 @@ def photo_rows(weights: list[str], row_of: str | None) -> None:
         key = Path(name).stem if Path(name).suffix == ".safetensors" else Path(name).name
         if Path(name).is_dir():  # a run folder: runs/<name>/<time>
             key = Path(name).resolve().parent.name
-        rows[key] = {"made": PHOTO_MADE.get(key, "—")} | {
+        rows[key] = {"made": PHOTO_MADE.get(key, "—")} | ({"run": str(Path(name).resolve().relative_to(_common.ROOT))}
+                                                          if Path(name).is_dir() else {}) | {
             row: keep(evaluate_on(detector_detect(network), data, split, targets, network.image_size, query="photo",
                                   framed=network.spec.frames_photos, depth=network.spec.reads_depth))
             for row, (data, split, targets) in {"seen": (DATA, "val", P1), "held_out": (DATA, "test", P1),
@@ -706,14 +707,26 @@ def ship_best(candidates: list[Path], head_from: str, reason: str | None, recipe
     if not candidates:
         raise SystemExit("ship-best needs --candidates RUN_FOLDER ...")
     rows = (json.loads((_common.RESULTS / "rod.json").read_text()).get("photo") or {}).get("by_weights") or {}
-    missing = [str(run) for run in candidates if run_key(run) not in rows]
+    missing = [str(run) for run in candidates if run_key(run) not in rows
+               or rows[run_key(run)].get("run") != str(Path(run).resolve().relative_to(_common.ROOT))]  # that run, not its namesake
     if missing:
         raise SystemExit(f"not measured: {', '.join(missing)}: python experiments/rod.py photo --weights {' '.join(missing)} {PICKING}")
     if PICKING not in rows:
         raise SystemExit(f"the shipped {PICKING} was not measured: python experiments/rod.py photo --weights {PICKING}")
 
+    import math
+
+    def unmeasured(row: dict) -> list[str]:
+        return [name for name in SHIP_SETS if not isinstance((row.get(name) or {}).get("ap50"), (int, float))
+                or not math.isfinite((row.get(name) or {}).get("ap50"))]
+
+    for name, row in [*((str(run), rows[run_key(run)]) for run in candidates), (PICKING, rows[PICKING])]:
+        if unmeasured(row):
+            raise SystemExit(f"{name} has no AP50 on {', '.join(unmeasured(row))}: measure it on every standard set first "
+                             f"(python experiments/rod.py photo --weights ...)")
+
     def worst(row: dict) -> float:
-        return min((row.get(name) or {}).get("ap50") or 0.0 for name in SHIP_SETS)
+        return min(row[name]["ap50"] for name in SHIP_SETS)
 
     scored = sorted(candidates, key=lambda run: -worst(rows[run_key(run)]))
     best = scored[0]

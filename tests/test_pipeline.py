@@ -142,33 +142,35 @@ def test_an_order_that_lifts_another_product_says_so_in_results_the_table_and_th
     from binpick.warehouse.report import order_outcome, order_section
 
     detector = DetectorNetwork(ModelSpec(query="photo"), 128).eval()
-    pipeline = PickPipeline(detector, default_library(procedural=0, shapes=0), max_attempts=1, camera=CameraSpec(size=160),
+    pipeline = PickPipeline(detector, default_library(procedural=0, shapes=0), max_attempts=3, camera=CameraSpec(size=160),
                             verifier=None, copies=(1, 1), distractors=(2, 2), look_again=False)
-    lifted = None
-    for seed in range(4):  # a grasp aimed at another product's instance (as a confused detector would aim it)
+    result, lifted = None, None
+    for seed in range(8):  # a grasp aimed at another product's instance (as a confused detector would aim it), then the can
         world, rng = pipeline.build_world("robosuite/can", seed)
         try:
             scene = pipeline.settle(world, rng, seed)
             frame = pipeline.picker.grasp.frame(as_camera_depth(scene.depth), PinholeCamera.from_record(scene.camera))
+            (can,) = [i for i in scene.instances if i.product_id == "robosuite/can"]
+            right = pipeline.picker.plan_detection(frame, can.bbox, 0.5, None)
             for other in (i for i in scene.instances if i.product_id != "robosuite/can" and i.visible_fraction > 0.8):
-                plan = pipeline.picker.plan_detection(frame, other.bbox, 0.9, None)
-                if not plan.feasible:
+                wrong = pipeline.picker.plan_detection(frame, other.bbox, 0.9, None)
+                if not wrong.feasible:
                     continue
                 world.restore(scene.state)
                 result = OrderResult(0, "robosuite/can", seed, False, Reason.NO_DETECTION)
-                pipeline.execute(world, scene, [plan], result)
-                lifted = result.attempts[-1].lifted_product
-                if lifted is not None:
+                pipeline.execute(world, scene, [wrong, right], result)
+                lifted = result.attempts[0].lifted_product
+                if result.attempts[0].outcome is Reason.WRONG_PRODUCT:  # it went into the customer's tote
                     break
         finally:
             world.close()
-        if lifted is not None:
+        if result is not None and result.attempts[0].outcome is Reason.WRONG_PRODUCT:
             break
-    assert lifted not in (None, "robosuite/can")
+    assert result is not None and result.attempts[0].outcome is Reason.WRONG_PRODUCT and lifted != "robosuite/can"
+    assert len(result.attempts) == 1  # the order stops there: the can is not grasped after it, never counted as placed
     (order,) = results_json([result])
     assert not order["success"] and order["reason"] == "wrong product"
-    attempt = order["attempts"][-1]
-    assert attempt["lifted_product"] == lifted and attempt["outcome"] in ("wrong product", "slipped", "dropped outside the order tote")
+    assert order["attempts"][0]["outcome"] == "wrong product" and order["attempts"][0]["lifted_product"] == lifted
     assert order_outcome(order) == f"wrong product: {lifted} lifted"  # the terminal table's cell, and the report's
     page = order_section({**order, "seconds": 1.0, "detections": 1})
     assert f"color:#cf222e'>wrong product: {lifted} lifted</b>" in page and f"{lifted} lifted, not the ordered product" in page

@@ -289,34 +289,45 @@ def _squares_frame(squares, size: int = 200):
                            np.array([[1.0, 0, 0, 0], [0, -1, 0, 0], [0, 0, -1, 1.0], [0, 0, 0, 1]]))
     rgb = np.full((size, size, 3), 128, np.uint8)
     depth = np.ones((size, size), np.float32)
-    for (x, y, w, h), colour in squares:
+    for (x, y, w, h), colour, *pattern in squares:
         rgb[y:y + h, x:x + w] = colour
+        if pattern:  # a printed label: a darker band across the top third and a dot in the middle
+            rgb[y + h // 6:y + h // 3, x + w // 5:x + 4 * w // 5] = np.asarray(colour) // 3
+            rgb[y + h // 2:y + h // 2 + 4, x + w // 2:x + w // 2 + 4] = 250
         depth[y:y + h, x:x + w] = 0.96
     return rgb, DepthFrame.from_depth(depth, camera)
 
 
 def test_a_pointed_instance_pushed_far_is_found_by_its_colours_and_two_look_alikes_are_never_guessed():
     from binpick.picking.colour import colour_histogram
-    from binpick.picking.picker import found_by_colour, instance_pixels, middle_of
+    from binpick.picking.picker import found_by_colour, instance_pixels, matched_in_place, middle_of
 
-    green, red = (20, 170, 30), (200, 30, 30)
+    green, dark_green, red = (20, 170, 30), (15, 120, 25), (200, 30, 30)
     box = np.array([40.0, 40.0, 30.0, 30.0])
-    before_rgb, before = _squares_frame([((40, 40, 30, 30), green), ((130, 40, 30, 30), red)])
+    before_rgb, before = _squares_frame([((40, 40, 30, 30), green, "label"), ((130, 40, 30, 30), red)])
     pixels = instance_pixels(before, box)
     assert 0.6 * 900 < pixels.sum() <= 900 + 4 * 31  # the square's own pixels, not the floor round it
-    histogram = colour_histogram(before_rgb, pixels)
+    histogram, area = colour_histogram(before_rgb, pixels), int(pixels.sum())
     template = middle_of(before_rgb, box)
+
+    def find(*squares):
+        rgb, frame = _squares_frame(list(squares))
+        return found_by_colour(histogram, rgb, frame, box, area, template)
+
     # pushed 2.4 box diagonals away, beside a red product: found where it is now
-    rgb, frame = _squares_frame([((130, 120, 30, 30), green), ((130, 40, 30, 30), red)])
-    found = found_by_colour(histogram, rgb, frame, box, int(pixels.sum()), template)
+    found = find(((130, 120, 30, 30), green, "label"), ((130, 40, 30, 30), red))
     assert found is not None and abs(found[0] - 130) <= 3 and abs(found[1] - 120) <= 3, found
-    # a second green square of its size and look: colour, size and picture cannot tell them apart
-    rgb, frame = _squares_frame([((130, 120, 30, 30), green), ((40, 150, 30, 30), green), ((130, 40, 30, 30), red)])
-    assert found_by_colour(histogram, rgb, frame, box, int(pixels.sum()), template) is None
+    # a second green square of its size and label: colour, size and picture cannot tell them apart
+    assert find(((130, 120, 30, 30), green, "label"), ((40, 150, 30, 30), green, "label"), ((130, 40, 30, 30), red)) is None
     # one of them clearly larger: the one of its size is it
-    rgb, frame = _squares_frame([((130, 120, 30, 30), green), ((20, 130, 42, 42), green), ((130, 40, 30, 30), red)])
-    found = found_by_colour(histogram, rgb, frame, box, int(pixels.sum()), template)
+    found = find(((130, 120, 30, 30), green, "label"), ((20, 130, 42, 42), green, "label"), ((130, 40, 30, 30), red))
     assert found is not None and abs(found[0] - 130) <= 3, found
-    # gone: nothing green standing anywhere
-    rgb, frame = _squares_frame([((130, 40, 30, 30), red)])
-    assert found_by_colour(histogram, rgb, frame, box, int(pixels.sum()), template) is None
+    # gone: nothing green standing anywhere; a green product of another look or one far off is not it
+    assert find(((130, 40, 30, 30), red)) is None
+    assert find(((120, 120, 34, 34), green), ((130, 40, 30, 30), red)) is None  # no label: its picture does not match
+    assert find(((165, 165, 30, 30), green, "label")) is None  # past three box diagonals from where it was
+    # a flat-coloured instance has no picture to match: never placed by the correlation's arbitrary peak
+    flat_rgb, flat = _squares_frame([((40, 40, 30, 30), green), ((4, 4, 30, 30), dark_green)])
+    flat_histogram = colour_histogram(flat_rgb, instance_pixels(flat, box))
+    assert matched_in_place(flat_rgb, box, flat_rgb, flat, flat_histogram) is None
+    assert found_by_colour(flat_histogram, flat_rgb, flat, box, area, middle_of(flat_rgb, box)) is None

@@ -21,10 +21,13 @@ def rod(tmp_path, monkeypatch):
     import _common
     import rod as rod_module
 
+    monkeypatch.setattr(_common, "ROOT", tmp_path)
     rows = {"rod_photo_learnt_tiny_320": _scores(0.68, 0.69, 0.30),
             "pretrain": _scores(0.51, 0.56, 0.67),  # best on shifted, worst on seen
             "finetune": _scores(0.86, 0.81, 0.62),  # the highest worst: 0.62
             "finetune_plain": _scores(0.90, 0.80, 0.32)}  # best on seen, not shipped for it
+    for name in ("pretrain", "finetune", "finetune_plain"):
+        rows[name]["run"] = f"{name}/t"  # the run folder each was measured from
     (tmp_path / "rod.json").write_text(json.dumps({"photo": {"by_weights": rows}}))
     monkeypatch.setattr(_common, "RESULTS", tmp_path)
     shipped: list[tuple[Path, dict]] = []
@@ -34,7 +37,7 @@ def rod(tmp_path, monkeypatch):
 
 def test_the_candidate_with_the_highest_worst_set_ships_with_its_comparison(rod, tmp_path):
     rod_module, _, shipped = rod
-    runs = [tmp_path / name / "20261206-000000" for name in ("pretrain", "finetune", "finetune_plain")]
+    runs = [tmp_path / name / "t" for name in ("pretrain", "finetune", "finetune_plain")]
     rod_module.ship_best(runs, "rod_photo_learnt_tiny_320", None, "photo")
     (run, meta), = shipped
     assert run == runs[1] and meta["worse_on"] == [] and meta["reason"] is None and meta["recipe"] == "photo"
@@ -60,4 +63,15 @@ def test_a_candidate_not_yet_measured_is_named_with_the_command_that_measures_it
     rod_module, _, shipped = rod
     with pytest.raises(SystemExit, match=r"not measured: .*never_measured.*python experiments/rod.py photo --weights"):
         rod_module.ship_best([tmp_path / "never_measured" / "t"], "rod_photo_learnt_tiny_320", None, None)
+    assert not shipped
+
+
+def test_a_newer_run_of_a_measured_name_or_a_set_never_measured_is_refused(rod, tmp_path):
+    rod_module, rows, shipped = rod
+    with pytest.raises(SystemExit, match=r"not measured: .*finetune/20261207"):  # its namesake's scores are not its own
+        rod_module.ship_best([tmp_path / "finetune" / "20261207"], "rod_photo_learnt_tiny_320", None, None)
+    rows["finetune"]["shifted"] = {"ap50": None}
+    (tmp_path / "rod.json").write_text(json.dumps({"photo": {"by_weights": rows}}))
+    with pytest.raises(SystemExit, match=r"has no AP50 on shifted"):
+        rod_module.ship_best([tmp_path / "finetune" / "t"], "rod_photo_learnt_tiny_320", "any reason", None)
     assert not shipped

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import fcntl
+import calendar
 import json
 import os
 import re
@@ -165,7 +166,7 @@ def count_lost_attempts(record: dict, running: bool = False) -> None:
     written = [p.stat().st_mtime for p in folder.rglob("*") if p.is_file()] if folder is not None and folder.is_dir() else []
 
     def utc(text: str) -> float:
-        return time.mktime(time.strptime(text, "%Y-%m-%dT%H:%M:%SZ")) - time.timezone
+        return calendar.timegm(time.strptime(text, "%Y-%m-%dT%H:%M:%SZ"))
 
     for index, attempt in enumerate(attempts):
         if "exit" in attempt:
@@ -229,7 +230,7 @@ def status(recipe: Recipe, state: State) -> None:
         count_lost_attempts(counted, running=record["status"] == "running")
         seconds = counted.get("seconds", 0)
         if record["status"] == "running" and record.get("attempts"):  # this attempt's time so far
-            started = time.mktime(time.strptime(record["attempts"][-1]["started_utc"], "%Y-%m-%dT%H:%M:%SZ")) - time.timezone
+            started = calendar.timegm(time.strptime(record["attempts"][-1]["started_utc"], "%Y-%m-%dT%H:%M:%SZ"))
             seconds += max(0.0, time.time() - started)
         print(f"  {step.name:<14} {record['status']:<12} {seconds / 3600:6.2f} h  {what}"
               f"{'  -> ' + record['run'] if record.get('run') else ''}")

@@ -188,6 +188,8 @@ def build(row: Callable[[], Row]) -> Row | str:
         return row()
     except TableError as missing:
         return f"results table row {row.__name__}: {missing}"
+    except (TypeError, ValueError, ZeroDivisionError) as error:  # a key holding null or text where a figure belongs
+        return f"results table row {row.__name__}: a figure it reads is not a number ({error})"
 
 
 def readme_table() -> str:

@@ -196,7 +196,7 @@ class Guard:
         self.warn, self.every = warn, every
         self.dropped: dict[str, int] = {}  # refused input, per topic
         self.errors: dict[str, int] = {}  # internal errors, per topic
-        self._last: dict[str, float] = {}
+        self._last: dict = {}  # when each topic's last warning was logged
         self._lock = threading.Lock()
         self._published = (0, 0)  # (refused, errors) the last report covered
 
@@ -205,6 +205,10 @@ class Guard:
             with self._lock:
                 self.errors[topic] = self.errors.get(topic, 0) + 1
                 count = self.errors[topic]
+                now, key = time.monotonic(), ("error", topic)
+                if now - self._last.get(key, -math.inf) < self.every:  # a bug at the camera's rate: counted, logged
+                    return  # with its traceback once per ``every`` seconds, not flooding the log
+                self._last[key] = now
             trace = "".join(traceback.format_exception(type(error), error, error.__traceback__)).rstrip()
             self.warn(f"binpick: internal error on {topic} ({count} so far), the message dropped:\n{trace}")
             return

@@ -71,6 +71,7 @@ FIND_AGAIN_RADIUS = 1.0  # a pointed instance found again lies within this many 
 # instance moved 3.6 cm matched itself at 0.90, a neighbour where it had been 0.29 (tests/test_real_depth.py)
 FIND_AGAIN_COLOUR = 0.5
 FIND_AGAIN_MATCH = 0.6  # normalised cross-correlation at which the instance's own picture is found in place
+FIND_AGAIN_FAR = 3.0  # a pointed instance found by its colours lies within this many of its old box's diagonals
 
 
 def instance_surface_absent(frame: DepthFrame, box) -> bool:
@@ -106,6 +107,12 @@ def instance_similarity(histogram: np.ndarray, rgb: np.ndarray, frame: DepthFram
     return float(np.minimum(histogram, colour_histogram(rgb, mask)).sum())
 
 
+def textured(picture: np.ndarray) -> bool:
+    """Whether a picture has texture to match: on a flat one normalised cross-correlation scores the
+    same everywhere and its best place is arbitrary."""
+    return float(np.asarray(picture, dtype=np.float32).reshape(-1, picture.shape[-1]).std(axis=0).max()) >= 4.0
+
+
 def middle_of(rgb: np.ndarray, box) -> np.ndarray | None:
     """The middle three fifths of ``box`` in ``rgb`` (mostly the instance, little background); None
     when that is under 6 pixels a side."""
@@ -134,7 +141,7 @@ def matched_in_place(previous_rgb: np.ndarray, box: np.ndarray, rgb: np.ndarray,
     x1, y1 = int(round(min(width, x + w))), int(round(min(height, y + h)))
     inset_x, inset_y = (x1 - x0) // 5, (y1 - y0) // 5
     template = middle_of(previous_rgb, box)
-    if template is None:
+    if template is None or not textured(template):
         return None
     reach = int(np.ceil(FIND_AGAIN_RADIUS * np.hypot(w, h)))
     sx0, sy0 = max(0, x0 + inset_x - reach), max(0, y0 + inset_y - reach)
@@ -157,19 +164,20 @@ def matched_in_place(previous_rgb: np.ndarray, box: np.ndarray, rgb: np.ndarray,
 
 def found_by_colour(histogram: np.ndarray, rgb: np.ndarray, frame: DepthFrame, box: np.ndarray, area: int,
                     template: np.ndarray | None = None) -> np.ndarray | None:
-    """The instance found again anywhere in the new frame by its colours: the pixels standing out of
-    the floor around them whose hue and saturation are common in the instance (its histogram
-    back-projected), in blobs of half to twice its pixels whose colours match
-    (:data:`FIND_AGAIN_COLOUR` at least). For an instance a missed grasp pushed or rolled far, or
-    turned so that its picture no longer matches in place. Colour alone cannot tell two products of
-    one colour apart, and lifting the wrong one is worse than lifting none: of several such blobs the
-    one clearly nearest its size in pixels is it (a third nearer, in ratio), else the one its picture
-    (``template``, the middle of its crop) clearly matches best, else none is."""
+    """The instance found again by its colours where a missed grasp pushed or rolled it, or turned it
+    so that its picture no longer matches in place: the pixels standing out of the floor around them
+    whose hue and saturation are common in the instance (its histogram back-projected), in blobs of
+    half to twice its pixels within :data:`FIND_AGAIN_FAR` box diagonals of where it was, whose
+    colours match (:data:`FIND_AGAIN_COLOUR` at least) and whose picture matches its own
+    (``template``, the middle of its crop, turned by quarter turns: :data:`FIND_AGAIN_MATCH` at
+    least). Colour alone cannot tell two products of one colour apart, and lifting the wrong one is
+    worse than lifting none: of several such blobs the one clearly nearest its size in pixels (a
+    third nearer, in ratio) or, sizes alike, clearly best in picture (by 0.15) is it, else none is."""
     import cv2
 
     from binpick.picking.colour import BINS
 
-    if area < 16:
+    if area < 16 or template is None or not textured(template):
         return None
     hsv = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2HSV)
     hue = np.minimum(hsv[..., 0].astype(int) * BINS[0] // 180, BINS[0] - 1)
@@ -179,25 +187,30 @@ def found_by_colour(histogram: np.ndarray, rgb: np.ndarray, frame: DepthFrame, b
     size = int(2 * np.hypot(*box[2:])) | 1  # standing out of the floor round it (a top-hat wider than the instance:
     standing = cv2.morphologyEx(heights, cv2.MORPH_TOPHAT, np.ones((size, size), np.uint8)) > 0.008  # a bin's floor, a table)
     blobs = cv2.morphologyEx((likely & standing).astype(np.uint8), cv2.MORPH_OPEN, np.ones((5, 5), np.uint8))
-    count, _, stats, _ = cv2.connectedComponentsWithStats(blobs, connectivity=8)
-    qualified = []  # (how far from its size, as a log ratio; box)
+    count, _, stats, centroids = cv2.connectedComponentsWithStats(blobs, connectivity=8)
+    centre, diagonal = box[:2] + box[2:] / 2, max(float(np.hypot(*box[2:])), 1.0)
+    qualified = []  # (how far from its size, as a log ratio; picture match; box)
     for label in range(1, count):
         x, y, w, h, pixels = (int(v) for v in stats[label])
-        if not 0.5 * area <= pixels <= 2.0 * area or w < 3 or h < 3:
+        if not 0.5 * area <= pixels <= 2.0 * area or w < 3 or h < 3 \
+                or np.linalg.norm(centroids[label] - centre) > FIND_AGAIN_FAR * diagonal:
             continue
         candidate = np.array([x, y, w, h], dtype=float)
-        if instance_similarity(histogram, rgb, frame, candidate) >= FIND_AGAIN_COLOUR:
-            qualified.append((abs(float(np.log(pixels / area))), candidate))
-    qualified.sort(key=lambda item: item[0])
+        if instance_similarity(histogram, rgb, frame, candidate) < FIND_AGAIN_COLOUR:
+            continue
+        likeness = picture_match(template, rgb, candidate)
+        if likeness >= FIND_AGAIN_MATCH:
+            qualified.append((abs(float(np.log(pixels / area))), likeness, candidate))
     if not qualified:
         return None
-    if len(qualified) == 1 or qualified[1][0] - qualified[0][0] >= np.log(4 / 3):
-        return qualified[0][1]
-    if template is None:
-        return None
-    likeness = sorted(((picture_match(template, rgb, candidate), index) for index, (_, candidate) in enumerate(qualified)), reverse=True)
-    if likeness[0][0] >= FIND_AGAIN_MATCH and likeness[0][0] - likeness[1][0] >= 0.15:  # sizes alike: its picture decides
-        return qualified[likeness[0][1]][1]
+    if len(qualified) == 1:
+        return qualified[0][2]
+    by_size = sorted(qualified, key=lambda item: item[0])
+    if by_size[1][0] - by_size[0][0] >= np.log(4 / 3):
+        return by_size[0][2]
+    by_picture = sorted(qualified, key=lambda item: -item[1])
+    if by_picture[0][1] - by_picture[1][1] >= 0.15:  # sizes alike: its picture decides
+        return by_picture[0][2]
     return None
 
 
@@ -213,6 +226,8 @@ def picture_match(template: np.ndarray, rgb: np.ndarray, box: np.ndarray) -> flo
     x1, y1 = int(min(width, x + w + pad)), int(min(height, y + h + pad))
     window = rgb[y0:y1, x0:x1].astype(np.float32)
     best = -1.0
+    if not textured(template):
+        return best
     for turns in range(4):
         turned = np.ascontiguousarray(np.rot90(template, turns)).astype(np.float32)
         if window.shape[0] >= turned.shape[0] and window.shape[1] >= turned.shape[1]:
@@ -265,6 +280,7 @@ class Picker:
         self.verifier = verifier  # "learnt" is loaded when first needed
         kind = verifier if isinstance(verifier, str) or verifier is None else "learnt"
         self.check = check if check is not None or verifier is None else THRESHOLDS[kind]
+        self._check_given = check is not None  # a threshold given by the caller holds against a query box too
         self.score_threshold, self.rank_from = score_threshold, rank_from
         if max_grasps < 1:
             raise ConfigError(f"max_grasps must be at least 1, got {max_grasps}")
@@ -377,7 +393,7 @@ class Picker:
                 found, scores, checked = self.copies_of_best_match(rgb, depth, frame, photos, found, scores, checked)
             timing["check"] = 1000 * (time.perf_counter() - tick)
         ranked = list(zip(found, scores, checked))
-        threshold = self.check if query_box is None else QUERY_CHECK
+        threshold = self.check if query_box is None or self._check_given else QUERY_CHECK
         if threshold is not None and self.verifier is not None:
             ranked = [c for c in ranked if c[2] is None or c[2] >= threshold]
         not_the_product = len(found) - len(ranked)

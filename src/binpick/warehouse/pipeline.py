@@ -330,6 +330,8 @@ class PickPipeline:
                 result.success, result.reason = True, Reason.PLACED
                 return
             result.reason = Reason.WRONG_PRODUCT if wrong else outcome.reason
+            if wrong and outcome.placed:  # another product is in the customer's tote: the order is wrong whatever
+                return  # follows (a cell stops and calls a person), and it is never counted as placed
             if look_again is not None and result.grasps < self.max_attempts:
                 scene, replanned = look_again(result.grasps)
                 result.looked_again += 1
