@@ -66,6 +66,7 @@ class TrainConfig:
     keep_best: bool = False  # the final weights are those of the best val AP50 (early stopping)
     patience: int = 0  # stop after this many evaluations without a better val AP50 (0: never)
     max_minutes: float = 0.0  # stop (and save) after this long; 0: no limit
+    checkpoint_minutes: float = 15.0  # also checkpoint within an epoch this often (0: once per epoch): a kill loses less
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -74,6 +75,7 @@ class TrainConfig:
         check_choice("train.device", self.device, ("cpu", "cuda"))
         check_range("train.patience", self.patience, 0, 10_000, integer=True)
         check_range("train.max_minutes", self.max_minutes, 0, 1e6)
+        check_range("train.checkpoint_minutes", self.checkpoint_minutes, 0, 1e6)
         check_range("train.epochs", self.epochs, 1, 10_000, integer=True)
         check_range("train.batch_size", self.batch_size, 1, 512, integer=True)
         check_range("train.lr", self.lr, 0, 1, low_inclusive=False)

@@ -2,7 +2,8 @@
 evaluation, checkpoints.
 
 A run folder ``runs/<name>/<time>/`` holds ``config.yaml``, TensorBoard events (``tb/``), atomic
-checkpoints (``checkpoints/``, one per epoch: a kill loses at most the epoch in progress),
+checkpoints (``checkpoints/``, at each epoch's end and every ``train.checkpoint_minutes`` within one: a kill
+loses minutes; a resumed epoch trains on the batches it had not reached),
 ``metrics.json`` and the final ``model.safetensors`` that ``binpick detect eval/predict`` read.
 """
 
@@ -181,6 +182,7 @@ class DetectorTrainer:
         self.time_used = 0.0  # of train.max_minutes in this invocation (the learning rate anneals by it too)
         self.group = ALONE  # data-parallel training (distribute()): this process's place among others
         self.epoch, self.step, self.history = 0, 0, []
+        self.resumed_batches, self.resumed_sums = 0, {}  # a checkpoint within an epoch: batches trained, loss sums
         checkpoint = latest_checkpoint(resume / "checkpoints") if resume is not None else None
         if checkpoint is not None:
             self._load_checkpoint(checkpoint)
@@ -220,15 +222,20 @@ class DetectorTrainer:
         self.group.share([*self.model.parameters(), *self.model.buffers()])
         return self
 
-    def _loader(self) -> torch.utils.data.DataLoader:
-        """This process's batches of the epoch: all of them, or its shard in distributed training."""
+    def _loader(self, skip: int = 0) -> torch.utils.data.DataLoader:
+        """This process's batches of the epoch (all of them, or its shard in distributed training) in an
+        order drawn from the seed and the epoch, after the first ``skip`` batches (those a checkpoint
+        within the epoch already trained on: a resumed epoch sees the rest, no batch twice)."""
         train = self.config.train
         group = self.group
         if group.world == 1:
-            return loader(self.train_set, train.batch_size, True, train.workers, train.seed + self.epoch)
+            order = torch.randperm(len(self.train_set), generator=torch.Generator().manual_seed(train.seed + self.epoch)).tolist()
+            return torch.utils.data.DataLoader(self.train_set, batch_size=train.batch_size, sampler=order[skip * train.batch_size:],
+                                               num_workers=train.workers, collate_fn=collate, persistent_workers=False)
         sampler = torch.utils.data.DistributedSampler(self.train_set, group.world, group.rank, shuffle=True, seed=train.seed)
         sampler.set_epoch(self.epoch)
-        return torch.utils.data.DataLoader(self.train_set, batch_size=group.split(train.batch_size), sampler=sampler,
+        share = group.split(train.batch_size)
+        return torch.utils.data.DataLoader(self.train_set, batch_size=share, sampler=list(sampler)[skip * share:],
                                            num_workers=train.workers, collate_fn=collate)
 
     def _load_checkpoint(self, checkpoint: Path) -> None:
@@ -247,6 +254,11 @@ class DetectorTrainer:
         require_fields(state, {"model": dict, "optimizer": dict}, where)
         tensorfile.restore({"model": self.model, "optimizer": self.optimizer}, state, where)
         self.epoch, self.step, self.history = meta["epoch"], meta["step"], meta["history"]
+        batches, sums = meta.get("batches_in_epoch", 0), meta.get("sums") or {}
+        if isinstance(batches, bool) or not isinstance(batches, int) or batches < 0 or not isinstance(sums, dict) \
+                or not all(isinstance(v, (int, float)) for v in sums.values()):
+            raise InputFileError(f"{where} is damaged: batches_in_epoch must be a whole number and sums numbers")
+        self.resumed_batches, self.resumed_sums = batches, {str(k): float(v) for k, v in sums.items()}
 
     def _start_from(self, path: Path) -> None:
         """Weights of a pre-trained detector (same architecture), its anchors included: fine-tuning."""
@@ -319,12 +331,13 @@ class DetectorTrainer:
         self.open_log()
         started = time.monotonic()
         try:
+            saved = time.monotonic()
             while self.epoch < config.train.epochs:
                 self.train_set.set_epoch(self.epoch)
                 self.model.train()
-                sums: dict[str, float] = {}
-                batches = 0
-                for batch in self._loader():
+                sums, batches = dict(self.resumed_sums), self.resumed_batches  # a checkpoint within the epoch: its sums
+                self.resumed_sums, self.resumed_batches = {}, 0
+                for batch in self._loader(skip=batches):
                     self.note_time(time.monotonic() - started)
                     self.train_step(batch, sums)
                     batches += 1
@@ -332,6 +345,10 @@ class DetectorTrainer:
                                                   f"{sums['total'] / batches:.3f} {self.status}")
                     if self.group.agree(self.out_of_time(time.monotonic() - started)):
                         break  # the epoch ends here: evaluate, keep the best, checkpoint
+                    minutes = config.train.checkpoint_minutes
+                    if minutes > 0 and time.monotonic() - saved > 60 * minutes and self.group.lead:
+                        self._checkpoint(batches, sums)  # within the epoch: a kill loses minutes, not the epoch
+                        saved = time.monotonic()
                 if self.group.agree(self.end_epoch(sums, time.monotonic() - started)):
                     break
         finally:
@@ -421,10 +438,13 @@ class DetectorTrainer:
         finally:
             self.model.to(self.device)
 
-    def _checkpoint(self) -> None:
+    def _checkpoint(self, batches: int = 0, sums: dict[str, float] | None = None) -> None:
+        """Model, optimiser, epoch, step and history; within an epoch also the batches it has trained on
+        and their loss sums (``batches`` > 0), so that a resume trains on the epoch's other batches."""
         def write(folder: Path) -> None:
             tensorfile.save(folder / "state.safetensors", CHECKPOINT_FORMAT,
                             state={"model": self.model.state_dict(), "optimizer": self.optimizer.state_dict()},
-                            meta={"epoch": self.epoch, "step": self.step, "history": self.history})
+                            meta={"epoch": self.epoch, "step": self.step, "history": self.history,
+                                  "batches_in_epoch": batches, "sums": dict(sums or {})})
 
-        commit_checkpoint(self.run_dir / "checkpoints", self.epoch, write)
+        commit_checkpoint(self.run_dir / "checkpoints", self.step, write)
