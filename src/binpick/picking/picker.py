@@ -196,22 +196,22 @@ def found_by_colour(histogram: np.ndarray, rgb: np.ndarray, frame: DepthFrame, b
                 or np.linalg.norm(centroids[label] - centre) > FIND_AGAIN_FAR * diagonal:
             continue
         candidate = np.array([x, y, w, h], dtype=float)
-        if instance_similarity(histogram, rgb, frame, candidate) < FIND_AGAIN_COLOUR:
-            continue
-        likeness = picture_match(template, rgb, candidate)
-        if likeness >= FIND_AGAIN_MATCH:
-            qualified.append((abs(float(np.log(pixels / area))), likeness, candidate))
+        if instance_similarity(histogram, rgb, frame, candidate) >= FIND_AGAIN_COLOUR:
+            qualified.append((abs(float(np.log(pixels / area))), picture_match(template, rgb, candidate), candidate))
+    # every blob of its colours and size competes, its picture required of the one taken: a look-alike whose
+    # picture happens to match better than the instance's turned one is not taken for it unless clearly so
     if not qualified:
         return None
-    if len(qualified) == 1:
-        return qualified[0][2]
+    chosen = None
     by_size = sorted(qualified, key=lambda item: item[0])
-    if by_size[1][0] - by_size[0][0] >= np.log(4 / 3):
-        return by_size[0][2]
     by_picture = sorted(qualified, key=lambda item: -item[1])
-    if by_picture[0][1] - by_picture[1][1] >= 0.15:  # sizes alike: its picture decides
-        return by_picture[0][2]
-    return None
+    if len(qualified) == 1:
+        chosen = qualified[0]
+    elif by_size[1][0] - by_size[0][0] >= np.log(4 / 3):
+        chosen = by_size[0]
+    elif by_picture[0][1] - by_picture[1][1] >= 0.15:  # sizes alike: its picture decides
+        chosen = by_picture[0]
+    return chosen[2] if chosen is not None and chosen[1] >= FIND_AGAIN_MATCH else None
 
 
 def picture_match(template: np.ndarray, rgb: np.ndarray, box: np.ndarray) -> float:
