@@ -27,9 +27,13 @@ def peak_rss_mib() -> float:
 LOAD_AT_START = os.getloadavg()[0]  # the machine's load when this script started (its own work not yet in it)
 
 
+CODE_AT_START: tuple[str | None, bool] | None = None  # (commit, dirty) when the script started: a commit made
+# while it ran is not what it measured
+
+
 def provenance() -> dict:
-    """What a figure was measured with: the commit (and whether the tree had changes), the command
-    line, the machine's load average when the script started and now, and when."""
+    """What a figure was measured with: the commit (and whether the tree had changes) when the script
+    started, the command line, the machine's load average when it started and now, and when."""
     import subprocess
 
     def git(*args: str) -> str:
@@ -38,7 +42,10 @@ def provenance() -> dict:
         except (OSError, subprocess.SubprocessError):
             return ""
 
-    return {"commit": git("rev-parse", "HEAD") or None, "dirty": bool(git("status", "--porcelain", "--untracked-files=no")),
+    global CODE_AT_START
+    if CODE_AT_START is None:
+        CODE_AT_START = (git("rev-parse", "HEAD") or None, bool(git("status", "--porcelain", "--untracked-files=no")))
+    return {"commit": CODE_AT_START[0], "dirty": CODE_AT_START[1],
             "command": " ".join([Path(sys.argv[0]).name if sys.argv else "python", *sys.argv[1:]]),
             "load_average_start": round(LOAD_AT_START, 2), "load_average_end": round(os.getloadavg()[0], 2),
             "utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
@@ -152,3 +159,6 @@ def recipe(name: str) -> tuple[Path, dict]:
     if seeded and (base := sorted((ROOT / "configs").glob(f"*/{seeded.group(1)}.yaml"))):
         return base[0], {"seed": int(seeded.group(2)), "name": name}
     raise FileNotFoundError(f"no config named {name!r} under {ROOT / 'configs'}")
+
+
+provenance()  # the code as it is when the script starts
