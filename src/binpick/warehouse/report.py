@@ -79,7 +79,7 @@ def order_outcome(order: dict[str, Any]) -> str:
         return "placed"
     wrong = [a.get("lifted_product") for a in order["attempts"] if a.get("lifted_product") not in (None, order["product"])]
     if order["reason"] == "wrong product" and wrong:
-        return f"wrong product: {wrong[-1]} lifted"
+        return f"wrong product: {wrong[-1].split('/')[-1]} lifted"  # the short name: it fits the terminal's column
     return str(order["reason"])
 
 
