@@ -178,7 +178,7 @@ def detector_latency() -> Row:
                "—", file)
 
 
-ROWS: tuple[Callable[[], Row], ...] = (fetchreach_steps, arm2d_fixed_goal, arm2d_curriculum, pick_in_simulation,
+ROWS: tuple[Callable[[], Row], ...] = (fetchreach_steps, arm2d_fixed_goal, arm2d_curriculum, pick_in_simulation, pick_by_hand,
                                        pick_with_panda, plan_from_files, single_copy, photo_query_ap50, detector_latency)
 
 
