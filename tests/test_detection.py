@@ -527,7 +527,7 @@ data: {{train: {main}, val: {main}, targets: all, image_size: 64, rehearse: {oth
 
 
 def test_a_run_killed_within_an_epoch_resumes_from_its_last_checkpoint_there_to_the_same_weights(tmp_path, monkeypatch):
-    path = make_coco(tmp_path / "toy", images=8, seed=2)
+    path = make_coco(tmp_path / "toy", images=4, seed=2)
     config = tmp_path / "rod.yaml"
     config.write_text(f"""name: toy
 data: {{train: {path}, val: {path}, targets: all, image_size: 64, augment: false}}
@@ -537,27 +537,27 @@ train: {{epochs: 2, batch_size: 2, lr: 0.002, warmup_steps: 2, eval_every: 2, wo
     torch.manual_seed(0)
     whole = DetectorTrainer.new(load_detect_config(config), tmp_path / "whole")
     whole.run()
-    assert whole.step == 8  # 4 batches an epoch, 2 epochs
+    assert whole.step == 4  # 2 batches an epoch, 2 epochs
 
     class Killed(Exception):
         pass
 
     real = DetectorTrainer.train_step
 
-    def dies_at_the_third(self, batch, sums):
-        if self.step == 2:  # its machine goes away in the third step of the first epoch
+    def dies_at_the_second(self, batch, sums):
+        if self.step == 1:  # its machine goes away in the second step of the first epoch
             raise Killed
         real(self, batch, sums)
 
     torch.manual_seed(0)
     killed = DetectorTrainer.new(load_detect_config(config), tmp_path / "killed")
-    monkeypatch.setattr(DetectorTrainer, "train_step", dies_at_the_third)
+    monkeypatch.setattr(DetectorTrainer, "train_step", dies_at_the_second)
     with pytest.raises(Killed):
         killed.run()
     monkeypatch.setattr(DetectorTrainer, "train_step", real)
     resumed = DetectorTrainer.resume(killed.run_dir)
-    assert (resumed.epoch, resumed.step, resumed.resumed_batches) == (0, 2, 2)  # the checkpoint after two batches
+    assert (resumed.epoch, resumed.step, resumed.resumed_batches) == (0, 1, 1)  # the checkpoint after its first batch
     resumed.run()
-    assert resumed.step == 8  # the epoch's other two batches, then the second epoch: none trained twice
+    assert resumed.step == 4  # the epoch's other batch, then the second epoch: none trained twice
     for (name, a), b in zip(whole.model.state_dict().items(), resumed.model.state_dict().values()):
         assert torch.allclose(a.float(), b.float(), atol=1e-5), name  # the same weights as the run never killed
