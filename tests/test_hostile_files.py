@@ -86,31 +86,9 @@ def test_a_full_disk_is_one_line_and_leaves_no_half_file(args, tmp_path):
         assert path.suffix == ".json" and json.loads(path.read_text()) is not None, path
 
 
-@pytest.fixture
-def silent_peer():
-    """A listener on 127.0.0.1 that accepts every connection and never sends a byte."""
-    server = socket.socket()
-    server.bind(("127.0.0.1", 0))
-    server.listen(16)
-    held: list[socket.socket] = []
-
-    def accept() -> None:
-        while True:
-            try:
-                held.append(server.accept()[0])
-            except OSError:
-                return
-
-    threading.Thread(target=accept, daemon=True).start()
-    yield server.getsockname()[1]
-    server.close()
-    for connection in held:
-        connection.close()
-
-
-@pytest.fixture
-def garbage_peer():
-    """A listener on 127.0.0.1 that answers every connection with bytes of no protocol, then holds it open."""
+def _peer(on_connection):
+    """A listener on 127.0.0.1 whose every accepted connection goes to ``on_connection(connection,
+    held)`` on a thread of its own; yields the port, then closes the listener and what ``held`` keeps."""
     server = socket.socket()
     server.bind(("127.0.0.1", 0))
     server.listen(16)
@@ -120,10 +98,9 @@ def garbage_peer():
         while True:
             try:
                 connection = server.accept()[0]
-                connection.sendall(b"\x00\xffgarbage, not a protocol\r\n" * 8)
-                held.append(connection)
             except OSError:
                 return
+            threading.Thread(target=on_connection, args=(connection, held), daemon=True).start()
 
     threading.Thread(target=accept, daemon=True).start()
     yield server.getsockname()[1]
@@ -133,17 +110,32 @@ def garbage_peer():
 
 
 @pytest.fixture
+def silent_peer():
+    """A listener on 127.0.0.1 that accepts every connection and never sends a byte."""
+    yield from _peer(lambda connection, held: held.append(connection))
+
+
+@pytest.fixture
+def garbage_peer():
+    """A listener on 127.0.0.1 that answers every connection with bytes of no protocol, then holds it open."""
+    def answer(connection: socket.socket, held: list) -> None:
+        try:
+            connection.sendall(b"\x00\xffgarbage, not a protocol\r\n" * 8)
+        except OSError:
+            return
+        held.append(connection)
+
+    yield from _peer(answer)
+
+
+@pytest.fixture
 def stalling_master():
     """An XML-RPC peer on 127.0.0.1 that answers getPid as a ROS master does and then never answers again."""
-    server = socket.socket()
-    server.bind(("127.0.0.1", 0))
-    server.listen(16)
-    held: list[socket.socket] = []
     answer = (b"HTTP/1.0 200 OK\r\nContent-Type: text/xml\r\n\r\n<?xml version='1.0'?><methodResponse><params><param><value>"
               b"<array><data><value><int>1</int></value><value><string>ok</string></value><value><int>42</int></value>"
               b"</data></array></value></param></params></methodResponse>")
 
-    def handle(connection: socket.socket) -> None:
+    def handle(connection: socket.socket, held: list) -> None:
         request = b""
         connection.settimeout(10)
         try:
@@ -160,19 +152,7 @@ def stalling_master():
         else:
             held.append(connection)  # a stall: the request is read and never answered
 
-    def accept() -> None:
-        while True:
-            try:
-                connection = server.accept()[0]
-            except OSError:
-                return
-            threading.Thread(target=handle, args=(connection,), daemon=True).start()
-
-    threading.Thread(target=accept, daemon=True).start()
-    yield server.getsockname()[1]
-    server.close()
-    for connection in held:
-        connection.close()
+    yield from _peer(handle)
 
 
 @pytest.mark.timeout(120)
