@@ -81,14 +81,14 @@ def instance_surface_absent(frame: DepthFrame, box) -> bool:
     return instance_surface(frame, box) is None
 
 
-def instance_pixels(frame: DepthFrame, box) -> np.ndarray:
-    """The instance's own pixels in ``box`` (H, W bool): its region of the planner's height watershed,
-    so that its colours are not mixed with the floor or a wall beside it (near a tote's wall the
-    floor stands above the table the support is read from); the box's pixels above the support where
-    depth shows no instance."""
+def instance_pixels(frame: DepthFrame, box, surface=None) -> np.ndarray:
+    """The instance's own pixels in ``box`` (H, W bool): its region of the planner's height watershed
+    (``surface``, found here when not given), so that its colours are not mixed with the floor or a
+    wall beside it (near a tote's wall the floor stands above the table the support is read from); the
+    box's pixels above the support where depth shows no instance."""
     from binpick.grasping.candidates import instance_surface
 
-    surface = instance_surface(frame, box)
+    surface = instance_surface(frame, box) if surface is None else surface
     if surface is None or surface.mask is None or not surface.mask.any():
         return detection_mask(frame.heights, box)
     mask = np.zeros(frame.heights.shape, bool)
@@ -101,8 +101,13 @@ def instance_pixels(frame: DepthFrame, box) -> np.ndarray:
 def instance_similarity(histogram: np.ndarray, rgb: np.ndarray, frame: DepthFrame, box) -> float:
     """Histogram intersection in [0, 1] between ``histogram`` and the colours of the instance in
     ``box`` (:func:`instance_pixels`); 0 where depth shows nothing standing there."""
-    mask = instance_pixels(frame, box)
-    if not mask.any() or instance_surface_absent(frame, box):
+    from binpick.grasping.candidates import instance_surface
+
+    surface = instance_surface(frame, box)  # once: it is both the presence test and the pixels
+    if surface is None:
+        return 0.0
+    mask = instance_pixels(frame, box, surface)
+    if not mask.any():
         return 0.0
     return float(np.minimum(histogram, colour_histogram(rgb, mask)).sum())
 
