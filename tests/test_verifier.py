@@ -60,6 +60,27 @@ def test_the_verifier_scores_every_box_and_takes_the_best_over_several_photos(tm
         ProductVerifier.load(path)
 
 
+def test_a_repainted_look_alike_takes_the_photos_colours_on_its_own_shape_only():
+    from binpick.detection.verifier import STORED
+    from binpick.detection.verifier_training import repainted
+
+    window = np.zeros((STORED, STORED, 4), np.uint8)
+    window[..., :3] = (40, 90, 200)  # a blue tote floor
+    window[28:44, 20:52, :3] = (30, 160, 40)  # a green brick standing 3 cm on it
+    window[28:44, 20:52, 3] = 25
+    photo = np.zeros((64, 64, 4), np.uint8)
+    photo[..., :3] = 255
+    photo[16:48, 24:40] = (235, 235, 230, 255)  # a white carton on a white studio background
+    out = repainted(window, photo)
+    brick = out[28:44, 20:52, :3].reshape(-1, 3).astype(int)
+    assert np.abs(brick.mean(0) - (235, 235, 230)).max() < 12  # the brick is white now
+    assert np.array_equal(out[..., 3], window[..., 3])  # its shape (heights) is its own
+    assert np.array_equal(out[:20, :, :3], window[:20, :, :3])  # the floor round it is untouched
+    flat = window.copy()
+    flat[..., 3] = 0  # nothing stands out of the floor: nothing to repaint
+    assert np.array_equal(repainted(flat, photo), flat)
+
+
 @pytest.mark.slow
 def test_the_verifier_trains_on_randomised_bins_calibrates_and_resumes(tmp_path):
     from binpick.detection.verifier import ProductVerifier
@@ -90,7 +111,14 @@ def test_the_picker_refuses_an_unknown_check_and_mismatched_photo_masks():
     with pytest.raises(ConfigError, match="verifier must be one of"):
         Picker(None, GraspPlanner("analytic"), verifier="hunch")
     assert Picker(None, GraspPlanner("analytic"), verifier="colour").check == 0.15
-    assert Picker(None, GraspPlanner("analytic")).check == 0.2
+    from binpick.detection.verifier import ProductVerifier, VerifierNet
+
+    shipped = ProductVerifier.load().meta.get("threshold", 0.2)
+    assert Picker(None, GraspPlanner("analytic")).check == pytest.approx(shipped)  # calibrated with the shipped weights
+    calibrated = ProductVerifier(VerifierNet(8), {"threshold": 0.37})
+    assert Picker(None, GraspPlanner("analytic"), verifier=calibrated).check == pytest.approx(0.37)
+    assert Picker(None, GraspPlanner("analytic"), verifier=calibrated, check=0.6).check == pytest.approx(0.6)  # the caller's wins
+    assert Picker(None, GraspPlanner("analytic"), verifier=None).check is None
     photo = np.zeros((20, 20, 3), np.uint8)
     assert len(as_photos([photo, photo], None)) == 2
     with pytest.raises(ConfigError, match="one product mask per photo"):

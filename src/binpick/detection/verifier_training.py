@@ -5,7 +5,9 @@ Pairs come from each scene's ground truth: the ordered product's instances with 
 (the canonical one and the randomised studios' views, ``--photo-views``) are positives; the other
 products' instances in the same bin with that photo, and the product's instances with another
 world's photo, are negatives; a saturated instance whose hue is turned far round is a negative too
-(the same shape in another colour, the detector's usual confusion). Every window's colours are cast
+(the same shape in another colour, the detector's usual confusion), and so is another product's
+instance repainted in the ordered product's colours (another shape in the same colours: a white
+brick beside a white carton), so that shape counts where colour cannot tell. Every window's colours are cast
 and scaled well beyond the training lights (a warehouse's light is not the renderer's) and its box
 jittered (detections are not ground truth). Temperature scaling on the val worlds' pairs makes the
 output a probability. Checkpoints are written atomically after each epoch; a run resumes.
@@ -15,7 +17,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -25,7 +27,7 @@ import torch
 from torch.nn import functional as F
 
 from binpick.core.config import check_range
-from binpick.detection.verifier import (SIDE, STORED, ProductVerifier, VerifierNet, colour_features, illuminant, photo_input,
+from binpick.detection.verifier import (MARGIN, SIDE, STORED, ProductVerifier, VerifierNet, colour_features, illuminant, photo_input,
                                         to_tensor, window_input)
 from binpick.core.errors import ConfigError
 from binpick.core.runs import SILENT, RunCallback
@@ -43,6 +45,7 @@ class VerifierTrainConfig:
     lr: float = 2e-3
     width: int = 16
     min_visible: float = 0.3  # instances less visible than this are left out
+    repainted: float = 0.3  # share of negative pairs whose window is repainted in the photo's colours (0: none)
     threads: int = 2
     seed: int = 0
 
@@ -53,6 +56,7 @@ class VerifierTrainConfig:
         check_range("lr", self.lr, 1e-6, 1.0)
         check_range("width", self.width, 8, 256, integer=True)
         check_range("min_visible", self.min_visible, 0.0, 1.0)
+        check_range("repainted", self.repainted, 0.0, 1.0)
         check_range("threads", self.threads, 1, 256, integer=True)
         if self.width % 8:
             raise ConfigError(f"width must be a multiple of 8 (GroupNorm groups), got {self.width}")
@@ -68,6 +72,7 @@ class Windows:
     names: list[str]
     photos: dict[int, np.ndarray]  # product index -> (V, SIDE, SIDE, 4) uint8 (alpha: the product): canonical view first
     lights: np.ndarray  # (N, 3) the illuminant of each window's frame (binpick.detection.verifier.illuminant)
+    categories: dict[int, str] = field(default_factory=dict)  # product index -> its category (shape family)
 
     @property
     def positive(self) -> np.ndarray:
@@ -97,7 +102,7 @@ def collect(data: str | Path, splits: tuple[str, ...], limit: int | None, min_vi
     if not paths:
         raise ConfigError(f"{str(data)!r} holds no scenes yet")
     names: dict[str, int] = {}
-    windows, product, ordered, photos, lights = [], [], [], {}, []
+    windows, product, ordered, photos, lights, categories = [], [], [], {}, [], {}
     with callback.task(f"windows of {data.name}", len(paths)) as task:
         for path in paths:
             task.update(advance=1)
@@ -121,11 +126,12 @@ def collect(data: str | Path, splits: tuple[str, ...], limit: int | None, min_vi
                     continue
                 windows.append(window_input(rgb, depth, annotation["bbox"]))
                 product.append(names.setdefault(annotation["product"], len(names)))
+                categories[product[-1]] = str(annotation.get("category", ""))
                 ordered.append(key)
                 lights.append(light)
     if not windows:
         raise ConfigError(f"no instance windows in {str(data)!r} for splits {', '.join(splits)}")
-    return Windows(np.stack(windows), np.array(product), np.array(ordered), list(names), photos, np.stack(lights))
+    return Windows(np.stack(windows), np.array(product), np.array(ordered), list(names), photos, np.stack(lights), categories)
 
 
 # ---------------------------------------------------------------------- pairs and augmentation
@@ -134,6 +140,27 @@ def hue_turned(window: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     hsv = cv2.cvtColor(np.ascontiguousarray(window[..., :3]), cv2.COLOR_RGB2HSV)
     hsv[..., 0] = (hsv[..., 0].astype(int) + int(rng.integers(30, 91)) * (1 if rng.uniform() < 0.5 else -1)) % 180
     return np.dstack([cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB), window[..., 3]])
+
+
+def repainted(window: np.ndarray, photo: np.ndarray) -> np.ndarray:
+    """The window's product pixels in the photo product's colours (Lab mean and spread of the photo's
+    product pixels; the window's own shading and print kept as their pattern): another shape in the
+    ordered product's colours, the look-alike a colour check cannot refuse."""
+    side = window.shape[0]
+    standing = cv2.morphologyEx(np.ascontiguousarray(window[..., 3]), cv2.MORPH_TOPHAT, np.ones((side - 11, side - 11), np.uint8))
+    mask = standing > 8  # ~1 cm above the surface round it (a top-hat: tilted floors and walls fall away)
+    inside = int(round(side * MARGIN / (1 + 2 * MARGIN)))  # the box itself, without the margin cut round it
+    mask[:inside], mask[-inside:], mask[:, :inside], mask[:, -inside:] = False, False, False, False
+    own = photo[..., 3] > 127
+    if not own.any() or mask.sum() < 16:
+        return window
+    lab = cv2.cvtColor(np.ascontiguousarray(window[..., :3]), cv2.COLOR_RGB2LAB).astype(np.float32)
+    reference = cv2.cvtColor(np.ascontiguousarray(photo[..., :3]), cv2.COLOR_RGB2LAB).astype(np.float32)[own]
+    pixels = lab[mask]
+    lab[mask] = (pixels - pixels.mean(0)) / (pixels.std(0) + 1.0) * reference.std(0) + reference.mean(0)
+    rgb = window[..., :3].copy()
+    rgb[mask] = cv2.cvtColor(np.clip(lab, 0, 255).astype(np.uint8), cv2.COLOR_LAB2RGB)[mask]  # the rest as it was
+    return np.dstack([rgb, window[..., 3]])
 
 
 def saturated(window: np.ndarray) -> bool:
@@ -179,9 +206,10 @@ def holed(window: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     return window
 
 
-def batch(data: Windows, indices: np.ndarray, rng: np.random.Generator, train: bool):
+def batch(data: Windows, indices: np.ndarray, rng: np.random.Generator, train: bool, repaint: float = 0.0):
     """(photos, windows, labels) for windows ``indices``: each window with its scene's ordered product's
-    photo, or (half the ordered product's windows) another product's photo; hue-turned hard negatives."""
+    photo, or (half the ordered product's windows) another product's photo; hue-turned hard negatives,
+    and (a ``repaint`` share of the negatives) other products repainted in the photo's colours."""
     keys = np.array(sorted(data.photos))
     photos, windows, colours, labels = [], [], [], []
     for i in indices:
@@ -196,6 +224,8 @@ def batch(data: Windows, indices: np.ndarray, rng: np.random.Generator, train: b
             window, label = hue_turned(window, rng), 0
         views = data.photos[photo_of]
         photo = views[rng.integers(len(views))] if train else views[0]
+        if not label and data.categories.get(int(data.product[i]), "") != data.categories.get(photo_of, "?") and rng.uniform() < repaint:
+            window = repainted(window, photo)
         light = data.lights[i]
         if train:
             window, cast = lit(jittered(window, rng), rng, 1.0)
@@ -213,11 +243,12 @@ def batch(data: Windows, indices: np.ndarray, rng: np.random.Generator, train: b
             torch.tensor(labels, dtype=torch.float32))
 
 
-def fixed_pairs(data: Windows, seed: int, size: int = 4096):
-    """A fixed evaluation set of pairs (same draws every time it is made)."""
+def fixed_pairs(data: Windows, seed: int, size: int = 4096, repaint: float = 0.0):
+    """A fixed evaluation set of pairs (same draws every time it is made); ``repaint``: the share of
+    negatives repainted in the photo's colours (1: every negative a look-alike)."""
     rng = np.random.default_rng(seed)
     indices = rng.choice(len(data.windows), size=min(size, len(data.windows)), replace=False)
-    return batch(data, indices, rng, train=False)
+    return batch(data, indices, rng, train=False, repaint=repaint)
 
 
 @torch.no_grad()
@@ -269,6 +300,7 @@ def train_verifier(config: VerifierTrainConfig, callback: RunCallback = SILENT) 
     train = collect(config.data, ("train",), config.scenes, config.min_visible, callback)
     val = collect(config.data, ("val",), config.scenes, config.min_visible, callback)
     val_pairs = fixed_pairs(val, config.seed + 1)
+    look_alikes = fixed_pairs(val, config.seed + 2, repaint=1.0)  # every negative in the ordered product's colours
     net = VerifierNet(config.width)
     optimiser = torch.optim.AdamW(net.parameters(), lr=config.lr, weight_decay=1e-4)
     steps_per_epoch = max(1, len(train.windows) // config.batch_size)
@@ -291,7 +323,8 @@ def train_verifier(config: VerifierTrainConfig, callback: RunCallback = SILENT) 
             order = rng.permutation(len(train.windows))
             total, started = 0.0, time.perf_counter()
             for step in range(steps_per_epoch):
-                photos, windows, colours, labels = batch(train, order[step * config.batch_size:(step + 1) * config.batch_size], rng, True)
+                photos, windows, colours, labels = batch(train, order[step * config.batch_size:(step + 1) * config.batch_size], rng, True,
+                                                         config.repainted)
                 loss = F.binary_cross_entropy_with_logits(net(photos, windows, colours), labels)
                 optimiser.zero_grad()
                 loss.backward()
@@ -300,7 +333,8 @@ def train_verifier(config: VerifierTrainConfig, callback: RunCallback = SILENT) 
                 total += loss.item()
             probabilities = torch.sigmoid(logits_of(net, val_pairs)).numpy()
             row = {"epoch": epoch + 1, "loss": round(total / steps_per_epoch, 4), "seconds": round(time.perf_counter() - started, 1),
-                   **{f"val_{k}": v for k, v in scores(probabilities, val_pairs[3].numpy()).items()}}
+                   **{f"val_{k}": v for k, v in scores(probabilities, val_pairs[3].numpy()).items()},
+                   "val_look_alike_auc": scores(torch.sigmoid(logits_of(net, look_alikes)).numpy(), look_alikes[3].numpy()).get("auc")}
             history.append(row)
             callback.message(json.dumps(row))
             tensorfile.save(checkpoint, FORMAT_CHECKPOINT, meta={"config": asdict(config), "epoch": epoch + 1, "history": history},
@@ -309,6 +343,7 @@ def train_verifier(config: VerifierTrainConfig, callback: RunCallback = SILENT) 
     net.temperature.fill_(fit_temperature(logits_of(net, val_pairs), val_pairs[3]))
     verifier = ProductVerifier(net)
     metrics = {"val": scores(torch.sigmoid(logits_of(net, val_pairs)).numpy(), val_pairs[3].numpy()),
+               "val_look_alike": scores(torch.sigmoid(logits_of(net, look_alikes)).numpy(), look_alikes[3].numpy()),
                "temperature": round(float(net.temperature), 4), "train_windows": int(len(train.windows)),
                "train_products": len(train.photos), "history": history}
     verifier.save(out / "product_verifier.safetensors", {"trained_on": Path(config.data).name, "metrics": metrics["val"]})

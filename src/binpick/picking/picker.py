@@ -255,7 +255,7 @@ class Picker:
     ``verifier``: the product check against shop photos: ``learnt`` (the shipped
     :class:`~binpick.detection.verifier.ProductVerifier`, or one given), ``colour`` (hue-saturation
     histogram intersection, the older tuned check) or None (no check). ``check`` drops detections it
-    scores below this (default: 0.2 for the learnt one, a probability; 0.15 for colour). Against a
+    scores below this (default: the threshold calibrated with the learnt one's weights, a probability; 0.15 for colour). Against a
     query box the check is the colour one in the frame's own light. ``rank_from`` (None: off)
     considers detections down to this detector score and ranks them by detector score times the
     check's score. ``copies_from_match`` (None: off): where the product check gives a photo detection
@@ -284,7 +284,8 @@ class Picker:
             raise ConfigError(f"verifier must be one of {', '.join(VERIFIERS)} (or none), got {verifier!r}")
         self.verifier = verifier  # "learnt" is loaded when first needed
         kind = verifier if isinstance(verifier, str) or verifier is None else "learnt"
-        self.check = check if check is not None or verifier is None else THRESHOLDS[kind]
+        # the learnt check's threshold is the one calibrated with its weights (read when it is first needed)
+        self._check = check if check is not None or verifier is None or kind == "learnt" else THRESHOLDS[kind]
         self._check_given = check is not None  # a threshold given by the caller holds against a query box too
         self.score_threshold, self.rank_from = score_threshold, rank_from
         if max_grasps < 1:
@@ -295,6 +296,22 @@ class Picker:
         # (binpick.arm.MotionPlanner.reach_check)
         self.reach = reach
         self.working_pixels = working_pixels  # larger frames are planned at this many pixels (None: at their own size)
+
+    @property
+    def check(self) -> float | None:
+        """The product check's threshold: the caller's, else the learnt verifier's calibrated one
+        (chosen on held-out products, carried in its weights' metadata), else the colour check's."""
+        if self._check is None and self.verifier is not None:
+            self._check = float(self.learnt_verifier().meta.get("threshold", THRESHOLDS["learnt"]))
+        return self._check
+
+    def learnt_verifier(self):
+        """The learnt product check (the shipped one, loaded the first time it is needed)."""
+        if self.verifier == "learnt":
+            from binpick.detection.verifier import ProductVerifier
+
+            self.verifier = ProductVerifier.load()
+        return self.verifier
 
     @classmethod
     def load(cls, detector: str | Path | None = None, grasp: str = "learnt", grasp_weights: str | Path | None = None,
@@ -505,11 +522,7 @@ class Picker:
         if self.verifier == "colour":
             histograms = [colour_histogram(image, photo_mask(image) if mask is None else mask) for image, mask in photos]
             return [max(colour_similarity(h, rgb, frame.heights, box) for h in histograms) for box in boxes]
-        if self.verifier == "learnt":
-            from binpick.detection.verifier import ProductVerifier
-
-            self.verifier = ProductVerifier.load()
-        probabilities = self.verifier.probabilities([image for image, _ in photos], [mask for _, mask in photos], rgb, depth, boxes)
+        probabilities = self.learnt_verifier().probabilities([image for image, _ in photos], [mask for _, mask in photos], rgb, depth, boxes)
         return [float(p) for p in probabilities]
 
     def find_again(self, previous_rgb: np.ndarray, previous_depth: np.ndarray, previous_box, rgb: np.ndarray, depth: np.ndarray,

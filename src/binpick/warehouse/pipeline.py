@@ -98,7 +98,7 @@ class PickPipeline:
     so the simulated orders and a real camera's frames run the same planning code.
 
     ``verifier`` is the product check against the shop photos (:class:`binpick.picking.Picker`:
-    ``learnt``, the shipped verifier, whose ``check`` threshold is a probability, default 0.2;
+    ``learnt``, the shipped verifier, whose ``check`` threshold is a probability, by default the one calibrated with its weights;
     ``colour``, the older hue-saturation check, 0.15; None: none). It drops confident detections of
     other products before a grasp puts them in the customer's tote. ``photos`` says which of the
     product's shop photos condition the detector: ``catalogue`` (each built-in product's views,
