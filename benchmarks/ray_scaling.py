@@ -5,7 +5,7 @@ simulators' own throughput.
     python benchmarks/ray_scaling.py [--config configs/rl/rl_fetchreach_gp_her.yaml] [--steps 4000] [--seeds 0 1 2]
 
 Learning: the config as shipped, but to exactly ``--steps`` simulator steps (no early stop, so every mode
-ends at the same step), seed 0: locally (one simulator in the learner's process), on a private Ray cluster
+ends at the same step), each run in a fresh process as ``binpick train`` runs it, seed 0: locally (one simulator in the learner's process), on a private Ray cluster
 (127.0.0.1) with 1 and 2 simulator actors, and with 2 actors of which one is SIGKILLed at a third of the
 run; for seeds beyond the first, locally and on 2 actors again (steps to 95% by seed: the noise to judge by). Throughput: simulator steps per second of the actors alone, random actions, 1 and 2 actors and a
 local env. Writes ``gp_her``, ``simulators`` and ``faults.simulators`` of results/ray_scaling.json and the
@@ -20,6 +20,7 @@ import os
 import signal
 import sys
 import time
+from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), os.pardir, "experiments"))  # _common: results and docs
@@ -33,6 +34,21 @@ def config_for(path: str, steps: int, seed: int = 0):
     from binpick import jobs
 
     return jobs.load_as("rl", path, {"total_timesteps": steps, "eval.stop_after_successes": 0, "seed": seed})
+
+
+def learn_apart(path: str, steps: int, seed: int, workers: int, kill_at: int | None = None) -> dict:
+    """:func:`learn` in a fresh Python process, as ``binpick train`` runs a learner: nothing an earlier
+    run left in this process (Ray's driver, thread pools, random states) reaches it, so a local row is
+    the CLI's run of the same seed."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
+        return pool.submit(learn_config, path, steps, seed, workers, kill_at).result()
+
+
+def learn_config(path: str, steps: int, seed: int, workers: int, kill_at: int | None = None) -> dict:
+    return learn(config_for(path, steps, seed), workers, kill_at)
 
 
 def learn(config, workers: int, kill_at: int | None = None) -> dict:
@@ -114,17 +130,17 @@ def main() -> None:
     simulators = {"local": throughput(config, 0, args.seconds),
                   **{f"workers_{n}": throughput(config, n, args.seconds) for n in (1, 2)}}
     print("simulator steps/s", simulators, flush=True)
-    rows = {"local": learn(config, 0), "workers_1": learn(config, 1), "workers_2": learn(config, 2)}
-    killed = learn(config, 2, kill_at=args.steps // 3)
+    rows = {mode: learn_apart(args.config, args.steps, config.seed, workers) for mode, workers in
+            (("local", 0), ("workers_1", 1), ("workers_2", 2))}
+    killed = learn_apart(args.config, args.steps, config.seed, 2, kill_at=args.steps // 3)
     def brief(row: dict) -> dict:
         return {"sim_steps_to_95": row["sim_steps_to_95"], "final_success": row["final_success"]}
 
     by_seed = {"local": {str(config.seed): brief(rows["local"])}, "workers_2": {str(config.seed): brief(rows["workers_2"])}}
     for seed in args.seeds:
         if seed != config.seed:
-            other = config_for(args.config, args.steps, seed)
-            by_seed["local"][str(seed)] = brief(learn(other, 0))
-            by_seed["workers_2"][str(seed)] = brief(learn(other, 2))
+            by_seed["local"][str(seed)] = brief(learn_apart(args.config, args.steps, seed, 0))
+            by_seed["workers_2"][str(seed)] = brief(learn_apart(args.config, args.steps, seed, 2))
     same = (killed["sim_steps"] == rows["workers_2"]["sim_steps"]
             and [s for s, _ in killed["evaluations"]] == [s for s, _ in rows["workers_2"]["evaluations"]])
     path = _common.RESULTS / "ray_scaling.json"
@@ -138,10 +154,22 @@ def main() -> None:
                             "efficiency_2_over_1": round(simulators["workers_2"] / simulators["workers_1"], 3)}
     result.setdefault("faults", {})["simulators"] = {"same_final": same, "killed": killed, "uninterrupted": "gp_her.workers_2"}
     _common.write_result("ray_scaling", result)
-    write(result)
+    print(_common.write_section_of("ray_scaling", section, "ray_scaling.json"))
 
 
-def write(result: dict) -> None:
+def earlier_local_runs() -> str:
+    """The thesis-config runs of the local learner in results/rl_fetchreach_vs_sb3.json: where, when
+    (its run folders' date), which seeds, and their simulator steps to 95%."""
+    earlier = json.loads((_common.RESULTS / "rl_fetchreach_vs_sb3.json").read_text())["binpick_thesis"]
+    stamp = Path(earlier["run_dirs"][0]).name
+    seeds = earlier["seeds"]
+    return (f"(results/rl_fetchreach_vs_sb3.json, {stamp[:4]}-{stamp[4:6]}-{stamp[6:8]}, seeds {min(seeds)}-{max(seeds)}): "
+            + " / ".join(f"{steps:,}" for steps in earlier["sim_steps_to_95"]))
+
+
+def section(result: dict) -> str:
+    """The GP + HER on Ray section of docs/RESULTS.md, from results/ray_scaling.json (and the earlier local
+    runs it cites, from results/rl_fetchreach_vs_sb3.json)."""
     rows, sims, fault = result["gp_her"], result["simulators"], result["faults"]["simulators"]
     names = {"local": "local (no Ray)", "workers_1": "Ray, 1 simulator actor", "workers_2": "Ray, 2 simulator actors"}
     lines = ["## The GP + HER learner with its simulators on Ray", "",
@@ -169,8 +197,7 @@ def write(result: dict) -> None:
               f"{reached(fault['killed'])}. Seed to seed the same learner lands a thousand steps apart or misses the "
               "mark at this budget, so the 2-actor runs are within that noise of the local ones; no seed-for-seed "
               "equality is expected with 2 simulators (their second simulator plays other episodes). Earlier "
-              "thesis-config runs of the local learner (results/rl_fetchreach_vs_sb3.json, 2026-11-22, seeds 0-2): "
-              "4,000 / 3,500 / 3,500.", "",
+              f"thesis-config runs of the local learner {earlier_local_runs()}.", "",
               f"Simulators alone (random actions, {sims['seconds']:g} s each): local env {sims['steps_per_s']['local']} steps/s, "
               f"1 actor {sims['steps_per_s']['workers_1']}, 2 actors {sims['steps_per_s']['workers_2']} "
               f"(2 over 1: {sims['efficiency_2_over_1']}×; each vector step is a round trip to every actor).", "",
@@ -184,8 +211,7 @@ def write(result: dict) -> None:
               f"**{'yes' if fault['same_final'] else 'NO'}**; {fault['killed']['worker_restarts']} restart, the episode in "
               f"flight dropped from the replay; final success {fault['killed']['final_success']:.0%}.", "",
               f"Load average at the end: {rows['load_average']}; peak RSS {rows['peak_rss_mib']:.0f} MiB (driver)."]
-    _common.write_section("ray_scaling", "\n".join(lines))
-    print("\n".join(lines))
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":
