@@ -95,6 +95,24 @@ def trials_per_second(scenes: int, size: int) -> tuple[float, int, float]:
     return trials / seconds, trials, picked / max(trials, 1)
 
 
+def section(result: dict) -> str:
+    """The data-speed section of docs/RESULTS.md, from results/data_speed.json."""
+    rate, random_rate, size = result["scenes_per_s"], result["randomised_scenes_per_s"], result["image_size"]
+    ray_rates = result["ray_scenes_per_s"]
+    return "\n".join([
+        "## Warehouse data generation speed", "",
+        "`python benchmarks/data_speed.py` → `results/data_speed.json`. One process (per core: scenes per second of its CPU time); scenes are settled, rendered "
+        "(RGB, depth, segmentation, per-instance masks for the visible fraction), annotated and written as PNG + JSON.", "",
+        "| | ours | target |", "|---|---|---|",
+        f"| scenes/s without labels, {size} px, one core | {rate:.2f} | ≥ 3 ({'met' if rate >= 3 else 'missed'}) |",
+        f"| domain-randomised scenes/s, {size} px, one core (`--domain random`) | {random_rate:.2f} | ≥ 3 ({'met' if random_rate >= 3 else 'missed'}) |",
+        f"| randomised scenes/s through Ray, 1 / 2 local workers (wall clock) | {ray_rates['1']:.2f} / {ray_rates['2']:.2f} | — |",
+        f"| trial grasps/s (scripted top-down, both policies) | {result['grasp_trials_per_s']:.2f} | — |", "",
+        f"Load average while measuring: {result['load_average_1min']:.2f} on {result['machine']['cpu_count']} cores; "
+        f"peak RSS {result['peak_rss_mib']:.0f} MiB.",
+    ])
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenes", type=int, default=40)
@@ -117,18 +135,8 @@ def main() -> None:
               "scenes": made, "trials": trials, "trial_pick_rate": round(picked, 3), "processes": 1,
               "target_scenes_per_s_per_core": 3.0, "met": rate >= 3.0, "randomised_met": random_rate >= 3.0, "load_average_1min": round(load, 2),
               "peak_rss_mib": round(_common.peak_rss_mib(), 1)}
-    path = _common.write_result("data_speed", result)
-    _common.write_section("data_speed", "\n".join([
-        "## Warehouse data generation speed", "",
-        f"`python benchmarks/data_speed.py` → `{path.relative_to(_common.ROOT)}`. One process (per core: scenes per second of its CPU time); scenes are settled, rendered "
-        f"(RGB, depth, segmentation, per-instance masks for the visible fraction), annotated and written as PNG + JSON.", "",
-        "| | ours | target |", "|---|---|---|",
-        f"| scenes/s without labels, {args.size} px, one core | {rate:.2f} | ≥ 3 ({'met' if rate >= 3 else 'missed'}) |",
-        f"| domain-randomised scenes/s, {args.size} px, one core (`--domain random`) | {random_rate:.2f} | ≥ 3 ({'met' if random_rate >= 3 else 'missed'}) |",
-        f"| randomised scenes/s through Ray, 1 / 2 local workers (wall clock) | {ray_rates['1']:.2f} / {ray_rates['2']:.2f} | — |",
-        f"| trial grasps/s (scripted top-down, both policies) | {trial_rate:.2f} | — |", "",
-        f"Load average while measuring: {load:.2f} on {os.cpu_count()} cores; peak RSS {result['peak_rss_mib']:.0f} MiB.",
-    ]))
+    _common.write_result("data_speed", result)
+    _common.write_section_of("data_speed", section, "data_speed.json")
 
 
 if __name__ == "__main__":

@@ -52,6 +52,32 @@ def steps_per_second(env_id: str, size: int | None, seconds: float) -> tuple[flo
         env.close()
 
 
+def section(result: dict) -> str:
+    """The env-speed section of docs/RESULTS.md, from results/env_speed.json."""
+    by_env: dict[str, dict[str, float]] = {}
+    for row in result["rows"]:
+        by_env.setdefault(row["env_id"], {})[row["image"]] = row["steps_per_s"]
+    lines = [
+        "## Environment speed",
+        "",
+        f"Steps per second with random actions, one process, `MUJOCO_GL={result['machine']['mujoco_gl']}` "
+        f"(Mesa llvmpipe), {result['machine']['cpu_count']} cores; RGB image observations rendered every step. "
+        "Produced by `python benchmarks/env_speed.py` → `results/env_speed.json`.",
+        "",
+        "| env | no image | 64×64 | 84×84 | 128×128 |",
+        "|---|---:|---:|---:|---:|",
+    ]
+    for env_id, rates in by_env.items():
+        lines.append(f"| `{env_id}` | " + " | ".join(f"{rates[k]:,.0f}" for k in SETTINGS) + " |")
+    lines += ["", "| target | ours | met |", "|---|---:|---|"]
+    for check in result["targets"]:
+        what = "no image" if check["image"] == "none" else f"{check['image']}×{check['image']} images"
+        lines.append(f"| {check['env_id']} ≥ {check['target_steps_per_s']} steps/s, {what} | "
+                     f"{check['steps_per_s']:,.0f} | {'yes' if check['met'] else '**no**'} |")
+    lines.append(f"\nPeak RSS of the whole run: {result['peak_rss_mib']:.0f} MiB.")
+    return "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=3.0, help="timed seconds per env and setting")
@@ -72,28 +98,7 @@ def main() -> None:
                                               "peak_rss_mib": round(_common.peak_rss_mib(), 1)})
     print(f"wrote {path}")
 
-    by_env: dict[str, dict[str, float]] = {}
-    for row in rows:
-        by_env.setdefault(row["env_id"], {})[row["image"]] = row["steps_per_s"]
-    lines = [
-        "## Environment speed",
-        "",
-        f"Steps per second with random actions, one process, `MUJOCO_GL={os.environ.get('MUJOCO_GL')}` "
-        f"(Mesa llvmpipe), {os.cpu_count()} cores; RGB image observations rendered every step. "
-        "Produced by `python benchmarks/env_speed.py` → `results/env_speed.json`.",
-        "",
-        "| env | no image | 64×64 | 84×84 | 128×128 |",
-        "|---|---:|---:|---:|---:|",
-    ]
-    for env_id, rates in by_env.items():
-        lines.append(f"| `{env_id}` | " + " | ".join(f"{rates[k]:,.0f}" for k in SETTINGS) + " |")
-    lines += ["", "| target | ours | met |", "|---|---:|---|"]
-    for check in checks:
-        what = "no image" if check["image"] == "none" else f"{check['image']}×{check['image']} images"
-        lines.append(f"| {check['env_id']} ≥ {check['target_steps_per_s']} steps/s, {what} | "
-                     f"{check['steps_per_s']:,.0f} | {'yes' if check['met'] else '**no**'} |")
-    lines.append(f"\nPeak RSS of the whole run: {_common.peak_rss_mib():.0f} MiB.")
-    _common.write_section("env_speed", "\n".join(lines))
+    _common.write_section_of("env_speed", section, "env_speed.json")
 
 
 if __name__ == "__main__":

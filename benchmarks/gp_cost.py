@@ -63,6 +63,32 @@ def time_simulator(env, steps: int) -> float:
     return (time.perf_counter() - started) / steps
 
 
+def section(result: dict) -> str:
+    """The GP-cost section of docs/RESULTS.md, from results/gp_cost.json."""
+    sim, sim_rendered = result["sim_s_per_transition"], result["sim_rendered_84px_s_per_transition"]
+    ratio, ratio_rendered = result["gp_cheaper_than_sim"], result["gp_cheaper_than_rendered_sim"]
+    return "\n".join([
+        "## GP imagination cost (thesis §3.3.1)",
+        "",
+        "Seconds per transition, measured in one process by `python benchmarks/gp_cost.py` → "
+        "`results/gp_cost.json`. GP: 15 random FetchReach episodes, imagined episodes rolled "
+        f"{result['imagined_batch_episodes']} at a time with the SAC actor, closed-form predictive mean and variance.",
+        "",
+        "| | ours | thesis |",
+        "|---|---:|---:|",
+        f"| MuJoCo FetchReach step, no rendering | {sim * 1e6:.0f} µs | — |",
+        f"| MuJoCo FetchReach step + 84×84 image | {sim_rendered * 1e6:.0f} µs | 10,000 µs (rendered) |",
+        f"| GP imagined step (batched) | {result['gp_s_per_transition'] * 1e6:.1f} µs | 2,500 µs |",
+        f"| GP cheaper than the simulator | **{ratio:.0f}×** (target ≥ 20×: {'met' if ratio >= 20 else 'not met'}); "
+        f"{ratio_rendered:.0f}× vs rendered | 4× vs rendered |",
+        "",
+        "![GP dynamics](img/gp_dynamics.png)",
+        "",
+        "Fig 3.9 analogue (`docs/img/gp_dynamics.png`): pink = requested move, blue = actual move, "
+        "simulator left, GP right, one row per action scale.",
+    ])
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--batch", type=int, default=1000, help="imagined episodes rolled together")
@@ -108,26 +134,7 @@ def main() -> None:
                "peak_rss_mib": round(_common.peak_rss_mib(), 1)}
     path = _common.write_result("gp_cost", payload)
     print(f"wrote {path} and {figure}")
-    _common.write_section("gp_cost", "\n".join([
-        "## GP imagination cost (thesis §3.3.1)",
-        "",
-        "Seconds per transition, measured in one process by `python benchmarks/gp_cost.py` → "
-        "`results/gp_cost.json`. GP: 15 random FetchReach episodes, imagined episodes rolled "
-        f"{args.batch} at a time with the SAC actor, closed-form predictive mean and variance.",
-        "",
-        "| | ours | thesis |",
-        "|---|---:|---:|",
-        f"| MuJoCo FetchReach step, no rendering | {sim * 1e6:.0f} µs | — |",
-        f"| MuJoCo FetchReach step + 84×84 image | {sim_rendered * 1e6:.0f} µs | 10,000 µs (rendered) |",
-        f"| GP imagined step (batched) | {gp_cost * 1e6:.1f} µs | 2,500 µs |",
-        f"| GP cheaper than the simulator | **{ratio:.0f}×** (target ≥ 20×: {'met' if ratio >= 20 else 'not met'}); "
-        f"{ratio_rendered:.0f}× vs rendered | 4× vs rendered |",
-        "",
-        "![GP dynamics](img/gp_dynamics.png)",
-        "",
-        "Fig 3.9 analogue (`docs/img/gp_dynamics.png`): pink = requested move, blue = actual move, "
-        "simulator left, GP right, one row per action scale.",
-    ]))
+    _common.write_section_of("gp_cost", section, "gp_cost.json")
 
 
 if __name__ == "__main__":

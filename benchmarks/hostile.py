@@ -158,6 +158,27 @@ def ros_hostile(version: int) -> dict:
             "node_log_tail": ran.stderr.strip().splitlines()[-3:]}
 
 
+def section(result: dict) -> str:
+    """The hostile-input section of docs/RESULTS.md, from results/hostile.json."""
+    totals, peak = result["totals"], result["peak_rss_mib"]
+    rows = [f"| {klass} | {t['cases']} | {t['one_line']} | {t['one_line_other_reason']} | {t['tracebacks']} | {t['hangs']} | "
+            f"{t['silent_acceptances']} |" for klass, t in result["cases_by_class"].items()]
+    lines = ["## Hostile and broken input", "",
+             f"`benchmarks/hostile.py`: the hostile-file corpus (`benchmarks/hostile_corpus.py`) through the CLI, a full disk, "
+             f"peers that accept and never answer, and hostile ROS messages to both running nodes ({result['ros_messages_sent']} in all: "
+             "bad goals answered with their reason, bad camera messages dropped, then a good goal placed; ROS 2 inside a "
+             "loopback-only network namespace). 'One line': refused with one line naming the problem (for a goal: an "
+             "aborted result). Target: 0 tracebacks, 0 hangs, 0 silent acceptances.", "",
+             "| class | cases | one line | one line, other reason | tracebacks | hangs | silent acceptances |",
+             "|---|---|---|---|---|---|---|", *rows,
+             f"| **all** | {totals['cases']} | {totals['one_line']} | {totals['one_line_other_reason']} | {totals['tracebacks']} | "
+             f"{totals['hangs']} | {totals['silent_acceptances']} |", "",
+             f"Peak memory: `binpick plan` on a 4000x3000 frame {peak['plan_4000x3000']} MiB (exit {peak['plan_4000x3000_exit_code']}); "
+             f"`detect predict` on a 30000x30000 PNG header {peak['detect_predict_30000x30000_header']} MiB (refused before decoding, "
+             f"exit {peak['detect_predict_30000x30000_exit_code']})."]
+    return "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--skip-ros", action="store_true")
@@ -224,21 +245,7 @@ def main() -> None:
                                "detect_predict_30000x30000_header": header_rss, "detect_predict_30000x30000_exit_code": header_code,
                                "detect_predict_30000x30000_line": header_line}}
     _common.write_result("hostile", result)
-    rows = [f"| {klass} | {t['cases']} | {t['one_line']} | {t['one_line_other_reason']} | {t['tracebacks']} | {t['hangs']} | "
-            f"{t['silent_acceptances']} |" for klass, t in counts.items()]
-    lines = ["## Hostile and broken input", "",
-             f"`benchmarks/hostile.py`: the hostile-file corpus (`benchmarks/hostile_corpus.py`) through the CLI, a full disk, "
-             f"peers that accept and never answer, and hostile ROS messages to both running nodes ({ros_messages} in all: "
-             "bad goals answered with their reason, bad camera messages dropped, then a good goal placed; ROS 2 inside a "
-             "loopback-only network namespace). 'One line': refused with one line naming the problem (for a goal: an "
-             "aborted result). Target: 0 tracebacks, 0 hangs, 0 silent acceptances.", "",
-             "| class | cases | one line | one line, other reason | tracebacks | hangs | silent acceptances |",
-             "|---|---|---|---|---|---|---|", *rows,
-             f"| **all** | {totals['cases']} | {totals['one_line']} | {totals['one_line_other_reason']} | {totals['tracebacks']} | "
-             f"{totals['hangs']} | {totals['silent_acceptances']} |", "",
-             f"Peak memory: `binpick plan` on a 4000x3000 frame {plan_rss} MiB (exit {plan_code}); `detect predict` on a "
-             f"30000x30000 PNG header {header_rss} MiB (refused before decoding, exit {header_code})."]
-    _common.write_section("hostile", "\n".join(lines))
+    _common.write_section_of("hostile", section, "hostile.json")
     print(json.dumps({"totals": totals, "ros": ros, "peak_rss_mib": result["peak_rss_mib"]}, indent=1))
 
 

@@ -61,6 +61,28 @@ def timed(detector, rgb, photo, depth, turns: int, blocks: int) -> list[float]:
     return medians
 
 
+def section(rod: dict) -> str:
+    """The ONNX section of docs/RESULTS.md, from results/rod.json's ``latency_ms.onnx`` (the weights: the
+    ones its ``measured`` names)."""
+    result = rod["latency_ms"]["onnx"]
+    weights = result["measured"].split(": ", 1)[1].split(" through ", 1)[0]
+    same = result["agreement"]
+    return "\n".join([
+        "## The picking detector in ONNX Runtime", "",
+        f"`python benchmarks/onnx_latency.py` → `results/rod.json` (`latency_ms.onnx`). `{weights}` exported by "
+        "`Detector.export(\"onnx\")` (photo correlation as a convolution, opset 18) and run by ONNX Runtime's CPU provider, "
+        "beside the same weights in PyTorch; both through `Detector.predict` on the sample frame with its shop photo and depth "
+        "(the pickability head re-scores in PyTorch on both paths).", "",
+        "| runtime | ms per image (median of blocks) | blocks |", "|---|---|---|",
+        f"| PyTorch (batch norms folded) | {result['torch']} | {', '.join(map(str, result['torch_blocks']))} |",
+        f"| ONNX Runtime | {result['onnx']} | {', '.join(map(str, result['onnx_blocks']))} |", "",
+        (f"Agreement on 4 frames (the sample, flipped and shifted), {same['boxes']} boxes down to score 0.05: smallest IoU "
+         f"{same['min_iou']}, largest score difference {same['max_score_diff']} (must: IoU ≥ 0.99, scores within 1e-3)."
+         if same.get("same_count") else f"Agreement: different box counts (PyTorch {same['torch']}, ONNX {same['onnx']})."),
+        f"Export took {result['export_s']} s; peak memory {result['peak_rss_mib']} MiB; load average {result['load_average']}.",
+    ])
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--turns", type=int, default=30)
@@ -101,20 +123,7 @@ def main() -> None:
     from binpick.core.files import atomic_write_text
 
     atomic_write_text(path, json.dumps(data, indent=2) + "\n")
-    _common.write_section("onnx", "\n".join([
-        "## The picking detector in ONNX Runtime", "",
-        f"`python benchmarks/onnx_latency.py` → `results/rod.json` (`latency_ms.onnx`). `{PICKING}` exported by "
-        "`Detector.export(\"onnx\")` (photo correlation as a convolution, opset 18) and run by ONNX Runtime's CPU provider, "
-        "beside the same weights in PyTorch; both through `Detector.predict` on the sample frame with its shop photo and depth "
-        "(the pickability head re-scores in PyTorch on both paths).", "",
-        "| runtime | ms per image (median of blocks) | blocks |", "|---|---|---|",
-        f"| PyTorch (batch norms folded) | {result['torch']} | {', '.join(map(str, torch_ms))} |",
-        f"| ONNX Runtime | {result['onnx']} | {', '.join(map(str, onnx_ms))} |", "",
-        (f"Agreement on 4 frames (the sample, flipped and shifted), {same['boxes']} boxes down to score 0.05: smallest IoU "
-         f"{same['min_iou']}, largest score difference {same['max_score_diff']} (must: IoU ≥ 0.99, scores within 1e-3)."
-         if same.get("same_count") else f"Agreement: different box counts (PyTorch {same['torch']}, ONNX {same['onnx']})."),
-        f"Export took {export_s} s; peak memory {result['peak_rss_mib']} MiB; load average {result['load_average']}.",
-    ]))
+    _common.write_section_of("onnx", section, "rod.json")
     print(json.dumps({k: result[k] for k in ("torch", "onnx", "agreement", "export_s")}))
 
 

@@ -39,6 +39,7 @@ DETECTOR_DATA = _common.ROOT / "runs" / "data" / "bins_ray"
 RUNS = _common.ROOT / "runs" / "ray_jobs"
 RL_CONFIG = _common.ROOT / "configs" / "rl" / "rl_arm2d_curriculum_keypoints_bottleneck_deep.yaml"
 DETECT_CONFIG = _common.ROOT / "configs" / "detection" / "rod_warehouse.yaml"
+DEFAULTS = {"scenes": 120, "epochs": 20, "a3c_steps": 20000, "fault_epochs": 4}  # the command's arguments
 
 
 def make_data(scenes: int) -> None:
@@ -207,9 +208,19 @@ def detector_fault(epochs: int) -> dict:
     return {"killed": len(killed), "uninterrupted": shape(plain), "faulty": shape(faulty), "same_final": bool(killed) and same}
 
 
-def write(result: dict, args) -> None:
+def detector_efficiency(result: dict) -> str:
+    """The detector's 2-over-1 ratio of benchmarks/ray_train_scaling.py, kept in the same results file."""
+    detector = result.get("detector") or {}
+    return f"{detector['efficiency_2_workers']:.2f}" if "efficiency_2_workers" in detector else "not measured yet"
+
+
+def section(result: dict) -> str:
+    """The other-jobs-on-Ray section of docs/RESULTS.md, from results/ray_scaling.json (its ``jobs_settings``: the
+    command's arguments; the defaults where a file written before it kept them lacks it)."""
+    settings = {**DEFAULTS, **result.get("jobs_settings", {})}
     lines = ["## The other jobs on Ray, and faults", "",
-             f"`python benchmarks/ray_jobs_scaling.py --scenes {args.scenes} --epochs {args.epochs} --a3c-steps {args.a3c_steps}`: "
+             f"`python benchmarks/ray_jobs_scaling.py --scenes {settings['scenes']} --epochs {settings['epochs']} "
+             f"--a3c-steps {settings['a3c_steps']}`: "
              "a private Ray cluster on this 2-core machine (127.0.0.1); each job against a plain local run with the same "
              f"data, seed and budget. Load average while measuring: {result['load_average']} (other work shared the cores: "
              "the rates compare the modes, not the machine's best). Ray runs its worker processes at nice 15: under load "
@@ -232,7 +243,7 @@ def write(result: dict, args) -> None:
     lines += ["", "Items per second: pickability windows, grasp trials or simulator steps trained on over the run's wall time "
               f"(Ray's start-up included). 2 workers over 1 on the same 2 cores: pickability {eff['pickability']:.2f}, "
               f"grasp quality {eff['grasp_quality']:.2f}, A3C {eff['a3c']:.2f} (detector, measured on a quiet machine: its own "
-              "section, 1.06). Two data-parallel processes on the same two cores cannot do more work than one using both "
+              f"section, {detector_efficiency(result)}). Two data-parallel processes on the same two cores cannot do more work than one using both "
               "(under other load a ratio far from 1 is the load's doing). A3C is different: with one rollout actor the "
               "actor waits while the learner applies its gradients and the learner waits for the next rollout, so one core "
               "idles; a second actor fills it. On N machines a data-parallel "
@@ -249,15 +260,13 @@ def write(result: dict, args) -> None:
                  f"{rollouts['faulty']['lost_rollouts']} lost rollout(s) handed out again) — uninterrupted: "
                  f"{rollouts['uninterrupted']['sim_steps']:,}, {rollouts['uninterrupted']['evaluations_at']}; "
                  f"same: **{rollouts['same_final']}**.")
-    _common.write_section("ray_jobs", "\n".join(lines))
+    return "\n".join(lines)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scenes", type=int, default=120)
-    parser.add_argument("--epochs", type=int, default=20)
-    parser.add_argument("--a3c-steps", type=int, default=20000)
-    parser.add_argument("--fault-epochs", type=int, default=4)
+    for name, default in DEFAULTS.items():
+        parser.add_argument(f"--{name.replace('_', '-')}", type=int, default=default)
     args = parser.parse_args()
     make_data(args.scenes)
     path = _common.RESULTS / "ray_scaling.json"
@@ -275,8 +284,9 @@ def main() -> None:
         "a3c": round(result["a3c"]["workers_2"]["steps_per_s"] / result["a3c"]["workers_1"]["steps_per_s"], 3)}
     result["load_average"] = [round(x, 2) for x in os.getloadavg()]
     result["jobs_peak_rss_mib"] = _common.peak_rss_mib()
+    result["jobs_settings"] = {name: getattr(args, name) for name in DEFAULTS}
     _common.write_result("ray_scaling", result)
-    write(result, args)
+    _common.write_section_of("ray_jobs", section, "ray_scaling.json")
 
 
 if __name__ == "__main__":

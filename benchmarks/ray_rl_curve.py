@@ -69,6 +69,33 @@ def plot(local: list[dict], ray: list[dict]) -> None:
     plt.close(figure)
 
 
+def section(result: dict) -> str:
+    """The curriculum-run-on-Ray section of docs/RESULTS.md, from results/ray_scaling.json's ``rl``."""
+    row = result["rl"]
+    local_final, ray_final = row["local_final"], row["ray_final"]
+    lines = ["## Table 3.2's curriculum run on Ray", "",
+             "`python experiments/rl_arm2d.py --only curriculum --address local`, then `python benchmarks/ray_rl_curve.py`: "
+             "`configs/rl/rl_arm2d_curriculum_keypoints_bottleneck_deep.yaml` unchanged (2 workers, perception pre-trained, "
+             "converged-rule curriculum, 2M steps), its rollout workers as Ray actors on a private cluster (127.0.0.1), "
+             f"beside the local run of results/rl_arm2d.json. Ray run: {row['source']}.", "",
+             "![learning curves](img/ray_rl_curve.png)", "",
+             "| | local | Ray |", "|---|---|---|",
+             f"| evaluations compared (same steps, 20 episodes each) | {row['compared_evaluations']} | |",
+             f"| first evaluation at ≥ 95% success | {row['local_first_95']:,} steps | "
+             f"{'not yet' if row['ray_first_95'] is None else format(row['ray_first_95'], ',') + ' steps'} |",
+             f"| curriculum widened at | {', '.join(f'{s:,}' for s in row['local_advanced_at'] or [])} | "
+             f"{', '.join(f'{s:,}' for s in row['ray_advanced_at']) or 'not yet'} |"]
+    if ray_final is not None:
+        lines.append(f"| whole area, 200 episodes sampled | {local_final['mean']:.2f} ± {local_final['std']:.2f} actions, "
+                     f"{local_final['success_rate']:.0%} | {ray_final['mean']:.2f} ± {ray_final['std']:.2f}, "
+                     f"{ray_final['success_rate']:.0%} |")
+    if row["mean_abs_success_gap"] is not None:
+        lines += ["", f"Success rates at the same steps differ by {row['mean_abs_success_gap']:.3f} on average; "
+                  f"{row['within_two_standard_errors']} of {row['compared_evaluations']} evaluations lie within two standard "
+                  "errors of their difference (20 episodes each)."]
+    return "\n".join(lines)
+
+
 def main() -> None:
     results = json.loads((_common.RESULTS / "rl_arm2d.json").read_text())
     local, local_final = results["curriculum_stages"], results["curriculum_whole_area"]
@@ -95,26 +122,7 @@ def main() -> None:
     scaling["rl"] = row
     _common.write_result("ray_scaling", scaling)
     plot(local, ray)
-    lines = ["## Table 3.2's curriculum run on Ray", "",
-             "`python experiments/rl_arm2d.py --only curriculum --address local`, then `python benchmarks/ray_rl_curve.py`: "
-             "`configs/rl/rl_arm2d_curriculum_keypoints_bottleneck_deep.yaml` unchanged (2 workers, perception pre-trained, "
-             "converged-rule curriculum, 2M steps), its rollout workers as Ray actors on a private cluster (127.0.0.1), "
-             f"beside the local run of results/rl_arm2d.json. Ray run: {source}.", "",
-             "![learning curves](img/ray_rl_curve.png)", "",
-             "| | local | Ray |", "|---|---|---|",
-             f"| evaluations compared (same steps, 20 episodes each) | {len(pairs)} | |",
-             f"| first evaluation at ≥ 95% success | {row['local_first_95']:,} steps | "
-             f"{'not yet' if row['ray_first_95'] is None else format(row['ray_first_95'], ',') + ' steps'} |",
-             f"| curriculum widened at | {', '.join(f'{s:,}' for s in row['local_advanced_at'] or [])} | "
-             f"{', '.join(f'{s:,}' for s in row['ray_advanced_at']) or 'not yet'} |"]
-    if ray_final is not None:
-        lines.append(f"| whole area, 200 episodes sampled | {local_final['mean']:.2f} ± {local_final['std']:.2f} actions, "
-                     f"{local_final['success_rate']:.0%} | {ray_final['mean']:.2f} ± {ray_final['std']:.2f}, "
-                     f"{ray_final['success_rate']:.0%} |")
-    if gaps:
-        lines += ["", f"Success rates at the same steps differ by {row['mean_abs_success_gap']:.3f} on average; {within} of "
-                  f"{len(pairs)} evaluations lie within two standard errors of their difference (20 episodes each)."]
-    _common.write_section("ray_rl", "\n".join(lines))
+    _common.write_section_of("ray_rl", section, "ray_scaling.json")
     print(json.dumps({k: v for k, v in row.items() if not k.endswith("curve")}, indent=1))
 
 

@@ -79,7 +79,13 @@ def write(rows: dict, scenes: int, epochs: int) -> None:
                           "ap50_gap": {k: round(rows[k]["ap50"] - rows["local"]["ap50"], 4) for k in ("workers_1", "workers_2")},
                           "peak_rss_mib": _common.peak_rss_mib()}
     _common.write_result("ray_scaling", result)
+    _common.write_section_of("ray_train", section, "ray_scaling.json")
+
+
+def section(result: dict) -> str:
+    """The Ray Train section of docs/RESULTS.md, from results/ray_scaling.json's ``detector``."""
     detector = result["detector"]
+    scenes, epochs = detector["scenes"], detector["epochs"]
     lines = ["## Detector training on Ray Train", "",
              f"`python benchmarks/ray_train_scaling.py --scenes {scenes} --epochs {epochs}`: "
              f"`{detector['config']}` on a {scenes}-scene bin set (all instances as targets), the same seed and epochs; "
@@ -89,15 +95,15 @@ def write(rows: dict, scenes: int, epochs: int) -> None:
              "| run | val AP50 | difference to local | images/s | wall s |", "|---|---|---|---|---|"]
     for mode, name in (("local", "local, 2 threads"), ("workers_1", "Ray Train, 1 worker × 2 threads"),
                        ("workers_2", "Ray Train, 2 workers × 1 thread")):
-        row = rows[mode]
-        gap = "—" if mode == "local" else f"{row['ap50'] - rows['local']['ap50']:+.3f}"
+        row = detector[mode]
+        gap = "—" if mode == "local" else f"{row['ap50'] - detector['local']['ap50']:+.3f}"
         lines.append(f"| {name} | {row['ap50']:.3f} | {gap} | {row['images_per_s']:.1f} | {row['wall_s']:.0f} |")
     lines += ["", f"2 workers over 1 on the same 2 cores: {detector['efficiency_2_workers']:.2f} times the images per second "
               "(1.0: splitting the same cores costs nothing). On N machines the data-parallel step scales as long as the all-reduce of the "
               "gradients (this network's 2.7 M parameters, 11 MB a step) is small beside a step's compute: a projection, not "
               "measured here. The AP50s are low in absolute terms (8 epochs on about 200 scenes): the rows compare the three "
               "ways of training, not the detector."]
-    _common.write_section("ray_train", "\n".join(lines))
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

@@ -46,6 +46,22 @@ def sim_step_ms(steps: int = 300) -> float:
     return round(float(np.median(times)), 3)
 
 
+def section(result: dict) -> str:
+    """The ROS-bridge section of docs/RESULTS.md, from results/ros_latency.json."""
+    lines = ["## ROS bridge (thesis §6.1.1)", "",
+             f"`python benchmarks/ros_latency.py --episodes {result['episodes']}` → `results/ros_latency.json`. "
+             "Fetch Reach served by `binpick ros serve` (actionlib.ActionServer), driven by `binpick ros bench` through "
+             "`binpick/Ros-v0`, master on 127.0.0.1.", "",
+             "| | ours | target |", "|---|---|---|",
+             f"| round trip per action, median | {result['median_ms']:.2f} ms | ≤ 5 ms ({'met' if result['met'] else 'missed'}) |",
+             f"| round trip per action, p95 | {result['p95_ms']:.2f} ms | — |",
+             f"| MuJoCo step alone (no ROS), median | {result['sim_step_ms_without_ros']:.2f} ms | — |",
+             f"| scripted reach through the bridge | {result['success_rate']:.0%} success, {result['mean_actions']:.2f} actions "
+             f"({result['episodes']} episodes) | — |", "",
+             f"Load average while measuring: {result['load_average']} on 2 cores."]
+    return "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=50)
@@ -70,20 +86,8 @@ def main() -> None:
               "episodes": summary["episodes"], "success_rate": summary["success_rate"], "mean_actions": summary["mean_length"],
               "sim_step_ms_without_ros": sim_step_ms(), "target_median_ms": 5.0, "met": summary["median_ms"] <= 5.0,
               "load_average": round(load, 2), "policy": "scripted reach: clip(10 (goal - gripper), -1, 1)"}
-    path = _common.write_result("ros_latency", result)
-    lines = ["## ROS bridge (thesis §6.1.1)", "",
-             f"`python benchmarks/ros_latency.py --episodes {args.episodes}` → `{path.relative_to(_common.ROOT)}`. "
-             "Fetch Reach served by `binpick ros serve` (actionlib.ActionServer), driven by `binpick ros bench` through "
-             "`binpick/Ros-v0`, master on 127.0.0.1.", "",
-             "| | ours | target |", "|---|---|---|",
-             f"| round trip per action, median | {result['median_ms']:.2f} ms | ≤ 5 ms ({'met' if result['met'] else 'missed'}) |",
-             f"| round trip per action, p95 | {result['p95_ms']:.2f} ms | — |",
-             f"| MuJoCo step alone (no ROS), median | {result['sim_step_ms_without_ros']:.2f} ms | — |",
-             f"| scripted reach through the bridge | {result['success_rate']:.0%} success, {result['mean_actions']:.2f} actions "
-             f"({result['episodes']} episodes) | — |", "",
-             f"Load average while measuring: {result['load_average']} on 2 cores."]
-    _common.write_section("ros_latency", "\n".join(lines))
-    print("\n".join(lines))
+    _common.write_result("ros_latency", result)
+    print(_common.write_section_of("ros_latency", section, "ros_latency.json"))
 
 
 if __name__ == "__main__":

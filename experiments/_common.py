@@ -13,6 +13,7 @@ import resource
 import sys
 import time
 from pathlib import Path
+from typing import Callable
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "results"
@@ -145,6 +146,25 @@ def write_section(name: str, markdown: str) -> None:
     from binpick.core.files import atomic_write_text
 
     atomic_write_text(RESULTS_MD, text)
+
+
+def repo_relative(path: str | Path) -> str:
+    """A path as the page names it: relative to the repository when it lies inside this checkout, from its
+    ``runs/`` folder when a results file recorded it in another checkout, else as it is."""
+    path = Path(path)
+    if path.is_relative_to(ROOT):
+        return str(path.relative_to(ROOT))
+    if path.is_absolute() and "runs" in path.parts:
+        return str(Path(*path.parts[path.parts.index("runs"):]))
+    return str(path)
+
+
+def write_section_of(name: str, render: Callable[[dict], str], results_file: str) -> str:
+    """Replace this benchmark's section with ``render`` of ``results/RESULTS_FILE`` as written (and return
+    it), so that the page holds what ``tools/results_tables.py --page`` makes of the same file."""
+    markdown = render(json.loads((RESULTS / results_file).read_text()))
+    write_section(name, markdown)
+    return markdown
 
 
 def recipe(name: str) -> tuple[Path, dict]:

@@ -33,6 +33,29 @@ def pick_example(records: list[dict], policies: list[str]) -> dict:
     return max(records, key=lambda r: (disagreements(r), len(r["annotations"])))
 
 
+def section(result: dict) -> str:
+    """The data-set section of docs/RESULTS.md, from results/data_stats.json (the policies: its
+    ``pickable_fraction`` keys, in the data set's order)."""
+    policies = list(result["pickable_fraction"])
+    rows = ["## Warehouse bin data set (thesis §5.4.4, §6.3)", "",
+            f"`python experiments/data_stats.py --data {_common.repo_relative(result['data'])}` → "
+            "`results/data_stats.json`; pictures: `docs/img/bins_labelled.png`, `docs/img/shop_photos.png`.", "",
+            "| | ours | target / thesis |", "|---|---|---|",
+            f"| scenes | {result['scenes']:,} | 2,000 |",
+            f"| instances per image | {result['instances_per_image']:.2f} ({result['target_instances_per_image']:.2f} of the ordered product) | — |"]
+    for policy, fraction in result["pickable_fraction"].items():
+        rows.append(f"| pickable by policy {policy} (jaws along the robot's {policy}-axis) | {fraction:.1%} | — |")
+    if result["pickability_differs_fraction"] is not None:
+        verdict = "met" if result["met"] else "missed"
+        rows.append(f"| instances whose pickability differs between the policies | {result['pickability_differs_fraction']:.1%} | > 10% ({verdict}) |")
+    if result["pickable_fraction_by_category"]:
+        rows += ["", "Pickable fraction by product category (trial grasps from the saved scene state):", "",
+                 "| category | instances | " + " | ".join(f"policy {p}" for p in policies) + " |", "|---|---|" + "---|" * len(policies)]
+        for category, fractions in result["pickable_fraction_by_category"].items():
+            rows.append(f"| {category} | {result['categories'].get(category, 0)} | " + " | ".join(f"{fractions.get(p, 0):.0%}" for p in policies) + " |")
+    return "\n".join(rows)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, default=_common.ROOT / "runs" / "data" / "bins_2000")
@@ -44,7 +67,7 @@ def main() -> None:
     result = {"data": str(args.data), "requested_scenes": manifest["config"].get("scenes"), **stats,
               "target_differs_fraction": 0.10,
               "met": stats["pickability_differs_fraction"] is not None and stats["pickability_differs_fraction"] > 0.10}
-    path = _common.write_result("data_stats", result)
+    _common.write_result("data_stats", result)
 
     from PIL import Image
 
@@ -58,24 +81,7 @@ def main() -> None:
     if photos:
         Image.fromarray(contact_sheet(photos, columns=9)).save(IMAGES / "shop_photos.png")
 
-    rows = ["## Warehouse bin data set (thesis §5.4.4, §6.3)", "",
-            f"`python experiments/data_stats.py --data {args.data.relative_to(_common.ROOT) if args.data.is_relative_to(_common.ROOT) else args.data}` → "
-            f"`{path.relative_to(_common.ROOT)}`; pictures: `docs/img/bins_labelled.png`, `docs/img/shop_photos.png`.", "",
-            "| | ours | target / thesis |", "|---|---|---|",
-            f"| scenes | {stats['scenes']:,} | 2,000 |",
-            f"| instances per image | {stats['instances_per_image']:.2f} ({stats['target_instances_per_image']:.2f} of the ordered product) | — |"]
-    for policy, fraction in stats["pickable_fraction"].items():
-        rows.append(f"| pickable by policy {policy} (jaws along the robot's {policy}-axis) | {fraction:.1%} | — |")
-    if stats["pickability_differs_fraction"] is not None:
-        verdict = "met" if result["met"] else "missed"
-        rows.append(f"| instances whose pickability differs between the policies | {stats['pickability_differs_fraction']:.1%} | > 10% ({verdict}) |")
-    if stats["pickable_fraction_by_category"]:
-        rows += ["", "Pickable fraction by product category (trial grasps from the saved scene state):", "",
-                 "| category | instances | " + " | ".join(f"policy {p}" for p in policies) + " |", "|---|---|" + "---|" * len(policies)]
-        for category, fractions in stats["pickable_fraction_by_category"].items():
-            rows.append(f"| {category} | {stats['categories'].get(category, 0)} | " + " | ".join(f"{fractions.get(p, 0):.0%}" for p in policies) + " |")
-    _common.write_section("data_stats", "\n".join(rows))
-    print("\n".join(rows))
+    print(_common.write_section_of("data_stats", section, "data_stats.json"))
 
 
 if __name__ == "__main__":

@@ -153,8 +153,10 @@ def tool_trials(data: list[Path]) -> dict:
     return rows
 
 
-def tools_section(rows: dict) -> None:
-    """docs/RESULTS.md: each tool's shipped quality model on held-out trials, and its reliability."""
+def section_grasp_tools(result: dict) -> str:
+    """The grasp_tools section of docs/RESULTS.md: each tool's shipped quality model on held-out trials, and its
+    reliability, from results/grasp.json's ``held_out_trials_by_tool``."""
+    rows = result["held_out_trials_by_tool"]
     lines = ["### The jaws' and the suction cup's quality models on held-out trials", "",
              "`python experiments/grasp.py tools` → `results/grasp.json` → `held_out_trials_by_tool`: each shipped model on the "
              f"trials of held-out product categories (can, mug, toy; test split of `{', '.join(rows.get('data', []))}`), made by "
@@ -168,9 +170,8 @@ def tools_section(rows: dict) -> None:
     lines += ["", "Reliability (predicted → observed success, per bin of predicted probability with at least 10 trials): " + "; ".join(
         f"{tool}: " + ", ".join(f"{b['predicted']:.2f} → {b['observed']:.2f}" for b in rows[tool]["reliability"] if b["count"] >= 10)
         for tool in ("jaws", "suction") if tool in rows) + "."]
-    plot_reliability(rows, _common.ROOT / "docs" / "img" / "grasp_reliability.png")
     lines += ["", "![Reliability of the two quality models](img/grasp_reliability.png)"]
-    _common.write_section("grasp_tools", "\n".join(lines))
+    return "\n".join(lines)
 
 
 def plot_reliability(rows: dict, path: Path) -> None:
@@ -297,15 +298,17 @@ def evaluate(data: list[Path], bins: int) -> None:
         result["pickability"] = previous["pickability"]
     result["peak_rss_mib"] = round(_common.peak_rss_mib(), 1)
     result["load_average"] = round(os.getloadavg()[0], 2)
-    path = _common.write_result("grasp", result)
-    section(result, path, bins)
+    _common.write_result("grasp", result)
+    _common.write_section_of("grasp", section_grasp, "grasp.json")
     print({k: result[k] for k in ("top1_success", "plan_ms_median")}, result["held_out_trials"]["roc_auc"], flush=True)
 
 
-def section(result: dict, path: Path, bins: int) -> None:
+def section_grasp(result: dict) -> str:
+    """The grasp section of docs/RESULTS.md (policies, the quality model, pickability under the learnt policy),
+    from results/grasp.json."""
     trials = result["held_out_trials"]
     lines = ["## Grasp policies and the grasp-quality model (Dex-Net 2.0 / GG-CNN's setting)", "",
-             f"`python experiments/grasp.py eval --bins {bins}` → `{path.relative_to(_common.ROOT)}`. Candidates come from depth "
+             f"`python experiments/grasp.py eval --bins {result['bins']}` → `results/grasp.json`. Candidates come from depth "
              "alone (`binpick.grasping`), made ready once per frame (holes inpainted, noise smoothed, the support plane fitted): the "
              "instance's region of a watershed of heights above that plane that matches its box, 12 yaws over 180° and across its "
              "principal minor axis, the jaws centred on its extent and shifted 1 cm either way along the closing direction, "
@@ -381,7 +384,7 @@ def section(result: dict, path: Path, bins: int) -> None:
                   "rest land on unpickable copies or on nothing). "
                   "The labels come from trials with the tote's drop guards off, as the pipeline grasps "
                   "(`warehouse.dataset.trial_ready`); with them on, 45% of instances were labelled pickable instead of 68%."]
-    _common.write_section("grasp", "\n".join(lines))
+    return "\n".join(lines)
 
 
 def pickability(heads_given: list[str] | None = None) -> None:
@@ -480,7 +483,7 @@ def pickability(heads_given: list[str] | None = None) -> None:
                                          "proposals": config.get("proposals"), "train": config.get("train"),
                                          "shipped": digest(file) == picking_digest}
     _common.write_result("grasp", {k: v for k, v in result.items() if k not in ("benchmark", "machine")})
-    section(result, path, result["bins"])
+    _common.write_section_of("grasp", section_grasp, "grasp.json")
 
 
 def main() -> None:
@@ -514,7 +517,8 @@ def main() -> None:
         result["held_out_trials_by_tool"] = {"data": [str(d.relative_to(_common.ROOT)) for d in (args.data or both)],
                                              **tool_trials(args.data or both)}
         _common.write_result("grasp", result)
-        tools_section(result["held_out_trials_by_tool"])
+        plot_reliability(result["held_out_trials_by_tool"], _common.ROOT / "docs" / "img" / "grasp_reliability.png")
+        _common.write_section_of("grasp_tools", section_grasp_tools, "grasp.json")
         print(json.dumps(result["held_out_trials_by_tool"], indent=1)[:3000], flush=True)
     else:
         evaluate(args.data or [DATA], args.bins)

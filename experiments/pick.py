@@ -158,8 +158,8 @@ def main() -> None:
                                "held_out.right_product": 0.98, "by_product.min_pick_success": 0.90},
                    "peak_rss_mib": _common.peak_rss_mib(),
                    "load_average": round(os.getloadavg()[0], 2)})
-    path = _common.write_result("pick", result)
-    section(result, path, args.orders)
+    _common.write_result("pick", result)
+    _common.write_section_of("pick", section, "pick.json")
 
 
 SHAPES = {  # the library's categories by shape, for by_category
@@ -280,15 +280,16 @@ def arm_rows(args) -> None:
     result["arm"] = arm
     for key in ("benchmark", "machine"):
         result.pop(key, None)
-    path = _common.write_result("pick", result)
-    section(result, path, args.orders)
+    _common.write_result("pick", result)
+    _common.write_section_of("pick", section, "pick.json")
 
 
 def per_product(group: dict) -> str:
     return ", ".join(f"{name.split('/')[-1]} {count}" for name, count in group["by_product"].items())
 
 
-def section(result: dict, path: Path, orders: int) -> None:
+def section(result: dict) -> str:
+    """The pick-pipeline section of docs/RESULTS.md, from results/pick.json (``--orders``: its main rows' orders)."""
     def row(name: str, group: dict, target: tuple[float, float | None]) -> str:
         right = "n/a" if group["right_product"] is None else f"{group['right_product']:.0%}"
         reasons = ", ".join(f"{k} {v}" for k, v in sorted(group["reasons"].items(), key=lambda kv: -kv[1]))
@@ -300,10 +301,10 @@ def section(result: dict, path: Path, orders: int) -> None:
     before = result.get("before", {})
     policies = result.get("oracle_by_policy", {})
     lines = ["## Pick pipeline (thesis ch. 6)", "",
-             f"`python experiments/pick.py --orders {orders} --compare-grasps` → `{path.relative_to(_common.ROOT)}`. Each order is a new bin "
+             f"`python experiments/pick.py --orders {result['seen']['orders']} --compare-grasps` → `results/pick.json`. Each order is a new bin "
              f"(3–6 copies of the product, 2–3 other products); the detector (`{Path(result['weights']).name}`, ROD conditioned on "
              "the product's catalogue photos, the best match over them) finds the instances; detections the learnt product check "
-             "(`binpick.detection.verifier`) gives a probability under 0.2 of being the ordered product are skipped and the rest, "
+             f"(`binpick.detection.verifier`) gives a probability under {result['check']} of being the ordered product are skipped and the rest, "
              "down to a score of 0.01, are ranked by detector score times that probability (`PickPipeline(rank_from=0.01)`); detections whose instance depth shows to be clearly bigger than the "
              "product's catalogue dimensions are skipped (`size_check`; "
              f"{'on' if result.get('size_check') else 'off'} here); the planner (`binpick.picking.Picker`, the same call "
@@ -336,7 +337,7 @@ def section(result: dict, path: Path, orders: int) -> None:
     lines.append(f"Peak RSS {result['peak_rss_mib']:.0f} MiB.")
     if "arm" in result:
         lines += ["", arm_section(result["arm"])]
-    _common.write_section("pick", "\n".join(lines))
+    return "\n".join(lines)
 
 
 def tool_lines(result: dict) -> list[str]:

@@ -162,7 +162,7 @@ def sim_orders(domain: str, orders: int, sensor: str, **options) -> dict:
         r = results[-1]
         print(f"{domain} {options} order {order}: {product} {'placed' if r.success else r.reason}", flush=True)
     summary = summarise(results, time.perf_counter() - started)
-    return {"domain": domain, "sensor": sensor, "options": options,
+    return {"domain": domain, "sensor": sensor, "options": options, "check_used": pipeline.check,
             **{k: summary[k] for k in ("orders", "pick_success", "right_product", "reasons", "by_product")}}
 
 
@@ -253,6 +253,11 @@ def ros_latency(version: int, orders: int) -> dict:
 
 def write(result: dict) -> None:
     _common.write_result("plan", {k: v for k, v in result.items() if k not in ("benchmark", "machine")})
+    _common.write_section_of("plan", section, "plan.json")
+
+
+def section(result: dict) -> str:
+    """The planning section of docs/RESULTS.md (from a camera's files, through ROS), from results/plan.json."""
     lines = ["## Pick planning from a camera's files and through ROS", "",
              "`python experiments/plan.py files` / `latency`: the planner with no simulator in it (`binpick.picking`), "
              "fed the files a real RGB-D camera gives (`binpick plan`) or ROS topics; the simulator executes its grasps. "
@@ -285,7 +290,10 @@ def write(result: dict) -> None:
         for row in variants.values():
             options = row["options"]
             check = options.get("verifier") or "none"
-            check += f" ≥ {options['check']:g}" if options.get("check") is not None else (" ≥ 0.2" if check == "learnt" else "")
+            used = options.get("check") if options.get("check") is not None else row.get("check_used")
+            if used is None and check == "learnt":
+                used = 0.2  # rows measured before the threshold was recorded: the learnt check's default then
+            check += f" ≥ {used:g}" if used is not None else ""
             failures = ", ".join(f"{k} {n}" for k, n in sorted(row["reasons"].items(), key=lambda kv: -kv[1]) if k != "placed")
             lines.append(f"| {row['domain']} | {check} | {options.get('photos')} | "
                          f"{'—' if options.get('copies_from_match') is None else options['copies_from_match']} | {row['orders']} | "
@@ -333,7 +341,7 @@ def write(result: dict) -> None:
                 lines.append(f"| {label} | {row['median']} | {row['p95']} | {'<= 100' if key == 'api' else '<= 150'} |")
             elif row:
                 lines.append(f"| {label} | failed: {row.get('error', '')[:80]} | | |")
-    _common.write_section("plan", "\n".join(lines))
+    return "\n".join(lines)
 
 
 def main() -> None:

@@ -32,6 +32,32 @@ CASES = [
 ]
 
 
+def section(result: dict) -> str:
+    """The random-baselines section of docs/RESULTS.md, from results/random_policy.json."""
+    lines = [
+        "## Random-policy baselines",
+        "",
+        "Average episode length = actions until success, capped at T; ± one standard deviation over "
+        "seeded episodes (episode i uses seed i). Produced by `python experiments/random_policy.py` → "
+        "`results/random_policy.json`.",
+        "",
+        "| env | T | episodes | ours: avg actions ± std | success | thesis | source |",
+        "|---|---:|---:|---:|---:|---:|---|",
+    ]
+    for row in result["rows"]:
+        thesis = "—" if row["thesis_mean_length"] is None else f"{row['thesis_mean_length']:g} ± {row['thesis_std_length']:g}"
+        lines.append(f"| `{row['env_id']}` | {row['max_episode_steps']} | {row['episodes']} | "
+                     f"{row['mean_length']:.2f} ± {row['std_length']:.2f} | {100 * row['success_rate']:.1f}% | "
+                     f"{thesis} | {row['thesis_source']} |")
+    lines += [
+        "",
+        "The thesis does not state its success radii. Arm2D's default tolerance (0.07, 7% of the arm's "
+        "reach) and Reacher's (0.02 m) were chosen so that a random walk behaves like the thesis's random "
+        "baseline; everything learnt later is compared against these same settings.",
+    ]
+    return "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=1000)
@@ -58,28 +84,7 @@ def main() -> None:
     path = _common.write_result("random_policy", {"seed": args.seed, "rows": rows})
     print(f"wrote {path}")
 
-    lines = [
-        "## Random-policy baselines",
-        "",
-        "Average episode length = actions until success, capped at T; ± one standard deviation over "
-        "seeded episodes (episode i uses seed i). Produced by `python experiments/random_policy.py` → "
-        "`results/random_policy.json`.",
-        "",
-        "| env | T | episodes | ours: avg actions ± std | success | thesis | source |",
-        "|---|---:|---:|---:|---:|---:|---|",
-    ]
-    for row in rows:
-        thesis = "—" if row["thesis_mean_length"] is None else f"{row['thesis_mean_length']:g} ± {row['thesis_std_length']:g}"
-        lines.append(f"| `{row['env_id']}` | {row['max_episode_steps']} | {row['episodes']} | "
-                     f"{row['mean_length']:.2f} ± {row['std_length']:.2f} | {100 * row['success_rate']:.1f}% | "
-                     f"{thesis} | {row['thesis_source']} |")
-    lines += [
-        "",
-        "The thesis does not state its success radii. Arm2D's default tolerance (0.07, 7% of the arm's "
-        "reach) and Reacher's (0.02 m) were chosen so that a random walk behaves like the thesis's random "
-        "baseline; everything learnt later is compared against these same settings.",
-    ]
-    _common.write_section("random_policy", "\n".join(lines))
+    _common.write_section_of("random_policy", section, "random_policy.json")
 
 
 if __name__ == "__main__":

@@ -243,6 +243,18 @@ def main() -> None:
         measured |= mine
         results = merge_rows(measured)
 
+    plot_training(results)
+    _common.write_section_of("rl_arm2d", section, "rl_arm2d.json")
+
+
+def drawn(results: dict) -> bool:
+    """Whether the figure of Table 3.2's pair has been drawn: both rows measured (it is kept when their runs are gone)."""
+    return all(key in results for key in ("curriculum_whole_area", "no_curriculum_whole_area"))
+
+
+def section(results: dict) -> str:
+    """The Arm2D section of docs/RESULTS.md (Tables 3.1 and 3.2 and the way there), from results/rl_arm2d.json."""
+
     def cell(key: str) -> str:
         row = results.get(key)
         if row is None:
@@ -254,8 +266,7 @@ def main() -> None:
         greedy = results.get(key, {}).get("greedy")
         return f"{greedy['mean']:.1f} ± {greedy['std']:.1f} ({greedy['success_rate']:.0%} reach), greedy" if greedy else ""
 
-    plot_training(results)
-    _common.write_section("rl_arm2d", "\n".join([
+    return "\n".join([
         "## Arm2D from images: Tables 3.1 and 3.2",
         "",
         f"Average actions per episode ± std over {EPISODES} seeded episodes (T = 1000) after training; "
@@ -278,7 +289,7 @@ def main() -> None:
         f"| the same | whole area | {cell('shortest_path_whole_area')} | | |",
         "",
         *headline_paragraph(results),
-        f"![Table 3.2's pair as it trains](img/{FIGURE.name})" if FIGURE.is_file() else "",
+        f"![Table 3.2's pair as it trains](img/{FIGURE.name})" if drawn(results) else "",
         "",
         "Table 3.2 by stage, as the thesis measured it (Fig 3.5: training episodes, moving average over 100): the "
         "curriculum run's last 200 training episodes at each goal area, the window its re-convergence rule watches "
@@ -471,7 +482,7 @@ def main() -> None:
         "| goal area | ours | after steps | thesis |",
         "|---|---:|---:|---:|",
         *stage_rows(results.get("curriculum_keypoints_pretrained_stages", [])),
-    ]))
+    ])
 
 
 def continued(config: RLConfig, fresh: bool, wrap_env=None, bench: Path = _common.ROOT / "runs" / "bench"):

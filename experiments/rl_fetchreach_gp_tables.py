@@ -42,9 +42,38 @@ def run(name: str, steps: int, seed: int, **changes) -> dict:
     return metrics
 
 
-def write_table_3_4(rows: dict, steps: int) -> None:
-    thesis = {(1, 10_000): (550, 12_700), (10, 10_000): (100, 22_700), (50, 10_000): (300, 114_100),
+THESIS_3_3 = {"fixed_start": "2.00 (4 sim + 15 for the GP, 1,500 GP)", "noisy_start": "6.69 (79 sim, 400,000 GP)"}
+THESIS_3_4 = {(1, 10_000): (550, 12_700), (10, 10_000): (100, 22_700), (50, 10_000): (300, 114_100),
               (1, 1_000_000): (50_150, 13_100), (10, 1_000_000): (9_450, 21_900), (50, 1_000_000): (21_600, 66_200)}
+DEFAULT_SEED = 0
+
+
+def section_table_3_3(result: dict) -> str:
+    """Table 3.3's section of docs/RESULTS.md, from results/rl_fetchreach_gp_tables.json (the simulator steps:
+    the runs'; the seed: the rows', the default where a file written before rows kept it lacks it)."""
+    rows = result["table_3_3"]
+    steps = " / ".join(sorted({f"{row['sim_steps']}" for row in rows.values()}))
+    seeds = " / ".join(sorted({f"{row.get('seed', DEFAULT_SEED)}" for row in rows.values()}))
+    lines = ["## Table 3.3: FetchReach, single goal, GP imagination", "",
+             "`python experiments/rl_fetchreach_gp_tables.py --table 3.3` → `results/rl_fetchreach_gp_tables.json`. "
+             f"Goal fixed at {GOAL} m from the gripper's start; noisy start = ±10 cm per axis; "
+             f"{steps} simulator steps, seed {seeds}.", "",
+             "Episode counts are those at the first evaluation with ≥ 95% success (the 15 random warm-up "
+             "episodes that fit the GP included); the final figure is after the whole run.", "",
+             "| set-up | simulator episodes | GP episodes | final avg actions (ours) | thesis |", "|---|---:|---:|---:|---:|"]
+    for label, row in rows.items():
+        sim = "not reached" if row["sim_episodes_to_95"] is None else f"{row['sim_episodes_to_95']:,}"
+        gp = "—" if row["gp_episodes_to_95"] is None else f"{row['gp_episodes_to_95']:,}"
+        lines.append(f"| {label.replace('_', ' ')} | {sim} | {gp} | "
+                     f"{row['final_avg_actions']:.2f} ± {row['final_std_actions']:.2f} | {THESIS_3_3[label]} |")
+    return "\n".join(lines)
+
+
+def section_table_3_4(result: dict) -> str:
+    """Table 3.4's section of docs/RESULTS.md, from results/rl_fetchreach_gp_tables.json (the simulator steps:
+    the runs')."""
+    rows = result["table_3_4"]
+    steps = " / ".join(sorted({f"{row['sim_steps']}" for row in rows.values()}))
     lines = ["## Table 3.4: FetchReach, random goals, α_HER × M", "",
              "`python experiments/rl_fetchreach_gp_tables.py --table 3.4` → `results/rl_fetchreach_gp_tables.json`. "
              "Episodes sampled (simulator + GP) until Ω is 10% full and training starts; in brackets all "
@@ -53,19 +82,19 @@ def write_table_3_4(rows: dict, steps: int) -> None:
              "| α_HER | M | episodes until training: ours (all in Ω) / thesis | iterations to < 5 actions: ours / thesis | final avg actions |",
              "|---:|---:|---:|---:|---:|"]
     for row in rows.values():
-        t = thesis.get((row["alpha_her"], row["M"]), ("—", "—"))
+        t = THESIS_3_4.get((row["alpha_her"], row["M"]), ("—", "—"))
         origin = row["episodes_until_training_by_origin"]
         sampled = origin.get("real", 0) + origin.get("imagined", 0)
         its = "—" if row["iterations_to_5_actions"] is None else f"{row['iterations_to_5_actions']:,}"
         lines.append(f"| {row['alpha_her']} | {row['M']:,} | {sampled:,} ({row['episodes_until_training']:,}) / {t[0]:,} | "
                      f"{its} / {t[1]:,} | {row['final_avg_actions']:.2f} |")
-    _common.write_section("table_3_4", "\n".join(lines))
+    return "\n".join(lines)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--table", choices=["3.3", "3.4"], required=True)
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int, default=DEFAULT_SEED)
     parser.add_argument("--steps", type=int, default=6000, help="simulator steps per run")
     parser.add_argument("--alphas", type=int, nargs="+", default=[1, 10, 50])
     parser.add_argument("--capacities", type=int, nargs="+", default=[10_000, 1_000_000])
@@ -75,7 +104,7 @@ def main() -> None:
     results = json.loads(path.read_text()) if path.exists() else {}
     if args.report_only:
         if args.table == "3.4" and "table_3_4" in results:
-            write_table_3_4(results["table_3_4"], args.steps)
+            _common.write_section_of("table_3_4", section_table_3_4, "rl_fetchreach_gp_tables.json")
         return
     if args.table == "3.3":
         rows = {}
@@ -85,26 +114,14 @@ def main() -> None:
             m = run(f"table33_{label}", args.steps, args.seed, env_kwargs={"goal_offset": list(GOAL), "start_noise": noise},
                     sac__gradient_steps=20, gp__imagined_per_real=50.0, eval__every=250)
             first = m["at_threshold"] or {}
-            rows[label] = {"sim_episodes_to_95": first.get("sim_episodes"), "gp_episodes_to_95": first.get("imagined_episodes"),
+            rows[label] = {"seed": args.seed, "sim_episodes_to_95": first.get("sim_episodes"), "gp_episodes_to_95": first.get("imagined_episodes"),
                            "sim_steps_to_95": first.get("sim_steps"), "avg_actions_at_95": first.get("mean_length"),
                            **{k: m[k] for k in ("sim_episodes", "imagined_episodes", "her_episodes", "sim_steps",
                                                 "final_avg_actions", "final_std_actions", "final_success", "run_dir")}}
             print(label, rows[label], flush=True)
         results["table_3_3"] = rows
-        lines = ["## Table 3.3: FetchReach, single goal, GP imagination", "",
-                 "`python experiments/rl_fetchreach_gp_tables.py --table 3.3` → `results/rl_fetchreach_gp_tables.json`. "
-                 f"Goal fixed at {GOAL} m from the gripper's start; noisy start = ±10 cm per axis; "
-                 f"{args.steps} simulator steps, seed {args.seed}.", "",
-                 "Episode counts are those at the first evaluation with ≥ 95% success (the 15 random warm-up "
-                 "episodes that fit the GP included); the final figure is after the whole run.", "",
-                 "| set-up | simulator episodes | GP episodes | final avg actions (ours) | thesis |", "|---|---:|---:|---:|---:|"]
-        thesis = {"fixed_start": "2.00 (4 sim + 15 for the GP, 1,500 GP)", "noisy_start": "6.69 (79 sim, 400,000 GP)"}
-        for label, row in rows.items():
-            sim = "not reached" if row["sim_episodes_to_95"] is None else f"{row['sim_episodes_to_95']:,}"
-            gp = "—" if row["gp_episodes_to_95"] is None else f"{row['gp_episodes_to_95']:,}"
-            lines.append(f"| {label.replace('_', ' ')} | {sim} | {gp} | "
-                         f"{row['final_avg_actions']:.2f} ± {row['final_std_actions']:.2f} | {thesis[label]} |")
-        _common.write_section("table_3_3", "\n".join(lines))
+        _common.write_result("rl_fetchreach_gp_tables", results)
+        _common.write_section_of("table_3_3", section_table_3_3, "rl_fetchreach_gp_tables.json")
     else:
         rows = results.get("table_3_4", {})
         for alpha in args.alphas:
@@ -119,8 +136,8 @@ def main() -> None:
                     "sim_steps": m["sim_steps"], "run_dir": m["run_dir"]}
                 print(alpha, capacity, rows[f"alpha{alpha}_M{capacity}"], flush=True)
                 results["table_3_4"] = rows
-                write_table_3_4(rows, args.steps)  # after every run: a long grid keeps what it has
-                _common.write_result("rl_fetchreach_gp_tables", results)
+                _common.write_result("rl_fetchreach_gp_tables", results)  # after every run: a long grid keeps what it has
+                _common.write_section_of("table_3_4", section_table_3_4, "rl_fetchreach_gp_tables.json")
     results["peak_rss_mib"] = round(_common.peak_rss_mib(), 1)
     _common.write_result("rl_fetchreach_gp_tables", results)
 

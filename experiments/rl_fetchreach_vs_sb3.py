@@ -135,6 +135,46 @@ def plot_comparison(results: dict, path) -> None:
     plt.close(figure)
 
 
+def row_of(results: dict, label: str, name: str) -> str:
+    """One method's row of the comparison table, or 'not run'."""
+    r = results.get(label)
+    if r is None:
+        return f"| {name} | not run | | | | |"
+    steps = ", ".join("—" if s is None else f"{s:,}" for s in r["sim_steps_to_95"])
+    return (f"| {name} | {steps} | {r['final_success']:.0%} | {r['final_avg_actions']:.2f} ± {r['final_std_actions']:.2f} | "
+            f"{np.median(r['gradient_steps']):,.0f} | {np.median(r['wall_seconds']):.0f} |")
+
+
+def section(result: dict) -> str:
+    """The FetchReach comparison section of docs/RESULTS.md, from results/rl_fetchreach_vs_sb3.json."""
+    ratio, over_tqc = result["binpick_over_sb3_sim_steps"], result["binpick_over_tqc_sim_steps"]
+    return "\n".join([
+        "## FetchReach, random goals: SB3 SAC+HER, the RL Zoo's TQC+HER and binpick GP + episode HER",
+        "",
+        "Simulator steps until eval success ≥ 95% (50 seeded episodes per evaluation), per seed; final "
+        "success and average actions of the last evaluation, mean over seeds. `python "
+        "experiments/rl_fetchreach_vs_sb3.py` → `results/rl_fetchreach_vs_sb3.json`. Thesis (Table 3.4, "
+        "α=1, M=10⁴): 12,700 training iterations to < 5 actions; final 3.10 actions (Table 4.3).",
+        "",
+        "| method | sim steps to 95% (per seed) | final success | final avg actions | policy updates, whole run (median) | wall s (median) |",
+        "|---|---|---:|---:|---:|---:|",
+        row_of(result, "sb3_sac_her", "SB3 SAC + HER (future, k=4)"),
+        row_of(result, "tqc_her_zoo", "RL Zoo TQC + HER (sb3-contrib, tuned for FetchReach)"),
+        row_of(result, "binpick_thesis", "binpick: GP imagination + episode HER, the thesis's settings (4 updates per step, 15 warm-up episodes)"),
+        row_of(result, "binpick", "binpick: the same, 8 updates per step, 5 warm-up episodes, GP refit every 250 steps"),
+        "",
+        f"binpick / SB3 simulator steps: {'—' if ratio is None else f'{ratio:.2f}'} (target ≤ 0.25: "
+        f"{'met' if result['met'] else 'not met'}). binpick / RL Zoo TQC+HER, median over seeds of the per-seed "
+        f"ratio: {'—' if over_tqc is None else f'{over_tqc:.2f}'} (target ≤ 0.5: {'met' if result['met_tqc'] else 'not met'}).",
+        "",
+        "binpick's row spends more compute per simulator step than the peers (policy updates and GP imagination): "
+        "it is the thesis's measure, data efficiency in the simulator (or on a robot), not wall time. Wall seconds are "
+        "as measured, other jobs sometimes sharing the 2 cores (the 8-update row ran beside a detector fine-tune).",
+        "",
+        "![FetchReach: SB3 vs binpick](img/fetchreach_vs_sb3.png)",
+    ])
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
@@ -187,39 +227,7 @@ def main() -> None:
         _common.write_result("rl_fetchreach_vs_sb3", payload)
     plot_comparison(results, _common.ROOT / "docs" / "img" / "fetchreach_vs_sb3.png")
 
-    def row(label: str, name: str) -> str:
-        r = results.get(label)
-        if r is None:
-            return f"| {name} | not run | | | | |"
-        steps = ", ".join("—" if s is None else f"{s:,}" for s in r["sim_steps_to_95"])
-        return (f"| {name} | {steps} | {r['final_success']:.0%} | {r['final_avg_actions']:.2f} ± {r['final_std_actions']:.2f} | "
-                f"{np.median(r['gradient_steps']):,.0f} | {np.median(r['wall_seconds']):.0f} |")
-
-    _common.write_section("rl_fetchreach_vs_sb3", "\n".join([
-        "## FetchReach, random goals: SB3 SAC+HER, the RL Zoo's TQC+HER and binpick GP + episode HER",
-        "",
-        "Simulator steps until eval success ≥ 95% (50 seeded episodes per evaluation), per seed; final "
-        "success and average actions of the last evaluation, mean over seeds. `python "
-        "experiments/rl_fetchreach_vs_sb3.py` → `results/rl_fetchreach_vs_sb3.json`. Thesis (Table 3.4, "
-        "α=1, M=10⁴): 12,700 training iterations to < 5 actions; final 3.10 actions (Table 4.3).",
-        "",
-        "| method | sim steps to 95% (per seed) | final success | final avg actions | policy updates, whole run (median) | wall s (median) |",
-        "|---|---|---:|---:|---:|---:|",
-        row("sb3_sac_her", "SB3 SAC + HER (future, k=4)"),
-        row("tqc_her_zoo", "RL Zoo TQC + HER (sb3-contrib, tuned for FetchReach)"),
-        row("binpick_thesis", "binpick: GP imagination + episode HER, the thesis's settings (4 updates per step, 15 warm-up episodes)"),
-        row("binpick", "binpick: the same, 8 updates per step, 5 warm-up episodes, GP refit every 250 steps"),
-        "",
-        f"binpick / SB3 simulator steps: {'—' if ratio is None else f'{ratio:.2f}'} (target ≤ 0.25: "
-        f"{'met' if payload['met'] else 'not met'}). binpick / RL Zoo TQC+HER, median over seeds of the per-seed "
-        f"ratio: {'—' if over_tqc is None else f'{over_tqc:.2f}'} (target ≤ 0.5: {'met' if payload['met_tqc'] else 'not met'}).",
-        "",
-        "binpick's row spends more compute per simulator step than the peers (policy updates and GP imagination): "
-        "it is the thesis's measure, data efficiency in the simulator (or on a robot), not wall time. Wall seconds are "
-        "as measured, other jobs sometimes sharing the 2 cores (the 8-update row ran beside a detector fine-tune).",
-        "",
-        "![FetchReach: SB3 vs binpick](img/fetchreach_vs_sb3.png)",
-    ]))
+    _common.write_section_of("rl_fetchreach_vs_sb3", section, "rl_fetchreach_vs_sb3.json")
     print("rewrote docs/RESULTS.md and docs/img/fetchreach_vs_sb3.png" if args.report_only else f"wrote {path}")
 
 

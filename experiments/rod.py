@@ -284,8 +284,8 @@ def report(runs: Path) -> None:
                          "AP50 by object scale (Fig 5.12 analogue)")
     if "rod_warehouse" in models:
         examples(models, IMAGES / "examples.png")
-    path = _common.write_result("rod", result)
-    write_markdown(result, path)
+    _common.write_result("rod", result)
+    rewrite_section()
 
 
 def examples(models: dict, path: Path) -> None:
@@ -349,10 +349,22 @@ def pickability_and_scale_tables(result: dict) -> list[str]:
     return lines
 
 
-def write_markdown(result: dict, path: Path) -> None:
+def section(result: dict) -> str:
+    """The ROD section of docs/RESULTS.md, from results/rod.json in whichever layout wrote it last: ``generalise``
+    (and the commands that update its file: ``photo``, ``latency``) or the earlier bins-only ``report``."""
+    return section_generalisation(result) if "shifted_domain" in result else section_report(result)
+
+
+def rewrite_section() -> None:
+    """The ROD section of docs/RESULTS.md again, from results/rod.json as written."""
+    print(_common.write_section_of("rod", section, "rod.json"))
+
+
+def section_report(result: dict) -> str:
+    """The section as ``report`` (the earlier bins-only models) wrote it."""
     seen = result["seen"]
     lines = ["## Repeated object detection (thesis ch. 5, §6.3)", "",
-             f"`python experiments/rod.py train && python experiments/rod.py report` → `{path.relative_to(_common.ROOT)}`; "
+             "`python experiments/rod.py train && python experiments/rod.py report` → `results/rod.json`; "
              "pictures in `docs/img/rod/`. Every model: the small backbone at 256 px, the same data "
              f"(`{result['data']}`), 12 epochs, batch 8, seed 0. Targets: instances pickable by Policy 1 "
              "(jaws along the robot's y-axis); the query is the instance the robot picked.", "",
@@ -382,8 +394,7 @@ def write_markdown(result: dict, path: Path) -> None:
               f"| small backbone, 416 px | {lat.get('small_416')} | — |", f"| Darknet-53, 416 px | {lat.get('darknet53_416')} | — |",
               "", f"Peak RSS {result['peak_rss_mib']:.0f} MiB. All figures are CPU-only (2 cores); none were measured on a GPU.", "",
               "![PR curves](img/rod/pr_seen.png)", "![Examples](img/rod/examples.png)"]
-    _common.write_section("rod", "\n".join(lines))
-    print("\n".join(lines))
+    return "\n".join(lines)
 
 
 
@@ -496,8 +507,8 @@ def report_generalisation(runs: Path) -> None:
     result["learning_curves"] = {name: [(h.get("images_seen"), h.get("ap50")) for h in history if h.get("ap50") is not None]
                                  for name, history in histories.items()}
     result["peak_rss_mib"] = _common.peak_rss_mib()
-    path = _common.write_result("rod", result)
-    write_generalisation_markdown(result, path)
+    _common.write_result("rod", result)
+    rewrite_section()
 
 
 def interleaved_latency_ms(models: dict, image, query_box, depth, repeats: int = 60) -> dict[str, float]:
@@ -640,8 +651,8 @@ def photo_rows(weights: list[str], row_of: str | None) -> None:
     photo |= {"by_weights": rows, "row_of": chosen, "seen": rows[chosen]["seen"], "held_out": rows[chosen]["held_out"],
               "shifted_domain": rows[chosen]["shifted"], "shifted_domain_target": 0.60,
               "targets": {"seen": 0.85, "held_out": 0.80, "shifted_domain": 0.60}}
-    written = _common.write_result("rod", {k: v for k, v in result.items() if k not in ("benchmark", "machine")})
-    write_generalisation_markdown(result, written)
+    _common.write_result("rod", {k: v for k, v in result.items() if k not in ("benchmark", "machine")})
+    rewrite_section()
 
 
 def ship_photo(run: Path, head_from: str, shipping: dict | None = None) -> None:
@@ -788,8 +799,8 @@ def remeasure_latency(runs: Path) -> None:
                                                   "one_core_busy": result["latency_ms"]["shipped_one_core_busy"]}]
     result["latency_ms"]["measured"] = ("experiments/rod.py latency: median of 5 blocks of 30 turns each, 2 threads, batch 1; shipped = "
                                         "rod_tiny_320 through Detector.predict (batch norms folded), with its pickability head and the scene's depth")
-    written = _common.write_result("rod", {k: v for k, v in result.items() if k not in ("benchmark", "machine")})
-    write_generalisation_markdown(result, written)
+    _common.write_result("rod", {k: v for k, v in result.items() if k not in ("benchmark", "machine")})
+    rewrite_section()
     print(result["latency_ms"], flush=True)
 
 
@@ -886,14 +897,16 @@ def busy_core_sentence(lat: dict) -> list[str]:
             "threads than cores: `OMP_NUM_THREADS=1 binpick ...` (any command, the pick nodes too), `torch.set_num_threads(1)` in Python."]
 
 
-def write_generalisation_markdown(result: dict, path: Path) -> None:
+def section_generalisation(result: dict) -> str:
+    """The section as ``generalise`` writes it: shifted domain, held-out categories, seen products, the photo
+    query and latency."""
     def ap(rows: dict, row: str) -> str:
         return _cell((rows.get(row) or {}).get("ap50"))
 
     shifted = result["shifted_domain"]
     lines = ["## Repeated object detection that survives a new camera (thesis ch. 5, §6.3)", "",
              f"`python experiments/rod.py pretrain && python experiments/rod.py finetune && python experiments/rod.py generalise` → "
-             f"`{path.relative_to(_common.ROOT)}`. Pre-training: domain-randomised bins (`{result['data']['pretraining']}`), every copy "
+             f"`results/rod.json`. Pre-training: domain-randomised bins (`{result['data']['pretraining']}`), every copy "
              "a target; fine-tuning: the default bins, instances Policy 1 can pick. Every model: the tiny backbone, "
              f"{result['image_size']} px, rows trained on the same batches (one loader), seed 0. {budget_sentence(result)} "
              f"{finetuning_sentence(result)}", "",
@@ -943,8 +956,7 @@ def write_generalisation_markdown(result: dict, path: Path) -> None:
               "Kept from the earlier bins-only models (12 epochs on `bins_2000`, 256 px; not retrained here):", ""]
     lines += pickability_and_scale_tables(result)
     lines += [f"Peak RSS {result['peak_rss_mib']:.0f} MiB. All figures are CPU-only (2 cores)."]
-    _common.write_section("rod", "\n".join(lines))
-    print("\n".join(lines))
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

@@ -165,7 +165,7 @@ def main() -> None:
     result["target"] = 0.85
     result["peak_rss_mib"] = round(_common.peak_rss_mib(), 1)
     _common.write_result("rod_pickability", result)
-    _common.write_section("rod_pickability", section(result))
+    _common.write_section_of("rod_pickability", section, "rod_pickability.json")
     if args.ship:
         ship(detector.source, result)
     print(json.dumps({k: result[k] for k in ("sets", "latency_ms")}, indent=1))
@@ -199,10 +199,10 @@ def ship(source: Path, result: dict) -> None:
     rod["latency_ms"]["measured"] = "experiments/rod_pickability.py --ship, both in one run, in turns (the rest: experiments/rod.py latency)"
     from binpick.core.files import atomic_write_text
 
-    path = atomic_write_text(_common.RESULTS / "rod.json", json.dumps(rod, indent=2) + "\n")
-    from rod import write_generalisation_markdown
+    atomic_write_text(_common.RESULTS / "rod.json", json.dumps(rod, indent=2) + "\n")
+    from rod import rewrite_section
 
-    write_generalisation_markdown(rod, path)  # its tables: the seen row and the latency are the shipped detector's now
+    rewrite_section()  # its tables: the seen row and the latency are the shipped detector's now
     print(f"shipped {target}; results/rod.json seen.rod.ap50 = {rod['seen']['rod']['ap50']}", flush=True)
 
 

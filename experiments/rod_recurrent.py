@@ -108,7 +108,7 @@ def report(pretrained_path: Path, finetuned_path: Path) -> None:
     from binpick.core.files import atomic_write_text
 
     atomic_write_text(path, json.dumps(result, indent=2) + "\n")
-    write_markdown(result["recurrent"])
+    _common.write_section_of("rod_recurrent", section, "rod.json")
 
 
 def repeats(pretrained_path: Path, tasks: int = 100) -> None:
@@ -141,13 +141,29 @@ def repeats(pretrained_path: Path, tasks: int = 100) -> None:
 
     atomic_write_text(path, json.dumps(result, indent=2) + "\n")
     print(result["recurrent"]["repeated_steps"], flush=True)
-    write_markdown(result["recurrent"])
+    _common.write_section_of("rod_recurrent", section, "rod.json")
 
 
-def write_markdown(rec: dict) -> None:
-    def ap(row: dict | None) -> str:
-        return "—" if not row or row.get("ap50") is None else f"{row['ap50']:.3f}"
+def ap(row: dict | None) -> str:
+    return "—" if not row or row.get("ap50") is None else f"{row['ap50']:.3f}"
 
+
+def rod_budgets(result: dict) -> str:
+    """The pre-training images of experiments/rod.py's rows (``pretraining_images_seen``), beside the recurrent one's."""
+    seen = result.get("pretraining_images_seen") or {}
+    no_lh, tdid, rod = (seen.get(f"pretrain_{row}") for row in ("rod_no_lh", "tdid", "rod"))
+
+    def shown(count: int | None) -> str:
+        return "—" if count is None else f"{count:,}"
+
+    pair = f"ROD w/o L_h and TDID {shown(tdid)}" if no_lh == tdid else f"ROD w/o L_h {shown(no_lh)}, TDID {shown(tdid)}"
+    return f"{pair}, ROD {shown(rod)}"
+
+
+def section(result: dict) -> str:
+    """The recurrent detector's section of docs/RESULTS.md, from results/rod.json's ``recurrent`` (and the
+    pre-training budgets of experiments/rod.py's rows in the same file)."""
+    rec = result["recurrent"]
     rod = rec["rod_shipped_same_tasks"]
     lines = ["## The recurrent detector the thesis set aside (§5.2)", "",
              "`python experiments/rod_recurrent.py pretrain && python experiments/rod_recurrent.py finetune && "
@@ -157,8 +173,8 @@ def write_markdown(rec: dict) -> None:
              "stop (Eq 5.6) and repetition (Eq 5.8, through a similarity network trained by Eq 5.7) losses, introduced in the "
              "thesis's order while the roll-out grows. binpick's bins hold boxes, so the masks to predict are filled boxes and a "
              "detection is the box round a step's largest blob, scored by the step's objectness. "
-             f"Pre-trained on `{rec['trained_on']['pretrain']}` ({rec['images_seen']['pretrain']:,} images seen; ROD w/o L_h and "
-             f"TDID 16,480, ROD 97,824), fine-tuned on `{rec['trained_on']['finetune']}` ({rec['images_seen']['finetune']:,} images). "
+             f"Pre-trained on `{rec['trained_on']['pretrain']}` ({rec['images_seen']['pretrain']:,} images seen; "
+             f"{rod_budgets(result)}), fine-tuned on `{rec['trained_on']['finetune']}` ({rec['images_seen']['finetune']:,} images). "
              "AP50; the shipped crop-query ROD on the same tasks beside it (fine-tuned; its pickability head on for the pickable "
              "targets, off where every copy is a target):", "",
              "| test set | targets | recurrent | ROD shipped |", "|---|---|---|---|",
@@ -178,7 +194,7 @@ def write_markdown(rec: dict) -> None:
                   "was found) — the thesis's finding "
                   "(Fig 5.5a: the same mask at each step). A feed-forward ROD sees every copy at once; the recurrent decoder "
                   "must keep in its state what it has found, and at these budgets it does not."]
-    _common.write_section("rod_recurrent", "\n".join(lines))
+    return "\n".join(lines)
 
 
 def main() -> None:

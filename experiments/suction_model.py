@@ -17,7 +17,6 @@ from __future__ import annotations
 import json
 import os
 import sys
-from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -100,6 +99,27 @@ def trial(case, model_kind: str) -> tuple[bool, str | None]:
         world.close()
 
 
+def section(result: dict) -> str:
+    """The suction-model section of docs/RESULTS.md, from results/suction_model.json."""
+    rows, agree = result["cases"], result["agrees_with_a_real_cup"]
+    lines = ["## How the suction cup is simulated", "",
+             "`python experiments/suction_model.py` → `results/suction_model.json`: the same 30 mm, 30 N cup on six cases, "
+             "each lifted 15 cm, held 1 s and carried sideways, with MuJoCo's `adhesion` actuator (its pull at full control the "
+             "vacuum's 30 N) and with binpick's seal-and-wrench model (a weld made only where the lip's ring seals, broken past "
+             "the vacuum's pull, shear, peel and twist limits). A real cup's outcome is the one the case is chosen for.", "",
+             "| case | a real cup | seal and wrench (why not) | adhesion |", "|---|---|---|---|"]
+    for row in rows:
+        why = f" ({row['why']})" if row["why"] else ""
+        lines.append(f"| {row['case']} | {lifts(row['real_cup'])} | {lifts(row['seal_and_wrench'])}{why} | {lifts(row['adhesion'])} |")
+    lines += ["", f"Agreement with a real cup: seal and wrench {agree['seal_and_wrench']} of {len(rows)}, adhesion "
+              f"{agree['adhesion']} of {len(rows)}. binpick simulates the cup with the seal-and-wrench model."]
+    return "\n".join(lines)
+
+
+def lifts(held: bool) -> str:
+    return "lifts" if held else "fails"
+
+
 def main() -> None:
     rows = []
     for case in CASES:
@@ -109,20 +129,8 @@ def main() -> None:
         print(json.dumps(rows[-1]), flush=True)
     agree = {kind: sum(row[kind] == row["real_cup"] for row in rows) for kind in ("seal_and_wrench", "adhesion")}
     result = {"cases": rows, "agrees_with_a_real_cup": agree, "chosen": "seal_and_wrench"}
-    path = _common.write_result("suction_model", result)
-    lines = ["## How the suction cup is simulated", "",
-             f"`python experiments/suction_model.py` → `{path.relative_to(_common.ROOT)}`: the same 30 mm, 30 N cup on six cases, "
-             "each lifted 15 cm, held 1 s and carried sideways, with MuJoCo's `adhesion` actuator (its pull at full control the "
-             "vacuum's 30 N) and with binpick's seal-and-wrench model (a weld made only where the lip's ring seals, broken past "
-             "the vacuum's pull, shear, peel and twist limits). A real cup's outcome is the one the case is chosen for.", "",
-             "| case | a real cup | seal and wrench (why not) | adhesion |", "|---|---|---|---|"]
-    for row in rows:
-        mark = lambda held: "lifts" if held else "fails"  # noqa: E731
-        why = f" ({row['why']})" if row["why"] else ""
-        lines.append(f"| {row['case']} | {mark(row['real_cup'])} | {mark(row['seal_and_wrench'])}{why} | {mark(row['adhesion'])} |")
-    lines += ["", f"Agreement with a real cup: seal and wrench {agree['seal_and_wrench']} of {len(rows)}, adhesion "
-              f"{agree['adhesion']} of {len(rows)}. binpick simulates the cup with the seal-and-wrench model."]
-    _common.write_section("suction_model", "\n".join(lines))
+    _common.write_result("suction_model", result)
+    _common.write_section_of("suction_model", section, "suction_model.json")
     sys.exit(0)
 
 

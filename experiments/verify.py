@@ -159,23 +159,37 @@ def evaluate_all(args) -> None:
                "verifier": verifiers["learnt"].meta, "candidates": {name: v.meta for name, v in verifiers.items() if name != "learnt"},
                "pairs": rows, "peak_rss_mib": round(_common.peak_rss_mib(), 1)}
     _common.write_result("verify", payload)
+    _common.write_section_of("verify", section, "verify.json")
+
+
+def section(result: dict) -> str:
+    """The results page's section from results/verify.json as written."""
+    def shown(row: dict, key: str):
+        return "—" if row.get(key) is None else row[key]
+
     lines = ["## Is it the ordered product? (the check before a grasp)", "",
              "Every instance at least half visible, scored against the canonical shop photo of the product ordered in its bin "
              "(`python experiments/verify.py eval` → `results/verify.json`). *right accepted* (recall): the ordered product's "
              "instances passing the check; *wrong accepted*: other products' instances passing it; *precision*: of the instances "
              "passing, the share that are the ordered product; *look-alikes accepted*: other products whose colours match the "
-             f"photo's (histogram intersection ≥ {LOOK_ALIKE}) passing it. The learnt check's threshold is the one calibrated with "
-             "its weights on held-out products under randomised light (`python experiments/verify.py calibrate`).", "",
+             f"photo's (histogram intersection ≥ {LOOK_ALIKE}) passing it, of how many. The learnt check's threshold is the one "
+             "calibrated with its weights on held-out products under randomised light (`python experiments/verify.py calibrate`; "
+             "0.5 for weights without one).", "",
              "| set-up | check | threshold | AUC | right accepted | wrong accepted | precision | look-alikes accepted (of) | calibration error |",
              "|---|---|---|---|---|---|---|---|---|"]
-    for name, methods in rows.items():
+    for name, methods in result["pairs"].items():
         for method, row in methods.items():
             learnt = method.startswith("learnt")
-            precision, ece = (row.get("precision"), row.get("ece")) if learnt else ("—", "—")
-            look_alikes = f"{row.get('look_alikes_accepted')} ({row.get('look_alikes')})" if learnt else "—"
+            look_alikes = f"{shown(row, 'look_alikes_accepted')} ({shown(row, 'look_alikes')})" if learnt else "—"
             lines.append(f"| {name} | {method} | {row['threshold']} | {row.get('auc')} | {row.get('right_accepted')} | "
-                         f"{row.get('wrong_accepted')} | {precision} | {look_alikes} | {ece} |")
-    _common.write_section("verify", "\n".join(lines))
+                         f"{row.get('wrong_accepted')} | {shown(row, 'precision') if learnt else '—'} | {look_alikes} | "
+                         f"{shown(row, 'ece') if learnt else '—'} |")
+    threshold = (result.get("verifier") or {}).get("threshold_chosen_on")
+    if threshold:
+        lines += ["", f"The shipped check's threshold, {result['verifier']['threshold']}, was chosen on `{threshold['set']}` "
+                      f"({threshold['products']}; {threshold['pairs']} pairs) as the lowest giving precision ≥ "
+                      f"{threshold['target_precision']}: there precision {threshold['precision']}, recall {threshold['recall']}."]
+    return "\n".join(lines)
 
 
 def calibrate(args) -> None:
@@ -199,9 +213,13 @@ def calibrate(args) -> None:
     if chosen is None:
         sys.exit(f"no threshold gives precision {args.precision} on {CALIBRATION.name}: the check cannot be calibrated to it")
     row = learnt_row(probabilities, labels, found["histogram"], chosen)
+    curve = {f"{t:g}": {"precision": round(float(labels[probabilities >= t].mean()), 4) if (probabilities >= t).any() else None,
+                        "recall": round(float((probabilities[labels == 1] >= t).mean()), 4)} for t in np.round(np.arange(0.1, 1.0, 0.1), 1)}
     verifier.save(args.weights, {"threshold": chosen, "threshold_chosen_on": {
         "set": CALIBRATION.name, "products": "held out (can, mug, toy), randomised light and camera", "target_precision": args.precision,
-        "precision": row["precision"], "recall": row["recall"], "pairs": row["pairs"], "look_alikes_accepted": row["look_alikes_accepted"]}})
+        "precision": row["precision"], "recall": row["recall"], "pairs": row["pairs"], "look_alikes_accepted": row["look_alikes_accepted"],
+        "curve": curve}})
+    print(json.dumps(curve))
     print(json.dumps({"threshold": chosen, **{k: row[k] for k in ("precision", "recall", "auc", "pairs", "look_alikes", "look_alikes_accepted")}}))
 
 

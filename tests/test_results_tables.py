@@ -1,5 +1,6 @@
-"""The README's results table is what results/*.json give (tools/results_tables.py writes it), so a
-figure edited by hand, or a results file re-measured without regenerating the table, fails here."""
+"""The README's results table and every section of docs/RESULTS.md are what results/*.json give
+(tools/results_tables.py writes them, each page section through its script's ``section`` function), so
+a figure edited by hand, or a results file re-measured without regenerating them, fails here."""
 
 from __future__ import annotations
 
@@ -54,3 +55,52 @@ def test_a_missing_key_is_one_line_naming_file_and_key(tables: ModuleType, tmp_p
     assert tables.check() == ["results table row pick_with_panda: results/pick.json has no key arm.picks_per_hour"]
     with pytest.raises(tables.TableError, match="pick.json has no key arm.picks_per_hour"):
         tables.readme_table()
+
+
+def test_committed_page_is_what_the_results_give(tables: ModuleType) -> None:
+    problems = tables.check_page()
+    assert not problems, ("run `python tools/results_tables.py --page` to regenerate docs/RESULTS.md from results/*.json "
+                          "(sections that differ or cannot be generated):\n" + "\n".join(problems))
+
+
+def test_every_section_on_the_page_is_generated_in_page_order(tables: ModuleType) -> None:
+    on_page = tables.MARKER.findall((ROOT / "docs" / "RESULTS.md").read_text())
+    registered = [section.name for section in tables.PAGE_SECTIONS]
+    assert [name for name in on_page if name not in registered] == [], "sections no script generates"
+    assert on_page == registered, "PAGE_SECTIONS lists the page's sections in the page's order"
+
+
+def test_a_figure_edited_on_the_page_is_reported_with_its_section(tables: ModuleType) -> None:
+    text = (ROOT / "docs" / "RESULTS.md").read_text()
+    section = next(s for s in tables.PAGE_SECTIONS if s.name == "ros_latency")
+    line = next(line for line in tables.render(section).splitlines() if line.startswith("| round trip per action, median |"))
+    figure = line.split(" | ")[1]
+    assert line in text
+    by_hand = line.replace(figure, "1.23 ms")  # the median alone, to one no run gives
+    before = tables.check_page(text)
+    problems = [p for p in tables.check_page(text.replace(line, by_hand)) if p not in before]
+    assert len(problems) == 1
+    assert "section ros_latency" in problems[0] and "results/ros_latency.json" in problems[0] and "1.23 ms" in problems[0]
+
+
+def test_a_missing_results_file_is_one_line_naming_it(tables: ModuleType, tmp_path: Path,
+                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    for path in (ROOT / "results").glob("*.json"):
+        if path.name != "suction_model.json":
+            shutil.copy(path, tmp_path / path.name)
+    monkeypatch.setattr(tables, "RESULTS", tmp_path)
+    problems = [p for p in tables.check_page() if "suction_model" in p]
+    assert problems == ["docs/RESULTS.md section suction_model: results/suction_model.json is missing"]
+
+
+def test_page_rewrites_its_sections_and_keeps_the_text_around_them(tables: ModuleType, tmp_path: Path,
+                                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    text = (ROOT / "docs" / "RESULTS.md").read_text()
+    block = tables.page_blocks(text)["ros_latency"]
+    page = tmp_path / "RESULTS.md"
+    page.write_text("Written by hand, kept.\n" + text.replace(block, "stale") + "\nAfter the last section, kept.\n")
+    monkeypatch.setattr(tables, "PAGE", page)
+    assert not [p for p in tables.write_page() if "ros_latency" in p]
+    written = page.read_text()
+    assert written.startswith("Written by hand, kept.\n") and written.endswith("\nAfter the last section, kept.\n")
+    assert tables.page_blocks(written)["ros_latency"] == block

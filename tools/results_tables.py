@@ -1,28 +1,39 @@
-"""The README's results table, generated from results/*.json so that its figures cannot drift from
-what the experiments measured.
+"""The README's results table and the whole results page (docs/RESULTS.md), generated from
+results/*.json so that their figures cannot drift from what the experiments measured.
 
     python tools/results_tables.py            # rewrite the table in README.md from results/*.json
-    python tools/results_tables.py --check    # exit 1, a line per row, if README.md differs from them
+    python tools/results_tables.py --page     # rewrite every section of docs/RESULTS.md from results/*.json
+    python tools/results_tables.py --check    # exit 1, a line per row or section, if either differs from them
 
 The table sits in README.md between ``<!-- results_table:start -->`` and ``<!-- results_table:end -->``;
 everything between the markers is this script's, so a figure edited by hand there is reported by
 ``--check`` (and by tests/test_results_tables.py) until the script writes it again. Each row is one
 function below that reads its figures from one results file; the thesis's and peers' figures that no
 results file holds are written in the function as they are in the README.
+
+Each section of docs/RESULTS.md (between ``<!-- NAME:start -->`` and ``<!-- NAME:end -->``) is written by
+a function ``section(result)`` of the experiment or benchmark that measures it, from the results file
+that script writes; :data:`PAGE_SECTIONS` names them in page order. The script calls the same function
+when it runs, so the page holds the same text whether the script or this tool wrote it last. Text
+outside the markers is the page's own and is kept as it is.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
+import re
 import sys
 from dataclasses import dataclass
 from pathlib import Path
+from types import ModuleType
 from typing import Any, Callable
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "results"
 README = ROOT / "README.md"
+PAGE = ROOT / "docs" / "RESULTS.md"
 START, END = "<!-- results_table:start -->", "<!-- results_table:end -->"
 HEADER = "| what | binpick | thesis or peer |\n|---|---|---|"
 
@@ -248,15 +259,189 @@ def check(text: str | None = None) -> list[str]:
     return problems
 
 
+@dataclass(frozen=True)
+class Section:
+    """One section of docs/RESULTS.md: the script and function that write it, and the results file
+    (under results/) the function is given."""
+
+    name: str
+    script: str
+    function: str
+    results: str
+
+    @property
+    def start(self) -> str:
+        return f"<!-- {self.name}:start -->"
+
+    @property
+    def end(self) -> str:
+        return f"<!-- {self.name}:end -->"
+
+
+PAGE_SECTIONS: tuple[Section, ...] = (
+    Section("random_policy", "experiments/random_policy.py", "section", "random_policy.json"),
+    Section("env_speed", "benchmarks/env_speed.py", "section", "env_speed.json"),
+    Section("gp_cost", "benchmarks/gp_cost.py", "section", "gp_cost.json"),
+    Section("rl_arm2d", "experiments/rl_arm2d.py", "section", "rl_arm2d.json"),
+    Section("rl_fetchreach_vs_sb3", "experiments/rl_fetchreach_vs_sb3.py", "section", "rl_fetchreach_vs_sb3.json"),
+    Section("table_3_3", "experiments/rl_fetchreach_gp_tables.py", "section_table_3_3", "rl_fetchreach_gp_tables.json"),
+    Section("table_3_4", "experiments/rl_fetchreach_gp_tables.py", "section_table_3_4", "rl_fetchreach_gp_tables.json"),
+    Section("april", "experiments/april.py", "section", "april.json"),
+    Section("data_stats", "experiments/data_stats.py", "section", "data_stats.json"),
+    Section("data_speed", "benchmarks/data_speed.py", "section", "data_speed.json"),
+    Section("sim_to_real", "experiments/sim_to_real.py", "section", "sim_to_real.json"),
+    Section("rod", "experiments/rod.py", "section", "rod.json"),
+    Section("rod_recurrent", "experiments/rod_recurrent.py", "section", "rod.json"),
+    Section("ros_latency", "benchmarks/ros_latency.py", "section", "ros_latency.json"),
+    Section("ray_scaling", "benchmarks/ray_scaling.py", "section", "ray_scaling.json"),
+    Section("pick", "experiments/pick.py", "section", "pick.json"),
+    Section("grasp", "experiments/grasp.py", "section_grasp", "grasp.json"),
+    Section("plan", "experiments/plan.py", "section", "plan.json"),
+    Section("rod_pickability", "experiments/rod_pickability.py", "section", "rod_pickability.json"),
+    Section("hostile", "benchmarks/hostile.py", "section", "hostile.json"),
+    Section("verify", "experiments/verify.py", "section", "verify.json"),
+    Section("onnx", "benchmarks/onnx_latency.py", "section", "rod.json"),
+    Section("ray_train", "benchmarks/ray_train_scaling.py", "section", "ray_scaling.json"),
+    Section("ray_jobs", "benchmarks/ray_jobs_scaling.py", "section", "ray_scaling.json"),
+    Section("ray_rl", "benchmarks/ray_rl_curve.py", "section", "ray_scaling.json"),
+    Section("grasp_tools", "experiments/grasp.py", "section_grasp_tools", "grasp.json"),
+    Section("suction_model", "experiments/suction_model.py", "section", "suction_model.json"),
+)
+MARKER = re.compile(r"<!-- (\w+):start -->")
+
+
+def script(path: str) -> ModuleType:
+    """The experiment or benchmark at ``path`` (relative to the repository), imported from its file under its
+    own name, as the scripts import each other, without running its ``main()``."""
+    file = ROOT / path
+    loaded = sys.modules.get(file.stem)
+    if loaded is not None and Path(getattr(loaded, "__file__", "") or "").resolve() == file:
+        return loaded
+    experiments = str(ROOT / "experiments")  # the scripts' ``import _common`` (benchmarks add it themselves)
+    if experiments not in sys.path:
+        sys.path.insert(0, experiments)
+    spec = importlib.util.spec_from_file_location(file.stem, file)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[file.stem] = module  # a dataclass in it looks its module up while the class is made
+    try:
+        spec.loader.exec_module(module)
+    except BaseException:
+        del sys.modules[file.stem]
+        raise
+    return module
+
+
+def render(section: Section) -> str:
+    """The section's markdown from its results file; what it lacks raises :class:`TableError`, one line."""
+    where = f"docs/RESULTS.md section {section.name}"
+    try:
+        result = json.loads((RESULTS / section.results).read_text())
+    except FileNotFoundError:
+        raise TableError(f"{where}: results/{section.results} is missing") from None
+    except (OSError, ValueError) as error:
+        raise TableError(f"{where}: results/{section.results} cannot be read ({error})") from None
+    try:
+        function = getattr(script(section.script), section.function, None)
+    except (Exception, SystemExit) as error:  # the script itself fails to import: named, not a traceback
+        raise TableError(f"{where}: {section.script} cannot be imported ({type(error).__name__}: {error})") from None
+    if not callable(function):
+        raise TableError(f"{where}: {section.script} has no function {section.function}(result)")
+    try:
+        return function(result).strip()
+    except FileNotFoundError as error:
+        raise TableError(f"{where}: {section.script} {section.function}() reads {error.filename}, which is missing") from None
+    except (KeyError, IndexError, TypeError, ValueError, ZeroDivisionError, AttributeError) as error:
+        raise TableError(f"{where}: results/{section.results} does not give it ({section.script} {section.function}(): "
+                         f"{type(error).__name__}: {error})") from None
+
+
+def page_blocks(text: str) -> dict[str, str]:
+    """Each section's text on the page, between its markers, by name (a start marker without its end: absent)."""
+    blocks = {}
+    for name in MARKER.findall(text):
+        start, end = f"<!-- {name}:start -->", f"<!-- {name}:end -->"
+        if end in text.split(start, 1)[1]:
+            blocks[name] = text.split(start, 1)[1].split(end, 1)[0].strip()
+    return blocks
+
+
+def with_section(text: str, section: Section, markdown: str) -> str:
+    """Page text with the section's block replaced by ``markdown`` (appended when the page lacks it), as
+    ``_common.write_section`` writes it."""
+    block = f"{section.start}\n{markdown.strip()}\n{section.end}"
+    if section.start in text and section.end in text.split(section.start, 1)[1]:
+        before, rest = text.split(section.start, 1)
+        return before + block + rest.split(section.end, 1)[1]
+    return text.rstrip() + "\n\n" + block + "\n"
+
+
+def first_difference(written: str, made: str) -> str:
+    """Where a section on the page first differs from the generated one: line number and both lines, cut short."""
+    have, want = written.splitlines(), made.splitlines()
+    for number, (h, w) in enumerate(zip(have, want), 1):
+        if h != w:
+            at = next((i for i, (a, b) in enumerate(zip(h, w)) if a != b), min(len(h), len(w)))
+            start = max(at - 30, 0)
+            return f'line {number}: page "…{h[start:start + 90]}…", generated "…{w[start:start + 90]}…"'
+    return f"the page has {len(have)} lines, generated {len(want)}"
+
+
+def check_page(text: str | None = None) -> list[str]:
+    """One line per section where page text (docs/RESULTS.md's by default) differs from what results/*.json
+    give, or that they cannot give, and per section on the page that no script generates; an empty list
+    when the page is up to date."""
+    text = PAGE.read_text() if text is None else text
+    blocks = page_blocks(text)
+    problems = []
+    for section in PAGE_SECTIONS:
+        try:
+            made = render(section)
+        except TableError as problem:
+            problems.append(str(problem))
+            continue
+        if section.name not in blocks:
+            problems.append(f"docs/RESULTS.md lacks the section {section.name} ({section.script} {section.function}())")
+        elif blocks[section.name] != made:
+            problems.append(f"docs/RESULTS.md section {section.name} differs from what results/{section.results} gives "
+                            f"({section.script} {section.function}()): {first_difference(blocks[section.name], made)}")
+    registered = {section.name for section in PAGE_SECTIONS}
+    problems += [f"docs/RESULTS.md section {name} is generated by no script (not in tools/results_tables.py PAGE_SECTIONS)"
+                 for name in MARKER.findall(text) if name not in registered]
+    return problems
+
+
+def write_page() -> list[str]:
+    """Rewrite every section of docs/RESULTS.md that results/*.json give; the lines for those they cannot."""
+    text, problems = PAGE.read_text(), []
+    for section in PAGE_SECTIONS:
+        try:
+            text = with_section(text, section, render(section))
+        except TableError as problem:
+            problems.append(str(problem))
+    PAGE.write_text(text)
+    return problems
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description="Write (or --check) README.md's results table from results/*.json.")
-    parser.add_argument("--check", action="store_true",
-                        help="change nothing; exit 1 with a line per row where README.md differs from results/*.json")
+    parser = argparse.ArgumentParser(description="Write (or --check) README.md's results table and docs/RESULTS.md "
+                                                 "from results/*.json.")
+    what = parser.add_mutually_exclusive_group()
+    what.add_argument("--check", action="store_true",
+                      help="change nothing; exit 1 with a line per row or section where README.md or docs/RESULTS.md "
+                           "differs from results/*.json")
+    what.add_argument("--page", action="store_true",
+                      help="rewrite every section of docs/RESULTS.md from results/*.json (text outside the markers kept)")
     args = parser.parse_args(argv)
     if args.check:
-        problems = check()
+        problems = check() + check_page()
         for problem in problems:
             print(problem, file=sys.stderr)
+        return 1 if problems else 0
+    if args.page:
+        problems = write_page()
+        for problem in problems:
+            print(problem, file=sys.stderr)
+        print(f"docs/RESULTS.md: {len(PAGE_SECTIONS) - len(problems)} of {len(PAGE_SECTIONS)} sections written from results/*.json")
         return 1 if problems else 0
     try:
         text = with_table(README.read_text(), readme_table())

@@ -202,7 +202,7 @@ def _fulfil(pipeline, products: list[str], orders: int, seed: int, run_dir: Path
 
     for column in COLUMNS:
         table.add_column(column, no_wrap=column != "result")  # long failure reasons wrap; the rest stays whole
-    with progress() as callback, callback.task("orders", orders) as task:
+    with progress() as callback, callback.task("orders done", orders) as task:
 
         def row(result) -> None:
             seen = "?" if result.seen is None else "yes" if result.seen else "no"
