@@ -102,20 +102,35 @@ def seal_geometry(heights: np.ndarray, same: np.ndarray, radius: float) -> Seal:
     """The :class:`Seal` of a surface seen at :func:`ring_offsets` (``heights`` along the cup's axis
     relative to the lip, NaN where nothing was seen; ``same``: the point lies on the product under the
     cup's centre). Points not seen or on another product leave the fit (and lower ``coverage``)."""
-    heights = np.asarray(heights, dtype=float)
-    good = np.isfinite(heights) & np.asarray(same, bool)
-    coverage = float(good.mean())
-    ring = good[:RING]
-    if ring.sum() < 4:
-        return Seal(coverage, float("inf"), 90.0, float("inf"), float("inf"))
+    return seal_geometries(np.asarray(heights, dtype=float)[None], np.asarray(same, bool)[None], radius)[0]
+
+
+def seal_geometries(heights: np.ndarray, same: np.ndarray, radius: float) -> list[Seal]:
+    """:func:`seal_geometry` of N places at once (``heights``, ``same``: (N, RING + INNER)): one
+    weighted least-squares plane per place, solved together (a planner judges dozens per detection)."""
+    heights, same = np.asarray(heights, dtype=float), np.asarray(same, bool)
+    good = np.isfinite(heights) & same
+    coverage = good.mean(axis=1)
+    ring = good[:, :RING]
     offsets = ring_offsets(radius)
     design = np.column_stack([offsets, np.ones(len(offsets))])
-    (a, b, c), *_ = np.linalg.lstsq(design[:RING][ring], heights[:RING][ring], rcond=None)
-    plane = design @ np.array([a, b, c])
-    residual = heights[:RING][ring] - plane[:RING][ring]
-    inside = good[RING:]
-    bulge = float((heights[RING:][inside] - plane[RING:][inside]).max()) if inside.any() else 0.0
-    return Seal(coverage, float(np.ptp(residual)), float(np.degrees(np.arctan(np.hypot(a, b)))), bulge, float(-c))
+    lip = design[:RING]
+    weights = ring.astype(float)
+    values = np.where(ring, heights[:, :RING], 0.0)
+    normal = np.einsum("ri,nr,rj->nij", lip, weights, lip)  # the plane's normal equations, per place
+    right = np.einsum("ri,nr->ni", lip, weights * values)
+    fitted = ring.sum(axis=1) >= 4
+    coefficients = np.zeros((len(heights), 3))
+    if fitted.any():
+        coefficients[fitted] = np.linalg.solve(normal[fitted], right[fitted][..., None])[..., 0]
+    plane = coefficients @ design.T
+    residual = heights[:, :RING] - plane[:, :RING]
+    spread = np.where(ring, residual, -np.inf).max(axis=1) - np.where(ring, residual, np.inf).min(axis=1)
+    inside = good[:, RING:]
+    bulge = np.where(inside.any(axis=1), np.where(inside, heights[:, RING:] - plane[:, RING:], -np.inf).max(axis=1), 0.0)
+    tilt = np.degrees(np.arctan(np.hypot(coefficients[:, 0], coefficients[:, 1])))
+    return [Seal(float(coverage[i]), float(spread[i]), float(tilt[i]), float(bulge[i]), float(-coefficients[i, 2])) if fitted[i]
+            else Seal(float(coverage[i]), float("inf"), 90.0, float("inf"), float("inf")) for i in range(len(heights))]
 
 
 def seal_test(heights: np.ndarray, same: np.ndarray, cup: SuctionCup, touch: float = 0.002) -> str | None:

@@ -4,7 +4,7 @@ Candidates are points on the instance's own pixels (its depth mask inside the de
 a centimetre apart. At each, the cup's lip ring and the points inside it are laid on the surface the
 depth shows (holes filled): the share of them on the instance (coverage), how far the ring's heights
 leave a plane (the lip's compliance takes a few millimetres), that plane's tilt, how far the surface
-bulges into the cup (:func:`binpick.grippers.seal_geometry`); then the moment of the product's
+bulges into the cup (:func:`binpick.grippers.seal_geometries`); then the moment of the product's
 weight about the contact against what the seal resists: the weight from the visible size (a
 packaged goods density), the lever from the contact to the instance's visible centre. On a hand that
 carries both tools the open fingers sit ``cup_reach`` above the lip: a yaw is chosen that keeps them
@@ -16,13 +16,14 @@ clear of taller neighbours.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
 from binpick.grasping.candidates import BLOCK_TOLERANCE, GraspCandidate, Surface, finger_heights, points_on_instance, surface_heights
 from binpick.grasping.frame import DepthFrame
-from binpick.grippers import Jaws, SuctionCup, ring_offsets, seal_geometry
+from binpick.grippers import Jaws, SuctionCup, ring_offsets, seal_geometries
 
 SPACING = 0.01  # m between candidates on the instance
 MAX_CANDIDATES = 48
@@ -96,14 +97,16 @@ def describe_suction(frame: DepthFrame, surface: Surface, centres: np.ndarray, c
     heights, read = heights.reshape(n, k), read.reshape(n, k)
     same = surface.on_instance(pixels[0]).reshape(n, k)
     mass = estimated_mass(surface)
+    seen = np.isfinite(heights).any(axis=1)  # a centre where depth shows nothing is left out
+    centres, heights, read, same = centres[seen], heights[seen], read[seen], same[seen]
+    on_product = np.where(same & np.isfinite(heights), heights, np.nan)
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a row without a reading on the product: the ring's median
+        levels = np.where(np.isfinite(on_product).any(axis=1), np.nanmedian(on_product, axis=1), np.nanmedian(heights, axis=1))
+    seals = seal_geometries(heights - levels[:, None], same, cup.radius)
     candidates = []
-    for i in range(n):
-        ring = heights[i]
-        if not np.isfinite(ring).any():
-            continue
-        level = float(np.nanmedian(ring[same[i]])) if same[i].any() else float(np.nanmedian(ring))
-        seal = seal_geometry(ring - level, same[i], cup.radius)
-        lip = level - (seal.gap if np.isfinite(seal.gap) else 0.0)
+    for i, seal in enumerate(seals):
+        lip = float(levels[i]) - (seal.gap if np.isfinite(seal.gap) else 0.0)
         lever = float(np.linalg.norm(centres[i] - surface.centre))
         candidates.append((centres[i], lip, seal, float(read[i].mean()), lever))
     if not candidates:
