@@ -5,7 +5,8 @@ image header.
 
     python benchmarks/hostile.py [--skip-ros]
 
-Each case ends one of four ways: one line and exit code 2 (refused, as it should be), a traceback,
+Each case ends one of four ways: one error line and exit code 2 (refused, as it should be; warnings about
+the input before it allowed), a traceback,
 a hang (past its timeout) or a silent acceptance (exit code 0, or any other code without one clean
 line). Writes results/hostile.json (cases_by_class, totals, ros, peak_rss_mib) and the hostile-input
 section of docs/RESULTS.md. Targets: 0 tracebacks, 0 hangs, 0 silent acceptances.
@@ -48,7 +49,9 @@ def load(name: str):
 
 
 def outcome(code, err: str, fragments: list[str]) -> str:
-    lines = [line for line in err.splitlines() if line.strip()]
+    """How a refused case ended: one ``error:`` line and exit code 2 is a clean refusal (``warning:`` lines
+    before it, about the input as read, are allowed); anything else with a traceback is one; the rest silent."""
+    lines = [line for line in err.splitlines() if line.strip() and not line.startswith("warning: ")]
     if "Traceback" in err:
         return "traceback"
     if code == 2 and len(lines) == 1 and lines[0].startswith("error: "):

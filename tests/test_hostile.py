@@ -332,3 +332,16 @@ def test_yaml_duplicates_are_found_by_value_and_rounded_hand_eye_matrices_pass()
     camera = PinholeCamera(K, 416, 416, rounded)  # printed to 3 decimals: accepted, made exactly rigid
     rotation = camera.camera_to_world[:3, :3]
     assert np.allclose(rotation.T @ rotation, np.eye(3), atol=1e-9) and np.allclose(rotation, rounded[:3, :3], atol=0.01)
+
+
+def test_the_hostile_benchmark_counts_one_error_line_as_a_refusal_and_warnings_before_it_do_not_spoil_it():
+    spec = importlib.util.spec_from_file_location("hostile_benchmark", ROOT / "benchmarks" / "hostile.py")
+    hostile = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(hostile)
+    outcome = hostile.outcome
+    assert outcome(2, "error: cannot write 'plan/plan.json': File too large\n", ["File too large"]) == "one_line"
+    assert outcome(2, "warning: depth is 320x240\nerror: cannot write 'x': File too large\n", ["File too large"]) == "one_line"
+    assert outcome(2, "error: something else\n", ["File too large"]) == "one_line_other_reason"
+    assert outcome(2, "error: one\nerror: two\n", []) == "silent_acceptance"  # two problems: not one clean line
+    assert outcome(0, "warning: only a warning\n", []) == "silent_acceptance"  # exit 0 on a hostile case: accepted
+    assert outcome(1, "Traceback (most recent call last):\n  ...\n", []) == "traceback"
