@@ -259,7 +259,7 @@ def main() -> None:
     t.add_argument("--scenes", type=int, default=8000)
     t.add_argument("--epochs", type=int, default=8)
     t.add_argument("--threads", type=int, default=2)
-    t.add_argument("--repainted", type=float, default=0.3, help="share of negatives repainted in the photo's colours")
+    t.add_argument("--repainted", type=float, default=0.0, help="share of negatives repainted in the photo's colours")
     e = sub.add_parser("eval")
     e.add_argument("--weights", type=Path, nargs="*", default=None, help="candidates measured beside the shipped verifier")
     e.add_argument("--limit", type=int, default=None, help="scenes per set (default: all)")

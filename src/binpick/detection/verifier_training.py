@@ -5,9 +5,10 @@ Pairs come from each scene's ground truth: the ordered product's instances with 
 (the canonical one and the randomised studios' views, ``--photo-views``) are positives; the other
 products' instances in the same bin with that photo, and the product's instances with another
 world's photo, are negatives; a saturated instance whose hue is turned far round is a negative too
-(the same shape in another colour, the detector's usual confusion), and so is another product's
-instance repainted in the ordered product's colours (another shape in the same colours: a white
-brick beside a white carton), so that shape counts where colour cannot tell. Every window's colours are cast
+(the same shape in another colour, the detector's usual confusion); optionally (``repainted``) so is
+another product's instance repainted in the ordered product's colours (another shape in the same
+colours: a white brick beside a white carton), and val pairs of such look-alikes measure how far
+shape counts where colour cannot tell (docs/notes.md: as trained, it did not lift them). Every window's colours are cast
 and scaled well beyond the training lights (a warehouse's light is not the renderer's) and its box
 jittered (detections are not ground truth). Temperature scaling on the val worlds' pairs makes the
 output a probability. Checkpoints are written atomically after each epoch; a run resumes.
@@ -45,7 +46,7 @@ class VerifierTrainConfig:
     lr: float = 2e-3
     width: int = 16
     min_visible: float = 0.3  # instances less visible than this are left out
-    repainted: float = 0.3  # share of negative pairs whose window is repainted in the photo's colours (0: none)
+    repainted: float = 0.0  # share of negatives repainted in the photo's colours (0: none; it did not help: docs/notes.md)
     threads: int = 2
     seed: int = 0
 
