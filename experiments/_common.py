@@ -30,6 +30,7 @@ LOAD_AT_START = os.getloadavg()[0]  # the machine's load when this script starte
 
 CODE_AT_START: tuple[str | None, bool] | None = None  # (commit, dirty) when the script started: a commit made
 # while it ran is not what it measured
+DIGESTS_AT_START: dict[str, str] = {}
 
 
 def provenance() -> dict:
@@ -43,13 +44,34 @@ def provenance() -> dict:
         except (OSError, subprocess.SubprocessError):
             return ""
 
-    global CODE_AT_START
+    global CODE_AT_START, DIGESTS_AT_START
     if CODE_AT_START is None:
         CODE_AT_START = (git("rev-parse", "HEAD") or None, bool(git("status", "--porcelain", "--untracked-files=no")))
+        DIGESTS_AT_START = input_digests()  # the weights it started with, not those a run ships at its end
     return {"commit": CODE_AT_START[0], "dirty": CODE_AT_START[1],
             "command": " ".join([Path(sys.argv[0]).name if sys.argv else "python", *sys.argv[1:]]),
+            "digests": DIGESTS_AT_START,
             "load_average_start": round(LOAD_AT_START, 2), "load_average_end": round(os.getloadavg()[0], 2),
             "utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+
+
+def input_digests() -> dict[str, str]:
+    """SHA-256 (first 16 hex digits) of what a figure was measured with that the commit alone may not
+    pin: every file named on the command line (configs, weights, data cards) and the weights binpick
+    ships (an experiment loads them by default; a run can replace them without a commit)."""
+    import hashlib
+
+    files = [Path(arg) for arg in sys.argv[1:] if not arg.startswith("-")]
+    files = [f if f.is_absolute() else Path.cwd() / f for f in files]
+    files += sorted((ROOT / "src" / "binpick").glob("*/weights/*.safetensors"))
+    digests = {}
+    for file in files:
+        try:
+            if file.is_file() and file.stat().st_size < 512 * 2**20:
+                digests[repo_relative(file)] = hashlib.sha256(file.read_bytes()).hexdigest()[:16]
+        except OSError:
+            continue
+    return digests
 
 
 def machine() -> dict:
@@ -162,9 +184,40 @@ def repo_relative(path: str | Path) -> str:
 def write_section_of(name: str, render: Callable[[dict], str], results_file: str) -> str:
     """Replace this benchmark's section with ``render`` of ``results/RESULTS_FILE`` as written (and return
     it), so that the page holds what ``tools/results_tables.py --page`` makes of the same file."""
-    markdown = render(json.loads((RESULTS / results_file).read_text()))
+    markdown = section_markdown(render, json.loads((RESULTS / results_file).read_text()), results_file)
     write_section(name, markdown)
     return markdown
+
+
+def section_markdown(render: Callable[[dict], str], result: dict, results_file: str) -> str:
+    """A section as the page shows it: the script's rendering of its results, then where they came from."""
+    return render(result).strip() + "\n\n" + provenance_line(result, results_file)
+
+
+def provenance_line(result: dict, results_file: str) -> str:
+    """Which code measured a results file's rows: one commit and date per group of rows, the newest first
+    (``inferred``: the commit that committed rows written before provenance was recorded)."""
+    rows = result.get("provenance_by_row") or {}
+    if not rows and result.get("provenance"):
+        rows = {"all": result["provenance"]}
+    groups: dict[tuple, list[str]] = {}
+    for key, where in rows.items():
+        where = where or {}
+        stamp = (str(where.get("commit") or "unknown")[:7], str(where.get("utc") or "")[:10], bool(where.get("inferred")),
+                 bool(where.get("dirty")))
+        groups.setdefault(stamp, []).append(key)
+    if not groups:
+        return f"*Provenance (`results/{results_file}`): not recorded.*"
+    parts = []
+    for (commit, date, inferred, dirty), keys in sorted(groups.items(), key=lambda item: item[0][1], reverse=True):
+        what = "" if len(groups) == 1 else f" ({', '.join(f'`{k}`' for k in keys)})"
+        if commit == "unknown":
+            parts.append(f"not recorded{what}")
+            continue
+        how = "committed at" if inferred else "measured at"
+        parts.append(f"{how} `{commit}`{' with uncommitted changes' if dirty else ''} {date}{what}")
+    note = " (*committed at*: measured on that code or older)" if any(stamp[2] for stamp in groups) else ""
+    return f"*Provenance (`results/{results_file}`): {'; '.join(parts)}{note}.*"
 
 
 def recipe(name: str) -> tuple[Path, dict]:

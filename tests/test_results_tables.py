@@ -104,3 +104,22 @@ def test_page_rewrites_its_sections_and_keeps_the_text_around_them(tables: Modul
     written = page.read_text()
     assert written.startswith("Written by hand, kept.\n") and written.endswith("\nAfter the last section, kept.\n")
     assert tables.page_blocks(written)["ros_latency"] == block
+
+
+def test_every_results_file_says_which_code_measured_it():
+    """Each results file carries provenance: the run's own, or (files older than recorded provenance)
+    the commit that committed it, marked inferred; and each of its rows names one."""
+    import json
+
+    root = Path(__file__).resolve().parents[1]
+    problems = []
+    for path in sorted((root / "results").glob("*.json")):
+        result = json.loads(path.read_text())
+        provenance = result.get("provenance") or {}
+        if not provenance.get("commit"):
+            problems.append(f"{path.name}: no provenance commit")
+        rows = result.get("provenance_by_row") or {}
+        unnamed = [key for key in result if key not in ("benchmark", "machine", "provenance", "provenance_by_row") and key not in rows]
+        if unnamed:
+            problems.append(f"{path.name}: rows without provenance {unnamed}")
+    assert not problems, "\n".join(problems) + "\n(python tools/backfill_provenance.py infers it from git)"

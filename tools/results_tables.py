@@ -331,6 +331,11 @@ def script(path: str) -> ModuleType:
     return module
 
 
+def common() -> ModuleType:
+    """experiments/_common.py, which also frames each section (its provenance line)."""
+    return script("experiments/_common.py")
+
+
 def render(section: Section) -> str:
     """The section's markdown from its results file; what it lacks raises :class:`TableError`, one line."""
     where = f"docs/RESULTS.md section {section.name}"
@@ -347,7 +352,7 @@ def render(section: Section) -> str:
     if not callable(function):
         raise TableError(f"{where}: {section.script} has no function {section.function}(result)")
     try:
-        return function(result).strip()
+        return common().section_markdown(function, result, section.results).strip()
     except FileNotFoundError as error:
         raise TableError(f"{where}: {section.script} {section.function}() reads {error.filename}, which is missing") from None
     except (KeyError, IndexError, TypeError, ValueError, ZeroDivisionError, AttributeError) as error:
