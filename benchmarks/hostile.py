@@ -1,5 +1,6 @@
 """Hostile and broken input, counted: every case of the hostile-file corpus through the CLI, a full
-disk, peers that accept a connection and never answer, and the hostile ROS messages sent to both
+disk, network peers that never answer, answer garbage or (a ROS master) stall after one answer,
+``--address auto`` with no cluster, and the hostile ROS messages sent to both
 running nodes; plus the peak memory of planning on a 4000x3000 frame and of refusing a 30000x30000
 image header.
 
@@ -22,11 +23,9 @@ import json
 import os
 import resource
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 
@@ -50,8 +49,9 @@ def load(name: str):
 
 def outcome(code, err: str, fragments: list[str]) -> str:
     """How a refused case ended: one ``error:`` line and exit code 2 is a clean refusal (``warning:`` lines
-    before it, about the input as read, are allowed); anything else with a traceback is one; the rest silent."""
-    lines = [line for line in err.splitlines() if line.strip() and not line.startswith("warning: ")]
+    before it, about the input as read, and rospy's own ``[...]`` log lines are allowed); anything else
+    with a traceback is one; the rest silent."""
+    lines = [line for line in err.splitlines() if line.strip() and not line.startswith(("warning: ", "["))]  # "[": rospy's log
     if "Traceback" in err:
         return "traceback"
     if code == 2 and len(lines) == 1 and lines[0].startswith("error: "):
@@ -97,15 +97,6 @@ def run_child(args: list[str], fragments: list[str], cwd: Path, preexec=None) ->
 def full_disk() -> None:
     signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
     resource.setrlimit(resource.RLIMIT_FSIZE, (200, 200))
-
-
-def silent_peer() -> tuple[socket.socket, int]:
-    server = socket.socket()
-    server.bind(("127.0.0.1", 0))
-    server.listen(16)
-    held = []
-    threading.Thread(target=lambda: [held.append(server.accept()[0]) for _ in iter(int, 1)], daemon=True).start()
-    return server, server.getsockname()[1]
 
 
 def peak_rss_mib(args: list[str], cwd: Path) -> tuple[float, int, str]:
@@ -168,7 +159,8 @@ def section(result: dict) -> str:
             f"{t['silent_acceptances']} |" for klass, t in result["cases_by_class"].items()]
     lines = ["## Hostile and broken input", "",
              f"`benchmarks/hostile.py`: the hostile-file corpus (`benchmarks/hostile_corpus.py`) through the CLI, a full disk, "
-             f"peers that accept and never answer, and hostile ROS messages to both running nodes ({result['ros_messages_sent']} in all: "
+             f"network peers that never answer, answer garbage or stall after one answer (a ROS master), `--address auto` "
+             f"without a cluster, and hostile ROS messages to both running nodes ({result['ros_messages_sent']} in all: "
              "bad goals answered with their reason, bad camera messages dropped, then a good goal placed; ROS 2 inside a "
              "loopback-only network namespace). 'One line': refused with one line naming the problem (for a goal: an "
              "aborted result). Target: 0 tracebacks, 0 hangs, 0 silent acceptances.", "",
@@ -211,15 +203,17 @@ def main() -> None:
                   str(ROOT / "src/binpick/detection/weights/rod_tiny_320.safetensors"), "--query-box", "393,279,93,59", "--out", "predict"]):
         folder = Path(tempfile.mkdtemp(dir=work))
         count("faults", run_child(argv, ["File too large"], folder, full_disk), "full disk: " + " ".join(argv[:3]))
-    server, port = silent_peer()
-    for argv, fragment in ((["rl", "distributed", "--address", f"127.0.0.1:{port}", "--steps", "1000", "--out", "d"], "did not answer"),
-                           (["data", "generate", "--out", "g", "--address", f"127.0.0.1:{port}", "--scenes", "1"], "did not answer"),
-                           (["ros", "pick-node", "--master", f"http://127.0.0.1:{port}/", "--camera", str(SAMPLE / "camera.yaml")],
-                            "no ROS master answered")):
-        tick = time.monotonic()
-        result = run_child(argv, [fragment], work)
-        count("network", result if time.monotonic() - tick < TIMEOUT else "hang", "silent peer: " + " ".join(argv[:2]))
-    server.close()
+    config = work / "rl.yaml"
+    config.write_text(corpus.TINY_RL_YAML)
+    for kind, argv, fragments in corpus.PEER_CASES:  # peers that never answer, answer garbage, or stall after one answer
+        with corpus.peer(kind) as port:
+            folder = Path(tempfile.mkdtemp(dir=work))
+            tick = time.monotonic()
+            result = run_child([a.format(port=port, tmp=folder, config=config) for a in argv], fragments, folder)
+        count("network", result if time.monotonic() - tick < TIMEOUT else "hang", f"{kind} peer: " + " ".join(argv[:2]))
+    tick = time.monotonic()  # no cluster to join
+    result = run_child(["train", str(config), "--runs", str(work / "auto"), "--address", "auto"], ["no Ray cluster"], work)
+    count("network", result if time.monotonic() - tick < TIMEOUT else "hang", "--address auto without a cluster")
     ros = {} if args.skip_ros else {"ros1": ros_hostile(1), "ros2": ros_hostile(2)}
     for name, tally in ros.items():  # every hostile message is a case: a bad goal must be answered with its reason; a
         # bad camera message dropped (the node counts what it drops and prints it when it stops; no traceback, the node

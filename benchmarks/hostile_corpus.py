@@ -6,15 +6,21 @@ their folder, calibrations no camera has, COCO files that contradict themselves.
 ``(class, arguments, fragments)``: the command line (``{name}`` is a path from the corpus) and the
 fragments its one error line must hold. ``tests/test_hostile_files.py`` runs every case in-process
 (one line, exit code 2, no traceback, within a timeout); ``benchmarks/hostile.py`` counts them by class.
+``peer(kind)`` is a hostile network peer on 127.0.0.1 (silent, answering garbage, or a ROS master that
+answers once and then stalls); ``PEER_CASES`` are the commands pointed at one.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
+import socket
 import struct
+import threading
 import zlib
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
 
@@ -227,7 +233,26 @@ def make_corpus(root: Path) -> dict[str, str]:
     put("products_deep.yaml", "products: " + "[" * 50_000 + "]" * 50_000 + "\n")
     put("products_bomb_photo.yaml", "products:\n  - {id: mine/photo, category: box, mesh: box.obj, photo: bomb.png}\n")
     put("products_alias_bomb.yaml", alias_bomb() + "products: *a11\n")
+    policy_run(root / "run_huge_space")
+    paths["run_huge_space"] = root / "run_huge_space"
     return {key: str(value) for key, value in paths.items()}
+
+
+def policy_run(folder: Path) -> None:
+    """An RL run folder whose saved policy says its observations are 10^6 x 10^6 values."""
+    import torch
+
+    from binpick.core import tensorfile
+    from binpick.rl.persistence import POLICY_FORMAT
+
+    checkpoint = folder / "checkpoints" / "ckpt-000000100"
+    checkpoint.mkdir(parents=True, exist_ok=True)
+    (folder / "config.yaml").write_text("name: tiny\nenv: FetchReach\nalgorithm: sac\ntotal_timesteps: 200\n")
+    (folder / "checkpoints" / "latest").write_text("ckpt-000000100\n")
+    box = {"low": -1.0, "high": 1.0, "dtype": "float32"}
+    tensorfile.save(checkpoint / "policy.safetensors", POLICY_FORMAT, tensors={"policy.x": torch.zeros(1)},
+                    meta={"family": "sac", "policy": "MultiInputPolicy", "policy_kwargs": {},
+                          "observation_space": {"shape": [10**6, 10**6], **box}, "action_space": {"shape": [4], **box}})
 
 
 PLAN = ["plan", "--rgb", "{rgb_png}", "--depth", "{depth_png}", "--camera", "{camera_yaml}"]
@@ -350,4 +375,88 @@ CASES: list[tuple[str, list[str], list[str]]] = [
     ("data", [*PLAN, "--photo", "{rgb_png}", "--grasp-weights", "{grasp_width_negative}"], ["grasp_width_negative", "width", "-5"]),
     ("data", [*PLAN, "--photo", "{rgb_png}", "--grasp-weights", "{grasp_extent_nan}"], ["grasp_extent_nan", "extent", "nan"]),
     ("data", [*PLAN, "--photo", "{rgb_png}", "--grasp-weights", "{grasp_temperature_zero}"], ["grasp_temperature_zero", "temperature"]),
+    ("data", ["rl", "eval", "{run_huge_space}", "--episodes", "1"], ["observation_space", "more than"]),
 ]
+
+
+STALLING_ANSWER = (b"HTTP/1.0 200 OK\r\nContent-Type: text/xml\r\n\r\n<?xml version='1.0'?><methodResponse><params><param><value>"
+                   b"<array><data><value><int>1</int></value><value><string>ok</string></value><value><int>42</int></value>"
+                   b"</data></array></value></param></params></methodResponse>")
+
+
+def _silent(connection: socket.socket, held: list) -> None:
+    held.append(connection)
+
+
+def _garbage(connection: socket.socket, held: list) -> None:
+    try:
+        connection.sendall(b"\x00\xffgarbage, not a protocol\r\n" * 8)
+    except OSError:
+        return
+    held.append(connection)
+
+
+def _stalling_master(connection: socket.socket, held: list) -> None:
+    """Answers getPid as a ROS master does; every later request is read and never answered."""
+    request = b""
+    connection.settimeout(10)
+    try:
+        while b"</methodCall>" not in request:
+            chunk = connection.recv(4096)
+            if not chunk:
+                return
+            request += chunk
+    except OSError:
+        return
+    if b"getPid" in request:
+        connection.sendall(STALLING_ANSWER)
+        connection.close()
+    else:
+        held.append(connection)
+
+
+PEERS = {"silent": _silent, "garbage": _garbage, "stalling_master": _stalling_master}
+
+
+@contextlib.contextmanager
+def peer(kind: str) -> Iterator[int]:
+    """A listener on 127.0.0.1 (its port) whose every connection is handled as ``kind`` says, on a
+    thread of its own: ``silent`` accepts and never sends a byte, ``garbage`` answers bytes of no
+    protocol, ``stalling_master`` answers a ROS master's first call and then nothing."""
+    handle = PEERS[kind]
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(16)
+    held: list[socket.socket] = []
+
+    def accept() -> None:
+        while True:
+            try:
+                connection = server.accept()[0]
+            except OSError:
+                return
+            threading.Thread(target=handle, args=(connection, held), daemon=True).start()
+
+    threading.Thread(target=accept, daemon=True).start()
+    try:
+        yield server.getsockname()[1]
+    finally:
+        server.close()
+        for connection in held:
+            connection.close()
+
+
+SAMPLE_CAMERA = str(Path(__file__).resolve().parents[1] / "src" / "binpick" / "samples" / "bin_frame" / "camera.yaml")
+# (peer kind, arguments ({port}, {tmp}, {config}: a tiny RL YAML), fragments of the one error line)
+PEER_CASES = [
+    ("silent", ["rl", "distributed", "--address", "127.0.0.1:{port}", "--steps", "1000", "--out", "{tmp}/d"], ["did not answer within"]),
+    ("silent", ["data", "generate", "--out", "{tmp}/g", "--address", "127.0.0.1:{port}", "--scenes", "1"], ["did not answer within"]),
+    ("silent", ["ros", "pick-node", "--master", "http://127.0.0.1:{port}/", "--camera", SAMPLE_CAMERA], ["no ROS master answered"]),
+    ("garbage", ["train", "{config}", "--runs", "{tmp}/runs", "--address", "127.0.0.1:{port}"], ["not as a Ray cluster does"]),
+    ("garbage", ["ros", "pick-node", "--master", "http://127.0.0.1:{port}/", "--camera", SAMPLE_CAMERA], ["ROS master"]),
+    ("stalling_master", ["ros", "pick-node", "--master", "http://127.0.0.1:{port}/", "--timeout", "3", "--camera", SAMPLE_CAMERA],
+     ["stopped answering"]),
+    ("stalling_master", ["ros", "serve", "FetchReach", "--master", "http://127.0.0.1:{port}/", "--timeout", "3"], ["stopped answering"]),
+    ("stalling_master", ["ros", "bench", "--master", "http://127.0.0.1:{port}/", "--timeout", "3"], ["stopped answering"]),
+]
+TINY_RL_YAML = "task: rl\nname: tiny\nenv: FetchReach\nalgorithm: sac\ntotal_timesteps: 200\n"

@@ -345,3 +345,19 @@ def test_the_hostile_benchmark_counts_one_error_line_as_a_refusal_and_warnings_b
     assert outcome(2, "error: one\nerror: two\n", []) == "silent_acceptance"  # two problems: not one clean line
     assert outcome(0, "warning: only a warning\n", []) == "silent_acceptance"  # exit 0 on a hostile case: accepted
     assert outcome(1, "Traceback (most recent call last):\n  ...\n", []) == "traceback"
+
+
+@pytest.mark.parametrize("shape, fragment", [([10**6, 10**6], "more than"), ([3, -2], "negative side")])
+def test_a_saved_policy_whose_observation_space_no_policy_reads_is_one_line(tmp_path, shape, fragment):
+    from binpick.core import tensorfile
+    from binpick.core.errors import InputFileError
+    from binpick.rl.persistence import POLICY_FORMAT, load_saved_policy
+
+    path = tmp_path / "policy.safetensors"
+    tensorfile.save(path, POLICY_FORMAT, tensors={"policy.x": __import__("torch").zeros(1)},
+                    meta={"family": "sac", "policy": "MultiInputPolicy", "policy_kwargs": {},
+                          "observation_space": {"shape": shape, "low": -1.0, "high": 1.0, "dtype": "float32"},
+                          "action_space": {"shape": [4], "low": -1.0, "high": 1.0, "dtype": "float32"}})
+    with pytest.raises(InputFileError, match=fragment) as raised:
+        load_saved_policy(path)
+    assert "\n" not in str(raised.value) and "observation_space" in str(raised.value)

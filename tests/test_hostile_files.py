@@ -9,10 +9,8 @@ import json
 import os
 import resource
 import signal
-import socket
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
@@ -86,116 +84,21 @@ def test_a_full_disk_is_one_line_and_leaves_no_half_file(args, tmp_path):
         assert path.suffix == ".json" and json.loads(path.read_text()) is not None, path
 
 
-def _peer(on_connection):
-    """A listener on 127.0.0.1 whose every accepted connection goes to ``on_connection(connection,
-    held)`` on a thread of its own; yields the port, then closes the listener and what ``held`` keeps."""
-    server = socket.socket()
-    server.bind(("127.0.0.1", 0))
-    server.listen(16)
-    held: list[socket.socket] = []
-
-    def accept() -> None:
-        while True:
-            try:
-                connection = server.accept()[0]
-            except OSError:
-                return
-            threading.Thread(target=on_connection, args=(connection, held), daemon=True).start()
-
-    threading.Thread(target=accept, daemon=True).start()
-    yield server.getsockname()[1]
-    server.close()
-    for connection in held:
-        connection.close()
-
-
-@pytest.fixture
-def silent_peer():
-    """A listener on 127.0.0.1 that accepts every connection and never sends a byte."""
-    yield from _peer(lambda connection, held: held.append(connection))
-
-
-@pytest.fixture
-def garbage_peer():
-    """A listener on 127.0.0.1 that answers every connection with bytes of no protocol, then holds it open."""
-    def answer(connection: socket.socket, held: list) -> None:
-        try:
-            connection.sendall(b"\x00\xffgarbage, not a protocol\r\n" * 8)
-        except OSError:
-            return
-        held.append(connection)
-
-    yield from _peer(answer)
-
-
-@pytest.fixture
-def stalling_master():
-    """An XML-RPC peer on 127.0.0.1 that answers getPid as a ROS master does and then never answers again."""
-    answer = (b"HTTP/1.0 200 OK\r\nContent-Type: text/xml\r\n\r\n<?xml version='1.0'?><methodResponse><params><param><value>"
-              b"<array><data><value><int>1</int></value><value><string>ok</string></value><value><int>42</int></value>"
-              b"</data></array></value></param></params></methodResponse>")
-
-    def handle(connection: socket.socket, held: list) -> None:
-        request = b""
-        connection.settimeout(10)
-        try:
-            while b"</methodCall>" not in request:
-                chunk = connection.recv(4096)
-                if not chunk:
-                    return
-                request += chunk
-        except OSError:
-            return
-        if b"getPid" in request:
-            connection.sendall(answer)
-            connection.close()
-        else:
-            held.append(connection)  # a stall: the request is read and never answered
-
-    yield from _peer(handle)
+PEER_LIMIT_S = {"silent": 60, "garbage": 60, "stalling_master": 30}  # --timeout 3 against a stalling master
 
 
 @pytest.mark.timeout(120)
-@pytest.mark.parametrize("args", [
-    ["ros", "pick-node", "--master", "http://127.0.0.1:{port}/", "--timeout", "3", "--camera", str(SAMPLE / "camera.yaml")],
-    ["ros", "serve", "FetchReach", "--master", "http://127.0.0.1:{port}/", "--timeout", "3"],
-    ["ros", "bench", "--master", "http://127.0.0.1:{port}/", "--timeout", "3"],
-], ids=["pick-node", "serve", "bench"])
-def test_a_ros_master_that_answers_then_stalls_ends_in_one_line_within_the_timeout(args, stalling_master, tmp_path):
-    started = time.monotonic()
-    ran = subprocess.run([*CLI, *[a.format(port=stalling_master) for a in args]], capture_output=True, text=True, timeout=100,
-                         cwd=tmp_path, env=os.environ | {"ROS_HOME": str(tmp_path), "ROS_LOG_DIR": str(tmp_path / "log")})
-    lines = [line for line in ran.stderr.splitlines() if line.strip() and not line.startswith("[")]
-    assert ran.returncode == 2 and "Traceback" not in ran.stderr and len(lines) == 1, ran.stderr[-800:]
-    assert "stopped answering" in lines[0] and time.monotonic() - started < 30
-
-
-@pytest.mark.timeout(120)
-@pytest.mark.parametrize("args,fragment", [
-    (["train", "{config}", "--runs", "{tmp}/runs", "--address", "127.0.0.1:{port}"], "not as a Ray cluster does"),
-    (["ros", "pick-node", "--master", "http://127.0.0.1:{port}/", "--camera", str(SAMPLE / "camera.yaml")], "ROS master"),
-], ids=["ray", "ros-master"])
-def test_a_peer_that_answers_garbage_ends_in_one_line_within_the_timeout(args, fragment, garbage_peer, tmp_path):
+@pytest.mark.parametrize("kind, args, fragments", CORPUS.PEER_CASES,
+                         ids=[f"{kind}-{' '.join(args[:2])}" for kind, args, _ in CORPUS.PEER_CASES])
+def test_a_peer_that_never_answers_answers_garbage_or_stalls_ends_in_one_line_within_the_timeout(kind, args, fragments, tmp_path):
     config = tmp_path / "rl.yaml"
-    config.write_text("task: rl\nname: tiny\nenv: FetchReach\nalgorithm: sac\ntotal_timesteps: 200\n")
-    started = time.monotonic()
-    ran = subprocess.run([*CLI, *[a.format(port=garbage_peer, tmp=tmp_path, config=config) for a in args]], capture_output=True,
-                         text=True, timeout=100, cwd=tmp_path)
-    lines = [line for line in ran.stderr.splitlines() if line.strip()]
+    config.write_text(CORPUS.TINY_RL_YAML)
+    with CORPUS.peer(kind) as port:
+        started = time.monotonic()
+        ran = subprocess.run([*CLI, *[a.format(port=port, tmp=tmp_path, config=config) for a in args]], capture_output=True,
+                             text=True, timeout=100, cwd=tmp_path,
+                             env=os.environ | {"ROS_HOME": str(tmp_path), "ROS_LOG_DIR": str(tmp_path / "log")})
+        took = time.monotonic() - started
+    lines = [line for line in ran.stderr.splitlines() if line.strip() and not line.startswith("[")]  # "[": rospy's own log
     assert ran.returncode == 2 and "Traceback" not in ran.stderr and len(lines) == 1, ran.stderr[-800:]
-    assert fragment in lines[0] and time.monotonic() - started < 60
-
-
-@pytest.mark.timeout(120)
-@pytest.mark.parametrize("args,fragment", [
-    (["rl", "distributed", "--address", "127.0.0.1:{port}", "--steps", "1000", "--out", "{tmp}/d"], "did not answer within"),
-    (["data", "generate", "--out", "{tmp}/g", "--address", "127.0.0.1:{port}", "--scenes", "1"], "did not answer within"),
-    (["ros", "pick-node", "--master", "http://127.0.0.1:{port}/", "--camera", str(SAMPLE / "camera.yaml")], "no ROS master answered"),
-], ids=["ray-rollouts", "ray-data", "ros-master"])
-def test_a_peer_that_never_answers_ends_in_one_line_within_the_timeout(args, fragment, silent_peer, tmp_path):
-    started = time.monotonic()
-    ran = subprocess.run([*CLI, *[a.format(port=silent_peer, tmp=tmp_path) for a in args]], capture_output=True, text=True,
-                         timeout=100, cwd=tmp_path)
-    lines = [line for line in ran.stderr.splitlines() if line.strip()]
-    assert ran.returncode == 2 and "Traceback" not in ran.stderr and len(lines) == 1, ran.stderr[-800:]
-    assert fragment in lines[0] and time.monotonic() - started < 60
+    assert all(fragment in lines[0] for fragment in fragments) and took < PEER_LIMIT_S[kind], (lines[0], took)

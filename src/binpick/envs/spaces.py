@@ -11,6 +11,7 @@ import numpy as np
 from binpick.core.errors import InputFileError
 
 _BIG = 1e30  # ±inf is written as ±1e30: JSON has no infinity
+MAX_ELEMENTS = 2**25  # a Box larger than this (a 3000 x 3000 colour image is 27 M) is no policy's input
 
 
 def describe_space(space: gym.Space) -> dict[str, Any]:
@@ -38,6 +39,10 @@ def build_space(description: Any, where: str = "space") -> gym.Space:
             return gym.spaces.Discrete(int(description["discrete"]), start=int(description.get("start", 0)))
         if "shape" in description:
             shape = tuple(int(v) for v in description["shape"])
+            if any(side < 0 for side in shape):
+                raise ValueError(f"shape {list(shape)} has a negative side")
+            if int(np.prod(shape, dtype=object)) > MAX_ELEMENTS:
+                raise ValueError(f"shape {list(shape)} holds more than {MAX_ELEMENTS:,} values, more than any policy reads")
             dtype = np.dtype(description["dtype"])
             if dtype.kind not in "fiub":
                 raise ValueError(f"dtype {dtype} is not numeric")
@@ -56,5 +61,5 @@ def build_space(description: Any, where: str = "space") -> gym.Space:
         return gym.spaces.Dict({str(key): build_space(sub, f"{where}.{key}") for key, sub in description.items()})
     except InputFileError:
         raise
-    except (TypeError, ValueError, KeyError, OverflowError) as error:
+    except (TypeError, ValueError, KeyError, OverflowError, MemoryError) as error:
         raise InputFileError(f"{where} is not a valid space description ({error})") from None
