@@ -149,7 +149,8 @@ def main() -> None:
         result.pop(key, None)  # (the keys of the episode-streaming learner this replaced)
     result["gp_her"] = {**rows, "config": args.config, "steps": args.steps, "by_seed": by_seed,
                         "efficiency_2_over_1": round(rows["workers_2"]["steps_per_s"] / rows["workers_1"]["steps_per_s"], 3),
-                        "load_average": [round(x, 2) for x in os.getloadavg()], "peak_rss_mib": _common.peak_rss_mib()}
+                        "load_average": [round(x, 2) for x in os.getloadavg()], "peak_rss_mib": _common.peak_rss_mib(),
+                        "fresh_process": True}  # each learner in a process of its own (learn_apart)
     result["simulators"] = {"steps_per_s": simulators, "seconds": args.seconds,
                             "efficiency_2_over_1": round(simulators["workers_2"] / simulators["workers_1"], 3)}
     result.setdefault("faults", {})["simulators"] = {"same_final": same, "killed": killed, "uninterrupted": "gp_her.workers_2"}
@@ -158,8 +159,8 @@ def main() -> None:
 
 
 def earlier_local_runs() -> str:
-    """The thesis-config runs of the local learner in results/rl_fetchreach_vs_sb3.json: where, when
-    (its run folders' date), which seeds, and their simulator steps to 95%."""
+    """The thesis-config runs of the learner in results/rl_fetchreach_vs_sb3.json: where, when (its run
+    folders' date), which seeds, and their simulator steps to 95%."""
     earlier = json.loads((_common.RESULTS / "rl_fetchreach_vs_sb3.json").read_text())["binpick_thesis"]
     stamp = Path(earlier["run_dirs"][0]).name
     seeds = earlier["seeds"]
@@ -196,8 +197,11 @@ def section(result: dict) -> str:
               + f" (seeds {', '.join(seeds['local'])}); the killed run below, which plays other episodes after its kill, "
               f"{reached(fault['killed'])}. Seed to seed the same learner lands a thousand steps apart or misses the "
               "mark at this budget, so the 2-actor runs are within that noise of the local ones; no seed-for-seed "
-              "equality is expected with 2 simulators (their second simulator plays other episodes). Earlier "
-              f"thesis-config runs of the local learner {earlier_local_runs()}.", "",
+              "equality is expected with 2 simulators (their second simulator plays other episodes). "
+              + ("" if rows.get("fresh_process") else
+                 "These local rows ran one after another in the benchmark's own process, after its Ray runs (the script "
+                 "now starts each learner in a fresh process, as `binpick train` does); ")
+              + f"the same learner run by `experiments/rl_fetchreach_vs_sb3.py` (seeds in turn, no Ray in its process) {earlier_local_runs()}.", "",
               f"Simulators alone (random actions, {sims['seconds']:g} s each): local env {sims['steps_per_s']['local']} steps/s, "
               f"1 actor {sims['steps_per_s']['workers_1']}, 2 actors {sims['steps_per_s']['workers_2']} "
               f"(2 over 1: {sims['efficiency_2_over_1']}×; each vector step is a round trip to every actor).", "",
