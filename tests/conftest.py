@@ -50,6 +50,7 @@ def train_rl_run(config: dict, root: Path) -> Path:
 # The longest tests start first, so that with one worker per core (make test) neither waits at the end
 # for a long test the other picked up late.
 LONG_FIRST = ("test_readme.py::test_every_readme_block_runs_on_tiny_settings",
+              "test_readme.py::test_each_standalone_readme_command_runs_on_tiny_settings",
               "test_ray_train.py::test_two_workers_share_the_steps_and_a_killed_worker_is_replaced",
               "test_ray_train.py::test_one_ray_worker_trains_exactly_the_local_pickability_head",
               "test_april.py::test_april_pipeline_runs_resumes_and_deploys_from_pixels",
@@ -71,7 +72,7 @@ def _one_torch_thread_per_worker():
 
 def pytest_collection_modifyitems(config, items):
     rank = {name: index for index, name in enumerate(LONG_FIRST)}
-    items.sort(key=lambda item: rank.get(item.nodeid.split("/")[-1], len(rank)))
+    items.sort(key=lambda item: rank.get(item.nodeid.split("/")[-1].split("[")[0], len(rank)))  # [params]: the test's rank
 
 
 ON_CI = os.environ.get("CI", "").lower() in ("true", "1", "yes")

@@ -201,6 +201,9 @@ def prepare(folder: Path, blocks) -> None:
 
 
 OWN_PROCESS = ("binpick rl distributed", "binpick ros")  # Ray and rospy keep per-process state: a process each
+# Commands that need nothing an earlier block made and make nothing a later one reads: they run in a test
+# of their own (each in its own folder), so that with one test process per core they run beside the rest
+STANDALONE = ("binpick rl distributed --env FetchReach", "binpick detect export rod_photo_learnt_tiny_320")
 
 
 def run_in_process(arguments: list[str], folder: Path) -> tuple[int, str]:
@@ -227,8 +230,9 @@ def run_in_process(arguments: list[str], folder: Path) -> tuple[int, str]:
     return code, err.getvalue()
 
 
-def run_block(language: str, text: str, folder: Path, environment: dict) -> list[str]:
-    """Run one block; returns what ran (for the failure message)."""
+def run_block(language: str, text: str, folder: Path, environment: dict, only: str | None = None) -> list[str]:
+    """Run one block; returns what ran (for the failure message). ``only``: run just the block's
+    command that starts with it (a :data:`STANDALONE` one); else every command but those."""
     if language == "python":
         import contextlib
         import io
@@ -247,6 +251,8 @@ def run_block(language: str, text: str, folder: Path, environment: dict) -> list
     try:
         for command in commands(text):
             if command.rstrip(" &") in SKIPPED:
+                continue
+            if (only is None) == command.startswith(STANDALONE) or (only is not None and not command.startswith(only)):
                 continue
             if "11311" in command:  # the README's ROS port: a free one here
                 from binpick.integrations.ros1.master import free_port
@@ -299,6 +305,19 @@ def test_every_readme_block_runs_on_tiny_settings(tmp_path):
     assert json.loads((tmp_path / "runs" / "detect" / "detections.json").read_text())["detections"]
     assert (tmp_path / "runs" / "milk_orders" / "results.json").is_file()
     assert len(ran) >= 25, ran
+    print("\n".join(ran))
+
+
+@pytest.mark.timeout(600)
+@pytest.mark.parametrize("command", STANDALONE)
+def test_each_standalone_readme_command_runs_on_tiny_settings(command, tmp_path):
+    blocks = [(language, text) for language, text, _ in readme_blocks()
+              if language == "bash" and any(line.startswith(command) for line in commands(text))]
+    assert blocks, f"{command!r} is in no README or guide block any more: take it out of STANDALONE"
+    prepare(tmp_path, readme_blocks())
+    environment = {**os.environ, "COLUMNS": "120", "XDG_CACHE_HOME": str(tmp_path / "cache")}
+    ran = [line for language, text in blocks for line in run_block(language, text, tmp_path, environment, only=command)]
+    assert len(ran) == 1, ran
     print("\n".join(ran))
 
 
