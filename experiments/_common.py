@@ -59,16 +59,24 @@ def input_digests() -> dict[str, str]:
     """SHA-256 (first 16 hex digits) of what a figure was measured with that the commit alone may not
     pin: every file named on the command line (configs, weights, data cards) and the weights binpick
     ships (an experiment loads them by default; a run can replace them without a commit)."""
-    import hashlib
-
     files = [Path(arg) for arg in sys.argv[1:] if not arg.startswith("-")]
     files = [f if f.is_absolute() else Path.cwd() / f for f in files]
-    files += sorted((ROOT / "src" / "binpick").glob("*/weights/*.safetensors"))
+    return input_digests_of(files + sorted((ROOT / "src" / "binpick").glob("*/weights/*.safetensors")))
+
+
+def input_digests_of(files: list[Path]) -> dict[str, str]:
+    """``{path as the page names it: first 16 hex digits of its SHA-256}`` of the regular files among ``files``."""
+    import hashlib
+
     digests = {}
     for file in files:
         try:
             if file.is_file() and file.stat().st_size < 512 * 2**20:
-                digests[repo_relative(file)] = hashlib.sha256(file.read_bytes()).hexdigest()[:16]
+                digest = hashlib.sha256()
+                with file.open("rb") as stream:
+                    for chunk in iter(lambda: stream.read(2**20), b""):
+                        digest.update(chunk)
+                digests[repo_relative(file)] = digest.hexdigest()[:16]
         except OSError:
             continue
     return digests
@@ -186,7 +194,25 @@ def write_section_of(name: str, render: Callable[[dict], str], results_file: str
     it), so that the page holds what ``tools/results_tables.py --page`` makes of the same file."""
     markdown = section_markdown(render, json.loads((RESULTS / results_file).read_text()), results_file)
     write_section(name, markdown)
+    rewrite_siblings(name, results_file)
     return markdown
+
+
+def rewrite_siblings(name: str, results_file: str) -> None:
+    """The other sections rendered from the same results file (their figures or provenance line may have
+    changed with it), rewritten as ``tools/results_tables.py --page`` would."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("results_tables", ROOT / "tools" / "results_tables.py")
+    tables = importlib.util.module_from_spec(spec)
+    sys.modules.setdefault("results_tables", tables)
+    spec.loader.exec_module(tables)
+    for section in tables.PAGE_SECTIONS:
+        if section.results == results_file and section.name != name:
+            try:
+                write_section(section.name, tables.render(section))
+            except tables.TableError as error:
+                print(f"note: {error}", file=sys.stderr)
 
 
 def section_markdown(render: Callable[[dict], str], result: dict, results_file: str) -> str:

@@ -5,7 +5,7 @@
     binpick data generate --out runs/data/shifted --domain shifted --targets can,mug,toy --policies '' \\
         --scenes 120 --scenes-per-world 4 --seed 7                          # another camera, tote and light
     binpick data generate --out runs/data/verify_default --policies '' --scenes 160 --scenes-per-world 2 --seed 5
-    binpick data generate --out runs/data/verify_calibrate --domain random --targets can,mug,toy --policies '' \
+    binpick data generate --out runs/data/verify_calibrate --domain random --targets can,mug,toy --policies '' \\
         --scenes 160 --scenes-per-world 2 --seed 11                         # held-out products, randomised light
     python experiments/verify.py train [--scenes 8000] [--epochs 8] --out runs/verifier
     python experiments/verify.py calibrate --weights runs/verifier/product_verifier.safetensors   # its threshold
@@ -108,7 +108,10 @@ def scored_pairs(data: Path, verifiers: dict, limit: int | None) -> tuple[dict, 
 
 
 def threshold_of(verifier) -> float:
-    return float(verifier.meta.get("threshold", 0.5))
+    """The threshold the picker uses with these weights: their calibrated one, else the picker's default."""
+    from binpick.picking.picker import THRESHOLDS
+
+    return float(verifier.meta.get("threshold", THRESHOLDS["learnt"]))
 
 
 def learnt_row(probabilities, labels, colour, threshold: float) -> dict:
@@ -173,8 +176,8 @@ def section(result: dict) -> str:
              "instances passing the check; *wrong accepted*: other products' instances passing it; *precision*: of the instances "
              "passing, the share that are the ordered product; *look-alikes accepted*: other products whose colours match the "
              f"photo's (histogram intersection ≥ {LOOK_ALIKE}) passing it, of how many. The learnt check's threshold is the one "
-             "calibrated with its weights on held-out products under randomised light (`python experiments/verify.py calibrate`; "
-             "0.5 for weights without one).", "",
+             "calibrated with its weights on held-out products under randomised light (`python experiments/verify.py calibrate`); "
+             "the threshold column is the one each row was measured at.", "",
              "| set-up | check | threshold | AUC | right accepted | wrong accepted | precision | look-alikes accepted (of) | calibration error |",
              "|---|---|---|---|---|---|---|---|---|"]
     for name, methods in result["pairs"].items():
@@ -213,6 +216,8 @@ def calibrate(args) -> None:
     if chosen is None:
         sys.exit(f"no threshold gives precision {args.precision} on {CALIBRATION.name}: the check cannot be calibrated to it")
     row = learnt_row(probabilities, labels, found["histogram"], chosen)
+    if not row.get("pairs"):
+        sys.exit(f"{CALIBRATION.name} holds only one kind of pair (same product or not): it cannot calibrate a threshold")
     curve = {f"{t:g}": {"precision": round(float(labels[probabilities >= t].mean()), 4) if (probabilities >= t).any() else None,
                         "recall": round(float((probabilities[labels == 1] >= t).mean()), 4)} for t in np.round(np.arange(0.1, 1.0, 0.1), 1)}
     verifier.save(args.weights, {"threshold": chosen, "threshold_chosen_on": {
@@ -230,13 +235,19 @@ def ship(args) -> None:
 
     from binpick.detection.verifier import SHIPPED, ProductVerifier
 
-    rows = json.loads((_common.RESULTS / "verify.json").read_text()).get("pairs") or {}
+    measured = json.loads((_common.RESULTS / "verify.json").read_text())
+    rows = measured.get("pairs") or {}
     name = f"learnt:{Path(args.weights).parent.name}"
+    digests = (measured.get("provenance") or {}).get("digests") or {}
+    for path in (Path(args.weights).resolve(), SHIPPED):  # the very files eval measured, not namesakes or later edits
+        key = _common.repo_relative(path)
+        if digests.get(key) != _common.input_digests_of([path]).get(key):
+            sys.exit(f"{key} is not the file results/verify.json measured: python experiments/verify.py eval --weights {args.weights}")
     worse = []
     for set_name in SETS:
         mine, shipped = (rows.get(set_name) or {}).get(name), (rows.get(set_name) or {}).get("learnt")
-        if mine is None or shipped is None:
-            sys.exit(f"{name} or the shipped check has no row on {set_name}: python experiments/verify.py eval --weights {args.weights}")
+        if mine is None or shipped is None or mine.get("auc") is None or shipped.get("auc") is None:
+            sys.exit(f"{name} or the shipped check has no AUC on {set_name}: python experiments/verify.py eval --weights {args.weights}")
         if mine["auc"] < shipped["auc"]:
             worse.append(f"{set_name} AUC {mine['auc']} < {shipped['auc']}")
         if (mine.get("look_alikes_accepted") or 0) > (shipped.get("look_alikes_accepted") or 0):

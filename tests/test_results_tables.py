@@ -123,3 +123,17 @@ def test_every_results_file_says_which_code_measured_it():
         if unnamed:
             problems.append(f"{path.name}: rows without provenance {unnamed}")
     assert not problems, "\n".join(problems) + "\n(python tools/backfill_provenance.py infers it from git)"
+
+
+def test_writing_one_section_rewrites_the_others_of_its_results_file(tables: ModuleType, tmp_path, monkeypatch) -> None:
+    """rod.json feeds three sections: a script that writes one (onnx) brings the others up to date too."""
+    common = tables.common()
+    page = tmp_path / "RESULTS.md"
+    text = (ROOT / "docs" / "RESULTS.md").read_text()
+    blocks = tables.page_blocks(text)
+    stale = text.replace(blocks["rod_recurrent"], blocks["rod_recurrent"] + "\nA line no results file gives.")
+    page.write_text(stale)
+    monkeypatch.setattr(common, "RESULTS_MD", page)
+    onnx = tables.script("benchmarks/onnx_latency.py")
+    common.write_section_of("onnx", onnx.section, "rod.json")
+    assert tables.page_blocks(page.read_text()) == blocks  # rod_recurrent regenerated, the rest as generated

@@ -164,6 +164,13 @@ def repainted(window: np.ndarray, photo: np.ndarray) -> np.ndarray:
     return np.dstack([rgb, window[..., 3]])
 
 
+def look_alike_allowed(data: Windows, product: int, photo_of: int) -> bool:
+    """Whether a window of ``product`` may be repainted as a look-alike of ``photo_of``: both categories
+    known and different (two products of one shape family repainted alike would be the same thing)."""
+    mine, theirs = data.categories.get(product, ""), data.categories.get(photo_of, "")
+    return bool(mine) and bool(theirs) and mine != theirs
+
+
 def saturated(window: np.ndarray) -> bool:
     middle = window[STORED // 4:-STORED // 4, STORED // 4:-STORED // 4, :3]
     return float(cv2.cvtColor(np.ascontiguousarray(middle), cv2.COLOR_RGB2HSV)[..., 1].mean()) > 70
@@ -225,7 +232,7 @@ def batch(data: Windows, indices: np.ndarray, rng: np.random.Generator, train: b
             window, label = hue_turned(window, rng), 0
         views = data.photos[photo_of]
         photo = views[rng.integers(len(views))] if train else views[0]
-        if not label and data.categories.get(int(data.product[i]), "") != data.categories.get(photo_of, "?") and rng.uniform() < repaint:
+        if repaint > 0 and not label and look_alike_allowed(data, int(data.product[i]), photo_of) and rng.uniform() < repaint:
             window = repainted(window, photo)
         light = data.lights[i]
         if train:
