@@ -361,3 +361,21 @@ def test_a_saved_policy_whose_observation_space_no_policy_reads_is_one_line(tmp_
     with pytest.raises(InputFileError, match=fragment) as raised:
         load_saved_policy(path)
     assert "\n" not in str(raised.value) and "observation_space" in str(raised.value)
+
+
+def test_a_space_of_many_boxes_too_large_together_or_nested_too_deep_is_one_line():
+    from binpick.core.errors import InputFileError
+    from binpick.envs.spaces import MAX_ELEMENTS, build_space, describe_space
+
+    box = {"shape": [MAX_ELEMENTS // 2], "low": -1.0, "high": 1.0, "dtype": "float32"}
+    with pytest.raises(InputFileError, match="together"):
+        build_space({f"part{i}": box for i in range(3)}, "policy observation_space")
+    deep = {"shape": [2], "low": 0.0, "high": 1.0, "dtype": "float32"}
+    for _ in range(12):
+        deep = {"inner": deep}
+    with pytest.raises(InputFileError, match="nested deeper"):
+        build_space(deep)
+    import gymnasium as gym
+
+    fine = gym.spaces.Dict({"observation": gym.spaces.Box(-1, 1, (10,)), "goal": gym.spaces.Box(-1, 1, (3,))})
+    assert build_space(describe_space(fine)) == fine

@@ -30,9 +30,27 @@ def describe_space(space: gym.Space) -> dict[str, Any]:
     raise TypeError(f"only Box, Discrete and Dict spaces can be described, not {type(space).__name__}")
 
 
-def build_space(description: Any, where: str = "space") -> gym.Space:
+MAX_DEPTH = 8  # Dicts of Dicts deeper than this describe no observation
+
+
+def values_in(description: Any, depth: int = 0) -> int:
+    """How many values a described space holds, all its Boxes together (a Dict of many Boxes each under
+    :data:`MAX_ELEMENTS` can still be more than memory holds); too deep a nesting is an error."""
+    if depth > MAX_DEPTH:
+        raise ValueError(f"Dicts nested deeper than {MAX_DEPTH}")
+    if not isinstance(description, dict) or "discrete" in description:
+        return 1
+    if "shape" in description:
+        shape = [int(v) for v in description["shape"]]
+        return int(np.prod(shape, dtype=object)) if all(side >= 0 for side in shape) else 0
+    return sum(values_in(sub, depth + 1) for sub in description.values())
+
+
+def build_space(description: Any, where: str = "space", checked: bool = False) -> gym.Space:
     """The space :func:`describe_space` described; anything malformed is one line naming ``where``."""
     try:
+        if not checked and values_in(description) > MAX_ELEMENTS:
+            raise ValueError(f"its spaces hold more than {MAX_ELEMENTS:,} values together, more than any policy reads")
         if not isinstance(description, dict):
             raise ValueError("not a mapping")
         if "discrete" in description:
@@ -58,7 +76,7 @@ def build_space(description: Any, where: str = "space") -> gym.Space:
             return gym.spaces.Box(low.astype(dtype), high.astype(dtype), shape=shape, dtype=dtype)
         if not description:
             raise ValueError("empty")
-        return gym.spaces.Dict({str(key): build_space(sub, f"{where}.{key}") for key, sub in description.items()})
+        return gym.spaces.Dict({str(key): build_space(sub, f"{where}.{key}", checked=True) for key, sub in description.items()})
     except InputFileError:
         raise
     except (TypeError, ValueError, KeyError, OverflowError, MemoryError) as error:
