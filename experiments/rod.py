@@ -643,7 +643,7 @@ def photo_rows(weights: list[str], row_of: str | None) -> None:
                                   framed=network.spec.frames_photos, depth=network.spec.reads_depth))
             for row, (data, split, targets) in {"seen": (DATA, "val", P1), "held_out": (DATA, "test", P1),
                                                 "shifted": (SHIFTED, "test", "all")}.items()}
-        print(key, {k: (v or {}).get("ap50") for k, v in rows[key].items() if k != "made"}, flush=True)
+        print(key, {k: v.get("ap50") for k, v in rows[key].items() if isinstance(v, dict)}, flush=True)  # the sets' rows
     chosen = row_of or (PICKING if PICKING in rows else next(iter(rows)))
     if chosen not in rows:
         raise SystemExit(f"--row-of {chosen!r} was not measured; measured: {', '.join(rows)}")
