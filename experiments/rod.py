@@ -609,6 +609,17 @@ PHOTO_MADE = {
 }
 
 
+def photo_sets(network) -> dict:
+    """One photo-query network's AP rows on the standard sets: seen and held-out products (``bins_2000``
+    val and test, targets pickable by Policy 1) and the shifted set-up (every copy a target)."""
+    from binpick.detection.train import detector_detect
+
+    return {row: keep(evaluate_on(detector_detect(network), data, split, targets, network.image_size, query="photo",
+                                  framed=network.spec.frames_photos, depth=network.spec.reads_depth))
+            for row, (data, split, targets) in {"seen": (DATA, "val", P1), "held_out": (DATA, "test", P1),
+                                                "shifted": (SHIFTED, "test", "all")}.items()}
+
+
 def photo_rows(weights: list[str], row_of: str | None) -> None:
     """``photo`` of results/rod.json: photo-query weights on seen products (``bins_2000`` val), held-out
     products (test) — targets pickable by Policy 1 — and on the shifted set-up (another camera, tote and
@@ -620,7 +631,6 @@ def photo_rows(weights: list[str], row_of: str | None) -> None:
     import torch
 
     from binpick.detection.detector import Detector, PICKING
-    from binpick.detection.train import detector_detect
 
     torch.set_num_threads(2)
     if not (SHIFTED / "annotations_test.json").is_file():
@@ -638,11 +648,7 @@ def photo_rows(weights: list[str], row_of: str | None) -> None:
         if Path(name).is_dir():  # a run folder: runs/<name>/<time>
             key = Path(name).resolve().parent.name
         rows[key] = {"made": PHOTO_MADE.get(key, "—")} | ({"run": str(Path(name).resolve().relative_to(_common.ROOT))}
-                                                          if Path(name).is_dir() else {}) | {
-            row: keep(evaluate_on(detector_detect(network), data, split, targets, network.image_size, query="photo",
-                                  framed=network.spec.frames_photos, depth=network.spec.reads_depth))
-            for row, (data, split, targets) in {"seen": (DATA, "val", P1), "held_out": (DATA, "test", P1),
-                                                "shifted": (SHIFTED, "test", "all")}.items()}
+                                                          if Path(name).is_dir() else {}) | photo_sets(network)
         print(key, {k: v.get("ap50") for k, v in rows[key].items() if isinstance(v, dict)}, flush=True)  # the sets' rows
     chosen = row_of or (PICKING if PICKING in rows else next(iter(rows)))
     if chosen not in rows:
@@ -655,39 +661,60 @@ def photo_rows(weights: list[str], row_of: str | None) -> None:
     rewrite_section()
 
 
-def ship_photo(run: Path, head_from: str, shipping: dict | None = None) -> None:
-    """Ship a photo-query run as the two photo weights: ``rod_photo_tiny_320`` (the run as trained) and
-    the picking detector ``rod_photo_learnt_tiny_320``: the same network carrying the pickability head
-    of ``head_from``. The head reads each detection's window (colour, height map, box), not the
-    detector's features, so it moves to another network unchanged; its metadata says where it came from."""
+def with_head(network, head_from: str):
+    """``network`` carrying the pickability head of ``head_from`` (a shipped name or a weights file), with
+    the head's metadata; (None, None) when ``head_from`` holds no head."""
+    import copy
     from dataclasses import replace
 
+    from binpick.detection.weights_file import load_detector, read_detector_file, weights_path
+
+    weights = _common.ROOT / "src" / "binpick" / "detection" / "weights"
+    head_path = weights_path(weights / f"{head_from}.safetensors") if (weights / f"{head_from}.safetensors").is_file() \
+        else weights_path(Path(head_from))
+    _, head_meta = read_detector_file(head_path)
+    carrier = load_detector(head_path)
+    if carrier.pickability is None:
+        return None, None
+    composed = copy.deepcopy(network)  # the run's own network stays as trained
+    composed.pickability = carrier.pickability
+    composed.spec = replace(composed.spec, pickability=carrier.spec.pickability, pickability_width=carrier.spec.pickability_width,
+                            pickability_query=carrier.spec.pickability_query,
+                            pickability_factorised=carrier.spec.pickability_factorised)
+    head = dict(head_meta.get("pickability") or {})
+    head["carried_from"] = head.get("carried_from") or head_meta.get("source_run") or str(head_from)  # the run that trained it
+    head["score_threshold"] = head_meta.get("score_threshold", 0.1)
+    return composed, head
+
+
+def ship_photo(run: Path, head_from: str | None, shipping: dict | None = None) -> None:
+    """Ship a photo-query run as the two photo weights: ``rod_photo_tiny_320`` (the run as trained) and
+    the picking detector ``rod_photo_learnt_tiny_320``: the same network carrying the pickability head
+    of ``head_from`` (None: the run as trained, without a head: where the head lowers the worst set). The
+    head reads each detection's window (colour, height map, box), not the detector's features, so it
+    moves to another network unchanged; its metadata says where it came from."""
     from binpick.detection.detector import PICKING
     from binpick.detection.weights_file import load_detector, read_detector_file, save_detector, weights_path
 
     weights = _common.ROOT / "src" / "binpick" / "detection" / "weights"
     source = weights_path(run)
     _, meta = read_detector_file(source)
-    head_path = weights_path(weights / f"{head_from}.safetensors") if (weights / f"{head_from}.safetensors").is_file() \
-        else weights_path(Path(head_from))
-    _, head_meta = read_detector_file(head_path)
-    network, carrier = load_detector(source), load_detector(head_path)
-    if network.spec.query != "photo" or carrier.pickability is None:
-        raise SystemExit(f"{run} must be a photo-query run and {head_from} must hold a pickability head")
+    network = load_detector(source)
+    if network.spec.query != "photo":
+        raise SystemExit(f"{run} must be a photo-query run")
+    composed, head = with_head(network, head_from) if head_from is not None else (None, None)
+    if head_from is not None and composed is None:
+        raise SystemExit(f"{head_from} holds no pickability head (ship without one: ship-best chooses)")
     extra = {k: meta[k] for k in ("config", "trained_products", "trained_domains") if k in meta}
     extra |= {"source_run": str(run.relative_to(_common.ROOT)) if run.is_absolute() else str(run),
-              "score_threshold": head_meta.get("score_threshold", 0.1)}
+              "score_threshold": (head or {}).pop("score_threshold", meta.get("score_threshold", 0.1))}
     if shipping is not None:  # how it was chosen and what it was compared with, kept with the weights
         extra["shipping"] = shipping
     save_detector(network, weights / "rod_photo_tiny_320.safetensors", extra, half=True)
-    network.pickability = carrier.pickability
-    network.spec = replace(network.spec, pickability=carrier.spec.pickability, pickability_width=carrier.spec.pickability_width,
-                           pickability_query=carrier.spec.pickability_query,
-                           pickability_factorised=carrier.spec.pickability_factorised)
-    head = dict(head_meta.get("pickability") or {})
-    head["carried_from"] = head.get("carried_from") or head_meta.get("source_run") or str(head_from)  # the run that trained it
-    save_detector(network, weights / f"{PICKING}.safetensors", extra | {"pickability": head}, half=True)
-    print(f"shipped rod_photo_tiny_320 and {PICKING} from {run} (pickability head from {head_from})", flush=True)
+    picking = composed if composed is not None else network
+    save_detector(picking, weights / f"{PICKING}.safetensors", extra | ({"pickability": head} if head else {}), half=True)
+    print(f"shipped rod_photo_tiny_320 and {PICKING} from {run} "
+          f"({f'pickability head from {head_from}' if head_from else 'no pickability head'})", flush=True)
 
 
 SHIP_SETS = ("seen", "held_out", "shifted")  # the standard sets a photo detector is judged on (AP50)
@@ -706,26 +733,44 @@ def worse_sets(candidate: dict, shipped: dict) -> list[str]:
             and candidate[name]["ap50"] < shipped[name]["ap50"]]
 
 
+def measured_with_head(run: Path, head_from: str) -> dict | None:
+    """The AP rows of the run carrying ``head_from``'s pickability head, as the picking detector would
+    ship (the head re-ranks detections, which moves AP50); None when ``head_from`` holds no head."""
+    import torch
+
+    from binpick.detection.weights_file import load_detector, weights_path
+
+    torch.set_num_threads(2)
+    composed, head = with_head(load_detector(weights_path(Path(run))), head_from)
+    if composed is None:
+        return None
+    print(f"measuring {run_key(run)} carrying {head_from}'s pickability head", flush=True)
+    return {"made": f"`{run_key(run)}` carrying the pickability head of `{head_from}` (it re-ranks the detections)",
+            "head": head.get("carried_from")} | photo_sets(composed)
+
+
 def ship_best(candidates: list[Path], head_from: str, reason: str | None, recipe: str | None) -> None:
-    """Ship the candidate whose **worst** AP50 over seen, held-out and shifted (``photo.by_weights`` of
-    results/rod.json, measured by ``photo``) is highest, not the best on seen; refused when it is worse
-    than the shipped picking detector on any of those sets, unless ``reason`` says why (kept in the
-    weights with the scores compared, the recipe and the commit)."""
+    """Ship the variant whose **worst** AP50 over seen, held-out and shifted is highest, not the best on
+    seen. Each candidate run (its rows in ``photo.by_weights`` of results/rod.json, measured by ``photo``)
+    is judged as trained and carrying ``head_from``'s pickability head, measured here as the picking
+    detector would ship (the head re-ranks detections, which moves AP50). Refused when the chosen variant
+    is worse than the shipped picking detector on any of those sets, unless ``reason`` says why (kept in
+    the weights with the scores compared, the recipe and the commit)."""
     import json
+    import math
 
     from binpick.detection.detector import PICKING
 
     if not candidates:
         raise SystemExit("ship-best needs --candidates RUN_FOLDER ...")
-    rows = (json.loads((_common.RESULTS / "rod.json").read_text()).get("photo") or {}).get("by_weights") or {}
+    result = json.loads((_common.RESULTS / "rod.json").read_text())
+    rows = (result.get("photo") or {}).get("by_weights") or {}
     missing = [str(run) for run in candidates if run_key(run) not in rows
                or rows[run_key(run)].get("run") != str(Path(run).resolve().relative_to(_common.ROOT))]  # that run, not its namesake
     if missing:
         raise SystemExit(f"not measured: {', '.join(missing)}: python experiments/rod.py photo --weights {' '.join(missing)} {PICKING}")
     if PICKING not in rows:
         raise SystemExit(f"the shipped {PICKING} was not measured: python experiments/rod.py photo --weights {PICKING}")
-
-    import math
 
     def unmeasured(row: dict) -> list[str]:
         return [name for name in SHIP_SETS if not isinstance((row.get(name) or {}).get("ap50"), (int, float))
@@ -739,21 +784,36 @@ def ship_best(candidates: list[Path], head_from: str, reason: str | None, recipe
     def worst(row: dict) -> float:
         return min(row[name]["ap50"] for name in SHIP_SETS)
 
-    scored = sorted(candidates, key=lambda run: -worst(rows[run_key(run)]))
+    shipped = rows[PICKING]  # read before anything is measured or shipped: what the candidates must not fall below
+    variants: dict[str, tuple[Path, str | None, dict]] = {}  # name -> (run, head or None, its row)
+    for run in candidates:
+        variants[run_key(run)] = (run, None, rows[run_key(run)])
+        row = measured_with_head(run, head_from)
+        if row is None:
+            print(f"{head_from} holds no pickability head: {run_key(run)} is judged as trained only", flush=True)
+            continue
+        key = f"{run_key(run)}+pickability_head"
+        rows[key] = row | {"run": rows[run_key(run)].get("run")}
+        variants[key] = (run, head_from, rows[key])
+    scored = sorted(variants, key=lambda key: -worst(variants[key][2]))
     best = scored[0]
-    chosen, shipped = rows[run_key(best)], rows[PICKING]
+    run, head, chosen = variants[best]
     worse = worse_sets(chosen, shipped)
-    summary = ", ".join(f"{run_key(run)} {worst(rows[run_key(run)]):.3f}" for run in scored)
+    summary = ", ".join(f"{key} {worst(variants[key][2]):.3f}" for key in scored)
     print(f"worst AP50 of seen / held-out / shifted: {summary}; shipped {PICKING} {worst(shipped):.3f}", flush=True)
+    result.setdefault("photo", {})["by_weights"] = rows  # the composed variants' rows join the table
+    _common.write_result("rod", {k: v for k, v in result.items() if k not in ("benchmark", "machine")})
     if worse and not reason:
-        raise SystemExit(f"not shipped: {run_key(best)} is worse than the shipped {PICKING} on {'; '.join(worse)} "
+        raise SystemExit(f"not shipped: {best} is worse than the shipped {PICKING} on {'; '.join(worse)} "
                          "(give --reason TEXT to ship it anyway; the reason is kept in the weights)")
-    ship_photo(best, head_from, {
-        "chosen_by": "the highest worst AP50 of seen, held-out and shifted (experiments/rod.py ship-best)",
-        "candidates": {run_key(run): round(worst(rows[run_key(run)]), 4) for run in scored},
+    ship_photo(run, head, {
+        "chosen_by": "the highest worst AP50 of seen, held-out and shifted, each run as trained and carrying the "
+                     "pickability head (experiments/rod.py ship-best)",
+        "candidates": {key: round(worst(variants[key][2]), 4) for key in scored}, "chosen": best,
         "scores": {name: (chosen.get(name) or {}).get("ap50") for name in SHIP_SETS},
         "replaced": {name: (shipped.get(name) or {}).get("ap50") for name in SHIP_SETS},
         "worse_on": worse, "reason": reason, "recipe": recipe, "commit": _common.provenance().get("commit")})
+    rewrite_section()
 
 
 def remeasure_latency(runs: Path) -> None:

@@ -32,6 +32,10 @@ def rod(tmp_path, monkeypatch):
     monkeypatch.setattr(_common, "RESULTS", tmp_path)
     shipped: list[tuple[Path, dict]] = []
     monkeypatch.setattr(rod_module, "ship_photo", lambda run, head_from, shipping=None: shipped.append((run, shipping)))
+    monkeypatch.setattr(rod_module, "rewrite_section", lambda: None)
+    with_head = {}  # run name -> its rows carrying the pickability head (none: the head is not measured)
+    monkeypatch.setattr(rod_module, "measured_with_head", lambda run, head_from: with_head.get(Path(run).parent.name))
+    rod_module.with_head_rows = with_head
     return rod_module, rows, shipped
 
 
@@ -43,6 +47,26 @@ def test_the_candidate_with_the_highest_worst_set_ships_with_its_comparison(rod,
     assert run == runs[1] and meta["worse_on"] == [] and meta["reason"] is None and meta["recipe"] == "photo"
     assert meta["candidates"] == {"finetune": 0.62, "finetune_plain": 0.32, "pretrain": 0.51}
     assert meta["scores"] == {"seen": 0.86, "held_out": 0.81, "shifted": 0.62} and meta["replaced"]["seen"] == 0.68
+
+
+def test_a_pickability_head_ships_only_where_it_raises_the_worst_set(rod, tmp_path, monkeypatch):
+    rod_module, _, _ = rod
+    shipped = []
+    monkeypatch.setattr(rod_module, "ship_photo", lambda run, head_from, shipping=None: shipped.append((run, head_from, shipping)))
+    runs = [tmp_path / name / "t" for name in ("pretrain", "finetune")]
+    rod_module.with_head_rows["finetune"] = _scores(0.84, 0.81, 0.55)  # the head re-ranks: shifted falls under 0.62
+    rod_module.with_head_rows["pretrain"] = _scores(0.60, 0.60, 0.66)
+    rod_module.ship_best(runs, "rod_photo_learnt_tiny_320", None, "photo")
+    (run, head, meta), = shipped
+    assert run == runs[1] and head is None and meta["chosen"] == "finetune"  # as trained: worst 0.62 over 0.60 and 0.55
+    assert meta["candidates"]["finetune+pickability_head"] == 0.55
+    rows = json.loads((tmp_path / "rod.json").read_text())["photo"]["by_weights"]  # the measured variants join the table
+    assert rows["finetune+pickability_head"]["shifted"]["ap50"] == 0.55 and rows["finetune+pickability_head"]["run"] == "finetune/t"
+    rod_module.with_head_rows["finetune"] = _scores(0.88, 0.83, 0.64)  # now the head helps everywhere: it ships with it
+    shipped.clear()
+    rod_module.ship_best(runs, "rod_photo_learnt_tiny_320", None, "photo")
+    (run, head, meta), = shipped
+    assert run == runs[1] and head == "rod_photo_learnt_tiny_320" and meta["chosen"] == "finetune+pickability_head"
 
 
 def test_a_candidate_worse_on_any_set_is_refused_unless_a_reason_is_given(rod, tmp_path):
