@@ -341,6 +341,22 @@ def section(result: dict) -> str:
                 lines.append(f"| {label} | {row['median']} | {row['p95']} | {'<= 100' if key == 'api' else '<= 150'} |")
             elif row:
                 lines.append(f"| {label} | failed: {row.get('error', '')[:80]} | | |")
+    planning = result.get("planning_latency", {})
+    if planning.get("by_size"):
+        three = planning.get("by_size_three_plans") or {}
+        lines += ["", f"Planning per frame as a warm `Picker` caller sees it (`python benchmarks/plan_latency.py`; "
+                  f"{planning['frames']} frames x {planning['repeats']}, {planning['gripper']} tools, file reading excluded; "
+                  "frames over 640x480 are planned at 640x480). Rows: `Picker.plan` as it comes (max_grasps "
+                  f"{planning.get('max_grasps', 3)}: planning stops at that many feasible grasps); beside them max_grasps 3, "
+                  "as `binpick plan` makes:", "",
+                  "| camera | median ms | p95 ms | stages (median ms) | 3 plans: median / p95 ms | target (median) |",
+                  "|---|---|---|---|---|---|"]
+        for size, row in planning["by_size"].items():
+            stages = ", ".join(f"{k} {v}" for k, v in row["stages_median"].items() if k != "total")
+            other = three.get(size)
+            other_text = f"{other['median']} / {other['p95']}" if other else "–"
+            lines.append(f"| {size.replace('x', '×')} | {row['median']} | {row['p95']} | {stages} | {other_text} | "
+                         f"<= {row['target_median']:g} |")
     return "\n".join(lines)
 
 

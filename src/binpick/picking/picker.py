@@ -10,7 +10,8 @@ instance) finds the ordered product's instances; a product check against the pho
 verifier whose output is a probability, :mod:`binpick.detection.verifier`; against a query box, a
 colour check in the frame's own light) drops confident detections of other products and ranks the
 rest; each in turn gets a grasp from depth (:mod:`binpick.grasping`) until ``max_grasps`` have a
-feasible one. The simulator's pick loop, ``binpick plan`` and the ROS nodes all call this.
+feasible one (default one: after a failed grasp a cell looks again and plans anew, so a frame's second and
+third plans are rarely used, and each costs about as much as the first; ask for more where they are). The simulator's pick loop, ``binpick plan`` and the ROS nodes all call this.
 """
 
 from __future__ import annotations
@@ -270,7 +271,7 @@ class Picker:
     the one the arm takes (the same jaws, perhaps a half turn round)."""
 
     def __init__(self, detector, grasp: GraspPlanner, crop_detector=None, score_threshold: float | None = None,
-                 verifier="learnt", check: float | None = None, rank_from: float | None = 0.01, max_grasps: int = 3,
+                 verifier="learnt", check: float | None = None, rank_from: float | None = 0.01, max_grasps: int = 1,
                  workspace: Workspace | None = None, copies_from_match: float | None = None, reach=None,
                  working_pixels: int | None = WORKING_PIXELS) -> None:
         # a Detector (binpick.Detector.load(...)) or the network inside one
