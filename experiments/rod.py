@@ -801,11 +801,18 @@ def ship_best(candidates: list[Path], head_from: str, reason: str | None, recipe
     worse = worse_sets(chosen, shipped)
     summary = ", ".join(f"{key} {worst(variants[key][2]):.3f}" for key in scored)
     print(f"worst AP50 of seen / held-out / shifted: {summary}; shipped {PICKING} {worst(shipped):.3f}", flush=True)
-    result.setdefault("photo", {})["by_weights"] = rows  # the composed variants' rows join the table
-    _common.write_result("rod", {k: v for k, v in result.items() if k not in ("benchmark", "machine")})
+    photo = result.setdefault("photo", {})
+    photo["by_weights"] = rows  # the composed variants' rows join the table
     if worse and not reason:
+        _common.write_result("rod", {k: v for k, v in result.items() if k not in ("benchmark", "machine")})
         raise SystemExit(f"not shipped: {best} is worse than the shipped {PICKING} on {'; '.join(worse)} "
                          "(give --reason TEXT to ship it anyway; the reason is kept in the weights)")
+    # the shipped name's row described the weights this replaces: kept under its own name until the new
+    # file is measured (python experiments/rod.py photo --weights rod_photo_learnt_tiny_320)
+    rows[f"{PICKING}_replaced"] = rows.pop(PICKING) | {"made": f"the picking detector that `{best}` replaced"}
+    if photo.get("row_of") == PICKING:
+        photo["row_of"] = f"{PICKING}_replaced"
+    _common.write_result("rod", {k: v for k, v in result.items() if k not in ("benchmark", "machine")})
     ship_photo(run, head, {
         "chosen_by": "the highest worst AP50 of seen, held-out and shifted, each run as trained and carrying the "
                      "pickability head (experiments/rod.py ship-best)",

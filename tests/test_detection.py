@@ -354,11 +354,17 @@ def test_shipped_weights_load_as_float32_and_predict(tmp_path):
     assert photo.spec.query == "photo" and photo.score_threshold == 0.1  # its own calibrated threshold for picking
     from binpick.detection.detector import PICKING, shipped_weights
 
-    picking = load_detector(shipped_weights(PICKING))  # the pipeline's: fine-tuned on what the learnt grasp policy picks
-    assert picking.spec.query == "photo" and picking.trained_config["data"]["targets"] == "pickable:learnt"
-    # with a second look at each detection that sees the window and depth, not the photo (which misleads it on held-out products)
-    assert picking.spec.pickability == "rgbd" and not picking.spec.pickability_query
-    assert set(photo.trained_products) <= set(picking.trained_products)  # it started from the Policy 1 photo weights
+    from binpick.detection.weights_file import read_detector_file
+
+    picking = load_detector(shipped_weights(PICKING))  # the pipeline's: the photo detector chosen by its worst standard set
+    _, meta = read_detector_file(shipped_weights(PICKING))
+    shipping = meta["shipping"]  # how it was chosen (experiments/rod.py ship-best), kept with the weights
+    assert picking.spec.query == "photo" and shipping["chosen"] in shipping["candidates"]
+    assert min(shipping["scores"].values()) == max(shipping["candidates"].values())  # the highest worst set
+    assert all(shipping["scores"][name] >= shipping["replaced"][name] for name in shipping["scores"]) or shipping["reason"]
+    # a pickability head (a second look at each detection's window and depth) only where it raised the worst set
+    assert (picking.spec.pickability == "rgbd") == shipping["chosen"].endswith("+pickability_head")
+    assert set(photo.trained_products) == set(picking.trained_products)  # one network, shipped under both names
     assert next(model.parameters()).dtype == torch.float32  # stored as float16, used as float32
     # a synthetic scene: copies of one coloured shape; the prediction is well formed and in the image
     image = np.asarray(Image.open(make_coco(tmp_path, images=1).parent / "images" / "0000.png"))

@@ -85,8 +85,10 @@ SKIPPED = {
         "(tests/test_suction_planning.py records suction trials on a tiny set and trains on them)",
     "python experiments/grasp.py suction": "a benchmark on the trials above",
     "python experiments/grasp.py calibrate": "a benchmark on the trials above",
-    "python tools/ship_weights.py runs/rod_finetune_photo_learnt/<time> rod_photo_learnt_tiny_320 0.1": "needs the "
-        "cluster training above",
+    "python experiments/rod.py photo --weights runs/rod_finetune_photo_learnt/<time> rod_photo_learnt_tiny_320": "needs "
+        "the cluster training above (tests/test_shipping.py checks the choice)",
+    "python experiments/rod.py ship-best --candidates runs/rod_finetune_photo_learnt/<time>": "needs the cluster "
+        "training above",
     "python experiments/pick.py --robot panda --orders 50": "a benchmark (100 orders with the arm); tests/test_arm.py runs one",
     "python experiments/grasp.py eval": "a benchmark (40 bins of held-out products, the shipped grasp model); "
                                        "tests/test_grasping.py runs its pieces",

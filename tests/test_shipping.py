@@ -47,6 +47,9 @@ def test_the_candidate_with_the_highest_worst_set_ships_with_its_comparison(rod,
     assert run == runs[1] and meta["worse_on"] == [] and meta["reason"] is None and meta["recipe"] == "photo"
     assert meta["candidates"] == {"finetune": 0.62, "finetune_plain": 0.32, "pretrain": 0.51}
     assert meta["scores"] == {"seen": 0.86, "held_out": 0.81, "shifted": 0.62} and meta["replaced"]["seen"] == 0.68
+    rows = json.loads((tmp_path / "rod.json").read_text())["photo"]["by_weights"]
+    # the shipped name's old row no longer describes its file: kept as what was replaced, until the new file is measured
+    assert "rod_photo_learnt_tiny_320" not in rows and rows["rod_photo_learnt_tiny_320_replaced"]["seen"]["ap50"] == 0.68
 
 
 def test_a_pickability_head_ships_only_where_it_raises_the_worst_set(rod, tmp_path, monkeypatch):
@@ -63,6 +66,8 @@ def test_a_pickability_head_ships_only_where_it_raises_the_worst_set(rod, tmp_pa
     rows = json.loads((tmp_path / "rod.json").read_text())["photo"]["by_weights"]  # the measured variants join the table
     assert rows["finetune+pickability_head"]["shifted"]["ap50"] == 0.55 and rows["finetune+pickability_head"]["run"] == "finetune/t"
     rod_module.with_head_rows["finetune"] = _scores(0.88, 0.83, 0.64)  # now the head helps everywhere: it ships with it
+    rows["rod_photo_learnt_tiny_320"] = _scores(0.68, 0.69, 0.30)  # the shipped file measured again
+    (tmp_path / "rod.json").write_text(json.dumps({"photo": {"by_weights": rows}}))
     shipped.clear()
     rod_module.ship_best(runs, "rod_photo_learnt_tiny_320", None, "photo")
     (run, head, meta), = shipped

@@ -23,8 +23,8 @@ from binpick.detection.predict import Prediction, predict
 from binpick.core.errors import ConfigError
 from binpick.core.runs import SILENT, RunCallback
 
-# crop query (§5.3); shop-photo query (§6.3) on what Policy 1 (jaws along y) can pick; the same fine-tuned
-# on what binpick's default grasp policy (learnt) can pick: the one the pick pipeline uses
+# crop query (§5.3); shop-photo query (§6.3); the photo detector the pick pipeline uses (the one chosen by
+# tools/rebuild.py photo; its weights' metadata say how, and whether it carries a pickability head)
 SHIPPED = ("rod_tiny_320", "rod_photo_tiny_320", "rod_photo_learnt_tiny_320")
 PICKING = "rod_photo_learnt_tiny_320"
 
