@@ -810,6 +810,8 @@ def ship_best(candidates: list[Path], head_from: str, reason: str | None, recipe
     # the shipped name's row described the weights this replaces: kept under its own name until the new
     # file is measured (python experiments/rod.py photo --weights rod_photo_learnt_tiny_320)
     rows[f"{PICKING}_replaced"] = rows.pop(PICKING) | {"made": f"the picking detector that `{best}` replaced"}
+    if "rod_photo_tiny_320" in rows:  # the other shipped name of the photo detector is written anew too
+        rows["rod_photo_tiny_320_replaced"] = rows.pop("rod_photo_tiny_320") | {"made": f"the photo detector that `{best}` replaced"}
     if photo.get("row_of") == PICKING:
         photo["row_of"] = f"{PICKING}_replaced"
     _common.write_result("rod", {k: v for k, v in result.items() if k not in ("benchmark", "machine")})
