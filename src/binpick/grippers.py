@@ -135,8 +135,10 @@ def seal_geometries(heights: np.ndarray, same: np.ndarray, radius: float) -> lis
 
 def seal_test(heights: np.ndarray, same: np.ndarray, cup: SuctionCup, touch: float = 0.002) -> str | None:
     """Whether a lip seals on a surface seen at :func:`ring_offsets` (see :func:`seal_geometry`): None
-    when it does, else why not. The lip must also be within ``touch`` of the surface's plane. The
-    simulator's vacuum seals by this test."""
+    when it does, else why not. The lip must also touch the surface's plane: its nearest point within
+    ``touch`` (a cup pressed onto a tilted face meets it first with the uphill side of its lip, the
+    centre ``radius * tan(tilt)`` above the plane; the bellows then tilt the lip onto the face, which is
+    what ``max_tilt`` allows). The simulator's vacuum seals by this test."""
     seal = seal_geometry(heights, same, cup.radius)
     if seal.coverage < 1.0:
         return "the ring leaves the product"
@@ -146,6 +148,6 @@ def seal_test(heights: np.ndarray, same: np.ndarray, cup: SuctionCup, touch: flo
         return "the surface is tilted too far"
     if seal.bulge > cup.depth:
         return "the surface bulges into the cup"
-    if seal.gap > touch:
+    if seal.gap - cup.radius * math.tan(math.radians(seal.tilt)) > touch:
         return "the lip does not touch"
     return None
