@@ -202,6 +202,19 @@ def latency_input():
     return read_image(DATA / image["file_name"]), np.array(query["bbox"], dtype=np.float32), read_depth(DATA / image["depth_file"])
 
 
+def latency_photo():
+    """The shop photo of the product the latency rows' query box is on (the first val image's)."""
+    import json
+
+    from binpick.detection.data import read_image
+
+    first = json.loads((DATA / "annotations_val.json").read_text())
+    image = first["images"][0]
+    query = next(a for a in first["annotations"] if a["image_id"] == image["id"])
+    name = next(c["name"] for c in first["categories"] if c["id"] == query["category_id"])
+    return read_image(DATA / "photos" / f"{name.replace('/', '_')}.png", keep_alpha=True)
+
+
 def latency_ms(model, image, query_box, repeats: int = 20, depth=None) -> float:
     """Median ms of ``predict`` at batch 1 (``depth``: the image's, for detectors that read it)."""
     import time
@@ -522,10 +535,14 @@ def interleaved_latency_ms(models: dict, image, query_box, depth, repeats: int =
     from binpick.detection.predict import predict
 
     times: dict[str, list[float]] = {name: [] for name in models}
+    photo = latency_photo() if any(model.spec.query == "photo" for model, _ in models.values()) else None
     for round_ in range(repeats + 3):  # three rounds to warm up
         for name, (model, reads_depth) in models.items():
             started = time.perf_counter()
-            predict(model, image, query_box, depth=depth if reads_depth else None)
+            if model.spec.query == "photo":  # conditioned on the ordered product's shop photo
+                predict(model, image, query_image=photo, depth=depth if reads_depth else None)
+            else:
+                predict(model, image, query_box, depth=depth if reads_depth else None)
             if round_ >= 3:
                 times[name].append(1000 * (time.perf_counter() - started))
     return {name: round(float(np.median(values)), 1) for name, values in times.items()}
@@ -589,10 +606,22 @@ def photo_lines(photo: dict) -> list[str]:
              "shifted: another camera, tote and light, held-out products, every copy a target. Targets: seen ≥ 0.85, "
              f"held-out ≥ 0.80, shifted ≥ {photo.get('shifted_domain_target', 0.6)}. `photo.seen`, `photo.held_out` and "
              f"`photo.shifted_domain` are the row of `{photo.get('row_of', '?')}`.", "",
-             "| weights | how it was made | seen AP50 | held-out AP50 | shifted AP50 |", "|---|---|---|---|---|"]
+             "| weights | how it was made | seen AP50 | held-out AP50 | shifted AP50 | worst of the three | "
+             "realistic sensor: seen / held-out | training hours |", "|---|---|---|---|---|---|---|---|"]
     for name, row in rows.items():
-        lines.append(f"| `{name}` | {row.get('made', '')} | {_cell((row.get('seen') or {}).get('ap50'))} | "
-                     f"{_cell((row.get('held_out') or {}).get('ap50'))} | {_cell((row.get('shifted') or {}).get('ap50'))} |")
+        ap = {k: (row.get(k) or {}).get("ap50") for k in ("seen", "held_out", "shifted", "seen_realistic", "held_out_realistic")}
+        three = [ap[k] for k in ("seen", "held_out", "shifted")]
+        worst = min(three) if all(isinstance(v, (int, float)) for v in three) else None
+        hours = row.get("training_hours")
+        lines.append(f"| `{name}` | {row.get('made', '')} | {_cell(ap['seen'])} | {_cell(ap['held_out'])} | {_cell(ap['shifted'])} | "
+                     f"{_cell(worst)} | {_cell(ap['seen_realistic'])} / {_cell(ap['held_out_realistic'])} | "
+                     f"{'—' if hours is None else f'{hours:.2f}'} |")
+    lines += ["", "Realistic sensor: `runs/data/bins_realistic` (`configs/data/bins_realistic.yaml`), the same kind of default "
+              "bins seen by the `realistic` sensor (depth holes and noise, a camera tilted up to 20°, a tote up to 3° off level), "
+              "targets pickable by Policy 1; val (seen products) and test (held-out). Training hours: the run's own step in "
+              "`tools/rebuild.py` (every attempt, lost ones included; a fine-tune's pre-training is its own row); — where no "
+              "rebuild made it. Rows `+pickability_head`: the run carrying the picking detector's pickability head, as "
+              "`ship-best` judges it."]
     return lines + [""]
 
 
@@ -604,9 +633,48 @@ PHOTO_MADE = {
                           "(`configs/detection/rod_pretrain_random_photo.yaml`), not fine-tuned",
     "finetune_rod_photo": "`pretrain_rod_photo` fine-tuned on Policy 1 pickability with 4 studio photos per product "
                           "(`configs/detection/rod_finetune_photo.yaml`, from it; not shipped)",
-    "rod_finetune_photo_rehearsed": "`pretrain_rod_photo` fine-tuned on Policy 1 pickability, rehearsing 750 randomised "
-                                    "bins per epoch (`configs/detection/rod_finetune_photo_rehearsed.yaml`)",
+    "rod_pretrain_random_photo": "photo pre-training on `random_20k` (`configs/detection/rod_pretrain_random_photo.yaml`, "
+                                 "`tools/rebuild.py photo`), not fine-tuned",
+    "rod_finetune_photo_rehearsed": "`rod_pretrain_random_photo` fine-tuned on Policy 1 pickability, rehearsing 750 "
+                                    "randomised bins per epoch (`configs/detection/rod_finetune_photo_rehearsed.yaml`, "
+                                    "`tools/rebuild.py photo`)",
+    "rod_photo_learnt_tiny_320_replaced": "the picking detector the rebuild replaced (`rod_photo_tiny_320_replaced` "
+                                          "fine-tuned on the learnt policy's pickability, with a pickability head)",
+    "rod_photo_tiny_320_replaced": "the photo detector the rebuild replaced (crop model fine-tuned on shop photos, Policy 1)",
+    "rod_finetune_photo_rehearsed+pickability_head": "`rod_finetune_photo_rehearsed` carrying the pickability head of "
+                                                     "`rod_photo_learnt_tiny_320_replaced` (it re-ranks the detections)",
 }
+REALISTIC = _common.ROOT / "runs" / "data" / "bins_realistic"  # the realistic-sensor twin (configs/data/bins_realistic.yaml)
+
+
+def made_of(key: str, name: str) -> str:
+    """How the weights were made: for a shipped name, what its metadata says it was shipped from."""
+    from binpick.detection.detector import SHIPPED, shipped_weights
+    from binpick.detection.weights_file import read_detector_file
+
+    if key not in SHIPPED:
+        return PHOTO_MADE.get(key, "—")
+    _, meta = read_detector_file(shipped_weights(key))
+    shipping = meta.get("shipping") or {}
+    if not shipping:
+        return PHOTO_MADE.get(key, "—")
+    head = "with" if (meta.get("pickability") or {}) else "without"
+    return (f"shipped: `{shipping.get('chosen') or Path(meta.get('source_run', '?')).parent.name}` ({head} a pickability "
+            f"head), chosen by its worst standard set")
+
+
+def training_hours(run: Path | None) -> float | None:
+    """Hours of CPU the run took, from the rebuild that made it (``runs/rebuild/*/state.json``: every
+    attempt, lost ones included); None when no rebuild made it."""
+    import json
+
+    if run is None:
+        return None
+    for state in (_common.ROOT / "runs" / "rebuild").glob("*/state.json"):
+        for step in json.loads(state.read_text()).get("steps", {}).values():
+            if step.get("run") and Path(_common.ROOT / step["run"]).resolve() == Path(run).resolve():
+                return round(sum(a.get("seconds") or 0 for a in step.get("attempts", [])) / 3600, 2)
+    return None
 
 
 def photo_sets(network) -> dict:
@@ -614,10 +682,12 @@ def photo_sets(network) -> dict:
     val and test, targets pickable by Policy 1) and the shifted set-up (every copy a target)."""
     from binpick.detection.train import detector_detect
 
+    sets = {"seen": (DATA, "val", P1), "held_out": (DATA, "test", P1), "shifted": (SHIFTED, "test", "all")}
+    if (REALISTIC / "annotations_test.json").is_file():  # the same kinds of bins through the realistic sensor
+        sets |= {"seen_realistic": (REALISTIC, "val", P1), "held_out_realistic": (REALISTIC, "test", P1)}
     return {row: keep(evaluate_on(detector_detect(network), data, split, targets, network.image_size, query="photo",
                                   framed=network.spec.frames_photos, depth=network.spec.reads_depth))
-            for row, (data, split, targets) in {"seen": (DATA, "val", P1), "held_out": (DATA, "test", P1),
-                                                "shifted": (SHIFTED, "test", "all")}.items()}
+            for row, (data, split, targets) in sets.items()}
 
 
 def photo_rows(weights: list[str], row_of: str | None) -> None:
@@ -630,7 +700,8 @@ def photo_rows(weights: list[str], row_of: str | None) -> None:
 
     import torch
 
-    from binpick.detection.detector import Detector, PICKING
+    from binpick.detection.detector import SHIPPED, Detector, PICKING, shipped_weights
+    from binpick.detection.weights_file import read_detector_file
 
     torch.set_num_threads(2)
     if not (SHIFTED / "annotations_test.json").is_file():
@@ -647,8 +718,12 @@ def photo_rows(weights: list[str], row_of: str | None) -> None:
         key = Path(name).stem if Path(name).suffix == ".safetensors" else Path(name).name
         if Path(name).is_dir():  # a run folder: runs/<name>/<time>
             key = Path(name).resolve().parent.name
-        rows[key] = {"made": PHOTO_MADE.get(key, "—")} | ({"run": str(Path(name).resolve().relative_to(_common.ROOT))}
-                                                          if Path(name).is_dir() else {}) | photo_sets(network)
+        run = Path(name) if Path(name).is_dir() else None
+        if run is None and key in SHIPPED:  # a shipped file: the run it was shipped from
+            source = (read_detector_file(shipped_weights(key))[1].get("source_run") or "")
+            run = _common.ROOT / source if source else None
+        rows[key] = ({"made": made_of(key, name)} | ({"run": str(Path(name).resolve().relative_to(_common.ROOT))} if Path(name).is_dir() else {})
+                     | {"training_hours": training_hours(run)} | photo_sets(network))
         print(key, {k: v.get("ap50") for k, v in rows[key].items() if isinstance(v, dict)}, flush=True)  # the sets' rows
     chosen = row_of or (PICKING if PICKING in rows else next(iter(rows)))
     if chosen not in rows:
@@ -725,10 +800,13 @@ def run_key(run: Path) -> str:
     return Path(run).resolve().parent.name
 
 
+COMPARED_SETS = SHIP_SETS + ("seen_realistic", "held_out_realistic")  # a candidate must not fall on any (where both were measured)
+
+
 def worse_sets(candidate: dict, shipped: dict) -> list[str]:
-    """The standard sets on which ``candidate`` scores a lower AP50 than ``shipped``, as
-    ``"held_out 0.69 < 0.75"``."""
-    return [f"{name} {candidate[name]['ap50']:.3f} < {shipped[name]['ap50']:.3f}" for name in SHIP_SETS
+    """The standard sets (and their realistic-sensor twins) on which ``candidate`` scores a lower AP50
+    than ``shipped``, as ``"held_out 0.69 < 0.75"``."""
+    return [f"{name} {candidate[name]['ap50']:.3f} < {shipped[name]['ap50']:.3f}" for name in COMPARED_SETS
             if (candidate.get(name) or {}).get("ap50") is not None and (shipped.get(name) or {}).get("ap50") is not None
             and candidate[name]["ap50"] < shipped[name]["ap50"]]
 
@@ -798,14 +876,16 @@ def ship_best(candidates: list[Path], head_from: str, reason: str | None, recipe
     scored = sorted(variants, key=lambda key: -worst(variants[key][2]))
     best = scored[0]
     run, head, chosen = variants[best]
-    worse = worse_sets(chosen, shipped)
+    # both shipped names are written anew: the candidate must not fall below either file on any set
+    replaced = {name: rows[name] for name in (PICKING, "rod_photo_tiny_320") if name in rows}
+    worse = [f"{name}: {item}" for name, row in replaced.items() for item in worse_sets(chosen, row)]
     summary = ", ".join(f"{key} {worst(variants[key][2]):.3f}" for key in scored)
     print(f"worst AP50 of seen / held-out / shifted: {summary}; shipped {PICKING} {worst(shipped):.3f}", flush=True)
     photo = result.setdefault("photo", {})
     photo["by_weights"] = rows  # the composed variants' rows join the table
     if worse and not reason:
         _common.write_result("rod", {k: v for k, v in result.items() if k not in ("benchmark", "machine")})
-        raise SystemExit(f"not shipped: {best} is worse than the shipped {PICKING} on {'; '.join(worse)} "
+        raise SystemExit(f"not shipped: {best} is worse than the shipped weights on {'; '.join(worse)} "
                          "(give --reason TEXT to ship it anyway; the reason is kept in the weights)")
     # the shipped name's row described the weights this replaces: kept under its own name until the new
     # file is measured (python experiments/rod.py photo --weights rod_photo_learnt_tiny_320)
@@ -821,6 +901,7 @@ def ship_best(candidates: list[Path], head_from: str, reason: str | None, recipe
         "candidates": {key: round(worst(variants[key][2]), 4) for key in scored}, "chosen": best,
         "scores": {name: (chosen.get(name) or {}).get("ap50") for name in SHIP_SETS},
         "replaced": {name: (shipped.get(name) or {}).get("ap50") for name in SHIP_SETS},
+        "replaced_by_name": {name: {k: (row.get(k) or {}).get("ap50") for k in COMPARED_SETS} for name, row in replaced.items()},
         "worse_on": worse, "reason": reason, "recipe": recipe, "commit": _common.provenance().get("commit")})
     rewrite_section()
 
@@ -836,7 +917,7 @@ def remeasure_latency(runs: Path) -> None:
     import numpy as np
     import torch
 
-    from binpick.detection.detector import Detector
+    from binpick.detection.detector import PICKING, Detector
     from binpick.detection.model import DetectorNetwork, ModelSpec
 
     torch.set_num_threads(2)
@@ -847,6 +928,8 @@ def remeasure_latency(runs: Path) -> None:
     fast = shipped.inference_network
     models = {"shipped": (fast, True), "shipped_detector_only": (fast.without_pickability(), False),
               "shipped_unfolded": (shipped.network, True)}
+    picking = Detector.load(PICKING).inference_network  # the shop-photo detector every order runs
+    models["shipped_photo"] = (picking, picking.spec.reads_depth or picking.pickability is not None)
     for backbone in ("tiny", "small"):
         models[f"{backbone}_{SHIPPED_SIZE}"] = (DetectorNetwork(ModelSpec(backbone=backbone), SHIPPED_SIZE).eval().for_inference(), False)
     # five blocks of turns a few seconds apart: each figure is the median of the blocks' medians, and
@@ -863,11 +946,14 @@ def remeasure_latency(runs: Path) -> None:
     result["latency_ms"]["machine_gflops"] = round(float(np.median(speeds)), 1)
     # every measurement is kept: on this drifting machine one figure alone says little
     result["latency_ms"]["history"] = history + [{"utc": time.strftime("%Y-%m-%dT%H:%M", time.gmtime()), "shipped": result["latency_ms"]["shipped"],
+                                                  "shipped_photo": result["latency_ms"]["shipped_photo"],
                                                   "shipped_detector_only": result["latency_ms"]["shipped_detector_only"],
                                                   "machine_gflops": result["latency_ms"]["machine_gflops"],
                                                   "one_core_busy": result["latency_ms"]["shipped_one_core_busy"]}]
     result["latency_ms"]["measured"] = ("experiments/rod.py latency: median of 5 blocks of 30 turns each, 2 threads, batch 1; shipped = "
-                                        "rod_tiny_320 through Detector.predict (batch norms folded), with its pickability head and the scene's depth")
+                                        "rod_tiny_320 through Detector.predict (batch norms folded), with its pickability head and the scene's depth; "
+                                        f"shipped_photo = {PICKING} (the shop-photo detector every order runs) on the same image, "
+                                        "queried with the product's shop photo")
     _common.write_result("rod", {k: v for k, v in result.items() if k not in ("benchmark", "machine")})
     rewrite_section()
     print(result["latency_ms"], flush=True)
@@ -1014,7 +1100,10 @@ def section_generalisation(result: dict) -> str:
               f"copy). The weights shipped before the pickability head scored {_cell((photo.get('held_out_before') or {}).get('ap50'))} "
               "held-out.", "",
               *photo_lines(photo),
-              f"`predict` latency, batch 1, 2 CPU cores, {result['image_size']} px: shipped model **{lat['shipped']} ms** with its "
+              *([f"The shop-photo detector every order runs (`rod_photo_learnt_tiny_320`, queried with the product's shop photo): "
+                 f"**{lat['shipped_photo']} ms** per image (`latency_ms.shipped_photo`; target ≤ 50), measured in the same turns as "
+                 "the crop-query rows below."] if lat.get("shipped_photo") is not None else []),
+              f"`predict` latency, batch 1, 2 CPU cores, {result['image_size']} px: shipped crop-query model **{lat['shipped']} ms** with its "
               f"pickability head (target ≤ 50), {lat.get('shipped_detector_only')} ms without it, {lat.get('shipped_unfolded')} ms "
               f"before its batch norms are folded; untrained tiny {lat.get('tiny_' + str(result['image_size']))} ms, "
               f"small {lat.get('small_' + str(result['image_size']))} ms (`python experiments/rod.py latency`: medians of five blocks, "

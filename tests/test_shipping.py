@@ -79,13 +79,26 @@ def test_a_candidate_worse_on_any_set_is_refused_unless_a_reason_is_given(rod, t
     rows["rod_photo_learnt_tiny_320"] = _scores(0.83, 0.75, 0.40)
     (tmp_path / "rod.json").write_text(json.dumps({"photo": {"by_weights": rows}}))
     runs = [tmp_path / "pretrain" / "t", tmp_path / "finetune_plain" / "t"]  # worst: 0.51 and 0.32
-    with pytest.raises(SystemExit, match=r"not shipped: pretrain is worse than the shipped rod_photo_learnt_tiny_320 on "
-                                         r"seen 0\.510 < 0\.830; held_out 0\.560 < 0\.750"):
+    with pytest.raises(SystemExit, match=r"not shipped: pretrain is worse than the shipped weights on "
+                                         r"rod_photo_learnt_tiny_320: seen 0\.510 < 0\.830; rod_photo_learnt_tiny_320: held_out 0\.560 < 0\.750"):
         rod_module.ship_best(runs, "rod_photo_learnt_tiny_320", None, None)
     assert not shipped
     rod_module.ship_best(runs, "rod_photo_learnt_tiny_320", "the shifted set-up matters more than seen bins here", None)
     (run, meta), = shipped
     assert run == runs[0] and meta["reason"].startswith("the shifted") and len(meta["worse_on"]) == 2
+
+
+def test_a_candidate_is_compared_with_both_shipped_names_and_their_realistic_twins(rod, tmp_path):
+    rod_module, rows, shipped = rod
+    rows["rod_photo_tiny_320"] = _scores(0.90, 0.75, 0.40)  # the other name the photo detector ships under: best on seen
+    rows["finetune"]["seen_realistic"] = {"ap50": 0.60}
+    rows["rod_photo_learnt_tiny_320"]["seen_realistic"] = {"ap50": 0.61}
+    (tmp_path / "rod.json").write_text(json.dumps({"photo": {"by_weights": rows}}))
+    runs = [tmp_path / "finetune" / "t"]
+    with pytest.raises(SystemExit, match=r"rod_photo_learnt_tiny_320: seen_realistic 0\.600 < 0\.610; "
+                                         r"rod_photo_tiny_320: seen 0\.860 < 0\.900"):
+        rod_module.ship_best(runs, "rod_photo_learnt_tiny_320", None, None)
+    assert not shipped
 
 
 def test_a_candidate_not_yet_measured_is_named_with_the_command_that_measures_it(rod, tmp_path):
