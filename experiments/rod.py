@@ -832,8 +832,9 @@ def ship_best(candidates: list[Path], head_from: str, reason: str | None, recipe
     seen. Each candidate run (its rows in ``photo.by_weights`` of results/rod.json, measured by ``photo``)
     is judged as trained and carrying ``head_from``'s pickability head, measured here as the picking
     detector would ship (the head re-ranks detections, which moves AP50). Refused when the chosen variant
-    is worse than the shipped picking detector on any of those sets, unless ``reason`` says why (kept in
-    the weights with the scores compared, the recipe and the commit)."""
+    is worse than either shipped file it overwrites (``rod_photo_learnt_tiny_320``, ``rod_photo_tiny_320``)
+    on any of those sets or their realistic-sensor twins, unless ``reason`` says why (kept in the
+    weights with the scores compared, the recipe and the commit)."""
     import json
     import math
 
@@ -887,14 +888,6 @@ def ship_best(candidates: list[Path], head_from: str, reason: str | None, recipe
         _common.write_result("rod", {k: v for k, v in result.items() if k not in ("benchmark", "machine")})
         raise SystemExit(f"not shipped: {best} is worse than the shipped weights on {'; '.join(worse)} "
                          "(give --reason TEXT to ship it anyway; the reason is kept in the weights)")
-    # the shipped name's row described the weights this replaces: kept under its own name until the new
-    # file is measured (python experiments/rod.py photo --weights rod_photo_learnt_tiny_320)
-    rows[f"{PICKING}_replaced"] = rows.pop(PICKING) | {"made": f"the picking detector that `{best}` replaced"}
-    if "rod_photo_tiny_320" in rows:  # the other shipped name of the photo detector is written anew too
-        rows["rod_photo_tiny_320_replaced"] = rows.pop("rod_photo_tiny_320") | {"made": f"the photo detector that `{best}` replaced"}
-    if photo.get("row_of") == PICKING:
-        photo["row_of"] = f"{PICKING}_replaced"
-    _common.write_result("rod", {k: v for k, v in result.items() if k not in ("benchmark", "machine")})
     ship_photo(run, head, {
         "chosen_by": "the highest worst AP50 of seen, held-out and shifted, each run as trained and carrying the "
                      "pickability head (experiments/rod.py ship-best)",
@@ -903,6 +896,14 @@ def ship_best(candidates: list[Path], head_from: str, reason: str | None, recipe
         "replaced": {name: (shipped.get(name) or {}).get("ap50") for name in SHIP_SETS},
         "replaced_by_name": {name: {k: (row.get(k) or {}).get("ap50") for k in COMPARED_SETS} for name, row in replaced.items()},
         "worse_on": worse, "reason": reason, "recipe": recipe, "commit": _common.provenance().get("commit")})
+    # the shipped names' rows described the weights just replaced: kept under their own names until the
+    # new files are measured (python experiments/rod.py photo --weights rod_photo_tiny_320 rod_photo_learnt_tiny_320)
+    rows[f"{PICKING}_replaced"] = rows.pop(PICKING) | {"made": f"the picking detector that `{best}` replaced"}
+    if "rod_photo_tiny_320" in rows:
+        rows["rod_photo_tiny_320_replaced"] = rows.pop("rod_photo_tiny_320") | {"made": f"the photo detector that `{best}` replaced"}
+    if photo.get("row_of") == PICKING:
+        photo["row_of"] = f"{PICKING}_replaced"
+    _common.write_result("rod", {k: v for k, v in result.items() if k not in ("benchmark", "machine")})
     rewrite_section()
 
 
