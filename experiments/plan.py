@@ -74,7 +74,8 @@ def pipeline_for(domain: str, sensor: str = "perfect", **options):
 def products_for(domain: str, pipeline) -> list[str]:
     if domain == "shifted":  # the shifted set's held-out products (sim/domains/shifted.yaml)
         return [pid for category in ("can", "mug", "toy") for pid in pipeline.library.resolve(category)]
-    return sorted(pipeline.detector.trained_products or [])
+    trained = set(pipeline.detector.trained_products or [])  # the catalogue's products it saw (not the randomised shapes)
+    return [pid for pid in sorted(pipeline.library.products) if pid in trained]
 
 
 def file_orders(domain: str, orders: int, sensor: str = "perfect") -> dict:
