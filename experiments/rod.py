@@ -942,6 +942,8 @@ def remeasure_latency(runs: Path) -> None:
     earlier = result.get("latency_ms") or {}
     history = earlier.get("history") or []
     result["latency_ms"] = {name: round(float(np.median([block[name] for block in blocks])), 1) for name in models}
+    if "onnx" in earlier:  # benchmarks/onnx_latency.py's rows live here too: not this script's to drop
+        result["latency_ms"]["onnx"] = earlier["onnx"]
     result["latency_ms"]["shipped_blocks"] = [block["shipped"] for block in blocks]
     result["latency_ms"]["shipped_one_core_busy"] = busy_core_latency_ms(fast, image, box, depth)
     result["latency_ms"]["machine_gflops"] = round(float(np.median(speeds)), 1)
