@@ -145,9 +145,8 @@ def main() -> None:
     if executed:
         result["by_category"] = category_rows(library, executed)
         result["calibration"] = calibration_rows(executed)
-    for group in ("seen", "held_out"):  # the arm's rows compare with these floating-gripper rows from now on
-        if group in result.get("arm", {}) and group in result:
-            result["arm"][group]["floating"] = floating_row(result[group])
+    # a kept arm row keeps the floating-gripper rows it was measured beside (the same code): the arm's run
+    # (--robot panda) writes both anew
     pipeline = PickPipeline(model, library, grasp=planners[policy])  # the settings every row shares
     result.update({"weights": str(args.weights.relative_to(_common.ROOT) if args.weights.is_absolute() else args.weights),
                    "grasp": f"{policy} (binpick.grasping), up to 3 grasps down the ranked detections (detections without a feasible grasp skipped)",
