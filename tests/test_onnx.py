@@ -84,7 +84,14 @@ def test_what_cannot_be_exported_or_loaded_is_one_line(detectors, exported, tmp_
     (tmp_path / "junk.onnx").write_bytes(b"not a model")
     with pytest.raises(BinpickError, match="not an ONNX file"):
         read_metadata(tmp_path / "junk.onnx")
-    other = Detector.load("rod_photo_tiny_320").inference_network
+    import copy
+
+    import torch
+
+    other = copy.deepcopy(Detector.load("rod_photo_learnt_tiny_320").inference_network)  # the same network, one weight moved
+    with torch.no_grad():
+        first = next(other.parameters())
+        first.add_(0.01 * (torch.arange(first.numel()).reshape(first.shape) == 0))
     with pytest.raises(ConfigError, match="exported from other weights"):
         OnnxNetwork(other, exported)
 
