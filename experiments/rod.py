@@ -187,31 +187,32 @@ def keep(metrics: dict) -> dict:
             } | {"tasks": metrics["tasks"], "ambiguous_instances": metrics["ambiguous_instances"]}
 
 
-def latency_input():
-    """The image, query box (x, y, w, h) and depth the latency rows time: the first val image's."""
+def latency_query() -> tuple[dict, dict, dict]:
+    """The first val image's annotations file, image record and its first annotation: what the latency rows time."""
     import json
 
+    annotations = json.loads((DATA / "annotations_val.json").read_text())
+    image = annotations["images"][0]
+    return annotations, image, next(a for a in annotations["annotations"] if a["image_id"] == image["id"])
+
+
+def latency_input():
+    """The image, query box (x, y, w, h) and depth the latency rows time: the first val image's."""
     import numpy as np
 
     from binpick.depth import read_depth
     from binpick.detection.data import read_image
 
-    first = json.loads((DATA / "annotations_val.json").read_text())
-    image = first["images"][0]
-    query = next(a for a in first["annotations"] if a["image_id"] == image["id"])
+    _, image, query = latency_query()
     return read_image(DATA / image["file_name"]), np.array(query["bbox"], dtype=np.float32), read_depth(DATA / image["depth_file"])
 
 
 def latency_photo():
-    """The shop photo of the product the latency rows' query box is on (the first val image's)."""
-    import json
-
+    """The shop photo of the product the latency rows' query box is on."""
     from binpick.detection.data import read_image
 
-    first = json.loads((DATA / "annotations_val.json").read_text())
-    image = first["images"][0]
-    query = next(a for a in first["annotations"] if a["image_id"] == image["id"])
-    name = next(c["name"] for c in first["categories"] if c["id"] == query["category_id"])
+    annotations, _, query = latency_query()
+    name = next(c["name"] for c in annotations["categories"] if c["id"] == query["category_id"])
     return read_image(DATA / "photos" / f"{name.replace('/', '_')}.png", keep_alpha=True)
 
 
@@ -647,7 +648,7 @@ PHOTO_MADE = {
 REALISTIC = _common.ROOT / "runs" / "data" / "bins_realistic"  # the realistic-sensor twin (configs/data/bins_realistic.yaml)
 
 
-def made_of(key: str, name: str) -> str:
+def made_of(key: str) -> str:
     """How the weights were made: for a shipped name, what its metadata says it was shipped from."""
     from binpick.detection.detector import SHIPPED, shipped_weights
     from binpick.detection.weights_file import read_detector_file
@@ -718,11 +719,12 @@ def photo_rows(weights: list[str], row_of: str | None) -> None:
         key = Path(name).stem if Path(name).suffix == ".safetensors" else Path(name).name
         if Path(name).is_dir():  # a run folder: runs/<name>/<time>
             key = Path(name).resolve().parent.name
-        run = Path(name) if Path(name).is_dir() else None
+        folder = Path(name) if Path(name).is_dir() else None
+        run = folder
         if run is None and key in SHIPPED:  # a shipped file: the run it was shipped from
             source = (read_detector_file(shipped_weights(key))[1].get("source_run") or "")
             run = _common.ROOT / source if source else None
-        rows[key] = ({"made": made_of(key, name)} | ({"run": str(Path(name).resolve().relative_to(_common.ROOT))} if Path(name).is_dir() else {})
+        rows[key] = ({"made": made_of(key)} | ({"run": str(folder.resolve().relative_to(_common.ROOT))} if folder else {})
                      | {"training_hours": training_hours(run)} | photo_sets(network))
         print(key, {k: v.get("ap50") for k, v in rows[key].items() if isinstance(v, dict)}, flush=True)  # the sets' rows
     chosen = row_of or (PICKING if PICKING in rows else next(iter(rows)))
@@ -742,11 +744,10 @@ def with_head(network, head_from: str):
     import copy
     from dataclasses import replace
 
+    from binpick.detection.detector import SHIPPED, shipped_weights
     from binpick.detection.weights_file import load_detector, read_detector_file, weights_path
 
-    weights = _common.ROOT / "src" / "binpick" / "detection" / "weights"
-    head_path = weights_path(weights / f"{head_from}.safetensors") if (weights / f"{head_from}.safetensors").is_file() \
-        else weights_path(Path(head_from))
+    head_path = shipped_weights(head_from) if head_from in SHIPPED else weights_path(Path(head_from))
     _, head_meta = read_detector_file(head_path)
     carrier = load_detector(head_path)
     if carrier.pickability is None:
