@@ -93,6 +93,31 @@ def test_reach_says_why_a_grasp_cannot_be_taken(planner):
     assert planner._flipped(flipped)
 
 
+def test_a_grasp_whose_hand_grazes_a_tote_wall_is_refused_and_taken_ones_keep_clear(planner):
+    """The arm tracks its targets within about 2 mm: a descent planned to graze the wall hits it when run."""
+    import mujoco
+
+    from binpick.arm.kinematics import CLEARANCE
+
+    kinematics = planner.kinematics
+    walls = [kinematics.model.geom(f"bin_wall{k}").id for k in range(4)]
+
+    def nearest_wall(q) -> float:
+        kinematics.data.qpos[:] = kinematics.full(q)
+        mujoco.mj_forward(kinematics.model, kinematics.data)
+        return min(mujoco.mj_geomDistance(kinematics.model, kinematics.data, int(g), w, 0.05, np.zeros(6))
+                   for g in kinematics.robot for w in walls)
+
+    # tips 1.5 cm inside the wall at x = -0.16, jaws across it: palm and a finger would come within 0.3 mm of it
+    grazing = planner.reach(np.array([-0.1407, -0.0508, 0.036]) + [0, 0, planner.below("jaws")], 0.2618)
+    assert grazing.reason == COLLIDES
+    for x in (-0.13, -0.12, 0.0):  # the same grasp further in: taken only with every link clear
+        reach = planner.reach(np.array([x, -0.0508, 0.036]) + [0, 0, planner.below("jaws")], 0.2618)
+        if reach.ok:
+            assert min(nearest_wall(q) for q in reach.descent) >= CLEARANCE - 1e-4
+    assert planner.reach(np.array([0.0, -0.0508, 0.036]) + [0, 0, planner.below("jaws")], 0.2618).ok
+
+
 def test_a_pick_motion_has_every_segment_and_returns_home(planner):
     motion = planner.pick(HOME, [0.02, 0.03, 0.1], 0.3)
     assert motion.reach.ok

@@ -22,6 +22,9 @@ OBSTACLES = ("table", "bin_floor", "bin_wall0", "bin_wall1", "bin_wall2", "bin_w
              "order_floor", "order_wall0", "order_wall1", "order_wall2", "order_wall3")
 POSITION_TOLERANCE = 0.002  # m
 ORIENTATION_TOLERANCE = 0.02  # rad
+# a planned posture nearer an obstacle than this counts as touching it: the arm tracks its targets
+# within about 2 mm, so a plan that grazes a tote wall hits it when executed
+CLEARANCE = 0.003  # m
 STEP = 0.05  # the differential IK's integration step (s)
 # the posture solutions stay near: the gripper 30 cm above the bin centre, pointing down
 NOMINAL = (-0.24, 0.0, -0.09, -2.0, 0.0, 2.0, 0.45)
@@ -36,7 +39,7 @@ def top_down_quaternion(yaw: float) -> np.ndarray:
 class Solution:
     q: np.ndarray  # the arm's joint positions (rad)
     reached: bool  # the gripper is on target within the tolerances
-    touching: list[tuple[str, str]]  # (robot geom, obstacle geom) pairs in contact at q
+    touching: list[tuple[str, str]]  # (robot geom, obstacle geom) pairs within CLEARANCE at q
     iterations: int
 
     @property
@@ -57,6 +60,8 @@ class ArmKinematics:
         self.data = mujoco.MjData(self.model)
         self.configuration = mink.Configuration(self.model)
         self.obstacles = {self.model.geom(name).id for name in OBSTACLES}
+        # contacts are made (and so seen by ``touching``) within CLEARANCE of the obstacles
+        self.model.geom_margin[sorted(self.obstacles)] = CLEARANCE
         # the base stands on the table: its own contact with it is no collision
         self.robot = {int(g) for g in self.arm.geoms if self.model.geom(int(g)).name != "link0_collision"}
         self.extend = None  # (qpos address, stroke) of a both-hand's cup rod
@@ -106,7 +111,7 @@ class ArmKinematics:
         return Solution(q, reached, self.touching(q), step + 1)
 
     def touching(self, q) -> list[tuple[str, str]]:
-        """(robot geom, obstacle geom) pairs in contact with the arm at joint positions ``q``."""
+        """(robot geom, obstacle geom) pairs nearer each other than :data:`CLEARANCE` at joint positions ``q``."""
         self.data.qpos[:] = self.full(q)
         mujoco.mj_forward(self.model, self.data)
         pairs = set()
@@ -114,7 +119,7 @@ class ArmKinematics:
             a, b = int(contact.geom1), int(contact.geom2)
             if a in self.obstacles:
                 a, b = b, a
-            if a in self.robot and b in self.obstacles and contact.dist < 0:
+            if a in self.robot and b in self.obstacles and contact.dist < CLEARANCE:
                 pairs.add((self.model.geom(a).name, self.model.geom(b).name))
         return sorted(pairs)
 
