@@ -65,7 +65,7 @@ def run_in_process(args: list[str], fragments: list[str]) -> str:
     def alarm(*_):
         raise TimeoutError("hang")
 
-    sys.argv = ["binpick", *args]
+    own, sys.argv = sys.argv, ["binpick", *args]
     out, err = io.StringIO(), io.StringIO()
     signal.signal(signal.SIGALRM, alarm)
     signal.alarm(TIMEOUT)
@@ -83,6 +83,7 @@ def run_in_process(args: list[str], fragments: list[str]) -> str:
         return "traceback"
     finally:
         signal.alarm(0)
+        sys.argv = own
     return outcome(code, err.getvalue(), fragments)
 
 

@@ -26,6 +26,7 @@ def peak_rss_mib() -> float:
 
 
 LOAD_AT_START = os.getloadavg()[0]  # the machine's load when this script started (its own work not yet in it)
+ARGV_AT_START = list(sys.argv)  # the script's command line (a benchmark that runs binpick's CLI in process rewrites sys.argv)
 
 
 CODE_AT_START: tuple[str | None, bool] | None = None  # (commit, dirty) when the script started: a commit made
@@ -49,7 +50,7 @@ def provenance() -> dict:
         CODE_AT_START = (git("rev-parse", "HEAD") or None, bool(git("status", "--porcelain", "--untracked-files=no")))
         DIGESTS_AT_START = input_digests()  # the weights it started with, not those a run ships at its end
     return {"commit": CODE_AT_START[0], "dirty": CODE_AT_START[1],
-            "command": " ".join([Path(sys.argv[0]).name if sys.argv else "python", *sys.argv[1:]]),
+            "command": " ".join([Path(ARGV_AT_START[0]).name if ARGV_AT_START else "python", *ARGV_AT_START[1:]]),
             "digests": DIGESTS_AT_START,
             "load_average_start": round(LOAD_AT_START, 2), "load_average_end": round(os.getloadavg()[0], 2),
             "utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
@@ -59,7 +60,7 @@ def input_digests() -> dict[str, str]:
     """SHA-256 (first 16 hex digits) of what a figure was measured with that the commit alone may not
     pin: every file named on the command line (configs, weights, data cards) and the weights binpick
     ships (an experiment loads them by default; a run can replace them without a commit)."""
-    files = [Path(arg) for arg in sys.argv[1:] if not arg.startswith("-")]
+    files = [Path(arg) for arg in ARGV_AT_START[1:] if not arg.startswith("-")]
     files = [f if f.is_absolute() else Path.cwd() / f for f in files]
     return input_digests_of(files + sorted((ROOT / "src" / "binpick").glob("*/weights/*.safetensors")))
 

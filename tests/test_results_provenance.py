@@ -24,3 +24,13 @@ def test_rows_a_run_changed_carry_its_provenance_and_kept_rows_keep_theirs(tmp_p
     _common.write_result("x", {**{k: v for k, v in written.items() if k not in ("benchmark", "machine")}, "old": 3})
     again = json.loads((tmp_path / "x.json").read_text())["provenance_by_row"]
     assert again == {"old": {"commit": "ccc"}, "new": {"commit": "bbb"}}  # re-measured; kept from the run that made it
+
+
+def test_the_command_recorded_is_the_script_s_own_when_it_runs_binpick_in_process(monkeypatch):
+    """A benchmark that runs binpick's CLI in its own process (the hostile-input one) rewrites sys.argv;
+    the row still names the command that measured it."""
+    import _common
+
+    monkeypatch.setattr(_common, "ARGV_AT_START", ["/x/benchmarks/hostile.py", "--only", "rl"])
+    monkeypatch.setattr(sys, "argv", ["binpick", "rl", "eval", "/tmp/corpus/run", "--episodes", "1"])
+    assert _common.provenance()["command"] == "hostile.py --only rl"
