@@ -252,6 +252,22 @@ def ros_latency(version: int, orders: int) -> dict:
             "placed": summary["placed"], "interfaces": summary["interfaces"]}
 
 
+def changes_onto_latest(started_with: dict, result: dict) -> dict:
+    """results/plan.json as it is now with this run's changes on it (rows, and a row's entries, that
+    differ from what the run started with): stages run side by side each add their own rows."""
+    same = lambda a, b: json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)  # noqa: E731
+    latest = load()
+    for key, value in result.items():
+        before = started_with.get(key)
+        if same(before, value):
+            continue
+        if isinstance(value, dict) and isinstance(before, dict) and isinstance(latest.get(key), dict):
+            latest[key] = {**latest[key], **{k: v for k, v in value.items() if not same(before.get(k), v)}}
+        else:
+            latest[key] = value
+    return latest
+
+
 def write(result: dict) -> None:
     _common.write_result("plan", {k: v for k, v in result.items() if k not in ("benchmark", "machine")})
     _common.write_section_of("plan", section, "plan.json")
@@ -380,6 +396,7 @@ def main() -> None:
     global GRIPPER
     GRIPPER = args.gripper
     result = load()
+    started_with = json.loads(json.dumps(result))
     by_sensor = result.setdefault("file_orders_by_sensor", {})
     if args.stage == "files":
         shifted = file_orders("shifted", args.orders, args.sensor) if args.orders else None
@@ -408,6 +425,7 @@ def main() -> None:
         result["latency_ms"] = {"api": api_latency(args.frames, args.sensor), "ros1": ros_latency(1, args.ros_orders),
                                 "ros2": ros_latency(2, args.ros_orders)}
     result[f"peak_rss_mib_{args.stage}"] = round(_common.peak_rss_mib(), 1)
+    result = changes_onto_latest(started_with, result)
     write(result)
     print(json.dumps({k: result[k] for k in result if k in ("file_orders", "file_orders_by_sensor", "single_copy", "latency_ms")}, indent=1))
 

@@ -34,3 +34,17 @@ def test_the_command_recorded_is_the_script_s_own_when_it_runs_binpick_in_proces
     monkeypatch.setattr(_common, "ARGV_AT_START", ["/x/benchmarks/hostile.py", "--only", "rl"])
     monkeypatch.setattr(sys, "argv", ["binpick", "rl", "eval", "/tmp/corpus/run", "--episodes", "1"])
     assert _common.provenance()["command"] == "hostile.py --only rl"
+
+
+def test_plan_stages_run_side_by_side_each_add_their_rows(tmp_path, monkeypatch):
+    """Two stages of experiments/plan.py started from the same file: the one that writes last keeps
+    what the other wrote (its rows, and its entries of a shared row) and adds its own."""
+    import _common
+    import plan
+
+    monkeypatch.setattr(_common, "RESULTS", tmp_path)
+    start = {"file_orders_by_sensor": {"perfect": 1, "realistic": 2}, "single_copy": 3}
+    (tmp_path / "plan.json").write_text(json.dumps({**start, "file_orders_by_sensor": {"perfect": 10, "realistic": 2}}))
+    mine = {"file_orders_by_sensor": {"perfect": 1, "realistic": 20}, "single_copy": 3, "latency_ms": 4}
+    merged = plan.changes_onto_latest(start, mine)
+    assert merged == {"file_orders_by_sensor": {"perfect": 10, "realistic": 20}, "single_copy": 3, "latency_ms": 4}
