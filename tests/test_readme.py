@@ -90,6 +90,8 @@ SKIPPED = {
     "python experiments/rod.py ship-best --candidates runs/rod_finetune_photo_learnt/<time>": "needs the cluster "
         "training above",
     "python experiments/pick.py --robot panda --orders 50": "a benchmark (100 orders with the arm); tests/test_arm.py runs one",
+    "binpick demo --robot panda --orders 2": "the demo's orders made by the arm (about half a minute an order here); "
+                                            "tests/test_arm.py runs one through the same pipeline, report included",
     "python experiments/grasp.py eval": "a benchmark (40 bins of held-out products, the shipped grasp model); "
                                        "tests/test_grasping.py runs its pieces",
 }
