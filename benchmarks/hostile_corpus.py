@@ -76,7 +76,8 @@ def make_corpus(root: Path) -> dict[str, str]:
     paths["transparent_png"] = root / "transparent.png"
     Image.fromarray(np.full((64, 64), 800, np.uint16)).save(root / "depth.png")
     paths["depth_png"] = root / "depth.png"
-    camera = {"image_width": 64, "image_height": 64, "camera_matrix": {"rows": 3, "cols": 3, "data": [60, 0, 32, 0, 60, 32, 0, 0, 1]}}
+    camera = {"image_width": 64, "image_height": 64, "camera_matrix": {"rows": 3, "cols": 3, "data": [60, 0, 32, 0, 60, 32, 0, 0, 1]},
+              "camera_to_base": {"translation": [0, 0, 0.8], "rotation": {"x": 1, "y": 0, "z": 0, "w": 0}}}  # 80 cm up, looking down
     put("camera.yaml", yaml.safe_dump(camera))
 
     # images: bombs, truncations, things that are not images
@@ -128,6 +129,9 @@ def make_corpus(root: Path) -> dict[str, str]:
                          ("far", np.array([[1, 0, 0, 5e3], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1.0]]))):
         camera_file(f"cam_{name}.yaml", camera_to_base={"matrix": matrix.ravel().tolist()})
     camera_file("cam_width_bool.yaml", image_width=True)
+    put("cam_no_pose.yaml", yaml.safe_dump({k: v for k, v in camera.items() if k != "camera_to_base"}))
+    camera_file("cam_looking_up.yaml", camera_to_base={"translation": [0, 0, 0.8], "rotation": [0, 0, 0, 1]})
+    camera_file("cam_rotation_unnamed.yaml", camera_to_base={"translation": [0, 0, 0.8], "rotation": {"w": 1, "i": 0, "j": 0, "k": 0}})
     camera_file("cam_workspace_huge.yaml", workspace={"min": [-1e6, 0, 0], "max": [1e6, 1, 1]})
     camera_file("cam_workspace_inverted.yaml", workspace={"min": [1, 1, 1], "max": [0, 0, 0]})
     put("cam_alias_bomb.yaml", yaml.safe_dump(camera) + alias_bomb())
@@ -311,6 +315,9 @@ CASES: list[tuple[str, list[str], list[str]]] = [
     ("frames", plan_with(camera="{cam_projective_yaml}"), ["0 0 0 1"]),
     ("frames", plan_with(camera="{cam_far_yaml}"), ["5e+03 m away"]),
     ("frames", plan_with(camera="{cam_width_bool_yaml}"), ["image_width"]),
+    ("frames", plan_with(camera="{cam_no_pose_yaml}"), ["cam_no_pose.yaml", "has no camera_to_base"]),
+    ("frames", plan_with(camera="{cam_looking_up_yaml}"), ["optical axis up"]),
+    ("frames", plan_with(camera="{cam_rotation_unnamed_yaml}"), ["rotation must name x, y, z and w"]),
     ("frames", plan_with(camera="{cam_workspace_huge_yaml}"), ["workspace spans more than"]),
     ("frames", plan_with(camera="{cam_workspace_inverted_yaml}"), ["workspace min"]),
     ("frames", plan_with(camera="{cam_alias_bomb_yaml}"), ["cam_alias_bomb.yaml", "aliases"]),

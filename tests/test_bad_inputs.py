@@ -183,11 +183,25 @@ def world(tmp_path_factory) -> dict[str, str]:
     depth_png("depth_zero.png", np.zeros((64, 64)))
     np.save(root / "depth_in_mm.npy", np.full((64, 64), 800.0, np.float32))  # millimetres given as metres
     paths["depth_in_mm_npy"] = root / "depth_in_mm.npy"
-    camera = {"image_width": 64, "image_height": 64, "camera_matrix": {"rows": 3, "cols": 3, "data": [60, 0, 32, 0, 60, 32, 0, 0, 1]}}
+    unposed = {"image_width": 64, "image_height": 64, "camera_matrix": {"rows": 3, "cols": 3, "data": [60, 0, 32, 0, 60, 32, 0, 0, 1]}}
+    down = {"translation": [0, 0, 0.8], "rotation": {"x": 1, "y": 0, "z": 0, "w": 0}}  # 80 cm above the table, looking down
+    camera = unposed | {"camera_to_base": down}
     put("camera.yaml", yaml.safe_dump(camera))
+    put("camera_no_pose.yaml", yaml.safe_dump(unposed))
+    put("camera_looking_up.yaml", yaml.safe_dump(unposed | {"camera_to_base": {"translation": [0, 0, 0.8], "rotation": [0, 0, 0, 1]}}))
+    # a camera tilted 25 degrees from straight down (about its x axis) over a level floor, its quaternion
+    # then written w, x, y, z: read as x, y, z, w the floor comes out steep
+    tilted = [float(np.sin(np.radians(102.5))), 0.0, 0.0, float(np.cos(np.radians(102.5)))]  # x, y, z, w
+    angle = np.radians(205.0)
+    rotation = np.array([[1, 0, 0], [0, np.cos(angle), -np.sin(angle)], [0, np.sin(angle), np.cos(angle)]])
+    v, u = np.mgrid[0:64, 0:64]
+    rays = np.stack([(u - 32) / 60, (v - 32) / 60, np.ones((64, 64))], axis=-1) @ rotation.T
+    depth_png("depth_tilted.png", np.clip(1000 * 0.8 / -rays[..., 2], 0, 5000))  # mm along the optical axis
+    put("camera_w_first.yaml", yaml.safe_dump(unposed | {"camera_to_base": {"translation": [0, 0, 0.8], "rotation": [tilted[3], *tilted[:3]]}}))
+    put("camera_rotation_unnamed.yaml", yaml.safe_dump(unposed | {"camera_to_base": {"translation": [0, 0, 0.8], "rotation": {"a": 1, "b": 0, "c": 0, "d": 0}}}))
     put("camera_no_k.yaml", yaml.safe_dump({"image_width": 64, "image_height": 64}))
     put("camera_640.yaml", yaml.safe_dump(camera | {"image_width": 640, "image_height": 480}))
-    put("camera_bad_rotation.yaml", yaml.safe_dump(camera | {"camera_to_base": {"translation": [0, 0, 1], "rotation": [0, 0, 0, 0]}}))
+    put("camera_bad_rotation.yaml", yaml.safe_dump(unposed | {"camera_to_base": {"translation": [0, 0, 1], "rotation": [0, 0, 0, 0]}}))
 
     # products files
     put("products_bad_number.yaml", "products:\n  - {id: a/b, category: c, mesh: box.obj, longest_side: abc}\n")
@@ -270,6 +284,14 @@ CASES: list[tuple[list[str], list[str]]] = [
      ["calibration is for 640x480 images", "64x64"]),
     (["plan", "--rgb", "{scene_png}", "--depth", "{depth_mm_png}", "--camera", "{camera_bad_rotation_yaml}", "--photo", "{scene_png}"],
      ["camera_to_base.rotation", "non-zero quaternion"]),
+    (["plan", "--rgb", "{scene_png}", "--depth", "{depth_mm_png}", "--camera", "{camera_no_pose_yaml}", "--photo", "{scene_png}"],
+     ["camera_no_pose.yaml", "has no camera_to_base"]),
+    (["plan", "--rgb", "{scene_png}", "--depth", "{depth_mm_png}", "--camera", "{camera_looking_up_yaml}", "--photo", "{scene_png}"],
+     ["optical axis up"]),
+    (["plan", "--rgb", "{scene_png}", "--depth", "{depth_tilted_png}", "--camera", "{camera_w_first_yaml}", "--photo", "{scene_png}"],
+     ["degrees from level", "x, y, z, w"]),
+    (["plan", "--rgb", "{scene_png}", "--depth", "{depth_mm_png}", "--camera", "{camera_rotation_unnamed_yaml}", "--photo", "{scene_png}"],
+     ["camera_to_base.rotation must name x, y, z and w"]),
     (["plan", "--rgb", "{scene_png}", "--depth", "{depth_mm_png}", "--camera", "{camera_yaml}", "--query-box", "50,50,30,30"],
      ["--query-box", "outside the 64x64"]),
     (["plan", "--rgb", "{scene_png}", "--depth", "{depth_mm_png}", "--camera", "{camera_yaml}", "--photo", "{scene_png}", "--product-size", "0.1,0.2"],

@@ -195,7 +195,8 @@ def test_a_workspace_in_camera_yaml_rejects_grasps_outside_it(tmp_path):
 
     inside = read_camera_info(SAMPLE_FRAME / "camera.yaml")
     far_away = read_camera_info(sample_camera(tmp_path, lambda d: d.update(workspace={"min": [5.0, 5.0, 0.0], "max": [6.0, 6.0, 1.0]})))
-    assert far_away.workspace == Workspace((5.0, 5.0, 0.0), (6.0, 6.0, 1.0)) and inside.workspace is None
+    assert far_away.workspace == Workspace((5.0, 5.0, 0.0), (6.0, 6.0, 1.0))
+    assert inside.workspace == Workspace((-0.25, -0.2, 0.0), (0.25, 0.2, 0.45))  # the sample frame's tote
     from binpick.depth import read_depth
     from binpick.detection.data import read_image
 
@@ -203,7 +204,7 @@ def test_a_workspace_in_camera_yaml_rejects_grasps_outside_it(tmp_path):
     box = [393, 279, 93, 59]  # the README's pointed instance
     picker = Picker.load(grasp="analytic")
     planned = picker.plan(rgb, depth, inside, query_box=box, max_grasps=1)
-    assert planned.grasps and all(Workspace.around_view(inside.camera).contains(p.position) for p in planned.grasps)
+    assert planned.grasps and all(inside.workspace.contains(p.position) for p in planned.grasps)
     refused = picker.plan(rgb, depth, far_away, query_box=box, max_grasps=1)
     assert not refused.grasps and refused[0].rejected.get(OUTSIDE) == 1  # the reason travels with the plan
     with pytest.raises(InputFileError, match="workspace"):

@@ -2,12 +2,18 @@
 YAML (``camera_calibration_parsers`` layout: image_width, image_height, camera_matrix,
 distortion_model, distortion_coefficients) plus binpick's one addition, ``camera_to_base``: where the
 camera's optical frame (x right, y down, z forward) sits in the robot's base frame, from hand-eye
-calibration. Distorted images are rectified before planning, so everything downstream is pinhole.
+calibration. Every grasp is given in that frame, so the file must have it (one line says so when it
+has not), and the planner checks it against the camera's own depth before planning
+(:mod:`binpick.picking.pose_check`). Distorted images are rectified before planning, so everything
+downstream is pinhole.
 
     camera_to_base:
       base_frame: base_link
-      translation: [0.0, 0.0, 0.8]      # metres
-      rotation: [1.0, 0.0, 0.0, 0.0]    # quaternion x, y, z, w (this one: looking straight down)
+      translation: [0.0, 0.0, 0.8]                   # metres
+      rotation: {x: 1.0, y: 0.0, z: 0.0, w: 0.0}     # quaternion, its order named (this one: looking straight down)
+
+``rotation`` may also be a list, read in ROS's order x, y, z, w (as ``geometry_msgs/Quaternion``);
+binpick writes the named form, which cannot be read in the wrong order.
 """
 
 from __future__ import annotations
@@ -136,7 +142,7 @@ class CameraInfo:
                 "rectification_matrix": {"rows": 3, "cols": 3, "data": np.eye(3).ravel().tolist()},
                 "projection_matrix": {"rows": 3, "cols": 4, "data": P},
                 "camera_to_base": {"base_frame": self.base_frame, "translation": pose[:3, 3].round(6).tolist(),
-                                   "rotation": [round(v, 8) for v in matrix_to_quaternion(pose[:3, :3])]},
+                                   "rotation": dict(zip("xyzw", (round(v, 8) for v in matrix_to_quaternion(pose[:3, :3]))))},
                 **({"workspace": self.workspace.to_mapping()} if self.workspace is not None else {})}
 
 
@@ -157,9 +163,21 @@ def _numbers(data: dict, key: str, count: int | None, where: str) -> np.ndarray:
     return array
 
 
+def _rotation(value, where: str) -> np.ndarray:
+    """camera_to_base's quaternion: ``{x, y, z, w}`` (its order named) or a list in ROS's order x, y, z, w."""
+    if isinstance(value, dict):
+        if set(value) != set("xyzw"):
+            raise InputFileError(f"camera file {where}: camera_to_base.rotation must name x, y, z and w, got "
+                                 f"{sorted(map(str, value))}")
+        value = [value[k] for k in "xyzw"]
+    if value is None:
+        raise InputFileError(f"camera file {where}: camera_to_base has no rotation (a quaternion {{x, y, z, w}})")
+    return _numbers({"rotation": value}, "rotation", 4, where)
+
+
 def read_camera_info(path: str | Path) -> CameraInfo:
-    """A ``camera_info`` YAML file with an optional ``camera_to_base`` (default: the camera is the
-    base frame). Anything missing or malformed is one line naming the field."""
+    """A ``camera_info`` YAML file with its ``camera_to_base``. Anything missing or malformed is one
+    line naming the field."""
     from binpick.core.files import read_yaml
 
     where = repr(str(path))
@@ -175,15 +193,18 @@ def read_camera_info(path: str | Path) -> CameraInfo:
     pose = np.eye(4)
     base_frame = "base_link"
     extrinsic = data.get("camera_to_base")
-    if extrinsic is not None:
-        if not isinstance(extrinsic, dict):
-            raise InputFileError(f"camera file {where}: camera_to_base must be a mapping with translation and rotation")
-        if "matrix" in extrinsic:
-            pose = _numbers(extrinsic, "matrix", 16, where).reshape(4, 4)
-        else:
-            pose[:3, 3] = _numbers(extrinsic, "translation", 3, where)
-            pose[:3, :3] = quaternion_to_matrix(_numbers(extrinsic, "rotation", 4, where))
-        base_frame = str(extrinsic.get("base_frame", base_frame))
+    if extrinsic is None:
+        raise InputFileError(f"camera file {where} has no camera_to_base: the camera's pose in the robot's base frame, in "
+                             "which every grasp is given (from hand-eye calibration: translation [x, y, z] in metres, "
+                             "rotation {x, y, z, w})")
+    if not isinstance(extrinsic, dict):
+        raise InputFileError(f"camera file {where}: camera_to_base must be a mapping with translation and rotation")
+    if "matrix" in extrinsic:
+        pose = _numbers(extrinsic, "matrix", 16, where).reshape(4, 4)
+    else:
+        pose[:3, 3] = _numbers(extrinsic, "translation", 3, where)
+        pose[:3, :3] = quaternion_to_matrix(_rotation(extrinsic.get("rotation"), where))
+    base_frame = str(extrinsic.get("base_frame", base_frame))
     try:
         info = CameraInfo.from_ros(K, D, data["image_width"], data["image_height"], pose, model, base_frame)
         if data.get("workspace") is not None:

@@ -50,6 +50,7 @@ from binpick.picking.plans import (  # noqa: F401  (moved there; imported from h
     jaw_pixels,
     larger_than,
 )
+from binpick.picking.pose_check import check_camera_pose
 from binpick.picking.workspace import OUTSIDE, Workspace
 
 VERIFIERS = ("learnt", "colour")
@@ -398,6 +399,7 @@ class Picker:
             query_box = None if query_box is None else np.asarray(query_box, dtype=float) * scale
             boxes = None if boxes is None else (np.asarray(boxes[0], dtype=float).reshape(-1, 4) * scale, boxes[1])
         frame = self.grasp.frame(depth, info.camera)  # once per frame: holes filled, support plane found
+        check_camera_pose(frame, self.workspace or info.workspace)  # a pose its own depth contradicts: one line, no plan
         workspace = self.workspace or info.workspace or Workspace.around_view(info.camera)
         timing["depth"] = 1000 * (time.perf_counter() - started)
         pointed = None
