@@ -135,11 +135,12 @@ def training_scalars(run: Path, *tags: str, optional: tuple[str, ...] = ()) -> d
 ROW_SKIP = ("benchmark", "machine", "provenance", "provenance_by_row")
 
 
-def write_result(name: str, payload: dict) -> Path:
+def write_result(name: str, payload: dict, measured: set[str] | frozenset[str] = frozenset()) -> Path:
     """results/NAME.json: the payload, the machine and this run's provenance; and per top-level row
     (``provenance_by_row``) the provenance of the run that measured it: this run's for the rows it
-    changed, the earlier one for rows it kept as they were, so a row measured on older code than its
-    neighbours says so."""
+    changed and the rows it names as ``measured`` (measured again, perhaps to the same figures), the
+    earlier one for rows it kept as they were, so a row measured on older code than its neighbours
+    says so."""
     from binpick.core.files import atomic_write_text
 
     path = RESULTS / f"{name}.json"
@@ -156,7 +157,7 @@ def write_result(name: str, payload: dict) -> Path:
     for key, value in payload.items():
         if key in ROW_SKIP:
             continue
-        kept = key in previous and json.dumps(previous[key], sort_keys=True) == json.dumps(value, sort_keys=True)
+        kept = key not in measured and key in previous and json.dumps(previous[key], sort_keys=True) == json.dumps(value, sort_keys=True)
         by_row[key] = earlier.get(key, {"commit": None, "note": "measured before results recorded provenance"}) if kept else now
     body = {key: value for key, value in payload.items() if key not in ROW_SKIP}
     return atomic_write_text(path, json.dumps({"benchmark": name, "machine": machine(), **body, "provenance": now,

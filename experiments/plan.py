@@ -268,8 +268,15 @@ def changes_onto_latest(started_with: dict, result: dict) -> dict:
     return latest
 
 
-def write(result: dict) -> None:
-    _common.write_result("plan", {k: v for k, v in result.items() if k not in ("benchmark", "machine")})
+STAGE_ROWS = {"files": {"file_orders", "file_orders_by_domain", "file_orders_by_sensor", "peak_rss_mib_files"},
+              "single": {"single_copy_by_sensor", "single_copy", "peak_rss_mib_single"},
+              "sim": {"sim_orders", "peak_rss_mib_sim"}, "latency": {"latency_ms", "peak_rss_mib_latency"}}
+
+
+def write(result: dict, measured: set[str] | frozenset[str] = frozenset()) -> None:
+    """results/plan.json and its page section; ``measured``: the rows this run measured (their provenance
+    is this run's even where the figures came out the same)."""
+    _common.write_result("plan", {k: v for k, v in result.items() if k not in ("benchmark", "machine")}, measured)
     _common.write_section_of("plan", section, "plan.json")
 
 
@@ -426,7 +433,7 @@ def main() -> None:
                                 "ros2": ros_latency(2, args.ros_orders)}
     result[f"peak_rss_mib_{args.stage}"] = round(_common.peak_rss_mib(), 1)
     result = changes_onto_latest(started_with, result)
-    write(result)
+    write(result, STAGE_ROWS[args.stage])
     print(json.dumps({k: result[k] for k in result if k in ("file_orders", "file_orders_by_sensor", "single_copy", "latency_ms")}, indent=1))
 
 

@@ -24,6 +24,9 @@ def test_rows_a_run_changed_carry_its_provenance_and_kept_rows_keep_theirs(tmp_p
     _common.write_result("x", {**{k: v for k, v in written.items() if k not in ("benchmark", "machine")}, "old": 3})
     again = json.loads((tmp_path / "x.json").read_text())["provenance_by_row"]
     assert again == {"old": {"commit": "ccc"}, "new": {"commit": "bbb"}}  # re-measured; kept from the run that made it
+    monkeypatch.setattr(_common, "provenance", lambda: {"commit": "ddd"})
+    _common.write_result("x", {"old": 3, "new": 2}, measured={"new"})  # measured again, to the same figure
+    assert json.loads((tmp_path / "x.json").read_text())["provenance_by_row"] == {"old": {"commit": "ccc"}, "new": {"commit": "ddd"}}
 
 
 def test_the_command_recorded_is_the_script_s_own_when_it_runs_binpick_in_process(monkeypatch):
