@@ -82,6 +82,41 @@ def pick(
     _fulfil(PickPipeline(model, library, grasp=planner, robot=robot, gripper=gripper), products, orders, seed, run_dir, rerun)
 
 
+@app.command("cell")
+def cell(
+    frame: Annotated[Path, typer.Option(help="A frame folder: rgb.png, depth.png and camera.yaml (with camera_to_base), "
+                                             "the tote in view with its walls")],
+    wall_above: Annotated[float, typer.Option(help="The tote's walls stand at least this far above its floor (m)")] = 0.06,
+    above: Annotated[float, typer.Option(help="The workspace reaches this far above the tote's floor (m)")] = 0.45,
+) -> None:
+    """Find the tote in one depth frame (its floor, the rim of its walls, the rectangle inside them, in
+    the robot's base frame) and write the workspace round it into the frame's camera.yaml."""
+    import yaml
+
+    from binpick.core.config import check_range
+    from binpick.core.files import atomic_write_text, read_yaml
+    from binpick.picking.frames import read_frame
+    from binpick.picking.tote import tote_in_frame
+
+    check_range("--wall-above", wall_above, 0.01, 1.0)
+    check_range("--above", above, 0.05, 2.0)
+    files = {name: frame / name for name in ("rgb.png", "depth.png", "camera.yaml")}
+    missing = [name for name, path in files.items() if not path.is_file()]
+    if missing:
+        raise ConfigError(f"--frame {str(frame)!r} has no {', '.join(missing)} (a frame folder as `binpick data export` writes)")
+    rgb, depth, info = read_frame(files["rgb.png"], files["depth.png"], files["camera.yaml"])
+    tote = tote_in_frame(rgb, depth, info, wall_above)
+    workspace = tote.workspace(above)
+    camera = read_yaml(files["camera.yaml"], "camera file")
+    camera["workspace"] = {key: [round(v, 4) for v in value] for key, value in workspace.to_mapping().items()}
+    atomic_write_text(files["camera.yaml"], yaml.safe_dump(camera, sort_keys=False, default_flow_style=None))
+    atomic_write_text(frame / "tote.yaml", yaml.safe_dump(tote.to_mapping(), sort_keys=False, default_flow_style=None))
+    (x, y), (length, width) = tote.centre, tote.size
+    console.print(f"tote: inside {length * 100:.1f} x {width * 100:.1f} cm, centre ({x:.3f}, {y:.3f}) m, turned "
+                  f"{tote.to_mapping()['yaw_degrees']:g} deg, floor at z = {tote.floor_z:.3f} m, walls {tote.wall_height * 100:.1f} cm")
+    console.print(f"workspace written to {files['camera.yaml']}: min {camera['workspace']['min']} max {camera['workspace']['max']}")
+
+
 @app.command("plan")
 def plan(
     rgb: Annotated[Path | None, typer.Option(help="Colour image (PNG/JPEG), registered with the depth image")] = None,
