@@ -214,6 +214,8 @@ def world(tmp_path_factory) -> dict[str, str]:
 CASES: list[tuple[list[str], list[str]]] = [
     # usage errors: Click's, printed as one line
     (["envs", "list", "--bogus"], ["No such option: --bogus"]),
+    (["cell", "--frame", "{root}"], ["has no rgb.png, depth.png", "binpick data export"]),
+    (["cell", "--frame", "{root}", "--wall-above", "5"], ["--wall-above", "5"]),
     (["products", "list", "--products", "{latin1_yaml}"], ["latin1.yaml", "not UTF-8"]),
     (["products", "list", "--products", "{products_no_mesh_yaml}"], ["missing.obj", "does not exist"]),
     (["pick", "--product", "sofa", "--out", "{root}/picks"], ["unknown product or category 'sofa'"]),
