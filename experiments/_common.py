@@ -29,6 +29,7 @@ LOAD_AT_START = os.getloadavg()[0]  # the machine's load when this script starte
 ARGV_AT_START = list(sys.argv)  # the script's command line (a benchmark that runs binpick's CLI in process rewrites sys.argv)
 
 
+GENERATED = ("results", "docs/RESULTS.md", "README.md")  # what the benchmarks write: no change to the code they measure
 CODE_AT_START: tuple[str | None, bool] | None = None  # (commit, dirty) when the script started: a commit made
 # while it ran is not what it measured
 DIGESTS_AT_START: dict[str, str] = {}
@@ -47,7 +48,9 @@ def provenance() -> dict:
 
     global CODE_AT_START, DIGESTS_AT_START
     if CODE_AT_START is None:
-        CODE_AT_START = (git("rev-parse", "HEAD") or None, bool(git("status", "--porcelain", "--untracked-files=no")))
+        # changes to what runs, not to what runs write (results, the page and README tables they regenerate)
+        changed = git("status", "--porcelain", "--untracked-files=no", "--", ".", *(f":(exclude){p}" for p in GENERATED))
+        CODE_AT_START = (git("rev-parse", "HEAD") or None, bool(changed))
         DIGESTS_AT_START = input_digests()  # the weights it started with, not those a run ships at its end
     return {"commit": CODE_AT_START[0], "dirty": CODE_AT_START[1],
             "command": " ".join([Path(ARGV_AT_START[0]).name if ARGV_AT_START else "python", *ARGV_AT_START[1:]]),
