@@ -261,16 +261,12 @@ def changes_onto_latest(started_with: dict, result: dict) -> dict:
         before = started_with.get(key)
         if same(before, value):
             continue
-        if isinstance(value, dict) and isinstance(before, dict) and isinstance(latest.get(key), dict):
+        if isinstance(value, dict) and isinstance(before, dict | None) and isinstance(latest.get(key), dict):
+            before = before or {}  # a row another stage made meanwhile keeps its entries
             latest[key] = {**latest[key], **{k: v for k, v in value.items() if not same(before.get(k), v)}}
         else:
             latest[key] = value
     return latest
-
-
-STAGE_ROWS = {"files": {"file_orders", "file_orders_by_domain", "file_orders_by_sensor", "peak_rss_mib_files"},
-              "single": {"single_copy_by_sensor", "single_copy", "peak_rss_mib_single"},
-              "sim": {"sim_orders", "peak_rss_mib_sim"}, "latency": {"latency_ms", "peak_rss_mib_latency"}}
 
 
 def write(result: dict, measured: set[str] | frozenset[str] = frozenset()) -> None:
@@ -404,11 +400,14 @@ def main() -> None:
     GRIPPER = args.gripper
     result = load()
     started_with = json.loads(json.dumps(result))
-    by_sensor = result.setdefault("file_orders_by_sensor", {})
+    measured = {f"peak_rss_mib_{args.stage}"}  # the rows this run measures (its provenance, even for the same figures)
     if args.stage == "files":
+        by_sensor = result.setdefault("file_orders_by_sensor", {})
+        measured.add("file_orders_by_sensor")
         shifted = file_orders("shifted", args.orders, args.sensor) if args.orders else None
         default = file_orders("default", args.default_orders, args.sensor) if args.default_orders else None
         if args.sensor == "perfect":
+            measured |= {"file_orders_by_domain"} | ({"file_orders"} if shifted is not None else set())
             if shifted is not None:
                 result["file_orders"] = shifted
                 result.setdefault("file_orders_by_domain", {})["shifted"] = shifted
@@ -425,15 +424,19 @@ def main() -> None:
             f"_copies{args.copies_from_match:g}" if args.copies_from_match is not None else "") + (
             f"_check{args.check:g}" if args.check is not None else "")
         result.setdefault("sim_orders", {})[label] = sim_orders(args.domain, args.orders, args.sensor, **options)
+        measured.add("sim_orders")
     elif args.stage == "single":
         result.setdefault("single_copy_by_sensor", {})[args.sensor] = single_copy(args.orders, args.sensor)
         result["single_copy"] = result["single_copy_by_sensor"].get("realistic") or result["single_copy_by_sensor"][args.sensor]
+        measured |= {"single_copy_by_sensor"} | ({"single_copy"} if args.sensor == "realistic" or "realistic" not in
+                                                  result["single_copy_by_sensor"] else set())
     else:
         result["latency_ms"] = {"api": api_latency(args.frames, args.sensor), "ros1": ros_latency(1, args.ros_orders),
                                 "ros2": ros_latency(2, args.ros_orders)}
+        measured.add("latency_ms")
     result[f"peak_rss_mib_{args.stage}"] = round(_common.peak_rss_mib(), 1)
     result = changes_onto_latest(started_with, result)
-    write(result, STAGE_ROWS[args.stage])
+    write(result, measured)
     print(json.dumps({k: result[k] for k in result if k in ("file_orders", "file_orders_by_sensor", "single_copy", "latency_ms")}, indent=1))
 
 

@@ -189,10 +189,10 @@ def world(tmp_path_factory) -> dict[str, str]:
     put("camera.yaml", yaml.safe_dump(camera))
     put("camera_no_pose.yaml", yaml.safe_dump(unposed))
     put("camera_looking_up.yaml", yaml.safe_dump(unposed | {"camera_to_base": {"translation": [0, 0, 0.8], "rotation": [0, 0, 0, 1]}}))
-    # a camera tilted 25 degrees from straight down (about its x axis) over a level floor, its quaternion
+    # a camera tilted 20 degrees from straight down (about its x axis) over a level floor, its quaternion
     # then written w, x, y, z: read as x, y, z, w the floor comes out steep
-    tilted = [float(np.sin(np.radians(102.5))), 0.0, 0.0, float(np.cos(np.radians(102.5)))]  # x, y, z, w
-    angle = np.radians(205.0)
+    tilted = [float(np.sin(np.radians(100.0))), 0.0, 0.0, float(np.cos(np.radians(100.0)))]  # x, y, z, w
+    angle = np.radians(200.0)
     rotation = np.array([[1, 0, 0], [0, np.cos(angle), -np.sin(angle)], [0, np.sin(angle), np.cos(angle)]])
     v, u = np.mgrid[0:64, 0:64]
     rays = np.stack([(u - 32) / 60, (v - 32) / 60, np.ones((64, 64))], axis=-1) @ rotation.T
@@ -304,6 +304,7 @@ CASES: list[tuple[list[str], list[str]]] = [
      ["colour image", "fake.png"]),
     (["ros", "pick-node", "--colour-topic", "camera colour"], ["--colour-topic must be a ROS graph name"]),
     (["ros", "pick-node", "--camera", "{camera_no_k_yaml}", "--master", "http://127.0.0.1:0/"], ["camera_no_k.yaml", "has no camera_matrix"]),
+    (["ros", "pick-node", "--master", "http://127.0.0.1:0/"], ["a pick node needs --camera camera.yaml with camera_to_base"]),
     (["ros2", "pick-node"], ["ROS 2 is not importable here", ".venv-ros2/bin/binpick"]),
     (["data", "export", "{root}", "--out", "{root}/export"], ["is not a binpick data set"]),
     (["data", "export", "{bins_24}", "--scene", "99", "--out", "{root}/export"], ["scene 99 is not in"]),

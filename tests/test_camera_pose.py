@@ -61,3 +61,34 @@ def test_a_camera_looking_up_or_a_floor_below_the_base_is_refused():
     check_camera_pose(frame(low, believed), Workspace((-0.5, -0.5, -0.6), (0.5, 0.5, 0.0)))  # ... declared: fine
     with pytest.raises(InputFileError, match="outside the workspace's heights"):
         check_camera_pose(frame(depth, pose(down, AT)), Workspace((-0.5, -0.5, 0.3), (0.5, 0.5, 0.8)))
+
+
+def test_a_w_first_quaternion_is_refused_wherever_it_tilts_the_floor_past_the_limit():
+    """Cameras tilted 10-40 degrees from straight down, turned 0-135 degrees about the vertical: read
+    w-first, every pose whose misread puts the floor more than 14 degrees off level (or the camera
+    looking up) is refused, steeper than the planner's own plane fit takes included; read right, none is."""
+    refused = 0
+    for tilt in (10.0, 20.0, 30.0, 40.0):
+        for turn in (0.0, 45.0, 90.0, 135.0):
+            t, u = np.radians(tilt), np.radians(turn)
+            down = np.diag([1.0, -1.0, -1.0])  # straight down
+            about_x = np.array([[1, 0, 0], [0, np.cos(t), -np.sin(t)], [0, np.sin(t), np.cos(t)]])
+            about_z = np.array([[np.cos(u), -np.sin(u), 0], [np.sin(u), np.cos(u), 0], [0, 0, 1]])
+            from binpick.picking.camera_info import matrix_to_quaternion
+
+            rotation = about_z @ about_x @ down
+            quaternion = matrix_to_quaternion(rotation)  # x, y, z, w
+            true_pose = np.eye(4)
+            true_pose[:3, :3], true_pose[:3, 3] = rotation, AT
+            depth = floor_seen_by(true_pose)
+            check_camera_pose(frame(depth, true_pose))  # read right: nothing to say
+            wrong = pose([quaternion[3], *quaternion[:3]], AT)
+            normal = wrong[:3, :3] @ rotation.T @ np.array([0.0, 0.0, 1.0])  # the floor's normal as the misread places it
+            apparent = np.degrees(np.arccos(min(1.0, abs(normal[2]))))
+            try:
+                check_camera_pose(frame(depth, wrong))
+            except InputFileError:
+                refused += 1
+                continue
+            assert apparent <= 14.0 and wrong[2, 2] < 0, (tilt, turn, apparent)  # only a misread that leaves it near level passes
+    assert refused >= 14, refused  # 15 of the 16 (the 10-degree camera facing the base: its floor comes out 10 degrees off)

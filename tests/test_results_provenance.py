@@ -51,3 +51,12 @@ def test_plan_stages_run_side_by_side_each_add_their_rows(tmp_path, monkeypatch)
     mine = {"file_orders_by_sensor": {"perfect": 1, "realistic": 20}, "single_copy": 3, "latency_ms": 4}
     merged = plan.changes_onto_latest(start, mine)
     assert merged == {"file_orders_by_sensor": {"perfect": 10, "realistic": 20}, "single_copy": 3, "latency_ms": 4}
+
+
+def test_a_stage_keeps_a_row_another_stage_made_after_it_started(tmp_path, monkeypatch):
+    import _common
+    import plan
+
+    monkeypatch.setattr(_common, "RESULTS", tmp_path)
+    (tmp_path / "plan.json").write_text(json.dumps({"sim_orders": {"b": 2}}))  # made by a stage that ended meanwhile
+    assert plan.changes_onto_latest({}, {"sim_orders": {"a": 1}}) == {"sim_orders": {"b": 2, "a": 1}}

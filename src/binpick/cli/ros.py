@@ -145,19 +145,18 @@ COLOUR, DEPTH, INFO = "/camera/color/image_raw", "/camera/aligned_depth_to_color
 
 def _pick_node_setup(camera: Path | None, namespace: str, colour: str, depth: str, info: str, weights: Path | None, grasp: str,
                      grasp_weights: Path | None, runtime: str = "torch", robot: str = "floating", gripper: str = "both"):
-    """Checked names, then the extrinsic (a camera.yaml's camera_to_base; identity without one), the
-    picker and the topics: everything a pick node needs before ROS starts."""
-    import numpy as np
-
+    """Checked names, then the extrinsic (camera.yaml's camera_to_base: every grasp is given in the base
+    frame), the picker and the topics: everything a pick node needs before ROS starts."""
     from binpick.picking import Picker, read_camera_info
     from binpick.picking.node import Topics
 
     for name, option in ((namespace, "--namespace"), (colour, "--colour-topic"), (depth, "--depth-topic"), (info, "--info-topic")):
         _check_namespace(name, option)
-    pose, frame, workspace = np.eye(4), "camera", None
-    if camera is not None:
-        calibration = read_camera_info(camera)
-        pose, frame, workspace = calibration.camera.camera_to_world, calibration.base_frame, calibration.workspace
+    if camera is None:
+        raise ConfigError("a pick node needs --camera camera.yaml with camera_to_base (the camera's pose in the robot's "
+                          "base frame, in which every grasp is given; the camera_info topic brings the intrinsics)")
+    calibration = read_camera_info(camera)
+    pose, frame, workspace = calibration.camera.camera_to_world, calibration.base_frame, calibration.workspace
     # the camera_info topic brings K and D; camera.yaml's workspace bounds every pose the node emits
     reach = None
     if robot == "panda":  # grasps the arm cannot take are rejected in the result, with the reason

@@ -6,8 +6,11 @@ walls stand out of it by more than ``wall_above``; everything the camera sees in
 lower (the floor, the products lying on it, the walls' inner faces below that height) is one region
 of the image, bounded by the walls' tops, and that region is found from the floor's visible pixels.
 With the walls' pixels next to it (their inner edges: a tilted camera sees the near wall's top, not
-its face), its points' minimum-area rectangle, each side at its twentieth outermost point (flying
-pixels and noise at the walls' edges left out), is the tote's inner rectangle.
+its face), its points' minimum-area rectangle, each side at its 21st outermost point (the 20 beyond it,
+flying pixels and noise at the walls' edges, left out), is the tote's inner rectangle. The camera's pose is
+checked first (:mod:`binpick.picking.pose_check`; a tote lower than the base is what this measures,
+so only the view and the floor's level): a workspace measured with a wrong pose would surround the
+wrong place.
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from binpick.core.errors import InputFileError
+from binpick.picking.pose_check import check_camera_pose
 from binpick.picking.workspace import Workspace
 
 WALL_ABOVE = 0.06  # m: a tote's walls stand at least this far above its floor (products may be taller: they are inside)
@@ -78,7 +82,10 @@ def find_tote(frame, wall_above: float = WALL_ABOVE) -> Tote:
     floor = (np.abs(heights) < ON_FLOOR) & frame.valid
     votes = np.bincount(labels[floor], minlength=count)
     votes[0] = 0  # the walls' own label
-    inside = labels == int(np.argmax(votes))
+    border = np.unique(np.concatenate([labels[0, :], labels[-1, :], labels[:, 0], labels[:, -1]]))
+    enclosed = votes.copy()
+    enclosed[border] = 0  # the table round the tote reaches the image's edges; the tote's inside does not
+    inside = labels == int(np.argmax(enclosed if enclosed.any() else votes))
     edges = {"top": inside[0, :], "bottom": inside[-1, :], "left": inside[:, 0], "right": inside[:, -1]}
     cut = [name for name, edge in edges.items() if edge.mean() > EDGE_SHARE]
     if cut:
@@ -97,8 +104,11 @@ def find_tote(frame, wall_above: float = WALL_ABOVE) -> Tote:
     low, high = ordered[min(OUTLIERS, len(ordered) - 1)], ordered[max(len(ordered) - 1 - OUTLIERS, 0)]
     # a wall whose face the camera cannot see (the near one, tilted camera) and beside which the sensor reads no
     # floor (a projector's shadow) leaves the inside short of it: its top's inner edge says where its face is
-    wall_height = float(np.percentile(heights[walls & frame.valid & np.isfinite(heights)], 95))  # the walls' tops (their
-    # faces are lower: a low camera sees much of them)
+    near_inside = walls & frame.valid & np.isfinite(heights) & (cv2.dilate(inside.astype(np.uint8), np.ones((15, 15), np.uint8)) > 0)
+    if not near_inside.any():
+        raise InputFileError("no tote walls round the floor in this depth frame: nothing stands out of the floor next to it")
+    wall_height = float(np.percentile(heights[near_inside], 95))  # the tops of the walls round the inside (their faces are
+    # lower: a low camera sees much of them; what stands elsewhere, the arm or a shelf, is not a wall)
     tops = frame.points[walls & frame.valid & (np.abs(heights - wall_height) < TOP_BAND)][:, :2]
     tops = (tops[np.isfinite(tops).all(axis=1)] - [cx, cy]) @ np.array([[c, -s], [s, c]])
     for axis in (0, 1):
@@ -135,4 +145,6 @@ def tote_in_frame(rgb: np.ndarray, depth: np.ndarray, info, wall_above: float = 
     else:
         depth = register_depth(np.asarray(depth), np.asarray(rgb).shape[:2])
     _, depth = info.rectify(np.asarray(rgb), np.asarray(depth, dtype=np.float32))
-    return find_tote(DepthFrame.from_depth(depth, info.camera), wall_above)
+    frame = DepthFrame.from_depth(depth, info.camera)
+    check_camera_pose(frame, heights=False)  # a tote measured with a wrong pose would put the workspace round the wrong place
+    return find_tote(frame, wall_above)
