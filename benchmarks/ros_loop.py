@@ -445,8 +445,13 @@ def main() -> None:
     goals = [g for g in args.goal.split(",") if g]
     if not goals or any(g not in ("id", "photo", "box") for g in goals):
         raise SystemExit(f"--goal takes id, photo and box (comma-separated), got {args.goal!r}")
-    # only the world building, settling and execution of the pipeline are used here: the node plans
-    pipeline = PickPipeline(Detector.load(PICKING).network, default_library(), grasp=GraspPlanner("analytic"))
+    # only the world building, settling and execution of the pipeline are used here: the node plans, and the
+    # simulated hand carries the tools the node plans for (its --gripper; binpick's default: jaws and a cup)
+    from binpick.cli.app import DEFAULT_GRIPPER
+
+    node_args = args.node_args.split()
+    gripper = node_args[node_args.index("--gripper") + 1] if "--gripper" in node_args[:-1] else DEFAULT_GRIPPER
+    pipeline = PickPipeline(Detector.load(PICKING).network, default_library(), grasp=GraspPlanner("analytic", hand=gripper))
     work = Path(tempfile.mkdtemp(prefix="binpick-ros-loop-"))
     world, rng = pipeline.build_world(products[0], args.seed)
     scene = pipeline.settle(world, rng, args.seed)
