@@ -147,3 +147,19 @@ def check_frame(rgb: np.ndarray, depth: np.ndarray, camera: PinholeCamera) -> No
     if problem is not None:
         hint = "" if "no valid reading" in problem else ": give depth in metres (16-bit PNGs in millimetres are converted when read)"
         raise InputFileError(f"depth image {problem}{hint}")
+
+
+def working_frame(rgb, depth, info: CameraInfo, pixels: int | None = WORKING_PIXELS) -> tuple[np.ndarray, np.ndarray, CameraInfo, np.ndarray]:
+    """A frame as the planner works on it: at the working resolution of ``pixels`` (more pixels add
+    time, not grasps), depth registered to the colour's size, both rectified; with the camera at that
+    size and the scale from the caller's pixels (x, y, w, h) to the working ones."""
+    full = (info.camera.width, info.camera.height)
+    work = working_size(*full, pixels)
+    scale = np.array([work[0] / full[0], work[1] / full[1]] * 2)
+    if work != full:
+        rgb, depth = to_working_size(np.asarray(rgb), np.asarray(depth), work)
+        info = info.scaled(*work)
+    else:
+        depth = register_depth(np.asarray(depth), np.asarray(rgb).shape[:2])
+    rgb, depth = info.rectify(np.asarray(rgb), np.asarray(depth, dtype=np.float32))
+    return rgb, depth, info, scale

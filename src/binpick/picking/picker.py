@@ -39,6 +39,7 @@ from binpick.picking.inputs import (  # noqa: F401  (moved there; imported from 
     same_aspect,
     split_photo,
     to_working_size,
+    working_frame,
     working_size,
 )
 from binpick.picking.plans import (  # noqa: F401  (moved there; imported from here too)
@@ -442,19 +443,8 @@ class Picker:
         return Plans(plans, info.base_frame, {k: round(v, 2) for k, v in timing.items()}, found, scores, not_the_product)
 
     def working_frame(self, rgb, depth, info: CameraInfo) -> tuple[np.ndarray, np.ndarray, CameraInfo, np.ndarray]:
-        """A frame as the planner works on it: at the working resolution (more pixels add time, not
-        grasps), depth registered to the colour's size, both rectified; with the camera at that size and
-        the scale from the caller's pixels (x, y, w, h) to the working ones."""
-        full = (info.camera.width, info.camera.height)
-        work = working_size(*full, self.working_pixels)
-        scale = np.array([work[0] / full[0], work[1] / full[1]] * 2)
-        if work != full:
-            rgb, depth = to_working_size(np.asarray(rgb), np.asarray(depth), work)
-            info = info.scaled(*work)
-        else:
-            depth = register_depth(np.asarray(depth), np.asarray(rgb).shape[:2])
-        rgb, depth = info.rectify(np.asarray(rgb), np.asarray(depth, dtype=np.float32))
-        return rgb, depth, info, scale
+        """:func:`binpick.picking.inputs.working_frame` at this picker's working resolution."""
+        return working_frame(rgb, depth, info, self.working_pixels)
 
     def detect(self, rgb: np.ndarray, frame: DepthFrame, photos: list[tuple[np.ndarray, np.ndarray | None]],
                query_box) -> tuple[np.ndarray, np.ndarray]:

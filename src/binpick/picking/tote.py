@@ -135,16 +135,9 @@ def tote_in_frame(rgb: np.ndarray, depth: np.ndarray, info, wall_above: float = 
     """:func:`find_tote` on one frame as the planner reads it (depth registered to the colour,
     rectified, at the planner's working size): ``info`` is its :class:`CameraInfo`."""
     from binpick.grasping import DepthFrame
-    from binpick.picking.inputs import register_depth, to_working_size, working_size
+    from binpick.picking.inputs import working_frame
 
-    full = (info.camera.width, info.camera.height)
-    work = working_size(*full)
-    if work != full:
-        rgb, depth = to_working_size(np.asarray(rgb), np.asarray(depth), work)
-        info = info.scaled(*work)
-    else:
-        depth = register_depth(np.asarray(depth), np.asarray(rgb).shape[:2])
-    _, depth = info.rectify(np.asarray(rgb), np.asarray(depth, dtype=np.float32))
+    _, depth, info, _ = working_frame(rgb, depth, info)
     frame = DepthFrame.from_depth(depth, info.camera)
     check_camera_pose(frame, heights=False)  # a tote measured with a wrong pose would put the workspace round the wrong place
     return find_tote(frame, wall_above)
