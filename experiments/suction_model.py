@@ -40,7 +40,7 @@ def adhesion_trial(world, tips, yaw: float) -> bool:
 
     model, data, gripper = world.model, world.data, world.gripper
     body = world.body_ids[0]
-    start = data.xpos[body][2]
+    start = data.xipos[body][2]
     gripper.use(data, "suction")
     below = gripper.tool_point_below()
     actuator = model.actuator("adhesion").id
@@ -63,7 +63,7 @@ def adhesion_trial(world, tips, yaw: float) -> bool:
     move(lifted, HOLD_SECONDS, True)
     move([x + CARRY_TRIAL[0], y + CARRY_TRIAL[1], lifted[2]], CARRY_TRIAL[2], True)
     move(data.mocap_pos[gripper.mocap].copy(), 0.3, True)
-    return bool(data.xpos[body][2] - start >= LIFT_SUCCESS)
+    return bool(data.xipos[body][2] - start >= LIFT_SUCCESS)
 
 
 def trial(case, model_kind: str) -> tuple[bool, str | None]:

@@ -7,6 +7,7 @@ import json
 import subprocess
 import sys
 
+import mujoco
 import numpy as np
 
 from binpick.detection.model import DetectorNetwork, ModelSpec
@@ -15,7 +16,8 @@ from binpick.sim import default_library
 from binpick.sim.bin_scene import BinWorld
 from binpick.grasping import DepthFrame, GraspPlanner, PinholeCamera
 from binpick.sim.mjcf import FLOOR_TOP, CameraSpec
-from binpick.sim.order_tote import order_tote_xml
+from binpick.sim.order_tote import (ORDER_FLOOR_TOP, ORDER_HALF, ORDER_TOTE, RELEASE_HEIGHT, in_order_tote, order_tote_xml,
+                                     release_height)
 from binpick.warehouse.grasping import Reason, execute_pick, grasp_point, pixel_to_world
 from binpick.warehouse.pipeline import PickPipeline, summarise
 
@@ -175,3 +177,35 @@ def test_an_order_that_lifts_another_product_says_so_in_results_the_table_and_th
     assert order_outcome(order) == f"wrong product: {short} lifted"  # the terminal table's cell, and the report's
     page = order_section({**order, "seconds": 1.0, "detections": 1})
     assert f"color:#cf222e'>wrong product: {short} lifted</b>" in page and f"{lifted} lifted, not the ordered product" in page
+
+
+def test_a_product_is_judged_in_the_order_tote_by_its_centre_of_mass_not_its_body_origin():
+    library = default_library(procedural=0, shapes=0)
+    world = BinWorld(library["pybullet/teddy"], [], max_copies=1, camera=CameraSpec(size=64), extra_worldbody=order_tote_xml())
+    try:
+        body, data = world.body_ids[0], world.data
+        mujoco.mj_forward(world.model, data)
+        offset = data.xipos[body] - data.xpos[body]  # the teddy's mesh sits a hand's width off its origin
+        assert np.hypot(*offset[:2]) > ORDER_HALF / 3
+        adr = world.model.jnt_qposadr[world.model.body_jntadr[body]]
+        for centre, inside in (((ORDER_TOTE[0], ORDER_TOTE[1]), True), ((ORDER_TOTE[0] + 0.25, ORDER_TOTE[1]), False)):
+            data.qpos[adr:adr + 3] = [centre[0] - offset[0], centre[1] - offset[1], 0.05]  # its centre of mass over `centre`
+            mujoco.mj_forward(world.model, data)
+            assert in_order_tote(data, body) is inside
+        axis = int(np.argmax(np.abs(offset[:2])))  # its mass just beyond the wall its mesh leans towards, ...
+        centre = np.array([*ORDER_TOTE, 0.05 + offset[2]])
+        centre[axis] += np.sign(offset[axis]) * (ORDER_HALF + 0.01)
+        data.qpos[adr:adr + 3] = centre - offset  # ... its origin inside the tote
+        mujoco.mj_forward(world.model, data)
+        assert abs(data.xpos[body][0] - ORDER_TOTE[0]) < ORDER_HALF and abs(data.xpos[body][1] - ORDER_TOTE[1]) < ORDER_HALF
+        assert not in_order_tote(data, body)
+    finally:
+        world.close()
+
+
+def test_products_are_let_go_low_over_the_order_tote_however_deep_they_were_grasped():
+    releases = [release_height(grasp_z, FLOOR_TOP) for grasp_z in (0.05, 0.08, 0.12, 0.30)]
+    assert releases == sorted(releases) and max(releases) == RELEASE_HEIGHT  # never higher than it was before
+    for grasp_z, release in zip((0.05, 0.08, 0.12), releases):
+        hanging = grasp_z - FLOOR_TOP  # the most a product grasped off the bin floor hangs below the tool
+        assert ORDER_FLOOR_TOP < release - hanging <= ORDER_FLOOR_TOP + 0.05  # clear of the tote's floor, a short fall

@@ -24,7 +24,7 @@ import numpy as np
 
 from binpick.arm.kinematics import NOMINAL, ArmKinematics
 from binpick.arm.trajectory import Segment, joint_move, path_move
-from binpick.sim.order_tote import ORDER_TOTE
+from binpick.sim.order_tote import ORDER_TOTE, RELEASE_HEIGHT, release_height
 from binpick.sim.mjcf import BIN_WALL_HEIGHT, FLOOR_TOP
 from binpick.grippers import SuctionCup, tool_point_below
 from binpick.sim.panda import PandaArm
@@ -40,7 +40,6 @@ ABOVE_WALLS = BIN_WALL_HEIGHT + FLOOR_TOP + WALLS_CLEARANCE + tool_point_below("
 LINE_STEP = 0.02  # IK points along straight segments (m)
 LIFT_TO = 0.32  # the gripper's centre after the lift (at least 15 cm up): products clear the bin walls
 CARRY_HEIGHT = 0.42  # the detour height when a free move would touch something
-RELEASE_HEIGHT = 0.22  # the gripper's centre when it opens above the order tote
 CLOSE_SECONDS, OPEN_SECONDS = 0.35, 0.3  # the fingers closing and opening (the arm stands still)
 FLOOR_MARGIN = 0.008  # the tool's point stops at least this far above the cell's bin floor (the arm tracks within 2 mm)
 WRIST_TURN = np.pi / 2 + 0.2  # joint 5 or 7 further than this from the nominal posture: a wrist flip
@@ -179,7 +178,11 @@ class MotionPlanner:
         rise = self._along(line(centre, [centre[0], centre[1], max(centre[2] + APPROACH_HEIGHT, LIFT_TO)])[1:], reach.yaw, descent[-1])
         lift = None if rise is None else [descent[-1], *rise]  # from the very posture the fingers closed in
         above_tote = np.array([place[0], place[1], LIFT_TO])
-        lowered = self._along(line(above_tote, [place[0], place[1], RELEASE_HEIGHT]), reach.yaw, lift[-1]) if lift else None
+        lowered = None
+        for release in dict.fromkeys((release_height(centre[2], FLOOR_TOP), RELEASE_HEIGHT)) if lift else ():  # low, else as high as ever
+            lowered = self._along(line(above_tote, [place[0], place[1], release]), reach.yaw, lift[-1])
+            if lowered is not None:
+                break
         if lift is None or lowered is None:
             return PickMotion([], Reach(NO_IK, reach.yaw), time.perf_counter() - started)
         period, limits = self.period, self.limits

@@ -136,7 +136,7 @@ def lift_test(world, slot: int, tips, yaw: float, top: float | None = None, carr
     bellows give). Call it inside ``with trial_timestep(world.model)``."""
     model, data, gripper = world.model, world.data, world.gripper
     body = world.body_ids[slot]
-    start_height = data.xpos[body][2]
+    start_height = data.xipos[body][2]
     gripper.use(data, tool)
     below = gripper.tool_point_below()
     x, y, z = (float(v) for v in tips)
@@ -149,13 +149,13 @@ def lift_test(world, slot: int, tips, yaw: float, top: float | None = None, carr
     lifted_to = [x, y, z + below + 0.15]
     gripper.move(data, lifted_to, 0.5, close=True)
     try:
-        if not data.xpos[body][2] - start_height >= LIFT_SUCCESS / 2:
+        if not data.xipos[body][2] - start_height >= LIFT_SUCCESS / 2:
             return False  # not even half-way up: no need to simulate the hold
         gripper.move(data, lifted_to, HOLD_SECONDS, close=True)
         if carry:
             gripper.move(data, [x + CARRY_TRIAL[0], y + CARRY_TRIAL[1], lifted_to[2]], CARRY_TRIAL[2], close=True)
             gripper.move(data, data.mocap_pos[gripper.mocap].copy(), 0.3, close=True)
-        lifted = data.xpos[body][2] - start_height
+        lifted = data.xipos[body][2] - start_height
         return bool(np.isfinite(lifted) and lifted >= LIFT_SUCCESS)
     finally:
         gripper.command(data, False)

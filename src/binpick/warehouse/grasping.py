@@ -13,7 +13,7 @@ import numpy as np
 
 from binpick.sim.gripper import LIFT_SUCCESS, PARK, SUCTION_PRESS, TRIAL_TIMESTEP
 from binpick.sim.mjcf import FLOOR_TOP, CameraSpec
-from binpick.sim.order_tote import ORDER_HALF, ORDER_HEIGHT, ORDER_TOTE
+from binpick.sim.order_tote import ORDER_TOTE, in_order_tote, release_height
 
 CARRY_HEIGHT = 0.42
 
@@ -103,7 +103,7 @@ def execute_pick(world, tips: np.ndarray, yaw: float, on_frame: Callable[[], Non
                      on_step=None if on_frame is None else lambda step: on_frame() if step % every == 0 else None)
 
     try:
-        heights = np.array([data.xpos[b][2] for b in world.body_ids])
+        heights = np.array([data.xipos[b][2] for b in world.body_ids])
         gripper.use(data, tool)
         below = gripper.tool_point_below()
         point = np.asarray(tips, dtype=float)
@@ -115,7 +115,7 @@ def execute_pick(world, tips: np.ndarray, yaw: float, on_frame: Callable[[], Non
         move(reach, 0.3, True)
         move(grasp + [0, 0, 0.15], 0.5, True)
         move(grasp + [0, 0, 0.15], 0.5, True)  # hold: does it stay in the jaws, on the cup?
-        rise = np.array([data.xpos[b][2] for b in world.body_ids]) - heights
+        rise = np.array([data.xipos[b][2] for b in world.body_ids]) - heights
         slot = int(np.argmax(rise))
         if rise[slot] < LIFT_SUCCESS:
             return PickOutcome(None, False, Reason.MISSED if rise.max() < 0.02 else Reason.SLIPPED,
@@ -124,16 +124,15 @@ def execute_pick(world, tips: np.ndarray, yaw: float, on_frame: Callable[[], Non
         move(carry, 0.5, True)
         above_order = np.array([ORDER_TOTE[0], ORDER_TOTE[1], CARRY_HEIGHT])
         move(above_order, 1.0, True)
-        lowered = above_order - [0, 0, 0.2]
-        move(lowered, 0.5, True)
-        if data.xpos[world.body_ids[slot]][2] < lowered[2] - (0.15 if tool == "jaws" else below + 0.15):
+        if data.xipos[world.body_ids[slot]][2] < above_order[2] - (0.15 if tool == "jaws" else below + 0.15):
             return PickOutcome(slot, False, Reason.SLIPPED, why=suction_why(gripper, tool))  # fell on the way
+        lowered = np.array([ORDER_TOTE[0], ORDER_TOTE[1], release_height(grasp[2], FLOOR_TOP)])
+        move(lowered, 0.5, True)
         move(lowered, 0.4, False)  # let go
         move(above_order, 0.3, False)
         move(above_order, 0.6, False)  # let it settle
-        x, y, z = data.xpos[world.body_ids[slot]]
-        inside = abs(x - ORDER_TOTE[0]) < ORDER_HALF and abs(y - ORDER_TOTE[1]) < ORDER_HALF and z < ORDER_HEIGHT + 0.1
-        return PickOutcome(slot, bool(inside), Reason.PLACED if inside else Reason.DROPPED)
+        inside = in_order_tote(data, world.body_ids[slot])
+        return PickOutcome(slot, inside, Reason.PLACED if inside else Reason.DROPPED)
     finally:
         model.opt.timestep = settle_timestep
         gripper.reset(data)
@@ -178,7 +177,7 @@ def execute_arm_pick(world, planner, tips: np.ndarray, yaw: float, on_frame: Cal
 
     hand = world.arm.hand
     try:
-        heights = np.array([data.xpos[b][2] for b in world.body_ids])
+        heights = np.array([data.xipos[b][2] for b in world.body_ids])
         hand.use(data, tool)
         below = hand.tool_point_below()
         press = SUCTION_PRESS if tool == "suction" else 0.0
@@ -194,7 +193,7 @@ def execute_arm_pick(world, planner, tips: np.ndarray, yaw: float, on_frame: Cal
         planned, _ = planner.kinematics.gripper_pose(motion.segments[closing].q[-1])
         outcome.grasp_error_mm = round(1000 * float(np.linalg.norm(data.xpos[world.arm.gripper_body] - planned)), 2)
         run(motion.segments[closing:lifted])
-        rise = np.array([data.xpos[b][2] for b in world.body_ids]) - heights
+        rise = np.array([data.xipos[b][2] for b in world.body_ids]) - heights
         slot = int(np.argmax(rise))
         if rise[slot] < LIFT_SUCCESS:
             outcome.reason = Reason.MISSED if rise.max() < 0.02 else Reason.SLIPPED
@@ -203,11 +202,10 @@ def execute_arm_pick(world, planner, tips: np.ndarray, yaw: float, on_frame: Cal
         else:
             lowered = names.index("lower") + 1
             run(motion.segments[lifted:lowered])
-            fell = data.xpos[world.body_ids[slot]][2] < data.xpos[world.arm.gripper_body][2] - below - 0.15
+            fell = data.xipos[world.body_ids[slot]][2] < data.xpos[world.arm.gripper_body][2] - below - 0.15
             outcome.why = suction_why(hand, tool) if fell else None
             run(motion.segments[lowered:])
-            x, y, z = data.xpos[world.body_ids[slot]]
-            inside = abs(x - ORDER_TOTE[0]) < ORDER_HALF and abs(y - ORDER_TOTE[1]) < ORDER_HALF and z < ORDER_HEIGHT + 0.1
+            inside = in_order_tote(data, world.body_ids[slot])
             outcome.lifted_slot, outcome.placed = slot, bool(inside and not fell)
             outcome.reason = Reason.SLIPPED if fell else Reason.PLACED if inside else Reason.DROPPED
         outcome.collisions = [list(pair) for pair in controller.collisions]
@@ -228,7 +226,7 @@ def arm_lift_test(world, planner, slot: int, tips, yaw: float, tool: str = "jaws
     model.opt.timestep = TRIAL_TIMESTEP
     try:
         body = world.body_ids[slot]
-        start = float(data.xpos[body][2])
+        start = float(data.xipos[body][2])
         hand = world.arm.hand
         hand.use(data, tool)
         below = hand.tool_point_below()
@@ -242,10 +240,10 @@ def arm_lift_test(world, planner, slot: int, tips, yaw: float, tool: str = "jaws
             if segment.name == "lower":  # carried to above the order tote: judged there
                 break
             controller.run(segment)
-            if segment.name == "lift" and data.xpos[body][2] - start < LIFT_SUCCESS:
+            if segment.name == "lift" and data.xipos[body][2] - start < LIFT_SUCCESS:
                 return False
-        held = data.xpos[world.arm.gripper_body][2] - data.xpos[body][2] < below + 0.11  # still hanging in the jaws, on the cup
-        return bool(np.isfinite(data.xpos[body][2]) and data.xpos[body][2] - start >= LIFT_SUCCESS and held)
+        held = data.xpos[world.arm.gripper_body][2] - data.xipos[body][2] < below + 0.11  # still hanging in the jaws, on the cup
+        return bool(np.isfinite(data.xipos[body][2]) and data.xipos[body][2] - start >= LIFT_SUCCESS and held)
     finally:
         world.arm.hand.reset(data)
         model.opt.timestep = settle_timestep
