@@ -196,3 +196,23 @@ def test_grasp_trials_and_planned_pickability_are_recorded_and_the_quality_model
     metrics = again.run()
     assert metrics["epochs"] == 2 and len(metrics["history"]) == 2
     GraspQuality.load(first.run_dir / "model.safetensors")
+
+
+def test_an_instance_in_a_corner_gets_a_push_away_from_both_walls_and_one_in_the_open_none():
+    from binpick.grasping.push import PUSH_DISTANCE, plan_push
+
+    cam = camera()
+    block = (0.02, 0.06, 0.02, 0.06, 0.04)  # 4 cm square, 4 cm high, in the corner of two 12 cm walls
+    walls = [(0.065, 0.1, -0.1, 0.1, 0.12), (-0.1, 0.1, 0.065, 0.1, 0.12)]  # beyond +x and beyond +y, 5 mm off it
+    frame = frame_of(scene_depth([block, *walls]))
+    choice = GraspPlanner("analytic").choose(frame, box_of(cam, *block))
+    assert choice.chosen is None and "finger blocked" in choice.reason  # no room for either finger
+    push = plan_push(frame, choice.surface)
+    assert push is not None
+    direction = (push.end - push.start)[:2]
+    assert np.isclose(np.linalg.norm(direction), PUSH_DISTANCE) and direction[0] < -0.02 and direction[1] < -0.02  # out of the corner
+    assert 0.04 - 0.012 < push.start[2] < 0.04  # the closed tips press on its top
+    assert push.start[0] > 0.04 and push.start[1] > 0.04  # on the walls' side of its middle: it slides away from them
+    assert np.isclose(push.yaw, np.arctan2(direction[1], direction[0]))
+    alone = frame_of(scene_depth([block]))
+    assert plan_push(alone, GraspPlanner("analytic").choose(alone, box_of(cam, *block)).surface) is None  # nothing blocks it

@@ -209,3 +209,38 @@ def test_products_are_let_go_low_over_the_order_tote_however_deep_they_were_gras
     for grasp_z, release in zip((0.05, 0.08, 0.12), releases):
         hanging = grasp_z - FLOOR_TOP  # the most a product grasped off the bin floor hangs below the tool
         assert ORDER_FLOOR_TOP < release - hanging <= ORDER_FLOOR_TOP + 0.05  # clear of the tote's floor, a short fall
+
+
+def test_a_lying_can_in_a_corner_that_no_grasp_fits_is_pushed_out_and_then_a_grasp_fits():
+    from binpick.grasping.push import plan_push
+    from binpick.sim.mjcf import BIN_HALF
+    from binpick.sim.products import Product
+    from binpick.warehouse.grasping import execute_push
+
+    can = Product("test/can", "test", shape="cylinder", size=(0.022, 0.03), mass=0.15)  # radius, half-length
+    world = BinWorld(can, [], max_copies=1, camera=CameraSpec(size=200), extra_worldbody=order_tote_xml(), gripper=True)
+    try:
+        scene = world.scene(1, 0, seed=0)
+        world.set_guards(False)
+        corner = np.array([BIN_HALF[0] - 0.031, BIN_HALF[1] - 0.023])  # lying along x, touching both walls
+        world._place(0, [*corner, FLOOR_TOP + 0.023], [np.cos(np.pi / 4), 0.0, np.sin(np.pi / 4), 0.0])
+        for _ in range(300):
+            mujoco.mj_step(world.model, world.data)
+        planner = GraspPlanner("analytic")
+
+        def look(seed: int):
+            seen = world.look_again(scene, seed)
+            frame = DepthFrame.from_depth(seen.depth, PinholeCamera.from_record(seen.camera))
+            return frame, planner.choose(frame, seen.instances[0].bbox)
+
+        frame, choice = look(1)
+        assert choice.chosen is None and "finger blocked" in choice.reason
+        push = plan_push(frame, choice.surface)
+        assert push is not None and push.end[0] < push.start[0] and push.end[1] < push.start[1]  # out of the corner
+        moved = execute_push(world, push.start, push.end, push.yaw)
+        centre = world.data.xipos[world.body_ids[0]]
+        assert moved > 0.02 and np.all(corner - centre[:2] > 0.005) and np.linalg.norm(corner - centre[:2]) > 0.02 and centre[2] > FLOOR_TOP
+        _, choice = look(2)
+        assert choice.chosen is not None and choice.chosen.tool == "jaws"
+    finally:
+        world.close()

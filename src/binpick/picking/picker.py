@@ -26,6 +26,8 @@ import torch
 from binpick.detection.photos import photo_mask
 from binpick.core.errors import ConfigError, InputFileError
 from binpick.grasping import DepthFrame, GraspChoice, GraspPlanner, PinholeCamera
+from binpick.grasping.planner import GraspPolicyName
+from binpick.grasping.push import PUSH_WHEN_BELOW, plan_push
 from binpick.picking.camera_info import CameraInfo
 from binpick.picking.colour import colour_histogram, colour_similarity, detection_mask
 from binpick.picking.inputs import (  # noqa: F401  (moved there; imported from here too)
@@ -519,13 +521,15 @@ class Picker:
         return [float(p) for p in probabilities]
 
     def find_again(self, previous_rgb: np.ndarray, previous_depth: np.ndarray, previous_box, rgb: np.ndarray, depth: np.ndarray,
-                   camera: CameraInfo | PinholeCamera) -> np.ndarray | None:
+                   camera: CameraInfo | PinholeCamera, pushed: dict | None = None) -> np.ndarray | None:
         """Where the instance a person pointed at (``previous_box`` in the previous frame) is in a new
         frame of the same camera, after a grasp moved things: the box-conditioned detector on the new
         frame, queried with the instance as it looked (its crop from the previous frame, shown to the
         detector in the new frame's corner farthest from it: the crop query reads the frame's own
         features); of the detections, the one nearest the old box whose colours match the instance's in
-        the previous frame (the same light) is it. None when nothing near matches (it left)."""
+        the previous frame (the same light) is it. None when nothing near matches (it left). ``pushed``:
+        the push made since (a plan's ``push``, base frame): a ball pushed rolls on along it, so whatever
+        lies near the ray from the old box along the push counts as near too."""
         from binpick.detection.ops import box_iou, xywh_to_xyxy
         from binpick.detection.predict import predict
 
@@ -561,7 +565,17 @@ class Picker:
                                xywh_to_xyxy(torch.as_tensor(query[None], dtype=torch.float32)))[:, 0].numpy()
             overlap = box_iou(xywh_to_xyxy(torch.as_tensor(found, dtype=torch.float32)),
                               xywh_to_xyxy(torch.as_tensor(box[None], dtype=torch.float32)))[:, 0].numpy()
-            distance = np.linalg.norm(found[:, :2] + found[:, 2:] / 2 - centre, axis=1) / max(float(np.hypot(*box[2:])), 1.0)
+            diagonal = max(float(np.hypot(*box[2:])), 1.0)
+            distance = np.linalg.norm(found[:, :2] + found[:, 2:] / 2 - centre, axis=1) / diagonal
+            if pushed is not None:
+                ends, _ = info.camera.project(np.array([pushed["start"], pushed["end"]], dtype=float))
+                along = ends[1] - ends[0]
+                if np.all(np.isfinite(along)) and np.linalg.norm(along) > 1e-6:
+                    along = along / np.linalg.norm(along)
+                    relative = found[:, :2] + found[:, 2:] / 2 - centre
+                    ahead = relative @ along
+                    off_ray = np.linalg.norm(relative - ahead[:, None] * along, axis=1) / diagonal
+                    distance = np.where(ahead > 0, np.minimum(distance, off_ray), distance)
             best, best_score = None, 0.0
             for candidate, score, shown_iou, iou, reach in zip(found, scores, shown_at, overlap, distance):
                 if shown_iou > 0.1 or not (iou > 0.05 or reach < FIND_AGAIN_RADIUS) or candidate[2] < 2 or candidate[3] < 2:
@@ -616,7 +630,19 @@ class Picker:
                 plan.width = round(float(chosen.width), 4)
                 plan.opening = float(self.grasp.gripper.opening)
             plan.quality = None if chosen.quality is None else round(float(chosen.quality), 4)
+        if choice.surface is not None and self.grasp.policy is not GraspPolicyName.FIXED and self.hopeless(plan):
+            push = plan_push(frame, choice.surface)
+            if push is not None and (workspace is None or (workspace.contains(push.start) and workspace.contains(push.end))):
+                plan.push = push.as_dict()
         return plan
+
+    def hopeless(self, plan: GraspPlan) -> bool:
+        """No grasp, or one predicted to fail at least PUSH_WHEN_BELOW of the time (its quality is a
+        success probability: suction's, or the learnt jaws policy's): a push to free it comes first."""
+        if plan.position is None:
+            return True
+        probability = plan.tool == "suction" or self.grasp.policy is GraspPolicyName.LEARNT
+        return bool(probability and plan.quality is not None and plan.quality < PUSH_WHEN_BELOW)
 
     def reachable(self, choice: GraspChoice, workspace: Workspace | None = None):
         """The best of the detection's candidates the robot can take (the chosen one first, then the

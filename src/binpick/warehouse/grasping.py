@@ -140,6 +140,45 @@ def execute_pick(world, tips: np.ndarray, yaw: float, on_frame: Callable[[], Non
         mujoco.mj_forward(model, data)
 
 
+def execute_push(world, start: np.ndarray, end: np.ndarray, yaw: float, on_frame: Callable[[], None] | None = None,
+                 frame_every: float = 0.1) -> float:
+    """A push (:class:`binpick.grasping.push.Push`) by the floating gripper: the jaws closed, their
+    tips down onto ``start`` (world xyz), slid to ``end`` and lifted; then parked. Returns how far
+    the pushed things moved (m, the most any product moved: 0 when the push met nothing)."""
+    model, data, gripper = world.model, world.data, world.gripper
+    settle_timestep = model.opt.timestep
+    model.opt.timestep = TRIAL_TIMESTEP
+    every = max(1, int(frame_every / TRIAL_TIMESTEP))
+
+    def move(target, seconds: float) -> None:
+        gripper.move(data, target, seconds, close=True,
+                     on_step=None if on_frame is None else lambda step: on_frame() if step % every == 0 else None)
+
+    try:
+        before = np.array([data.xipos[b].copy() for b in world.body_ids])
+        gripper.use(data, "jaws")
+        below = gripper.tool_point_below()
+        start, end = np.asarray(start, dtype=float) + [0, 0, below], np.asarray(end, dtype=float) + [0, 0, below]
+        gripper.teleport(data, start + [0, 0, 0.12], yaw)
+        mujoco.mj_forward(model, data)
+        move(start + [0, 0, 0.12], 0.3)  # close the fingers above it
+        move(start + [0, 0, 0.03], 0.3)
+        move(start, 0.4)  # slowly onto it: fast, a ball squirts out from under the fingers
+        move(end, 1.2)  # slowly: a ball pushed fast rolls on across the bin
+        move(end + [0, 0, 0.12], 0.3)
+        for _ in range(20):  # let what was pushed come to rest (a ball rolls on): at most 2 s
+            move(end + [0, 0, 0.12], 0.1)
+            if max(np.abs(data.qvel[adr:adr + 6]).max() for adr in world.dof_adr) < 0.02:
+                break
+        after = np.array([data.xipos[b] for b in world.body_ids])
+        return float(np.linalg.norm((after - before)[:, :2], axis=1).max())
+    finally:
+        model.opt.timestep = settle_timestep
+        gripper.reset(data)
+        gripper.teleport(data, PARK, 0.0)
+        mujoco.mj_forward(model, data)
+
+
 def suction_why(hand, tool: str) -> str | None:
     """Why a suction pick failed, in the vacuum's words (no seal, or the seal let go); None for jaws."""
     return hand.vacuum.why if tool == "suction" and hand.vacuum is not None else None

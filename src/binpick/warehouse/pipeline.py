@@ -35,9 +35,10 @@ from binpick.picking.plans import cup_pixels, jaw_pixels
 from binpick.detection.photos import photo_mask
 from binpick.sim.order_tote import order_tote_xml
 from binpick.sim.gripper import TRIAL_TIMESTEP
-from binpick.warehouse.grasping import Reason, execute_arm_pick, execute_pick, fixed_tips, grasp_point, half_height
+from binpick.warehouse.grasping import Reason, execute_arm_pick, execute_pick, execute_push, fixed_tips, grasp_point, half_height
 
 GIF_SIZE = 240
+MAX_PUSHES = 1  # pushes per pointed pick, to free an instance no grasp fits well (binpick.grasping.push)
 ROBOTS = ("floating", "panda")  # what executes the picks: the floating gripper, or the Panda arm (binpick.arm)
 
 
@@ -80,6 +81,7 @@ class OrderResult:
     gripper: str = "jaws"  # the hand's tools: jaws, suction or both
     found_again: list = field(default_factory=list)  # a pointed pick's instance after each failed grasp: its box in the new frame (None: not found)
     looked_again: int = 0  # new frames taken after failed grasps (each planned anew)
+    pushes: list = field(default_factory=list)  # pushes that freed the pointed instance before a grasp: {start, end, yaw, moved (m)}
 
     @property
     def robot_seconds(self) -> float:
@@ -342,11 +344,15 @@ class PickPipeline:
         would: plan on it (then on the copies of it the detector finds), execute the best feasible grasp,
         and after a failed one look at the bin again, find the instance again near where it was (the
         box-conditioned detector on the new frame, :meth:`Picker.find_again`) and plan anew, up to
-        ``max_attempts`` grasps. When it is not found again (it left), stop: nothing else is grasped
+        ``max_attempts`` grasps. When no grasp fits it well (against a wall, in a corner) and the plan
+        offers a push, the closed jaws push it free first (MAX_PUSHES, no grasp counted) and it is
+        found again the same way. When it is not found again (it left), stop: nothing else is grasped
         in its place."""
         from binpick.core.errors import InputFileError
 
-        for attempt in range(self.max_attempts):
+        for look in range(1, self.max_attempts + MAX_PUSHES + 1):  # each look: a push or a grasp (or the end)
+            if result.grasps >= self.max_attempts:
+                break
             camera = PinholeCamera.from_record(scene.camera)
             try:
                 failed = [(a.grasp_point, a.tool) for a in result.attempts if a.tool is not None and a.outcome is not Reason.PLACED]
@@ -356,17 +362,25 @@ class PickPipeline:
                 break
             result.detections = max(result.detections, plans.detections)
             chosen = next(iter(plans.grasps), None)
-            if chosen is None:
-                result.attempts.append(Attempt(plans[0].box if len(plans) else list(query_box), 1.0, None, [], Reason.NO_GRASP,
-                                               None, rejected=plans[0].rejected if len(plans) else {}))
+            pointed = plans[0] if len(plans) else None
+            push = pointed.push if pointed is not None and self.motion is None else None  # (the arm does not push yet)
+            pushed = None
+            if push is not None and len(result.pushes) < MAX_PUSHES:
+                moved = execute_push(world, np.array(push["start"]), np.array(push["end"]), push["yaw"])
+                result.pushes.append({**push, "moved": round(moved, 4)})
+                pushed = push
+            elif chosen is None:
+                result.attempts.append(Attempt(pointed.box if pointed is not None else list(query_box), 1.0, None, [], Reason.NO_GRASP,
+                                               None, rejected=pointed.rejected if pointed is not None else {}))
                 result.reason = Reason.NO_GRASP
                 break
-            self.execute(world, scene, [chosen], result)
-            if result.success:
-                return
-            seen = world.look_again(scene, result.seed * 31 + attempt + 1)
+            else:
+                self.execute(world, scene, [chosen], result)
+                if result.success:
+                    return
+            seen = world.look_again(scene, result.seed * 31 + look)
             again = self.picker.find_again(scene.rgb, as_camera_depth(scene.depth), query_box, seen.rgb,
-                                           as_camera_depth(seen.depth), camera)
+                                           as_camera_depth(seen.depth), camera, pushed=pushed)
             result.found_again.append(None if again is None else [float(v) for v in again])
             if again is None:
                 break
