@@ -207,6 +207,7 @@ def plan(
         why = [f"{plans.not_the_product} failed the product check"] if plans.not_the_product else []
         why += [f"{k} x{n}" for k, n in reasons.items()]
         console.print(f"no feasible grasp: {plans.detections} detection(s){': ' + '; '.join(why) if why else ''} -> {folder}", soft_wrap=True)
+        _say_push(plans)
     else:
         x, y, z = best.position
         how = (f"jaws at yaw {np.degrees(best.yaw):.0f} deg, {100 * best.width:.1f} cm across" if best.tool == "jaws"
@@ -216,6 +217,17 @@ def plan(
                       f"{plans.timing_ms['total']:.0f} ms; best: "
                       f"({x:.3f}, {y:.3f}, {z:.3f}) m in {plans.frame}, {how}{quality}, detector score {best.score:.2f} "
                       f"-> {plan_path}, {overlay}", soft_wrap=True)
+        if best.push is not None:
+            _say_push(plans)
+
+
+def _say_push(plans) -> None:
+    """The push the first plan offers, where no grasp fits it well (the closed jaws' path in the base frame)."""
+    push = next((p.push for p in plans if p.push is not None), None)
+    if push is not None:
+        (x0, y0, z0), (x1, y1, _) = push["start"], push["end"]
+        console.print(f"a push would give the fingers room: the closed jaws down onto ({x0:.3f}, {y0:.3f}, {z0:.3f}) m, "
+                      f"along to ({x1:.3f}, {y1:.3f}) (the plan's push)", soft_wrap=True)
 
 
 def _fulfil(pipeline, products: list[str], orders: int, seed: int, run_dir: Path, rerun: bool = False) -> dict:
