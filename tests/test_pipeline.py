@@ -244,3 +244,22 @@ def test_a_lying_can_in_a_corner_that_no_grasp_fits_is_pushed_out_and_then_a_gra
         assert choice.chosen is not None and choice.chosen.tool == "jaws"
     finally:
         world.close()
+
+
+def test_a_picking_look_waits_for_a_rolling_ball_to_come_to_rest():
+    from binpick.sim.bin_scene import STILL_SPEED
+    from binpick.sim.products import Product
+
+    ball = Product("test/ball", "test", shape="sphere", size=(0.025,), mass=0.1)
+    world = BinWorld(ball, [], max_copies=1, camera=CameraSpec(size=64))
+    try:
+        scene = world.scene(1, 0, seed=0, still=True)
+        dof = world.dof_adr[0]
+        assert np.abs(world.data.qvel[dof:dof + 3]).max() < STILL_SPEED  # the first look: at rest
+        world.data.qvel[dof:dof + 6] = [0.05, 0.0, 0.0, 0.0, 2.0, 0.0]  # knocked by a failed grasp: rolling along x
+        before = world.data.xipos[world.body_ids[0]].copy()
+        world.look_again(scene, 1)
+        assert np.abs(world.data.qvel[dof:dof + 3]).max() < STILL_SPEED
+        assert np.linalg.norm(world.data.xipos[world.body_ids[0]] - before) > 0.01  # it rolled on before the frame was taken
+    finally:
+        world.close()

@@ -22,6 +22,8 @@ from binpick.sim.sensor import SensorConfig, sense, tote_tilt
 
 PARK_X = 3.0  # unused slots wait here, on the table, out of view
 SETTLE_SECONDS = 1.2
+STILL_SECONDS = 3.0  # the longest a picking look waits for the bin to come to rest
+STILL_SPEED, STILL_TURN = 0.005, 0.3  # m/s and rad/s: a product slower than both is at rest
 AMODAL_SIZE = 80  # resolution of the per-instance masks that give the visible fraction
 
 
@@ -234,8 +236,9 @@ class BinWorld:
         return (PARK_X + 0.25 * (slot % 6), 0.25 * (slot // 6), 0.1)
 
     # ------------------------------------------------------------------ scenes
-    def scene(self, copies: int, distractors: int, seed: int) -> Scene:
-        """Drop ``copies`` target instances and ``distractors`` distractor products, settle, render."""
+    def scene(self, copies: int, distractors: int, seed: int, still: bool = False) -> Scene:
+        """Drop ``copies`` target instances and ``distractors`` distractor products, settle, render.
+        ``still``: then wait until the bin is at rest (:meth:`come_to_rest`), as a picking cell's camera does."""
         if not 1 <= copies <= self.max_copies:
             raise ValueError(f"copies must be in 1..{self.max_copies}, got {copies}")
         rng = np.random.default_rng(seed)
@@ -244,16 +247,36 @@ class BinWorld:
         for attempt in range(3):
             if self._drop_and_settle(used, rng):
                 break
+        self._used = used
+        if still:
+            self.come_to_rest()
         draw = self._randomise_scene(rng) if self.domain is not None else None
         sensing = np.random.default_rng([seed, 0x5E45])  # apart from the drops: a scene's perfect and realistic twins settle alike
         if draw is None and self.sensor is not None and self.sensor.tilts_camera:
             draw = self._tilt_camera(sensing)
-        self._used = used
         return self._observe(self.camera_record(draw), int(seed), rng, sensing)
 
+    def come_to_rest(self, max_seconds: float = STILL_SECONDS) -> float:
+        """Step the physics until every product in the tote is at rest (below STILL_SPEED and
+        STILL_TURN), at most ``max_seconds``; the seconds waited. A ball still rolling when the frame
+        is taken is elsewhere when the fingers arrive: a cell's camera looks at a still bin."""
+        dofs = [self.dof_adr[slot] for slot in self._used]
+        chunk = max(1, int(0.05 / self.model.opt.timestep))
+        waited = 0.0
+        while waited < max_seconds:
+            moving = self.data.qvel[np.array(dofs)[:, None] + np.arange(6)] if dofs else np.zeros((0, 6))
+            if not len(moving) or not np.all(np.isfinite(moving)) or (np.abs(moving[:, :3]).max() < STILL_SPEED
+                                                                       and np.abs(moving[:, 3:]).max() < STILL_TURN):
+                break
+            for _ in range(chunk):
+                mujoco.mj_step(self.model, self.data)
+            waited += chunk * self.model.opt.timestep
+        return waited
+
     def look_again(self, scene: Scene, seed: int) -> Scene:
-        """The bin as it is now (after a grasp moved things), through the scene's camera: a new frame,
-        the sensor's faults drawn anew from ``seed``."""
+        """The bin once at rest again (after a grasp moved things: :meth:`come_to_rest`), through the
+        scene's camera: a new frame, the sensor's faults drawn anew from ``seed``."""
+        self.come_to_rest()
         return self._observe(scene.camera, scene.seed, np.random.default_rng([seed, 1]), np.random.default_rng([seed, 0x5E45]))
 
     def _observe(self, record: dict, seed: int, rng: np.random.Generator, sensing: np.random.Generator) -> Scene:

@@ -219,7 +219,7 @@ class PickPipeline:
 
     def settle(self, world: BinWorld, rng: np.random.Generator, seed: int) -> Scene:
         scene = world.scene(int(rng.integers(self.copies[0], self.copies[1] + 1)),
-                            int(rng.integers(self.distractors[0], self.distractors[1] + 1)), seed)
+                            int(rng.integers(self.distractors[0], self.distractors[1] + 1)), seed, still=True)
         world.set_guards(False)  # the invisible drop guards would block the carry to the order tote
         return scene
 
