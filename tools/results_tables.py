@@ -308,6 +308,7 @@ PAGE_SECTIONS: tuple[Section, ...] = (
     Section("ray_rl", "benchmarks/ray_rl_curve.py", "section", "ray_scaling.json"),
     Section("grasp_tools", "experiments/grasp.py", "section_grasp_tools", "grasp.json"),
     Section("suction_model", "experiments/suction_model.py", "section", "suction_model.json"),
+    Section("calibration", "experiments/calibration.py", "section", "calibration.json"),
 )
 MARKER = re.compile(r"<!-- (\w+):start -->")
 

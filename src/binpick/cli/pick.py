@@ -117,6 +117,42 @@ def cell(
     console.print(f"workspace written to {files['camera.yaml']}: min {camera['workspace']['min']} max {camera['workspace']['max']}")
 
 
+@app.command("calibrate")
+def calibrate_camera(
+    folder: Annotated[Path, typer.Argument(help="Board pictures and poses.yaml: mount (eye-to-hand or eye-in-hand), board "
+                                                "(squares, square, marker in metres, dictionary) and each picture's flange_to_base")],
+    camera: Annotated[Path, typer.Option(help="camera.yaml (ROS camera_info layout): its K and distortion are used, and the "
+                                              "solved pose is written into it")],
+    intrinsics: Annotated[bool, typer.Option(help="Also solve K and distortion from the pictures (a camera without factory "
+                                                  "intrinsics; 10 or more pictures at different angles)")] = False,
+    flange_mm: Annotated[float, typer.Option(help="How far the robot's reported flange positions may be off (mm)")] = 1.0,
+    flange_degrees: Annotated[float, typer.Option(help="... and its orientations (degrees)")] = 0.1,
+) -> None:
+    """Hand-eye calibration: the camera's pose from pictures of a ChArUco board at 15 or more flange
+    poses (turned about different axes, over the whole working volume), written into camera.yaml:
+    camera_to_base (eye-to-hand) or camera_to_flange (eye-in-hand), with the residual to check it by."""
+    from binpick.core.config import check_range
+    from binpick.picking.calibration_session import calibrate_folder, read_session
+
+    check_range("--flange-mm", flange_mm, 0.01, 50.0)
+    check_range("--flange-degrees", flange_degrees, 0.001, 10.0)
+    if not folder.is_dir():
+        raise ConfigError(f"{str(folder)!r} is not a folder of board pictures with poses.yaml")
+    if not intrinsics and not camera.is_file():
+        raise ConfigError(f"--camera {str(camera)!r} does not exist: give the camera's camera_info YAML, or --intrinsics to solve it")
+    pictures = len(read_session(folder)[2])
+    with progress() as callback, callback.task("board pictures read", pictures) as task:
+        solved, record = calibrate_folder(folder, camera, intrinsics, (flange_mm, flange_degrees),
+                                          on_picture=lambda picture, seen: task.update(advance=1))
+    name = "camera_to_base" if solved.mount == "eye-to-hand" else "camera_to_flange"
+    x, y, z = solved.transform[:3, 3]
+    dropped = f"dropped {', '.join(record['dropped_pictures'])}" if record["dropped_pictures"] else "none dropped"
+    console.print(f"{solved.mount}: {name} = ({x:.4f}, {y:.4f}, {z:.4f}) m written to {camera}; residual "
+                  f"{solved.residual_mm:.2f} mm / {solved.residual_degrees:.3f} deg, corners reproject at {solved.reprojection_px:.2f} px; "
+                  f"board seen in {record['board_seen']} of {record['pictures']} pictures, {len(solved.used)} used ({dropped})",
+                  soft_wrap=True)
+
+
 @app.command("plan")
 def plan(
     rgb: Annotated[Path | None, typer.Option(help="Colour image (PNG/JPEG), registered with the depth image")] = None,

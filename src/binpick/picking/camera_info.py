@@ -175,6 +175,39 @@ def _rotation(value, where: str) -> np.ndarray:
     return _numbers({"rotation": value}, "rotation", 4, where)
 
 
+def read_pose(value, where: str, name: str) -> np.ndarray:
+    """A pose mapping (``translation: [x, y, z]`` in metres, ``rotation: {x, y, z, w}`` or a list in
+    ROS's order x, y, z, w; or ``matrix``: 16 numbers) -> 4x4. Malformed: one line naming ``name``."""
+    if not isinstance(value, dict):
+        raise InputFileError(f"{where}: {name} must be a mapping with translation and rotation")
+    pose = np.eye(4)
+    try:
+        if "matrix" in value:
+            pose = _numbers(value, "matrix", 16, where).reshape(4, 4)
+        else:
+            pose[:3, 3] = _numbers(value, "translation", 3, where)
+            pose[:3, :3] = quaternion_to_matrix(_rotation(value.get("rotation"), where))
+    except (InputFileError, ConfigError) as error:
+        raise InputFileError(f"{name}: {error}") from None
+    return pose
+
+
+def read_intrinsics(path: str | Path) -> tuple[np.ndarray, np.ndarray, int, int]:
+    """Only a camera file's K, distortion and size (a camera not yet calibrated has no camera_to_base)."""
+    from binpick.core.files import read_yaml
+
+    where = repr(str(path))
+    data = read_yaml(path, "camera file")
+    if not isinstance(data, dict):
+        raise InputFileError(f"camera file {where} must be a mapping in the ROS camera_info YAML layout")
+    for key in ("image_width", "image_height"):
+        if isinstance(data.get(key), bool) or not isinstance(data.get(key), int) or data[key] < 1:
+            raise InputFileError(f"camera file {where}: {key} must be a positive whole number of pixels, got {data.get(key)!r}")
+    K = _numbers(data, "camera_matrix", 9, where).reshape(3, 3)
+    D = _numbers(data, "distortion_coefficients", None, where) if "distortion_coefficients" in data else np.zeros(5)
+    return K, D, data["image_width"], data["image_height"]
+
+
 def read_camera_info(path: str | Path) -> CameraInfo:
     """A ``camera_info`` YAML file with its ``camera_to_base``. Anything missing or malformed is one
     line naming the field."""
