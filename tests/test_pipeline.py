@@ -263,3 +263,26 @@ def test_a_picking_look_waits_for_a_rolling_ball_to_come_to_rest():
         assert np.linalg.norm(world.data.xipos[world.body_ids[0]] - before) > 0.01  # it rolled on before the frame was taken
     finally:
         world.close()
+
+
+def test_grasps_worth_trying_go_before_hopeless_ones_and_a_push_only_when_none_is_left():
+    from types import SimpleNamespace
+
+    from binpick.picking.plans import GraspPlan
+    from binpick.picking.picker import Picker
+    from binpick.warehouse.pipeline import OrderResult
+
+    picker = SimpleNamespace(grasp=SimpleNamespace(policy=GraspPlanner("analytic").policy))
+    picker.hopeless = lambda plan: Picker.hopeless(picker, plan)
+    pipeline = SimpleNamespace(picker=picker, motion=None)
+    push = {"start": [0.1, 0.1, 0.05], "end": [0.06, 0.06, 0.05], "yaw": 0.0}
+    cup_on_a_ball = GraspPlan([0, 0, 9, 9], 0.9, 0.95, position=[0.1, 0.1, 0.05], quality=0.01, tool="suction", push=push)
+    blocked = GraspPlan([0, 0, 9, 9], 0.8, 0.95, push=push)
+    copy = GraspPlan([20, 0, 9, 9], 0.7, 0.9, position=[0.0, 0.0, 0.04], quality=0.97, tool="suction")
+    ordered = PickPipeline.good_first(pipeline, [cup_on_a_ball, blocked, copy])
+    assert ordered == [blocked, copy, cup_on_a_ball]  # the hopeless grasp last; one without a grasp costs nothing
+    result = OrderResult(0, "p", 0, False, Reason.NO_DETECTION)
+    assert not PickPipeline.pushes_first(pipeline, cup_on_a_ball, [copy], result)  # a good grasp is left: no push
+    assert PickPipeline.pushes_first(pipeline, cup_on_a_ball, [blocked], result)
+    result.pushes.append({**push, "moved": 0.03})
+    assert not PickPipeline.pushes_first(pipeline, cup_on_a_ball, [], result)  # one push per order

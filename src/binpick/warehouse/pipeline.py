@@ -294,9 +294,19 @@ class PickPipeline:
         given) -> (a new frame, its plans): after a failed grasp the robot looks at the bin again and
         goes on with the new plans, as a real cell does (a slipped product has moved; the old frame's
         plans would aim where it was)."""
-        queue = list(plans)
+        queue = self.good_first(plans)
         while queue and result.grasps < self.max_attempts:
             plan = queue.pop(0)
+            if self.pushes_first(plan, queue, result) and look_again is not None:
+                moved = execute_push(world, np.array(plan.push["start"]), np.array(plan.push["end"]), plan.push["yaw"],
+                                     on_frame=on_frame)
+                result.pushes.append({**plan.push, "moved": round(moved, 4)})
+                if on_caption is not None:
+                    on_caption(f"push ({100 * moved:.0f} cm moved)")
+                scene, replanned = look_again(result.grasps)
+                result.looked_again += 1
+                queue = self.good_first(replanned)
+                continue
             if not plan.feasible:
                 result.attempts.append(Attempt(plan.box, plan.score, plan.same_product, [], Reason.NO_GRASP, None,
                                                rejected=plan.rejected))
@@ -337,7 +347,21 @@ class PickPipeline:
             if look_again is not None and result.grasps < self.max_attempts:
                 scene, replanned = look_again(result.grasps)
                 result.looked_again += 1
-                queue = list(replanned)
+                queue = self.good_first(replanned)
+
+    def good_first(self, plans) -> list[GraspPlan]:
+        """The plans in their order, but those whose grasp is predicted to fail most of the time
+        (:meth:`Picker.hopeless`) after those worth trying: a copy with a 0.99 grasp before one whose
+        only grasp is a cup on a ball."""
+        return sorted(plans, key=lambda p: p.feasible and self.picker.hopeless(p))
+
+    def pushes_first(self, plan: GraspPlan, queue: list[GraspPlan], result: OrderResult) -> bool:
+        """Whether to push ``plan``'s instance free before anything else: it offers a push (no grasp, or
+        one predicted to fail most of the time), no plan after it has a grasp worth trying, and the
+        order has pushes left (the floating gripper only: the arm does not push yet)."""
+        if plan.push is None or self.motion is not None or len(result.pushes) >= MAX_PUSHES:
+            return False
+        return not any(p.feasible and not self.picker.hopeless(p) for p in queue)
 
     def pick_pointed(self, world: BinWorld, scene: Scene, query_box, result: OrderResult) -> None:
         """Pick the instance a person pointed at (``query_box``, pixels of ``scene``'s frame) as a robot
@@ -363,9 +387,9 @@ class PickPipeline:
             result.detections = max(result.detections, plans.detections)
             chosen = next(iter(plans.grasps), None)
             pointed = plans[0] if len(plans) else None
-            push = pointed.push if pointed is not None and self.motion is None else None  # (the arm does not push yet)
+            push = pointed.push if pointed is not None and self.pushes_first(pointed, [], result) else None
             pushed = None
-            if push is not None and len(result.pushes) < MAX_PUSHES:
+            if push is not None:
                 moved = execute_push(world, np.array(push["start"]), np.array(push["end"]), push["yaw"])
                 result.pushes.append({**push, "moved": round(moved, 4)})
                 pushed = push
