@@ -64,6 +64,8 @@ def main() -> None:
     parser.add_argument("--tool-rows", action="store_true", help="also the seen and held-out orders with each other hand (by_gripper)")
     parser.add_argument("--per-product", type=int, default=0, metavar="N",
                         help="also N orders of every product, seen and held out, with --gripper (by_product)")
+    parser.add_argument("--cell", type=Path, default=None, metavar="YAML",
+                        help="also the seen and held-out orders with a cell file's hand, e.g. configs/cells/franka_hand.yaml (by_cell)")
     parser.add_argument("--skip-main", action="store_true", help="keep results/pick.json's seen, held-out and oracle rows "
                                                                   "(made with the same --gripper and --orders) and run only the extra rows")
     args = parser.parse_args()
@@ -137,6 +139,10 @@ def main() -> None:
                 print(gripper, group, json.dumps({k: summary[k] for k in ("orders", "pick_success", "right_product", "reasons")}), flush=True)
     elif "by_gripper" in previous:  # the other hands' rows stay until they are run again
         result["by_gripper"] = {**previous["by_gripper"], **result["by_gripper"]}
+    if args.cell is not None:
+        result["by_cell"] = {**(previous.get("by_cell") or {}), **cell_rows(model, library, policy, args.cell, seen, held_out, args.orders, args.out)}
+    elif "by_cell" in previous:
+        result["by_cell"] = previous["by_cell"]
     if args.per_product:
         result["by_product"] = per_product_rows(model, library, policy, args.gripper, seen, held_out, args.per_product, args.out)
     elif "by_product" in previous:
@@ -184,6 +190,27 @@ def per_product_rows(model, library, policy: str, gripper: str, seen: list[str],
                          "reasons": summary["reasons"], "by_tool": summary["by_tool"]}
         print(f"per product: {product} {summary['pick_success']:.0%} of {summary['orders']}", flush=True)
     return rows
+
+
+def cell_rows(model, library, policy: str, path: Path, seen: list[str], held_out: list[str], orders: int, out: Path) -> dict:
+    """The seen and held-out orders (the same bins) with the hand a cell file describes; the widest
+    jaw grasp it executed beside the widest its jaws take."""
+    from binpick.cell import Cell
+    from binpick.grasping import GraspPlanner
+    from binpick.warehouse.pipeline import PickPipeline, fulfil
+
+    cell = Cell.load(path)
+    planner = GraspPlanner.load(policy, hand=cell.tools, gripper=cell.jaws, cup=cell.cup)
+    rows = {"file": str(path), "tools": cell.tools, "stroke": cell.jaws.opening, "widest_taken": round(cell.widest, 4)}
+    for group, products in (("seen", seen), ("held_out", held_out)):
+        folder = out / f"cell_{cell.name}_{group}"
+        summary, results = fulfil(PickPipeline(model, library, grasp=planner, gripper=cell.tools), products, orders, SEEDS[group], folder,
+                                  on_order=report_progress(f"{cell.name} {group}", orders), title=f"binpick: {group} ({cell.name})")
+        widths = [a.width for r in results for a in r.attempts if a.tool == "jaws" and a.width is not None]
+        rows[group] = {"products": len(products), "grasp": policy, "folder": str(folder),
+                       "widest_jaw_grasp": round(max(widths), 4) if widths else None, **summary}
+        print(cell.name, group, json.dumps({k: summary[k] for k in ("orders", "pick_success", "right_product", "reasons")}), flush=True)
+    return {cell.name: rows}
 
 
 def executed_orders(rows: dict) -> dict[str, list[dict]]:
@@ -367,6 +394,22 @@ def tool_lines(result: dict) -> list[str]:
             cell = lambda v: "n/a" if v is None else f"{v:.0%}"  # noqa: E731
             lines.append(f"| {gripper} | {cell(seen['pick_success'])} | {cell(seen['right_product'])} | "
                          f"{cell(held.get('pick_success'))} | {cell(held.get('right_product'))} | {used} |")
+        lines.append("")
+    cells = result.get("by_cell") or {}
+    if cells:
+        lines += ["### Your cell's gripper", "",
+                  "The same seen and held-out orders with the hand a cell file describes (`python experiments/pick.py --cell FILE`; "
+                  "the planner and the simulated hand both take its jaws' stroke and fingers). The widest jaw grasp executed is "
+                  "never wider than the jaws take (stroke less the margin).", "",
+                  "| cell | tools | stroke | seen placed | held out placed | right product (seen, held out) | widest jaw grasp / widest taken |",
+                  "|---|---|---|---|---|---|---|"]
+        for name, row in cells.items():
+            seen, held = row.get("seen") or {}, row.get("held_out") or {}
+            share = lambda v: "n/a" if v is None else f"{v:.0%}"  # noqa: E731
+            widest = max((r.get("widest_jaw_grasp") or 0.0 for r in (seen, held)), default=0.0)
+            lines.append(f"| {name} | {row['tools']} | {100 * row['stroke']:.1f} cm | {share(seen.get('pick_success'))} | "
+                         f"{share(held.get('pick_success'))} | {share(seen.get('right_product'))}, {share(held.get('right_product'))} | "
+                         f"{100 * widest:.1f} / {100 * row['widest_taken']:.1f} cm |")
         lines.append("")
     shapes = result.get("by_category") or {}
     if shapes:

@@ -127,6 +127,18 @@ RobotOption = Annotated[str, typer.Option(callback=_check_robot, help="What exec
                                                                      "fast) or panda (a Franka Panda arm: IK, timed motion, "
                                                                      "its reach in the plan)")]
 
+CellOption = Annotated[Path | None, typer.Option(help="Your cell file (YAML): the gripper's tools, the jaws' stroke and "
+                                                       "fingers, the cup, the TCP offset, the arm (see binpick.cell; "
+                                                       "configs/cells/). Replaces --gripper")]
+
+
+def load_cell(path: Path | None):
+    """The --cell file (None: none given); a mistake in it is one line."""
+    from binpick.cell import load_cell as load
+
+    return load(path)
+
+
 PlanRobotOption = Annotated[str, typer.Option(callback=_check_robot, help="floating: any grasp goes; panda: only grasps the "
                                                                          "Panda of binpick's cell can take (its base at x -0.52, "
                                                                          "y 0.18 m in the base frame; the others are rejected "

@@ -13,6 +13,7 @@ from rich.text import Text
 
 from binpick.cli.app import (
     DEFAULT_GRIPPER,
+    CellOption,
     DEFAULT_POLICY,
     GripperOption,
     PlanRobotOption,
@@ -22,6 +23,7 @@ from binpick.cli.app import (
     app,
     check_png_path,
     console,
+    load_cell,
     output_folder,
     parse_dimensions,
     product_library,
@@ -51,6 +53,7 @@ def pick(
     seed: Annotated[int, seed_option("Seed of the first order's bin")] = 0,
     robot: RobotOption = "floating",
     gripper: GripperOption = DEFAULT_GRIPPER,
+    cell: CellOption = None,
     runtime: RuntimeOption = "torch",
     rerun: RerunOption = False,
 ) -> None:
@@ -62,7 +65,12 @@ def pick(
     from binpick.warehouse.pipeline import PickPipeline
 
     check_range("orders", orders, 1, 100_000, integer=True)
-    planner = GraspPlanner.load(grasp, grasp_weights, hand=gripper)  # a bad policy or weights file: one line, before any work
+    the_cell = load_cell(cell)
+    if the_cell is not None:  # its hand: the tools, the jaws' stroke and fingers, the cup (the simulator builds the same)
+        gripper = the_cell.tools
+        planner = GraspPlanner.load(grasp, grasp_weights, hand=gripper, gripper=the_cell.jaws, cup=the_cell.cup)
+    else:
+        planner = GraspPlanner.load(grasp, grasp_weights, hand=gripper)  # a bad policy or weights file: one line, before any work
     run_dir = ensure_dir(out or Path("runs/pick") / time.strftime("%Y%m%d-%H%M%S"), "--out")
     library = product_library(products_file)
     products = [pid for name in product.split(",") if name.strip() for pid in library.resolve(name.strip())]
@@ -177,6 +185,7 @@ def plan(
                                                           "clearly bigger are not grasped")] = None,
     robot: PlanRobotOption = "floating",
     gripper: GripperOption = DEFAULT_GRIPPER,
+    cell: CellOption = None,
     runtime: RuntimeOption = "torch",
     rerun: RerunOption = False,
 ) -> None:
@@ -190,6 +199,8 @@ def plan(
     from binpick.picking.frames import read_frame, read_photo
 
     check_range("--max-grasps", max_grasps, 1, 100, integer=True)
+    the_cell = load_cell(cell)
+    gripper = the_cell.tools if the_cell is not None else gripper
     if sample:
         from binpick.samples import SAMPLE_FRAME
 
@@ -219,8 +230,9 @@ def plan(
 
         reach = MotionPlanner(gripper=gripper).reach_check
     picker = Picker.load(None if box is not None else weights, grasp, grasp_weights, crop_detector=crop, max_grasps=max_grasps,
-                         runtime=runtime, reach=reach, gripper=gripper)
+                         runtime=runtime, reach=reach, gripper=gripper, cell=the_cell)
     plans = picker.plan(colour, metres, info, photo=query, query_box=box, size=dimensions, copies_only=copies_only)
+    check_stroke(plans, picker.grasp)
     result = {"inputs": {"rgb": str(rgb), "depth": str(depth), "camera": str(camera),
                          "photo": [str(path) for path in photo] if photo else None, "query_box": query_box, "copies_only": copies_only,
                          "size": dimensions},
@@ -255,6 +267,23 @@ def plan(
                       f"-> {plan_path}, {overlay}", soft_wrap=True)
         if best.push is not None:
             _say_push(plans)
+
+
+def check_stroke(plans, planner) -> None:
+    """A hand with jaws alone, no grasp, and (nearly) every candidate on every detection wider than the
+    jaws open: the cell's stroke is wrong (mm for m?) or the products are too big for it. One line, not
+    an empty plan. Nearly: a sliver of an instance at a box's edge may be narrow and blocked."""
+    from binpick.grasping.candidates import TOO_WIDE
+
+    if plans.grasps or planner.tools != ("jaws",) or not len(plans):
+        return
+    counts = [(plan.rejected.get(TOO_WIDE, 0), sum(plan.rejected.values())) for plan in plans]
+    wide, every = sum(c[0] for c in counts), sum(c[1] for c in counts)
+    if every and wide >= 0.9 * every:
+        widest = planner.gripper.opening - planner.gripper.margin
+        raise ConfigError(f"{wide} of {every} grasp candidates are wider than the jaws take ({100 * widest:.1f} cm: stroke "
+                          f"{100 * planner.gripper.opening:.1f} cm less the margin): check the cell's gripper.jaws.stroke "
+                          "(metres), or this product needs a wider gripper or a cup")
 
 
 def _say_push(plans) -> None:

@@ -30,6 +30,7 @@ MIN_GRIP = 0.015  # fingertips at least this far under the instance's top
 BLOCK_TOLERANCE = 0.03
 ON_TOP = 0.01  # m: another object this far above the instance's top, between the open jaws, is taken instead of it
 ON_TOP_REASON = "another object on it, between the jaws"
+TOO_WIDE = "too wide across the jaws"
 SHIFT = 0.01  # m: candidates also move the jaws' centre this far either way along the closing direction
 ON_INSTANCE_SPACING, ON_INSTANCE_POINTS = 0.012, 13  # the instance's centre and 12 points on it: where an off-centre one straddles it
 YAWS = 12  # even yaws over 180 degrees (15 degrees apart), plus the minor axis
@@ -393,7 +394,7 @@ def _candidate(centre, yaw: float, tips: float, width: float, highest: float, se
     if not seen:
         candidate.rejected = "finger outside the camera's view"
     elif width > gripper.opening - gripper.margin:
-        candidate.rejected = f"too wide across the jaws ({width * 100:.1f} cm)"
+        candidate.rejected = f"{TOO_WIDE} ({width * 100:.1f} cm)"
     elif clearance < -BLOCK_TOLERANCE:
         candidate.rejected = f"finger blocked ({-clearance * 100:.1f} cm above the tips)"
     return candidate

@@ -321,15 +321,19 @@ class Picker:
     @classmethod
     def load(cls, detector: str | Path | None = None, grasp: str = "learnt", grasp_weights: str | Path | None = None,
              crop_detector: str | Path | None = None, runtime: str = "torch", gripper: str = DEFAULT_GRIPPER,
-             **settings) -> Picker:
+             cell=None, **settings) -> Picker:
         """The photo-conditioned detector (default: shipped), the box-conditioned one for ``query_box``
         (default: shipped, loaded when first needed) and the grasp policy (default: learnt, shipped) for
-        a hand carrying ``gripper`` (jaws, suction or both: grasps only for the tools it has).
+        a hand carrying ``gripper`` (jaws, suction or both: grasps only for the tools it has), or the hand
+        of ``cell`` (a :class:`binpick.cell.Cell`: its tools, its jaws' stroke and fingers, its cup).
         ``runtime="onnx"`` runs the photo-conditioned detector in ONNX Runtime."""
         from binpick.detection import Detector
         from binpick.detection.detector import PICKING
 
-        planner = GraspPlanner.load(grasp, grasp_weights, hand=gripper)
+        if cell is not None:
+            planner = GraspPlanner.load(grasp, grasp_weights, hand=cell.tools, gripper=cell.jaws, cup=cell.cup)
+        else:
+            planner = GraspPlanner.load(grasp, grasp_weights, hand=gripper)
         network = Detector.load(detector or PICKING, runtime=runtime).inference_network
         crop = Detector.load(crop_detector).inference_network if crop_detector is not None else None
         return cls(network, planner, crop, **settings)
@@ -605,8 +609,9 @@ class Picker:
         """The plan for one detection: its best grasp, unless the instance is larger than the ordered
         product or the grasp lies outside ``workspace`` (then rejected, with the reason, and no pose)."""
         choice = choice if choice is not None else self.grasp.choose(frame, box, failed=getattr(self, "_failed", ()))
+        widths = [c.width for c in choice.candidates if c.tool == "jaws" and np.isfinite(c.width) and c.width > 0]
         plan = GraspPlan([round(float(v), 2) for v in box], round(score, 4), None if similarity is None else round(similarity, 3),
-                         rejected=choice.rejections())
+                         rejected=choice.rejections(), narrowest=round(float(min(widths)), 4) if widths else None)
         if size is not None and choice.surface is not None and larger_than(choice.surface, size):
             plan.rejected = {LARGER: 1}
             return plan

@@ -51,6 +51,7 @@ class GraspPlan:
     quality: float | None = None  # the grasp policy's score of the chosen candidate (a success probability but for the analytic jaws)
     rejected: dict[str, int] = field(default_factory=dict)
     tool: str | None = None  # the tool the grasp is for: jaws or suction (None: no grasp)
+    narrowest: float | None = None  # the instance's narrowest width across the jaws over every candidate (m; None: no jaw candidate)
     push: dict | None = None  # where no grasp fits well: a push that gives the fingers room (start, end: the closed fingertips, base frame; yaw)
 
     @property

@@ -61,11 +61,12 @@ class BinWorld:
     def __init__(self, target: Product, distractors: list[Product], max_copies: int = 8,
                  camera: CameraSpec = CameraSpec(), extra_worldbody: str = "", extra: str = "",
                  randomise_lighting: bool = False, gripper: bool | str = False, seed: int = 0,
-                 domain: DomainConfig | None = None, sensor: SensorConfig | None = None, robot=None) -> None:
+                 domain: DomainConfig | None = None, sensor: SensorConfig | None = None, robot=None, jaws=None) -> None:
         """``robot``: an arm to put in the scene (e.g. :class:`binpick.sim.panda.PandaArm`), with
         ``attach(spec)`` before compiling and ``bind(model)`` after; it waits at its home posture.
         ``gripper``: the floating hand's tools (jaws, suction or both; True: jaws), when there is no arm
-        (an arm carries its own hand)."""
+        (an arm carries its own hand); ``jaws``: their geometry (:class:`binpick.grippers.Jaws`, default
+        binpick's own)."""
         self.target, self.distractors, self.camera = target, list(distractors), camera
         self.sensor = sensor if sensor is not None and sensor.realistic else None
         # the tote's tilt is the world's (one compiled model); drawn apart from the scenes' draws
@@ -90,7 +91,9 @@ class BinWorld:
         if gripper:
             from binpick.sim.gripper import floating_hand
 
-            hand_body, hand_extra = floating_hand(gripper, len(self.slots))
+            from binpick.grippers import Jaws
+
+            hand_body, hand_extra = floating_hand(gripper, len(self.slots), jaws or Jaws())
             extra_worldbody, extra = extra_worldbody + hand_body, extra + hand_extra
         elif robot is not None and getattr(robot, "gripper", "jaws") != "jaws":
             from binpick.sim.hand import suction_welds

@@ -33,8 +33,9 @@ SUCTION_PRESS = SuctionCup().press  # m: a suction pick drives the lip this far 
 
 
 
-def floating_hand(gripper: str = "jaws", slots: int = 0) -> tuple[str, str]:
-    """(worldbody XML, other XML) of the floating hand carrying ``gripper`` (jaws, suction or both):
+def floating_hand(gripper: str = "jaws", slots: int = 0, jaws: Jaws = Jaws()) -> tuple[str, str]:
+    """(worldbody XML, other XML) of the floating hand carrying ``gripper`` (jaws, suction or both; ``jaws``
+    their geometry):
     a free body welded to a mocap target, its fingers' and cup rod's actuators, and, with a cup, one
     inactive suction weld per product slot (``slots`` of them)."""
     from binpick.sim.hand import hand_actuators, hand_contacts, hand_xml, suction_welds
@@ -43,10 +44,10 @@ def floating_hand(gripper: str = "jaws", slots: int = 0) -> tuple[str, str]:
 <body name="gripper_target" mocap="true" pos="{PARK[0]} {PARK[1]} {PARK[2]}"/>
 <body name="gripper" pos="{PARK[0]} {PARK[1]} {PARK[2]}">
   <freejoint name="gripper_free"/>
-  {hand_xml(gripper)}
+  {hand_xml(gripper, jaws)}
 </body>"""
     extra = ('<equality><weld body1="gripper_target" body2="gripper" solref="0.02 1"/></equality>'
-             + hand_actuators(gripper) + hand_contacts(gripper) + (suction_welds(slots) if gripper != "jaws" else ""))
+             + hand_actuators(gripper, jaws) + hand_contacts(gripper) + (suction_welds(slots) if gripper != "jaws" else ""))
     return body, extra
 
 

@@ -28,18 +28,18 @@ FINGER = ('type="box" size="{t} {w} {l}" pos="0 0 0" rgba="0.6 0.6 0.62 1" mass=
           'condim="6" priority="1" solref="0.004 1" solimp="0.95 0.99 0.001" group="3"')
 
 
-def hand_xml(gripper: str) -> str:
+def hand_xml(gripper: str, jaws: Jaws = JAWS) -> str:
     """The geoms and bodies inside the ``gripper`` body of a hand carrying ``gripper`` (jaws, suction
-    or both): palm, fingers, the cup on its rod."""
+    or both): palm, fingers (``jaws``: their stroke and size), the cup on its rod."""
     tools = tools_of(gripper)
-    half = JAWS.opening / 2
+    half = jaws.opening / 2
     palm_half_x = half + 0.012 if "jaws" in tools else CUP.radius + 0.01
     parts = [f'<geom name="palm" type="box" size="{palm_half_x} 0.014 {PALM_HALF_HEIGHT}" pos="0 0 {PALM_Z}" '
              f'rgba="0.25 0.25 0.28 1" mass="0.4" group="{HAND_GROUP}"/>']
     if "jaws" in tools:
-        finger = FINGER.format(t=JAWS.finger_thickness / 2, w=JAWS.finger_width / 2, l=JAWS.finger_length / 2)
+        finger = FINGER.format(t=jaws.finger_thickness / 2, w=jaws.finger_width / 2, l=jaws.finger_length / 2)
         for name, sign in (("finger_a", 1), ("finger_b", -1)):
-            parts.append(f'<body name="{name}" pos="{sign * (half + JAWS.finger_thickness / 2)} 0 0">'
+            parts.append(f'<body name="{name}" pos="{sign * (half + jaws.finger_thickness / 2)} 0 0">'
                          f'<joint name="{name}" type="slide" axis="{-sign} 0 0" range="0 {half}" damping="2"/>'
                          f'<geom name="{name}" {finger}/></body>')
     if "suction" in tools:
@@ -63,10 +63,10 @@ def hand_xml(gripper: str) -> str:
     return "".join(parts)
 
 
-def hand_actuators(gripper: str) -> str:
-    """The hand's actuators: each finger's position, the cup rod's extension."""
+def hand_actuators(gripper: str, jaws: Jaws = JAWS) -> str:
+    """The hand's actuators: each finger's position (over half the jaws' stroke), the cup rod's extension."""
     tools = tools_of(gripper)
-    half = JAWS.opening / 2
+    half = jaws.opening / 2
     parts = []
     if "jaws" in tools:
         parts += [f'<position name="{n}" joint="{n}" kp="200" ctrlrange="0 {half}" forcerange="-12 12"/>' for n in ("finger_a", "finger_b")]
@@ -123,7 +123,7 @@ class Hand:
     def command(self, data: mujoco.MjData, closed: bool) -> None:
         """Grip (True) or let go: the fingers close or open; the vacuum seals where it can, or releases."""
         if self.tool == "jaws":
-            data.ctrl[self.fingers] = JAWS.opening / 2 if closed else 0.0
+            data.ctrl[self.fingers] = self.model.actuator_ctrlrange[self.fingers, 1] if closed else 0.0  # half the stroke: shut
         elif closed and not self.closed:
             self.vacuum.on(data)
         elif not closed and self.closed:

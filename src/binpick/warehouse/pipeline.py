@@ -214,7 +214,7 @@ class PickPipeline:
             robot = PandaArm(gripper=self.gripper)
         world = BinWorld(target, chosen, max_copies=self.copies[1], camera=self.camera, extra_worldbody=order_tote_xml(),
                          gripper=self.gripper if robot is None else False, seed=seed, domain=self.domain, sensor=self.sensor,
-                         robot=robot)
+                         robot=robot, jaws=self.grasp.gripper)  # the hand the planner plans for
         return world, rng
 
     def settle(self, world: BinWorld, rng: np.random.Generator, seed: int) -> Scene:

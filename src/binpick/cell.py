@@ -1,0 +1,109 @@
+"""Your cell in one file: the gripper your robot carries (jaws, a suction cup or both, their geometry
+and the tool point's offset from the flange) and the arm, read once and validated. The planner takes
+the jaws' stroke and fingers from it (no grasp wider than your jaws open is emitted), the simulator
+builds the same hand from it (so your cell can be simulated and labelled), and the reports name it.
+
+    gripper:
+      tools: jaws                 # jaws, suction or both
+      jaws: {stroke: 0.08, finger_thickness: 0.012, finger_width: 0.02, finger_length: 0.045, margin: 0.005}
+      suction: {radius: 0.015, vacuum_force: 30.0}
+      tcp: 0.1034                 # the tool point's distance from the flange along its z (m)
+    arm: {model: panda}           # panda or none (its base and reach: binpick's simulated cell)
+
+``binpick plan --cell cell.yaml``, ``binpick pick --cell cell.yaml``; ``configs/cells/`` has a
+Franka Hand and a Robotiq 2F-85.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from binpick.core.errors import ConfigError, InputFileError
+from binpick.grippers import GRIPPERS, Jaws, SuctionCup
+
+ARMS = ("panda", "none")
+JAW_FIELDS = {"stroke": (0.01, 0.3), "finger_thickness": (0.002, 0.05), "finger_width": (0.004, 0.08),
+              "finger_length": (0.01, 0.2), "margin": (0.0, 0.03)}
+CUP_FIELDS = {"radius": (0.004, 0.05), "vacuum_force": (1.0, 500.0), "compliance": (0.0, 0.02), "depth": (0.0, 0.02),
+              "max_tilt": (0.0, 80.0), "friction": (0.05, 3.0)}
+
+
+@dataclass(frozen=True)
+class Cell:
+    """A picking cell: its hand's ``tools``, the jaws and cup, the tool point's offset from the
+    flange, and the arm."""
+
+    tools: str = "both"
+    jaws: Jaws = field(default_factory=Jaws)
+    cup: SuctionCup = field(default_factory=SuctionCup)
+    tcp: float = 0.1034
+    arm: str = "panda"
+    name: str = "binpick"
+
+    @classmethod
+    def load(cls, path: str | Path) -> Cell:
+        """A cell file; every mistake is one line naming the field and the file."""
+        from binpick.core.files import read_yaml
+
+        path = Path(path)
+        where = f"cell file {str(path)!r}"
+        data = read_yaml(path, "cell file")
+        if not isinstance(data, dict):
+            raise InputFileError(f"{where} must be a mapping with gripper and arm")
+        _only(data, {"gripper", "arm", "name"}, where)
+        gripper = data.get("gripper")
+        if not isinstance(gripper, dict):
+            raise InputFileError(f"{where}: gripper must be a mapping (tools, jaws, suction, tcp)")
+        _only(gripper, {"tools", "jaws", "suction", "tcp"}, f"{where}: gripper")
+        tools = str(gripper.get("tools", "both"))
+        if tools not in GRIPPERS:
+            raise InputFileError(f"{where}: gripper.tools {tools!r}: choose from {', '.join(GRIPPERS)}")
+        jaws = Jaws(**{("opening" if k == "stroke" else k): v for k, v in
+                       _numbers(gripper.get("jaws") or {}, JAW_FIELDS, f"{where}: gripper.jaws").items()})
+        if jaws.margin >= jaws.opening:
+            raise InputFileError(f"{where}: gripper.jaws.margin ({jaws.margin} m) must be below the stroke ({jaws.opening} m)")
+        cup = SuctionCup(**_numbers(gripper.get("suction") or {}, CUP_FIELDS, f"{where}: gripper.suction"))
+        tcp = _numbers({"tcp": gripper.get("tcp", 0.1034)}, {"tcp": (0.0, 0.5)}, f"{where}: gripper")["tcp"]
+        arm = data.get("arm") or {}
+        if not isinstance(arm, dict):
+            raise InputFileError(f"{where}: arm must be a mapping (model)")
+        _only(arm, {"model"}, f"{where}: arm")
+        model = str(arm.get("model", "panda"))
+        if model not in ARMS:
+            raise InputFileError(f"{where}: arm.model {model!r}: choose from {', '.join(ARMS)} (a UR arm is not modelled yet)")
+        return cls(tools, jaws, cup, tcp, model, str(data.get("name", path.stem)))
+
+    @property
+    def widest(self) -> float:
+        """The widest object the jaws take (m): the stroke less the margin."""
+        return self.jaws.opening - self.jaws.margin
+
+
+def _only(data: dict, allowed: set[str], where: str) -> None:
+    unknown = set(map(str, data)) - allowed
+    if unknown:
+        raise InputFileError(f"{where}: unknown field(s) {', '.join(sorted(unknown))} (known: {', '.join(sorted(allowed))})")
+
+
+def _numbers(data, ranges: dict[str, tuple[float, float]], where: str) -> dict[str, float]:
+    if not isinstance(data, dict):
+        raise InputFileError(f"{where} must be a mapping of numbers ({', '.join(ranges)})")
+    _only(data, set(ranges), where)
+    values = {}
+    for key, value in data.items():
+        low, high = ranges[key]
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not low <= float(value) <= high:
+            raise InputFileError(f"{where}.{key} must be a number from {low} to {high} (m, N or degrees), got {value!r}")
+        values[key] = float(value)
+    return values
+
+
+def load_cell(path: str | Path | None) -> Cell | None:
+    """The cell file at ``path`` (None: no cell given)."""
+    if path is None:
+        return None
+    try:
+        return Cell.load(path)
+    except ConfigError as error:
+        raise InputFileError(str(error)) from None

@@ -1,0 +1,74 @@
+"""Your cell in one file: read and checked once; the planner never emits a grasp wider than its jaws
+open, the simulator builds the same hand, and a stroke no candidate fits is one line."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from binpick.cell import Cell, load_cell
+from binpick.core.errors import InputFileError
+
+ROOT = Path(__file__).resolve().parents[1]
+CLI = [sys.executable, "-c", "from binpick.cli import main; main()"]
+FRANKA = ROOT / "configs" / "cells" / "franka_hand.yaml"
+
+
+def test_the_shipped_cells_load_and_mistakes_are_one_line(tmp_path):
+    franka = load_cell(FRANKA)
+    assert franka.tools == "jaws" and franka.jaws.opening == 0.08 and franka.widest == pytest.approx(0.074)
+    assert load_cell(ROOT / "configs" / "cells" / "robotiq_2f85.yaml").tools == "both"
+    for text, words in (("gripper: {tools: claws}", "gripper.tools 'claws'"),
+                        ("gripper: {jaws: {stroke: 80}}", "gripper.jaws.stroke must be a number from 0.01 to 0.3"),
+                        ("gripper: {jaws: {strok: 0.08}}", "unknown field(s) strok"),
+                        ("gripper: {tools: jaws}\narm: {model: ur5e}", "arm.model 'ur5e'")):
+        bad = tmp_path / "cell.yaml"
+        bad.write_text(text)
+        with pytest.raises(InputFileError, match=words.replace("(", r"\(").replace(")", r"\)").replace(".", r"\.")) as raised:
+            Cell.load(bad)
+        assert "\n" not in str(raised.value)
+
+
+def test_an_8_cm_cell_plans_nothing_wider_and_the_simulator_builds_its_hand():
+    from binpick.grasping import DepthFrame, GraspPlanner, PinholeCamera
+    from binpick.sim.bin_scene import BinWorld
+    from binpick.sim.mjcf import CameraSpec
+    from binpick.sim.products import Product
+
+    franka = load_cell(FRANKA)
+    planner = GraspPlanner("analytic", hand=franka.tools, gripper=franka.jaws)
+    box = Product("test/box", "test", shape="box", size=(0.045, 0.035, 0.02), mass=0.2)  # 9 x 7 cm: fits 11 cm jaws only across
+    world = BinWorld(box, [], max_copies=1, camera=CameraSpec(size=200), gripper=franka.tools, jaws=franka.jaws)
+    try:
+        fingers = [world.model.actuator(name).id for name in ("finger_a", "finger_b")]
+        assert np.allclose(world.model.actuator_ctrlrange[fingers, 1], 0.04)  # each finger travels half the 8 cm stroke
+        scene = world.scene(1, 0, seed=2)
+        frame = DepthFrame.from_depth(scene.depth, PinholeCamera.from_record(scene.camera))
+        choice = planner.choose(frame, scene.instances[0].bbox)
+        assert choice.chosen is not None and choice.chosen.width <= franka.widest
+        assert all(c.rejected or c.width <= franka.widest for c in choice.candidates if c.tool == "jaws")
+        wide = GraspPlanner("analytic", hand="jaws", gripper=load_cell(FRANKA).jaws.__class__(opening=0.03, margin=0.005))
+        assert wide.choose(frame, scene.instances[0].bbox).chosen is None
+    finally:
+        world.close()
+
+
+def test_a_stroke_below_every_candidate_is_one_line_not_a_plan(tmp_path):
+    narrow = tmp_path / "narrow.yaml"
+    narrow.write_text("gripper: {tools: jaws, jaws: {stroke: 0.012, margin: 0.002}}\narm: {model: none}\n")  # 12 mm, not 12 cm
+    run = subprocess.run([*CLI, "plan", "--sample", "--cell", str(narrow), "--grasp", "analytic", "--out", str(tmp_path / "out")],
+                         capture_output=True, text=True, timeout=240)
+    assert run.returncode == 2, run.stdout[-1500:] + run.stderr[-1500:]
+    errors = [line for line in run.stderr.strip().splitlines() if not line.startswith("warning:")]  # (the sample's depth is half size)
+    assert len(errors) == 1 and "wider than the jaws take (1.0 cm" in errors[0]
+    ok = subprocess.run([*CLI, "plan", "--sample", "--cell", str(FRANKA), "--grasp", "analytic", "--out", str(tmp_path / "ok")],
+                        capture_output=True, text=True, timeout=240)
+    assert ok.returncode == 0, ok.stdout[-1500:] + ok.stderr[-1500:]
+    plans = json.loads((tmp_path / "ok" / "plan.json").read_text())
+    assert plans["gripper"] == "jaws"
+    assert all(p["width"] is None or p["width"] <= 0.074 for p in plans["plans"] if p["position"] is not None)
