@@ -86,3 +86,22 @@ def test_binpick_calibrate_writes_a_camera_pose_the_planner_reads(tmp_path):
     bad = subprocess.run([*CLI, "calibrate", str(folder), "--camera", str(camera)], capture_output=True, text=True, timeout=120)
     assert bad.returncode == 2 and "mount 'eye-on-a-stick'" in bad.stderr and "Traceback" not in bad.stderr
     assert len(bad.stderr.strip().splitlines()) == 1
+
+
+def test_an_eye_in_hand_camera_plans_only_with_the_flange_pose_of_its_frame(tmp_path):
+    from binpick.picking.calibration_session import calibrate_folder
+    from binpick.picking.camera_info import read_camera_info
+    from binpick.warehouse.calibration import write_session
+
+    folder = tmp_path / "wrist"
+    truth = write_session(folder, "eye-in-hand", seed=2, poses=15)
+    solved, record = calibrate_folder(folder, folder / "camera.yaml")
+    assert record["mount"] == "eye-in-hand" and max(pose_error(solved.transform, truth)) < 2.0
+    with pytest.raises(InputFileError, match="eye-in-hand camera .camera_to_flange.: give the flange's pose"):
+        read_camera_info(folder / "camera.yaml")
+    flange = random_pose(np.random.default_rng(4), 0.3, 0.3)
+    info = read_camera_info(folder / "camera.yaml", flange)
+    assert np.allclose(info.camera.camera_to_world, flange @ solved.transform, atol=1e-5)
+    run = subprocess.run([*CLI, "plan", "--sample", "--flange-pose", "0,0,1,0,0,0,1", "--out", str(tmp_path / "out")],
+                         capture_output=True, text=True, timeout=240)
+    assert run.returncode == 2 and "--flange-pose is for a camera on the wrist" in run.stderr

@@ -186,6 +186,9 @@ def plan(
     robot: PlanRobotOption = "floating",
     gripper: GripperOption = DEFAULT_GRIPPER,
     cell: CellOption = None,
+    flange_pose: Annotated[str | None, typer.Option(help="A camera on the wrist (camera.yaml with camera_to_flange, from binpick "
+                                                         "calibrate): the flange's pose when the frame was taken, "
+                                                         "x,y,z,qx,qy,qz,qw in the base frame")] = None,
     runtime: RuntimeOption = "torch",
     rerun: RerunOption = False,
 ) -> None:
@@ -212,7 +215,7 @@ def plan(
         raise ConfigError("give exactly one of --photo (the product's shop photo; repeatable) or --query-box x,y,w,h")
     box = parse_box(query_box) if query_box is not None else None
     dimensions = parse_dimensions(product_size, "--product-size") if product_size is not None else None
-    colour, metres, info = read_frame(rgb, depth, camera)
+    colour, metres, info = read_frame(rgb, depth, camera, parse_flange_pose(flange_pose))
     query = [read_photo(path) for path in photo] if photo else None
     if box is not None and (box[0] < 0 or box[1] < 0 or box[0] + box[2] > colour.shape[1] or box[1] + box[3] > colour.shape[0]):
         raise ConfigError(f"--query-box {query_box!r} lies outside the {colour.shape[1]}x{colour.shape[0]} colour image")
@@ -267,6 +270,26 @@ def plan(
                       f"-> {plan_path}, {overlay}", soft_wrap=True)
         if best.push is not None:
             _say_push(plans)
+
+
+def parse_flange_pose(text: str | None):
+    """--flange-pose x,y,z,qx,qy,qz,qw -> 4x4 (None: not given); malformed: one line."""
+    if text is None:
+        return None
+    import numpy as np
+
+    from binpick.picking.camera_info import quaternion_to_matrix
+
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) != 7 or not all(np.isfinite(values)):
+        raise ConfigError(f"--flange-pose {text!r}: give x,y,z,qx,qy,qz,qw (metres, then the quaternion in ROS's order)")
+    pose = np.eye(4)
+    pose[:3, 3] = values[:3]
+    pose[:3, :3] = quaternion_to_matrix(values[3:])
+    return pose
 
 
 def check_stroke(plans, planner) -> None:

@@ -208,9 +208,10 @@ def read_intrinsics(path: str | Path) -> tuple[np.ndarray, np.ndarray, int, int]
     return K, D, data["image_width"], data["image_height"]
 
 
-def read_camera_info(path: str | Path) -> CameraInfo:
+def read_camera_info(path: str | Path, flange_to_base: np.ndarray | None = None) -> CameraInfo:
     """A ``camera_info`` YAML file with its ``camera_to_base``. Anything missing or malformed is one
-    line naming the field."""
+    line naming the field. A camera on the wrist (eye-in-hand: ``camera_to_flange``, as ``binpick
+    calibrate`` writes it) needs ``flange_to_base``, the flange's pose when the frame was taken."""
     from binpick.core.files import read_yaml
 
     where = repr(str(path))
@@ -226,6 +227,16 @@ def read_camera_info(path: str | Path) -> CameraInfo:
     pose = np.eye(4)
     base_frame = "base_link"
     extrinsic = data.get("camera_to_base")
+    if extrinsic is None and data.get("camera_to_flange") is not None:
+        if flange_to_base is None:
+            raise InputFileError(f"camera file {where} is an eye-in-hand camera (camera_to_flange): give the flange's pose "
+                                 "when the frame was taken (--flange-pose x,y,z,qx,qy,qz,qw in the base frame)")
+        on_flange = read_pose(data["camera_to_flange"], f"camera file {where}", "camera_to_flange")
+        composed = np.asarray(flange_to_base, dtype=float) @ on_flange
+        extrinsic = {"matrix": composed.ravel().tolist(), "base_frame": data["camera_to_flange"].get("base_frame", base_frame)
+                     if isinstance(data["camera_to_flange"], dict) else base_frame}
+    elif flange_to_base is not None:
+        raise InputFileError(f"camera file {where} has camera_to_base (a fixed camera): --flange-pose is for a camera on the wrist")
     if extrinsic is None:
         raise InputFileError(f"camera file {where} has no camera_to_base: the camera's pose in the robot's base frame, in "
                              "which every grasp is given (from hand-eye calibration: translation [x, y, z] in metres, "

@@ -20,11 +20,13 @@ def read_colour(path: str | Path, what: str = "colour image") -> np.ndarray:
     return read_image(Path(path), what=what)
 
 
-def read_frame(rgb: str | Path, depth: str | Path, camera: str | Path) -> tuple[np.ndarray, np.ndarray, CameraInfo]:
-    """(rgb uint8, depth metres float32, calibration); every mismatch is one line naming the files."""
+def read_frame(rgb: str | Path, depth: str | Path, camera: str | Path,
+               flange_to_base: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, CameraInfo]:
+    """(rgb uint8, depth metres float32, calibration); every mismatch is one line naming the files.
+    ``flange_to_base``: the flange's pose when the frame was taken, for a camera on the wrist."""
     colour = read_colour(rgb)
     metres = read_depth(depth)
-    info = read_camera_info(camera)
+    info = read_camera_info(camera, flange_to_base)
     try:
         check_frame(colour, metres, info.camera)
     except InputFileError as error:
