@@ -244,3 +244,34 @@ def test_the_arm_makes_label_grasps():
     finally:
         world.close()
     assert all(isinstance(p, ArmGrasp) for p in make_policies(["x", "y"], "panda"))
+
+
+def test_the_arm_pushes_with_its_jaws_closed_and_refuses_a_push_its_palm_cannot_reach(planner):
+    import mujoco
+
+    from binpick.sim.bin_scene import BinWorld
+    from binpick.sim.mjcf import BIN_HALF, FLOOR_TOP, CameraSpec
+    from binpick.sim.panda import PandaArm
+    from binpick.sim.products import Product
+    from binpick.warehouse.grasping import execute_arm_push
+
+    can = Product("test/can", "test", shape="cylinder", size=(0.022, 0.03), mass=0.15)
+    world = BinWorld(can, [], max_copies=1, camera=CameraSpec(size=96), robot=PandaArm(), seed=1)
+    try:
+        world.scene(1, 0, seed=1)
+        world.set_guards(False)
+        lying = [np.cos(np.pi / 4), 0.0, np.sin(np.pi / 4), 0.0]  # along x
+        world._place(0, [0.0, 0.0, FLOOR_TOP + 0.023], lying)
+        for _ in range(300):
+            mujoco.mj_step(world.model, world.data)
+        top = FLOOR_TOP + 0.044
+        start, end = np.array([0.0, 0.012, top - 0.008]), np.array([0.0, -0.048, top - 0.008])  # on its +y side, towards -y
+        moved, why = execute_arm_push(world, planner, start, end, -np.pi / 2)
+        assert why is None and moved > 0.02 and world.data.xipos[world.body_ids[0]][1] < -0.02  # it rolled the way it was pushed
+        assert np.allclose(world.arm.joint_positions(world.data), HOME, atol=2e-2)  # home again, out of the camera's view
+        corner = np.array([BIN_HALF[0] - 0.031, -(BIN_HALF[1] - 0.023), top - 0.008])  # the palm is wider than the gap there
+        before = world.arm.joint_positions(world.data).copy()
+        moved, why = execute_arm_push(world, planner, corner, corner + [-0.035, 0.035, 0.0], 3 * np.pi / 4)
+        assert moved == 0.0 and why == COLLIDES and np.allclose(world.arm.joint_positions(world.data), before)
+    finally:
+        world.close()

@@ -68,6 +68,8 @@ class ArmKinematics:
         if mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_JOINT, "cup_extend") >= 0:
             joint = self.model.joint("cup_extend")
             self.extend = (int(self.model.jnt_qposadr[joint.id]), float(joint.range[1]))
+        self.fingers = [(int(self.model.jnt_qposadr[self.model.joint(name).id]), float(self.model.joint(name).range[1]))
+                        for name in ("finger_a", "finger_b") if mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_JOINT, name) >= 0]
         self.tool = "jaws"
         self.frame = mink.FrameTask("gripper", "body", position_cost=1.0, orientation_cost=1.0)
         self.posture = mink.PostureTask(self.model, cost=1e-3)
@@ -82,15 +84,22 @@ class ArmKinematics:
 
     def use(self, tool: str) -> None:
         """Check collisions with the hand as ``tool`` needs it: on a hand with both tools, the cup pushed
-        out below the fingertips for suction, drawn in for the jaws."""
-        self.tool = tool
+        out below the fingertips for suction, drawn in for the jaws; ``push``: the jaws closed."""
+        if tool != getattr(self, "tool", None):
+            self.tool = tool
+            self.nominal = self.full(NOMINAL)  # the IK's posture keeps the fingers as the tool holds them
+            self.posture.set_target(self.nominal)
 
     def full(self, q) -> np.ndarray:
-        """The cell's configuration vector for arm joints ``q`` (fingers open; the cup rod as the tool in use needs it)."""
+        """The cell's configuration vector for arm joints ``q`` (fingers open, closed for a push; the cup rod as the tool
+        in use needs it)."""
         vector = np.zeros(self.model.nq)
         vector[self.arm.qpos] = q
         if self.extend is not None and getattr(self, "tool", "jaws") == "suction":
             vector[self.extend[0]] = self.extend[1]
+        if getattr(self, "tool", "jaws") == "push":
+            for address, closed in self.fingers:
+                vector[address] = closed
         return vector
 
     def solve(self, position, yaw: float, start=None, iterations: int = 150, avoid: bool = True) -> Solution:

@@ -198,6 +198,37 @@ class MotionPlanner:
                     Segment.dwell("release", lowered[-1], OPEN_SECONDS, period), *back]
         return PickMotion(segments, reach, time.perf_counter() - started)
 
+    def push(self, start, begin, end, yaw: float) -> PickMotion:
+        """The arm's push (:class:`binpick.grasping.push.Push`, the closed fingertips' path ``begin`` to
+        ``end``): from posture ``start`` over ``begin`` and straight down onto it, as a grasp's descent,
+        along to ``end``, up, and home, the fingers closed throughout. Unreachable: no segments, and the
+        motion's ``reach.reason`` says why."""
+        started = time.perf_counter()
+        below = self.below("jaws")
+        first = np.asarray(begin, dtype=float) + [0.0, 0.0, below]
+        last = np.asarray(end, dtype=float) + [0.0, 0.0, below]
+        for option in (yaw, yaw + np.pi / 2):  # the palm along the push or across it: whichever clears the walls
+            reach = self.reach(first, option, "push")  # the closed jaws down onto it: checked with the fingers shut
+            if reach.ok:
+                break
+        if not reach.ok:
+            self.kinematics.use("jaws")
+            return PickMotion([], reach, time.perf_counter() - started)
+        slide = self._along(line(first, last)[1:], reach.yaw, reach.descent[-1])
+        rise = None if slide is None else self._along(line(last, [last[0], last[1], max(last[2] + APPROACH_HEIGHT, LIFT_TO)])[1:],
+                                                       reach.yaw, slide[-1])
+        approach = None if slide is None or rise is None else self._free("approach", start, reach.descent[0], closed=True)
+        back = None if approach is None else self._free("return", rise[-1], self.home, closed=True)
+        if approach is None or back is None:
+            self.kinematics.use("jaws")
+            return PickMotion([], Reach(NO_IK if slide is None or rise is None else COLLIDES, reach.yaw), time.perf_counter() - started)
+        self.kinematics.use("jaws")
+        period, limits = self.period, self.limits
+        segments = [*approach, path_move("descend", np.array(reach.descent), limits, period, closed=True),
+                    path_move("push", np.array([reach.descent[-1], *slide]), limits, period, closed=True),
+                    path_move("lift", np.array([slide[-1], *rise]), limits, period, closed=True), *back]
+        return PickMotion(segments, reach, time.perf_counter() - started)
+
     def back_home(self, start) -> list[Segment]:
         """After a missed grasp: open the fingers, then home (a free move, over the cell if it must;
         straight home if even that touches: the arm is already inside what it touched)."""

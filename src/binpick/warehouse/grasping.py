@@ -179,6 +179,39 @@ def execute_push(world, start: np.ndarray, end: np.ndarray, yaw: float, on_frame
         mujoco.mj_forward(model, data)
 
 
+def execute_arm_push(world, planner, start: np.ndarray, end: np.ndarray, yaw: float,
+                     on_frame: Callable[[], None] | None = None, frame_every: float = 0.1) -> tuple[float, str | None]:
+    """The same push by the arm (:meth:`binpick.arm.MotionPlanner.push`), then a wait for the bin to
+    come to rest; (how far the pushed things moved in m, why the arm could not push: None if it did)."""
+    from binpick.arm.controller import ArmController
+
+    model, data = world.model, world.data
+    settle_timestep = model.opt.timestep
+    model.opt.timestep = TRIAL_TIMESTEP
+    every = max(1, int(frame_every / TRIAL_TIMESTEP))
+    steps = [0]
+
+    def on_step() -> None:
+        steps[0] += 1
+        if on_frame is not None and steps[0] % every == 0:
+            on_frame()
+
+    try:
+        before = np.array([data.xipos[b].copy() for b in world.body_ids])
+        world.arm.hand.use(data, "jaws")
+        motion = planner.push(world.arm.joint_positions(data), start, end, yaw)
+        if not motion.reach.ok:
+            return 0.0, motion.reach.reason
+        controller = ArmController(world)
+        for segment in motion.segments:
+            controller.run(segment, on_step=on_step)
+        after = np.array([data.xipos[b] for b in world.body_ids])
+        return float(np.linalg.norm((after - before)[:, :2], axis=1).max()), None
+    finally:
+        world.arm.hand.reset(data)
+        model.opt.timestep = settle_timestep
+
+
 def suction_why(hand, tool: str) -> str | None:
     """Why a suction pick failed, in the vacuum's words (no seal, or the seal let go); None for jaws."""
     return hand.vacuum.why if tool == "suction" and hand.vacuum is not None else None

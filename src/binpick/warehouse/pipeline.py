@@ -35,7 +35,8 @@ from binpick.picking.plans import cup_pixels, jaw_pixels
 from binpick.detection.photos import photo_mask
 from binpick.sim.order_tote import order_tote_xml
 from binpick.sim.gripper import TRIAL_TIMESTEP
-from binpick.warehouse.grasping import Reason, execute_arm_pick, execute_pick, execute_push, fixed_tips, grasp_point, half_height
+from binpick.warehouse.grasping import (Reason, execute_arm_pick, execute_arm_push, execute_pick, execute_push, fixed_tips,
+                                        grasp_point, half_height)
 
 GIF_SIZE = 240
 MAX_PUSHES = 1  # pushes per pointed pick, to free an instance no grasp fits well (binpick.grasping.push)
@@ -298,9 +299,8 @@ class PickPipeline:
         while queue and result.grasps < self.max_attempts:
             plan = queue.pop(0)
             if self.pushes_first(plan, queue, result) and look_again is not None:
-                moved = execute_push(world, np.array(plan.push["start"]), np.array(plan.push["end"]), plan.push["yaw"],
-                                     on_frame=on_frame)
-                result.pushes.append({**plan.push, "moved": round(moved, 4)})
+                moved, why = self.push(world, plan.push, on_frame)
+                result.pushes.append({**plan.push, "moved": round(moved, 4), **({"not_taken": why} if why else {})})
                 if on_caption is not None:
                     on_caption(f"push ({100 * moved:.0f} cm moved)")
                 scene, replanned = look_again(result.grasps)
@@ -355,11 +355,18 @@ class PickPipeline:
         only grasp is a cup on a ball."""
         return sorted(plans, key=lambda p: p.feasible and self.picker.hopeless(p))
 
+    def push(self, world: BinWorld, push: dict, on_frame=None) -> tuple[float, str | None]:
+        """Execute a plan's push with the floating gripper or the arm; (moved m, why the arm could not: None if it did)."""
+        start, end = np.array(push["start"]), np.array(push["end"])
+        if self.motion is not None:
+            return execute_arm_push(world, self.motion, start, end, push["yaw"], on_frame=on_frame)
+        return execute_push(world, start, end, push["yaw"], on_frame=on_frame), None
+
     def pushes_first(self, plan: GraspPlan, queue: list[GraspPlan], result: OrderResult) -> bool:
         """Whether to push ``plan``'s instance free before anything else: it offers a push (no grasp, or
         one predicted to fail most of the time), no plan after it has a grasp worth trying, and the
-        order has pushes left (the floating gripper only: the arm does not push yet)."""
-        if plan.push is None or self.motion is not None or len(result.pushes) >= MAX_PUSHES:
+        order has pushes left."""
+        if plan.push is None or len(result.pushes) >= MAX_PUSHES:
             return False
         return not any(p.feasible and not self.picker.hopeless(p) for p in queue)
 
@@ -390,8 +397,8 @@ class PickPipeline:
             push = pointed.push if pointed is not None and self.pushes_first(pointed, [], result) else None
             pushed = None
             if push is not None:
-                moved = execute_push(world, np.array(push["start"]), np.array(push["end"]), push["yaw"])
-                result.pushes.append({**push, "moved": round(moved, 4)})
+                moved, why = self.push(world, push)
+                result.pushes.append({**push, "moved": round(moved, 4), **({"not_taken": why} if why else {})})
                 pushed = push
             elif chosen is None:
                 result.attempts.append(Attempt(pointed.box if pointed is not None else list(query_box), 1.0, None, [], Reason.NO_GRASP,
