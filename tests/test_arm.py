@@ -170,7 +170,7 @@ def test_the_picker_gives_an_unreachable_grasp_way_to_the_next_candidate():
     assert plans[0].feasible and plans[0].rejected.get(NO_IK) == 1 and tuple(plans[0].position) != first
     assert abs(plans[0].yaw - (yaws[1] + np.pi)) < 1e-3  # the plan's yaw is the one the arm takes
     assert np.allclose(plans[0].orientation, grasp_orientation(plans[0].yaw), atol=1e-5)
-    never = Picker(None, GraspPlanner.load("analytic"), verifier=None, reach=lambda p, y: (COLLIDES, y)).plan(rgb, depth, camera, boxes=(box, np.ones(1)))
+    never = Picker(None, GraspPlanner.load("analytic"), verifier=None, reach=lambda p, y, tool="jaws": (COLLIDES, y)).plan(rgb, depth, camera, boxes=(box, np.ones(1)))
     assert not never[0].feasible and never[0].rejected.get(COLLIDES, 0) >= 1
     assert json.loads(json.dumps(never.to_json()))["plans"][0]["rejected"][COLLIDES] >= 1
 

@@ -47,6 +47,11 @@ def test_an_8_cm_cell_plans_nothing_wider_and_the_simulator_builds_its_hand():
     try:
         fingers = [world.model.actuator(name).id for name in ("finger_a", "finger_b")]
         assert np.allclose(world.model.actuator_ctrlrange[fingers, 1], 0.04)  # each finger travels half the 8 cm stroke
+        from binpick.grippers import TIPS_BELOW
+
+        finger = world.model.geom("finger_a")
+        assert np.isclose(finger.size[2] * 2, franka.jaws.finger_length)
+        assert np.isclose(finger.pos[2] - finger.size[2], -TIPS_BELOW)  # its tips at the tool point the planner plans for
         scene = world.scene(1, 0, seed=2)
         frame = DepthFrame.from_depth(scene.depth, PinholeCamera.from_record(scene.camera))
         choice = planner.choose(frame, scene.instances[0].bbox)

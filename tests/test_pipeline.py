@@ -274,7 +274,7 @@ def test_grasps_worth_trying_go_before_hopeless_ones_and_a_push_only_when_none_i
 
     picker = SimpleNamespace(grasp=SimpleNamespace(policy=GraspPlanner("analytic").policy))
     picker.hopeless = lambda plan: Picker.hopeless(picker, plan)
-    pipeline = SimpleNamespace(picker=picker, motion=None)
+    pipeline = SimpleNamespace(picker=picker, motion=None, grasp=SimpleNamespace(tools=("jaws", "suction")))
     push = {"start": [0.1, 0.1, 0.05], "end": [0.06, 0.06, 0.05], "yaw": 0.0}
     cup_on_a_ball = GraspPlan([0, 0, 9, 9], 0.9, 0.95, position=[0.1, 0.1, 0.05], quality=0.01, tool="suction", push=push)
     blocked = GraspPlan([0, 0, 9, 9], 0.8, 0.95, push=push)
@@ -284,5 +284,7 @@ def test_grasps_worth_trying_go_before_hopeless_ones_and_a_push_only_when_none_i
     result = OrderResult(0, "p", 0, False, Reason.NO_DETECTION)
     assert not PickPipeline.pushes_first(pipeline, cup_on_a_ball, [copy], result)  # a good grasp is left: no push
     assert PickPipeline.pushes_first(pipeline, cup_on_a_ball, [blocked], result)
+    cup_only = SimpleNamespace(picker=picker, motion=None, grasp=SimpleNamespace(tools=("suction",)))
+    assert not PickPipeline.pushes_first(cup_only, cup_on_a_ball, [blocked], result)  # the push is the jaws': a cup-only hand has none
     result.pushes.append({**push, "moved": 0.03})
     assert not PickPipeline.pushes_first(pipeline, cup_on_a_ball, [], result)  # one push per order

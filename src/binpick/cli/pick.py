@@ -269,7 +269,7 @@ def plan(
                       f"({x:.3f}, {y:.3f}, {z:.3f}) m in {plans.frame}, {how}{quality}, detector score {best.score:.2f} "
                       f"-> {plan_path}, {overlay}", soft_wrap=True)
         if best.push is not None:
-            _say_push(plans)
+            _say_push([best])
 
 
 def parse_flange_pose(text: str | None):

@@ -76,12 +76,13 @@ class Surface:
         span = lambda values: float(np.percentile(values, 98) - np.percentile(values, 2))  # noqa: E731
         return span(relative @ along), span(relative @ across)
 
-    def tips_range(self) -> tuple[float, float]:
-        """How deep the fingertips may go: at most PALM_REACH under the top (the palm stays above it)
-        and clear of what it rests on; at least 1.5 cm under its middle, so the jaws close across its
-        widest part. In the simulator a lying can held with the tips 1 cm under its middle slipped on
-        the carry, 2 cm under it held: as deep as the fingers have room for is best."""
-        deepest = max(self.support + FLOOR_CLEARANCE, self.top - PALM_REACH)
+    def tips_range(self, reach: float = PALM_REACH) -> tuple[float, float]:
+        """How deep the fingertips may go: at most ``reach`` under the top (PALM_REACH for binpick's 8 cm
+        fingers: the palm stays above it) and clear of what it rests on; at least 1.5 cm under its
+        middle, so the jaws close across its widest part. In the simulator a lying can held with the
+        tips 1 cm under its middle slipped on the carry, 2 cm under it held: as deep as the fingers
+        have room for is best."""
+        deepest = max(self.support + FLOOR_CLEARANCE, self.top - reach)
         return deepest, max(deepest, self.support + self.height / 2 - 0.015)
 
 
@@ -328,6 +329,12 @@ def something_on_top(frame: DepthFrame, surface: Surface, centres: np.ndarray, y
     return above.reshape(len(centres), -1).sum(axis=1) >= 2
 
 
+def palm_reach(gripper: JawGripper) -> float:
+    """How far under an instance's top the fingertips may go with ``gripper``'s fingers: their length
+    less a centimetre, so the palm stays clear (PALM_REACH for binpick's 8 cm fingers)."""
+    return max(MIN_GRIP, min(PALM_REACH, gripper.finger_length - (JawGripper().finger_length - PALM_REACH)))
+
+
 def widths_across(surface: Surface, centres: np.ndarray, yaws: np.ndarray, gripper: JawGripper) -> tuple[np.ndarray, np.ndarray]:
     """For N grasps: the instance's extent along each closing direction within the fingers' band,
     and the offset of that extent's midpoint from the centre (where the jaws squeeze evenly)."""
@@ -364,7 +371,7 @@ def describe_many(frame: DepthFrame, surface: Surface, centres, yaws_, tips=None
     width = widths_across(surface, centres, yaws_, gripper)[0] if widths is None else np.asarray(widths, dtype=float)
     under, seen = finger_heights(frame, centres, yaws_, gripper, surface.top)
     highest = under.max(axis=1)
-    deepest, shallowest = surface.tips_range()
+    deepest, shallowest = surface.tips_range(palm_reach(gripper))
     given = tips is not None
     if given:
         tip_z = np.asarray(tips, dtype=float).reshape(-1)

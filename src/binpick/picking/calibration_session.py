@@ -121,5 +121,6 @@ def write_calibration(camera: Path, solved: HandEye, record: dict, K=None, disto
     data[name] = {**({"base_frame": previous.get("base_frame", "base_link")} if name == "camera_to_base" else {}),
                   "translation": [round(float(v), 6) for v in pose[:3, 3]],
                   "rotation": dict(zip("xyzw", (round(float(v), 8) for v in matrix_to_quaternion(pose[:3, :3]))))}
+    data.pop("camera_to_flange" if name == "camera_to_base" else "camera_to_base", None)  # the other mounting's pose: stale now
     data["calibration"] = {k: v for k, v in record.items() if k not in ("camera_to_base", "camera_to_flange")}
     atomic_write_text(camera, yaml.safe_dump(data, sort_keys=False, default_flow_style=None))

@@ -227,6 +227,9 @@ def read_camera_info(path: str | Path, flange_to_base: np.ndarray | None = None)
     pose = np.eye(4)
     base_frame = "base_link"
     extrinsic = data.get("camera_to_base")
+    if extrinsic is not None and data.get("camera_to_flange") is not None:
+        raise InputFileError(f"camera file {where} has both camera_to_base (a fixed camera) and camera_to_flange (a camera on "
+                             "the wrist): keep the one your camera is mounted as")
     if extrinsic is None and data.get("camera_to_flange") is not None:
         if flange_to_base is None:
             raise InputFileError(f"camera file {where} is an eye-in-hand camera (camera_to_flange): give the flange's pose "

@@ -72,6 +72,7 @@ QUERY_CHECK = 0.5
 REACH_TRIES = 4  # candidates of one detection checked for the robot's reach before it is given up
 DEFAULT_GRIPPER = "both"  # the hand binpick plans for unless told: jaws and a suction cup
 FIND_AGAIN_RADIUS = 1.0  # a pointed instance found again lies within this many of its old box's diagonals
+PUSH_REACH = 5.0  # after a push: ... or on the ray along it, up to this many push lengths (or box diagonals) on
 # ... and its colours match its own in the previous frame this well (histogram intersection, same light): the
 # instance moved 3.6 cm matched itself at 0.90, a neighbour where it had been 0.29 (tests/test_real_depth.py)
 FIND_AGAIN_COLOUR = 0.5
@@ -268,7 +269,7 @@ class Picker:
     copies too (they join the photo's detections, checked the same way). Their values and why are in
     :class:`binpick.warehouse.pipeline.PickPipeline`. ``reach`` (None: any grasp goes) is the robot's
     reachability check, ``reach(position, yaw)`` (``reach(position, yaw, "suction")`` for a suction
-    grasp) -> ``(None, yaw it takes)`` or ``(reason, yaw)`` when
+    grasp, ``"push"`` for a push's start with the jaws shut) -> ``(None, yaw it takes)`` or ``(reason, yaw)`` when
     the arm cannot take that grasp (no IK solution, a collision on the way down, a wrist flip): a
     detection's grasp the arm cannot take gives way to its next best candidate the arm can (up to
     ``REACH_TRIES``); the reasons are counted with the plan's other rejections, and the plan's yaw is
@@ -574,12 +575,15 @@ class Picker:
             if pushed is not None:
                 ends, _ = info.camera.project(np.array([pushed["start"], pushed["end"]], dtype=float))
                 along = ends[1] - ends[0]
+                ends = np.asarray(ends, dtype=float)
                 if np.all(np.isfinite(along)) and np.linalg.norm(along) > 1e-6:
                     along = along / np.linalg.norm(along)
                     relative = found[:, :2] + found[:, 2:] / 2 - centre
                     ahead = relative @ along
                     off_ray = np.linalg.norm(relative - ahead[:, None] * along, axis=1) / diagonal
-                    distance = np.where(ahead > 0, np.minimum(distance, off_ray), distance)
+                    length = float(np.linalg.norm(ends[1] - ends[0]))  # the push in the working frame's pixels, as the boxes
+                    on_ray = (ahead > 0) & (ahead < PUSH_REACH * max(length, diagonal))  # a ball rolls on, but not across the bin
+                    distance = np.where(on_ray, np.minimum(distance, off_ray), distance)
             best, best_score = None, 0.0
             for candidate, score, shown_iou, iou, reach in zip(found, scores, shown_at, overlap, distance):
                 if shown_iou > 0.1 or not (iou > 0.05 or reach < FIND_AGAIN_RADIUS) or candidate[2] < 2 or candidate[3] < 2:
@@ -635,10 +639,12 @@ class Picker:
                 plan.width = round(float(chosen.width), 4)
                 plan.opening = float(self.grasp.gripper.opening)
             plan.quality = None if chosen.quality is None else round(float(chosen.quality), 4)
-        if choice.surface is not None and self.grasp.policy is not GraspPolicyName.FIXED and self.hopeless(plan):
+        if (choice.surface is not None and "jaws" in self.grasp.tools and self.grasp.policy is not GraspPolicyName.FIXED
+                and self.hopeless(plan)):  # the push is the closed jaws': a cup-only hand gets none
             push = plan_push(frame, choice.surface)
             if push is not None and (workspace is None or (workspace.contains(push.start) and workspace.contains(push.end))):
-                plan.push = push.as_dict()
+                if self.reach is None or any(self.reach(push.start, yaw, "push")[0] is None for yaw in (push.yaw, push.yaw + np.pi / 2)):
+                    plan.push = push.as_dict()  # (an arm's push: only where it can reach down onto it with the fingers shut)
         return plan
 
     def hopeless(self, plan: GraspPlan) -> bool:

@@ -14,7 +14,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from binpick.grippers import Jaws, SuctionCup, tool_point_below, tools_of
+from binpick.grippers import TIPS_BELOW, Jaws, SuctionCup, tool_point_below, tools_of
 
 JAWS, CUP = Jaws(), SuctionCup()
 HAND_GROUP = 3
@@ -24,7 +24,7 @@ CUP_HALF_HEIGHT = 0.005  # the cup's body above its lip
 BELLOWS = 0.012  # m the bellows compress
 RETRACTED = 0.034  # the lip above the hand's origin with the cup drawn into the palm (a hand with both tools): above
 # the highest top a jaw grasp lets between the fingers (PALM_REACH under the top: 0.03 above the origin)
-FINGER = ('type="box" size="{t} {w} {l}" pos="0 0 0" rgba="0.6 0.6 0.62 1" mass="0.04" friction="2 0.02 0.001" '
+FINGER = ('type="box" size="{t} {w} {l}" pos="0 0 {z}" rgba="0.6 0.6 0.62 1" mass="0.04" friction="2 0.02 0.001" '
           'condim="6" priority="1" solref="0.004 1" solimp="0.95 0.99 0.001" group="3"')
 
 
@@ -37,7 +37,9 @@ def hand_xml(gripper: str, jaws: Jaws = JAWS) -> str:
     parts = [f'<geom name="palm" type="box" size="{palm_half_x} 0.014 {PALM_HALF_HEIGHT}" pos="0 0 {PALM_Z}" '
              f'rgba="0.25 0.25 0.28 1" mass="0.4" group="{HAND_GROUP}"/>']
     if "jaws" in tools:
-        finger = FINGER.format(t=jaws.finger_thickness / 2, w=jaws.finger_width / 2, l=jaws.finger_length / 2)
+        # the tips at the tool point (TIPS_BELOW under the hand's origin) whatever the fingers' length
+        finger = FINGER.format(t=jaws.finger_thickness / 2, w=jaws.finger_width / 2, l=jaws.finger_length / 2,
+                               z=round(jaws.finger_length / 2 - TIPS_BELOW, 6))
         for name, sign in (("finger_a", 1), ("finger_b", -1)):
             parts.append(f'<body name="{name}" pos="{sign * (half + jaws.finger_thickness / 2)} 0 0">'
                          f'<joint name="{name}" type="slide" axis="{-sign} 0 0" range="0 {half}" damping="2"/>'

@@ -181,8 +181,8 @@ def execute_push(world, start: np.ndarray, end: np.ndarray, yaw: float, on_frame
 
 def execute_arm_push(world, planner, start: np.ndarray, end: np.ndarray, yaw: float,
                      on_frame: Callable[[], None] | None = None, frame_every: float = 0.1) -> tuple[float, str | None]:
-    """The same push by the arm (:meth:`binpick.arm.MotionPlanner.push`), then a wait for the bin to
-    come to rest; (how far the pushed things moved in m, why the arm could not push: None if it did)."""
+    """The same push by the arm (:meth:`binpick.arm.MotionPlanner.push`); (how far the pushed things
+    had moved when the arm was home, in m; why the arm could not push: None if it did)."""
     from binpick.arm.controller import ArmController
 
     model, data = world.model, world.data
@@ -272,9 +272,10 @@ def execute_arm_pick(world, planner, tips: np.ndarray, yaw: float, on_frame: Cal
             outcome.why = suction_why(hand, tool)
             run(planner.back_home(world.arm.joint_positions(data)))
         else:
-            lowered = names.index("lower") + 1
-            run(motion.segments[lifted:lowered])
+            lowering, lowered = names.index("lower"), names.index("lower") + 1
+            run(motion.segments[lifted:lowering])  # carried to above the order tote: still held? (judged before the low release)
             fell = data.xipos[world.body_ids[slot]][2] < data.xpos[world.arm.gripper_body][2] - below - 0.15
+            run(motion.segments[lowering:lowered])
             outcome.why = suction_why(hand, tool) if fell else None
             run(motion.segments[lowered:])
             inside = in_order_tote(data, world.body_ids[slot])

@@ -303,7 +303,7 @@ class PickPipeline:
                 result.pushes.append({**plan.push, "moved": round(moved, 4), **({"not_taken": why} if why else {})})
                 if on_caption is not None:
                     on_caption(f"push ({100 * moved:.0f} cm moved)")
-                scene, replanned = look_again(result.grasps)
+                scene, replanned = look_again(result.looked_again + 1)  # the sensor's faults drawn anew for each look
                 result.looked_again += 1
                 queue = self.good_first(replanned)
                 continue
@@ -345,7 +345,7 @@ class PickPipeline:
             if wrong and outcome.placed:  # another product is in the customer's tote: the order is wrong whatever
                 return  # follows (a cell stops and calls a person), and it is never counted as placed
             if look_again is not None and result.grasps < self.max_attempts:
-                scene, replanned = look_again(result.grasps)
+                scene, replanned = look_again(result.looked_again + 1)
                 result.looked_again += 1
                 queue = self.good_first(replanned)
 
@@ -366,7 +366,7 @@ class PickPipeline:
         """Whether to push ``plan``'s instance free before anything else: it offers a push (no grasp, or
         one predicted to fail most of the time), no plan after it has a grasp worth trying, and the
         order has pushes left."""
-        if plan.push is None or len(result.pushes) >= MAX_PUSHES:
+        if plan.push is None or len(result.pushes) >= MAX_PUSHES or "jaws" not in self.grasp.tools:
             return False
         return not any(p.feasible and not self.picker.hopeless(p) for p in queue)
 
@@ -394,12 +394,13 @@ class PickPipeline:
             result.detections = max(result.detections, plans.detections)
             chosen = next(iter(plans.grasps), None)
             pointed = plans[0] if len(plans) else None
-            push = pointed.push if pointed is not None and self.pushes_first(pointed, [], result) else None
+            others = [p for p in plans if p is not pointed]  # its copies: one with a grasp worth trying goes first
+            push = pointed.push if pointed is not None and self.pushes_first(pointed, others, result) else None
             pushed = None
             if push is not None:
                 moved, why = self.push(world, push)
                 result.pushes.append({**push, "moved": round(moved, 4), **({"not_taken": why} if why else {})})
-                pushed = push
+                pushed = None if why else push  # found again along it only where it was made
             elif chosen is None:
                 result.attempts.append(Attempt(pointed.box if pointed is not None else list(query_box), 1.0, None, [], Reason.NO_GRASP,
                                                None, rejected=pointed.rejected if pointed is not None else {}))
