@@ -235,7 +235,6 @@ def plan(
     picker = Picker.load(None if box is not None else weights, grasp, grasp_weights, crop_detector=crop, max_grasps=max_grasps,
                          runtime=runtime, reach=reach, gripper=gripper, cell=the_cell)
     plans = picker.plan(colour, metres, info, photo=query, query_box=box, size=dimensions, copies_only=copies_only)
-    check_stroke(plans, picker.grasp)
     result = {"inputs": {"rgb": str(rgb), "depth": str(depth), "camera": str(camera),
                          "photo": [str(path) for path in photo] if photo else None, "query_box": query_box, "copies_only": copies_only,
                          "size": dimensions},
@@ -249,6 +248,7 @@ def plan(
         with OrderRecording(folder / "plan.rrd") as recording:
             recording.frame(0, str(photo[0].name if photo else f"query box {query_box}"), seen, depth_seen, info.camera, plans)
     save_png(plans.plot(colour, info.camera, picker.grasp.gripper.opening, query, box), overlay, "--out")
+    check_stroke(plans, picker.grasp)  # (after plan.json and the overlay are written: they show why)
     best = plans.grasps[0] if plans.grasps else None
     if best is None:
         reasons: dict[str, int] = {}

@@ -205,6 +205,10 @@ def read_intrinsics(path: str | Path) -> tuple[np.ndarray, np.ndarray, int, int]
             raise InputFileError(f"camera file {where}: {key} must be a positive whole number of pixels, got {data.get(key)!r}")
     K = _numbers(data, "camera_matrix", 9, where).reshape(3, 3)
     D = _numbers(data, "distortion_coefficients", None, where) if "distortion_coefficients" in data else np.zeros(5)
+    model = str(data.get("distortion_model", "plumb_bob") or "plumb_bob")
+    if model not in ("plumb_bob", "rational_polynomial"):
+        raise InputFileError(f"camera file {where}: distortion_model {model!r}: calibration reads plumb_bob or "
+                             "rational_polynomial (OpenCV's pinhole model); rectify a fisheye camera's images first")
     return K, D, data["image_width"], data["image_height"]
 
 
@@ -233,7 +237,8 @@ def read_camera_info(path: str | Path, flange_to_base: np.ndarray | None = None)
     if extrinsic is None and data.get("camera_to_flange") is not None:
         if flange_to_base is None:
             raise InputFileError(f"camera file {where} is an eye-in-hand camera (camera_to_flange): give the flange's pose "
-                                 "when the frame was taken (--flange-pose x,y,z,qx,qy,qz,qw in the base frame)")
+                                 "when the frame was taken (binpick plan --flange-pose x,y,z,qx,qy,qz,qw in the base frame; "
+                                 "binpick cell and the ROS nodes take fixed cameras only)")
         on_flange = read_pose(data["camera_to_flange"], f"camera file {where}", "camera_to_flange")
         composed = np.asarray(flange_to_base, dtype=float) @ on_flange
         extrinsic = {"matrix": composed.ravel().tolist(), "base_frame": data["camera_to_flange"].get("base_frame", base_frame)

@@ -126,7 +126,7 @@ def check_motion(flange: list[np.ndarray]) -> None:
         raise InputFileError(f"hand-eye calibration needs at least {MIN_POSES} poses with the board seen; got {len(flange)} "
                              "(15 or more, turned about different axes, give a good result)")
     turns = np.array([rotation_vector(f[:3, :3] @ flange[0][:3, :3].T) for f in flange[1:]])
-    spread = np.linalg.svd(turns, compute_uv=False) if len(turns) else np.zeros(1)
+    spread = np.linalg.svd(turns, compute_uv=False) / np.sqrt(max(len(turns), 1)) if len(turns) else np.zeros(1)  # RMS turn
     if len(spread) < 2 or np.degrees(spread[1]) < MIN_SPREAD_DEGREES:
         raise InputFileError("the flange poses all turn about one axis (or hardly at all): hand-eye calibration cannot tell "
                              f"the camera's pose from them; tilt the flange about at least two axes by more than {MIN_SPREAD_DEGREES:.0f} degrees")

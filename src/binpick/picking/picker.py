@@ -642,9 +642,10 @@ class Picker:
         if (choice.surface is not None and "jaws" in self.grasp.tools and self.grasp.policy is not GraspPolicyName.FIXED
                 and self.hopeless(plan)):  # the push is the closed jaws': a cup-only hand gets none
             push = plan_push(frame, choice.surface)
-            if push is not None and (workspace is None or (workspace.contains(push.start) and workspace.contains(push.end))):
+            rounded = None if push is None else push.as_dict()  # (judged as it is emitted, rounded)
+            if push is not None and (workspace is None or (workspace.contains(rounded["start"]) and workspace.contains(rounded["end"]))):
                 if self.reach is None or any(self.reach(push.start, yaw, "push")[0] is None for yaw in (push.yaw, push.yaw + np.pi / 2)):
-                    plan.push = push.as_dict()  # (an arm's push: only where it can reach down onto it with the fingers shut)
+                    plan.push = rounded  # (an arm's push: only where it can reach down onto it with the fingers shut)
         return plan
 
     def hopeless(self, plan: GraspPlan) -> bool:
