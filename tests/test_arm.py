@@ -121,7 +121,7 @@ def test_a_pick_motion_has_every_segment_and_returns_home(planner):
     motion = planner.pick(HOME, [0.02, 0.03, 0.1], 0.3)
     assert motion.reach.ok
     names = [s.name for s in motion.segments]
-    for name in ("approach", "descend", "close", "lift", "carry", "lower", "release", "return"):
+    for name in ("approach", "descend", "close", "lift", "carry", "lower", "release", "retreat", "return"):
         assert name in names
     assert np.allclose(motion.segments[-1].q[-1], HOME, atol=1e-6)
     kinematics = planner.kinematics
@@ -130,6 +130,9 @@ def test_a_pick_motion_has_every_segment_and_returns_home(planner):
     top, _ = kinematics.gripper_pose(motion.segment("descend").q[0])
     assert abs(top[2] - max(0.25, ABOVE_WALLS)) < 0.004 and np.linalg.norm(top[:2] - bottom[:2]) < 0.004  # straight down
     assert not any(planner.touches(s, every=5) for s in motion.segments)
+    low, _ = kinematics.gripper_pose(motion.segment("retreat").q[0])
+    out, _ = kinematics.gripper_pose(motion.segment("retreat").q[-1])  # straight up out of the order tote before going home
+    assert np.linalg.norm(out[:2] - low[:2]) < 0.004 and out[2] - low[2] > 0.05 and motion.segment("return").q[0] == pytest.approx(motion.segment("retreat").q[-1])
     before = np.asarray(HOME, dtype=float)
     for segment in motion.segments:  # the straight segments too (a spline through the IK postures)
         within_limits(segment.q, before)

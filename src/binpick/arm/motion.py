@@ -188,14 +188,17 @@ class MotionPlanner:
         period, limits = self.period, self.limits
         approach, carry, back = (self._free("approach", start, descent[0], closed=False),
                                  self._free("carry", lift[-1], lowered[0], closed=True),
-                                 self._free("return", lowered[-1], self.home, closed=False))
+                                 self._free("return", lowered[0], self.home, closed=False))  # from above the tote again
         if approach is None or carry is None or back is None:
             return PickMotion([], Reach(COLLIDES, reach.yaw), time.perf_counter() - started)
         segments = [*approach, path_move("descend", np.array(descent), limits, period),
                     Segment.dwell("close", descent[-1], CLOSE_SECONDS, period, closed=True),
                     path_move("lift", np.array(lift), limits, period, closed=True), *carry,
                     path_move("lower", np.array(lowered), limits, period, closed=True),
-                    Segment.dwell("release", lowered[-1], OPEN_SECONDS, period), *back]
+                    Segment.dwell("release", lowered[-1], OPEN_SECONDS, period),
+                    # straight up out of the order tote the way it came down: a free move from the low release
+                    # swung an open finger into the tote's wall
+                    path_move("retreat", np.array(lowered[::-1]), limits, period), *back]
         return PickMotion(segments, reach, time.perf_counter() - started)
 
     def push(self, start, begin, end, yaw: float) -> PickMotion:
