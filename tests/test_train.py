@@ -175,8 +175,9 @@ def _write(folder: Path, config: dict) -> Path:
     return path
 
 
-CONFIGS = sorted(p for p in (Path(__file__).resolve().parents[1] / "configs").rglob("*.yaml") if p.parent.name != "rebuild")
+CONFIGS = sorted(p for p in (Path(__file__).resolve().parents[1] / "configs").rglob("*.yaml") if p.parent.name not in ("rebuild", "cells"))
 RECIPES = sorted((Path(__file__).resolve().parents[1] / "configs" / "rebuild").glob("*.yaml"))
+CELLS = sorted((Path(__file__).resolve().parents[1] / "configs" / "cells").glob("*.yaml"))
 
 
 @pytest.mark.parametrize("path", CONFIGS, ids=[p.stem for p in CONFIGS])
@@ -184,6 +185,14 @@ def test_every_config_in_the_repository_loads_as_its_job(path):
     kind, _ = jobs.load_job_config(path)
     assert path.parent.name == {"rl": "rl", "april": "april", "detect": "detection", "recurrent": "detection",
                                 "pickability": "detection", "grasp_quality": "grasping", "data": "data"}[kind.task]
+
+
+@pytest.mark.parametrize("path", CELLS, ids=[p.stem for p in CELLS])
+def test_every_cell_file_in_the_repository_loads(path):
+    from binpick.cell import Cell
+
+    cell = Cell.load(path)  # cell files are not training jobs: read by --cell
+    assert cell.name == path.stem and cell.widest > 0
 
 
 @pytest.mark.parametrize("path", RECIPES, ids=[p.stem for p in RECIPES])
