@@ -180,15 +180,19 @@ def read_pose(value, where: str, name: str) -> np.ndarray:
     ROS's order x, y, z, w; or ``matrix``: 16 numbers) -> 4x4. Malformed: one line naming ``name``."""
     if not isinstance(value, dict):
         raise InputFileError(f"{where}: {name} must be a mapping with translation and rotation")
-    pose = np.eye(4)
     try:
-        if "matrix" in value:
-            pose = _numbers(value, "matrix", 16, where).reshape(4, 4)
-        else:
-            pose[:3, 3] = _numbers(value, "translation", 3, where)
-            pose[:3, :3] = quaternion_to_matrix(_rotation(value.get("rotation"), where))
+        return _pose_of(value, where)
     except (InputFileError, ConfigError) as error:
         raise InputFileError(f"{name}: {error}") from None
+
+
+def _pose_of(value: dict, where: str) -> np.ndarray:
+    """A pose mapping's 4x4 (``matrix``, or ``translation`` and ``rotation``)."""
+    pose = np.eye(4)
+    if "matrix" in value:
+        return _numbers(value, "matrix", 16, where).reshape(4, 4)
+    pose[:3, 3] = _numbers(value, "translation", 3, where)
+    pose[:3, :3] = quaternion_to_matrix(_rotation(value.get("rotation"), where))
     return pose
 
 
@@ -228,7 +232,6 @@ def read_camera_info(path: str | Path, flange_to_base: np.ndarray | None = None)
     K = _numbers(data, "camera_matrix", 9, where)
     D = _numbers(data, "distortion_coefficients", None, where) if "distortion_coefficients" in data else np.zeros(0)
     model = str(data.get("distortion_model", "plumb_bob") or "")
-    pose = np.eye(4)
     base_frame = "base_link"
     extrinsic = data.get("camera_to_base")
     if extrinsic is not None and data.get("camera_to_flange") is not None:
@@ -251,11 +254,7 @@ def read_camera_info(path: str | Path, flange_to_base: np.ndarray | None = None)
                              "rotation {x, y, z, w})")
     if not isinstance(extrinsic, dict):
         raise InputFileError(f"camera file {where}: camera_to_base must be a mapping with translation and rotation")
-    if "matrix" in extrinsic:
-        pose = _numbers(extrinsic, "matrix", 16, where).reshape(4, 4)
-    else:
-        pose[:3, 3] = _numbers(extrinsic, "translation", 3, where)
-        pose[:3, :3] = quaternion_to_matrix(_rotation(extrinsic.get("rotation"), where))
+    pose = _pose_of(extrinsic, where)
     base_frame = str(extrinsic.get("base_frame", base_frame))
     try:
         info = CameraInfo.from_ros(K, D, data["image_width"], data["image_height"], pose, model, base_frame)

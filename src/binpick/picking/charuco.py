@@ -9,7 +9,6 @@ y along its rows, z into the board (away from a camera that reads it).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -106,26 +105,3 @@ def intrinsics_from_board(views: list[tuple[np.ndarray, np.ndarray]], size: tupl
     pixels = [v[1].astype(np.float32) for v in views]
     error, K, distortion, _, _ = cv2.calibrateCamera(objects, pixels, tuple(size), None, None)
     return K, distortion.ravel()[:5], float(error)
-
-
-def read_board(path: str | Path | None) -> Board:
-    """A board file (YAML: squares [columns, rows], square, marker in metres, dictionary), or the
-    default board when None."""
-    if path is None:
-        return Board()
-    from binpick.core.files import read_yaml
-
-    data = read_yaml(Path(path))
-    unknown = set(data) - {"squares", "square", "marker", "dictionary"}
-    if unknown:
-        raise InputFileError(f"board file {path}: unknown field(s) {', '.join(sorted(unknown))} (squares, square, marker, dictionary)")
-    try:
-        squares = tuple(int(v) for v in data.get("squares", Board.squares))
-        if len(squares) != 2:
-            raise ValueError
-        return Board(squares, float(data.get("square", Board.square)), float(data.get("marker", Board.marker)),
-                     str(data.get("dictionary", Board.dictionary)))
-    except (TypeError, ValueError):
-        raise InputFileError(f"board file {path}: squares must be [columns, rows], square and marker numbers (m)") from None
-    except ConfigError as error:
-        raise InputFileError(f"board file {path}: {error}") from None
