@@ -7,7 +7,11 @@ poses in MuJoCo until one places the product in the order tote, and records the 
     python benchmarks/ros_loop.py --ros 2 ...   # in the ROS 2 interpreter, inside `unshare -n`
 
 The node runs as a separate process (`binpick ros pick-node` / `binpick ros2 pick-node`) started
-here; ROS 1's master too. Prints one JSON line: orders, placed, latency_ms {median, p95}.
+here; ROS 1's master too. With --launch the node starts as a user starts it: ROS 1 through roslaunch
+and ros/binpick's launch file, ROS 2 from ros/ros2's parameter file, each with the shipped parameter
+file (only the camera swapped for the simulator's); the markers, grasp poses and tf it publishes are
+counted, and the example client (ros/.../plan_client.py) asks for one more plan at the end. Prints one
+JSON line: orders, placed, latency_ms {median, p95}.
 """
 
 from __future__ import annotations
@@ -28,20 +32,51 @@ ROOT = Path(__file__).resolve().parents[1]
 PRODUCTS = ("robosuite/milk", "robosuite/bottle", "robosuite/can", "pybullet/duck", "procedural/box_03")
 
 
+def launch_parameters(shipped: Path, camera_yaml: Path, out: Path) -> Path:
+    """The shipped parameter file with the simulator's camera.yaml in place of the sample's."""
+    import yaml
+
+    data = yaml.safe_load(shipped.read_text())
+    inner = next(iter(data.values()))["ros__parameters"] if len(data) == 1 else data
+    inner["camera"] = str(camera_yaml.resolve())
+    out.write_text(yaml.safe_dump(data))
+    return out
+
+
+def run_client(command: list[str], env: dict | None, timeout: float) -> dict:
+    """The example client's answer: its exit code and the number of grasps it printed."""
+    ran = subprocess.run(command, env=env, capture_output=True, text=True, timeout=timeout + 60)
+    lines = ran.stdout.strip().splitlines()
+    answer = json.loads(lines[-1]) if ran.returncode == 0 and lines else {}
+    return {"returncode": ran.returncode, "grasps": len(answer.get("grasps", [])), "frame": answer.get("frame"),
+            "stderr": ran.stderr[-300:] if ran.returncode else ""}
+
+
 class Ros1:
     """A master, the node (a child process) and this process's publishers and action client."""
 
-    def __init__(self, camera_yaml: Path, node_args: list[str], timeout: float) -> None:
+    def __init__(self, camera_yaml: Path, node_args: list[str], timeout: float, launch: bool = False) -> None:
         from binpick.integrations.ros1.master import RosMaster
 
         self.master = RosMaster()
         os.environ.update({k: v for k, v in self.master.environment.items() if k.startswith("ROS_")})
-        self.node = subprocess.Popen([sys.executable, "-c", "from binpick.cli import main; main()", "ros", "pick-node",
-                                      "--camera", str(camera_yaml), "--master", self.master.uri, *node_args],
-                                     env=self.master.environment, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        self.environment = dict(self.master.environment)
+        if launch:  # as a user: roslaunch finds the binpick package on ROS_PACKAGE_PATH; its node script runs this venv's python
+            params = launch_parameters(ROOT / "ros" / "binpick" / "config" / "pick_node.yaml", camera_yaml,
+                                       camera_yaml.with_name("pick_node.yaml"))
+            self.environment |= {"ROS_PACKAGE_PATH": str(ROOT / "ros"),
+                                 "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}"}
+            command = ["roslaunch", "--wait", "binpick", "pick_node.launch", f"params:={params}", f"node_args:={' '.join(node_args)}"]
+        else:
+            command = [sys.executable, "-c", "from binpick.cli import main; main()", "ros", "pick-node",
+                       "--camera", str(camera_yaml), "--master", self.master.uri, *node_args]
+        self.node = subprocess.Popen(command, env=self.environment, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         import actionlib
+        import geometry_msgs.msg
         import rospy
         import sensor_msgs.msg
+        import tf2_msgs.msg
+        import visualization_msgs.msg
 
         from binpick.integrations.ros1.client import init_node_once
         from binpick.integrations.ros1.messages import plan_pick_action_types
@@ -61,6 +96,11 @@ class Ros1:
         rospy.Subscriber("/binpick/plan_pick/dropped", std_msgs.msg.String, lambda m: self.dropped.update(json.loads(m.data)))
         self.errors: dict[str, int] = {}
         rospy.Subscriber("/binpick/plan_pick/errors", std_msgs.msg.String, lambda m: self.errors.update(json.loads(m.data)))
+        self.shown = Shown()
+        rospy.Subscriber("/binpick/plan_pick/markers", visualization_msgs.msg.MarkerArray, self.shown.on_markers)
+        rospy.Subscriber("/binpick/plan_pick/grasps", geometry_msgs.msg.PoseArray, self.shown.on_poses)
+        rospy.Subscriber("/tf", tf2_msgs.msg.TFMessage, self.shown.on_tf)
+        rospy.Subscriber("/tf_static", tf2_msgs.msg.TFMessage, self.shown.on_tf_static)
         self.client = actionlib.ActionClient("/binpick/plan_pick", self.types["PlanPickAction"])
         deadline = time.monotonic() + timeout
         while not self.client.wait_for_server(rospy.Duration(1.0)):
@@ -142,6 +182,28 @@ class Ros1:
         self.master.stop()
 
 
+class Shown:
+    """What the node published beside its answers: marker arrays (and their markers, DELETEALL left
+    out), grasp pose arrays (and poses), tf frames of grasps, static transforms (the camera's)."""
+
+    def __init__(self) -> None:
+        self.counts = {"marker_arrays": 0, "markers": 0, "pose_arrays": 0, "poses": 0, "grasp_frames": 0, "static_frames": []}
+
+    def on_markers(self, message) -> None:
+        self.counts["marker_arrays"] += 1
+        self.counts["markers"] += sum(1 for m in message.markers if m.action == 0)
+
+    def on_poses(self, message) -> None:
+        self.counts["pose_arrays"] += 1
+        self.counts["poses"] += len(message.poses)
+
+    def on_tf(self, message) -> None:
+        self.counts["grasp_frames"] += sum(1 for t in message.transforms if t.child_frame_id.startswith("binpick_grasp_"))
+
+    def on_tf_static(self, message) -> None:
+        self.counts["static_frames"] += [f"{t.header.frame_id}->{t.child_frame_id}" for t in message.transforms]
+
+
 def interfaces() -> list[str]:
     """This network namespace's interfaces (/proc/net/dev)."""
     return [line.split(":")[0].strip() for line in Path("/proc/net/dev").read_text().splitlines()[2:]]
@@ -151,14 +213,23 @@ class Ros2:
     """The node (a child process) and this process's rclpy publishers and result subscription, inside a
     network namespace that has only loopback (checked: DDS cannot reach another address)."""
 
-    def __init__(self, camera_yaml: Path, node_args: list[str], timeout: float) -> None:
+    def __init__(self, camera_yaml: Path, node_args: list[str], timeout: float, launch: bool = False) -> None:
         if interfaces() != ["lo"]:
             raise RuntimeError(f"ROS 2 runs only inside a namespace with just loopback (unshare -n); here: {interfaces()}")
         os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+        self.environment = None
+        if launch:  # as a user: the node from the shipped ROS 2 parameter file
+            params = launch_parameters(ROOT / "ros" / "ros2" / "pick_node.yaml", camera_yaml, camera_yaml.with_name("pick_node.yaml"))
+            given = ["--params", str(params)]
+        else:
+            given = ["--camera", str(camera_yaml)]
         self.node = subprocess.Popen([sys.executable, "-c", "from binpick.cli import main; main()", "ros2", "pick-node",
-                                      "--camera", str(camera_yaml), *node_args],
+                                      *given, *node_args],
                                      stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        import geometry_msgs.msg
         import rclpy
+        import visualization_msgs.msg
+        from rclpy.qos import DurabilityPolicy, QoSProfile
         import rclpy.executors
         import rclpy.node
         import sensor_msgs.msg
@@ -195,6 +266,13 @@ class Ros2:
         self.errors: dict[str, int] = {}
         self.client.create_subscription(std_msgs.msg.String, "/binpick/plan_pick/errors",
                                         lambda m: self.errors.update(json.loads(m.data)), 10)
+        self.shown = Shown()
+        latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self.client.create_subscription(visualization_msgs.msg.MarkerArray, "/binpick/plan_pick/markers", self.shown.on_markers, latched)
+        self.client.create_subscription(geometry_msgs.msg.PoseArray, "/binpick/plan_pick/grasps", self.shown.on_poses, 10)
+        self.client.create_subscription(geometry_msgs.msg.TransformStamped, "/binpick/plan_pick/camera_pose",
+                                        lambda m: self.shown.counts["static_frames"].append(f"{m.header.frame_id}->{m.child_frame_id}"),
+                                        latched)
         self.executor = rclpy.executors.SingleThreadedExecutor()
         self.executor.add_node(self.client)
         self.spinner = threading.Thread(target=self.executor.spin, daemon=True)
@@ -404,8 +482,8 @@ def run_hostile(ros, version: int, rgb, K, stamp: float, timeout: float) -> dict
             "node_alive": ros.node.poll() is None, "goal_answers": goals}
 
 
-def transport(version: int, camera_yaml: Path, node_args: list[str], timeout: float):
-    return Ros1(camera_yaml, node_args, timeout) if version == 1 else Ros2(camera_yaml, node_args, timeout)
+def transport(version: int, camera_yaml: Path, node_args: list[str], timeout: float, launch: bool = False):
+    return (Ros1 if version == 1 else Ros2)(camera_yaml, node_args, timeout, launch)
 
 
 def main() -> None:
@@ -420,6 +498,9 @@ def main() -> None:
     parser.add_argument("--hostile", action="store_true",
                         help="before the first order's goal, send the node every hostile camera message and goal "
                              "(each bad goal must be answered with a reason, the node must keep serving)")
+    parser.add_argument("--launch", action="store_true",
+                        help="start the node as a user does (ROS 1: roslaunch; ROS 2: its parameter file), count its markers, "
+                             "poses and tf, and ask for one more plan with the example client")
     parser.add_argument("--goal", default="photo",
                         help="what each goal gives, cycled over the orders (comma-separated): id (the product; the node "
                              "renders its catalogue photo, once per product), photo (its shop photo) or box (a query box on "
@@ -458,7 +539,7 @@ def main() -> None:
     world.close()
     fixed_camera = PinholeCamera.from_record(scene.camera)  # the overhead camera is the same in every bin
     camera_yaml = write_camera_info(CameraInfo(fixed_camera, base_frame="world"), work / "camera.yaml")
-    ros = transport(args.ros, camera_yaml, args.node_args.split(), args.timeout)
+    ros = transport(args.ros, camera_yaml, args.node_args.split(), args.timeout, args.launch)
     results, latencies, planning = [], [], []
     hostile = None
     try:
@@ -513,6 +594,12 @@ def main() -> None:
                 world.close()
         time.sleep(0.5)  # the last overlay follows the last result
         overlays = list(ros.overlays)
+        example = None
+        if args.launch:  # the example client plans once more on the last frame the node holds
+            client = ROOT / "ros" / ("binpick/examples/plan_client.py" if args.ros == 1 else "ros2/plan_client.py")
+            example = run_client([sys.executable, str(client), "--product", products[0], "--timeout", str(args.timeout)],
+                                 getattr(ros, "environment", None), args.timeout)
+            time.sleep(0.5)
         alive_at_end = ros.node.poll() is None
     finally:
         ros.close()
@@ -529,6 +616,7 @@ def main() -> None:
                "planning_ms": {"median": round(float(np.median(planning)), 1), "p95": round(float(np.percentile(planning, 95)), 1)},
                "frame": answer["frame"], "outcomes": [str(r.reason) for r in results], "interfaces": interfaces(),
                "overlays": len(overlays), "overlay_size": list(overlays[-1]) if overlays else None,
+               **({"launched": True, "shown": ros.shown.counts, "example_client": example} if args.launch else {}),
                **({"hostile": {**hostile, "node_alive_at_end": alive_at_end}} if hostile is not None else {})}
     print(json.dumps(summary), flush=True)
     if args.json is not None:

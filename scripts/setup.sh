@@ -8,7 +8,7 @@ PYTHON=${PYTHON:-$(command -v python3.11 || command -v python3)}
 
 # Headless MuJoCo rendering needs EGL from Mesa (MUJOCO_GL=egl); the ROS 1 bridge needs Debian's
 # rospy and actionlib (thesis §6.1.1). Install them when we can (root + apt).
-ROS_PACKAGES="python3-rospy python3-actionlib python3-rosmaster python3-genpy python3-genmsg ros-std-msgs ros-actionlib-msgs python3-actionlib-msgs python3-std-msgs python3-sensor-msgs ros-sensor-msgs python3-geometry-msgs ros-geometry-msgs"
+ROS_PACKAGES="python3-rospy python3-actionlib python3-rosmaster python3-genpy python3-genmsg ros-std-msgs ros-actionlib-msgs python3-actionlib-msgs python3-std-msgs python3-sensor-msgs ros-sensor-msgs python3-geometry-msgs ros-geometry-msgs python3-tf2-msgs python3-visualization-msgs python3-roslaunch"
 if command -v dpkg >/dev/null 2>&1; then
   missing=()
   for pkg in libegl1 libegl-mesa0 libgl1-mesa-dri $ROS_PACKAGES; do
@@ -59,7 +59,7 @@ if [ "${BINPICK_ROS2:-1}" != 0 ]; then
   SITE2=$("$ROS2_VENV/bin/python" -c "import sysconfig; print(sysconfig.get_paths()['purelib'])")
   printf '%s\n%s\n' "$(cd "$SITE" && pwd)" "$(pwd)/src" > "$SITE2/binpick-main-venv.pth"
   if "$ROS2_VENV/bin/python" -m pip install -q ros-rclpy==9.1.2 ros-std-msgs==5.5.1 ros-sensor-msgs==5.5.1 \
-       ros-geometry-msgs==5.5.1 ros-rmw-fastrtps-cpp==9.3.3 2>&1 | { grep -v "^WARNING: Location 'file:" || true; }; then
+       ros-geometry-msgs==5.5.1 ros-visualization-msgs==5.5.1 ros-rmw-fastrtps-cpp==9.3.3 2>&1 | { grep -v "^WARNING: Location 'file:" || true; }; then
     printf '#!/bin/sh\nexec "%s" -c "from binpick.cli import main; main()" "$@"\n' "$(cd "$ROS2_VENV" && pwd)/bin/python" > "$ROS2_VENV/bin/binpick"
     chmod +x "$ROS2_VENV/bin/binpick"
   else

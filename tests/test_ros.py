@@ -54,17 +54,18 @@ def test_fetch_reach_episodes_through_the_bridge_and_a_missing_server_is_one_lin
 EASY_BINS = "robosuite/can,pybullet/duck"  # seeds 0 and 1: placed at the first grasp
 
 
-def test_a_bin_is_picked_through_the_plan_pick_node():
+def test_a_bin_is_picked_through_the_plan_pick_node_started_from_its_launch_file():
     """The whole loop on 127.0.0.1: the simulator publishes a bin's colour, depth and camera_info, the
-    pick node (a child process) plans for the product named in the goal, the simulator executes the
-    returned pose and the product lands in the order tote. The bins are ones the shipped planner picks
-    at its first grasp: what is tested is the transport and the frames (a pose in the wrong frame places
-    nothing); grasp success over many bins is the benchmarks' figure."""
+    pick node (started by roslaunch from ros/binpick's launch file and shipped parameter file, the
+    camera swapped for the simulator's) plans for the product named in the goal, the simulator executes
+    the returned pose and the product lands in the order tote. The bins are ones the shipped planner
+    picks at its first grasp: what is tested is the transport and the frames (a pose in the wrong frame
+    places nothing); grasp success over many bins is the benchmarks' figure."""
     from pathlib import Path
 
     loop = Path(__file__).resolve().parents[1] / "benchmarks" / "ros_loop.py"
     ran = subprocess.run([sys.executable, str(loop), "--ros", "1", "--orders", "2", "--goal", "id,box", "--timeout", "120",
-                          "--products", EASY_BINS, "--hostile"],
+                          "--products", EASY_BINS, "--hostile", "--launch"],
                          capture_output=True, text=True, timeout=300)
     assert ran.returncode == 0, ran.stderr[-2000:]
     summary = json.loads(ran.stdout.strip().splitlines()[-1])
@@ -76,3 +77,9 @@ def test_a_bin_is_picked_through_the_plan_pick_node():
     assert hostile["camera_internal_errors"] == 0  # none of them failed inside the node
     assert hostile["node_alive_at_end"] and hostile["tracebacks_in_node_log"] == 0
     assert summary["overlays"] >= 1 and summary["overlay_size"] == [416, 416]  # the node's picture of its plan
+    shown = summary["shown"]  # beside each answer: the grasps as poses, RViz markers and tf frames; the camera on /tf_static
+    assert shown["pose_arrays"] >= 2 and shown["poses"] >= 2 and shown["marker_arrays"] == shown["pose_arrays"]
+    assert 3 * shown["poses"] <= shown["markers"] <= 4 * shown["poses"]  # per grasp: approach arrow, two fingers or the cup, label
+    assert shown["grasp_frames"] == shown["poses"] and shown["static_frames"] == ["world->camera_color_optical_frame"]
+    client = summary["example_client"]  # ros/binpick/examples/plan_client.py, as a user runs it
+    assert client["returncode"] == 0 and client["grasps"] >= 1 and client["frame"] == "world", client

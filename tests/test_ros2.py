@@ -33,9 +33,9 @@ def _why_not() -> str | None:
 pytestmark = pytest.mark.skipif(_why_not() is not None, reason=_why_not() or "")
 
 
-def test_a_bin_is_picked_through_the_ros2_node_inside_a_loopback_only_namespace():
+def test_a_bin_is_picked_through_the_ros2_node_from_its_parameter_file_inside_a_loopback_only_namespace():
     command = (f"ip link set lo up && exec {ROS2_PYTHON} {ROOT / 'benchmarks' / 'ros_loop.py'} --ros 2 --orders 2 "
-               "--goal photo,box --timeout 120 --products robosuite/can,pybullet/duck --hostile")  # bins placed at the first grasp
+               "--goal photo,box --timeout 120 --products robosuite/can,pybullet/duck --hostile --launch")  # bins placed at the first grasp
     ran = subprocess.run(["unshare", "-n", "sh", "-c", command], capture_output=True, text=True, timeout=300)
     assert ran.returncode == 0, ran.stderr[-2000:]
     summary = json.loads(ran.stdout.strip().splitlines()[-1])
@@ -48,6 +48,11 @@ def test_a_bin_is_picked_through_the_ros2_node_inside_a_loopback_only_namespace(
     assert hostile["camera_internal_errors"] == 0  # none of them failed inside the node
     assert hostile["node_alive_at_end"] and hostile["tracebacks_in_node_log"] == 0
     assert summary["overlays"] >= 1 and summary["overlay_size"] == [416, 416]  # the node's picture of its plan
+    shown = summary["shown"]  # the node started from ros/ros2/pick_node.yaml: grasps as poses and RViz markers, the camera's pose
+    assert shown["pose_arrays"] >= 2 and shown["poses"] >= 2 and 3 * shown["poses"] <= shown["markers"] <= 4 * shown["poses"]
+    assert shown["static_frames"] == ["world->camera_color_optical_frame"]
+    client = summary["example_client"]  # ros/ros2/plan_client.py, as a user runs it
+    assert client["returncode"] == 0 and client["grasps"] >= 1 and client["frame"] == "world", client
 
 
 def test_ros2_refuses_to_run_outside_a_namespace():

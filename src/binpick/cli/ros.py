@@ -11,10 +11,12 @@ import typer
 from binpick.cli.app import (
     DEFAULT_GRIPPER,
     DEFAULT_POLICY,
+    CellOption,
     GripperOption,
     PlanRobotOption,
     RuntimeOption,
     console,
+    load_cell,
     output_folder,
     product_library,
     ros2_app,
@@ -140,69 +142,113 @@ NodeProducts = Annotated[Path | None, typer.Option("--products", help="YAML of y
 NodeWeights = Annotated[Path | None, typer.Option(help="Photo-conditioned detector (default: shipped)")]
 NodeGrasp = Annotated[str, typer.Option(help="Grasp policy: learnt, analytic or fixed")]
 NodeGraspWeights = Annotated[Path | None, typer.Option(help="Grasp-quality weights (default: shipped)")]
+NodeParamsOption = Annotated[Path | None, typer.Option("--params", help="The node's parameter file (YAML: camera, camera_frame, cell, "
+                                                                         "namespace, topics, ...; ros/binpick/config/pick_node.yaml); "
+                                                                         "an option given on the command line wins over it")]
+CameraFrameOption = Annotated[str, typer.Option(help="The camera's tf frame (its pose in the base frame is published as a static "
+                                                     "transform)")]
 COLOUR, DEPTH, INFO = "/camera/color/image_raw", "/camera/aligned_depth_to_color/image_raw", "/camera/color/camera_info"
+NODE_OPTIONS = {"camera": "camera", "camera_frame": "camera_frame", "cell": "cell", "namespace": "namespace",
+                "products_file": "products", "weights": "weights", "grasp": "grasp", "grasp_weights": "grasp_weights",
+                "runtime": "runtime", "robot": "robot", "gripper": "gripper"}
+TOPIC_OPTIONS = {"colour_topic": "colour", "depth_topic": "depth", "info_topic": "info"}
 
 
-def _pick_node_setup(camera: Path | None, namespace: str, colour: str, depth: str, info: str, weights: Path | None, grasp: str,
-                     grasp_weights: Path | None, runtime: str = "torch", robot: str = "floating", gripper: str = "both"):
+def _node_settings(ctx: typer.Context, params: Path | None) -> dict:
+    """The node's settings: the command line's options, over the parameter file's values where the
+    option was not given on the command line (then over the defaults)."""
+    from click.core import ParameterSource
+
+    settings = dict(ctx.params)
+    if params is None:
+        return settings
+    from binpick.picking.node_params import NodeParams
+
+    loaded = NodeParams.load(params)
+    given = {name for name in settings if ctx.get_parameter_source(name) == ParameterSource.COMMANDLINE}
+    for option, key in NODE_OPTIONS.items():
+        if option not in given:
+            settings[option] = getattr(loaded, key)
+    for option, key in TOPIC_OPTIONS.items():
+        if option not in given:
+            settings[option] = getattr(loaded.topics, key)
+    return settings
+
+
+def _pick_node_setup(settings: dict):
     """Checked names, then the extrinsic (camera.yaml's camera_to_base: every grasp is given in the base
     frame), the picker and the topics: everything a pick node needs before ROS starts."""
     from binpick.picking import Picker, read_camera_info
     from binpick.picking.node import Topics
 
-    for name, option in ((namespace, "--namespace"), (colour, "--colour-topic"), (depth, "--depth-topic"), (info, "--info-topic")):
-        _check_namespace(name, option)
+    for key, option in (("namespace", "--namespace"), ("colour_topic", "--colour-topic"), ("depth_topic", "--depth-topic"),
+                        ("info_topic", "--info-topic")):
+        _check_namespace(settings[key], option)
+    camera = settings["camera"]
     if camera is None:
         raise ConfigError("a pick node needs --camera camera.yaml with camera_to_base (the camera's pose in the robot's "
-                          "base frame, in which every grasp is given; the camera_info topic brings the intrinsics)")
+                          "base frame, in which every grasp is given; the camera_info topic brings the intrinsics), "
+                          "or a --params file naming it")
     calibration = read_camera_info(camera)
     pose, frame, workspace = calibration.camera.camera_to_world, calibration.base_frame, calibration.workspace
     # the camera_info topic brings K and D; camera.yaml's workspace bounds every pose the node emits
+    cell = load_cell(settings["cell"])
+    gripper = cell.tools if cell is not None else settings["gripper"]
     reach = None
-    if robot == "panda":  # grasps the arm cannot take are rejected in the result, with the reason
+    if settings["robot"] == "panda":  # grasps the arm cannot take are rejected in the result, with the reason
         from binpick.arm import MotionPlanner
 
         reach = MotionPlanner(gripper=gripper).reach_check
-    picker = Picker.load(weights, grasp, grasp_weights, workspace=workspace, runtime=runtime, reach=reach, gripper=gripper)
-    return pose, frame, picker, Topics(colour, depth, info)
+    picker = Picker.load(settings["weights"], settings["grasp"], settings["grasp_weights"], workspace=workspace,
+                         runtime=settings["runtime"], reach=reach, gripper=gripper, cell=cell)
+    return pose, frame, picker, Topics(settings["colour_topic"], settings["depth_topic"], settings["info_topic"])
 
 
 @ros_app.command("pick-node")
 def ros_pick_node(
+    ctx: typer.Context,
+    params: NodeParamsOption = None,
     camera: NodeCamera = None,
+    camera_frame: CameraFrameOption = "camera_color_optical_frame",
     namespace: Annotated[str, typer.Option(help="Action namespace of the PlanPick server")] = "/binpick/plan_pick",
     colour_topic: ColourTopic = COLOUR, depth_topic: DepthTopic = DEPTH, info_topic: InfoTopic = INFO,
     products_file: NodeProducts = None, weights: NodeWeights = None, grasp: NodeGrasp = DEFAULT_POLICY,
     grasp_weights: NodeGraspWeights = None, runtime: RuntimeOption = "torch", robot: PlanRobotOption = "floating",
-    gripper: GripperOption = DEFAULT_GRIPPER,
+    gripper: GripperOption = DEFAULT_GRIPPER, cell: CellOption = None,
     master: MasterOption = None,
     timeout: Annotated[float, typer.Option(help="Seconds to wait for the ROS master")] = 10.0,
 ) -> None:
-    """Serve pick planning over ROS 1: camera topics in, a PlanPick action (grasp poses in the base frame) out."""
-    pose, frame, picker, topics = _pick_node_setup(camera, namespace, colour_topic, depth_topic, info_topic, weights, grasp, grasp_weights,
-                                                   runtime, robot, gripper)
-    library = product_library(products_file)
+    """Serve pick planning over ROS 1: camera topics in, a PlanPick action (grasp poses in the base frame) out;
+    grasps also as a PoseArray, RViz markers and tf frames."""
+    settings = _node_settings(ctx, params)
+    pose, frame, picker, topics = _pick_node_setup(settings)
+    library = product_library(settings["products_file"])
     _ros_environment(master, _check_timeout(timeout))
     from binpick.integrations.ros1.pick_node import serve
 
-    serve(picker, pose, frame, namespace, topics, library, master_timeout=timeout)
+    serve(picker, pose, frame, settings["namespace"], topics, library, master_timeout=timeout, camera_frame=settings["camera_frame"])
 
 
 @ros2_app.command("pick-node")
 def ros2_pick_node(
+    ctx: typer.Context,
+    params: NodeParamsOption = None,
     camera: NodeCamera = None,
+    camera_frame: CameraFrameOption = "camera_color_optical_frame",
     namespace: Annotated[str, typer.Option(help="Namespace of the goal/result topics")] = "/binpick/plan_pick",
     colour_topic: ColourTopic = COLOUR, depth_topic: DepthTopic = DEPTH, info_topic: InfoTopic = INFO,
     products_file: NodeProducts = None, weights: NodeWeights = None, grasp: NodeGrasp = DEFAULT_POLICY,
     grasp_weights: NodeGraspWeights = None, runtime: RuntimeOption = "torch", robot: PlanRobotOption = "floating",
-    gripper: GripperOption = DEFAULT_GRIPPER,
+    gripper: GripperOption = DEFAULT_GRIPPER, cell: CellOption = None,
 ) -> None:
-    """Serve pick planning over ROS 2 (run with .venv-ros2/bin/binpick): camera topics in, grasp poses out."""
+    """Serve pick planning over ROS 2 (run with .venv-ros2/bin/binpick): camera topics in, grasp poses out;
+    grasps also as a PoseArray and RViz markers."""
     from binpick.integrations.ros2 import require_ros2
 
     require_ros2()
-    pose, frame, picker, topics = _pick_node_setup(camera, namespace, colour_topic, depth_topic, info_topic, weights, grasp, grasp_weights,
-                                                   runtime, robot, gripper)
+    settings = _node_settings(ctx, params)
+    pose, frame, picker, topics = _pick_node_setup(settings)
     from binpick.integrations.ros2.pick_node import serve
 
-    serve(picker, pose, frame, namespace, topics, product_library(products_file))
+    serve(picker, pose, frame, settings["namespace"], topics, product_library(settings["products_file"]),
+          camera_frame=settings["camera_frame"])

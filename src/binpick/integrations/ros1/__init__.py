@@ -15,7 +15,8 @@ from binpick.core.errors import BinpickError
 
 DEBIAN_PACKAGES = ("python3-rospy", "python3-actionlib", "python3-rosmaster", "python3-genpy", "python3-genmsg",
                    "ros-std-msgs", "ros-actionlib-msgs", "python3-actionlib-msgs", "python3-std-msgs", "python3-sensor-msgs",
-                   "ros-sensor-msgs", "python3-geometry-msgs", "ros-geometry-msgs")
+                   "ros-sensor-msgs", "python3-geometry-msgs", "ros-geometry-msgs", "python3-tf2-msgs", "python3-visualization-msgs",
+                   "python3-roslaunch")
 
 
 class RosUnavailable(BinpickError):
@@ -65,6 +66,8 @@ def ros_missing() -> str | None:
         import actionlib  # noqa: F401
         import genpy  # noqa: F401
         import rospy  # noqa: F401
+        import tf2_msgs.msg  # noqa: F401
+        import visualization_msgs.msg  # noqa: F401
     except ImportError as error:
         return (f"ROS 1 is not importable ({error.name}): install the Debian packages {' '.join(DEBIAN_PACKAGES)} "
                 "and re-run scripts/setup.sh, which makes them visible to the venv")

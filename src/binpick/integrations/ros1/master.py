@@ -1,4 +1,5 @@
-"""A ROS master on 127.0.0.1 (``rosmaster --core``), started and stopped from Python."""
+"""A ROS master on 127.0.0.1 (``rosmaster --core``), started and stopped from Python, with ``/run_id``
+set as ``roscore`` sets it (``roslaunch --wait`` waits for it)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import uuid
 import xmlrpc.client
 
 from binpick.core.errors import BinpickError
@@ -58,7 +60,9 @@ class RosMaster:
             previous = socket.getdefaulttimeout()
             socket.setdefaulttimeout(max(0.1, min(deadline - time.monotonic(), 2.0)))  # a silent peer on the port: no hang
             try:
-                xmlrpc.client.ServerProxy(self.uri).getPid("/binpick")
+                master = xmlrpc.client.ServerProxy(self.uri)
+                master.getPid("/binpick")
+                master.setParam("/binpick", "/run_id", str(uuid.uuid1()))  # what roscore sets; roslaunch reads it
                 return
             except (OSError, xmlrpc.client.Error):
                 time.sleep(0.05)

@@ -1,8 +1,11 @@
 """The pick planner as a ROS 1 node (thesis ch. 6): an RGB-D camera's colour, depth and
 ``CameraInfo`` topics in (matched by time stamp), a ``binpick/PlanPick`` action out (goal: a product id
-or its shop photo; result: grasp poses in the robot's base frame with scores), and an overlay image of
-every plan on ``<namespace>/overlay``. Everything but the ROS plumbing is
-:mod:`binpick.picking.node`, shared with the ROS 2 node.
+or its shop photo; result: grasp poses in the robot's base frame with scores), and for each answer an
+overlay image (``<namespace>/overlay``), the grasps as a ``geometry_msgs/PoseArray``
+(``<namespace>/grasps``), RViz markers (``<namespace>/markers``, ``visualization_msgs/MarkerArray``) and tf
+frames ``binpick_grasp_1``, ... (``/tf``); the camera's pose is a static transform (``/tf_static``). Everything
+but the ROS plumbing is :mod:`binpick.picking.node` and :mod:`binpick.picking.scene_messages`, shared with
+the ROS 2 node. ``roslaunch binpick pick_node.launch`` starts it from a parameter file (``ros/binpick``).
 """
 
 from __future__ import annotations
@@ -14,6 +17,8 @@ import numpy as np
 
 from binpick.picking.camera_info import CameraInfo
 from binpick.picking.node import Guard, PlanRequests, Topics, colour_of, depth_of, describe, image_array, image_fields, photo_of
+from binpick.picking.scene_messages import camera_frame_pose, grasp_frame_poses, grasp_markers
+from binpick.integrations.ros_messages import marker_array, pose_array, pose_of, tf_message
 from binpick.integrations.ros1 import init_node_within, master_uri, require_ros, wait_for_master
 
 
@@ -21,22 +26,28 @@ def stamp_seconds(header) -> float:
     return header.stamp.secs + 1e-9 * header.stamp.nsecs
 
 
+
+
 def pose_stamped(plan, frame: str, stamp):
     import geometry_msgs.msg
 
     message = geometry_msgs.msg.PoseStamped()
     message.header.frame_id, message.header.stamp = frame, stamp
-    message.pose.position.x, message.pose.position.y, message.pose.position.z = plan.position
-    q = message.pose.orientation
-    q.x, q.y, q.z, q.w = plan.orientation
+    message.pose = pose_of(plan.position, plan.orientation)
     return message
+
+
+
+
+
+
 
 
 class PickNode:
     """Serves ``binpick/PlanPick`` at ``namespace``. Call from a node (``rospy.init_node`` first)."""
 
     def __init__(self, requests: PlanRequests, camera_to_base: np.ndarray, base_frame: str, namespace: str = "/binpick/plan_pick",
-                 topics: Topics = Topics()) -> None:
+                 topics: Topics = Topics(), camera_frame: str = "camera_color_optical_frame") -> None:
         require_ros()
         import actionlib
         import rospy
@@ -63,6 +74,15 @@ class PickNode:
         self.dropped = rospy.Publisher(f"{self.namespace}/dropped", std_msgs.msg.String, queue_size=2, latch=True)
         self.errors = rospy.Publisher(f"{self.namespace}/errors", std_msgs.msg.String, queue_size=2, latch=True)
         self.string = std_msgs.msg.String
+        import geometry_msgs.msg
+        import tf2_msgs.msg
+        import visualization_msgs.msg
+
+        self.grasps = rospy.Publisher(f"{self.namespace}/grasps", geometry_msgs.msg.PoseArray, queue_size=1, latch=True)
+        self.markers = rospy.Publisher(f"{self.namespace}/markers", visualization_msgs.msg.MarkerArray, queue_size=1, latch=True)
+        self.tf = rospy.Publisher("/tf", tf2_msgs.msg.TFMessage, queue_size=10)
+        self.tf_static = rospy.Publisher("/tf_static", tf2_msgs.msg.TFMessage, queue_size=1, latch=True)
+        self.tf_static.publish(tf_message([camera_frame_pose(camera_to_base, base_frame, camera_frame)], rospy.Time.now()))
         # camera messages it refused (dropped) and those its own code failed on (errors), JSON {topic: count}
         self.timer = rospy.Timer(rospy.Duration(0.5), self._report_drops)
         self.server = actionlib.ActionServer(self.namespace, self.types["PlanPickAction"], self._on_goal, auto_start=False)
@@ -109,8 +129,13 @@ class PickNode:
             handle.set_aborted(text=describe(error))
             return
         try:
+            grasps = plans.grasps
+            self.grasps.publish(pose_array(grasps, plans.frame, stamp))
+            self.markers.publish(marker_array(grasp_markers(grasps, self.requests.picker.grasp.gripper.opening), plans.frame, stamp))
+            if grasps:
+                self.tf.publish(tf_message(grasp_frame_poses(grasps, plans.frame), stamp))
             self._publish_overlay(frame, plans, photo, stamp)
-        except Exception as error:  # noqa: BLE001 - the answer is out; a picture that fails is only logged
+        except Exception as error:  # noqa: BLE001 - the answer is out; what follows it is only logged if it fails
             self.guard.drop(f"{self.namespace}/overlay", error)
 
     def _publish_overlay(self, frame, plans, photo, stamp) -> None:
@@ -129,7 +154,8 @@ class PickNode:
 
 
 def serve(picker, camera_to_base: np.ndarray, base_frame: str, namespace: str, topics: Topics, library=None,
-          node_name: str = "binpick_pick_planner", master_timeout: float = 10.0) -> None:
+          node_name: str = "binpick_pick_planner", master_timeout: float = 10.0,
+          camera_frame: str = "camera_color_optical_frame") -> None:
     """Run the node until ROS shuts down (Ctrl-C or SIGTERM)."""
     require_ros()
     import rospy
@@ -140,7 +166,7 @@ def serve(picker, camera_to_base: np.ndarray, base_frame: str, namespace: str, t
     from binpick.sim.catalogue import Catalogue
 
     requests = PlanRequests.with_catalogue(picker, Catalogue(library) if library is not None else None)
-    node = PickNode(requests, camera_to_base, base_frame, namespace, topics)
+    node = PickNode(requests, camera_to_base, base_frame, namespace, topics, camera_frame)
     rospy.loginfo("binpick: planning picks at %s from %s, %s, %s", namespace, topics.colour, topics.depth, topics.info)
     try:
         rospy.spin()

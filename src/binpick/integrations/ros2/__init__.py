@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from binpick.core.errors import BinpickError
 
-WHEELS = ("ros-rclpy", "ros-std-msgs", "ros-sensor-msgs", "ros-geometry-msgs", "ros-rmw-fastrtps-cpp")
+WHEELS = ("ros-rclpy", "ros-std-msgs", "ros-sensor-msgs", "ros-geometry-msgs", "ros-visualization-msgs", "ros-rmw-fastrtps-cpp")
 
 
 class Ros2Unavailable(BinpickError):
@@ -24,6 +24,7 @@ def ros2_missing() -> str | None:
         import rclpy  # noqa: F401
         import sensor_msgs.msg  # noqa: F401
         import std_msgs.msg  # noqa: F401
+        import visualization_msgs.msg  # noqa: F401
     except ImportError as error:
         return (f"ROS 2 is not importable here ({error.name}): run it with .venv-ros2/bin/binpick (scripts/setup.sh makes it; "
                 f"it holds the PyPI wheels {' '.join(WHEELS)})")

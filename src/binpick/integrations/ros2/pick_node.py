@@ -9,7 +9,11 @@ as standard messages on ``<namespace>/...``:
   (``sensor_msgs/Image``, the shop photo; ``header.frame_id`` is the request id, or that JSON);
 - ``result`` (``std_msgs/String``, JSON ``{"id", "status", "text", "grasps": [{position, orientation,
   score, quality, width, tool}], "opening", "plans"}``): the ROS 1 result's fields, same values;
-- ``grasps`` (``geometry_msgs/PoseArray`` in the base frame, best first, for RViz) and ``overlay``;
+- ``grasps`` (``geometry_msgs/PoseArray`` in the base frame, best first, for RViz), ``markers``
+  (``visualization_msgs/MarkerArray``: each grasp's approach, fingers or cup, rank and score) and ``overlay``;
+- ``camera_pose`` (``geometry_msgs/TransformStamped``, latched): the camera's pose in the base frame. tf itself
+  (``tf2_msgs``) is not among PyPI's wheels: the ROS 2 launch file (``ros/ros2``) publishes the same pose
+  with tf2_ros's ``static_transform_publisher`` where ROS 2 is installed;
 - ``dropped`` (``std_msgs/String``, JSON ``{topic: count}``): camera messages the node refused, when the counts change
 - ``errors`` (``std_msgs/String``, JSON ``{topic: count}``): camera messages the node's own code failed on (tracebacks in its log).
 """
@@ -25,6 +29,8 @@ import numpy as np
 from binpick.picking.camera_info import CameraInfo
 from binpick.picking.node import (Goal, Guard, PlanRequests, colour_of, depth_of, describe, image_array, image_fields, parse_goal,
                                   parse_goal_json, photo_of, request_id_of)
+from binpick.picking.scene_messages import camera_frame_pose, grasp_markers
+from binpick.integrations.ros_messages import marker_array, pose_of, transform_stamped
 from binpick.integrations.ros2 import require_ros2
 
 RELIABLE_DEPTH = 10
@@ -52,16 +58,23 @@ def stamp_seconds(header) -> float:
     return header.stamp.sec + 1e-9 * header.stamp.nanosec
 
 
+
+
+
+
+
+
 def make_node(requests: PlanRequests, camera_to_base: np.ndarray, base_frame: str, namespace: str = "/binpick/plan_pick",
               colour: str = "/camera/color/image_raw", depth: str = "/camera/aligned_depth_to_color/image_raw",
-              info: str = "/camera/color/camera_info"):
+              info: str = "/camera/color/camera_info", camera_frame: str = "camera_color_optical_frame"):
     """An ``rclpy`` node serving plan requests (``rclpy.init`` first)."""
     require_ros2()
     import geometry_msgs.msg
     import rclpy.node
     import sensor_msgs.msg
     import std_msgs.msg
-    from rclpy.qos import qos_profile_sensor_data
+    import visualization_msgs.msg
+    from rclpy.qos import DurabilityPolicy, QoSProfile, qos_profile_sensor_data
 
     namespace = namespace.rstrip("/")
     node = rclpy.node.Node("binpick_pick_planner")
@@ -83,6 +96,10 @@ def make_node(requests: PlanRequests, camera_to_base: np.ndarray, base_frame: st
     overlay = node.create_publisher(sensor_msgs.msg.Image, f"{namespace}/overlay", 1)
     dropped = node.create_publisher(std_msgs.msg.String, f"{namespace}/dropped", RELIABLE_DEPTH)
     errors = node.create_publisher(std_msgs.msg.String, f"{namespace}/errors", RELIABLE_DEPTH)
+    latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)  # late subscribers get the last one
+    markers = node.create_publisher(visualization_msgs.msg.MarkerArray, f"{namespace}/markers", latched)
+    camera_pose = node.create_publisher(geometry_msgs.msg.TransformStamped, f"{namespace}/camera_pose", latched)
+    camera_pose.publish(transform_stamped(camera_frame_pose(camera_to_base, base_frame, camera_frame), node.get_clock().now().to_msg()))
 
     def report_drops() -> None:  # camera messages refused (dropped) and failed on inside (errors), twice a second when it changes
         counts = guard.report()
@@ -104,14 +121,12 @@ def make_node(requests: PlanRequests, camera_to_base: np.ndarray, base_frame: st
         array_message = geometry_msgs.msg.PoseArray()
         array_message.header.frame_id = plans.frame
         array_message.header.stamp.sec, array_message.header.stamp.nanosec = int(frame.stamp), int(1e9 * (frame.stamp % 1))
-        for plan in plans.grasps:
-            pose = geometry_msgs.msg.Pose()
-            pose.position.x, pose.position.y, pose.position.z = (float(v) for v in plan.position)
-            pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w = (float(v) for v in plan.orientation)
-            array_message.poses.append(pose)
+        array_message.poses = [pose_of(plan.position, plan.orientation) for plan in plans.grasps]
         results.publish(std_msgs.msg.String(data=answer_text))  # built in full first: a goal is answered once
         try:
             poses.publish(array_message)
+            markers.publish(marker_array(grasp_markers(plans.grasps, requests.picker.grasp.gripper.opening), plans.frame,
+                                         array_message.header.stamp))
             picture = plans.plot(frame.rgb, frame.camera.camera, requests.picker.grasp.gripper.opening, goal.photo)
             overlay.publish(image_message(picture, "rgb8", array_message.header.stamp, plans.frame))
         except Exception as error:  # noqa: BLE001 - the answer is out; what follows it is only logged if it fails
@@ -144,7 +159,8 @@ def make_node(requests: PlanRequests, camera_to_base: np.ndarray, base_frame: st
     return node
 
 
-def serve(picker, camera_to_base: np.ndarray, base_frame: str, namespace: str, topics, library=None) -> None:
+def serve(picker, camera_to_base: np.ndarray, base_frame: str, namespace: str, topics, library=None,
+          camera_frame: str = "camera_color_optical_frame") -> None:
     """Run the node until Ctrl-C or SIGTERM."""
     require_ros2()
     import rclpy
@@ -157,7 +173,7 @@ def serve(picker, camera_to_base: np.ndarray, base_frame: str, namespace: str, t
         from binpick.sim.catalogue import Catalogue
 
         requests = PlanRequests.with_catalogue(picker, Catalogue(library) if library is not None else None)
-        node = make_node(requests, camera_to_base, base_frame, namespace, topics.colour, topics.depth, topics.info)
+        node = make_node(requests, camera_to_base, base_frame, namespace, topics.colour, topics.depth, topics.info, camera_frame)
         node.get_logger().info(f"binpick: planning picks at {namespace} from {topics.colour}, {topics.depth}, {topics.info}")
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):  # Ctrl-C, or SIGTERM through rclpy's handler: a clean stop

@@ -1,0 +1,125 @@
+"""A pick node's parameter file: the camera, the cell, the topics and the planner in one YAML, the same
+for the ROS 1 and the ROS 2 node (the launch files name it), read once and validated.
+
+    camera: camera.yaml                    # camera_to_base (relative paths: from this file's folder)
+    camera_frame: camera_color_optical_frame   # the camera's tf frame (published as a static transform)
+    cell: ../../configs/cells/franka_hand.yaml # your gripper (optional; else `gripper`)
+    namespace: /binpick/plan_pick
+    topics: {colour: /camera/color/image_raw, depth: /camera/aligned_depth_to_color/image_raw,
+             info: /camera/color/camera_info}
+
+ROS 2's own layout (``<node name or /**>: {ros__parameters: {...}}``, nested keys or dotted ones) is read
+too, so a file written for ``ros2 launch`` serves as it is.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+from binpick.core.errors import InputFileError
+
+NAME = re.compile(r"/?[A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*/?")
+FRAME = re.compile(r"[A-Za-z][A-Za-z0-9_/]*")
+CHOICES = {"grasp": ("learnt", "analytic", "fixed"), "robot": ("floating", "panda"), "gripper": ("jaws", "suction", "both"),
+           "runtime": ("torch", "onnx")}
+PATHS = ("camera", "cell", "products", "weights", "grasp_weights")
+
+
+@dataclass(frozen=True)
+class NodeTopics:
+    colour: str = "/camera/color/image_raw"
+    depth: str = "/camera/aligned_depth_to_color/image_raw"
+    info: str = "/camera/color/camera_info"
+
+
+@dataclass(frozen=True)
+class NodeParams:
+    """Everything a pick node needs besides ROS itself; paths are absolute once loaded."""
+
+    camera: Path | None = None
+    camera_frame: str = "camera_color_optical_frame"
+    cell: Path | None = None
+    namespace: str = "/binpick/plan_pick"
+    topics: NodeTopics = field(default_factory=NodeTopics)
+    products: Path | None = None
+    weights: Path | None = None
+    grasp: str = "learnt"
+    grasp_weights: Path | None = None
+    gripper: str = "both"
+    robot: str = "floating"
+    runtime: str = "torch"
+
+    @classmethod
+    def load(cls, path: str | Path) -> NodeParams:
+        """Every mistake is one line naming the key and the file."""
+        from binpick.core.files import read_yaml
+
+        path = Path(path)
+        where = f"node parameter file {str(path)!r}"
+        data = unwrap_ros2(read_yaml(path, "node parameter file"), where)
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise InputFileError(f"{where}: unknown key {unknown[0]!r} (known: {', '.join(sorted(known))})")
+        values: dict[str, Any] = {}
+        for key, value in data.items():
+            if value is None:
+                continue
+            if key == "topics":
+                values[key] = _topics(value, where)
+            elif key in PATHS:
+                if not isinstance(value, str) or not value.strip():
+                    raise InputFileError(f"{where}: {key} must be a file path, got {value!r}")
+                values[key] = (path.parent / value).resolve()
+            elif key in CHOICES:
+                if value not in CHOICES[key]:
+                    raise InputFileError(f"{where}: {key} must be one of {', '.join(CHOICES[key])}, got {value!r}")
+                values[key] = value
+            elif key == "namespace":
+                values[key] = _name(value, key, where)
+            elif key == "camera_frame":
+                if not isinstance(value, str) or not FRAME.fullmatch(value):
+                    raise InputFileError(f"{where}: camera_frame must be a tf frame name like camera_color_optical_frame, got {value!r}")
+                values[key] = value
+        return cls(**values)
+
+
+def unwrap_ros2(data: Any, where: str) -> dict:
+    """The parameters of a plain mapping, or of ROS 2's ``{node: {ros__parameters: {...}}}`` (dotted keys nested)."""
+    if not isinstance(data, dict):
+        raise InputFileError(f"{where} must be a mapping of parameters (camera, topics, ...)")
+    if len(data) == 1:
+        (only,) = data.values()
+        if isinstance(only, dict) and "ros__parameters" in only:
+            data = only["ros__parameters"]
+            if not isinstance(data, dict):
+                raise InputFileError(f"{where}: ros__parameters must be a mapping")
+    nested: dict[str, Any] = {}
+    for key, value in data.items():
+        head, _, rest = str(key).partition(".")
+        if rest:
+            group = nested.setdefault(head, {})
+            if not isinstance(group, dict):
+                raise InputFileError(f"{where}: {head} is given both as a value and as {key}")
+            group[rest] = value
+        else:
+            nested[head] = value
+    return nested
+
+
+def _name(value: Any, key: str, where: str) -> str:
+    if not isinstance(value, str) or not NAME.fullmatch(value):
+        raise InputFileError(f"{where}: {key} must be a ROS graph name like /binpick/plan_pick, got {value!r}")
+    return value
+
+
+def _topics(value: Any, where: str) -> NodeTopics:
+    if not isinstance(value, dict):
+        raise InputFileError(f"{where}: topics must be a mapping of colour, depth and info")
+    unknown = sorted(set(value) - {"colour", "depth", "info"})
+    if unknown:
+        raise InputFileError(f"{where}: unknown topic {unknown[0]!r} (colour, depth, info)")
+    return NodeTopics(**{k: _name(v, f"topics.{k}", where) for k, v in value.items()})
