@@ -18,6 +18,7 @@ from binpick.picking.scene_messages import camera_frame_pose, grasp_frame_poses,
 
 ROOT = Path(__file__).resolve().parents[1]
 CLI = [sys.executable, "-c", "from binpick.cli import main; main()"]
+SAMPLE_CAMERA = ROOT / "src" / "binpick" / "samples" / "bin_frame" / "camera.yaml"
 
 
 def test_the_shipped_parameter_files_of_both_nodes_read_the_same():
@@ -25,7 +26,7 @@ def test_the_shipped_parameter_files_of_both_nodes_read_the_same():
     ros2 = NodeParams.load(ROOT / "ros" / "ros2" / "pick_node.yaml")  # ROS 2's own layout: node -> ros__parameters
     assert ros1 == ros2
     assert ros1.camera == (ROOT / "src" / "binpick" / "samples" / "bin_frame" / "camera.yaml").resolve() and ros1.camera.is_file()
-    assert ros1.topics.depth == "/camera/aligned_depth_to_color/image_raw" and ros1.camera_frame == "camera_color_optical_frame"
+    assert ros1.topics.depth == "/camera/aligned_depth_to_color/image_raw" and ros1.camera_frame == "binpick_camera_optical_frame"
 
 
 def test_dotted_ros2_keys_and_relative_paths(tmp_path):
@@ -98,3 +99,21 @@ def test_frames_of_the_camera_and_of_each_grasp():
     assert abs(camera.rotation[0]) == pytest.approx(1.0)  # 180 degrees about x
     frames = grasp_frame_poses([_grasp(0.1, 0.3), _grasp(0.2, 0.0)], "world")
     assert [f.child for f in frames] == ["binpick_grasp_1", "binpick_grasp_2"] and frames[1].translation == (0.2, 0.1, 0.05)
+
+
+def test_an_option_on_the_command_line_wins_over_the_parameter_file(tmp_path):
+    """What the ROS 2 launch file asks the command for (the camera's static transform), from the file
+    alone, then with --camera-frame given: the file's frame, then the command line's."""
+    path = tmp_path / "params.yaml"
+    path.write_text(f"node:\n  ros__parameters:\n    camera: {SAMPLE_CAMERA}\n    camera_frame: file_frame\n")
+    command = CLI + ["ros2", "pick-node", "--params", str(path), "--camera-tf"]
+    from_file = subprocess.run(command, capture_output=True, text=True, timeout=120)
+    given = subprocess.run(command + ["--camera-frame", "cli_frame"], capture_output=True, text=True, timeout=120)
+    assert from_file.returncode == 0 and given.returncode == 0, from_file.stderr + given.stderr
+    flags = from_file.stdout.split()
+    assert flags[flags.index("--child-frame-id") + 1] == "file_frame" and flags[flags.index("--frame-id") + 1] == "world"
+    assert float(flags[flags.index("--z") + 1]) == pytest.approx(0.85) and float(flags[flags.index("--qx") + 1]) == pytest.approx(-0.99482437)
+    assert given.stdout.split()[-1] == "cli_frame"
+    path.write_text(f"camera: {SAMPLE_CAMERA}\ncamera_frame: world\n")  # the base frame itself: a loop in tf
+    looped = subprocess.run(CLI + ["ros", "pick-node", "--params", str(path)], capture_output=True, text=True, timeout=120)
+    assert looped.returncode == 2 and "is the base frame" in looped.stderr and "Traceback" not in looped.stderr

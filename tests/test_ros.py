@@ -80,6 +80,6 @@ def test_a_bin_is_picked_through_the_plan_pick_node_started_from_its_launch_file
     shown = summary["shown"]  # beside each answer: the grasps as poses, RViz markers and tf frames; the camera on /tf_static
     assert shown["pose_arrays"] >= 2 and shown["poses"] >= 2 and shown["marker_arrays"] == shown["pose_arrays"]
     assert 3 * shown["poses"] <= shown["markers"] <= 4 * shown["poses"]  # per grasp: approach arrow, two fingers or the cup, label
-    assert shown["grasp_frames"] == shown["poses"] and shown["static_frames"] == ["world->camera_color_optical_frame"]
+    assert shown["grasp_frames"] == shown["poses"] and shown["static_frames"] == ["world->binpick_camera_optical_frame"]
     client = summary["example_client"]  # ros/binpick/examples/plan_client.py, as a user runs it
     assert client["returncode"] == 0 and client["grasps"] >= 1 and client["frame"] == "world", client

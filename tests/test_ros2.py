@@ -50,7 +50,7 @@ def test_a_bin_is_picked_through_the_ros2_node_from_its_parameter_file_inside_a_
     assert summary["overlays"] >= 1 and summary["overlay_size"] == [416, 416]  # the node's picture of its plan
     shown = summary["shown"]  # the node started from ros/ros2/pick_node.yaml: grasps as poses and RViz markers, the camera's pose
     assert shown["pose_arrays"] >= 2 and shown["poses"] >= 2 and 3 * shown["poses"] <= shown["markers"] <= 4 * shown["poses"]
-    assert shown["static_frames"] == ["world->camera_color_optical_frame"]
+    assert shown["static_frames"] == ["world->binpick_camera_optical_frame"]
     client = summary["example_client"]  # ros/ros2/plan_client.py, as a user runs it
     assert client["returncode"] == 0 and client["grasps"] >= 1 and client["frame"] == "world", client
 

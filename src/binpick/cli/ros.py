@@ -22,7 +22,7 @@ from binpick.cli.app import (
     ros2_app,
     ros_app,
 )
-from binpick.core.errors import ConfigError
+from binpick.core.errors import BinpickError, ConfigError
 from binpick.core.files import atomic_write_json, check_output_file
 
 MasterOption = Annotated[str | None, typer.Option("--master", help="ROS master URI (default: $ROS_MASTER_URI)")]
@@ -145,8 +145,9 @@ NodeGraspWeights = Annotated[Path | None, typer.Option(help="Grasp-quality weigh
 NodeParamsOption = Annotated[Path | None, typer.Option("--params", help="The node's parameter file (YAML: camera, camera_frame, cell, "
                                                                          "namespace, topics, ...; ros/binpick/config/pick_node.yaml); "
                                                                          "an option given on the command line wins over it")]
-CameraFrameOption = Annotated[str, typer.Option(help="The camera's tf frame (its pose in the base frame is published as a static "
-                                                     "transform)")]
+CameraFrameOption = Annotated[str, typer.Option(help="The camera's tf frame: its pose in the base frame is published as a static "
+                                                     "transform (not the camera driver's own optical frame: tf allows one parent; "
+                                                     "\"\": none published)")]
 COLOUR, DEPTH, INFO = "/camera/color/image_raw", "/camera/aligned_depth_to_color/image_raw", "/camera/color/camera_info"
 NODE_OPTIONS = {"camera": "camera", "camera_frame": "camera_frame", "cell": "cell", "namespace": "namespace",
                 "products_file": "products", "weights": "weights", "grasp": "grasp", "grasp_weights": "grasp_weights",
@@ -157,21 +158,27 @@ TOPIC_OPTIONS = {"colour_topic": "colour", "depth_topic": "depth", "info_topic":
 def _node_settings(ctx: typer.Context, params: Path | None) -> dict:
     """The node's settings: the command line's options, over the parameter file's values where the
     option was not given on the command line (then over the defaults)."""
-    from click.core import ParameterSource
+    from binpick.picking.node_params import check_frame_name
 
     settings = dict(ctx.params)
-    if params is None:
-        return settings
-    from binpick.picking.node_params import NodeParams
+    if params is not None:
+        from binpick.picking.node_params import NodeParams
 
-    loaded = NodeParams.load(params)
-    given = {name for name in settings if ctx.get_parameter_source(name) == ParameterSource.COMMANDLINE}
-    for option, key in NODE_OPTIONS.items():
-        if option not in given:
-            settings[option] = getattr(loaded, key)
-    for option, key in TOPIC_OPTIONS.items():
-        if option not in given:
-            settings[option] = getattr(loaded.topics, key)
+        loaded = NodeParams.load(params)
+        # by name: Typer carries its own copy of Click, whose ParameterSource is another enum than click's
+        given = {name for name in settings if getattr(ctx.get_parameter_source(name), "name", None) == "COMMANDLINE"}
+        for option, key in NODE_OPTIONS.items():
+            if option not in given:
+                settings[option] = getattr(loaded, key)
+        for option, key in TOPIC_OPTIONS.items():
+            if option not in given:
+                settings[option] = getattr(loaded.topics, key)
+        if "gripper" in given and "cell" not in given:  # --gripper on the command line wins over the file's cell too
+            settings["cell"] = None
+    try:
+        check_frame_name(settings["camera_frame"], "--camera-frame")
+    except BinpickError as error:
+        raise ConfigError(str(error)) from None
     return settings
 
 
@@ -192,6 +199,9 @@ def _pick_node_setup(settings: dict):
     calibration = read_camera_info(camera)
     pose, frame, workspace = calibration.camera.camera_to_world, calibration.base_frame, calibration.workspace
     # the camera_info topic brings K and D; camera.yaml's workspace bounds every pose the node emits
+    if settings["camera_frame"] == frame:
+        raise ConfigError(f"the camera's tf frame {frame!r} is the base frame camera.yaml places it in: give --camera-frame "
+                          "(or camera_frame in the parameter file) a frame of its own")
     cell = load_cell(settings["cell"])
     gripper = cell.tools if cell is not None else settings["gripper"]
     reach = None
@@ -209,7 +219,7 @@ def ros_pick_node(
     ctx: typer.Context,
     params: NodeParamsOption = None,
     camera: NodeCamera = None,
-    camera_frame: CameraFrameOption = "camera_color_optical_frame",
+    camera_frame: CameraFrameOption = "binpick_camera_optical_frame",
     namespace: Annotated[str, typer.Option(help="Action namespace of the PlanPick server")] = "/binpick/plan_pick",
     colour_topic: ColourTopic = COLOUR, depth_topic: DepthTopic = DEPTH, info_topic: InfoTopic = INFO,
     products_file: NodeProducts = None, weights: NodeWeights = None, grasp: NodeGrasp = DEFAULT_POLICY,
@@ -229,24 +239,46 @@ def ros_pick_node(
     serve(picker, pose, frame, settings["namespace"], topics, library, master_timeout=timeout, camera_frame=settings["camera_frame"])
 
 
+def _static_transform_arguments(settings: dict) -> list[str]:
+    """static_transform_publisher's flags for the camera's pose in camera.yaml (none: no camera frame)."""
+    from binpick.picking import read_camera_info
+    from binpick.picking.scene_messages import camera_frame_pose
+
+    if settings["camera"] is None:
+        raise ConfigError("--camera-tf needs --camera camera.yaml (or a --params file naming it)")
+    if not settings["camera_frame"]:
+        return []
+    info = read_camera_info(settings["camera"])
+    pose = camera_frame_pose(info.camera.camera_to_world, info.base_frame, settings["camera_frame"])
+    values = [*pose.translation, *pose.rotation]
+    flags = ["--x", "--y", "--z", "--qx", "--qy", "--qz", "--qw"]
+    return [item for flag, value in zip(flags, values) for item in (flag, repr(float(value)))] + [
+        "--frame-id", pose.parent, "--child-frame-id", pose.child]
+
+
 @ros2_app.command("pick-node")
 def ros2_pick_node(
     ctx: typer.Context,
     params: NodeParamsOption = None,
     camera: NodeCamera = None,
-    camera_frame: CameraFrameOption = "camera_color_optical_frame",
+    camera_frame: CameraFrameOption = "binpick_camera_optical_frame",
     namespace: Annotated[str, typer.Option(help="Namespace of the goal/result topics")] = "/binpick/plan_pick",
     colour_topic: ColourTopic = COLOUR, depth_topic: DepthTopic = DEPTH, info_topic: InfoTopic = INFO,
     products_file: NodeProducts = None, weights: NodeWeights = None, grasp: NodeGrasp = DEFAULT_POLICY,
     grasp_weights: NodeGraspWeights = None, runtime: RuntimeOption = "torch", robot: PlanRobotOption = "floating",
     gripper: GripperOption = DEFAULT_GRIPPER, cell: CellOption = None,
+    camera_tf: Annotated[bool, typer.Option("--camera-tf", help="Print the camera's pose as tf2_ros static_transform_publisher "
+                                                                "arguments and exit (the ROS 2 launch file uses it)")] = False,
 ) -> None:
     """Serve pick planning over ROS 2 (run with .venv-ros2/bin/binpick): camera topics in, grasp poses out;
     grasps also as a PoseArray and RViz markers."""
+    settings = _node_settings(ctx, params)
+    if camera_tf:
+        print(" ".join(_static_transform_arguments(settings)))
+        return
     from binpick.integrations.ros2 import require_ros2
 
     require_ros2()
-    settings = _node_settings(ctx, params)
     pose, frame, picker, topics = _pick_node_setup(settings)
     from binpick.integrations.ros2.pick_node import serve
 

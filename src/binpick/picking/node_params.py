@@ -2,7 +2,7 @@
 for the ROS 1 and the ROS 2 node (the launch files name it), read once and validated.
 
     camera: camera.yaml                    # camera_to_base (relative paths: from this file's folder)
-    camera_frame: camera_color_optical_frame   # the camera's tf frame (published as a static transform)
+    camera_frame: binpick_camera_optical_frame # the camera's tf frame, published from camera_to_base ("": not)
     cell: ../../configs/cells/franka_hand.yaml # your gripper (optional; else `gripper`)
     namespace: /binpick/plan_pick
     topics: {colour: /camera/color/image_raw, depth: /camera/aligned_depth_to_color/image_raw,
@@ -40,7 +40,7 @@ class NodeParams:
     """Everything a pick node needs besides ROS itself; paths are absolute once loaded."""
 
     camera: Path | None = None
-    camera_frame: str = "camera_color_optical_frame"
+    camera_frame: str = "binpick_camera_optical_frame"  # not the camera driver's own frame: tf allows one parent
     cell: Path | None = None
     namespace: str = "/binpick/plan_pick"
     topics: NodeTopics = field(default_factory=NodeTopics)
@@ -73,7 +73,7 @@ class NodeParams:
             elif key in PATHS:
                 if not isinstance(value, str) or not value.strip():
                     raise InputFileError(f"{where}: {key} must be a file path, got {value!r}")
-                values[key] = (path.parent / value).resolve()
+                values[key] = (path.parent / Path(value).expanduser()).resolve()
             elif key in CHOICES:
                 if value not in CHOICES[key]:
                     raise InputFileError(f"{where}: {key} must be one of {', '.join(CHOICES[key])}, got {value!r}")
@@ -81,10 +81,15 @@ class NodeParams:
             elif key == "namespace":
                 values[key] = _name(value, key, where)
             elif key == "camera_frame":
-                if not isinstance(value, str) or not FRAME.fullmatch(value):
-                    raise InputFileError(f"{where}: camera_frame must be a tf frame name like camera_color_optical_frame, got {value!r}")
-                values[key] = value
+                values[key] = check_frame_name(value, f"{where}: camera_frame")
         return cls(**values)
+
+
+def check_frame_name(value: Any, what: str) -> str:
+    """A tf frame name, or "" (no frame published)."""
+    if not isinstance(value, str) or (value and not FRAME.fullmatch(value)):
+        raise InputFileError(f"{what} must be a tf frame name like binpick_camera_optical_frame (or \"\" for none), got {value!r}")
+    return value
 
 
 def unwrap_ros2(data: Any, where: str) -> dict:

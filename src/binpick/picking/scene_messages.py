@@ -92,7 +92,7 @@ def grasp_markers(grasps, opening: float) -> list[MarkerSpec]:
         markers.append(MarkerSpec(base, "arrow", _floats(point - ARROW_LENGTH * approach, 3), _floats(arrow, 4),
                                   (ARROW_LENGTH, 0.008, 0.012), colour))
         if plan.tool == "suction":
-            markers.append(MarkerSpec(base + 1, "cylinder", _floats(point, 3), _floats(plan.orientation, 4),
+            markers.append(MarkerSpec(base + 1, "cylinder", _floats(point - 0.5 * CUP_HEIGHT * approach, 3), _floats(plan.orientation, 4),
                                       (2 * CUP_RADIUS, 2 * CUP_RADIUS, CUP_HEIGHT), colour))
         else:
             half = 0.5 * float(plan.width if plan.width is not None and np.isfinite(plan.width) else opening) + 0.5 * FINGER[0]

@@ -26,8 +26,6 @@ def stamp_seconds(header) -> float:
     return header.stamp.secs + 1e-9 * header.stamp.nsecs
 
 
-
-
 def pose_stamped(plan, frame: str, stamp):
     import geometry_msgs.msg
 
@@ -37,17 +35,11 @@ def pose_stamped(plan, frame: str, stamp):
     return message
 
 
-
-
-
-
-
-
 class PickNode:
     """Serves ``binpick/PlanPick`` at ``namespace``. Call from a node (``rospy.init_node`` first)."""
 
     def __init__(self, requests: PlanRequests, camera_to_base: np.ndarray, base_frame: str, namespace: str = "/binpick/plan_pick",
-                 topics: Topics = Topics(), camera_frame: str = "camera_color_optical_frame") -> None:
+                 topics: Topics = Topics(), camera_frame: str = "binpick_camera_optical_frame") -> None:
         require_ros()
         import actionlib
         import rospy
@@ -82,7 +74,8 @@ class PickNode:
         self.markers = rospy.Publisher(f"{self.namespace}/markers", visualization_msgs.msg.MarkerArray, queue_size=1, latch=True)
         self.tf = rospy.Publisher("/tf", tf2_msgs.msg.TFMessage, queue_size=10)
         self.tf_static = rospy.Publisher("/tf_static", tf2_msgs.msg.TFMessage, queue_size=1, latch=True)
-        self.tf_static.publish(tf_message([camera_frame_pose(camera_to_base, base_frame, camera_frame)], rospy.Time.now()))
+        if camera_frame:  # "": the camera's driver or your own calibration publishes it
+            self.tf_static.publish(tf_message([camera_frame_pose(camera_to_base, base_frame, camera_frame)], rospy.Time.now()))
         # camera messages it refused (dropped) and those its own code failed on (errors), JSON {topic: count}
         self.timer = rospy.Timer(rospy.Duration(0.5), self._report_drops)
         self.server = actionlib.ActionServer(self.namespace, self.types["PlanPickAction"], self._on_goal, auto_start=False)
@@ -128,15 +121,18 @@ class PickNode:
         except Exception as error:  # noqa: BLE001 - the client gets the reason instead of a timeout
             handle.set_aborted(text=describe(error))
             return
-        try:
-            grasps = plans.grasps
-            self.grasps.publish(pose_array(grasps, plans.frame, stamp))
-            self.markers.publish(marker_array(grasp_markers(grasps, self.requests.picker.grasp.gripper.opening), plans.frame, stamp))
-            if grasps:
-                self.tf.publish(tf_message(grasp_frame_poses(grasps, plans.frame), stamp))
-            self._publish_overlay(frame, plans, photo, stamp)
-        except Exception as error:  # noqa: BLE001 - the answer is out; what follows it is only logged if it fails
-            self.guard.drop(f"{self.namespace}/overlay", error)
+        grasps, opening = plans.grasps, self.requests.picker.grasp.gripper.opening
+        # the answer is out; what follows it is only logged if it fails, each under its own topic. The grasp
+        # frames are stamped now: a plan on the same camera frame again would repeat the frame's stamp on /tf
+        for topic, publish in ((f"{self.namespace}/grasps", lambda: self.grasps.publish(pose_array(grasps, plans.frame, stamp))),
+                               (f"{self.namespace}/markers", lambda: self.markers.publish(
+                                   marker_array(grasp_markers(grasps, opening), plans.frame, stamp))),
+                               ("/tf", lambda: grasps and self.tf.publish(tf_message(grasp_frame_poses(grasps, plans.frame), rospy.Time.now()))),
+                               (f"{self.namespace}/overlay", lambda: self._publish_overlay(frame, plans, photo, stamp))):
+            try:
+                publish()
+            except Exception as error:  # noqa: BLE001
+                self.guard.drop(topic, error)
 
     def _publish_overlay(self, frame, plans, photo, stamp) -> None:
         import sensor_msgs.msg
@@ -155,7 +151,7 @@ class PickNode:
 
 def serve(picker, camera_to_base: np.ndarray, base_frame: str, namespace: str, topics: Topics, library=None,
           node_name: str = "binpick_pick_planner", master_timeout: float = 10.0,
-          camera_frame: str = "camera_color_optical_frame") -> None:
+          camera_frame: str = "binpick_camera_optical_frame") -> None:
     """Run the node until ROS shuts down (Ctrl-C or SIGTERM)."""
     require_ros()
     import rospy

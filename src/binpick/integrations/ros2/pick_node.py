@@ -58,15 +58,9 @@ def stamp_seconds(header) -> float:
     return header.stamp.sec + 1e-9 * header.stamp.nanosec
 
 
-
-
-
-
-
-
 def make_node(requests: PlanRequests, camera_to_base: np.ndarray, base_frame: str, namespace: str = "/binpick/plan_pick",
               colour: str = "/camera/color/image_raw", depth: str = "/camera/aligned_depth_to_color/image_raw",
-              info: str = "/camera/color/camera_info", camera_frame: str = "camera_color_optical_frame"):
+              info: str = "/camera/color/camera_info", camera_frame: str = "binpick_camera_optical_frame"):
     """An ``rclpy`` node serving plan requests (``rclpy.init`` first)."""
     require_ros2()
     import geometry_msgs.msg
@@ -99,7 +93,8 @@ def make_node(requests: PlanRequests, camera_to_base: np.ndarray, base_frame: st
     latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)  # late subscribers get the last one
     markers = node.create_publisher(visualization_msgs.msg.MarkerArray, f"{namespace}/markers", latched)
     camera_pose = node.create_publisher(geometry_msgs.msg.TransformStamped, f"{namespace}/camera_pose", latched)
-    camera_pose.publish(transform_stamped(camera_frame_pose(camera_to_base, base_frame, camera_frame), node.get_clock().now().to_msg()))
+    if camera_frame:  # "": the camera's driver or your own calibration publishes it
+        camera_pose.publish(transform_stamped(camera_frame_pose(camera_to_base, base_frame, camera_frame), node.get_clock().now().to_msg()))
 
     def report_drops() -> None:  # camera messages refused (dropped) and failed on inside (errors), twice a second when it changes
         counts = guard.report()
@@ -123,14 +118,15 @@ def make_node(requests: PlanRequests, camera_to_base: np.ndarray, base_frame: st
         array_message.header.stamp.sec, array_message.header.stamp.nanosec = int(frame.stamp), int(1e9 * (frame.stamp % 1))
         array_message.poses = [pose_of(plan.position, plan.orientation) for plan in plans.grasps]
         results.publish(std_msgs.msg.String(data=answer_text))  # built in full first: a goal is answered once
-        try:
-            poses.publish(array_message)
-            markers.publish(marker_array(grasp_markers(plans.grasps, requests.picker.grasp.gripper.opening), plans.frame,
-                                         array_message.header.stamp))
-            picture = plans.plot(frame.rgb, frame.camera.camera, requests.picker.grasp.gripper.opening, goal.photo)
-            overlay.publish(image_message(picture, "rgb8", array_message.header.stamp, plans.frame))
-        except Exception as error:  # noqa: BLE001 - the answer is out; what follows it is only logged if it fails
-            guard.drop(f"{namespace}/grasps", error)
+        opening, stamp = requests.picker.grasp.gripper.opening, array_message.header.stamp
+        for topic, publish in ((f"{namespace}/grasps", lambda: poses.publish(array_message)),
+                               (f"{namespace}/markers", lambda: markers.publish(marker_array(grasp_markers(plans.grasps, opening), plans.frame, stamp))),
+                               (f"{namespace}/overlay", lambda: overlay.publish(image_message(
+                                   plans.plot(frame.rgb, frame.camera.camera, opening, goal.photo), "rgb8", stamp, plans.frame)))):
+            try:  # the answer is out; what follows it is only logged if it fails, each under its own topic
+                publish()
+            except Exception as error:  # noqa: BLE001
+                guard.drop(topic, error)
 
     def serve_goal(load, photo_message=None) -> None:
         """Answer one goal message: ``load()`` gives its JSON mapping; every failure is an aborted
@@ -160,7 +156,7 @@ def make_node(requests: PlanRequests, camera_to_base: np.ndarray, base_frame: st
 
 
 def serve(picker, camera_to_base: np.ndarray, base_frame: str, namespace: str, topics, library=None,
-          camera_frame: str = "camera_color_optical_frame") -> None:
+          camera_frame: str = "binpick_camera_optical_frame") -> None:
     """Run the node until Ctrl-C or SIGTERM."""
     require_ros2()
     import rclpy
