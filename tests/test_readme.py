@@ -58,8 +58,16 @@ SKIPPED = {
     "python experiments/rod.py generalise --runs runs/rod16": "a benchmark, after the two above",
     "binpick ros pick-node --camera runs/frame/camera.yaml --master http://127.0.0.1:11311/": "a node that serves until stopped, "
         "with nothing here to ask it; tests/test_ros.py runs the whole loop through it",
-    "unshare -n sh -c 'ip link set lo up && exec .venv-ros2/bin/binpick ros2 pick-node --camera runs/frame/camera.yaml'":
-        "a node that serves until stopped; tests/test_ros2.py runs the whole loop through it in a namespace",
+    "unshare -n sh -c 'ip link set lo up && exec .venv-ros2/bin/binpick ros2 pick-node --params ros/ros2/pick_node.yaml'":
+        "a node that serves until stopped; tests/test_ros2.py starts it from the same parameter file and runs the whole loop "
+        "through it in a namespace",
+    "ROS_PACKAGE_PATH=$PWD/ros:$ROS_PACKAGE_PATH roslaunch binpick pick_node.launch params:=$PWD/my_node.yaml": "a node that "
+        "serves until stopped, from your own parameter file; tests/test_ros.py launches it from the shipped one",
+    "roslaunch binpick pick_node.launch params:=$PWD/my_pick_node.yaml": "as above, in the first-pick guide",
+    "python ros/binpick/examples/plan_client.py --product robosuite/milk": "needs the node above; tests/test_ros.py runs "
+        "the client against the launched node",
+    "python ros/binpick/examples/plan_client.py --product my/product": "needs your node and product; tests/test_ros.py runs "
+        "the client",
     "python experiments/plan.py files": "a benchmark (50 orders, each planned twice); tests/test_picking.py runs its pieces",
     "python experiments/plan.py latency": "a benchmark on an idle machine; tests/test_ros.py and test_ros2.py run its loops",
     "binpick train configs/detection/rod_warehouse.yaml --address local --workers 2": "Ray Train on the full config "
