@@ -3,7 +3,6 @@ needed; the ROS tests run the nodes from these files."""
 
 from __future__ import annotations
 
-import subprocess
 import sys
 from pathlib import Path
 
@@ -17,7 +16,6 @@ from binpick.picking.plans import grasp_orientation
 from binpick.picking.scene_messages import camera_frame_pose, grasp_frame_poses, grasp_markers
 
 ROOT = Path(__file__).resolve().parents[1]
-CLI = [sys.executable, "-c", "from binpick.cli import main; main()"]
 SAMPLE_CAMERA = ROOT / "src" / "binpick" / "samples" / "bin_frame" / "camera.yaml"
 
 
@@ -55,15 +53,29 @@ def test_a_bad_parameter_is_one_line_naming_it(tmp_path, text, named):
     assert named in str(caught.value) and "\n" not in str(caught.value)
 
 
-def test_the_node_command_reads_its_parameter_file_and_says_what_is_wrong_in_one_line(tmp_path):
+def binpick(args: list[str], capsys) -> tuple[int, str, str]:
+    """The command line in this process (every case here stops before ROS or a model is loaded)."""
+    from binpick.cli import main
+
+    argv, sys.argv = sys.argv, ["binpick", *args]
+    try:
+        with pytest.raises(SystemExit) as exit_:
+            main()
+    finally:
+        sys.argv = argv
+    out, err = capsys.readouterr()
+    return exit_.value.code or 0, out, err
+
+
+def test_the_node_command_reads_its_parameter_file_and_says_what_is_wrong_in_one_line(tmp_path, capsys):
     path = tmp_path / "params.yaml"
     path.write_text(f"camera: {tmp_path / 'missing.yaml'}\n")
-    ran = subprocess.run(CLI + ["ros", "pick-node", "--params", str(path)], capture_output=True, text=True, timeout=120)
-    assert ran.returncode == 2 and "missing.yaml" in ran.stderr and "Traceback" not in ran.stderr, ran.stderr
-    assert len(ran.stderr.strip().splitlines()) == 1
+    code, _, err = binpick(["ros", "pick-node", "--params", str(path)], capsys)
+    assert code == 2 and "missing.yaml" in err and "Traceback" not in err, err
+    assert len(err.strip().splitlines()) == 1
     path.write_text("topics: {colour: 'bad topic'}\n")
-    ran = subprocess.run(CLI + ["ros", "pick-node", "--params", str(path)], capture_output=True, text=True, timeout=120)
-    assert ran.returncode == 2 and "topics.colour must be a ROS graph name" in ran.stderr, ran.stderr
+    code, _, err = binpick(["ros", "pick-node", "--params", str(path)], capsys)
+    assert code == 2 and "topics.colour must be a ROS graph name" in err, err
 
 
 def _grasp(x: float, yaw: float, tool: str = "jaws", width: float | None = 0.04, quality: float = 0.9) -> GraspPlan:
@@ -101,19 +113,19 @@ def test_frames_of_the_camera_and_of_each_grasp():
     assert [f.child for f in frames] == ["binpick_grasp_1", "binpick_grasp_2"] and frames[1].translation == (0.2, 0.1, 0.05)
 
 
-def test_an_option_on_the_command_line_wins_over_the_parameter_file(tmp_path):
+def test_an_option_on_the_command_line_wins_over_the_parameter_file(tmp_path, capsys):
     """What the ROS 2 launch file asks the command for (the camera's static transform), from the file
     alone, then with --camera-frame given: the file's frame, then the command line's."""
     path = tmp_path / "params.yaml"
     path.write_text(f"node:\n  ros__parameters:\n    camera: {SAMPLE_CAMERA}\n    camera_frame: file_frame\n")
-    command = CLI + ["ros2", "pick-node", "--params", str(path), "--camera-tf"]
-    from_file = subprocess.run(command, capture_output=True, text=True, timeout=120)
-    given = subprocess.run(command + ["--camera-frame", "cli_frame"], capture_output=True, text=True, timeout=120)
-    assert from_file.returncode == 0 and given.returncode == 0, from_file.stderr + given.stderr
-    flags = from_file.stdout.split()
+    command = ["ros2", "pick-node", "--params", str(path), "--camera-tf"]
+    code, printed, err = binpick(command, capsys)
+    assert code == 0, err
+    flags = printed.split()
     assert flags[flags.index("--child-frame-id") + 1] == "file_frame" and flags[flags.index("--frame-id") + 1] == "world"
     assert float(flags[flags.index("--z") + 1]) == pytest.approx(0.85) and float(flags[flags.index("--qx") + 1]) == pytest.approx(-0.99482437)
-    assert given.stdout.split()[-1] == "cli_frame"
+    code, printed, err = binpick(command + ["--camera-frame", "cli_frame"], capsys)
+    assert code == 0 and printed.split()[-1] == "cli_frame", err
     path.write_text(f"camera: {SAMPLE_CAMERA}\ncamera_frame: world\n")  # the base frame itself: a loop in tf
-    looped = subprocess.run(CLI + ["ros", "pick-node", "--params", str(path)], capture_output=True, text=True, timeout=120)
-    assert looped.returncode == 2 and "is the base frame" in looped.stderr and "Traceback" not in looped.stderr
+    code, _, err = binpick(["ros", "pick-node", "--params", str(path)], capsys)
+    assert code == 2 and "is the base frame" in err and "Traceback" not in err

@@ -63,7 +63,8 @@ SKIPPED = {
         "through it in a namespace",
     "ROS_PACKAGE_PATH=$PWD/ros:$ROS_PACKAGE_PATH roslaunch binpick pick_node.launch params:=$PWD/my_node.yaml": "a node that "
         "serves until stopped, from your own parameter file; tests/test_ros.py launches it from the shipped one",
-    "roslaunch binpick pick_node.launch params:=$PWD/my_pick_node.yaml": "as above, in the first-pick guide",
+    "ROS_PACKAGE_PATH=$PWD/ros:$ROS_PACKAGE_PATH roslaunch binpick pick_node.launch params:=$PWD/my_pick_node.yaml": "as above, "
+        "in the first-pick guide",
     "python ros/binpick/examples/plan_client.py --product robosuite/milk": "needs the node above; tests/test_ros.py runs "
         "the client against the launched node",
     "python ros/binpick/examples/plan_client.py --product my/product": "needs your node and product; tests/test_ros.py runs "
