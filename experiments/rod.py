@@ -639,6 +639,9 @@ PHOTO_MADE = {
     "rod_finetune_photo_rehearsed": "`rod_pretrain_random_photo` fine-tuned on Policy 1 pickability, rehearsing 750 "
                                     "randomised bins per epoch (`configs/detection/rod_finetune_photo_rehearsed.yaml`, "
                                     "`tools/rebuild.py photo`)",
+    "rod_finetune_photo_rehearsed_all": "`rod_pretrain_random_photo` fine-tuned as `rod_finetune_photo_rehearsed` with every "
+                                        "copy of the ordered product a target instead of what Policy 1 picks "
+                                        "(`configs/detection/rod_finetune_photo_rehearsed_all.yaml`; not shipped)",
     "rod_photo_learnt_tiny_320_replaced": "the picking detector the rebuild replaced (`rod_photo_tiny_320_replaced` "
                                           "fine-tuned on the learnt policy's pickability, with a pickability head)",
     "rod_photo_tiny_320_replaced": "the photo detector the rebuild replaced (crop model fine-tuned on shop photos, Policy 1)",
@@ -675,7 +678,17 @@ def training_hours(run: Path | None) -> float | None:
         for step in json.loads(state.read_text()).get("steps", {}).values():
             if step.get("run") and Path(_common.ROOT / step["run"]).resolve() == Path(run).resolve():
                 return round(sum(a.get("seconds") or 0 for a in step.get("attempts", [])) / 3600, 2)
-    return None
+    return tensorboard_hours(Path(run))
+
+
+def tensorboard_hours(run: Path) -> float | None:
+    """A run no rebuild made: the wall time from its TensorBoard log's first event to its last (a
+    resumed run's gaps included: an upper bound)."""
+    from tensorboard.backend.event_processing.event_file_loader import EventFileLoader
+
+    times = [event.wall_time for path in sorted((run / "tb").glob("**/events.out.tfevents.*"))
+             for event in EventFileLoader(str(path)).Load()]
+    return round((max(times) - min(times)) / 3600, 2) if len(times) > 1 else None
 
 
 def photo_sets(network) -> dict:
