@@ -620,8 +620,9 @@ def photo_lines(photo: dict) -> list[str]:
     lines += ["", "Realistic sensor: `runs/data/bins_realistic` (`configs/data/bins_realistic.yaml`), the same kind of default "
               "bins seen by the `realistic` sensor (depth holes and noise, a camera tilted up to 20°, a tote up to 3° off level), "
               "targets pickable by Policy 1; val (seen products) and test (held-out). Training hours: the run's own step in "
-              "`tools/rebuild.py` (every attempt, lost ones included; a fine-tune's pre-training is its own row); — where no "
-              "rebuild made it. Rows `+pickability_head`: the run carrying the picking detector's pickability head, as "
+              "`tools/rebuild.py` (every attempt, lost ones included; a fine-tune's pre-training is its own row); for a run no "
+              "rebuild made, the wall time from its TensorBoard log's first event to its last (pauses and a shared machine "
+              "included: an upper bound); — where neither is known. Rows `+pickability_head`: the run carrying the picking detector's pickability head, as "
               "`ship-best` judges it."]
     return lines + [""]
 
