@@ -129,3 +129,18 @@ def test_an_option_on_the_command_line_wins_over_the_parameter_file(tmp_path, ca
     path.write_text(f"camera: {SAMPLE_CAMERA}\ncamera_frame: world\n")  # the base frame itself: a loop in tf
     code, _, err = binpick(["ros", "pick-node", "--params", str(path)], capsys)
     assert code == 2 and "is the base frame" in err and "Traceback" not in err
+
+
+def test_a_ros2_file_with_a_wildcard_and_a_node_section_and_dotted_keys_beside_a_mapping(tmp_path):
+    path = tmp_path / "params.yaml"
+    path.write_text("/**:\n  ros__parameters:\n    gripper: jaws\n    topics.depth: /d\n"
+                    "binpick_pick_planner:\n  ros__parameters:\n    gripper: suction\n    topics: {colour: /c}\n    topics.info: /i\n")
+    params = NodeParams.load(path)
+    assert params.gripper == "suction"  # the named node's section wins over the wildcard's
+    assert (params.topics.colour, params.topics.depth, params.topics.info) == ("/c", "/d", "/i")
+    path.write_text("/**:\n  ros__parameters: {gripper: jaws}\ngripper: both\n")
+    with pytest.raises(InputFileError, match="'gripper' is not a node section"):
+        NodeParams.load(path)
+    path.write_text("topics: /rgb\ntopics.depth: /d\n")
+    with pytest.raises(InputFileError, match="topics is given both as a value and as a mapping"):
+        NodeParams.load(path)

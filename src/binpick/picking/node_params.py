@@ -93,26 +93,42 @@ def check_frame_name(value: Any, what: str) -> str:
 
 
 def unwrap_ros2(data: Any, where: str) -> dict:
-    """The parameters of a plain mapping, or of ROS 2's ``{node: {ros__parameters: {...}}}`` (dotted keys nested)."""
+    """The parameters of a plain mapping, or of ROS 2's ``{node: {ros__parameters: {...}}}``: every
+    section's parameters (``/**`` first, then the named nodes, which win), dotted keys nested."""
     if not isinstance(data, dict):
         raise InputFileError(f"{where} must be a mapping of parameters (camera, topics, ...)")
-    if len(data) == 1:
-        (only,) = data.values()
-        if isinstance(only, dict) and "ros__parameters" in only:
-            data = only["ros__parameters"]
-            if not isinstance(data, dict):
-                raise InputFileError(f"{where}: ros__parameters must be a mapping")
+    sections = {k: v for k, v in data.items() if isinstance(v, dict) and "ros__parameters" in v}
+    if sections:
+        if len(sections) != len(data):
+            other = next(k for k in data if k not in sections)
+            raise InputFileError(f"{where}: {other!r} is not a node section with ros__parameters (a ROS 2 file has only those)")
+        merged: dict[str, Any] = {}
+        for name in sorted(sections, key=lambda k: k != "/**"):
+            values = sections[name]["ros__parameters"]
+            if not isinstance(values, dict):
+                raise InputFileError(f"{where}: {name}.ros__parameters must be a mapping")
+            _merge(merged, _nest(values, where), where)
+        return merged
+    return _nest(data, where)
+
+
+def _nest(data: dict, where: str) -> dict:
+    """``{"topics.colour": x}`` -> ``{"topics": {"colour": x}}``, merged with a ``topics:`` mapping beside it."""
     nested: dict[str, Any] = {}
     for key, value in data.items():
         head, _, rest = str(key).partition(".")
-        if rest:
-            group = nested.setdefault(head, {})
-            if not isinstance(group, dict):
-                raise InputFileError(f"{where}: {head} is given both as a value and as {key}")
-            group[rest] = value
-        else:
-            nested[head] = value
+        _merge(nested, {head: {rest: value}} if rest else {head: value}, where)
     return nested
+
+
+def _merge(into: dict, values: dict, where: str) -> None:
+    for key, value in values.items():
+        if isinstance(value, dict) and isinstance(into.get(key), dict):
+            into[key] = {**into[key], **value}
+        elif isinstance(value, dict) != isinstance(into.get(key, value), dict):
+            raise InputFileError(f"{where}: {key} is given both as a value and as a mapping")
+        else:
+            into[key] = value
 
 
 def _name(value: Any, key: str, where: str) -> str:
