@@ -643,6 +643,8 @@ PHOTO_MADE = {
     "rod_finetune_photo_rehearsed_all": "`rod_pretrain_random_photo` fine-tuned as `rod_finetune_photo_rehearsed` with every "
                                         "copy of the ordered product a target instead of what Policy 1 picks "
                                         "(`configs/detection/rod_finetune_photo_rehearsed_all.yaml`; not shipped)",
+    "rod_finetune_photo_rehearsed_384": "`rod_pretrain_random_photo` fine-tuned as `rod_finetune_photo_rehearsed` at 384 px "
+                                        "(trained at 320-448; `configs/detection/rod_finetune_photo_rehearsed_384.yaml`; not shipped)",
     "rod_photo_learnt_tiny_320_replaced": "the picking detector the rebuild replaced (`rod_photo_tiny_320_replaced` "
                                           "fine-tuned on the learnt policy's pickability, with a pickability head)",
     "rod_photo_tiny_320_replaced": "the photo detector the rebuild replaced (crop model fine-tuned on shop photos, Policy 1)",
