@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from binpick.picking.camera_info import matrix_to_quaternion
+from binpick.picking.camera_info import matrix_to_quaternion, quaternion_to_matrix
 
 MARKER_TYPES = {"arrow": 0, "cube": 1, "cylinder": 3, "text": 9}  # visualization_msgs/Marker's codes (ROS 1 and 2 alike)
 ARROW_LENGTH = 0.10  # m above the grasp point, along the approach
@@ -62,13 +62,6 @@ def grasp_frame_poses(grasps, base_frame: str, prefix: str = "binpick_grasp") ->
             for rank, plan in enumerate(grasps, start=1)]
 
 
-def _rotation(orientation) -> np.ndarray:
-    x, y, z, w = (float(v) for v in orientation)
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
-
-
 def _colour(plan) -> tuple[float, float, float, float]:
     """Red to green with the predicted chance of holding (the detector's score where there is none)."""
     value = plan.quality if plan.quality is not None else plan.score
@@ -81,7 +74,7 @@ def grasp_markers(grasps, opening: float) -> list[MarkerSpec]:
     markers: list[MarkerSpec] = []
     for rank, plan in enumerate(grasps, start=1):
         base = 4 * (rank - 1)
-        rotation = _rotation(plan.orientation)
+        rotation = quaternion_to_matrix(plan.orientation)
         point = np.asarray(plan.position, dtype=float)
         approach, across = rotation[:, 2], rotation[:, 0]
         colour = _colour(plan)

@@ -30,7 +30,7 @@ from binpick.picking.camera_info import CameraInfo
 from binpick.picking.node import (Goal, Guard, PlanRequests, colour_of, depth_of, describe, image_array, image_fields, parse_goal,
                                   parse_goal_json, photo_of, request_id_of)
 from binpick.picking.scene_messages import camera_frame_pose, grasp_markers
-from binpick.integrations.ros_messages import marker_array, pose_of, transform_stamped
+from binpick.integrations.ros_messages import marker_array, pose_array, transform_stamped
 from binpick.integrations.ros2 import require_ros2
 
 RELIABLE_DEPTH = 10
@@ -63,6 +63,7 @@ def make_node(requests: PlanRequests, camera_to_base: np.ndarray, base_frame: st
               info: str = "/camera/color/camera_info", camera_frame: str = "binpick_camera_optical_frame"):
     """An ``rclpy`` node serving plan requests (``rclpy.init`` first)."""
     require_ros2()
+    import builtin_interfaces.msg
     import geometry_msgs.msg
     import rclpy.node
     import sensor_msgs.msg
@@ -113,12 +114,10 @@ def make_node(requests: PlanRequests, camera_to_base: np.ndarray, base_frame: st
                    "width": p.width} for p in plans.grasps]
         answer_text = json.dumps({"id": goal.id, "status": "succeeded", "text": "", "frame": plans.frame, "stamp": frame.stamp,
                                   "grasps": grasps, "opening": float(requests.picker.grasp.gripper.opening), "plans": plans.to_json()})
-        array_message = geometry_msgs.msg.PoseArray()
-        array_message.header.frame_id = plans.frame
-        array_message.header.stamp.sec, array_message.header.stamp.nanosec = int(frame.stamp), int(1e9 * (frame.stamp % 1))
-        array_message.poses = [pose_of(plan.position, plan.orientation) for plan in plans.grasps]
+        stamp = builtin_interfaces.msg.Time(sec=int(frame.stamp), nanosec=int(1e9 * (frame.stamp % 1)))
+        array_message = pose_array(plans.grasps, plans.frame, stamp)
         results.publish(std_msgs.msg.String(data=answer_text))  # built in full first: a goal is answered once
-        opening, stamp = requests.picker.grasp.gripper.opening, array_message.header.stamp
+        opening = requests.picker.grasp.gripper.opening
         for topic, publish in ((f"{namespace}/grasps", lambda: poses.publish(array_message)),
                                (f"{namespace}/markers", lambda: markers.publish(marker_array(grasp_markers(plans.grasps, opening), plans.frame, stamp))),
                                (f"{namespace}/overlay", lambda: overlay.publish(image_message(
