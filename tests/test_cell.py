@@ -26,7 +26,7 @@ def test_the_shipped_cells_load_and_mistakes_are_one_line(tmp_path):
     for text, words in (("gripper: {tools: claws}", "gripper.tools 'claws'"),
                         ("gripper: {jaws: {stroke: 80}}", "gripper.jaws.stroke must be a number from 0.01 to 0.3"),
                         ("gripper: {jaws: {strok: 0.08}}", "unknown field(s) strok"),
-                        ("gripper: {tools: jaws}\narm: {model: ur5e}", "arm.model 'ur5e'")):
+                        ("gripper: {tools: jaws}\narm: {model: kuka}", "arm.model 'kuka'")):
         bad = tmp_path / "cell.yaml"
         bad.write_text(text)
         with pytest.raises(InputFileError, match=words.replace("(", r"\(").replace(")", r"\)").replace(".", r"\.")) as raised:
@@ -77,3 +77,55 @@ def test_a_stroke_below_every_candidate_is_one_line_not_a_plan(tmp_path):
     plans = json.loads((tmp_path / "ok" / "plan.json").read_text())
     assert plans["gripper"] == "jaws"
     assert all(p["width"] is None or p["width"] <= 0.074 for p in plans["plans"] if p["position"] is not None)
+
+
+def test_the_arm_carries_the_cell_files_hand_at_its_tool_point(tmp_path):
+    import mujoco
+
+    from binpick.arm import MotionPlanner
+    from binpick.core.errors import ConfigError
+    from binpick.sim.robot_arm import RobotArm
+
+    path = tmp_path / "cell.yaml"
+    path.write_text("gripper: {tools: both, jaws: {stroke: 0.085, finger_length: 0.04}, suction: {radius: 0.02}, tcp: 0.17}\n"
+                    "arm: {model: panda}\n")
+    cell = load_cell(path)
+    planner = MotionPlanner.for_cell(cell)
+    model, data = planner.kinematics.model, planner.kinematics.data
+    fingers = [model.actuator(name).id for name in ("finger_a", "finger_b")]
+    assert np.allclose(model.actuator_ctrlrange[fingers, 1], 0.0425)  # half the 8.5 cm stroke each
+    assert model.geom("cup").size[0] == pytest.approx(0.02)
+    mujoco.mj_kinematics(model, data)
+    flange, tool = data.xpos[model.body("right_hand").id], data.site_xpos[model.site("tool").id]
+    from binpick.grippers import TIPS_BELOW
+
+    assert np.linalg.norm(tool - flange) + TIPS_BELOW == pytest.approx(0.17, abs=1e-6)  # flange to the fingertips: the file's tcp
+    assert planner.gripper == "both"
+    arm = RobotArm(gripper=cell.tools, jaws=cell.jaws, cup=cell.cup, tcp=cell.tcp)
+    from binpick.sim.bin_scene import BinWorld
+    from binpick.sim.mjcf import CameraSpec
+    from binpick.sim.products import Product
+
+    box = Product("test/box", "test", shape="box", size=(0.03, 0.03, 0.02), mass=0.1)
+    world = BinWorld(box, [], max_copies=1, camera=CameraSpec(size=64), robot=arm)
+    try:
+        assert world.arm.hand.vacuum.cup.radius == pytest.approx(0.02)  # the simulated seal judged over the file's lip
+    finally:
+        world.close()
+    with pytest.raises(ConfigError, match="tcp 0.0500 m") as raised:
+        MotionPlanner.for_cell(Cell(tools="jaws", tcp=0.05))
+    assert "\n" not in str(raised.value)
+
+
+def test_a_ur5e_cell_is_simulated_with_its_arm_and_another_arm_asked_for_is_one_line():
+    from binpick.arm import MotionPlanner
+    from binpick.core.errors import ConfigError
+
+    cell = load_cell(ROOT / "configs" / "cells" / "ur5e_2f85.yaml")
+    assert cell.arm == "ur5e" and cell.jaws.opening == 0.085
+    planner = MotionPlanner.for_cell(cell, arm="ur5e")
+    assert planner.kinematics.arm.name == "ur5e" and planner.kinematics.arm.tcp == 0.175
+    assert len(planner.home) == 6
+    with pytest.raises(ConfigError, match="has a ur5e arm; --robot panda") as raised:
+        MotionPlanner.for_cell(cell, arm="panda")
+    assert "\n" not in str(raised.value)

@@ -1,14 +1,15 @@
 """Your cell in one file: the gripper your robot carries (jaws, a suction cup or both, their geometry
 and the tool point's offset from the flange) and the arm, read once and validated. The planner takes
 the jaws' stroke and fingers from it (no grasp wider than your jaws open is emitted), the simulator
-builds the same hand from it (so your cell can be simulated and labelled), and the reports name it.
+builds the same hand from it (the floating hand, or the Panda with the hand at the file's tool point),
+and the reports name it.
 
     gripper:
       tools: jaws                 # jaws, suction or both
       jaws: {stroke: 0.08, finger_thickness: 0.012, finger_width: 0.02, finger_length: 0.045, margin: 0.005}
       suction: {radius: 0.015, vacuum_force: 30.0}
       tcp: 0.1034                 # the tool point's distance from the flange along its z (m)
-    arm: {model: panda}           # panda or none (its base and reach: binpick's simulated cell)
+    arm: {model: panda}           # panda, ur5e or none (its base and reach: binpick's simulated cell)
 
 ``binpick plan --cell cell.yaml``, ``binpick pick --cell cell.yaml``; ``configs/cells/`` has a
 Franka Hand and a Robotiq 2F-85.
@@ -22,7 +23,7 @@ from pathlib import Path
 from binpick.core.errors import ConfigError, InputFileError
 from binpick.grippers import GRIPPERS, Jaws, SuctionCup
 
-ARMS = ("panda", "none")
+ARMS = ("panda", "ur5e", "none")
 JAW_FIELDS = {"stroke": (0.01, 0.3), "finger_thickness": (0.002, 0.05), "finger_width": (0.004, 0.08),
               "finger_length": (0.01, 0.2), "margin": (0.0, 0.03)}
 CUP_FIELDS = {"radius": (0.004, 0.05), "vacuum_force": (1.0, 500.0), "compliance": (0.0, 0.02), "depth": (0.0, 0.02),
@@ -71,8 +72,14 @@ class Cell:
         _only(arm, {"model"}, f"{where}: arm")
         model = str(arm.get("model", "panda"))
         if model not in ARMS:
-            raise InputFileError(f"{where}: arm.model {model!r}: choose from {', '.join(ARMS)} (a UR arm is not modelled yet)")
+            raise InputFileError(f"{where}: arm.model {model!r}: choose from {', '.join(ARMS)} ")
         return cls(tools, jaws, cup, tcp, model, str(data.get("name", path.stem)))
+
+    def check_arm(self, robot: str) -> None:
+        """One line when the arm asked for (``--robot``) is not the one this file describes."""
+        if robot not in ("floating", self.arm) and self.arm != "none":
+            raise ConfigError(f"cell {self.name!r} has a {self.arm} arm; --robot {robot} asks for another: give --robot {self.arm} "
+                              "(or floating for the hand alone)")
 
     @property
     def widest(self) -> float:

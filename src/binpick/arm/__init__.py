@@ -2,7 +2,7 @@
 Ruckig, the arm's controller in the simulator, and the reachability check the picker runs.
 
     from binpick.arm import MotionPlanner
-    planner = MotionPlanner()                    # the Panda beside the bin (binpick.sim.panda)
+    planner = MotionPlanner()                    # the Panda beside the bin (binpick.sim.robot_arm)
     reach = planner.reach(centre, yaw)           # reach.reason: None, or why the arm cannot take it
     motion = planner.pick(home, centre, yaw)     # segments approach ... return, each timed
 """

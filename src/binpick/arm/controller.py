@@ -17,13 +17,13 @@ from binpick.arm.trajectory import Segment
 
 
 class ArmController:
-    """Drives ``world.arm`` (a bound :class:`binpick.sim.panda.PandaArm`) along segments."""
+    """Drives ``world.arm`` (a bound :class:`binpick.sim.robot_arm.RobotArm`) along segments."""
 
     def __init__(self, world) -> None:
         self.world, self.model, self.data, self.arm = world, world.model, world.data, world.arm
         names = {self.model.geom(g).name for g in range(self.model.ngeom)}
         self.fixed = np.array([self.model.geom(n).id for n in OBSTACLES if n in names])
-        self.robot = np.array([g for g in self.arm.geoms if self.model.geom(int(g)).name != "link0_collision"])
+        self.robot = np.array([g for g in self.arm.geoms if self.model.geom(int(g)).name != self.arm.model.base_geom])
         self.collisions: list[tuple[str, str, str]] = []  # (robot geom, fixed geom, segment), once per segment and pair
 
     def run(self, segment: Segment, on_step: Callable[[], None] | None = None, check_every: int = 1) -> None:

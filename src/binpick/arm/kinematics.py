@@ -16,7 +16,7 @@ import mink
 import mujoco
 import numpy as np
 
-from binpick.sim.panda import JOINTS, PandaArm, robot_cell_spec
+from binpick.sim.robot_arm import RobotArm, robot_cell_spec
 
 OBSTACLES = ("table", "bin_floor", "bin_wall0", "bin_wall1", "bin_wall2", "bin_wall3",
              "order_floor", "order_wall0", "order_wall1", "order_wall2", "order_wall3")
@@ -26,8 +26,6 @@ ORIENTATION_TOLERANCE = 0.02  # rad
 # within about 2 mm, so a plan that grazes a tote wall hits it when executed
 CLEARANCE = 0.003  # m
 STEP = 0.05  # the differential IK's integration step (s)
-# the posture solutions stay near: the gripper 30 cm above the bin centre, pointing down
-NOMINAL = (-0.24, 0.0, -0.09, -2.0, 0.0, 2.0, 0.45)
 
 
 def top_down_quaternion(yaw: float) -> np.ndarray:
@@ -53,8 +51,8 @@ class ArmKinematics:
     ``solve(position, yaw, start)`` -> :class:`Solution` for the gripper's centre (between the
     fingers) at ``position`` (world m), pointing down, jaws along ``yaw``."""
 
-    def __init__(self, arm: PandaArm | None = None, tote_tilt: tuple[float, float] = (0.0, 0.0)) -> None:
-        self.arm = arm or PandaArm()
+    def __init__(self, arm: RobotArm | None = None, tote_tilt: tuple[float, float] = (0.0, 0.0)) -> None:
+        self.arm = arm or RobotArm()
         self.model = robot_cell_spec(self.arm, tote_tilt).compile()
         self.arm.bind(self.model)
         self.data = mujoco.MjData(self.model)
@@ -63,7 +61,7 @@ class ArmKinematics:
         # contacts are made (and so seen by ``touching``) within CLEARANCE of the obstacles
         self.model.geom_margin[sorted(self.obstacles)] = CLEARANCE
         # the base stands on the table: its own contact with it is no collision
-        self.robot = {int(g) for g in self.arm.geoms if self.model.geom(int(g)).name != "link0_collision"}
+        self.robot = {int(g) for g in self.arm.geoms if self.model.geom(int(g)).name != self.arm.model.base_geom}
         self.extend = None  # (qpos address, stroke) of a both-hand's cup rod
         if mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_JOINT, "cup_extend") >= 0:
             joint = self.model.joint("cup_extend")
@@ -73,11 +71,11 @@ class ArmKinematics:
         self.tool = "jaws"
         self.frame = mink.FrameTask("gripper", "body", position_cost=1.0, orientation_cost=1.0)
         self.posture = mink.PostureTask(self.model, cost=1e-3)
-        self.nominal = self.full(NOMINAL)
+        self.nominal = self.full(self.arm.model.nominal)  # the posture solutions stay near it
         self.posture.set_target(self.nominal)
         limits = self.arm.limits
         self.limits = [mink.ConfigurationLimit(self.model),
-                       mink.VelocityLimit(self.model, dict(zip(JOINTS, limits.velocity))),
+                       mink.VelocityLimit(self.model, dict(zip(self.arm.joints, limits.velocity))),
                        mink.CollisionAvoidanceLimit(self.model, [(sorted(self.robot), sorted(self.obstacles))],
                                                     minimum_distance_from_collisions=0.005,
                                                     collision_detection_distance=0.03)]
@@ -87,7 +85,7 @@ class ArmKinematics:
         out below the fingertips for suction, drawn in for the jaws; ``push``: the jaws closed."""
         if tool != getattr(self, "tool", None):
             self.tool = tool
-            self.nominal = self.full(NOMINAL)  # the IK's posture keeps the fingers as the tool holds them
+            self.nominal = self.full(self.arm.model.nominal)  # the IK's posture keeps the fingers as the tool holds them
             self.posture.set_target(self.nominal)
 
     def full(self, q) -> np.ndarray:

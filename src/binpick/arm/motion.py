@@ -22,12 +22,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from binpick.arm.kinematics import NOMINAL, ArmKinematics
+from binpick.arm.kinematics import ArmKinematics
 from binpick.arm.trajectory import Segment, joint_move, path_move
 from binpick.sim.order_tote import ORDER_TOTE, RELEASE_HEIGHT, release_height
 from binpick.sim.mjcf import BIN_WALL_HEIGHT, FLOOR_TOP
 from binpick.grippers import SuctionCup, tool_point_below
-from binpick.sim.panda import PandaArm
+from binpick.sim.robot_arm import RobotArm
 
 NO_IK = "no IK solution"
 COLLIDES = "arm collides on the way down"
@@ -93,14 +93,26 @@ class MotionPlanner:
 
     def __init__(self, kinematics: ArmKinematics | None = None, period: float = 0.004, gripper: str = "jaws") -> None:
         self.gripper = gripper
-        self.kinematics = kinematics or ArmKinematics(PandaArm(gripper=gripper))
+        self.kinematics = kinematics or ArmKinematics(RobotArm(gripper=gripper))
         self.limits = self.kinematics.arm.limits
         self.period = period
         self.home = np.asarray(self.kinematics.arm.home, dtype=float)
-        self.nominal = np.asarray(NOMINAL, dtype=float)
+        self.nominal = np.asarray(self.kinematics.arm.model.nominal, dtype=float)
         _, rotation = self.kinematics.gripper_pose(self.nominal)
         self.wrist_yaw = float(np.arctan2(rotation[1, 0], rotation[0, 0]))  # the jaws' yaw with the wrist mid-range
         self._answers: dict[tuple, Reach] = {}
+
+    @classmethod
+    def for_cell(cls, cell, gripper: str = "jaws", period: float = 0.004, arm: str = "panda") -> MotionPlanner:
+        """``arm`` (panda or ur5e) carrying the hand a cell file describes (:class:`binpick.cell.Cell`: its tools,
+        jaws, cup and tool point; None: binpick's own hand carrying ``gripper``)."""
+        from binpick.sim.robot_arm import arm_model
+
+        if cell is None:
+            return cls(ArmKinematics(RobotArm(arm_model(arm), gripper=gripper)), period=period, gripper=gripper)
+        cell.check_arm(arm)
+        robot = RobotArm(arm_model(arm), gripper=cell.tools, jaws=cell.jaws, cup=cell.cup, tcp=cell.tcp)
+        return cls(ArmKinematics(robot), period=period, gripper=cell.tools)
 
     def below(self, tool: str) -> float:
         """The tool's point below the hand's origin."""

@@ -23,7 +23,7 @@ import numpy as np
 from ruckig import InputParameter, Result, Ruckig, Trajectory
 
 from binpick.core.errors import ConfigError
-from binpick.sim.panda import JointLimits
+from binpick.sim.robot_arm import JointLimits
 
 
 @dataclass

@@ -120,12 +120,12 @@ GripperOption = Annotated[str, typer.Option(callback=_check_gripper, help="The h
 def _check_robot(value: str) -> str:
     from binpick.core.config import check_choice
 
-    return check_choice("--robot", value, ("floating", "panda"))
+    return check_choice("--robot", value, ("floating", "panda", "ur5e"))
 
 
 RobotOption = Annotated[str, typer.Option(callback=_check_robot, help="What executes the picks: floating (a gripper alone, "
-                                                                     "fast) or panda (a Franka Panda arm: IK, timed motion, "
-                                                                     "its reach in the plan)")]
+                                                                     "fast), panda (a Franka Panda arm) or ur5e (a UR5e "
+                                                                     "arm): IK, timed motion, its reach in the plan")]
 
 CellOption = Annotated[Path | None, typer.Option(help="Your cell file (YAML): the gripper's tools, the jaws' stroke and "
                                                        "fingers, the cup, the TCP offset, the arm (see binpick.cell; "
@@ -139,8 +139,8 @@ def load_cell(path: Path | None):
     return load(path)
 
 
-PlanRobotOption = Annotated[str, typer.Option(callback=_check_robot, help="floating: any grasp goes; panda: only grasps the "
-                                                                         "Panda of binpick's cell can take (its base at x -0.52, "
+PlanRobotOption = Annotated[str, typer.Option(callback=_check_robot, help="floating: any grasp goes; panda or ur5e: only grasps the "
+                                                                         "arm of binpick's cell can take (its base at x -0.52, "
                                                                          "y 0.18 m in the base frame; the others are rejected "
                                                                          "with the reason)")]
 

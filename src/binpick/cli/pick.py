@@ -87,7 +87,10 @@ def pick(
             read_image(path)  # unreadable -> one line now, not mid-run
         library.add(replace(library[products[0]], photos=tuple(photo)))
     model = Detector.load(weights or PICKING, runtime=runtime).inference_network
-    _fulfil(PickPipeline(model, library, grasp=planner, robot=robot, gripper=gripper), products, orders, seed, run_dir, rerun)
+    if the_cell is not None:
+        the_cell.check_arm(robot)
+    tcp = the_cell.tcp if the_cell is not None else None  # the arm carries the cell's hand at its tool point
+    _fulfil(PickPipeline(model, library, grasp=planner, robot=robot, gripper=gripper, tcp=tcp), products, orders, seed, run_dir, rerun)
 
 
 @app.command("cell")
@@ -228,10 +231,10 @@ def plan(
              "the colour's pixels (nearest reading); check it is registered to the colour camera")
     crop = weights if box is not None else None
     reach = None
-    if robot == "panda":
+    if robot != "floating":
         from binpick.arm import MotionPlanner
 
-        reach = MotionPlanner(gripper=gripper).reach_check
+        reach = MotionPlanner.for_cell(the_cell, gripper, arm=robot).reach_check
     picker = Picker.load(None if box is not None else weights, grasp, grasp_weights, crop_detector=crop, max_grasps=max_grasps,
                          runtime=runtime, reach=reach, gripper=gripper, cell=the_cell)
     plans = picker.plan(colour, metres, info, photo=query, query_box=box, size=dimensions, copies_only=copies_only)

@@ -205,10 +205,10 @@ def _pick_node_setup(settings: dict):
     cell = load_cell(settings["cell"])
     gripper = cell.tools if cell is not None else settings["gripper"]
     reach = None
-    if settings["robot"] == "panda":  # grasps the arm cannot take are rejected in the result, with the reason
+    if settings["robot"] != "floating":  # grasps the arm cannot take are rejected in the result, with the reason
         from binpick.arm import MotionPlanner
 
-        reach = MotionPlanner(gripper=gripper).reach_check
+        reach = MotionPlanner.for_cell(cell, gripper, arm=settings["robot"]).reach_check
     picker = Picker.load(settings["weights"], settings["grasp"], settings["grasp_weights"], workspace=workspace,
                          runtime=settings["runtime"], reach=reach, gripper=gripper, cell=cell)
     return pose, frame, picker, Topics(settings["colour_topic"], settings["depth_topic"], settings["info_topic"])

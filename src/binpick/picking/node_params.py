@@ -23,7 +23,7 @@ from binpick.core.errors import InputFileError
 
 NAME = re.compile(r"/?[A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*/?")
 FRAME = re.compile(r"[A-Za-z][A-Za-z0-9_/]*")
-CHOICES = {"grasp": ("learnt", "analytic", "fixed"), "robot": ("floating", "panda"), "gripper": ("jaws", "suction", "both"),
+CHOICES = {"grasp": ("learnt", "analytic", "fixed"), "robot": ("floating", "panda", "ur5e"), "gripper": ("jaws", "suction", "both"),
            "runtime": ("torch", "onnx")}
 PATHS = ("camera", "cell", "products", "weights", "grasp_weights")
 

@@ -61,12 +61,12 @@ class BinWorld:
     def __init__(self, target: Product, distractors: list[Product], max_copies: int = 8,
                  camera: CameraSpec = CameraSpec(), extra_worldbody: str = "", extra: str = "",
                  randomise_lighting: bool = False, gripper: bool | str = False, seed: int = 0,
-                 domain: DomainConfig | None = None, sensor: SensorConfig | None = None, robot=None, jaws=None) -> None:
-        """``robot``: an arm to put in the scene (e.g. :class:`binpick.sim.panda.PandaArm`), with
+                 domain: DomainConfig | None = None, sensor: SensorConfig | None = None, robot=None, jaws=None, cup=None) -> None:
+        """``robot``: an arm to put in the scene (e.g. :class:`binpick.sim.robot_arm.RobotArm`), with
         ``attach(spec)`` before compiling and ``bind(model)`` after; it waits at its home posture.
         ``gripper``: the floating hand's tools (jaws, suction or both; True: jaws), when there is no arm
-        (an arm carries its own hand); ``jaws``: their geometry (:class:`binpick.grippers.Jaws`, default
-        binpick's own)."""
+        (an arm carries its own hand); ``jaws`` and ``cup``: their geometry (:class:`binpick.grippers.Jaws`,
+        :class:`binpick.grippers.SuctionCup`; default binpick's own)."""
         self.target, self.distractors, self.camera = target, list(distractors), camera
         self.sensor = sensor if sensor is not None and sensor.realistic else None
         # the tote's tilt is the world's (one compiled model); drawn apart from the scenes' draws
@@ -91,9 +91,9 @@ class BinWorld:
         if gripper:
             from binpick.sim.gripper import floating_hand
 
-            from binpick.grippers import Jaws
+            from binpick.grippers import Jaws, SuctionCup
 
-            hand_body, hand_extra = floating_hand(gripper, len(self.slots), jaws or Jaws())
+            hand_body, hand_extra = floating_hand(gripper, len(self.slots), jaws or Jaws(), cup or SuctionCup())
             extra_worldbody, extra = extra_worldbody + hand_body, extra + hand_extra
         elif robot is not None and getattr(robot, "gripper", "jaws") != "jaws":
             from binpick.sim.hand import suction_welds
@@ -129,7 +129,9 @@ class BinWorld:
         if gripper:
             from binpick.sim.gripper import Gripper
 
-            self.gripper = Gripper(self.model, gripper, self.body_ids)
+            from binpick.grippers import SuctionCup
+
+            self.gripper = Gripper(self.model, gripper, self.body_ids, cup or SuctionCup())
         if self.arm is not None:
             self.arm.bind_hand(self.model, self.body_ids)
         if self.domain is not None:  # generated textures go in before a renderer uploads them

@@ -33,9 +33,9 @@ SUCTION_PRESS = SuctionCup().press  # m: a suction pick drives the lip this far 
 
 
 
-def floating_hand(gripper: str = "jaws", slots: int = 0, jaws: Jaws = Jaws()) -> tuple[str, str]:
+def floating_hand(gripper: str = "jaws", slots: int = 0, jaws: Jaws = Jaws(), cup: SuctionCup = SuctionCup()) -> tuple[str, str]:
     """(worldbody XML, other XML) of the floating hand carrying ``gripper`` (jaws, suction or both; ``jaws``
-    their geometry):
+    and ``cup`` their geometry):
     a free body welded to a mocap target, its fingers' and cup rod's actuators, and, with a cup, one
     inactive suction weld per product slot (``slots`` of them)."""
     from binpick.sim.hand import hand_actuators, hand_contacts, hand_xml, suction_welds
@@ -44,7 +44,7 @@ def floating_hand(gripper: str = "jaws", slots: int = 0, jaws: Jaws = Jaws()) ->
 <body name="gripper_target" mocap="true" pos="{PARK[0]} {PARK[1]} {PARK[2]}"/>
 <body name="gripper" pos="{PARK[0]} {PARK[1]} {PARK[2]}">
   <freejoint name="gripper_free"/>
-  {hand_xml(gripper, jaws)}
+  {hand_xml(gripper, jaws, cup)}
 </body>"""
     extra = ('<equality><weld body1="gripper_target" body2="gripper" solref="0.02 1"/></equality>'
              + hand_actuators(gripper, jaws) + hand_contacts(gripper) + (suction_welds(slots) if gripper != "jaws" else ""))
@@ -63,8 +63,9 @@ class Gripper(Hand):
     """The floating hand inside a :class:`~binpick.sim.bin_scene.BinWorld` model: a :class:`Hand`
     moved by its mocap target."""
 
-    def __init__(self, model: mujoco.MjModel, gripper: str = "jaws", slot_bodies: list[int] | None = None) -> None:
-        super().__init__(model, gripper, slot_bodies)
+    def __init__(self, model: mujoco.MjModel, gripper: str = "jaws", slot_bodies: list[int] | None = None,
+                 cup: SuctionCup = SuctionCup()) -> None:
+        super().__init__(model, gripper, slot_bodies, cup)
         self.mocap = model.body_mocapid[model.body("gripper_target").id]
         joint = model.joint("gripper_free")
         self.qpos, self.dof = model.jnt_qposadr[joint.id], model.jnt_dofadr[joint.id]

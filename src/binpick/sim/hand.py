@@ -28,12 +28,13 @@ FINGER = ('type="box" size="{t} {w} {l}" pos="0 0 {z}" rgba="0.6 0.6 0.62 1" mas
           'condim="6" priority="1" solref="0.004 1" solimp="0.95 0.99 0.001" group="3"')
 
 
-def hand_xml(gripper: str, jaws: Jaws = JAWS) -> str:
+def hand_xml(gripper: str, jaws: Jaws = JAWS, cup: SuctionCup = CUP) -> str:
     """The geoms and bodies inside the ``gripper`` body of a hand carrying ``gripper`` (jaws, suction
-    or both): palm, fingers (``jaws``: their stroke and size), the cup on its rod."""
+    or both): palm, fingers (``jaws``: their stroke and size), the cup (``cup``: its lip's radius and
+    rubber) on its rod."""
     tools = tools_of(gripper)
     half = jaws.opening / 2
-    palm_half_x = half + 0.012 if "jaws" in tools else CUP.radius + 0.01
+    palm_half_x = half + 0.012 if "jaws" in tools else cup.radius + 0.01
     parts = [f'<geom name="palm" type="box" size="{palm_half_x} 0.014 {PALM_HALF_HEIGHT}" pos="0 0 {PALM_Z}" '
              f'rgba="0.25 0.25 0.28 1" mass="0.4" group="{HAND_GROUP}"/>']
     if "jaws" in tools:
@@ -59,8 +60,8 @@ def hand_xml(gripper: str, jaws: Jaws = JAWS) -> str:
             f'rgba="0.5 0.5 0.52 1" mass="0.03" group="{HAND_GROUP}"/>'
             f'<body name="cup"><joint name="bellows" type="slide" axis="0 0 1" range="0 {BELLOWS}" stiffness="400" '
             f'damping="4" springref="0"/>'
-            f'<geom name="cup" type="cylinder" size="{CUP.radius} {CUP_HALF_HEIGHT}" pos="0 0 {CUP_HALF_HEIGHT}" '
-            f'rgba="0.15 0.35 0.75 1" mass="0.02" friction="{CUP.friction} 0.02 0.001" condim="4" group="{HAND_GROUP}"/>'
+            f'<geom name="cup" type="cylinder" size="{cup.radius} {CUP_HALF_HEIGHT}" pos="0 0 {CUP_HALF_HEIGHT}" '
+            f'rgba="0.15 0.35 0.75 1" mass="0.02" friction="{cup.friction} 0.02 0.001" condim="4" group="{HAND_GROUP}"/>'
             f'<site name="cup_lip" pos="0 0 0" size="0.004" rgba="1 0 0 0"/></body></body>')
     return "".join(parts)
 
@@ -96,13 +97,13 @@ class Hand:
     """Handles to a hand in a compiled model, and its commands: which tool a pick uses (the cup rod
     out or in), and grip on or off (fingers closed, or the vacuum on)."""
 
-    def __init__(self, model: mujoco.MjModel, gripper: str, slot_bodies: list[int] | None = None) -> None:
+    def __init__(self, model: mujoco.MjModel, gripper: str, slot_bodies: list[int] | None = None, cup: SuctionCup = CUP) -> None:
         from binpick.sim.suction import Vacuum
 
         self.model, self.gripper, self.tools = model, gripper, tools_of(gripper)
         self.fingers = [model.actuator(n).id for n in ("finger_a", "finger_b")] if "jaws" in self.tools else []
         self.extend = model.actuator("cup_extend").id if gripper == "both" else None
-        self.vacuum = Vacuum(model, slot_bodies or []) if "suction" in self.tools else None
+        self.vacuum = Vacuum(model, slot_bodies or [], cup) if "suction" in self.tools else None
         self.tool = self.tools[0]
         self.closed = False
 

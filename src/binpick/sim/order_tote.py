@@ -1,7 +1,7 @@
 """The customer's order tote beside the bin: where picked products go (thesis Fig 1.1).
 
 Static geoms on the table, out of the overhead camera's view; the pick executors carry products here
-and the robot cell (:mod:`binpick.sim.panda`) keeps the arm clear of its walls.
+and the robot cell (:mod:`binpick.sim.robot_arm`) keeps the arm clear of its walls.
 """
 
 from __future__ import annotations

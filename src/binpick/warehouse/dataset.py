@@ -201,9 +201,9 @@ def world_sim(config: GenerateConfig, world: int, library: ProductLibrary | None
     gripper = config.gripper if gripper is True else gripper
     robot = None
     if gripper and config.robot == "panda":  # the arm makes the label grasps (it brings its own gripper)
-        from binpick.sim.panda import PandaArm
+        from binpick.sim.robot_arm import RobotArm
 
-        robot, gripper = PandaArm(gripper=config.gripper), False
+        robot, gripper = RobotArm(gripper=config.gripper), False
     sim = BinWorld(products[0], products[1:], max_copies=config.copies[1],
                    camera=CameraSpec(size=config.image_size), randomise_lighting=config.randomise,
                    gripper=gripper, seed=config.seed * 1_000_003 + world, domain=config.domain_config,

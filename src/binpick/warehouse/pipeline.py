@@ -40,7 +40,7 @@ from binpick.warehouse.grasping import (Reason, execute_arm_pick, execute_arm_pu
 
 GIF_SIZE = 240
 MAX_PUSHES = 1  # pushes per pointed pick, to free an instance no grasp fits well (binpick.grasping.push)
-ROBOTS = ("floating", "panda")  # what executes the picks: the floating gripper, or the Panda arm (binpick.arm)
+ROBOTS = ("floating", "panda", "ur5e")  # what executes the picks: the floating gripper, or an arm (binpick.arm)
 
 
 @dataclass
@@ -129,7 +129,7 @@ class PickPipeline:
                  verifier="learnt", check: float | None = None, oracle: bool = False, rank_from: float | None = 0.01,
                  domain=None, size_check: bool = True, sensor=None, photos: str = "catalogue",
                  copies_from_match: float | None = None, robot: str = "floating", gripper: str | None = None,
-                 look_again: bool = True) -> None:
+                 look_again: bool = True, tcp: float | None = None) -> None:
         if detector.spec.query != "photo":
             raise ConfigError("the pick pipeline conditions on shop photos: give a detector trained with query: photo")
         from binpick.grippers import tools_of
@@ -148,15 +148,16 @@ class PickPipeline:
             from binpick.core.config import did_you_mean
 
             raise ConfigError(f"unknown robot {robot!r}{did_you_mean(robot, ROBOTS)}; choose from {', '.join(ROBOTS)}")
-        if robot == "panda" and ((domain is not None and domain.randomise) or (sensor is not None and sensor.tilts_tote)):
-            raise ConfigError("the Panda works in binpick's own cell (the default domain, a level tote): its collision "
+        if robot != "floating" and ((domain is not None and domain.randomise) or (sensor is not None and sensor.tilts_tote)):
+            raise ConfigError(f"the {robot} arm works in binpick's own cell (the default domain, a level tote): its collision "
                               "model does not follow a randomised domain or a tilted tote")
         self.robot = robot
+        self.tcp = tcp  # the arm's flange to the tool point (a cell file's; None: binpick's own hand)
         self.motion = None  # the arm's motion planner (binpick.arm.MotionPlanner); None: the floating gripper
-        if robot == "panda":
-            from binpick.arm import MotionPlanner
+        if robot != "floating":
+            from binpick.arm import ArmKinematics, MotionPlanner
 
-            self.motion = MotionPlanner(period=TRIAL_TIMESTEP, gripper=gripper)
+            self.motion = MotionPlanner(ArmKinematics(self.robot_arm(planner)), period=TRIAL_TIMESTEP, gripper=gripper)
         self.picker = Picker(detector, planner, score_threshold=score_threshold, verifier=None if oracle else verifier,
                              check=check, rank_from=rank_from, max_grasps=max_attempts, copies_from_match=copies_from_match,
                              reach=self.motion.reach_check if self.motion is not None else None)
@@ -166,6 +167,13 @@ class PickPipeline:
         self.camera, self.oracle, self.domain, self.size_check, self.sensor = camera, oracle, domain, size_check, sensor
         self._photos: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
         self.recording = None  # a binpick.viz.recording.OrderRecording: each order goes to it (binpick pick --rerun)
+
+    def robot_arm(self, planner: GraspPlanner):
+        """The arm carrying the hand ``planner`` plans for (its tools, jaws and cup) at the tool point ``tcp``."""
+        from binpick.sim.robot_arm import TCP, RobotArm, arm_model
+
+        return RobotArm(arm_model(self.robot), gripper=self.gripper, jaws=planner.gripper, cup=planner.cup,
+                        tcp=TCP if self.tcp is None else self.tcp)
 
     @property
     def score_threshold(self) -> float:
@@ -208,14 +216,10 @@ class PickPipeline:
         target = self.library[product_id]
         others = [p for p in sorted(self.library.products) if p != product_id]
         chosen = [self.library[others[i]] for i in rng.choice(len(others), size=self.distractors[1], replace=False)]
-        robot = None
-        if self.robot == "panda":
-            from binpick.sim.panda import PandaArm
-
-            robot = PandaArm(gripper=self.gripper)
+        robot = self.robot_arm(self.grasp) if self.robot != "floating" else None
         world = BinWorld(target, chosen, max_copies=self.copies[1], camera=self.camera, extra_worldbody=order_tote_xml(),
                          gripper=self.gripper if robot is None else False, seed=seed, domain=self.domain, sensor=self.sensor,
-                         robot=robot, jaws=self.grasp.gripper)  # the hand the planner plans for
+                         robot=robot, jaws=self.grasp.gripper, cup=self.grasp.cup)  # the hand the planner plans for
         return world, rng
 
     def settle(self, world: BinWorld, rng: np.random.Generator, seed: int) -> Scene:
