@@ -3,7 +3,7 @@ conditioning -> grasp point from depth -> top-down grasp (jaws along y, the poli
 pickability labels are for) -> order tote.
 
     python experiments/pick.py [--orders 50] [--weights src/binpick/detection/weights/rod_photo_learnt_tiny_320.safetensors]
-                              [--grasp learnt|analytic|fixed] [--compare-grasps] [--keep-oracle] [--robot floating|panda]
+                              [--grasp learnt|analytic|fixed] [--compare-grasps] [--keep-oracle] [--robot floating|panda|ur5e]
 
 Runs ``--orders`` orders of products the detector saw in training and as many of held-out products
 (zero-shot), each a new bin seeded from its order number; then the seen orders again with the
@@ -57,7 +57,8 @@ def main() -> None:
     parser.add_argument("--grasp", default=None, help="grasp policy (default: binpick's, the best in results/grasp.json)")
     parser.add_argument("--compare-grasps", action="store_true", help="run the simulator-boxes orders with every grasp policy")
     parser.add_argument("--robot", default="floating", choices=["floating", "panda", "ur5e"],
-                        help="what executes the picks (panda: the arm's rows go to the arm section, the rest is kept)")
+                        help="what executes the picks (panda, ur5e: that arm's rows go to its arm section, the rest is kept; "
+                             "with --cell --skip-main: the cell's rows on that arm)")
     parser.add_argument("--keep-oracle", action="store_true",
                         help="keep the simulator-boxes rows of results/pick.json (they do not depend on the detector)")
     parser.add_argument("--gripper", default="both", choices=["jaws", "suction", "both"], help="the hand's tools for the main rows")
@@ -79,6 +80,10 @@ def main() -> None:
     from binpick.warehouse.pipeline import PickPipeline, fulfil
 
     torch.set_num_threads(2)
+    if args.cell is not None:  # a bad cell file, or one for another arm: one line before hours of orders
+        from binpick.cell import load_cell
+
+        load_cell(args.cell).check_arm(args.robot)
     if args.robot != "floating" and args.cell is None:
         return arm_rows(args)
     model = load_detector(args.weights)
@@ -206,8 +211,10 @@ def cell_rows(model, library, policy: str, path: Path, seen: list[str], held_out
     cell = Cell.load(path)
     planner = GraspPlanner.load(policy, hand=cell.tools, gripper=cell.jaws, cup=cell.cup)
     name = cell.name if robot == "floating" else f"{cell.name}+{robot}"
+    from binpick.sim.robot_arm import TCP
+
     rows = {"file": str(path), "tools": cell.tools, "stroke": cell.jaws.opening, "widest_taken": round(cell.widest, 4), "robot": robot,
-            "tcp": cell.tcp}
+            "tcp": None if robot == "floating" else (TCP if cell.tcp is None else cell.tcp)}
     for group, products in (("seen", seen), ("held_out", held_out)):
         folder = out / f"cell_{name}_{group}"
         summary, results = fulfil(PickPipeline(model, library, grasp=planner, gripper=cell.tools, robot=robot, tcp=cell.tcp), products,
@@ -417,7 +424,7 @@ def tool_lines(result: dict) -> list[str]:
     if cells:
         lines += ["### Your cell's gripper", "",
                   "The same seen and held-out orders with the hand a cell file describes (`python experiments/pick.py --cell FILE`, "
-                  "`--robot panda` for the arm; the planner and the simulated hand both take its jaws' stroke and fingers and its cup, "
+                  "`--robot panda --skip-main` for the cell on an arm; the planner and the simulated hand both take its jaws' stroke and fingers and its cup, "
                   "the arm its tool point). The widest jaw grasp executed is never wider than the jaws take (stroke less the margin).", "",
                   "| cell | robot (tool point) | tools | stroke | seen placed | held out placed | right product (seen, held out) | "
                   "widest jaw grasp / widest taken |",

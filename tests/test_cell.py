@@ -79,41 +79,48 @@ def test_a_stroke_below_every_candidate_is_one_line_not_a_plan(tmp_path):
     assert all(p["width"] is None or p["width"] <= 0.074 for p in plans["plans"] if p["position"] is not None)
 
 
-def test_the_arm_carries_the_cell_files_hand_at_its_tool_point(tmp_path):
+@pytest.mark.parametrize("arm", ["panda", "ur5e"])
+def test_the_arm_carries_the_cell_files_hand_at_its_tool_point(tmp_path, arm):
     import mujoco
 
     from binpick.arm import MotionPlanner
+    from binpick.cell import MIN_ARM_TCP
     from binpick.core.errors import ConfigError
-    from binpick.sim.robot_arm import RobotArm
+    from binpick.grippers import TIPS_BELOW
+    from binpick.sim.robot_arm import PALM_TOP, RobotArm, arm_model
 
+    assert MIN_ARM_TCP == pytest.approx(TIPS_BELOW + PALM_TOP)  # the cell file's check is the simulated hand's size
     path = tmp_path / "cell.yaml"
     path.write_text("gripper: {tools: both, jaws: {stroke: 0.085, finger_length: 0.04}, suction: {radius: 0.02}, tcp: 0.17}\n"
-                    "arm: {model: panda}\n")
+                    f"arm: {{model: {arm}}}\n")
     cell = load_cell(path)
-    planner = MotionPlanner.for_cell(cell)
+    planner = MotionPlanner.for_cell(cell)  # the file's arm
     model, data = planner.kinematics.model, planner.kinematics.data
+    assert planner.kinematics.arm.name == arm and planner.gripper == "both"
     fingers = [model.actuator(name).id for name in ("finger_a", "finger_b")]
     assert np.allclose(model.actuator_ctrlrange[fingers, 1], 0.0425)  # half the 8.5 cm stroke each
     assert model.geom("cup").size[0] == pytest.approx(0.02)
+    data.qpos[planner.kinematics.arm.qpos] = planner.home
     mujoco.mj_kinematics(model, data)
-    flange, tool = data.xpos[model.body("right_hand").id], data.site_xpos[model.site("tool").id]
-    from binpick.grippers import TIPS_BELOW
-
-    assert np.linalg.norm(tool - flange) + TIPS_BELOW == pytest.approx(0.17, abs=1e-6)  # flange to the fingertips: the file's tcp
-    assert planner.gripper == "both"
-    arm = RobotArm(gripper=cell.tools, jaws=cell.jaws, cup=cell.cup, tcp=cell.tcp)
+    flange = model.body("right_hand").id
+    axis = data.xmat[flange].reshape(3, 3)[:, 2]  # out of the flange
+    for name in ("finger_a", "finger_b"):
+        finger = model.geom(name).id
+        tip = data.geom_xpos[finger] - data.geom_xmat[finger].reshape(3, 3)[:, 2] * model.geom_size[finger][2]  # its lowest face
+        assert float((tip - data.xpos[flange]) @ axis) == pytest.approx(0.17, abs=1e-6)  # flange to fingertip: the file's tcp
+    robot = RobotArm(arm_model(arm), gripper=cell.tools, jaws=cell.jaws, cup=cell.cup, tcp=cell.tcp)
     from binpick.sim.bin_scene import BinWorld
     from binpick.sim.mjcf import CameraSpec
     from binpick.sim.products import Product
 
     box = Product("test/box", "test", shape="box", size=(0.03, 0.03, 0.02), mass=0.1)
-    world = BinWorld(box, [], max_copies=1, camera=CameraSpec(size=64), robot=arm)
+    world = BinWorld(box, [], max_copies=1, camera=CameraSpec(size=64), robot=robot)
     try:
         assert world.arm.hand.vacuum.cup.radius == pytest.approx(0.02)  # the simulated seal judged over the file's lip
     finally:
         world.close()
-    with pytest.raises(ConfigError, match="tcp 0.0500 m") as raised:
-        MotionPlanner.for_cell(Cell(tools="jaws", tcp=0.05))
+    with pytest.raises(ConfigError, match="gripper.tcp 0.05 m") as raised:
+        MotionPlanner.for_cell(Cell(tools="jaws", tcp=0.05, arm=arm))
     assert "\n" not in str(raised.value)
 
 
@@ -126,6 +133,6 @@ def test_a_ur5e_cell_is_simulated_with_its_arm_and_another_arm_asked_for_is_one_
     planner = MotionPlanner.for_cell(cell, arm="ur5e")
     assert planner.kinematics.arm.name == "ur5e" and planner.kinematics.arm.tcp == 0.175
     assert len(planner.home) == 6
-    with pytest.raises(ConfigError, match="has a ur5e arm; --robot panda") as raised:
+    with pytest.raises(ConfigError, match="has a ur5e arm; robot panda asks for another") as raised:
         MotionPlanner.for_cell(cell, arm="panda")
     assert "\n" not in str(raised.value)

@@ -1,18 +1,19 @@
 """Your cell in one file: the gripper your robot carries (jaws, a suction cup or both, their geometry
 and the tool point's offset from the flange) and the arm, read once and validated. The planner takes
 the jaws' stroke and fingers from it (no grasp wider than your jaws open is emitted), the simulator
-builds the same hand from it (the floating hand, or the Panda with the hand at the file's tool point),
-and the reports name it.
+builds the same hand from it (the floating hand, or an arm carrying it at the file's tool point: the
+arm chosen by ``--robot`` must be the file's; without ``tcp`` the arm carries binpick's own hand's), and
+the reports name it.
 
     gripper:
       tools: jaws                 # jaws, suction or both
       jaws: {stroke: 0.08, finger_thickness: 0.012, finger_width: 0.02, finger_length: 0.045, margin: 0.005}
       suction: {radius: 0.015, vacuum_force: 30.0}
       tcp: 0.1034                 # the tool point's distance from the flange along its z (m)
-    arm: {model: panda}           # panda, ur5e or none (its base and reach: binpick's simulated cell)
+    arm: {model: panda}           # panda, ur5e or none (the default; its base and reach: binpick's simulated cell)
 
-``binpick plan --cell cell.yaml``, ``binpick pick --cell cell.yaml``; ``configs/cells/`` has a
-Franka Hand and a Robotiq 2F-85.
+``binpick plan --cell cell.yaml``, ``binpick pick --cell cell.yaml [--robot panda]``; ``configs/cells/``
+has a Franka Hand and a Robotiq 2F-85 on a Panda, and a 2F-85 on a UR5e.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from binpick.core.errors import ConfigError, InputFileError
 from binpick.grippers import GRIPPERS, Jaws, SuctionCup
 
 ARMS = ("panda", "ur5e", "none")
+MIN_ARM_TCP = 0.102  # m: binpick's simulated hand from its palm's top to the fingertips (binpick.sim.robot_arm)
 JAW_FIELDS = {"stroke": (0.01, 0.3), "finger_thickness": (0.002, 0.05), "finger_width": (0.004, 0.08),
               "finger_length": (0.01, 0.2), "margin": (0.0, 0.03)}
 CUP_FIELDS = {"radius": (0.004, 0.05), "vacuum_force": (1.0, 500.0), "compliance": (0.0, 0.02), "depth": (0.0, 0.02),
@@ -38,8 +40,8 @@ class Cell:
     tools: str = "both"
     jaws: Jaws = field(default_factory=Jaws)
     cup: SuctionCup = field(default_factory=SuctionCup)
-    tcp: float = 0.1034
-    arm: str = "panda"
+    tcp: float | None = None  # None: not given (a simulated arm carries binpick's own hand's tool point)
+    arm: str = "none"
     name: str = "binpick"
 
     @classmethod
@@ -65,21 +67,25 @@ class Cell:
         if jaws.margin >= jaws.opening:
             raise InputFileError(f"{where}: gripper.jaws.margin ({jaws.margin} m) must be below the stroke ({jaws.opening} m)")
         cup = SuctionCup(**_numbers(gripper.get("suction") or {}, CUP_FIELDS, f"{where}: gripper.suction"))
-        tcp = _numbers({"tcp": gripper.get("tcp", 0.1034)}, {"tcp": (0.0, 0.5)}, f"{where}: gripper")["tcp"]
+        tcp = _numbers({"tcp": gripper["tcp"]}, {"tcp": (0.0, 0.5)}, f"{where}: gripper")["tcp"] if "tcp" in gripper else None
         arm = data.get("arm") or {}
         if not isinstance(arm, dict):
             raise InputFileError(f"{where}: arm must be a mapping (model)")
         _only(arm, {"model"}, f"{where}: arm")
-        model = str(arm.get("model", "panda"))
+        model = str(arm.get("model", "none"))
         if model not in ARMS:
-            raise InputFileError(f"{where}: arm.model {model!r}: choose from {', '.join(ARMS)} ")
+            raise InputFileError(f"{where}: arm.model {model!r}: choose from {', '.join(ARMS)}")
         return cls(tools, jaws, cup, tcp, model, str(data.get("name", path.stem)))
 
     def check_arm(self, robot: str) -> None:
-        """One line when the arm asked for (``--robot``) is not the one this file describes."""
+        """One line, before any work, when the arm asked for (``robot``) is not the one this file describes,
+        or when its tool point is too close to the flange for the simulated hand on an arm."""
         if robot not in ("floating", self.arm) and self.arm != "none":
-            raise ConfigError(f"cell {self.name!r} has a {self.arm} arm; --robot {robot} asks for another: give --robot {self.arm} "
+            raise ConfigError(f"cell {self.name!r} has a {self.arm} arm; robot {robot} asks for another: give robot {self.arm} "
                               "(or floating for the hand alone)")
+        if robot != "floating" and self.tcp is not None and self.tcp < MIN_ARM_TCP - 1e-9:
+            raise ConfigError(f"cell {self.name!r}: gripper.tcp {self.tcp} m: binpick's simulated hand on an arm needs at least "
+                              f"{MIN_ARM_TCP} m from the flange to the fingertips (its palm and fingers)")
 
     @property
     def widest(self) -> float:

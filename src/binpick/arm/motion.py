@@ -11,8 +11,8 @@ grasp is raised if it asks for less): the arm tracks its targets within about 2 
 
 :meth:`MotionPlanner.reach` is the check the picker runs on every grasp before ranking it: a grasp
 whose descent has no IK solution, whose arm would touch the tote on the way down, or that would need
-the wrist turned over (joint 5 more than a quarter turn from the nominal posture, or joint 7 more than
-a half turn: a flip the arm cannot make on the way down), is dropped with its reason.
+the wrist turned over (the fifth joint, the Panda's joint 5 or the UR5e's wrist 2, more than a quarter
+turn from the nominal posture: a flip the arm cannot make on the way down), is dropped with its reason.
 """
 
 from __future__ import annotations
@@ -103,15 +103,17 @@ class MotionPlanner:
         self._answers: dict[tuple, Reach] = {}
 
     @classmethod
-    def for_cell(cls, cell, gripper: str = "jaws", period: float = 0.004, arm: str = "panda") -> MotionPlanner:
-        """``arm`` (panda or ur5e) carrying the hand a cell file describes (:class:`binpick.cell.Cell`: its tools,
-        jaws, cup and tool point; None: binpick's own hand carrying ``gripper``)."""
-        from binpick.sim.robot_arm import arm_model
+    def for_cell(cls, cell, gripper: str = "jaws", period: float = 0.004, arm: str | None = None) -> MotionPlanner:
+        """``arm`` (panda or ur5e; None: the cell's, else the Panda) carrying the hand a cell file describes
+        (:class:`binpick.cell.Cell`: its tools, jaws, cup and tool point; None: binpick's own hand carrying ``gripper``)."""
+        from binpick.sim.robot_arm import TCP, arm_model
 
+        if arm is None:
+            arm = cell.arm if cell is not None and cell.arm != "none" else "panda"
         if cell is None:
             return cls(ArmKinematics(RobotArm(arm_model(arm), gripper=gripper)), period=period, gripper=gripper)
         cell.check_arm(arm)
-        robot = RobotArm(arm_model(arm), gripper=cell.tools, jaws=cell.jaws, cup=cell.cup, tcp=cell.tcp)
+        robot = RobotArm(arm_model(arm), gripper=cell.tools, jaws=cell.jaws, cup=cell.cup, tcp=TCP if cell.tcp is None else cell.tcp)
         return cls(ArmKinematics(robot), period=period, gripper=cell.tools)
 
     def below(self, tool: str) -> float:
@@ -174,7 +176,7 @@ class MotionPlanner:
         return np.array([centre[0], centre[1], max(float(centre[2]), FLOOR_TOP + FLOOR_MARGIN + self.below(tool))])
 
     def _flipped(self, q: np.ndarray) -> bool:
-        """Joint 5 turned more than a quarter turn from the nominal posture: the wrist turned over."""
+        """The fifth joint (Panda: joint 5; UR5e: wrist 2) more than a quarter turn from the nominal posture: the wrist turned over."""
         return bool(abs(q[4] - self.nominal[4]) > WRIST_TURN)
 
     def pick(self, start, centre, yaw: float, place=ORDER_TOTE, tool: str = "jaws") -> PickMotion:

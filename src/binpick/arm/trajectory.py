@@ -31,8 +31,8 @@ class Segment:
     """One motion: joint targets ``q`` and velocities ``qd`` every ``period`` seconds (rows), at rest at both ends."""
 
     name: str
-    q: np.ndarray  # (steps, 7)
-    qd: np.ndarray  # (steps, 7)
+    q: np.ndarray  # (steps, joints)
+    qd: np.ndarray  # (steps, joints)
     period: float
     closed: bool = False  # the fingers: closed on a product (True) or open
 

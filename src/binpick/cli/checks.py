@@ -92,17 +92,19 @@ def _weights() -> Check:
 
 
 def _arm() -> Check:
-    """The Panda arm (--robot panda): robosuite's model files, mink's IK and Ruckig's timing, one IK solve."""
+    """The arms (--robot panda, --robot ur5e): robosuite's model files, mink's IK and Ruckig's timing, one IK solve each."""
     try:
         from binpick.arm import ArmKinematics
+        from binpick.sim.robot_arm import ARM_MODELS, RobotArm
 
         started = time.perf_counter()
-        solution = ArmKinematics().solve([0.0, 0.0, 0.12], 0.0)
-        if not solution.ok:
-            return "Panda arm", "fail", "the arm's IK missed a grasp in the middle of the bin"
-        return "Panda arm", "ok", f"model, mink and Ruckig load; the cell and one IK solve in {time.perf_counter() - started:.1f} s"
+        for model in ARM_MODELS.values():
+            if not ArmKinematics(RobotArm(model)).solve([0.0, 0.0, 0.12], 0.0).ok:
+                return "arms", "fail", f"the {model.name}'s IK missed a grasp in the middle of the bin"
+        return "arms", "ok", (f"{' and '.join(ARM_MODELS)}: models, mink and Ruckig load; the cells and one IK solve each in "
+                              f"{time.perf_counter() - started:.1f} s")
     except Exception as error:  # a missing model file or package is the finding
-        return "Panda arm", "warn", f"--robot panda unavailable: {type(error).__name__}: {error}"
+        return "arms", "warn", f"--robot panda and ur5e unavailable: {type(error).__name__}: {error}"
 
 
 def _threads() -> Check:

@@ -66,6 +66,8 @@ def pick(
 
     check_range("orders", orders, 1, 100_000, integer=True)
     the_cell = load_cell(cell)
+    if the_cell is not None:
+        the_cell.check_arm(robot)  # another arm than the file's, or a tool point the arm's hand cannot have: one line, now
     if the_cell is not None:  # its hand: the tools, the jaws' stroke and fingers, the cup (the simulator builds the same)
         gripper = the_cell.tools
         planner = GraspPlanner.load(grasp, grasp_weights, hand=gripper, gripper=the_cell.jaws, cup=the_cell.cup)
@@ -87,8 +89,6 @@ def pick(
             read_image(path)  # unreadable -> one line now, not mid-run
         library.add(replace(library[products[0]], photos=tuple(photo)))
     model = Detector.load(weights or PICKING, runtime=runtime).inference_network
-    if the_cell is not None:
-        the_cell.check_arm(robot)
     tcp = the_cell.tcp if the_cell is not None else None  # the arm carries the cell's hand at its tool point
     _fulfil(PickPipeline(model, library, grasp=planner, robot=robot, gripper=gripper, tcp=tcp), products, orders, seed, run_dir, rerun)
 
@@ -206,6 +206,8 @@ def plan(
 
     check_range("--max-grasps", max_grasps, 1, 100, integer=True)
     the_cell = load_cell(cell)
+    if the_cell is not None:
+        the_cell.check_arm(robot)  # before any output folder is made
     gripper = the_cell.tools if the_cell is not None else gripper
     if sample:
         from binpick.samples import SAMPLE_FRAME

@@ -1,4 +1,4 @@
-"""The hand at the end of the floating gripper or the Panda: a palm with two position-controlled
+"""The hand at the end of the floating gripper or an arm: a palm with two position-controlled
 fingers (jaws), a suction cup, or both (the cup on a rod between the fingers, pushed out below the
 fingertips for a suction pick and drawn back into the palm for a jaw pick).
 

@@ -1,5 +1,5 @@
 """An arm on a pedestal beside the bin, carrying binpick's hand: a Franka Emika Panda (7 joints) or a
-Universal Robots UR5e (6 joints), chosen by a cell file's ``arm.model``.
+Universal Robots UR5e (6 joints), chosen by ``--robot`` (a cell file's ``arm.model`` must agree).
 
 Both are robosuite's models (meshes and kinematics; robosuite ships them, MIT licence; the package is
 never imported, only its files are read). Their torque motors are replaced by joint position
@@ -76,7 +76,7 @@ KV = (750.0, 750.0, 500.0, 500.0, 250.0, 250.0, 125.0)
 
 UR5E_HOME = (-0.908, -2.19, 1.315, -0.695, -1.571, -2.478)  # the gripper at (-0.35, 0.18, 0.55), pointing down
 UR5E_NOMINAL = (-0.574, -1.461, 1.537, -1.647, -1.571, -2.145)
-UR5E_LIMITS = JointLimits(
+UR5E_LIMITS = JointLimits(  # the elbow's range as robosuite's model has it (the real joint turns further; its cable does not)
     lower=(-6.28319, -6.28319, -3.14159, -6.28319, -6.28319, -6.28319),
     upper=(6.28319, 6.28319, 3.14159, 6.28319, 6.28319, 6.28319),
     velocity=(3.1416,) * 6,
@@ -158,11 +158,12 @@ def gripper_xml(gripper: str = "jaws", jaws: Jaws = Jaws(), cup: SuctionCup = Su
 {hand_actuators(gripper, jaws)}{hand_contacts(gripper)}</mujoco>"""
 
 
-def arm_spec(limits: JointLimits = PANDA_LIMITS, gripper: str = "jaws", jaws: Jaws = Jaws(), cup: SuctionCup = SuctionCup(),
+def arm_spec(limits: JointLimits | None = None, gripper: str = "jaws", jaws: Jaws = Jaws(), cup: SuctionCup = SuctionCup(),
              tcp: float = TCP, model: ArmModel = PANDA) -> mujoco.MjSpec:
     """The arm ``model`` with binpick's hand (``gripper``: jaws, suction or both; ``jaws``, ``cup`` and the
     tool point ``tcp`` from the flange as a cell file gives them): position actuators on its joints,
     gravity compensated."""
+    limits = model.limits if limits is None else limits
     arm = mujoco.MjSpec.from_file(model.assets())
     for actuator in list(arm.actuators):
         arm.delete(actuator)

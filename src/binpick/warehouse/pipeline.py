@@ -582,7 +582,7 @@ def arm_summary(results: list[OrderResult]) -> dict[str, Any] | None:
     segments = sorted({name for a in picks for name in a.motion_s})
     dropped = {reason: sum(a.rejected.get(reason, 0) for r in results for a in r.attempts) for reason in REACH_REASONS}
     per_100 = 100 / max(1, len(results))
-    return {"picks": len(picks), "cycle_s_median": round(float(np.median(placed_cycles)), 3) if placed_cycles else None,
+    return {"robot": results[0].robot, "picks": len(picks), "cycle_s_median": round(float(np.median(placed_cycles)), 3) if placed_cycles else None,
             "cycle_s_median_all": round(float(np.median(cycles)), 3), "cycle_s_mean_all": round(float(np.mean(cycles)), 3),
             "robot_seconds": round(robot_seconds, 2), "picks_per_hour": round(3600 * placed / robot_seconds, 1),
             "picks_per_hour_with_planning": round(3600 * placed / (robot_seconds + thinking), 1),

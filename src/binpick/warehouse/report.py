@@ -111,7 +111,8 @@ def arm_summary_line(arm: dict[str, Any] | None) -> str:
         return ""
     dropped = sum(arm["dropped_for_reach"].values())
     cycle = "—" if arm["cycle_s_median"] is None else f"{arm['cycle_s_median']:.2f} s"
-    return (f"<p>Panda arm: median cycle <b>{cycle}</b> per placed pick (simulated robot time, home to home; "
+    name = {"panda": "Panda", "ur5e": "UR5e"}.get(str(arm.get("robot")), str(arm.get("robot", "the")))
+    return (f"<p>{name} arm: median cycle <b>{cycle}</b> per placed pick (simulated robot time, home to home; "
             f"{arm['cycle_s_median_all']:.2f} s over every grasp) · "
             f"<b>{arm['picks_per_hour']:.0f}</b> picks per hour of robot time ({arm['picks_per_hour_with_planning']:.0f} with this "
             f"machine's perception and planning) · {arm['collisions']} collision(s) · {dropped} grasp(s) dropped for the arm's reach</p>")
