@@ -46,6 +46,7 @@ def world(tmp_path_factory) -> dict[str, str]:
         return path
 
     put("plain.txt", "just a file\n")
+    put("ur5e_cell.yaml", "gripper: {tools: jaws, tcp: 0.17}\narm: {model: ur5e}\n")
     (root / "adir.png").mkdir()
     (root / "adir.json").mkdir()
     image = root / "scene.png"
@@ -220,6 +221,9 @@ CASES: list[tuple[list[str], list[str]]] = [
     (["calibrate", "{root}/nowhere", "--camera", "{camera_yaml}"], ["is not a folder of board pictures"]),
     (["calibrate", "{root}", "--camera", "{camera_yaml}", "--flange-mm", "-1"], ["--flange-mm", "-1"]),
     (["plan", "--sample", "--cell", "{root}/no_cell.yaml", "--out", "{root}/plans"], ["no_cell.yaml"]),
+    (["plan", "--sample", "--cell", "{ur5e_cell_yaml}", "--robot", "panda", "--out", "{root}/plans"],
+     ["cell 'ur5e_cell' has a ur5e arm; robot panda asks for another"]),
+    (["data", "generate", "--out", "{root}/gen", "--cell", "{root}/no_cell.yaml"], ["no_cell.yaml"]),
     (["plan", "--sample", "--flange-pose", "1,2,3", "--out", "{root}/plans"], ["--flange-pose", "x,y,z,qx,qy,qz,qw"]),
     (["products", "list", "--products", "{latin1_yaml}"], ["latin1.yaml", "not UTF-8"]),
     (["products", "list", "--products", "{products_no_mesh_yaml}"], ["missing.obj", "does not exist"]),

@@ -136,3 +136,28 @@ def test_a_ur5e_cell_is_simulated_with_its_arm_and_another_arm_asked_for_is_one_
     with pytest.raises(ConfigError, match="has a ur5e arm; robot panda asks for another") as raised:
         MotionPlanner.for_cell(cell, arm="panda")
     assert "\n" not in str(raised.value)
+
+
+def test_grasp_trials_are_made_and_judged_with_the_cell_files_hand(tmp_path):
+    from binpick.core.errors import ConfigError
+    from binpick.warehouse.dataset import DataGeneration, GenerateConfig, world_sim
+
+    config = GenerateConfig(out=str(tmp_path / "trials"), scenes=1, policies=[], grasp_trials=3, workers=1, image_size=96,
+                            copies=(2, 2), distractors=(0, 0), targets=["procedural_box"], scenes_per_world=1, val_fraction=0.0,
+                            cell=str(FRANKA))
+    assert config.gripper == "jaws" and config.hand[0].opening == 0.08
+    sim, _, _ = world_sim(config, 0)
+    try:
+        fingers = [sim.model.actuator(name).id for name in ("finger_a", "finger_b")]
+        assert np.allclose(sim.model.actuator_ctrlrange[fingers, 1], 0.04)  # the simulated hand opens the file's 8 cm
+    finally:
+        sim.close()
+    DataGeneration.new(config).run()
+    trials = [t for path in (tmp_path / "trials" / "scenes").glob("*.json") for t in json.loads(path.read_text())["grasp_trials"]]
+    assert trials
+    franka = load_cell(FRANKA)
+    assert all(t["width"] is None or t["width"] <= franka.widest + 1e-9 for t in trials if t["rejected"] is None)
+    assert all(not t["success"] for t in trials if t["rejected"] and t["rejected"].startswith("too wide"))
+    with pytest.raises(ConfigError, match="gripper 'suction' and cell") as raised:
+        GenerateConfig(out=str(tmp_path / "x"), gripper="suction", policies=[], cell=str(FRANKA))
+    assert "\n" not in str(raised.value)

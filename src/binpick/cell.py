@@ -3,7 +3,7 @@ and the tool point's offset from the flange) and the arm, read once and validate
 the jaws' stroke and fingers from it (no grasp wider than your jaws open is emitted), the simulator
 builds the same hand from it (the floating hand, or an arm carrying it at the file's tool point: the
 arm chosen by ``--robot`` must be the file's; without ``tcp`` the arm carries binpick's own hand's), and
-the reports name it.
+the reports name it; ``binpick data generate --cell`` makes grasp trials and labels with it.
 
     gripper:
       tools: jaws                 # jaws, suction or both

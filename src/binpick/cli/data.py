@@ -48,6 +48,8 @@ def data_generate(
     gripper: Annotated[str, typer.Option(help="The hand's tools: jaws, suction or both (grasp trials with each)")] = "jaws",
     robot: Annotated[str, typer.Option(help="Who makes the label grasps: floating (the gripper alone) or panda (the arm: "
                                             "'pickable' by this arm; slower)")] = "floating",
+    cell: Annotated[Path | None, typer.Option(help="Your cell file: its hand (tools, jaws, cup; on the arm its tool point) "
+                                                   "makes the grasp trials and labels (replaces --gripper)")] = None,
     seed: Annotated[int, seed_option("Seed")] = 0,
     settings: Annotated[list[str] | None, typer.Option("--set", metavar="KEY=VALUE", help="Any other setting (binpick train --list)")] = None,
 ) -> None:
@@ -64,7 +66,7 @@ def data_generate(
              "address": address,
              "targets": [t for t in targets.split(",") if t], "products": str(products) if products else None,
              "only_products": only_products, "val_fraction": val_fraction, "scenes_per_world": scenes_per_world, "photo_views": photo_views,
-             "robot": robot, "gripper": gripper, "seed": seed}
+             "robot": robot, "gripper": gripper, "cell": str(cell) if cell else None, "seed": seed}
     config = from_dict(GenerateConfig, flags | parse_settings(settings), where="data generate")  # validated once
     with job_progress(out, f"binpick data generate --out {out} (the same options), or binpick train --resume {out}") as callback:
         stats = DataGeneration.new(config).run(callback)

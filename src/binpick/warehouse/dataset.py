@@ -200,14 +200,15 @@ def world_sim(config: GenerateConfig, world: int, library: ProductLibrary | None
     gripper = (bool(config.policies) or config.grasp_trials > 0) if gripper is None else gripper
     gripper = config.gripper if gripper is True else gripper
     robot = None
+    jaws, cup, tcp = config.hand
     if gripper and config.robot == "panda":  # the arm makes the label grasps (it brings its own gripper)
-        from binpick.sim.robot_arm import RobotArm
+        from binpick.sim.robot_arm import TCP, RobotArm
 
-        robot, gripper = RobotArm(gripper=config.gripper), False
+        robot, gripper = RobotArm(gripper=config.gripper, jaws=jaws, cup=cup, tcp=TCP if tcp is None else tcp), False
     sim = BinWorld(products[0], products[1:], max_copies=config.copies[1],
                    camera=CameraSpec(size=config.image_size), randomise_lighting=config.randomise,
                    gripper=gripper, seed=config.seed * 1_000_003 + world, domain=config.domain_config,
-                   sensor=config.sensor_config, robot=robot)
+                   sensor=config.sensor_config, robot=robot, jaws=jaws, cup=cup)
     return sim, products, split
 
 
@@ -228,7 +229,7 @@ def world_scenes(config: GenerateConfig, world: int, indices: list[int]):
     if not indices:
         return
     sim, products, split = world_sim(config, world)
-    policies = make_policies(config.policies, config.robot)
+    policies = make_policies(config.policies, config.robot, sim.arm, config.hand[0])
     try:
         photo = {}
         if config.domain_config.random_products:  # a world's own product has its own shop photos
@@ -238,7 +239,7 @@ def world_scenes(config: GenerateConfig, world: int, indices: list[int]):
             record = scene_record(scene, index, split, config)
             label_pickability(sim, scene, record, policies, rng, config.label_trials, config.label_jitter)
             if config.grasp_trials:
-                record_grasp_trials(sim, scene, record, config.grasp_trials, rng, config.gripper)
+                record_grasp_trials(sim, scene, record, config.grasp_trials, rng, config.gripper, *config.hand[:2])
             files = {**photo, f"images/{index:06d}.png": _png_bytes(scene.rgb),
                      f"depth/{index:06d}.png": _png_bytes(np.clip(scene.depth * 1000.0, 0, 65535).astype(np.uint16))}
             query = next((a for a in record["annotations"] if a["is_query"]), None)

@@ -39,6 +39,7 @@ class GenerateConfig:
     photo_views: int = 0  # randomised studio photos per product besides the canonical one (photos/<product>/<k>.png)
     robot: str = "floating"  # what the label grasps are made by: floating (the gripper alone) or panda (the arm, slower)
     gripper: str = "jaws"  # the hand's tools (jaws, suction, both): grasp trials are made with each tool it carries
+    cell: str | None = None  # a cell file (binpick.cell): its hand (tools, jaws, cup; on the arm, its tool point) makes the trials and labels
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -60,6 +61,16 @@ class GenerateConfig:
         from binpick.grippers import GRIPPERS
 
         check_choice("gripper", self.gripper, GRIPPERS)
+        object.__setattr__(self, "_cell", None)
+        if self.cell is not None:
+            from binpick.cell import load_cell
+
+            cell = load_cell(self.cell)  # a bad file: one line, now
+            cell.check_arm(self.robot)
+            if self.gripper not in ("jaws", cell.tools):  # jaws is the default: the file's tools replace it
+                raise ConfigError(f"gripper {self.gripper!r} and cell {self.cell!r} (tools {cell.tools}) disagree: give one of them")
+            object.__setattr__(self, "gripper", cell.tools)
+            object.__setattr__(self, "_cell", cell)
         if self.gripper == "suction" and self.policies:
             raise ConfigError("the labelling policies grasp with jaws: give gripper: jaws or both, or policies: [] for suction trials alone")
         if self.robot == "panda" and self.grasp_trials:
@@ -98,6 +109,8 @@ class GenerateConfig:
         data["copies"], data["distractors"] = list(self.copies), list(self.distractors)
         if not self.photo_views:  # data sets made before photo views resume as they were
             data.pop("photo_views")
+        if self.cell is None:  # and those made before cell files
+            data.pop("cell")
         if self.robot == "floating":  # data sets made before the arm resume as they were
             data.pop("robot")
         if self.gripper == "jaws":  # data sets made before the suction cup resume as they were
@@ -110,6 +123,14 @@ class GenerateConfig:
         else:
             data.pop("sensor")
         return data
+
+    @property
+    def hand(self):
+        """(jaws, cup, tcp) of the hand that makes the trials and labels: the cell file's, else binpick's own."""
+        from binpick.grippers import Jaws, SuctionCup
+
+        cell = self._cell
+        return (Jaws(), SuctionCup(), None) if cell is None else (cell.jaws, cell.cup, cell.tcp)
 
     @property
     def domain_config(self):

@@ -71,20 +71,24 @@ SUCTION_LIKELY = 6  # suction trials favour the candidates the prior ranks this 
 
 
 def record_grasp_trials(sim, scene, record: dict[str, Any], trials: int, rng: np.random.Generator,
-                        gripper: str = "jaws") -> None:
+                        gripper: str = "jaws", jaws=None, cup=None) -> None:
     """Grasp-quality data (Dex-Net 2.0's recipe, on binpick's bins): per visible instance and tool of
     the hand (``gripper``: jaws, suction or both), ``trials`` candidates from depth alone (jaws:
     :func:`binpick.grasping.grasp_candidates`, all yaws, the even-squeeze centre and random shifts;
     suction: :func:`binpick.grasping.suction.suction_candidates`, points on the instance), three in
     four drawn among the feasible ones, each executed from the saved scene state; the outcome is
     whether that instance rose and stayed in the jaws (on the cup) through a carry at the pick
-    pipeline's speed."""
+    pipeline's speed. ``jaws`` and ``cup``: the hand's geometry (a cell file's; default binpick's own),
+    which the candidates are judged with and the simulated hand has."""
     from binpick.grasping import DepthFrame, JawGripper, PinholeCamera, grasp_candidates
     from binpick.grasping.candidates import instance_surface
     from binpick.grasping.suction import analytic_probability, suction_candidates
     from binpick.grippers import tools_of
     from binpick.sim.gripper import lift_test, trial_timestep
 
+    from binpick.grippers import SuctionCup
+
+    jaws, cup = jaws or JawGripper(), cup or SuctionCup()
     frame = DepthFrame.from_depth(scene.depth, PinholeCamera.from_record(scene.camera))
     trial_ready(sim)
     results = []
@@ -97,13 +101,13 @@ def record_grasp_trials(sim, scene, record: dict[str, Any], trials: int, rng: np
             continue
         for tool in tools_of(gripper):
             if tool == "jaws":
-                _, candidates = grasp_candidates(frame, annotation["bbox"], JawGripper(), offsets=offsets, surface=surface)
+                _, candidates = grasp_candidates(frame, annotation["bbox"], jaws, offsets=offsets, surface=surface)
             else:
-                candidates = suction_candidates(frame, surface, gripper=gripper)
+                candidates = suction_candidates(frame, surface, cup, gripper=gripper, jaws=jaws)
             if not candidates:
                 continue
             feasible = [c for c in candidates if c.rejected is None]
-            likely = sorted(feasible, key=lambda c: -analytic_probability(c.seal))[:SUCTION_LIKELY] if tool == "suction" else []
+            likely = sorted(feasible, key=lambda c: -analytic_probability(c.seal, cup))[:SUCTION_LIKELY] if tool == "suction" else []
             for _ in range(trials):
                 draw = rng.random()
                 # suction: half the trials among the few the seal-and-wrench prior likes best (most suction

@@ -26,16 +26,19 @@ def check_policies(names: list[str]) -> None:
                           f"choose from {', '.join(policy_names())}")
 
 
-def make_policies(names: list[str], robot: str = "floating") -> list:
-    """The labelling policies; with ``robot="panda"`` each policy's grasp is made by the arm."""
+def make_policies(names: list[str], robot: str = "floating", arm=None, jaws=None) -> list:
+    """The labelling policies; with ``robot="panda"`` each policy's grasp is made by the arm (``arm``: the
+    :class:`binpick.sim.robot_arm.RobotArm` whose hand the world has; default binpick's own). Planned
+    policies plan for ``jaws`` (the hand's; default binpick's own)."""
     check_policies(names)
-    policies = [PlannedGrasp(n) if n in PLANNED else SCRIPTED[n]() for n in names]
+    policies = [PlannedGrasp(n, jaws) if n in PLANNED else SCRIPTED[n]() for n in names]
     if robot == "floating" or not policies:
         return policies
-    from binpick.arm import MotionPlanner
+    from binpick.arm import ArmKinematics, MotionPlanner
     from binpick.sim.gripper import TRIAL_TIMESTEP
 
-    motion = MotionPlanner(period=TRIAL_TIMESTEP)  # one cell model for all the policies
+    # one cell model for all the policies
+    motion = MotionPlanner(ArmKinematics(arm) if arm is not None else None, period=TRIAL_TIMESTEP)
     return [ArmGrasp(policy, motion) for policy in policies]
 
 
@@ -62,9 +65,9 @@ class PlannedGrasp:
     """The grasp planner as a labelling policy: ``prepare(scene)`` once per scene (depth -> points),
     then ``attempt(world, slot, offset)`` plans the instance's grasp from its box and executes it."""
 
-    def __init__(self, name: str) -> None:
+    def __init__(self, name: str, jaws=None) -> None:
         self.name = name
-        self.planner = GraspPlanner.load(name)
+        self.planner = GraspPlanner.load(name) if jaws is None else GraspPlanner.load(name, gripper=jaws)
         self._scene = None
 
     def prepare(self, scene) -> None:
