@@ -158,6 +158,8 @@ def main() -> None:
     if executed:
         result["by_category"] = category_rows(library, executed)
         result["calibration"] = calibration_rows(executed)
+    else:  # the rows' orders are not on this machine (another clone measured them): their figures stay as they were
+        result.update({key: previous[key] for key in ("by_category", "calibration") if key in previous})
     # a kept arm row keeps the floating-gripper rows it was measured beside (the same code): the arm's run
     # (--robot panda) writes both anew
     pipeline = PickPipeline(model, library, grasp=planners[policy])  # the settings every row shares

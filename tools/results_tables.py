@@ -155,12 +155,21 @@ def planning_latency() -> Row:
 
 def pick_with_panda() -> Row:
     """The same orders executed by the Panda arm; picks per hour over seen and held-out orders together."""
+    return _pick_with_arm("arm", "a Panda arm", "panda")
+
+
+def pick_with_ur5e() -> Row:
+    """The same orders executed by the UR5e arm."""
+    return _pick_with_arm("arm_ur5e", "a UR5e arm", "ur5e")
+
+
+def _pick_with_arm(key: str, name: str, robot: str) -> Row:
     file = "pick.json"
-    return Row("The same orders picked by a Panda arm (`experiments/pick.py --robot panda`): placed, seen / "
+    return Row(f"The same orders picked by {name} (`experiments/pick.py --robot {robot}`): placed, seen / "
                "held-out; picks per hour of robot time",
-               f"{percent(value(file, 'arm', 'seen', 'pick_success'))} / "
-               f"{percent(value(file, 'arm', 'held_out', 'pick_success'))}; "
-               f"{value(file, 'arm', 'picks_per_hour'):,.0f} per hour, {value(file, 'arm', 'collisions')} collisions",
+               f"{percent(value(file, key, 'seen', 'pick_success'))} / "
+               f"{percent(value(file, key, 'held_out', 'pick_success'))}; "
+               f"{value(file, key, 'picks_per_hour'):,.0f} per hour, {value(file, key, 'collisions')} collisions",
                "Dex-Net 4.0: about 300 per hour (ABB YuMi)", file)
 
 
@@ -192,7 +201,7 @@ def detector_latency() -> Row:
 
 
 ROWS: tuple[Callable[[], Row], ...] = (fetchreach_steps, arm2d_fixed_goal, arm2d_curriculum, pick_in_simulation, pick_by_hand,
-                                       pick_with_panda, plan_from_files, single_copy, planning_latency, photo_query_ap50,
+                                       pick_with_panda, pick_with_ur5e, plan_from_files, single_copy, planning_latency, photo_query_ap50,
                                        detector_latency)
 
 
