@@ -219,7 +219,8 @@ def cell_rows(model, library, policy: str, path: Path, seen: list[str], held_out
             "tcp": None if robot == "floating" else (TCP if cell.tcp is None else cell.tcp)}
     for group, products in (("seen", seen), ("held_out", held_out)):
         folder = out / f"cell_{name}_{group}"
-        summary, results = fulfil(PickPipeline(model, library, grasp=planner, gripper=cell.tools, robot=robot, tcp=cell.tcp), products,
+        summary, results = fulfil(PickPipeline(model, library, grasp=planner, gripper=cell.tools, robot=robot, tcp=cell.tcp,
+                                                mount=cell.base), products,
                                   orders, SEEDS[group], folder,
                                   on_order=report_progress(f"{name} {group}", orders), title=f"binpick: {group} ({name})")
         widths = [a.width for r in results for a in r.attempts if a.tool == "jaws" and a.width is not None]

@@ -161,3 +161,28 @@ def test_grasp_trials_are_made_and_judged_with_the_cell_files_hand(tmp_path):
     with pytest.raises(ConfigError, match="gripper 'suction' and cell") as raised:
         GenerateConfig(out=str(tmp_path / "x"), gripper="suction", policies=[], cell=str(FRANKA))
     assert "\n" not in str(raised.value)
+
+
+def test_the_arms_base_comes_from_the_cell_file_and_one_out_of_reach_is_one_line(tmp_path):
+    import mujoco
+
+    from binpick.arm import MotionPlanner
+    from binpick.core.errors import ConfigError
+
+    path = tmp_path / "cell.yaml"
+    path.write_text("gripper: {tools: jaws}\narm: {model: ur5e, base: [-0.6, 0.05, 0.0]}\n")
+    cell = load_cell(path)
+    assert cell.base == (-0.6, 0.05, 0.0)
+    planner = MotionPlanner.for_cell(cell)
+    kinematics = planner.kinematics
+    mujoco.mj_kinematics(kinematics.model, kinematics.data)
+    assert np.allclose(kinematics.data.xpos[kinematics.model.body("base").id], [-0.6, 0.05, 0.0])
+    far = tmp_path / "far.yaml"
+    far.write_text("gripper: {tools: jaws}\narm: {model: panda, base: [2.5, 0.0, 0.0]}\n")
+    with pytest.raises(ConfigError, match=r"base at \[2.5, 0.0, 0.0\] m does not reach") as raised:
+        MotionPlanner.for_cell(load_cell(far))
+    assert "\n" not in str(raised.value)
+    for text in ("arm: {model: panda, base: [1, 2]}", "arm: {model: panda, base: [0, 0, 9]}", "arm: {model: panda, base: here}"):
+        path.write_text(f"gripper: {{tools: jaws}}\n{text}\n")
+        with pytest.raises(InputFileError, match="arm.base must be"):
+            Cell.load(path)

@@ -3,14 +3,15 @@ and the tool point's offset from the flange) and the arm, read once and validate
 the jaws' stroke and fingers from it (no grasp wider than your jaws open is emitted), the simulator
 builds the same hand from it (the floating hand, or an arm carrying it at the file's tool point: the
 arm chosen by ``--robot`` must be the file's; without ``tcp`` the arm carries binpick's own hand's), and
-the reports name it; ``binpick data generate --cell`` makes grasp trials and labels with it.
+the reports name it; ``binpick data generate --cell`` makes grasp trials and labels with it. Your tote
+and table are found in your depth by ``binpick cell --frame`` (the workspace in camera.yaml).
 
     gripper:
       tools: jaws                 # jaws, suction or both
       jaws: {stroke: 0.08, finger_thickness: 0.012, finger_width: 0.02, finger_length: 0.045, margin: 0.005}
       suction: {radius: 0.015, vacuum_force: 30.0}
       tcp: 0.1034                 # the tool point's distance from the flange along its z (m)
-    arm: {model: panda}           # panda, ur5e or none (the default; its base and reach: binpick's simulated cell)
+    arm: {model: panda, base: [-0.52, 0.18, 0.0]}   # panda, ur5e or none (the default); where its base stands (m)
 
 ``binpick plan --cell cell.yaml``, ``binpick pick --cell cell.yaml [--robot panda]``; ``configs/cells/``
 has a Franka Hand and a Robotiq 2F-85 on a Panda, and a 2F-85 on a UR5e.
@@ -43,6 +44,7 @@ class Cell:
     tcp: float | None = None  # None: not given (a simulated arm carries binpick's own hand's tool point)
     arm: str = "none"
     name: str = "binpick"
+    base: tuple[float, float, float] | None = None  # the arm's base in the cell (m; the bin's centre at 0, 0, its floor near z 0)
 
     @classmethod
     def load(cls, path: str | Path) -> Cell:
@@ -71,11 +73,17 @@ class Cell:
         arm = data.get("arm") or {}
         if not isinstance(arm, dict):
             raise InputFileError(f"{where}: arm must be a mapping (model)")
-        _only(arm, {"model"}, f"{where}: arm")
+        _only(arm, {"model", "base"}, f"{where}: arm")
         model = str(arm.get("model", "none"))
         if model not in ARMS:
             raise InputFileError(f"{where}: arm.model {model!r}: choose from {', '.join(ARMS)}")
-        return cls(tools, jaws, cup, tcp, model, str(data.get("name", path.stem)))
+        base = arm.get("base")
+        if base is not None:
+            if not isinstance(base, list) or len(base) != 3 or not all(
+                    isinstance(v, (int, float)) and not isinstance(v, bool) and abs(float(v)) <= 3.0 for v in base):
+                raise InputFileError(f"{where}: arm.base must be [x, y, z] in metres, each within 3 m of the bin's centre, got {base!r}")
+            base = tuple(float(v) for v in base)
+        return cls(tools, jaws, cup, tcp, model, str(data.get("name", path.stem)), base)
 
     def check_arm(self, robot: str) -> None:
         """One line, before any work, when the arm asked for (``robot``) is not the one this file describes,

@@ -23,11 +23,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from binpick.arm.kinematics import ArmKinematics
+from binpick.core.errors import ConfigError
 from binpick.arm.trajectory import Segment, joint_move, path_move
 from binpick.sim.order_tote import ORDER_TOTE, RELEASE_HEIGHT, release_height
 from binpick.sim.mjcf import BIN_WALL_HEIGHT, FLOOR_TOP
 from binpick.grippers import SuctionCup, tool_point_below
 from binpick.sim.robot_arm import RobotArm
+
+BIN_CHECK_HEIGHT = 0.25  # m: a cell's arm must reach this far above the bin's centre, pointing down
 
 NO_IK = "no IK solution"
 COLLIDES = "arm collides on the way down"
@@ -113,8 +116,13 @@ class MotionPlanner:
         if cell is None:
             return cls(ArmKinematics(RobotArm(arm_model(arm), gripper=gripper)), period=period, gripper=gripper)
         cell.check_arm(arm)
-        robot = RobotArm(arm_model(arm), gripper=cell.tools, jaws=cell.jaws, cup=cell.cup, tcp=TCP if cell.tcp is None else cell.tcp)
-        return cls(ArmKinematics(robot), period=period, gripper=cell.tools)
+        robot = RobotArm(arm_model(arm), gripper=cell.tools, jaws=cell.jaws, cup=cell.cup, tcp=TCP if cell.tcp is None else cell.tcp,
+                         **({"mount": cell.base} if cell.base is not None else {}))
+        planner = cls(ArmKinematics(robot), period=period, gripper=cell.tools)
+        if cell.base is not None and not planner.kinematics.solve([0.0, 0.0, BIN_CHECK_HEIGHT], 0.0).ok:
+            raise ConfigError(f"cell {cell.name!r}: the {arm} with its base at {list(cell.base)} m does not reach {BIN_CHECK_HEIGHT} m "
+                              "above the bin's centre, pointing down: move arm.base nearer the bin")
+        return planner
 
     def below(self, tool: str) -> float:
         """The tool's point below the hand's origin."""

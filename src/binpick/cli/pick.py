@@ -90,7 +90,9 @@ def pick(
         library.add(replace(library[products[0]], photos=tuple(photo)))
     model = Detector.load(weights or PICKING, runtime=runtime).inference_network
     tcp = the_cell.tcp if the_cell is not None else None  # the arm carries the cell's hand at its tool point
-    _fulfil(PickPipeline(model, library, grasp=planner, robot=robot, gripper=gripper, tcp=tcp), products, orders, seed, run_dir, rerun)
+    mount = the_cell.base if the_cell is not None else None
+    _fulfil(PickPipeline(model, library, grasp=planner, robot=robot, gripper=gripper, tcp=tcp, mount=mount), products, orders, seed,
+            run_dir, rerun)
 
 
 @app.command("cell")

@@ -133,6 +133,11 @@ class GenerateConfig:
         return (Jaws(), SuctionCup(), None) if cell is None else (cell.jaws, cell.cup, cell.tcp)
 
     @property
+    def arm_base(self):
+        """Where the labelling arm's base stands: the cell file's ``arm.base`` (None: binpick's cell's place)."""
+        return None if self._cell is None else self._cell.base
+
+    @property
     def domain_config(self):
         """The :class:`binpick.sim.domain.DomainConfig` that ``domain`` names (loaded once)."""
         return self._domain

@@ -129,7 +129,7 @@ class PickPipeline:
                  verifier="learnt", check: float | None = None, oracle: bool = False, rank_from: float | None = 0.01,
                  domain=None, size_check: bool = True, sensor=None, photos: str = "catalogue",
                  copies_from_match: float | None = None, robot: str = "floating", gripper: str | None = None,
-                 look_again: bool = True, tcp: float | None = None) -> None:
+                 look_again: bool = True, tcp: float | None = None, mount: tuple[float, float, float] | None = None) -> None:
         if detector.spec.query != "photo":
             raise ConfigError("the pick pipeline conditions on shop photos: give a detector trained with query: photo")
         from binpick.grippers import tools_of
@@ -153,6 +153,7 @@ class PickPipeline:
                               "model does not follow a randomised domain or a tilted tote")
         self.robot = robot
         self.tcp = tcp  # the arm's flange to the tool point (a cell file's; None: binpick's own hand)
+        self.mount = mount  # where the arm's base stands (a cell file's; None: binpick's cell's place)
         self.motion = None  # the arm's motion planner (binpick.arm.MotionPlanner); None: the floating gripper
         if robot != "floating":
             from binpick.arm import ArmKinematics, MotionPlanner
@@ -173,7 +174,7 @@ class PickPipeline:
         from binpick.sim.robot_arm import TCP, RobotArm, arm_model
 
         return RobotArm(arm_model(self.robot), gripper=self.gripper, jaws=planner.gripper, cup=planner.cup,
-                        tcp=TCP if self.tcp is None else self.tcp)
+                        tcp=TCP if self.tcp is None else self.tcp, **({"mount": self.mount} if self.mount is not None else {}))
 
     @property
     def score_threshold(self) -> float:

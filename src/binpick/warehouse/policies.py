@@ -7,6 +7,8 @@ speed, the way the pipeline's picks are judged.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 from binpick.core.config import did_you_mean
 from binpick.core.errors import ConfigError
 from binpick.grasping import GraspPlanner, GraspPolicyName, PinholeCamera
@@ -37,8 +39,8 @@ def make_policies(names: list[str], robot: str = "floating", arm=None, jaws=None
     from binpick.arm import ArmKinematics, MotionPlanner
     from binpick.sim.gripper import TRIAL_TIMESTEP
 
-    # one cell model for all the policies
-    motion = MotionPlanner(ArmKinematics(arm) if arm is not None else None, period=TRIAL_TIMESTEP)
+    # one cell model for all the policies, with the world's arm and hand (a copy: the kinematics bind it to their own model)
+    motion = MotionPlanner(ArmKinematics(replace(arm)) if arm is not None else None, period=TRIAL_TIMESTEP)
     return [ArmGrasp(policy, motion) for policy in policies]
 
 
