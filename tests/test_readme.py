@@ -110,11 +110,12 @@ TINY_RL = {"total_timesteps": 150, "checkpoint_every": 75, "eval.every": 150, "e
            "replay.capacity_episodes": 100, "sac.batch_size": 16, "sac.net_arch": "[8,8]"}
 # (regular expression, replacement) on each command: smaller numbers, then shorter training
 TINY: list[tuple[str, str]] = [
-    (r"--scenes 20000\b", "--scenes 32"),  # randomised: 16 worlds of 2 below, two of them val
-    (r"--scenes-per-world 16\b", "--scenes-per-world 2"),
+    (r"--scenes 20000\b", "--scenes 16"),  # randomised: 16 worlds of 1 below, two of them val
+    (r"--scenes-per-world 16\b", "--scenes-per-world 1"),
     (r"--scenes 120\b", "--scenes 4"),
-    (r"--scenes 6000\b", "--scenes 16"),  # the larger fine-tuning set: two worlds
-    (r"--scenes 2000\b", "--scenes 24"),  # 3 worlds of 8: one each for val, test and train (split_rule=random)
+    (r"--scenes 6000\b", "--scenes 8 --scenes-per-world 4"),  # the larger fine-tuning set: two worlds
+    (r"--scenes 2000\b", "--scenes 12 --scenes-per-world 4"),  # 3 worlds of 4: one each for val, test and train (split_rule=random)
+    (r"--scene 12\b", "--scene 10"),  # a scene the 12 above hold
     (r"--policies x,y", "--policies y"),  # the one the rod_* configs and `data show --policy y` read
     (r"--scenes 400\b", "--scenes 4 --scenes-per-world 1 --val-fraction 0.5"),
     (r"--scenes 800\b", "--scenes 4 --scenes-per-world 1 --val-fraction 0.5"),  # grasp trials: train and val worlds
@@ -134,7 +135,7 @@ TINY: list[tuple[str, str]] = [
     (r"^(binpick grasp train configs/\S+.*)$", r"\1 --set epochs=1 --set batch_size=2 --set threads=1"),
     (r"^(binpick detect pickability configs/\S+.*)$", r"\1 --set epochs=1 --set width=4 --set threads=1"),
     (r"^(binpick detect train configs/\S+.*)$", r"\1 --set train.epochs=1 --set train.batch_size=4 --set train.workers=0 "
-                                               r"--set train.threads=1 --set data.image_size=128"),
+                                               r"--set train.threads=1 --set data.image_size=128 --set data.train_sizes=[96,128]"),
 ]
 
 
