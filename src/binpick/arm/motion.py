@@ -109,15 +109,14 @@ class MotionPlanner:
     def for_cell(cls, cell, gripper: str = "jaws", period: float = 0.004, arm: str | None = None) -> MotionPlanner:
         """``arm`` (panda or ur5e; None: the cell's, else the Panda) carrying the hand a cell file describes
         (:class:`binpick.cell.Cell`: its tools, jaws, cup and tool point; None: binpick's own hand carrying ``gripper``)."""
-        from binpick.sim.robot_arm import TCP, arm_model
+        from binpick.sim.robot_arm import arm_model
 
         if arm is None:
             arm = cell.arm if cell is not None and cell.arm != "none" else "panda"
         if cell is None:
             return cls(ArmKinematics(RobotArm(arm_model(arm), gripper=gripper)), period=period, gripper=gripper)
         cell.check_arm(arm)
-        robot = RobotArm(arm_model(arm), gripper=cell.tools, jaws=cell.jaws, cup=cell.cup, tcp=TCP if cell.tcp is None else cell.tcp,
-                         **({"mount": cell.base} if cell.base is not None else {}))
+        robot = RobotArm.carrying(arm_model(arm), cell.tools, cell.jaws, cell.cup, cell.tcp, cell.base)
         planner = cls(ArmKinematics(robot), period=period, gripper=cell.tools)
         if cell.base is not None and not planner.kinematics.solve([0.0, 0.0, BIN_CHECK_HEIGHT], 0.0).ok:
             raise ConfigError(f"cell {cell.name!r}: the {arm} with its base at {list(cell.base)} m does not reach {BIN_CHECK_HEIGHT} m "

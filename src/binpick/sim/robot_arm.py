@@ -216,6 +216,13 @@ class RobotArm:
     actuators: np.ndarray = field(default_factory=lambda: np.zeros(0, int), repr=False)
     geoms: np.ndarray = field(default_factory=lambda: np.zeros(0, int), repr=False)
 
+    @classmethod
+    def carrying(cls, model: ArmModel, gripper: str, jaws: Jaws, cup: SuctionCup, tcp: float | None = None,
+                 mount: tuple[float, float, float] | None = None) -> RobotArm:
+        """``model`` carrying a hand (a cell file's: None for its tool point or base means binpick's own)."""
+        return cls(model=model, mount=MOUNT if mount is None else tuple(mount), gripper=gripper, jaws=jaws, cup=cup,
+                   tcp=TCP if tcp is None else tcp)
+
     @property
     def name(self) -> str:
         return self.model.name

@@ -202,12 +202,9 @@ def world_sim(config: GenerateConfig, world: int, library: ProductLibrary | None
     robot = None
     jaws, cup, tcp = config.hand
     if gripper and config.robot == "panda":  # the arm makes the label grasps (it brings its own gripper)
-        from binpick.sim.robot_arm import TCP, RobotArm
+        from binpick.sim.robot_arm import PANDA, RobotArm
 
-        base = config.arm_base
-        robot = RobotArm(gripper=config.gripper, jaws=jaws, cup=cup, tcp=TCP if tcp is None else tcp,
-                         **({"mount": base} if base is not None else {}))
-        gripper = False
+        robot, gripper = RobotArm.carrying(PANDA, config.gripper, jaws, cup, tcp, config.arm_base), False
     sim = BinWorld(products[0], products[1:], max_copies=config.copies[1],
                    camera=CameraSpec(size=config.image_size), randomise_lighting=config.randomise,
                    gripper=gripper, seed=config.seed * 1_000_003 + world, domain=config.domain_config,

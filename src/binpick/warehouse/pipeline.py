@@ -171,10 +171,9 @@ class PickPipeline:
 
     def robot_arm(self, planner: GraspPlanner):
         """The arm carrying the hand ``planner`` plans for (its tools, jaws and cup) at the tool point ``tcp``."""
-        from binpick.sim.robot_arm import TCP, RobotArm, arm_model
+        from binpick.sim.robot_arm import RobotArm, arm_model
 
-        return RobotArm(arm_model(self.robot), gripper=self.gripper, jaws=planner.gripper, cup=planner.cup,
-                        tcp=TCP if self.tcp is None else self.tcp, **({"mount": self.mount} if self.mount is not None else {}))
+        return RobotArm.carrying(arm_model(self.robot), self.gripper, planner.gripper, planner.cup, self.tcp, self.mount)
 
     @property
     def score_threshold(self) -> float:
