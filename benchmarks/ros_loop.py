@@ -609,7 +609,8 @@ def main() -> None:
         hostile["camera_warnings_in_node_log"] = node_log.count("dropped a message on")
         hostile["camera_messages_dropped_at_exit"] = sum(int(n) for n, topic in re.findall(r"binpick: dropped (\d+) messages on (\S+)",
                                                                                             node_log) if topic.startswith("/camera/"))
-        print(node_log[-1500:] if "Traceback" in node_log else node_log[-400:], file=sys.stderr)
+        first = node_log.find("Traceback")  # the first one, with what the node logged just before it
+        print(node_log[max(0, first - 600):first + 2400] if first >= 0 else node_log[-400:], file=sys.stderr)
     summary = {"ros": args.ros, "goal": args.goal, "orders": len(results), "placed": sum(r.success for r in results),
                "pick_success": round(sum(r.success for r in results) / max(1, len(results)), 4),
                "latency_ms": {"median": round(float(np.median(latencies)), 1), "p95": round(float(np.percentile(latencies, 95)), 1)},
