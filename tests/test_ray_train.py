@@ -116,8 +116,6 @@ def test_one_ray_worker_trains_exactly_the_local_pickability_head(tmp_path, ray_
     remote = train_on_ray(run_dir, PICKABILITY, workers=1)
     assert remote["history"] == local["history"]  # losses and val AUCs, to the last digit
     assert (run_dir / "windows.safetensors").is_file() and (run_dir / "model.safetensors").is_file()
-    again = train_on_ray(run_dir, PICKABILITY, workers=2)  # finished: two workers resume it and change nothing
-    assert again["history"] == local["history"]
 
 
 @pytest.mark.slow

@@ -9,7 +9,9 @@ cut-out RGBA or not) so a detector trained on randomised photos does not learn o
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -71,7 +73,37 @@ def _fmt(values) -> str:
 def shop_photo(product: Product, size: int = 256, with_mask: bool = False, style: PhotoStyle = CANONICAL):
     """(size, size, 3) uint8: the product resting upright on the studio floor, taken as ``style`` says
     ((size, size, 4) for a cut-out style, alpha 255 on the product). With ``with_mask``, also the
-    (size, size) bool mask of the product's pixels."""
+    (size, size) bool mask of the product's pixels.
+
+    A photo is rendered once per process and copied after that (:data:`PHOTO_CACHE` of them): the same
+    product in the same studio is the same picture, and every data set, order and export takes every
+    product's photos again. Most of a photo's cost is the renderer's set-up (its textures uploaded), not
+    the picture. A product whose mesh or texture file changed on disk is rendered again."""
+    files = tuple((str(path), *_stamp(path)) for path in (product.mesh, product.texture) if path is not None)
+    photo = _cached_photo(product, size, with_mask, style, files)
+    return tuple(part.copy() for part in photo) if isinstance(photo, tuple) else photo.copy()
+
+
+PHOTO_CACHE = 256  # photos kept per process (a 256 px cut-out and its mask: about 330 kB; 85 MB at most)
+
+
+def _stamp(path: Path) -> tuple[int, int]:
+    try:
+        stat = Path(path).stat()
+    except OSError:  # rendering says what is missing
+        return (-1, -1)
+    return (stat.st_mtime_ns, stat.st_size)
+
+
+@functools.lru_cache(maxsize=PHOTO_CACHE)
+def _cached_photo(product: Product, size: int, with_mask: bool, style: PhotoStyle, files: tuple):
+    photo = _render_photo(product, size, with_mask, style)
+    for part in photo if isinstance(photo, tuple) else (photo,):
+        part.setflags(write=False)  # what the cache holds is never handed out itself
+    return photo
+
+
+def _render_photo(product: Product, size: int, with_mask: bool, style: PhotoStyle):
     tint = np.asarray(style.tint)
     floor_texture = ('<texture name="studio_tex" type="2d" builtin="flat" rgb1="1 1 1" width="64" height="64"/>'
                      '<material name="studio" texture="studio_tex" texrepeat="4 4" rgba="1 1 1 1"/>'
