@@ -569,32 +569,40 @@ train: {{epochs: 2, batch_size: 2, lr: 0.002, warmup_steps: 2, eval_every: 2, wo
         assert torch.allclose(a.float(), b.float(), atol=1e-5), name  # the same weights as the run never killed
 
 
-def test_a_shop_photo_is_rendered_once_per_process_and_again_when_its_mesh_changes(tmp_path):
+def test_a_shop_photo_is_rendered_once_and_again_when_its_mesh_changes(tmp_path, monkeypatch):
     """Every data set, order and export takes every product's photos again: the second one is the first
-    one's copy (one changed by its caller changes nothing), and a product whose mesh file changed on disk
-    is rendered again."""
+    one's copy (one changed by its caller changes nothing), another process reads a catalogue photo from
+    the cache folder, a damaged cache file is rendered again, and a product whose mesh file changed on
+    disk is rendered again."""
     import os
 
     from binpick.sim import photos
     from binpick.sim.products import Product
     from test_own_products import write_box
 
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
     mesh = tmp_path / "box.obj"
     write_box(mesh, 0.09, 0.05, 0.03)
     product = Product(id="mine/box", category="box", mesh=mesh, rgba=(0.8, 0.2, 0.2, 1.0))
     rendered = []
     real = photos._render_photo
-    photos._render_photo = lambda *args: rendered.append(args) or real(*args)
-    try:
-        first = photos.shop_photo(product, 48)
-        first[:] = 0  # the caller's copy
-        second = photos.shop_photo(product, 48)
-        assert len(rendered) == 1 and second.max() > 0 and second.flags.writeable
-        image, mask = photos.shop_photo(product, 48, with_mask=True)  # another picture: rendered
-        assert len(rendered) == 2 and mask.any() and (image == second).all()
-        write_box(mesh, 0.03, 0.05, 0.09)  # the user's mesh changed: rendered again, and it shows
-        os.utime(mesh, ns=(mesh.stat().st_atime_ns, mesh.stat().st_mtime_ns + 10**9))
-        third = photos.shop_photo(product, 48)
-        assert len(rendered) == 3 and not (third == second).all()
-    finally:
-        photos._render_photo = real
+    monkeypatch.setattr(photos, "_render_photo", lambda *args: rendered.append(args) or real(*args))
+    first = photos.shop_photo(product, 48)
+    first[:] = 0  # the caller's copy
+    second = photos.shop_photo(product, 48)
+    assert len(rendered) == 1 and second.max() > 0 and second.flags.writeable
+    (kept,) = (tmp_path / "cache" / "binpick" / "photos").glob("*.npz")
+    photos._cached_photo.cache_clear()  # as another process: read from the cache folder, not rendered
+    assert (photos.shop_photo(product, 48) == second).all() and len(rendered) == 1
+    kept.write_bytes(b"not an archive")
+    photos._cached_photo.cache_clear()
+    assert (photos.shop_photo(product, 48) == second).all() and len(rendered) == 2  # rendered again, and kept again
+    image, mask = photos.shop_photo(product, 48, with_mask=True)  # another picture: rendered
+    assert len(rendered) == 3 and mask.any() and (image == second).all()
+    write_box(mesh, 0.03, 0.05, 0.09)  # the user's mesh changed: rendered again, and it shows
+    os.utime(mesh, ns=(mesh.stat().st_atime_ns, mesh.stat().st_mtime_ns + 10**9))
+    third = photos.shop_photo(product, 48)
+    assert len(rendered) == 4 and not (third == second).all()
+    random_studio = photos.random_photo_style(np.random.default_rng(0))  # not a catalogue view: not kept on disk
+    photos.shop_photo(product, 48, style=random_studio)
+    assert len(list((tmp_path / "cache" / "binpick" / "photos").glob("*.npz"))) == 3

@@ -106,6 +106,16 @@ def atomic_write_json(path: str | Path, data: Any, indent: int | None = 2) -> Pa
     return atomic_write_text(path, json.dumps(data, indent=indent))
 
 
+def cache_folder(name: str) -> Path:
+    """binpick's cache folder ``name`` ($XDG_CACHE_HOME/binpick/NAME, ~/.cache without it, the temporary
+    folder without a home): what binpick can make again, kept so that it is made once."""
+    try:
+        root = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    except RuntimeError:  # no home directory (a service account)
+        root = Path(tempfile.gettempdir())
+    return root / "binpick" / name
+
+
 # ---------------------------------------------------------------------- reading
 MAX_FILE_BYTES = 2 << 30  # 2 GiB: no file binpick reads whole is larger (data sets are read file by file)
 MAX_IMAGE_PIXELS = 80_000_000  # decoded pixels: 10000 x 8000 (below PIL's own bomb warning, 89 million)

@@ -156,13 +156,9 @@ def cache_name(network: DetectorNetwork) -> str:
 def cached_export(network: DetectorNetwork) -> Path:
     """The network's ONNX file in binpick's cache ($XDG_CACHE_HOME/binpick/onnx, keyed by the weights'
     digest), exported on first use (seconds)."""
-    try:
-        root = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
-    except RuntimeError:  # no home directory (a service account)
-        import tempfile
+    from binpick.core.files import cache_folder
 
-        root = Path(tempfile.gettempdir())
-    cache = root / "binpick" / "onnx"
+    cache = cache_folder("onnx")
     path = cache / cache_name(network)
     if not path.is_file():
         from binpick.core.files import ensure_dir

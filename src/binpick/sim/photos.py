@@ -97,10 +97,80 @@ def _stamp(path: Path) -> tuple[int, int]:
 
 @functools.lru_cache(maxsize=PHOTO_CACHE)
 def _cached_photo(product: Product, size: int, with_mask: bool, style: PhotoStyle, files: tuple):
-    photo = _render_photo(product, size, with_mask, style)
+    kept = _kept_on_disk(product, size, with_mask, style, files)
+    photo = kept.read() if kept is not None else None
+    if photo is None:
+        photo = _render_photo(product, size, with_mask, style)
+        if kept is not None:
+            kept.write(photo)
     for part in photo if isinstance(photo, tuple) else (photo,):
         part.setflags(write=False)  # what the cache holds is never handed out itself
     return photo
+
+
+# what a photo's pixels depend on besides its product and style: the renderer and binpick's scene code
+RENDERING_CODE = ("photos.py", "mjcf.py", "mjcf_mesh.py", "domain.py", "products.py")
+
+
+@functools.cache
+def _rendering_digest() -> str:
+    import hashlib
+
+    digest = hashlib.sha256(mujoco.__version__.encode())
+    for name in RENDERING_CODE:
+        path = Path(__file__).with_name(name)
+        digest.update(path.read_bytes() if path.is_file() else name.encode())
+    return digest.hexdigest()[:16]
+
+
+class _DiskPhoto:
+    """A catalogue photo kept in binpick's cache folder (``photos``), so that other processes (each data
+    set made, each order run) read it instead of rendering it again. Its name is the digest of all the
+    picture depends on: the product (its files' sizes and times), the style, the size, MuJoCo's version
+    and binpick's rendering code. A file that cannot be read is rendered again and replaced."""
+
+    def __init__(self, path: Path, with_mask: bool) -> None:
+        self.path, self.with_mask = path, with_mask
+
+    def read(self):
+        from binpick.core.errors import BinpickError
+        from binpick.core.files import read_npz
+
+        if not self.path.is_file():
+            return None
+        try:
+            arrays = read_npz(self.path, "cached photo")
+            image = arrays["image"]
+            return (image, arrays["mask"].astype(bool)) if self.with_mask else image
+        except (BinpickError, KeyError, OSError, ValueError):
+            return None
+
+    def write(self, photo) -> None:
+        import io
+
+        from binpick.core.errors import BinpickError
+        from binpick.core.files import atomic_write_bytes
+
+        image, mask = photo if self.with_mask else (photo, None)
+        buffer = io.BytesIO()
+        np.savez_compressed(buffer, image=image, **({"mask": mask} if mask is not None else {}))
+        try:
+            atomic_write_bytes(self.path, buffer.getvalue())
+        except (BinpickError, OSError):  # a read-only or full cache folder: the photo is only not kept
+            pass
+
+
+def _kept_on_disk(product: Product, size: int, with_mask: bool, style: PhotoStyle, files: tuple) -> _DiskPhoto | None:
+    """Where a catalogue photo (a catalogue view of a product with its own files or a primitive shape) is
+    kept; None for others: a randomised studio, or a domain-randomised product, is taken once."""
+    if style not in CATALOGUE_VIEWS or product.pattern is not None:
+        return None
+    import hashlib
+
+    from binpick.core.files import cache_folder
+
+    key = repr((product, size, with_mask, style, files, _rendering_digest()))
+    return _DiskPhoto(cache_folder("photos") / f"{hashlib.sha256(key.encode()).hexdigest()[:32]}.npz", with_mask)
 
 
 def _render_photo(product: Product, size: int, with_mask: bool, style: PhotoStyle):
