@@ -324,9 +324,11 @@ def train_verifier(config: VerifierTrainConfig, callback: RunCallback = SILENT) 
         optimiser.load_state_dict(state["optimiser"])
         schedule.load_state_dict(state["schedule"])
         history, start = meta["history"], int(meta["epoch"])
-    rng = np.random.default_rng([config.seed, start])
     with callback.task("verifier epochs", config.epochs, done=start) as task:
         for epoch in range(start, config.epochs):
+            # each epoch's shuffle and augmentation from its own seed: a resumed run goes on exactly as the
+            # uninterrupted run (one generator for the whole run would restart at the resumed epoch)
+            rng = np.random.default_rng([config.seed, epoch])
             net.train()
             order = rng.permutation(len(train.windows))
             total, started = 0.0, time.perf_counter()

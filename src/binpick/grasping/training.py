@@ -232,7 +232,6 @@ class QualityTrainer:
         if len(train) < config.batch_size or len(val) == 0:
             raise ConfigError(f"{config.data!r} has {len(train)} train and {len(val)} val trials: "
                               f"too few (more scenes, or a larger --grasp-trials)")
-        rng = np.random.default_rng([config.seed, self.epoch])
         positive = float(train.labels.mean())
         weight = torch.tensor((1 - positive) / max(positive, 1e-3) if config.balance else 1.0)
         loss_fn = nn.BCEWithLogitsLoss(pos_weight=weight)
@@ -242,6 +241,9 @@ class QualityTrainer:
         try:
             with callback.task(f"{config.tool} quality ({len(train)} trials)", config.epochs, self.epoch) as task:
                 while self.epoch < config.epochs:
+                    # each epoch's shuffle and flips from its own seed: a run resumed at any epoch goes on
+                    # exactly as the uninterrupted run (one generator for the whole run would restart there)
+                    rng = np.random.default_rng([config.seed, self.epoch])
                     net = self.quality.net.train()
                     order = torch.from_numpy(rng.permutation(len(train)))
                     losses = []
