@@ -54,11 +54,11 @@ def train_rl_run(config: dict, root: Path) -> Path:
 # for a long test the other picked up late.
 LONG_FIRST = ("test_readme.py::test_every_readme_block_runs_on_tiny_settings",
               "test_readme.py::test_each_standalone_readme_command_runs_on_tiny_settings",
-              "test_ray_train.py::test_two_workers_share_the_steps_and_a_killed_worker_is_replaced",
+              "test_ray_train.py::test_two_workers_take_the_local_grasp_quality_run_s_steps_and_a_killed_worker_is_replaced",
               "test_ray_train.py::test_one_ray_worker_trains_exactly_the_local_pickability_head",
               "test_april.py::test_april_pipeline_runs_resumes_and_deploys_from_pixels",
               "test_distributed.py::test_a_killed_driver_resumes_on_ray_with_the_steps_and_evaluations_of_an_uninterrupted_run",
-              "test_ray_train.py::test_two_workers_take_the_local_grasp_quality_run_s_steps",
+              "test_ray_train.py::test_two_ray_workers_share_the_local_detector_run_s_steps",
               "test_a3c.py::test_a3c_run_with_curriculum_resumes_and_evaluates")
 
 
