@@ -605,4 +605,12 @@ def test_a_shop_photo_is_rendered_once_and_again_when_its_mesh_changes(tmp_path,
     assert len(rendered) == 4 and not (third == second).all()
     random_studio = photos.random_photo_style(np.random.default_rng(0))  # not a catalogue view: not kept on disk
     photos.shop_photo(product, 48, style=random_studio)
+    from dataclasses import replace
+
+    from binpick.sim.products import RANDOM_ID_PREFIX
+
+    photos.shop_photo(replace(product, id=f"{RANDOM_ID_PREFIX}000001_0"), 48)  # one world's product: taken once
     assert len(list((tmp_path / "cache" / "binpick" / "photos").glob("*.npz"))) == 3
+    monkeypatch.setenv("XDG_CACHE_HOME", str(mesh))  # a cache "folder" that is a file: rendered, not kept, no error
+    photos._cached_photo.cache_clear()
+    assert (photos.shop_photo(product, 48) == third).all() and len(rendered) == 7

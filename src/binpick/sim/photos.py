@@ -10,6 +10,7 @@ cut-out RGBA or not) so a detector trained on randomised photos does not learn o
 from __future__ import annotations
 
 import functools
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -17,7 +18,7 @@ import mujoco
 import numpy as np
 
 from binpick.sim.mjcf import product_assets, product_geom
-from binpick.sim.products import Product
+from binpick.sim.products import RANDOM_ID_PREFIX, Product
 
 
 @dataclass(frozen=True)
@@ -116,7 +117,7 @@ RENDERING_CODE = ("photos.py", "mjcf.py", "mjcf_mesh.py", "domain.py", "products
 def _rendering_digest() -> str:
     import hashlib
 
-    digest = hashlib.sha256(mujoco.__version__.encode())
+    digest = hashlib.sha256(f"{mujoco.__version__} {os.environ.get('MUJOCO_GL', '')}".encode())  # the GL backend rasterises
     for name in RENDERING_CODE:
         path = Path(__file__).with_name(name)
         digest.update(path.read_bytes() if path.is_file() else name.encode())
@@ -136,9 +137,9 @@ class _DiskPhoto:
         from binpick.core.errors import BinpickError
         from binpick.core.files import read_npz
 
-        if not self.path.is_file():
-            return None
         try:
+            if not self.path.is_file():  # (a folder it may not search raises here too)
+                return None
             arrays = read_npz(self.path, "cached photo")
             image = arrays["image"]
             return (image, arrays["mask"].astype(bool)) if self.with_mask else image
@@ -163,7 +164,7 @@ class _DiskPhoto:
 def _kept_on_disk(product: Product, size: int, with_mask: bool, style: PhotoStyle, files: tuple) -> _DiskPhoto | None:
     """Where a catalogue photo (a catalogue view of a product with its own files or a primitive shape) is
     kept; None for others: a randomised studio, or a domain-randomised product, is taken once."""
-    if style not in CATALOGUE_VIEWS or product.pattern is not None:
+    if style not in CATALOGUE_VIEWS or product.pattern is not None or product.id.startswith(RANDOM_ID_PREFIX):
         return None
     import hashlib
 

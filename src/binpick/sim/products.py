@@ -392,6 +392,9 @@ def random_pool_shape(product_id: str, rng: np.random.Generator, scale: float = 
     return None
 
 
+RANDOM_ID_PREFIX = "random/"  # ids of the products that exist for one world of a randomised data set
+
+
 def random_product(product_id: str, rng: np.random.Generator, seen: list[Product], pool: str,
                    scale: tuple[float, float] = (1.0, 1.0)) -> Product:
     """A "product" that exists for one world of a randomised data set: a random pybullet shape or a

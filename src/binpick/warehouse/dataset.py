@@ -106,12 +106,12 @@ def _write_png(path: Path, array: np.ndarray) -> None:
 def random_world_products(config: GenerateConfig, library: ProductLibrary, world: int) -> list:
     """A randomised world's own products (target first, then distractors), made for it alone: a
     domain with ``random_products`` sees thousands of distinct products over a data set."""
-    from binpick.sim.products import random_product
+    from binpick.sim.products import RANDOM_ID_PREFIX, random_product
 
     domain = config.domain_config
     rng = np.random.default_rng([config.seed, world, 7])
     seen = [p for p in library if p.category not in config.held_out_categories]
-    return [random_product(f"random/{world:06d}_{k}", rng, seen, domain.textures, domain.product_scale)
+    return [random_product(f"{RANDOM_ID_PREFIX}{world:06d}_{k}", rng, seen, domain.textures, domain.product_scale)
             for k in range(1 + config.distractors[1])]
 
 
