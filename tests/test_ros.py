@@ -51,6 +51,49 @@ def test_fetch_reach_episodes_through_the_bridge_and_a_missing_server_is_one_lin
             server.wait(timeout=20)
 
 
+SHUTDOWN = """
+import json
+import numpy as np
+import rospy
+from binpick.envs import make
+from binpick.integrations.ros1 import init_node_within
+from binpick.integrations.ros1.pick_node import PickNode
+from binpick.integrations.ros1.server import EnvActionServer
+from binpick.picking.node import PlanRequests
+
+init_node_within("binpick_shutdown_order", 10.0, signals=False)
+nodes = {"pick node": PickNode(PlanRequests.with_catalogue(None), np.eye(4), "world", "/test/plan_pick"),
+         "env server": EnvActionServer(make("binpick/FetchReach-v0"), "/test/reach")}
+seen = {}
+
+def when_topics_close(reason):  # a pre-shutdown hook: rospy's own one is closing the node's topics
+    seen.update({name: node.server.started for name, node in nodes.items()})  # False: its status timer publishes nothing
+    seen["drop report timer"] = nodes["pick node"].timer.is_alive()
+    seen["is_shutdown"] = rospy.is_shutdown()
+
+rospy.core.add_preshutdown_hook(when_topics_close)
+rospy.signal_shutdown("test")
+print(json.dumps(seen))
+"""
+
+
+def test_nodes_stop_their_timers_and_action_servers_before_rospy_closes_their_topics():
+    """rospy closes a node's topics while ``is_shutdown()`` is still false: an action server's status
+    timer (or the pick node's drop report) that published then died in its thread with "publish() to a
+    closed topic", a traceback in the node's log. Both nodes stop them first (``rospy.on_shutdown``)."""
+    from binpick.integrations.ros1.master import RosMaster
+
+    with RosMaster() as master:
+        ran = subprocess.run([sys.executable, "-c", SHUTDOWN], env=master.environment, capture_output=True, text=True, timeout=120)
+    assert ran.returncode == 0, ran.stderr[-3000:]
+    seen = json.loads(ran.stdout.strip().splitlines()[-1])
+    assert seen["is_shutdown"] is False  # the hook ran in the window in which the timers used to publish
+    for name in ("pick node", "env server"):
+        assert seen[name] is False, (name, seen)
+    assert seen["drop report timer"] is False
+    assert "Traceback" not in ran.stderr, ran.stderr[-3000:]
+
+
 EASY_BINS = "robosuite/can,pybullet/duck"  # seeds 0 and 1: placed at the first grasp
 
 

@@ -60,6 +60,16 @@ def init_node_within(name: str, timeout: float, signals: bool = True) -> None:
             signal.signal(number, lambda signum, frame: rospy.signal_shutdown(f"signal {signum}"))
 
 
+def stop_timer(timer, wait: float = 1.0) -> None:
+    """Stop a ``rospy.Timer`` and wait (at most ``wait`` seconds) for a callback it is running to end,
+    so that nothing it publishes meets a topic rospy is closing."""
+    import threading
+
+    timer.shutdown()
+    if timer is not threading.current_thread():
+        timer.join(wait)
+
+
 def ros_missing() -> str | None:
     """Why the bridge cannot run here, or None when it can."""
     try:

@@ -19,7 +19,7 @@ from binpick.picking.camera_info import CameraInfo
 from binpick.picking.node import Guard, PlanRequests, Topics, colour_of, depth_of, describe, image_array, image_fields, photo_of
 from binpick.picking.scene_messages import camera_frame_pose, grasp_frame_poses, grasp_markers
 from binpick.integrations.ros_messages import marker_array, pose_array, pose_of, tf_message
-from binpick.integrations.ros1 import init_node_within, master_uri, require_ros, wait_for_master
+from binpick.integrations.ros1 import init_node_within, master_uri, require_ros, stop_timer, wait_for_master
 
 
 def stamp_seconds(header) -> float:
@@ -81,6 +81,8 @@ class PickNode:
         self.server = actionlib.ActionServer(self.namespace, self.types["PlanPickAction"], self._on_goal, auto_start=False)
         self.server.start()
         self.stamps: dict[float, object] = {}
+        self.stopped = False
+        rospy.on_shutdown(self.stop)
 
     def _report_drops(self, _event=None) -> None:
         counts = self.guard.report()
@@ -143,8 +145,15 @@ class PickNode:
         self.overlay.publish(message)
 
     def stop(self) -> None:
-        self.timer.shutdown()
-        self.server.stop()
+        """Stop the timers, the action server and the subscribers, once. rospy runs it first when it
+        shuts down (``on_shutdown``): it closes the node's topics before ``is_shutdown()`` turns true, and
+        a timer that published in between (actionlib's status, the drop report) died in its thread
+        with "publish() to a closed topic"."""
+        if self.stopped:
+            return
+        self.stopped = True
+        stop_timer(self.timer)
+        self.server.stop()  # under the server's lock: a status being published is finished first
         for subscriber in self.subscribers:
             subscriber.unregister()
 

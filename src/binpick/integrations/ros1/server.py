@@ -47,6 +47,8 @@ class EnvActionServer:
         self.server = actionlib.ActionServer(self.namespace, self.types["EnvAction"], self._on_goal, auto_start=False)
         self.server.start()
         self.goals = 0
+        self.stopped = False
+        rospy.on_shutdown(self.stop)  # rospy's first step when it shuts down, before it closes the topics
 
     def _result(self, observation, reward: float, terminated: bool, truncated: bool, info: dict):
         result = self.types["EnvResult"]()
@@ -82,7 +84,11 @@ class EnvActionServer:
             handle.set_aborted(text=f"{type(error).__name__}: {error}")
 
     def stop(self) -> None:
-        self.server.stop()  # before rospy shuts down, or its status timer outlives the node
+        """Stop the action server once, before rospy closes its topics (its status timer published into
+        a closed topic and died in its thread otherwise)."""
+        if not self.stopped:
+            self.stopped = True
+            self.server.stop()
 
 
 def serve(env_id: str, namespace: str, node_name: str = "binpick_env_server", master_timeout: float = 10.0,
