@@ -123,3 +123,86 @@ def test_the_picker_refuses_an_unknown_check_and_mismatched_photo_masks():
     assert len(as_photos([photo, photo], None)) == 2
     with pytest.raises(ConfigError, match="one product mask per photo"):
         as_photos([photo, photo], [None])
+
+
+def test_detections_are_asked_of_each_other_in_one_batch_as_the_check_asks_a_photo():
+    """``pairwise`` shows each window to the check as a photo (its standing pixels as the mask): one batch
+    gives what the pair-by-pair calls give; copies of a red block agree more than a red and a blue one."""
+    import torch
+
+    from binpick.detection import verifier as V
+
+    verifier = V.ProductVerifier.load()
+    rgb = np.full((160, 240, 3), 90, np.uint8)
+    depth = np.full((160, 240), 0.8, np.float32)
+    boxes = [[20, 30, 40, 40], [90, 30, 40, 40], [160, 30, 40, 40], [90, 100, 40, 40]]
+    for (x, y, w, h), colour in zip(boxes, [(200, 40, 40), (205, 45, 35), (30, 40, 200), (198, 38, 42)]):
+        rgb[y:y + h, x:x + w] = colour
+        depth[y:y + h, x:x + w] = 0.74
+    depth[:4] = 0.0  # holes
+    same = verifier.pairwise(rgb, depth, boxes)
+    windows = [V.centre(V.window_input(rgb, depth, box)) for box in boxes]
+    photos = [np.dstack([w[..., :3], np.where(V.window_mask(w), 255, 0).astype(np.uint8)]) for w in windows]
+    light = V.illuminant(rgb)
+    with torch.no_grad():
+        one_by_one = np.stack([torch.sigmoid(verifier.net(V.to_tensor(photo[None]), V.to_tensor(np.stack(windows)), torch.from_numpy(
+            np.stack([V.colour_features(photo, w, light) for w in windows])))).numpy() for photo in photos])
+    expected = (one_by_one + one_by_one.T) / 2
+    np.fill_diagonal(expected, 1.0)
+    assert same == pytest.approx(expected, abs=1e-5) and np.array_equal(same, same.T)
+    assert min(same[0, 1], same[0, 3], same[1, 3]) > max(same[0, 2], same[1, 2], same[3, 2])  # the reds agree, the blue stands apart
+    assert verifier.pairwise(rgb, depth, boxes[:1]).shape == (1, 1)
+
+
+def test_copies_that_agree_rank_above_a_look_alike_the_photo_check_passes():
+    from binpick.picking.agreement import rank_by_support, support
+
+    # 0, 1, 2: copies (they agree); 3: a look-alike with the best detector score; 4: its twin, not the product
+    pairwise = np.array([[1, .99, .98, .80, .78], [.99, 1, .99, .79, .80], [.98, .99, 1, .81, .80],
+                         [.80, .79, .81, 1, .99], [.78, .80, .80, .99, 1]])
+    same = np.array([.99, .99, .99, .95, .30])
+    backing = support(pairwise, same)
+    assert backing[3] == pytest.approx(.81 * .99) and backing[0] == pytest.approx(.99 * .99)  # the twin lends 0.3 at most
+    ranked = [(np.array([10.0 * i, 0, 5, 5]), score, p) for i, (score, p) in enumerate(zip([.80, .70, .60, .90, .85], same))]
+    ranked.sort(key=lambda c: -c[1] * c[2])  # the check's ranking: the look-alike first
+    assert ranked[0][0][0] == 30
+    by_support = rank_by_support(ranked, lambda boxes: pairwise[np.ix_(boxes[:, 0].astype(int) // 10, boxes[:, 0].astype(int) // 10)])
+    assert [int(box[0]) // 10 for box, _, _ in by_support][:3] == [0, 1, 2]
+    assert rank_by_support(ranked, None, windows=1) == ranked  # one compared: nothing to agree with
+    unchecked = [(box, score, None) for box, score, _ in ranked]
+    assert rank_by_support(unchecked, None) == unchecked
+    assert support(np.ones((1, 1)), np.array([.5])).tolist() == [1.0]
+
+
+def test_in_a_bin_of_copies_the_first_plan_is_a_copy_not_the_same_coloured_look_alike():
+    """A seen product's bin in which the detector scores a same-coloured other product (a green shape
+    among green-and-white cylinders) above the copies and the photo check passes it (0.96): asked of
+    each other, the copies agree and the look-alike does not, and the first plan is a copy."""
+    from binpick.detection import Detector
+    from binpick.detection.detector import PICKING
+    from binpick.grasping import GraspPlanner
+    from binpick.sim import default_library
+    from binpick.warehouse.pipeline import PickPipeline
+
+    library = default_library()
+    pipeline = PickPipeline(Detector.load(PICKING).inference_network, library, grasp=GraspPlanner.load("learnt", hand="jaws"))
+    world, rng = pipeline.build_world("procedural/cylinder_16", 10_011)
+    try:
+        scene = pipeline.settle(world, rng, 10_011)
+    finally:
+        world.close()
+
+    def first_lift(agreement):
+        pipeline.picker.agreement = agreement
+        plans = pipeline.plan(scene, "procedural/cylinder_16")
+        x, y, w, h = plans[0].box
+
+        def overlap(instance) -> float:
+            ix, iy, iw, ih = instance.bbox
+            return max(0.0, min(x + w, ix + iw) - max(x, ix)) * max(0.0, min(y + h, iy + ih) - max(y, iy))
+
+        return max(scene.instances, key=overlap).product_id, plans.timing_ms
+
+    product, timing = first_lift(4.0)
+    assert product == "procedural/cylinder_16" and "agree" in timing
+    assert first_lift(None)[0] != "procedural/cylinder_16"  # without it the look-alike came first

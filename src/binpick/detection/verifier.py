@@ -166,9 +166,16 @@ class VerifierNet(nn.Module):
 
     def logits(self, photo_features: torch.Tensor, window: torch.Tensor, colour: torch.Tensor) -> torch.Tensor:
         """``colour``: (N, COLOUR_FEATURES) from :func:`colour_features`."""
-        w = self.colour(window[:, :3])
-        p = photo_features.expand(len(w), -1) if len(photo_features) == 1 else photo_features
-        joined = torch.cat([p, w, p * w, (p - w).abs(), self.heights(window[:, 3:]), self.evidence(colour)], 1)
+        return self.joined_logits(photo_features, *self.window_features(window), colour)
+
+    def window_features(self, window: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The windows' colour and height towers (computed once, compared with every photo)."""
+        return self.colour(window[:, :3]), self.heights(window[:, 3:])
+
+    def joined_logits(self, photo_features: torch.Tensor, looks: torch.Tensor, heights: torch.Tensor,
+                      colour: torch.Tensor) -> torch.Tensor:
+        p = photo_features.expand(len(looks), -1) if len(photo_features) == 1 else photo_features
+        joined = torch.cat([p, looks, p * looks, (p - looks).abs(), heights, self.evidence(colour)], 1)
         return self.head(joined)[:, 0] / self.temperature
 
     def forward(self, photo: torch.Tensor, window: torch.Tensor, colour: torch.Tensor) -> torch.Tensor:
@@ -203,6 +210,35 @@ class ProductVerifier:
         return tensorfile.save(path, FORMAT, tensors=self.net.state_dict(), meta={"width": self.net.width, **self.meta, **(meta or {})})
 
     @torch.no_grad()
+    def pairwise(self, rgb: np.ndarray, depth: np.ndarray, boxes) -> np.ndarray:
+        """P(same product) between every two boxes of one frame, (n, n), symmetric, 1 on the diagonal:
+        each box's window is shown to the check as if it were the shop photo (its colours, its pixels
+        standing above the window's floor as the product's mask), both ways round, averaged. Copies of
+        one product in a bin agree with each other; a look-alike of another product agrees with few.
+        One batch: each window's towers and histograms once, the head on every pair."""
+        boxes = np.asarray(boxes, dtype=float).reshape(-1, 4)
+        n = len(boxes)
+        if n < 2:
+            return np.ones((n, n))
+        windows = [centre(window_input(rgb, depth, box)) for box in boxes]
+        light = illuminant(rgb)
+        masks = [window_mask(w) for w in windows]
+        raw = np.stack([histogram(w[..., :3], m) for w, m in zip(windows, masks)])  # a window as photo: its own pixels
+        balanced = np.stack([histogram(np.clip(w[..., :3].astype(np.float32) / light, 0, 255).astype(np.uint8), m)
+                             for w, m in zip(windows, masks)])
+        first, second = (index.ravel() for index in np.meshgrid(np.arange(n), np.arange(n), indexing="ij"))
+        colour = np.concatenate([raw[first], raw[second], balanced[second],
+                                 np.minimum(raw[first], raw[second]).sum(1, keepdims=True),
+                                 np.minimum(raw[first], balanced[second]).sum(1, keepdims=True),
+                                 np.repeat(light[None], n * n, 0)], 1).astype(np.float32)
+        looks, heights = self.net.window_features(to_tensor(np.stack(windows)))
+        logits = self.net.joined_logits(looks[first], looks[second], heights[second], torch.from_numpy(colour))
+        same = torch.sigmoid(logits).numpy().astype(float).reshape(n, n)
+        same = (same + same.T) / 2
+        np.fill_diagonal(same, 1.0)
+        return same
+
+    @torch.no_grad()
     def probabilities(self, photos, photo_masks, rgb: np.ndarray, depth: np.ndarray, boxes) -> np.ndarray:
         """P(same product) for each box (x, y, w, h) against the best-matching of the ``photos`` (one
         photo, or a list of views of the product; ``photo_masks`` likewise, None entries: found from the
@@ -218,9 +254,9 @@ class ProductVerifier:
         photo_arrays = [photo_input(p, m) for p, m in zip(photos, masks)]
         window_arrays = [centre(window_input(rgb, depth, box)) for box in boxes]
         light = illuminant(rgb)
-        windows = to_tensor(np.stack(window_arrays))
+        looks, heights = self.net.window_features(to_tensor(np.stack(window_arrays)))  # once for every photo
         features = self.net.embed_photo(to_tensor(np.stack(photo_arrays)))
-        best = torch.stack([self.net.logits(f[None], windows, torch.from_numpy(np.stack([colour_features(photo, w, light)
-                                                                                         for w in window_arrays])))
+        best = torch.stack([self.net.joined_logits(f[None], looks, heights, torch.from_numpy(np.stack([
+                                colour_features(photo, w, light) for w in window_arrays])))
                             for f, photo in zip(features, photo_arrays)]).amax(0)
         return torch.sigmoid(best).numpy().astype(float)

@@ -28,6 +28,7 @@ from binpick.core.errors import ConfigError, InputFileError
 from binpick.grasping import DepthFrame, GraspChoice, GraspPlanner, PinholeCamera
 from binpick.grasping.planner import GraspPolicyName
 from binpick.grasping.push import PUSH_WHEN_BELOW, plan_push
+from binpick.picking.agreement import POWER as AGREEMENT_POWER, rank_by_support
 from binpick.picking.camera_info import CameraInfo
 from binpick.picking.colour import colour_histogram, colour_similarity, detection_mask
 from binpick.picking.inputs import (  # noqa: F401  (moved there; imported from here too)
@@ -264,7 +265,8 @@ class Picker:
     scores below this (default: the threshold calibrated with the learnt one's weights, a probability; 0.15 for colour). Against a
     query box the check is the colour one in the frame's own light. ``rank_from`` (None: off)
     considers detections down to this detector score and ranks them by detector score times the
-    check's score. ``copies_from_match`` (None: off): where the product check gives a photo detection
+    check's score, and by how much the best-ranked ones agree with each other (``agreement``, a power;
+    None: off; :mod:`binpick.picking.agreement`). ``copies_from_match`` (None: off): where the product check gives a photo detection
     at least this probability, the box-query detector is seeded with that instance's box to find its
     copies too (they join the photo's detections, checked the same way). Their values and why are in
     :class:`binpick.warehouse.pipeline.PickPipeline`. ``reach`` (None: any grasp goes) is the robot's
@@ -278,7 +280,7 @@ class Picker:
     def __init__(self, detector, grasp: GraspPlanner, crop_detector=None, score_threshold: float | None = None,
                  verifier="learnt", check: float | None = None, rank_from: float | None = 0.01, max_grasps: int = 1,
                  workspace: Workspace | None = None, copies_from_match: float | None = None, reach=None,
-                 working_pixels: int | None = WORKING_PIXELS) -> None:
+                 working_pixels: int | None = WORKING_PIXELS, agreement: float | None = AGREEMENT_POWER) -> None:
         # a Detector (binpick.Detector.load(...)) or the network inside one
         detector, crop_detector = (getattr(d, "inference_network", d) for d in (detector, crop_detector))
         self.detector, self.crop_detector, self.grasp = detector, crop_detector, grasp
@@ -298,6 +300,7 @@ class Picker:
             raise ConfigError(f"max_grasps must be at least 1, got {max_grasps}")
         self.max_grasps = max_grasps
         self.copies_from_match = copies_from_match
+        self.agreement = agreement  # None: photo detections ranked without asking them of each other
         # reach(position, yaw) -> (None, the yaw the robot takes) or (why it cannot take that grasp, yaw)
         # (binpick.arm.MotionPlanner.reach_check)
         self.reach = reach
@@ -432,6 +435,10 @@ class Picker:
         not_the_product = len(found) - len(ranked)
         if self.rank_from is not None:  # the product check's evidence joins the detector's in the ranking
             ranked.sort(key=lambda c: -c[1] * (c[2] if c[2] is not None else 1.0))
+            if self.agreement is not None and photos and query_box is None and hasattr(self.verifier, "pairwise"):
+                tick_agree = time.perf_counter()  # copies agree with each other, a look-alike with few
+                ranked = rank_by_support(ranked, lambda found_boxes: self.verifier.pairwise(rgb, depth, found_boxes), self.agreement)
+                timing["agree"] = 1000 * (time.perf_counter() - tick_agree)
         tick = time.perf_counter()
         plans: list[GraspPlan] = []
         wanted = max_grasps or self.max_grasps
