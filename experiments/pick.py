@@ -358,7 +358,7 @@ def section(result: dict) -> str:
              f"(3–6 copies of the product, 2–3 other products); the detector (`{Path(result['weights']).name}`, ROD conditioned on "
              "the product's catalogue photos, the best match over them) finds the instances; detections the learnt product check "
              f"(`binpick.detection.verifier`) gives a probability under {result['check']} of being the ordered product are skipped and the rest, "
-             "down to a score of 0.01, are ranked by detector score times that probability (`PickPipeline(rank_from=0.01)`); detections whose instance depth shows to be clearly bigger than the "
+             "down to a score of 0.01, are ranked by detector score times that probability (`PickPipeline(rank_from=0.01)`), the best eight of them times their support to the fourth power (how much the other likely copies agree with each one, `binpick.picking.agreement`); detections whose instance depth shows to be clearly bigger than the "
              "product's catalogue dimensions are skipped (`size_check`; "
              f"{'on' if result.get('size_check') else 'off'} here); the planner (`binpick.picking.Picker`, the same call "
              "`binpick plan` and the ROS nodes make, on depth in whole millimetres) chooses each detection's "

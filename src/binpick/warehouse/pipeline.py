@@ -111,7 +111,8 @@ class PickPipeline:
     ``rank_from`` (None: off) ranks the detections scoring at least this (below the weights' own
     threshold) by detector score times the check's score: the photo-query detector often scores the
     ordered product's copies lowest in a cluttered bin, and the check tells them apart (why 0.01:
-    docs/notes.md, "Tuning notes").
+    docs/notes.md, "Tuning notes"); the picker then weighs the best ones by how much the likely copies
+    agree with each other (:mod:`binpick.picking.agreement`).
 
     ``oracle=True`` takes the ordered product's boxes from the simulator (most visible first) instead of
     the detector: what the grasp alone achieves, to tell detection failures from grasp failures.
