@@ -93,6 +93,30 @@ def test_reach_says_why_a_grasp_cannot_be_taken(planner):
     assert planner._flipped(flipped)
 
 
+def test_a_step_the_ik_cannot_take_is_an_unreached_pose_not_an_error(planner, monkeypatch):
+    """DAQP finds no step that keeps every limit (a start already too near an obstacle): mink raises,
+    and the solve ends there as unreached, so the reach check refuses that grasp (or push) and the
+    planner goes on to the next, where a pick run once stopped with the solver's traceback."""
+    import mink
+
+    kinematics = planner.kinematics
+    calls = []
+
+    def no_step(*arguments, **keywords):
+        calls.append(1)
+        if len(calls) > 2:
+            raise mink.exceptions.NoSolutionFound("daqp")
+        return original(*arguments, **keywords)
+
+    original = mink.solve_ik
+    monkeypatch.setattr(mink, "solve_ik", no_step)
+    solution = kinematics.solve(np.array([0.05, -0.06, 0.09]), 0.0)
+    assert not solution.reached and solution.iterations == 3 and len(calls) == 3
+    assert planner.reach([0.02, 0.03, 0.09], 0.0).reason == NO_IK  # (answers are kept per pose: one no other test asks)
+    monkeypatch.setattr(mink, "solve_ik", original)
+    assert planner.reach([0.02, 0.04, 0.09], 0.0).ok
+
+
 def test_a_grasp_whose_hand_grazes_a_tote_wall_is_refused_and_taken_ones_keep_clear(planner):
     """The arm tracks its targets within about 2 mm: a descent planned to graze the wall hits it when run."""
     import mujoco

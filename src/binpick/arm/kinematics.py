@@ -107,8 +107,12 @@ class ArmKinematics:
         self.frame.set_target(target)
         limits = self.limits if avoid else self.limits[:2]
         error = np.full(6, np.inf)
+        step = 0
         for step in range(iterations):
-            velocity = mink.solve_ik(self.configuration, [self.frame, self.posture], STEP, "daqp", damping=1e-4, limits=limits)
+            try:
+                velocity = mink.solve_ik(self.configuration, [self.frame, self.posture], STEP, "daqp", damping=1e-4, limits=limits)
+            except mink.exceptions.NoSolutionFound:  # no step keeps every limit from here (e.g. a start already too near
+                break  # an obstacle): the pose is not reached, as when the steps run out, and the caller tries another
             self.configuration.integrate_inplace(velocity, STEP)
             error = self.frame.compute_error(self.configuration)
             if np.linalg.norm(error[:3]) < POSITION_TOLERANCE and np.linalg.norm(error[3:]) < ORIENTATION_TOLERANCE:
