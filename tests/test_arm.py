@@ -115,6 +115,7 @@ def test_a_step_the_ik_cannot_take_is_an_unreached_pose_not_an_error(planner, mo
     assert planner.reach([0.02, 0.03, 0.09], 0.0).reason == NO_IK  # (answers are kept per pose: one no other test asks)
     monkeypatch.setattr(mink, "solve_ik", original)
     assert planner.reach([0.02, 0.04, 0.09], 0.0).ok
+    planner._answers.clear()  # the refused pose's answer is not left for the module's other tests
 
 
 def test_a_grasp_whose_hand_grazes_a_tote_wall_is_refused_and_taken_ones_keep_clear(planner):

@@ -110,6 +110,9 @@ def test_the_picker_refuses_an_unknown_check_and_mismatched_photo_masks():
 
     with pytest.raises(ConfigError, match="verifier must be one of"):
         Picker(None, GraspPlanner("analytic"), verifier="hunch")
+    for power in (-1.0, float("nan")):
+        with pytest.raises(ConfigError, match="agreement must be a power of at least 0"):
+            Picker(None, GraspPlanner("analytic"), agreement=power)
     assert Picker(None, GraspPlanner("analytic"), verifier="colour").check == 0.15
     from binpick.detection.verifier import ProductVerifier, VerifierNet
 

@@ -8,9 +8,12 @@ of the detections themselves, window against window, the check finds the copies 
 other (0.99) and the look-alike with none of them (0.80). A detection's *support* is the most any
 other detection agrees with it, weighted by how sure the check is that the other one is the ordered
 product (a look-alike's twin that is not the product lends no support); the ranking multiplies the
-detector's score and the check's by support to a power. A lone copy (a single-copy bin) has no
-support from anyone, as neither has anything else in the bin: the order among them stays the
-check's.
+detector's score and the check's by support to a power.
+
+What it assumes: the ordered product is the one repeated in the bin, as in the bins it was measured
+on (3-6 copies beside 2-3 single other products). Where the product lies alone beside two copies of a
+look-alike that the check also passes (0.99 against 0.95), the look-alikes back each other and the lone
+copy loses its lead; ``Picker(agreement=None)`` ranks by detector and check alone.
 """
 
 from __future__ import annotations

@@ -300,6 +300,8 @@ class Picker:
             raise ConfigError(f"max_grasps must be at least 1, got {max_grasps}")
         self.max_grasps = max_grasps
         self.copies_from_match = copies_from_match
+        if agreement is not None and not (np.isfinite(agreement) and agreement >= 0):
+            raise ConfigError(f"agreement must be a power of at least 0 (or None: off), got {agreement!r}")
         self.agreement = agreement  # None: photo detections ranked without asking them of each other
         # reach(position, yaw) -> (None, the yaw the robot takes) or (why it cannot take that grasp, yaw)
         # (binpick.arm.MotionPlanner.reach_check)
@@ -435,7 +437,7 @@ class Picker:
         not_the_product = len(found) - len(ranked)
         if self.rank_from is not None:  # the product check's evidence joins the detector's in the ranking
             ranked.sort(key=lambda c: -c[1] * (c[2] if c[2] is not None else 1.0))
-            if self.agreement is not None and photos and query_box is None and hasattr(self.verifier, "pairwise"):
+            if self.agreement is not None and photos and query_box is None and hasattr(self.learnt_verifier(), "pairwise"):
                 tick_agree = time.perf_counter()  # copies agree with each other, a look-alike with few
                 ranked = rank_by_support(ranked, lambda found_boxes: self.verifier.pairwise(rgb, depth, found_boxes), self.agreement)
                 timing["agree"] = 1000 * (time.perf_counter() - tick_agree)

@@ -60,7 +60,7 @@ def init_node_within(name: str, timeout: float, signals: bool = True) -> None:
             signal.signal(number, lambda signum, frame: rospy.signal_shutdown(f"signal {signum}"))
 
 
-def stop_timer(timer, wait: float = 1.0) -> None:
+def stop_timer(timer, wait: float = 3.0) -> None:
     """Stop a ``rospy.Timer`` and wait (at most ``wait`` seconds) for a callback it is running to end,
     so that nothing it publishes meets a topic rospy is closing."""
     import threading

@@ -148,7 +148,7 @@ class PickNode:
         """Stop the timers, the action server and the subscribers, once. rospy runs it first when it
         shuts down (``on_shutdown``): it closes the node's topics before ``is_shutdown()`` turns true, and
         a timer that published in between (actionlib's status, the drop report) died in its thread
-        with "publish() to a closed topic"."""
+        with "publish() to a closed topic". A goal being planned is finished first (the server's lock)."""
         if self.stopped:
             return
         self.stopped = True
