@@ -10,6 +10,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
+from conftest import binpick_here
 from gymnasium import spaces
 
 from binpick.rl.a3c import A3CWorker, ActorCritic, SharedAdam, apply_gradients
@@ -76,9 +77,7 @@ eval: {{every: 200, episodes: 2}}
 def test_a3c_run_with_curriculum_resumes_and_evaluates(tmp_path):
     config = tmp_path / "a3c.yaml"
     config.write_text(A3C_RUN.format(steps=400))
-    cli = [sys.executable, "-c", "from binpick.cli import main; main()"]
-    result = subprocess.run([*cli, "rl", "train", str(config), "--runs", str(tmp_path / "runs")],
-                            capture_output=True, text=True, timeout=300)
+    result = binpick_here(["rl", "train", str(config), "--runs", str(tmp_path / "runs")])
     assert result.returncode == 0, result.stderr
     (run,) = (tmp_path / "runs" / "tiny_a3c").iterdir()
     metrics = json.loads((run / "metrics.json").read_text())
@@ -89,11 +88,11 @@ def test_a3c_run_with_curriculum_resumes_and_evaluates(tmp_path):
     # continue the finished run for longer: the step count carries on from the checkpoint
     saved = (run / "config.yaml").read_text().replace("total_timesteps: 400", "total_timesteps: 600")
     (run / "config.yaml").write_text(saved)
-    resumed = subprocess.run([*cli, "rl", "train", "--resume", str(run)], capture_output=True, text=True, timeout=300)
+    resumed = binpick_here(["rl", "train", "--resume", str(run)])
     assert resumed.returncode == 0, resumed.stderr
     assert f"at {metrics['sim_steps']} simulator steps" in resumed.stdout.replace("\n", "")
     assert json.loads((run / "metrics.json").read_text())["sim_steps"] >= 600
-    evaluation = subprocess.run([*cli, "rl", "eval", str(run), "--episodes", "2"], capture_output=True, text=True, timeout=120)
+    evaluation = binpick_here(["rl", "eval", str(run), "--episodes", "2"])
     assert evaluation.returncode == 0 and "actions per episode" in evaluation.stdout, evaluation.stderr
     _check_init_from(run, tmp_path)
 

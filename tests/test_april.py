@@ -5,13 +5,12 @@ from __future__ import annotations
 
 import json
 import re
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+from conftest import binpick_here
 from gymnasium import spaces
 from stable_baselines3 import SAC
 
@@ -22,7 +21,6 @@ from binpick.core.files import read_npz
 from binpick.core.runs import SILENT
 from binpick.rl.wrappers import SemanticState
 
-CLI = [sys.executable, "-c", "from binpick.cli import main; main()"]
 
 RL = """
 name: tiny_rl
@@ -82,8 +80,7 @@ def test_april_pipeline_runs_resumes_and_deploys_from_pixels(tmp_path):
     config = tmp_path / "april.yaml"
     config.write_text(APRIL.format(kind="ae", n=6, m=6, mode="semantic", rl=tmp_path / "rl.yaml")
                       .replace("eval:", "refine: {episodes: 2, epochs: 1, act_on: pixels, rounds: 2}\neval:"))
-    result = subprocess.run([*CLI, "april", "run", str(config), "--runs", str(tmp_path / "runs")],
-                            capture_output=True, text=True, timeout=600)
+    result = binpick_here(["april", "run", str(config), "--runs", str(tmp_path / "runs")])
     assert result.returncode == 0, result.stderr
     (run,) = (tmp_path / "runs" / "tiny_april").iterdir()
     rows = json.loads((run / "results.json").read_text())
@@ -102,7 +99,7 @@ def test_april_pipeline_runs_resumes_and_deploys_from_pixels(tmp_path):
     del stages["evaluate"]
     (run / "stages.json").write_text(json.dumps(stages))
     data_time = (run / "data" / "random.npz").stat().st_mtime_ns
-    resumed = subprocess.run([*CLI, "april", "run", "--resume", str(run)], capture_output=True, text=True, timeout=600)
+    resumed = binpick_here(["april", "run", "--resume", str(run)])
     assert resumed.returncode == 0, resumed.stderr
     assert "stage evaluate" in resumed.stdout and "stage collect" not in resumed.stdout
     assert (run / "data" / "random.npz").stat().st_mtime_ns == data_time
@@ -114,8 +111,7 @@ def test_april_pipeline_runs_resumes_and_deploys_from_pixels(tmp_path):
     assert action.shape == (4,) and np.abs(action[:3]).max() >= 0.4 - 1e-6  # min action scale applies
     with pytest.raises(ConfigError, match="images of shape"):
         policy.predict(np.zeros((64, 64, 3), np.uint8))
-    evaluation = subprocess.run([*CLI, "april", "eval", str(run), "--input", "pixels", "--episodes", "1"],
-                                capture_output=True, text=True, timeout=300)
+    evaluation = binpick_here(["april", "eval", str(run), "--input", "pixels", "--episodes", "1"])
     assert evaluation.returncode == 0 and "actions per episode" in evaluation.stdout, evaluation.stderr
     _latent_policy_widened_from_the_shared_state_policy(run, tmp_path)
 
@@ -177,17 +173,17 @@ def test_bad_april_input_is_one_clear_line(tmp_path):
     (tmp_path / "rl.yaml").write_text(RL)
     bad = tmp_path / "bad.yaml"
     bad.write_text(APRIL.format(kind="ae", n=6, m=8, mode="semantic", rl=tmp_path / "rl.yaml"))
-    result = subprocess.run([*CLI, "april", "run", str(bad)], capture_output=True, text=True, timeout=120)
+    result = binpick_here(["april", "run", str(bad)])
     assert result.returncode == 2 and "conditioned (m=8) must be <= perception.latent (n=6)" in result.stderr
     assert "Traceback" not in result.stderr
     bad.write_text(APRIL.format(kind="ae", n=8, m=6, mode="semantic", rl=tmp_path / "rl.yaml"))
-    result = subprocess.run([*CLI, "april", "run", str(bad)], capture_output=True, text=True, timeout=120)
+    result = binpick_here(["april", "run", str(bad)])
     assert result.returncode == 2 and "policy.mode semantic" in result.stderr
     bad.write_text(APRIL.format(kind="ae", n=8, m=6, mode="latent", rl=tmp_path / "rl.yaml")
                    .replace("eval:", "refine: {episodes: 2, act_on: actions}\neval:"))
-    result = subprocess.run([*CLI, "april", "run", str(bad)], capture_output=True, text=True, timeout=120)
+    result = binpick_here(["april", "run", str(bad)])
     assert result.returncode == 2 and "refine.act_on must be one of 'state', 'pixels', got 'actions'" in result.stderr
-    result = subprocess.run([*CLI, "april", "eval", str(tmp_path)], capture_output=True, text=True, timeout=120)
+    result = binpick_here(["april", "eval", str(tmp_path)])
     assert result.returncode == 2 and "not an APRiL run folder" in result.stderr
 
 

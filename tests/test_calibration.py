@@ -3,16 +3,14 @@
 
 from __future__ import annotations
 
-import subprocess
-import sys
 
 import numpy as np
 import pytest
+from conftest import binpick_here
 
 from binpick.core.errors import InputFileError
 from binpick.picking.hand_eye import calibrate, inverse, pose_error
 
-CLI = [sys.executable, "-c", "from binpick.cli import main; main()"]
 
 
 def random_pose(rng, turn: float = 0.6, shift: float = 0.2) -> np.ndarray:
@@ -76,14 +74,14 @@ def test_binpick_calibrate_writes_a_camera_pose_the_planner_reads(tmp_path):
     camera = folder / "camera.yaml"
     with pytest.raises(InputFileError, match="no camera_to_base"):
         read_camera_info(camera)  # not calibrated yet: it cannot plan
-    run = subprocess.run([*CLI, "calibrate", str(folder), "--camera", str(camera)], capture_output=True, text=True, timeout=240)
+    run = binpick_here(["calibrate", str(folder), "--camera", str(camera)])
     assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-2000:]
     assert "camera_to_base" in run.stdout and "residual" in run.stdout
     info = read_camera_info(camera)
     mm, degrees = pose_error(info.camera.camera_to_world, truth)
     assert mm < 2.0 and degrees < 0.2
     (folder / "poses.yaml").write_text((folder / "poses.yaml").read_text().replace("eye-to-hand", "eye-on-a-stick"))
-    bad = subprocess.run([*CLI, "calibrate", str(folder), "--camera", str(camera)], capture_output=True, text=True, timeout=120)
+    bad = binpick_here(["calibrate", str(folder), "--camera", str(camera)])
     assert bad.returncode == 2 and "mount 'eye-on-a-stick'" in bad.stderr and "Traceback" not in bad.stderr
     assert len(bad.stderr.strip().splitlines()) == 1
 
@@ -105,6 +103,5 @@ def test_an_eye_in_hand_camera_plans_only_with_the_flange_pose_of_its_frame(tmp_
     flange = random_pose(np.random.default_rng(4), 0.3, 0.3)
     info = read_camera_info(folder / "camera.yaml", flange)
     assert np.allclose(info.camera.camera_to_world, flange @ solved.transform, atol=1e-5)
-    run = subprocess.run([*CLI, "plan", "--sample", "--flange-pose", "0,0,1,0,0,0,1", "--out", str(tmp_path / "out")],
-                         capture_output=True, text=True, timeout=240)
+    run = binpick_here(["plan", "--sample", "--flange-pose", "0,0,1,0,0,0,1", "--out", str(tmp_path / "out")])
     assert run.returncode == 2 and "--flange-pose is for a camera on the wrist" in run.stderr

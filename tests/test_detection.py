@@ -5,12 +5,11 @@ from __future__ import annotations
 
 import itertools
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 import torch
+from conftest import binpick_here
 
 from binpick.detection.backbone import build_backbone
 from binpick.detection.baselines import histogram_matches, template_matches
@@ -25,7 +24,6 @@ from binpick.detection.train import DetectorTrainer, evaluate_model, kmeans_anch
 from binpick.core.errors import ConfigError, InputFileError
 from synthetic_coco import make_coco
 
-CLI = [sys.executable, "-c", "from binpick.cli import main; main()"]
 
 
 def _random_boxes(rng, n):
@@ -309,9 +307,8 @@ def test_cli_predict_and_bad_input_are_one_line(tmp_path):
     model = DetectorNetwork(ModelSpec(), 64)
     save_detector(model, tmp_path / "model.safetensors")
     image = str(tmp_path / "toy" / "images" / "0000.png")
-    ok = subprocess.run(CLI + ["detect", "predict", image, "--weights", str(tmp_path / "model.safetensors"), "--query-box", "10,10,20,20",
-                               "--min-score", "0", "--out", str(tmp_path / "predicted"), "--heatmap"],
-                        capture_output=True, text=True)
+    ok = binpick_here(["detect", "predict", image, "--weights", str(tmp_path / "model.safetensors"), "--query-box", "10,10,20,20",
+                               "--min-score", "0", "--out", str(tmp_path / "predicted"), "--heatmap"])
     assert ok.returncode == 0, ok.stderr
     detections = json.loads(ok.stdout.strip().splitlines()[0])
     assert detections and set(detections[0]) == {"bbox", "score"}
@@ -326,14 +323,12 @@ def test_cli_predict_and_bad_input_are_one_line(tmp_path):
         ("--query-box", "1,2,3"): "x,y,w,h",
     }
     for args, message in cases.items():
-        bad = subprocess.run(CLI + ["detect", "predict", image, "--weights", str(tmp_path / "model.safetensors"), *args],
-                             capture_output=True, text=True)
+        bad = binpick_here(["detect", "predict", image, "--weights", str(tmp_path / "model.safetensors"), *args])
         assert bad.returncode == 2 and message in bad.stderr and "Traceback" not in bad.stderr, bad.stderr
-    empty = subprocess.run(CLI + ["detect", "predict", str(tmp_path / "empty.png"), "--weights", str(tmp_path / "model.safetensors"),
-                                  "--query-box", "1,1,5,5"], capture_output=True, text=True)
+    empty = binpick_here(["detect", "predict", str(tmp_path / "empty.png"), "--weights", str(tmp_path / "model.safetensors"),
+                                  "--query-box", "1,1,5,5"])
     assert empty.returncode == 2 and "cannot read image" in empty.stderr
-    foreign = subprocess.run(CLI + ["detect", "predict", image, "--weights", str(tmp_path / "other.pt"), "--query-box", "1,1,5,5"],
-                             capture_output=True, text=True)
+    foreign = binpick_here(["detect", "predict", image, "--weights", str(tmp_path / "other.pt"), "--query-box", "1,1,5,5"])
     assert foreign.returncode == 2 and "another architecture" in foreign.stderr and "Traceback" not in foreign.stderr
 
 

@@ -13,19 +13,17 @@ import json
 import os
 import pickle
 import shutil
-import subprocess
-import sys
 import zipfile
 from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import binpick_here
 import torch
 import yaml
 
 from conftest import run_cli, train_rl_run
 
-CLI = [sys.executable, "-c", "from binpick.cli import main; main()"]
 TINY_RL = {"name": "tiny", "env": "FetchReach", "total_timesteps": 200, "checkpoint_every": 100, "min_action_scale": 0.4,
            "replay": {"capacity_episodes": 100, "her_additions": 1, "start_fraction": 0.01},
            "gp": {"enabled": True, "warmup_episodes": 2, "refit_every": 100, "imagined_per_real": 1, "batch_episodes": 8,
@@ -205,11 +203,11 @@ def test_resume_never_opens_planted_pickles(trained_run, tmp_path):
     sb3_zip_payload(latest / "model.zip", marker)
     pickle_payload(latest / "replay.pkl", marker)
     torch_payload(latest / "gp.pt", marker)
-    result = subprocess.run(CLI + ["rl", "train", "--resume", str(run)], capture_output=True, text=True, timeout=300)
+    result = binpick_here(["rl", "train", "--resume", str(run)])
     assert result.returncode == 0, result.stderr
     assert json.loads((run / "metrics.json").read_text())["sim_steps"] == 300
     assert not marker.exists()
-    evaluated = subprocess.run(CLI + ["rl", "eval", str(run), "--episodes", "1"], capture_output=True, text=True, timeout=300)
+    evaluated = binpick_here(["rl", "eval", str(run), "--episodes", "1"])
     assert evaluated.returncode == 0 and not marker.exists(), evaluated.stderr
 
 

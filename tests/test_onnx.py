@@ -6,11 +6,10 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import subprocess
-import sys
 
 import numpy as np
 import pytest
+from conftest import binpick_here
 
 from binpick.core.errors import BinpickError, ConfigError
 from binpick.detection import Detector
@@ -18,14 +17,13 @@ from binpick.detection.detector import PICKING
 from binpick.samples import SAMPLE_FRAME
 
 pytest.importorskip("onnxruntime")
-CLI = [sys.executable, "-c", "from binpick.cli import main; main()"]
 
 
 @pytest.fixture(scope="module")
 def exported(tmp_path_factory):
     """The picking detector exported once, by the command a user runs."""
     folder = tmp_path_factory.mktemp("export")
-    ran = subprocess.run([*CLI, "detect", "export", PICKING, "--out", str(folder)], capture_output=True, text=True, timeout=300)
+    ran = binpick_here(["detect", "export", PICKING, "--out", str(folder)])
     assert ran.returncode == 0, ran.stderr
     return folder / f"{PICKING}.onnx"
 
@@ -104,8 +102,7 @@ def test_binpick_plan_with_onnx_plans_the_grasps_pytorch_plans(tmp_path, exporte
     shutil.copy(exported, cache / "binpick" / "onnx" / cache_name(detectors[0].network))
     env = {**os.environ, "XDG_CACHE_HOME": str(cache)}
     for runtime in ("torch", "onnx"):
-        ran = subprocess.run([*CLI, "plan", "--sample", "--out", str(tmp_path / runtime), "--runtime", runtime], capture_output=True,
-                             text=True, timeout=300, env=env)
+        ran = binpick_here(["plan", "--sample", "--out", str(tmp_path / runtime), "--runtime", runtime], env=env)
         assert ran.returncode == 0, ran.stderr
     a, b = (json.loads((tmp_path / r / "plan.json").read_text()) for r in ("torch", "onnx"))
     assert np.allclose([p["box"] for p in a["plans"]], [p["box"] for p in b["plans"]], atol=0.5)

@@ -6,11 +6,11 @@ from __future__ import annotations
 import json
 import math
 import subprocess
-import sys
 from pathlib import Path
 
+from conftest import binpick_here
+
 ROOT = Path(__file__).resolve().parents[1]
-CLI = [sys.executable, "-c", "from binpick.cli import main; main()"]
 
 
 def write_box(path: Path, sx: float, sy: float, sz: float) -> None:
@@ -40,7 +40,7 @@ PRODUCTS = """products:
 
 
 def run(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    result = subprocess.run([*CLI, *args], capture_output=True, text=True, cwd=cwd, timeout=300, env=None)
+    result = binpick_here(list(args), cwd=cwd)
     assert result.returncode == 0, (args, result.stderr[-2000:])
     return result
 

@@ -9,6 +9,7 @@ import sys
 
 import mujoco
 import numpy as np
+from conftest import binpick_here
 
 from binpick.detection.model import DetectorNetwork, ModelSpec
 from binpick.detection.train import save_detector
@@ -68,13 +69,13 @@ def test_an_order_runs_end_to_end_and_the_cli_reports_it(tmp_path):
     summary = summarise([result], 10.0)
     assert summary["orders"] == 1 and 0.0 <= summary["pick_success"] <= 1.0
     save_detector(detector, tmp_path / "photo.safetensors")
-    ran = subprocess.run(CLI + ["pick", "--product", "can", "--orders", "1", "--weights", str(tmp_path / "photo.safetensors"),
-                                "--out", str(tmp_path / "cli")], capture_output=True, text=True)
+    ran = binpick_here(["pick", "--product", "can", "--orders", "1", "--weights", str(tmp_path / "photo.safetensors"),
+                                "--out", str(tmp_path / "cli")])
     assert ran.returncode == 0, ran.stderr
     written = json.loads((tmp_path / "cli" / "results.json").read_text())  # --out is the folder itself
     assert (tmp_path / "cli" / "report.html").read_text().count("<tr>") == 2  # header + the order
     assert written["summary"]["orders"] == 1 and written["orders"][0]["product"] == "robosuite/can"
-    bad = subprocess.run(CLI + ["pick", "--product", "sofa", "--weights", str(tmp_path / "photo.safetensors")], capture_output=True, text=True)
+    bad = binpick_here(["pick", "--product", "sofa", "--weights", str(tmp_path / "photo.safetensors")])
     assert bad.returncode == 2 and "unknown product or category 'sofa'" in bad.stderr
 
 
@@ -89,7 +90,7 @@ def test_the_oracle_locates_the_ordered_product_from_the_simulator(tmp_path):
 
 def test_the_demo_fulfils_an_order_with_the_shipped_detector(tmp_path):
     run_dir = tmp_path / "demo"
-    ran = subprocess.run(CLI + ["demo", "--orders", "1", "--out", str(run_dir)], capture_output=True, text=True)
+    ran = subprocess.run(CLI + ["demo", "--orders", "1", "--out", str(run_dir)], capture_output=True, text=True)  # the user's process
     assert ran.returncode == 0, ran.stderr
     written = json.loads((run_dir / "results.json").read_text())
     (order,) = written["orders"]

@@ -63,16 +63,42 @@ def test_two_ray_workers_share_the_local_detector_run_s_steps(tmp_path, ray_clus
     assert list((run_dir / "tb").iterdir()) and list((run_dir / "checkpoints").glob("ckpt-*"))
 
 
-def test_a_worker_s_own_error_is_raised_as_it_was_without_restarts_that_cannot_mend_it(tmp_path, ray_cluster):
-    """A damaged data file met by the workers (not by the driver, which made the run before): the driver
-    raises binpick's error from the worker in one line; the restarts end at once, nothing trains."""
+def test_a_worker_s_own_error_is_raised_as_it_was_without_restarts_that_cannot_mend_it(tmp_path, monkeypatch):
+    """A damaged data file met by the workers (not by the driver, which made the run before): the worker
+    keeps binpick's error in the run folder and raises it; the group Ray Train restarts after that ends
+    at once on the record, before any training; the driver raises the error in one line. Ray Train's
+    own part (a failed worker's group restarted) is the kill test's below: here the workers' function runs
+    in this process, under a stand-in for the trainer that fails the first group and restarts it."""
+    import ray.train.torch
+
+    import binpick.cluster
     from binpick.core.errors import InputFileError
 
+    groups: list[str] = []
+
+    class OneRestart:
+        def __init__(self, worker, train_loop_config, **options):
+            self.worker, self.settings = worker, train_loop_config
+            assert options["run_config"].failure_config.max_failures >= 1  # Ray Train restarts a failed group
+
+        def fit(self):
+            try:
+                self.worker(self.settings)
+                groups.append("trained")
+            except InputFileError:
+                groups.append("failed")
+                self.worker(self.settings)  # the restarted group
+                groups.append("restarted and ended")
+            return type("Result", (), {"error": None})()
+
+    monkeypatch.setattr(ray.train.torch, "TorchTrainer", OneRestart)
+    monkeypatch.setattr(binpick.cluster, "start_ray", lambda address, workers: False)
     config = tiny_config(tmp_path, epochs=1)
     run_dir = DetectorTrainer.new(config, tmp_path / "ray").run_dir
     Path(config.data.train).write_text("{not json")
     with pytest.raises(InputFileError, match="annotations.json") as raised:
         train_on_ray(run_dir, DETECT, workers=1)
+    assert groups == ["failed", "restarted and ended"]
     assert "\n" not in str(raised.value) and "Traceback" not in str(raised.value)
     assert not list((run_dir / "checkpoints").glob("ckpt-*")) and not (run_dir / "metrics.json").exists()
 

@@ -110,12 +110,12 @@ TINY_RL = {"total_timesteps": 150, "checkpoint_every": 75, "eval.every": 150, "e
            "replay.capacity_episodes": 100, "sac.batch_size": 16, "sac.net_arch": "[8,8]"}
 # (regular expression, replacement) on each command: smaller numbers, then shorter training
 TINY: list[tuple[str, str]] = [
-    (r"--scenes 20000\b", "--scenes 16"),  # randomised: 16 worlds of 1 below, two of them val
+    (r"--scenes 20000\b", "--scenes 8"),  # randomised: 8 worlds of 1 below, one of them val
     (r"--scenes-per-world 16\b", "--scenes-per-world 1"),
     (r"--scenes 120\b", "--scenes 4"),
     (r"--scenes 6000\b", "--scenes 8 --scenes-per-world 4"),  # the larger fine-tuning set: two worlds
-    (r"--scenes 2000\b", "--scenes 12 --scenes-per-world 4"),  # 3 worlds of 4: one each for val, test and train (split_rule=random)
-    (r"--scene 12\b", "--scene 10"),  # a scene the 12 above hold
+    (r"--scenes 2000\b", "--scenes 6 --scenes-per-world 2"),  # 3 worlds of 2: one each for val, test and train (split_rule=random)
+    (r"--scene 12\b", "--scene 4"),  # a scene the 6 above hold
     (r"--policies x,y", "--policies y"),  # the one the rod_* configs and `data show --policy y` read
     (r"--scenes 400\b", "--scenes 4 --scenes-per-world 1 --val-fraction 0.5"),
     (r"--scenes 800\b", "--scenes 4 --scenes-per-world 1 --val-fraction 0.5"),  # grasp trials: train and val worlds

@@ -15,8 +15,8 @@ from pathlib import Path
 
 import pytest
 import yaml
+from conftest import binpick_here
 
-CLI = [sys.executable, "-c", "from binpick.cli import main; main()"]
 # 250 steps: checkpoints at 50, 100, ..., 250 (the last one at the final step, by the callback),
 # evaluations at 100, 200 and a final one at 250 that only run() makes
 RL = {"name": "resume", "env": "FetchReach", "total_timesteps": 250, "checkpoint_every": 50, "min_action_scale": 0.4,
@@ -97,9 +97,9 @@ def reference(tmp_path_factory) -> dict:
                                                      "replay.json", "state.json", "gp.safetensors"}  # and no pickle
     metrics = json.loads((run / "metrics.json").read_text())
     assert metrics["her_episodes"] > 0 and metrics["gp_fits"] >= 1
-    evaluation = subprocess.run(CLI + ["rl", "eval", str(run), "--episodes", "2"], capture_output=True, text=True, timeout=300)
+    evaluation = binpick_here(["rl", "eval", run, "--episodes", "2"])
     assert evaluation.returncode == 0 and "actions per episode" in evaluation.stdout, evaluation.stderr
-    wrong_env = subprocess.run(CLI + ["rl", "eval", str(run), "--env", "Reacher"], capture_output=True, text=True, timeout=300)
+    wrong_env = binpick_here(["rl", "eval", run, "--env", "Reacher"])
     assert wrong_env.returncode == 2 and "trained on binpick/FetchReach-v0, not binpick/Reacher-v0" in wrong_env.stderr
     return metrics
 
@@ -114,7 +114,7 @@ def test_rl_run_killed_at_a_boundary_resumes_to_the_same_end(boundary, reference
     latest = run / "checkpoints" / (run / "checkpoints" / "latest").read_text()
     wall_before = json.loads((latest / "state.json").read_text())["metrics"]["wall_seconds"]
     assert wall_before > 0
-    resumed = subprocess.run(CLI + ["rl", "train", "--resume", str(run)], capture_output=True, text=True, timeout=300)
+    resumed = binpick_here(["rl", "train", "--resume", run])
     assert resumed.returncode == 0, resumed.stderr[-2000:]
     metrics = json.loads((run / "metrics.json").read_text())
     assert metrics["sim_steps"] == reference["sim_steps"] == RL["total_timesteps"]
@@ -178,7 +178,7 @@ def test_detector_run_killed_at_a_boundary_resumes_to_the_same_end(boundary, tmp
                             cwd=Path(__file__).parent)
     assert killed.returncode == -9, (killed.returncode, killed.stderr[-2000:])
     (run,) = (tmp_path / "runs" / "toy").iterdir()
-    resumed = subprocess.run(CLI + ["detect", "train", "--resume", str(run)], capture_output=True, text=True, timeout=300)
+    resumed = binpick_here(["detect", "train", "--resume", run])
     assert resumed.returncode == 0, resumed.stderr[-2000:]
     metrics = json.loads((run / "metrics.json").read_text())
     assert metrics["epochs"] == 3 and [r["epoch"] for r in metrics["history"]] == [1, 2, 3]
@@ -232,7 +232,7 @@ def test_a3c_run_killed_at_a_boundary_resumes_with_every_evaluation_once(boundar
                             capture_output=True, text=True, timeout=300)
     assert killed.returncode == -9, (killed.returncode, killed.stderr[-2000:])
     (run,) = (tmp_path / "runs" / "a3c").iterdir()
-    resumed = subprocess.run(CLI + ["rl", "train", "--resume", str(run)], capture_output=True, text=True, timeout=300)
+    resumed = binpick_here(["rl", "train", "--resume", run])
     assert resumed.returncode == 0, resumed.stderr[-2000:]
     metrics = json.loads((run / "metrics.json").read_text())
     steps = [e["sim_steps"] for e in metrics["evaluations"]]

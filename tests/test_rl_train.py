@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 import pytest
+from conftest import binpick_here
 
 from binpick.core.config import from_dict
 from binpick.core.errors import ConfigError
@@ -29,9 +30,8 @@ eval: {{every: 200, episodes: 2}}
 """
 
 
-def cli(*args: str, **kwargs) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-c", "from binpick.cli import main; main()", *args],
-                          capture_output=True, text=True, timeout=300, **kwargs)
+def cli(*args: str) -> subprocess.CompletedProcess:
+    return binpick_here(list(args))
 
 
 def test_killed_run_resumes_from_its_last_checkpoint(tmp_path):

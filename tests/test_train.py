@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from conftest import binpick_here
 from synthetic_coco import make_coco
 
 from binpick import jobs
@@ -145,10 +146,9 @@ def test_binpick_train_runs_each_job_and_resumes_it_after_ctrl_c_to_the_same_end
     stopped_at = jobs.progress(run)
     assert stopped_at is None or stopped_at < target, f"{task} had finished ({stopped_at}) before Ctrl-C"
     assert jobs.job_kind_of_run(run).task == task
-    resumed = subprocess.run([*CLI, "train", "--resume", str(run)], cwd=tmp_path, env=ENVIRONMENT,
-                             capture_output=True, text=True, timeout=600)
+    resumed = binpick_here(["train", "--resume", run], cwd=tmp_path, env={"COLUMNS": "400"})
     assert resumed.returncode == 0, resumed.stderr[-3000:]
-    assert f"resuming {run} ({task})" in resumed.stdout
+    assert f"resuming {run} ({task})" in resumed.stdout.replace("\n", "")  # (folded at 80 columns)
     assert jobs.progress(run) == target, resumed.stdout[-2000:]
 
 
@@ -165,7 +165,7 @@ def test_a_config_names_its_task_once_and_a_wrong_one_is_one_line(tmp_path):
         jobs.load_job_config(path)
     kind, config = jobs.load_job_config(_write(tmp_path, {"task": "april"}), {"total_timesteps": 123, "task": "rl"})
     assert kind.task == "rl" and config.total_timesteps == 123
-    result = subprocess.run([*CLI, "train", str(_write(tmp_path, {"task": "nope"}))], capture_output=True, text=True)
+    result = binpick_here(["train", _write(tmp_path, {"task": "nope"})])
     assert result.returncode == 2 and result.stderr.count("\n") == 1 and "known: rl, april" in result.stderr
 
 
@@ -271,8 +271,7 @@ def test_ctrl_c_on_a_training_verb_keeps_its_work_and_prints_the_command_that_fi
     else:
         kept = jobs.progress(run)
         assert kept is None or kept < target, kept
-    resumed = subprocess.run([*CLI, *command[1:]] if command[1:2] != ["data"] else [*CLI, *argv], cwd=tmp_path, env=ENVIRONMENT,
-                             capture_output=True, text=True, timeout=600)
+    resumed = binpick_here(command[1:] if command[1:2] != ["data"] else argv, cwd=tmp_path, env={"COLUMNS": "400"})
     assert resumed.returncode == 0, resumed.stderr[-3000:]
     assert jobs.progress(run) == target
 
