@@ -11,7 +11,7 @@ demo: $(STAMP)
 	$(VENV)/bin/binpick demo
 
 test: $(STAMP)
-	$(VENV)/bin/python -m pytest -q -n 2 --dist worksteal --durations=15  # one test process per core; the 15 slowest named
+	$(VENV)/bin/python -m pytest -q -n 3 --dist worksteal --durations=15  # 3 test processes on 2 cores: the third computes while another waits (Ray, ROS, a peer's timeout); the 15 slowest named
 
 bench: $(STAMP)
 	$(VENV)/bin/python benchmarks/env_speed.py

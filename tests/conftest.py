@@ -1,5 +1,5 @@
 """Shared fixtures: every test runs headless (MUJOCO_GL=egl unless the caller chose otherwise); under
-pytest-xdist (``make test`` runs one worker per core) every worker computes on one thread."""
+pytest-xdist (``make test`` runs three test processes on two cores) every worker computes on one thread."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import os
 from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
-if os.environ.get("PYTEST_XDIST_WORKER"):  # one test process per core (make test): one thread each, or
+if os.environ.get("PYTEST_XDIST_WORKER"):  # several test processes (make test): one thread each, or
     os.environ.setdefault("OMP_NUM_THREADS", "1")  # torch's threads of two processes fight over 2 cores
 # Ray Train's controller looks at its workers every 2 s by default: each tiny run here would wait up to
 # that long at every start, end and restart (the Ray processes a test starts inherit this)
@@ -46,8 +46,22 @@ def train_rl_run(config: dict, root: Path) -> Path:
     return run
 
 
-# The longest tests start first, so that with one worker per core (make test) neither waits at the end
-# for a long test the other picked up late.
+@pytest.fixture(scope="module")
+def ray_cluster():
+    """One private Ray cluster (127.0.0.1, 2 CPUs) for a module's tests: every run of a test that asks
+    for it joins it instead of starting its own. (Per module, not per test process: a cluster left idle
+    under the rest of a test process's tests hung in ``ray.shutdown``.)"""
+    import ray
+
+    from binpick.cluster import start_ray
+
+    start_ray(None, 2)
+    yield
+    ray.shutdown()
+
+
+# The longest tests start first, so that with several test processes (make test) none waits at the end
+# for a long test another picked up late.
 LONG_FIRST = ("test_readme.py::test_every_readme_block_runs_on_tiny_settings",
               "test_readme.py::test_each_standalone_readme_command_runs_on_tiny_settings",
               "test_ray_train.py::test_two_workers_take_the_local_grasp_quality_run_s_steps_and_a_killed_worker_is_replaced",
@@ -61,7 +75,7 @@ LONG_FIRST = ("test_readme.py::test_every_readme_block_runs_on_tiny_settings",
 @pytest.fixture(autouse=True)
 def _one_torch_thread_per_worker():
     """A trainer run in-process (``detect train``, ``grasp train``) sets torch's thread count from its
-    config; under one worker per core that count must not outlive the test and oversubscribe the rest."""
+    config; under several test processes that count must not outlive the test and oversubscribe the rest."""
     yield
     if os.environ.get("PYTEST_XDIST_WORKER"):
         import torch
@@ -146,6 +160,7 @@ def binpick_here(args: list[str], cwd: Path | None = None, env: dict[str, str] |
     finally:
         os.chdir(previous)
         sys.argv = saved_argv
-        os.environ.clear()
-        os.environ.update(saved_env)
+        for key in set(os.environ) - set(saved_env):  # only what changed is put back: other threads (Ray's,
+            del os.environ[key]  # gRPC's) read the environment while this runs
+        os.environ.update({key: value for key, value in saved_env.items() if os.environ.get(key) != value})
     return subprocess.CompletedProcess(["binpick", *map(str, args)], code, out.getvalue(), err.getvalue())

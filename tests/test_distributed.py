@@ -106,18 +106,6 @@ A3C = {"task": "rl", "name": "a3c_ray", "env": "Arm2D", "env_kwargs": {"image_si
        "eval": {"every": 100, "episodes": 2}}
 
 
-@pytest.fixture(scope="module")
-def ray_cluster():
-    """One private cluster (127.0.0.1) for the A3C runs: each joins it instead of starting its own."""
-    import ray
-
-    from binpick.cluster import start_ray
-
-    start_ray(None, 2)
-    yield
-    ray.shutdown()
-
-
 @pytest.mark.slow
 def test_a3c_from_an_rl_yaml_on_ray_actors_ends_as_a_run_without_the_fault(tmp_path, ray_cluster):
     """The same RL YAML as a local run, its workers as Ray actors: the run folder, checkpoints and

@@ -29,18 +29,6 @@ DETECT, PICKABILITY, QUALITY = (KINDS[task].job for task in ("detect", "pickabil
 CLI = [sys.executable, "-c", "from binpick.cli import main; main()"]
 
 
-@pytest.fixture(scope="module")
-def ray_cluster():
-    """One private cluster (127.0.0.1) for the module: every run joins it instead of starting its own."""
-    import ray
-
-    from binpick.cluster import start_ray
-
-    start_ray(None, 2)
-    yield
-    ray.shutdown()
-
-
 def tiny_config(tmp: Path, epochs: int) -> DetectConfig:
     coco = make_coco(tmp / "coco", images=8, size=64, seed=1)
     return from_dict(DetectConfig, {

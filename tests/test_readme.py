@@ -119,7 +119,7 @@ TINY: list[tuple[str, str]] = [
     (r"--policies x,y", "--policies y"),  # the one the rod_* configs and `data show --policy y` read
     (r"--scenes 400\b", "--scenes 4 --scenes-per-world 1 --val-fraction 0.5"),
     (r"--scenes 800\b", "--scenes 4 --scenes-per-world 1 --val-fraction 0.5"),  # grasp trials: train and val worlds
-    (r"--photo-views \d+", "--photo-views 1"),  # a randomised studio photo per product (each view renders them all)
+    (r"--photo-views \d+", "--photo-views 0"),  # (each view renders all 40 products: ~10 s; views are test_warehouse_data's and test_verifier's)
     (r"--grasp-trials \d+", "--grasp-trials 1"),
     (r"--workers \d+", "--workers 1"),
     (r"--orders \d+", "--orders 1"),
@@ -129,6 +129,7 @@ TINY: list[tuple[str, str]] = [
     (r"^binpick envs tour$", "binpick envs tour --episodes 1"),
     (r"^binpick demo$", "binpick demo --orders 1"),
     (r"^(binpick (?:rl )?train configs/rl/\S+.*)$", r"\1 " + " ".join(f"--set {k}={v}" for k, v in TINY_RL.items())),
+    (r"total_timesteps=300, eval__every=300", "total_timesteps=150, eval__every=150"),  # binpick.train(...) in Python
     (r"binpick\.train\(\"configs/rl/[^\n]*\)", lambda match: tiny_keywords(match.group(0))),
     (r"^(binpick april run configs/\S+.*)$", r"\1 --set collect.episodes=2 --set perception_training.epochs=1 "
                                             r"--set eval.episodes=1 --set policy.rl_config=tiny_rl.yaml"),
