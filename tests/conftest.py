@@ -48,9 +48,9 @@ def train_rl_run(config: dict, root: Path) -> Path:
 
 @pytest.fixture(scope="module")
 def ray_cluster():
-    """One private Ray cluster (127.0.0.1, 2 CPUs) for a module's tests: every run of a test that asks
-    for it joins it instead of starting its own. (Per module, not per test process: a cluster left idle
-    under the rest of a test process's tests hung in ``ray.shutdown``.)"""
+    """A private Ray cluster (127.0.0.1, 2 CPUs) for the tests of a module that a test process runs: each
+    run of a test that asks for it joins it instead of starting its own. (Per module, not once per test
+    process: a cluster left idle under the rest of a process's tests once hung in ``ray.shutdown``.)"""
     import ray
 
     from binpick.cluster import start_ray

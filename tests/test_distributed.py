@@ -8,7 +8,6 @@ import os
 import signal
 
 import pytest
-from conftest import binpick_here
 
 from binpick.core.errors import WorkerError
 
@@ -178,7 +177,7 @@ def test_a_killed_driver_resumes_on_ray_with_the_steps_and_evaluations_of_an_uni
     driver.wait(timeout=30)
     run = latest.parents[1]
     assert not (run / "metrics.json").exists()  # it did not finish
-    resumed = binpick_here(["train", "--resume", run, "--address", "local"])  # (joins this module's cluster if one is up)
+    resumed = subprocess.run([*cli, "train", "--resume", str(run), "--address", "local"], capture_output=True, text=True, timeout=300)
     assert resumed.returncode == 0, resumed.stderr[-2000:]
     metrics = json.loads((run / "metrics.json").read_text())
     assert metrics["sim_steps"] == 600 and [e["sim_steps"] for e in metrics["evaluations"]] == [200, 400, 600]

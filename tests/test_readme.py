@@ -3,7 +3,7 @@
 The ```bash and ```python blocks of the README, then of each page in the docs site's order
 (mkdocs.yml's nav), are read from the files themselves and run in order in one scratch folder (with the repository's ``configs/`` beside them), so a command that a later one
 depends on (a data set, a run folder) is there when it is needed. The only changes are the ones
-in :data:`TINY`: smaller numbers (``--scenes 2000`` -> 24, ``--episodes 100`` -> 1) and ``--set``
+in :data:`TINY`: smaller numbers (``--scenes 2000`` -> 6, ``--episodes 100`` -> 1) and ``--set``
 overrides that shrink training budgets; ``<time>`` becomes the newest run folder, and the ROS port
 a free one. The few lines that cannot run on one machine are listed in :data:`SKIPPED` with the
 reason; anything else new in the README is run automatically.
