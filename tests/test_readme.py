@@ -24,6 +24,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from conftest import binpick_here
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
@@ -221,30 +222,6 @@ OWN_PROCESS = ("binpick rl distributed", "binpick ros")  # Ray and rospy keep pe
 STANDALONE = ("binpick rl distributed --env FetchReach", "binpick detect export rod_photo_learnt_tiny_320")
 
 
-def run_in_process(arguments: list[str], folder: Path) -> tuple[int, str]:
-    """``binpick ARGUMENTS`` through the real entry point, in this process, from ``folder``."""
-    import contextlib
-    import io
-
-    from binpick.cli import main
-
-    previous, saved_argv = Path.cwd(), sys.argv
-    err = io.StringIO()
-    try:
-        os.chdir(folder)
-        sys.argv = ["binpick", *arguments]
-        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
-            try:
-                main()
-                code = 0
-            except SystemExit as exit_:
-                code = exit_.code or 0
-    finally:
-        os.chdir(previous)
-        sys.argv = saved_argv
-    return code, err.getvalue()
-
-
 def run_block(language: str, text: str, folder: Path, environment: dict, only: str | None = None,
               done: set[str] | None = None) -> list[str]:
     """Run one block; returns what ran (for the failure message). ``only``: run just the block's
@@ -286,8 +263,8 @@ def run_block(language: str, text: str, folder: Path, environment: dict, only: s
             words = shlex.split(command.rstrip(" &"))
             started = time.perf_counter()
             if words[0] == "binpick" and not command.endswith("&") and not command.startswith(OWN_PROCESS):
-                code, err = run_in_process(words[1:], folder)  # saves an interpreter start and the imports
-                assert code == 0, f"README command failed: {command}\n{err[-3000:]}"
+                result = binpick_here(words[1:], cwd=folder)  # saves an interpreter start and the imports
+                assert result.returncode == 0, f"README command failed: {command}\n{result.stderr[-3000:]}"
                 ran.append(f"{time.perf_counter() - started:5.1f} s  {command}")
                 continue
             if words[0] == "binpick":
