@@ -157,6 +157,32 @@ def test_detections_are_asked_of_each_other_in_one_batch_as_the_check_asks_a_pho
     assert verifier.pairwise(rgb, depth, boxes[:1]).shape == (1, 1)
 
 
+def test_a_plan_reads_each_window_once_for_the_photo_check_and_the_agreement():
+    """The frame's windows are read once (towers and histograms) and shared by the check against the
+    photo and the detections' check against each other; shared or not, the figures are the same."""
+    from binpick.detection import verifier as V
+
+    verifier = V.ProductVerifier.load()
+    rgb = np.full((160, 240, 3), 90, np.uint8)
+    depth = np.full((160, 240), 0.8, np.float32)
+    boxes = np.array([[20, 30, 40, 40], [90, 30, 40, 40], [160, 30, 40, 40]], float)
+    for (x, y, w, h), colour in zip(boxes.astype(int), [(200, 40, 40), (30, 40, 200), (198, 38, 42)]):
+        rgb[y:y + h, x:x + w] = colour
+        depth[y:y + h, x:x + w] = 0.74
+    photo = np.zeros((64, 64, 3), np.uint8)
+    photo[16:48, 16:48] = (200, 40, 40)
+    read = []
+    original = verifier.net.window_features
+    verifier.net.window_features = lambda window: read.append(len(window)) or original(window)
+    windows = verifier.windows(rgb, depth)
+    shared = verifier.probabilities(photo, None, rgb, depth, boxes, windows=windows)
+    agree = verifier.pairwise(rgb, depth, boxes[[2, 0]], windows=windows)
+    assert read == [3]  # one batch of three windows; the agreement's two were read already
+    assert shared == pytest.approx(verifier.probabilities(photo, None, rgb, depth, boxes), abs=1e-6)
+    assert agree == pytest.approx(verifier.pairwise(rgb, depth, boxes[[2, 0]]), abs=1e-6)
+    assert read == [3, 3, 2]  # without shared windows each call reads its own
+
+
 def test_copies_that_agree_rank_above_a_look_alike_the_photo_check_passes():
     from binpick.picking.agreement import rank_by_support, support
 
@@ -206,6 +232,11 @@ def test_in_a_bin_of_copies_the_first_plan_is_a_copy_not_the_same_coloured_look_
 
         return max(scene.instances, key=overlap).product_id, plans.timing_ms
 
+    net = pipeline.picker.learnt_verifier().net
+    read, original = [], net.window_features
+    net.window_features = lambda window: read.append(len(window)) or original(window)
     product, timing = first_lift(4.0)
     assert product == "procedural/cylinder_16" and "agree" in timing
+    detections = len(pipeline.plan(scene, "procedural/cylinder_16").boxes)
+    assert detections > 2 and sum(read) == 2 * detections  # per plan each window read once: the check and the agreement share it
     assert first_lift(None)[0] != "procedural/cylinder_16"  # without it the look-alike came first

@@ -21,6 +21,7 @@ not BatchNorm: photo batches and window batches have nothing in common statistic
 from __future__ import annotations
 
 from pathlib import Path
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -94,12 +95,29 @@ def colour_features(photo: np.ndarray, window: np.ndarray, light: np.ndarray) ->
     """(COLOUR_FEATURES,) float32: hue-saturation histograms of the photo's product pixels, of the
     window's and of the window white-balanced by the frame's ``light``, their intersections with the
     photo's, and the light itself (so the head learns when to trust the balance)."""
-    mine = histogram(photo[..., :3], photo[..., 3] > 127)
+    return joined_colour(photo_histogram(photo), *window_histograms(window, light), light)[0]
+
+
+def photo_histogram(photo: np.ndarray) -> np.ndarray:
+    """The hue-saturation histogram of a photo input's product pixels (its alpha)."""
+    return histogram(photo[..., :3], photo[..., 3] > 127)
+
+
+def window_histograms(window: np.ndarray, light: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A window's product pixels' histograms: as read, and white-balanced by the frame's ``light``."""
     mask = window_mask(window)
-    raw = histogram(window[..., :3], mask)
     balanced_rgb = np.clip(window[..., :3].astype(np.float32) / light, 0, 255).astype(np.uint8)
-    balanced = histogram(balanced_rgb, mask)
-    return np.concatenate([mine, raw, balanced, [np.minimum(mine, raw).sum(), np.minimum(mine, balanced).sum()], light]).astype(np.float32)
+    return histogram(window[..., :3], mask), histogram(balanced_rgb, mask)
+
+
+def joined_colour(mine: np.ndarray, raw: np.ndarray, balanced: np.ndarray, light: np.ndarray) -> np.ndarray:
+    """(n, COLOUR_FEATURES): :func:`colour_features` from histograms already made (``mine``: the photo's,
+    one or (n, 48); ``raw``, ``balanced``: the windows', (48,) or (n, 48))."""
+    raw, balanced = np.atleast_2d(raw), np.atleast_2d(balanced)
+    mine = np.broadcast_to(np.atleast_2d(mine), raw.shape)
+    joined = np.concatenate([mine, raw, balanced, np.minimum(mine, raw).sum(1, keepdims=True),
+                             np.minimum(mine, balanced).sum(1, keepdims=True), np.broadcast_to(light, (len(raw), 3))], 1)
+    return joined.astype(np.float32)
 
 
 def window_input(rgb: np.ndarray, depth: np.ndarray, box_xywh, side: int = STORED) -> np.ndarray:
@@ -209,40 +227,38 @@ class ProductVerifier:
 
         return tensorfile.save(path, FORMAT, tensors=self.net.state_dict(), meta={"width": self.net.width, **self.meta, **(meta or {})})
 
+    def windows(self, rgb: np.ndarray, depth: np.ndarray) -> FrameWindows:
+        """The frame's detection windows, each read once however many checks ask for it."""
+        return FrameWindows(self.net, rgb, depth)
+
     @torch.no_grad()
-    def pairwise(self, rgb: np.ndarray, depth: np.ndarray, boxes) -> np.ndarray:
+    def pairwise(self, rgb: np.ndarray, depth: np.ndarray, boxes, windows: FrameWindows | None = None) -> np.ndarray:
         """P(same product) between every two boxes of one frame, (n, n), symmetric, 1 on the diagonal:
         each box's window is shown to the check as if it were the shop photo (its colours, its pixels
         standing above the window's floor as the product's mask), both ways round, averaged. Copies of
         one product in a bin agree with each other; a look-alike of another product agrees with few.
-        One batch: each window's towers and histograms once, the head on every pair."""
+        One batch: each window's towers and histograms once (``windows``: those the frame's check
+        against the photos already read), the head on every pair."""
         boxes = np.asarray(boxes, dtype=float).reshape(-1, 4)
         n = len(boxes)
         if n < 2:
             return np.ones((n, n))
-        windows = [centre(window_input(rgb, depth, box)) for box in boxes]
-        light = illuminant(rgb)
-        masks = [window_mask(w) for w in windows]
-        raw = np.stack([histogram(w[..., :3], m) for w, m in zip(windows, masks)])  # a window as photo: its own pixels
-        balanced = np.stack([histogram(np.clip(w[..., :3].astype(np.float32) / light, 0, 255).astype(np.uint8), m)
-                             for w, m in zip(windows, masks)])
+        read = (windows or self.windows(rgb, depth)).read(boxes)
         first, second = (index.ravel() for index in np.meshgrid(np.arange(n), np.arange(n), indexing="ij"))
-        colour = np.concatenate([raw[first], raw[second], balanced[second],
-                                 np.minimum(raw[first], raw[second]).sum(1, keepdims=True),
-                                 np.minimum(raw[first], balanced[second]).sum(1, keepdims=True),
-                                 np.repeat(light[None], n * n, 0)], 1).astype(np.float32)
-        looks, heights = self.net.window_features(to_tensor(np.stack(windows)))
-        logits = self.net.joined_logits(looks[first], looks[second], heights[second], torch.from_numpy(colour))
+        colour = joined_colour(read.raw[first], read.raw[second], read.balanced[second], read.light)  # a window as photo: its own pixels
+        logits = self.net.joined_logits(read.looks[first], read.looks[second], read.heights[second], torch.from_numpy(colour))
         same = torch.sigmoid(logits).numpy().astype(float).reshape(n, n)
         same = (same + same.T) / 2
         np.fill_diagonal(same, 1.0)
         return same
 
     @torch.no_grad()
-    def probabilities(self, photos, photo_masks, rgb: np.ndarray, depth: np.ndarray, boxes) -> np.ndarray:
+    def probabilities(self, photos, photo_masks, rgb: np.ndarray, depth: np.ndarray, boxes,
+                      windows: FrameWindows | None = None) -> np.ndarray:
         """P(same product) for each box (x, y, w, h) against the best-matching of the ``photos`` (one
         photo, or a list of views of the product; ``photo_masks`` likewise, None entries: found from the
-        photo). ``depth``: metres registered to ``rgb``, 0 or NaN for no reading."""
+        photo). ``depth``: metres registered to ``rgb``, 0 or NaN for no reading. ``windows``: the
+        frame's windows already read (:meth:`windows`), shared with :meth:`pairwise`."""
         boxes = np.asarray(boxes, dtype=float).reshape(-1, 4)
         if not len(boxes):
             return np.zeros(0)
@@ -252,11 +268,44 @@ class ProductVerifier:
         if len(masks) != len(photos):
             raise ConfigError(f"{len(photos)} photos but {len(masks)} product masks: give one per photo")
         photo_arrays = [photo_input(p, m) for p, m in zip(photos, masks)]
-        window_arrays = [centre(window_input(rgb, depth, box)) for box in boxes]
-        light = illuminant(rgb)
-        looks, heights = self.net.window_features(to_tensor(np.stack(window_arrays)))  # once for every photo
+        read = (windows or self.windows(rgb, depth)).read(boxes)  # the windows' towers once for every photo
         features = self.net.embed_photo(to_tensor(np.stack(photo_arrays)))
-        best = torch.stack([self.net.joined_logits(f[None], looks, heights, torch.from_numpy(np.stack([
-                                colour_features(photo, w, light) for w in window_arrays])))
+        best = torch.stack([self.net.joined_logits(f[None], read.looks, read.heights, torch.from_numpy(
+                                joined_colour(photo_histogram(photo), read.raw, read.balanced, read.light)))
                             for f, photo in zip(features, photo_arrays)]).amax(0)
         return torch.sigmoid(best).numpy().astype(float)
+
+
+class ReadWindows(NamedTuple):
+    """Windows of some boxes as the check reads them: towers (n, features) and histograms (n, 48)."""
+    looks: torch.Tensor
+    heights: torch.Tensor
+    raw: np.ndarray
+    balanced: np.ndarray
+    light: np.ndarray
+
+
+class FrameWindows:
+    """One frame's detection windows as the product check reads them (pixels and heights, product-pixel
+    histograms as read and white-balanced, the colour and height towers), each box's made once: the
+    check against the shop photos and the detections' check against each other read the same
+    windows, so a plan pays for them once."""
+
+    def __init__(self, net: VerifierNet, rgb: np.ndarray, depth: np.ndarray) -> None:
+        self.net, self.rgb, self.depth = net, rgb, depth
+        self.light = illuminant(rgb)
+        self._read: dict[tuple[float, ...], tuple[torch.Tensor, torch.Tensor, np.ndarray, np.ndarray]] = {}
+
+    @torch.no_grad()
+    def read(self, boxes: np.ndarray) -> ReadWindows:
+        """The windows of ``boxes`` (n, 4) x, y, w, h: those not read before in one batch."""
+        keys = [tuple(float(v) for v in box) for box in np.asarray(boxes, dtype=float).reshape(-1, 4)]
+        new = list(dict.fromkeys(key for key in keys if key not in self._read))
+        if new:
+            arrays = [centre(window_input(self.rgb, self.depth, key)) for key in new]
+            looks, heights = self.net.window_features(to_tensor(np.stack(arrays)))
+            for i, (key, array) in enumerate(zip(new, arrays)):
+                self._read[key] = (looks[i], heights[i], *window_histograms(array, self.light))
+        rows = [self._read[key] for key in keys]
+        return ReadWindows(torch.stack([r[0] for r in rows]), torch.stack([r[1] for r in rows]),
+                           np.stack([r[2] for r in rows]), np.stack([r[3] for r in rows]), self.light)

@@ -415,7 +415,7 @@ class Picker:
         check_camera_pose(frame, self.workspace or info.workspace)  # a pose its own depth contradicts: one line, no plan
         workspace = self.workspace or info.workspace or Workspace.around_view(info.camera)
         timing["depth"] = 1000 * (time.perf_counter() - started)
-        pointed = None
+        pointed, windows = None, None
         if query_box is not None and boxes is None:
             pointed = self.pointed_instance(frame, query_box)
         tick = time.perf_counter()
@@ -426,9 +426,10 @@ class Picker:
             found, scores = self.detect(rgb, frame, photos, query_box)
             timing["detect"] = 1000 * (time.perf_counter() - tick)
             tick = time.perf_counter()
-            checked = self.product_scores(rgb, depth, frame, found, photos, query_box)
+            windows = self.frame_windows(rgb, depth, photos)  # read once, for the photo check and the agreement
+            checked = self.product_scores(rgb, depth, frame, found, photos, query_box, windows)
             if photos and self.copies_from_match is not None:
-                found, scores, checked = self.copies_of_best_match(rgb, depth, frame, photos, found, scores, checked)
+                found, scores, checked = self.copies_of_best_match(rgb, depth, frame, photos, found, scores, checked, windows)
             timing["check"] = 1000 * (time.perf_counter() - tick)
         ranked = list(zip(found, scores, checked))
         threshold = self.check if query_box is None or self._check_given else QUERY_CHECK
@@ -439,7 +440,8 @@ class Picker:
             ranked.sort(key=lambda c: -c[1] * (c[2] if c[2] is not None else 1.0))
             if self.agreement is not None and photos and query_box is None and hasattr(self.learnt_verifier(), "pairwise"):
                 tick_agree = time.perf_counter()  # copies agree with each other, a look-alike with few
-                ranked = rank_by_support(ranked, lambda found_boxes: self.verifier.pairwise(rgb, depth, found_boxes), self.agreement)
+                ranked = rank_by_support(ranked, lambda found_boxes: self.verifier.pairwise(rgb, depth, found_boxes, windows=windows),
+                                         self.agreement)
                 timing["agree"] = 1000 * (time.perf_counter() - tick_agree)
         tick = time.perf_counter()
         plans: list[GraspPlan] = []
@@ -494,7 +496,7 @@ class Picker:
         return found[order].reshape(-1, 4), scores[order]
 
     def copies_of_best_match(self, rgb: np.ndarray, depth: np.ndarray, frame: DepthFrame, photos, found: np.ndarray,
-                             scores: np.ndarray, checked: list[float | None]):
+                             scores: np.ndarray, checked: list[float | None], windows=None):
         """The photo detections plus the copies the box-query detector finds of the surest of them (the
         product check at least ``copies_from_match``), those not already found, checked the same way."""
         from binpick.detection.ops import box_iou, xywh_to_xyxy
@@ -515,13 +517,21 @@ class Picker:
         if not len(extra):
             return found, scores, checked
         return (np.concatenate([found, extra]), np.concatenate([scores, extra_scores]),
-                list(checked) + self.product_scores(rgb, depth, frame, extra, photos, None))
+                list(checked) + self.product_scores(rgb, depth, frame, extra, photos, None, windows))
+
+    def frame_windows(self, rgb: np.ndarray, depth: np.ndarray, photos):
+        """The learnt product check's windows of this frame (read once per plan), or None where no
+        learnt check reads them (no check, the colour check, a query box)."""
+        if not photos or self.verifier is None or self.verifier == "colour":
+            return None
+        verifier = self.learnt_verifier()
+        return verifier.windows(rgb, depth) if hasattr(verifier, "windows") else None
 
     def product_scores(self, rgb: np.ndarray, depth: np.ndarray, frame: DepthFrame, boxes: np.ndarray,
-                       photos: list[tuple[np.ndarray, np.ndarray | None]], query_box) -> list[float | None]:
+                       photos: list[tuple[np.ndarray, np.ndarray | None]], query_box, windows=None) -> list[float | None]:
         """The product check's score of each box: against a query box, colour similarity to the pointed
         instance's pixels (same frame, same light); against photos, the verifier's (best over the photos;
-        on depth as read, holes as holes, as it was trained)."""
+        on depth as read, holes as holes, as it was trained; ``windows``: :meth:`frame_windows`)."""
         if self.verifier is None or not len(boxes):
             return [None] * len(boxes)
         if query_box is not None:
@@ -531,7 +541,10 @@ class Picker:
         if self.verifier == "colour":
             histograms = [colour_histogram(image, photo_mask(image) if mask is None else mask) for image, mask in photos]
             return [max(colour_similarity(h, rgb, frame.heights, box) for h in histograms) for box in boxes]
-        probabilities = self.learnt_verifier().probabilities([image for image, _ in photos], [mask for _, mask in photos], rgb, depth, boxes)
+        verifier = self.learnt_verifier()
+        images, masks = [image for image, _ in photos], [mask for _, mask in photos]
+        probabilities = (verifier.probabilities(images, masks, rgb, depth, boxes, windows=windows) if windows is not None
+                         else verifier.probabilities(images, masks, rgb, depth, boxes))
         return [float(p) for p in probabilities]
 
     def find_again(self, previous_rgb: np.ndarray, previous_depth: np.ndarray, previous_box, rgb: np.ndarray, depth: np.ndarray,
