@@ -49,7 +49,7 @@ def ray_scenes_per_second(scenes: int, size: int, workers: int) -> float:
     Ray's start excluded: the cluster is up before the clock starts)."""
     import ray
 
-    from binpick.cluster import start_ray
+    from binpick.core.cluster import start_ray
     from binpick.warehouse.dataset import DataGeneration
 
     folder = Path(tempfile.mkdtemp(prefix="binpick_ray_"))

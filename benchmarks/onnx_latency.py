@@ -95,7 +95,7 @@ def main() -> None:
     from binpick.core.files import read_image
     from binpick.detection import Detector
     from binpick.detection.detector import PICKING
-    from binpick.depth import read_depth
+    from binpick.core.depth import read_depth
     from binpick.samples import SAMPLE_FRAME
 
     torch.set_num_threads(args.threads)

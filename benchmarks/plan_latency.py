@@ -32,7 +32,7 @@ TARGETS_MS = {"640x480": 100.0, "1920x1080": 150.0, "4000x3000": 300.0}
 
 def simulated_frames(count: int) -> list[tuple[np.ndarray, np.ndarray, object, np.ndarray]]:
     """(rgb, depth m, CameraInfo, shop photo) of ``count`` bins seen by the realistic sensor."""
-    from binpick.depth import as_camera_depth
+    from binpick.core.depth import as_camera_depth
     from binpick.grasping import PinholeCamera
     from binpick.picking.camera_info import CameraInfo
     from binpick.sim import default_library

@@ -517,7 +517,7 @@ def main() -> None:
     from binpick.picking import CameraInfo, GraspPlan, write_camera_info
     from binpick.sim import default_library
     from binpick.sim.products import product_dimensions
-    from binpick.depth import depth_millimetres
+    from binpick.core.depth import depth_millimetres
     from binpick.warehouse.export import cut_out
     from binpick.warehouse.grasping import Reason
     from binpick.warehouse.pipeline import OrderResult, PickPipeline

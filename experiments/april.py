@@ -21,7 +21,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import _common  # noqa: E402
 
 from binpick.april import AprilRun, load_april_config  # noqa: E402
-from binpick.terminal import RichCallback  # noqa: E402
+from binpick.cli.terminal import RichCallback  # noqa: E402
 
 CONFIGS = {
     "FetchReach": ["april_fetchreach_w1.0", "april_fetchreach_w1.0_refined", "april_fetchreach_w0.5",

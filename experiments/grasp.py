@@ -50,7 +50,7 @@ def train() -> None:
     from binpick.core.config import load_config
     from binpick.grasping.quality import SHIPPED, GraspQuality
     from binpick.grasping.training import QualityTrainConfig, QualityTrainer
-    from binpick.terminal import RichCallback
+    from binpick.cli.terminal import RichCallback
 
     folder = run_folder(RUNS, "grasp_quality")
     if folder is not None and not finished(folder):
@@ -74,8 +74,8 @@ def train_and_ship(tool: str, name: str) -> None:
     from binpick.grasping.quality import SHIPPED as JAWS
     from binpick.grasping.suction_quality import SHIPPED as SUCTION
     from binpick.grasping.training import QualityTrainConfig, QualityTrainer, load_model, load_trials
-    from binpick.metrics import calibration_error, roc_auc
-    from binpick.terminal import RichCallback
+    from binpick.core.metrics import calibration_error, roc_auc
+    from binpick.cli.terminal import RichCallback
 
     shipped = JAWS if tool == "jaws" else SUCTION
     folder = run_folder(RUNS, name)
@@ -114,7 +114,7 @@ def calibrate_jaws(data: list[Path]) -> None:
     ranking, and so its AUC, unchanged), its calibration error before and after on their test trials."""
     from binpick.grasping.quality import SHIPPED, GraspQuality
     from binpick.grasping.training import calibrate, load_trials
-    from binpick.metrics import calibration_error, roc_auc
+    from binpick.core.metrics import calibration_error, roc_auc
 
     model = GraspQuality.load(SHIPPED)
     model.meta.pop("calibration", None)
@@ -136,7 +136,7 @@ def tool_trials(data: list[Path]) -> dict:
     from binpick.grasping.quality import SHIPPED as JAWS, GraspQuality
     from binpick.grasping.suction_quality import SHIPPED as SUCTION, SuctionQuality
     from binpick.grasping.training import load_trials
-    from binpick.metrics import calibration_error, reliability, roc_auc
+    from binpick.core.metrics import calibration_error, reliability, roc_auc
 
     rows = {}
     for tool, path, kind in (("jaws", JAWS, GraspQuality), ("suction", SUCTION, SuctionQuality)):
@@ -228,7 +228,7 @@ def top1(bins: int, sensor_name: str = "perfect") -> dict:
     from binpick.sim.gripper import lift_test, trial_timestep
     from binpick.sim.mjcf import CameraSpec
     from binpick.sim.sensor import load_sensor
-    from binpick.depth import as_camera_depth
+    from binpick.core.depth import as_camera_depth
     from binpick.warehouse.pipeline import plan_grasp
 
     sensor = load_sensor(sensor_name)
@@ -402,7 +402,7 @@ def pickability(heads_given: list[str] | None = None) -> None:
 
     from binpick.detection.config import load_detect_config
     from binpick.detection.train import DetectorTrainer
-    from binpick.terminal import RichCallback
+    from binpick.cli.terminal import RichCallback
 
     torch.set_num_threads(2)
     name = "rod_finetune_photo_learnt"

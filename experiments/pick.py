@@ -255,7 +255,7 @@ def category_rows(library, executed: dict[str, list[dict]]) -> dict:
 def calibration_rows(executed: dict[str, list[dict]]) -> dict:
     """Each tool's quality model on the grasps the picks executed: predicted success against what
     happened (the ordered product placed), its expected calibration error and reliability bins."""
-    from binpick.metrics import calibration_error, reliability
+    from binpick.core.metrics import calibration_error, reliability
 
     rows = {}
     for tool in ("jaws", "suction"):

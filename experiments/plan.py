@@ -82,7 +82,7 @@ def file_orders(domain: str, orders: int, sensor: str = "perfect") -> dict:
     """Each bin planned by the simulator pipeline and by `binpick plan` on its files; both executed."""
     from binpick.grasping import PinholeCamera
     from binpick.picking import GraspPlan
-    from binpick.depth import as_camera_depth
+    from binpick.core.depth import as_camera_depth
     from binpick.warehouse.export import cut_out, export_frame
     from binpick.warehouse.grasping import Reason
     from binpick.sim.products import product_dimensions

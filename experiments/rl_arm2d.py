@@ -34,7 +34,7 @@ from binpick.rl.config import RLConfig, load_rl_config  # noqa: E402
 from binpick.rl.evaluate import evaluate_policy, random_policy  # noqa: E402
 from binpick.rl.train import load_policy, make_env as make_run_env, trainer_for  # noqa: E402
 from binpick.core.config import load_run_config  # noqa: E402
-from binpick.terminal import RichCallback  # noqa: E402
+from binpick.cli.terminal import RichCallback  # noqa: E402
 
 RUNS = {
     "a3c": ("configs/rl/rl_arm2d_a3c.yaml", 0.0),

@@ -28,7 +28,7 @@ def perception(images: int, epochs: int, retrain: bool) -> tuple[object, dict]:
     import torch
 
     from binpick.april.arm2d import collect, keypoint_errors, load_keypoints, save_keypoints, train_keypoints
-    from binpick.terminal import RichCallback
+    from binpick.cli.terminal import RichCallback
 
     torch.set_num_threads(2)
     path = FOLDER / "keypoints.safetensors"

@@ -23,7 +23,7 @@ import _common  # noqa: E402
 
 from binpick.rl.config import load_rl_config  # noqa: E402
 from binpick.rl.train import Trainer  # noqa: E402
-from binpick.terminal import RichCallback  # noqa: E402
+from binpick.cli.terminal import RichCallback  # noqa: E402
 
 BASE = "configs/rl/rl_fetchreach_gp_her.yaml"
 GOAL = (0.1, 0.05, 0.05)  # the single goal of Table 3.3, metres from the gripper's start

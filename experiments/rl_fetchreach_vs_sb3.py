@@ -26,7 +26,7 @@ import numpy as np  # noqa: E402
 
 from binpick.rl.config import load_rl_config  # noqa: E402
 from binpick.rl.train import Trainer  # noqa: E402
-from binpick.terminal import RichCallback  # noqa: E402
+from binpick.cli.terminal import RichCallback  # noqa: E402
 
 # binpick: its own learner (8 updates per simulator step); binpick_thesis: the thesis's settings (4)
 CONFIGS = {"sb3_sac_her": "configs/rl/rl_fetchreach_sb3_sac_her.yaml", "binpick": "configs/rl/rl_fetchreach_gp_her_fast.yaml",

@@ -44,7 +44,7 @@ def finished(folder: Path | None) -> bool:
 def train(runs: Path, only: list[str] | None) -> None:
     from binpick.detection.config import load_detect_config
     from binpick.detection.train import DetectorTrainer
-    from binpick.terminal import RichCallback
+    from binpick.cli.terminal import RichCallback
 
     for name in only or CONFIGS:
         folder = run_folder(runs, name)
@@ -104,7 +104,7 @@ def stage_trainers(stage: str, runs: Path, overrides: dict, init: dict[str, Path
 def joint(stage: str, runs: Path, overrides: dict, init: dict[str, Path] | None = None, rows: list[str] | None = None) -> None:
     """Train every row of ``stage`` on the same batches (detection.train.JointTraining)."""
     from binpick.detection.joint import JointTraining
-    from binpick.terminal import RichCallback
+    from binpick.cli.terminal import RichCallback
 
     trainers = stage_trainers(stage, runs, overrides, init, rows)
     if not trainers:
@@ -200,7 +200,7 @@ def latency_input():
     """The image, query box (x, y, w, h) and depth the latency rows time: the first val image's."""
     import numpy as np
 
-    from binpick.depth import read_depth
+    from binpick.core.depth import read_depth
     from binpick.detection.data import read_image
 
     _, image, query = latency_query()

@@ -43,7 +43,7 @@ def scores_on(network, annotations: Path) -> dict:
     from binpick.detection.data import RepeatedInstances, TaskDataset
     from binpick.detection.evaluate import coco_ap, collect, copy_scores, summarise
     from binpick.detection.ops import box_iou
-    from binpick.metrics import roc_auc
+    from binpick.core.metrics import roc_auc
     from binpick.detection.train import detector_detect, loader
 
     source = RepeatedInstances(annotations, targets=P1)

@@ -33,7 +33,7 @@ SHIPPED_ROD = _common.ROOT / "src" / "binpick" / "detection" / "weights" / "rod_
 def train(config_file: Path, settings: list[str] | None) -> None:
     from binpick.core.config import load_config
     from binpick.detection.recurrent_training import RecurrentTrainConfig, train_recurrent
-    from binpick.terminal import RichCallback
+    from binpick.cli.terminal import RichCallback
 
     config = load_config(RecurrentTrainConfig, config_file, rod_benchmark.parse_overrides(settings))
     with RichCallback() as callback:

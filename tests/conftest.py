@@ -53,7 +53,7 @@ def ray_cluster():
     process: a cluster left idle under the rest of a process's tests once hung in ``ray.shutdown``.)"""
     import ray
 
-    from binpick.cluster import start_ray
+    from binpick.core.cluster import start_ray
 
     start_ray(None, 2)
     yield

@@ -103,7 +103,10 @@ def test_april_pipeline_runs_resumes_and_deploys_from_pixels(tmp_path):
     assert resumed.returncode == 0, resumed.stderr
     assert "stage evaluate" in resumed.stdout and "stage collect" not in resumed.stdout
     assert (run / "data" / "random.npz").stat().st_mtime_ns == data_time
-    # the deployed policy: one call to load, an image in, an action out
+    # the deployed policy: one call to load, an image in, an action out; it reads the RL config the run
+    # folder carries, not the file the run was started from (gone on a robot computer)
+    assert "min_action_scale" in (run / "rl_config.yaml").read_text()
+    (tmp_path / "rl.yaml").rename(tmp_path / "elsewhere.yaml")
     policy = Policy.load(run)
     env = make("FetchReach", image="grey", image_size=64)
     observation, _ = env.reset(seed=0)
@@ -113,6 +116,7 @@ def test_april_pipeline_runs_resumes_and_deploys_from_pixels(tmp_path):
         policy.predict(np.zeros((64, 64, 3), np.uint8))
     evaluation = binpick_here(["april", "eval", str(run), "--input", "pixels", "--episodes", "1"])
     assert evaluation.returncode == 0 and "actions per episode" in evaluation.stdout, evaluation.stderr
+    (tmp_path / "elsewhere.yaml").rename(tmp_path / "rl.yaml")
     _latent_policy_widened_from_the_shared_state_policy(run, tmp_path)
 
 

@@ -12,7 +12,7 @@ from PIL import Image
 
 from binpick.core.errors import ConfigError, InputFileError
 from binpick.grasping import DepthFrame, GraspPlanner, JawGripper, PinholeCamera, grasp_candidates
-from binpick.depth import read_depth
+from binpick.core.depth import read_depth
 from binpick.grasping.candidates import instance_surface, watershed_labels
 from binpick.grasping.quality import GraspQuality, height_map
 from binpick.grasping.training import roc_auc

@@ -197,7 +197,7 @@ def test_a_workspace_in_camera_yaml_rejects_grasps_outside_it(tmp_path):
     far_away = read_camera_info(sample_camera(tmp_path, lambda d: d.update(workspace={"min": [5.0, 5.0, 0.0], "max": [6.0, 6.0, 1.0]})))
     assert far_away.workspace == Workspace((5.0, 5.0, 0.0), (6.0, 6.0, 1.0))
     assert inside.workspace == Workspace((-0.25, -0.2, 0.0), (0.25, 0.2, 0.45))  # the sample frame's tote
-    from binpick.depth import read_depth
+    from binpick.core.depth import read_depth
     from binpick.detection.data import read_image
 
     rgb, depth = read_image(SAMPLE_FRAME / "rgb.png"), read_depth(SAMPLE_FRAME / "depth.png")
@@ -312,7 +312,7 @@ def test_a_live_grpc_server_passes_the_ray_probe_and_a_silent_one_does_not():
 
     import grpc
 
-    from binpick.cluster import probe_ray_address
+    from binpick.core.cluster import probe_ray_address
 
     server = grpc.server(futures.ThreadPoolExecutor(max_workers=1))
     port = server.add_insecure_port("127.0.0.1:0")

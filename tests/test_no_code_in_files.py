@@ -217,7 +217,7 @@ def test_python_loaders_refuse_crafted_files(tmp_path):
     from binpick.detection import load_detector
     from binpick.core.errors import BinpickError
     from binpick.core.files import read_npz
-    from binpick.depth import read_depth
+    from binpick.core.depth import read_depth
     from binpick.grasping.quality import GraspQuality
     from binpick.april.perception import load_perception
     from binpick.rl.a3c_train import load_a3c_policy

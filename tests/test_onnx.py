@@ -41,7 +41,7 @@ def iou(a, b) -> float:
 
 def test_onnx_finds_the_same_boxes_as_pytorch_on_frames_it_was_not_exported_with(detectors):
     from binpick.core.files import read_image
-    from binpick.depth import read_depth
+    from binpick.core.depth import read_depth
 
     rgb, photo = read_image(SAMPLE_FRAME / "rgb.png"), read_image(SAMPLE_FRAME / "photo.png", keep_alpha=True)
     depth = read_depth(SAMPLE_FRAME / "depth.png")

@@ -15,7 +15,7 @@ from binpick.detection.pickability import CROP, WINDOW, PickabilityHead, head_au
 from binpick.detection.pickability_training import PickabilityConfig, PickabilityTrainer
 from binpick.detection.train import save_detector
 from binpick.core.errors import ConfigError
-from binpick.metrics import roc_auc
+from binpick.core.metrics import roc_auc
 from synthetic_coco import make_coco
 
 

@@ -140,7 +140,7 @@ def test_the_colour_check_tells_the_ordered_product_from_another_colour():
 
 
 def test_an_order_that_lifts_another_product_says_so_in_results_the_table_and_the_report():
-    from binpick.depth import as_camera_depth
+    from binpick.core.depth import as_camera_depth
     from binpick.warehouse.pipeline import OrderResult, results_json
     from binpick.warehouse.report import order_outcome, order_section
 

@@ -59,7 +59,7 @@ def test_a_worker_s_own_error_is_raised_as_it_was_without_restarts_that_cannot_m
     in this process, under a stand-in for the trainer that fails the first group and restarts it."""
     import ray.train.torch
 
-    import binpick.cluster
+    import binpick.core.cluster
     from binpick.core.errors import InputFileError
 
     groups: list[str] = []
@@ -80,7 +80,7 @@ def test_a_worker_s_own_error_is_raised_as_it_was_without_restarts_that_cannot_m
             return type("Result", (), {"error": None})()
 
     monkeypatch.setattr(ray.train.torch, "TorchTrainer", OneRestart)
-    monkeypatch.setattr(binpick.cluster, "start_ray", lambda address, workers: False)
+    monkeypatch.setattr(binpick.core.cluster, "start_ray", lambda address, workers: False)
     config = tiny_config(tmp_path, epochs=1)
     run_dir = DetectorTrainer.new(config, tmp_path / "ray").run_dir
     Path(config.data.train).write_text("{not json")

@@ -196,7 +196,7 @@ def test_depth_at_a_lower_resolution_of_the_same_aspect_is_resampled_and_the_sam
 def test_data_generate_with_the_realistic_sensor_records_it_and_resumes_only_with_it(tmp_path):
     import json
 
-    from binpick.depth import read_depth
+    from binpick.core.depth import read_depth
     from binpick.warehouse.dataset import DataGeneration, GenerateConfig
 
     settings = dict(out=str(tmp_path / "bins"), scenes=2, policies=[], workers=1, image_size=96, copies=(2, 2), distractors=(1, 1),
@@ -242,7 +242,7 @@ def test_the_pipeline_picks_the_pointed_instance_and_nothing_else():
 def test_a_pointed_instance_that_moved_is_found_again_near_its_old_box():
     from binpick.detection import Detector
     from binpick.detection.detector import PICKING
-    from binpick.depth import as_camera_depth
+    from binpick.core.depth import as_camera_depth
     from binpick.grasping import PinholeCamera
     from binpick.picking import Picker
     from binpick.sim import default_library

@@ -126,7 +126,7 @@ def test_suction_trials_are_recorded_and_a_calibrated_suction_model_trains_on_th
 
 
 def test_platt_scaling_recovers_a_known_miscalibration():
-    from binpick.metrics import calibration_error, fit_platt, reliability
+    from binpick.core.metrics import calibration_error, fit_platt, reliability
 
     rng = np.random.default_rng(0)
     logits = rng.normal(0.0, 3.0, 4000)

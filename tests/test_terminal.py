@@ -13,7 +13,7 @@ import pytest
 from rich.console import Console
 
 from binpick.core.runs import StopRequested
-from binpick.terminal import RichCallback
+from binpick.cli.terminal import RichCallback
 
 
 def callback() -> RichCallback:

@@ -184,7 +184,7 @@ def check_ray_job(kind: JobKind, address: str | None, workers: int, config: Any 
         if algorithm == "a3c" and workers != 1:
             raise ConfigError("an A3C run's rollout workers are its a3c.workers, on Ray as here: --set a3c.workers=N instead of --workers")
     if address != "local":
-        from binpick.cluster import check_ray_address
+        from binpick.core.cluster import check_ray_address
 
         check_ray_address(address)
 

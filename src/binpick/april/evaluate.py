@@ -12,19 +12,18 @@ from binpick.rl.evaluate import evaluate_policy
 from binpick.core.runs import SILENT, RunCallback
 
 if TYPE_CHECKING:
-    from binpick.april.pipeline import AprilRun
+    from binpick.april.run_folder import AprilRunFolder
 
 
-def deployment_env(run: AprilRun, runtime_input: str):
+def deployment_env(run: AprilRunFolder, runtime_input: str):
     """The env and policy exactly as deployed: ``state`` (ground truth, semantic modes) or ``pixels``."""
     from binpick.april.finetune import with_action_scale
     from binpick.april.perception import load_perception, perception_path
-    from binpick.rl.config import load_rl_config
     from binpick.rl.train import load_policy
     from binpick.rl.wrappers import SemanticState
 
     mode = run.config.policy.mode
-    scale = load_rl_config(run.config.policy.rl_config).min_action_scale
+    scale = run.rl_settings.min_action_scale
     if runtime_input == "state":  # the state policy on the simulator's s̄ (and its privileged state, if any)
         base = GoalRecorder(run.make_env(image=False))
         if run.config.policy.teacher == "detour":
@@ -60,7 +59,7 @@ def load_latent_policy(run_dir: Path):
     return load_saved_policy(path)
 
 
-def row_names(run: AprilRun) -> dict[str, str]:
+def row_names(run: AprilRunFolder) -> dict[str, str]:
     """Runtime input -> the results row name (what the row is, e.g. pixels_ae_n6_m6_w1.0)."""
     p = run.config.perception
     views = run.config.views
@@ -101,7 +100,7 @@ def row_names(run: AprilRun) -> dict[str, str]:
     return rows
 
 
-def evaluate_rows(run: AprilRun, callback: RunCallback = SILENT) -> dict[str, Any]:
+def evaluate_rows(run: AprilRunFolder, callback: RunCallback = SILENT) -> dict[str, Any]:
     from binpick.viz.april import plot_goal_heatmap
 
     episodes, seed = run.config.eval.episodes, run.config.eval.seed

@@ -35,7 +35,7 @@ def with_action_scale(env, scale: float | None):
     return MinActionScale(env, scale) if scale else env
 
 if TYPE_CHECKING:
-    from binpick.april.pipeline import AprilRun
+    from binpick.april.run_folder import AprilRunFolder
 
 
 def _semantic_columns(model: SavedPolicy, goal_dim: int) -> list[np.ndarray]:
@@ -96,7 +96,7 @@ class _Progress(BaseCallback):
         return True
 
 
-def latent_sac(run: AprilRun, env, rl_settings, tensorboard_log: str | None = None) -> SAC:
+def latent_sac(run: AprilRunFolder, env, rl_settings, tensorboard_log: str | None = None) -> SAC:
     """The SAC a latent policy learns with: the state policy's RL config's SAC settings, the run's seed."""
     settings = rl_settings.sac
     return SAC("MlpPolicy", env, learning_rate=settings.learning_rate, batch_size=settings.batch_size,
@@ -105,10 +105,9 @@ def latent_sac(run: AprilRun, env, rl_settings, tensorboard_log: str | None = No
                device="cpu", tensorboard_log=tensorboard_log)
 
 
-def finetune_latent_policy(run: AprilRun, semantic_run: str | None, callback: RunCallback = SILENT) -> dict[str, Any]:
+def finetune_latent_policy(run: AprilRunFolder, semantic_run: str | None, callback: RunCallback = SILENT) -> dict[str, Any]:
     """Train (or fine-tune) SAC on encoded images; saves ``policy_latent.safetensors`` in the run folder."""
     from binpick.april.perception import load_perception, perception_path
-    from binpick.rl.config import load_rl_config
     from binpick.rl.train import load_policy
 
     torch.set_num_threads(1)  # small networks, one env: a second thread only competes with other jobs
@@ -121,7 +120,7 @@ def finetune_latent_policy(run: AprilRun, semantic_run: str | None, callback: Ru
             atomic_write_bytes(pretrained, source.read_bytes())
         source = pretrained
     perception = load_perception(source)
-    rl_settings = load_rl_config(policy.rl_config)
+    rl_settings = run.rl_settings
     env = with_action_scale(EncodedObservation(run.make_env(), perception.encode, perception.config.latent,
                                                perception.config.conditioned, with_state=policy.mode == "state_plus_latent",
                                                gripper=run.gripper, opening=run.opening),
@@ -152,7 +151,7 @@ def finetune_latent_policy(run: AprilRun, semantic_run: str | None, callback: Ru
     return result | {"widened": widened, "finetune": policy.finetune}
 
 
-def distill_from_state_policy(student: SAC, teacher: SavedPolicy | ObstacleDetour | None, env, run: AprilRun,
+def distill_from_state_policy(student: SAC, teacher: SavedPolicy | ObstacleDetour | None, env, run: AprilRunFolder,
                               callback: RunCallback = SILENT, perception=None) -> dict[str, Any]:
     """DAgger (Ross et al., 2011) from the state policy: the student acts on φ_enc(I), the teacher
     labels every visited image with its own action on the true s̄ (and any ``privileged_state`` its

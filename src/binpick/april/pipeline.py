@@ -16,105 +16,22 @@ from its own latest checkpoint).
 from __future__ import annotations
 
 import time
-from functools import cached_property
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
-from binpick.april.config import AprilConfig
 from binpick.april.observations import semantic_observation, semantic_state
-from binpick.core.config import load_run_config, to_dict
-from binpick.core.errors import ConfigError, InputFileError
+from binpick.april.run_folder import CAMERA_KWARGS, STAGES, AprilRunFolder
+from binpick.core.errors import ConfigError
 from binpick.core.files import atomic_write, atomic_write_json, read_json_object, read_npz
-from binpick.core.runs import SILENT, RunCallback, new_run_dir
+from binpick.core.runs import SILENT, RunCallback
 
-STAGES = ("collect", "perception", "policy", "refine", "finetune", "evaluate")
-CAMERA_KWARGS = ("views", "image", "image_size")  # how the world is seen, not what it is
+__all__ = ["AprilRun", "CAMERA_KWARGS", "STAGES"]
 
 
-class AprilRun:
-    """A run folder holding ``config.yaml``, ``stages.json`` and every stage's outputs."""
-
-    def __init__(self, config: AprilConfig, run_dir: Path) -> None:
-        self.config, self.run_dir = config, Path(run_dir)
-        self.stages_path = self.run_dir / "stages.json"
-        self.stages: dict[str, Any] = read_json_object(self.stages_path, "APRiL stages file") if self.stages_path.exists() else {}
-        unknown = [stage for stage in self.stages if stage not in STAGES]
-        if unknown or not all(isinstance(result, dict) for result in self.stages.values()):
-            raise InputFileError(f"APRiL stages file {str(self.stages_path)!r} is damaged "
-                                 f"({'unknown stage ' + repr(unknown[0]) if unknown else 'a stage result is not a mapping'}): "
-                                 "delete it to redo every stage")
-
-    @classmethod
-    def new(cls, config: AprilConfig, runs_root: Path = Path("runs")) -> AprilRun:
-        return cls(config, new_run_dir(runs_root, config.name, yaml.safe_dump(to_dict(config), sort_keys=False)))
-
-    @classmethod
-    def resume(cls, run_dir: Path) -> AprilRun:
-        run_dir = Path(run_dir)
-        if not (run_dir / "config.yaml").is_file():
-            raise ConfigError(f"{str(run_dir)!r} is not an APRiL run folder (no config.yaml)")
-        return cls(load_run_config(AprilConfig, run_dir), run_dir)
-
-    @property
-    def gripper(self) -> bool:
-        """Pick and place: s̄ also holds the gripper position (thesis Table 4.5: m = 9)."""
-        from binpick.rl.wrappers import needs_gripper
-
-        return needs_gripper(self.config.env)
-
-    @cached_property  # read in every collection step: the RL config is loaded once
-    def opening(self) -> bool:
-        """s̄ also holds the fingers' opening: the state policy's RL config says ``gripper_opening``."""
-        if self.config.policy.mode == "latent" and not self.config.policy.pretrain:
-            return False  # no state policy (a scripted teacher or none): s̄ as the env defines it
-        return self.state_policy_settings().gripper_opening
-
-    def state_policy_settings(self):
-        """The state policy's RL config: that of ``policy.state_run`` if one is shared, else ``policy.rl_config``."""
-        from binpick.rl.config import RLConfig, load_rl_config
-
-        if self.config.policy.state_run is not None:
-            return load_run_config(RLConfig, Path(self.config.policy.state_run))
-        return load_rl_config(self.config.policy.rl_config)
-
-    @property
-    def teacher_privileged(self) -> list[str]:
-        """What the state policy reads beside s̄ (its RL config's ``privileged_state``): simulator
-        state a camera-driven policy never gets, only a teacher for ``finetune: distill``."""
-        if self.config.policy.teacher == "detour":
-            return ["obstacle_position"]
-        return list(self.state_policy_settings().privileged_state)
-
-    def _done(self, stage: str, result: dict[str, Any]) -> None:
-        self.stages[stage] = result
-        atomic_write_json(self.stages_path, self.stages)
-
-    def make_env(self, image: bool = True):
-        from binpick.envs import make
-
-        kwargs = dict(self.config.env_kwargs)
-        if image:
-            kwargs.update(image=self.config.image, image_size=self.config.image_size)
-        return make(self.config.env, **kwargs)
-
-    def check_state_policy_config(self):
-        """The state policy's RL config against this run, before any stage spends minutes: same env and
-        world (env_kwargs but the camera's), and privileged state only where a student distils it."""
-        settings = self.state_policy_settings()
-        if settings.env != self.config.env:
-            raise ConfigError(f"the state policy trains on {settings.env}, this APRiL run is on {self.config.env}")
-        world = {key: value for key, value in self.config.env_kwargs.items() if key not in CAMERA_KWARGS}
-        if world != settings.env_kwargs:
-            raise ConfigError(f"the state policy trains on env_kwargs {settings.env_kwargs}, this APRiL run's world is "
-                              f"{world}: the state policy must learn the world it is deployed in")
-        policy = self.config.policy  # (refine.act_on: pixels needs mode semantic: the config refuses it)
-        if settings.privileged_state and (policy.mode != "latent" or policy.finetune != "distill"):
-            raise ConfigError(f"the state policy reads privileged_state {settings.privileged_state}, which "
-                              "pixels never give: it can only teach (policy.mode: latent, finetune: distill)")
-        return settings
+class AprilRun(AprilRunFolder):
+    """The pipeline on a run folder: ``run`` does every stage not yet finished, in order."""
 
     # ------------------------------------------------------------------ the whole pipeline
     def run(self, callback: RunCallback = SILENT) -> dict[str, Any]:
@@ -185,18 +102,6 @@ class AprilRun:
         last = history["epochs"][-1]
         return {"recon": last["recon"], "state_mae": last["state_mae"], "epochs": len(history["epochs"])}
 
-    def goal_in_views(self, states: np.ndarray) -> np.ndarray | None:
-        """Where s̄'s goal (its last dimensions) lies in each camera view, for ``perception.goal_keypoints``
-        (None without them): the cameras' poses are known in the simulator, so no collection stores it."""
-        if not self.config.perception.goal_keypoints:
-            return None
-        env = self.make_env()
-        try:
-            goal_dim = env.observation_space["desired_goal"].shape[0]
-            return env.unwrapped.in_views(np.asarray(states)[:, -goal_dim:])
-        finally:
-            env.close()
-
     def stage_policy(self, callback: RunCallback) -> dict[str, Any]:
         policy = self.config.policy
         if policy.mode != "latent" or policy.pretrain:
@@ -209,13 +114,6 @@ class AprilRun:
         if self.config.policy.mode == "semantic":
             return {"sim_episodes": 0, "sim_steps": 0}
         return self._latent_policy(callback, self.stages["policy"].get("semantic_run"))
-
-    @property
-    def sim_episodes(self) -> dict[str, int]:
-        """Simulator episodes by use: images for perception, the state policy, the latent policy."""
-        return {"images": self.stages["collect"]["sim_episodes"] + self.stages.get("refine", {}).get("sim_episodes", 0),
-                "state_policy": self.stages["policy"]["sim_episodes"] - self.stages["policy"].get("finetune", {}).get("sim_episodes", 0),
-                "latent_policy": self.stages.get("finetune", {}).get("sim_episodes", 0)}
 
     def _semantic_policy(self, callback: RunCallback) -> dict[str, Any]:
         """Eq 4.8: the policy learns on ground-truth s̄ with the cheap tools of chapter 3 (GP + HER)."""
@@ -251,7 +149,6 @@ class AprilRun:
         on random + policy images; ``rounds`` times. Runs before any latent fine-tuning reads φ_enc."""
         from binpick.april.finetune import with_action_scale
         from binpick.april.perception import PERCEPTION_FILE, load_perception, perception_path, save_perception, train_perception
-        from binpick.rl.config import load_rl_config
         from binpick.rl.train import load_policy
         from binpick.rl.wrappers import privileged_values, semantic_inputs
 
@@ -260,7 +157,7 @@ class AprilRun:
             return {"sim_episodes": 0}
         privileged = self.teacher_privileged
         policy, _ = load_policy(Path(self.stages["policy"]["semantic_run"]))
-        env = with_action_scale(self.make_env(), load_rl_config(self.config.policy.rl_config).min_action_scale)
+        env = with_action_scale(self.make_env(), self.rl_settings.min_action_scale)
         goal_dim = env.observation_space["desired_goal"].shape[0]
         rng = np.random.default_rng(self.config.seed + 7)
         random = read_npz(self.run_dir / "data" / "random.npz", "APRiL image data")

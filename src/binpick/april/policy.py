@@ -17,17 +17,16 @@ class Policy:
     """Perception encoder + policy, as one object (thesis Fig 4.2, blue arrows)."""
 
     def __init__(self, run_dir: Path) -> None:
-        from binpick.april.pipeline import AprilRun
         from binpick.april.perception import load_perception, perception_path
-        from binpick.rl.config import load_rl_config
+        from binpick.april.run_folder import AprilRunFolder
 
-        run = AprilRun.resume(run_dir)
+        run = AprilRunFolder.resume(run_dir)
         if "policy" not in run.stages or not perception_path(run.run_dir).is_file():
             raise ConfigError(f"APRiL run {run.run_dir} has no trained policy yet (finished stages: "
                               f"{', '.join(run.stages) or 'none'})")
         self.run, self.mode = run, run.config.policy.mode
         self.perception = load_perception(perception_path(run.run_dir))
-        self.min_action_scale = load_rl_config(run.config.policy.rl_config).min_action_scale
+        self.min_action_scale = run.rl_settings.min_action_scale
         if self.mode == "semantic":
             from binpick.rl.train import load_policy
 

@@ -74,14 +74,14 @@ def transfer(run_dir: Path, out: Path, real_episodes: int = 25, eval_episodes: i
     copied to ``out`` first; the original is never changed."""
     from binpick.april.evaluate import deployment_env
     from binpick.april.observations import semantic_state
-    from binpick.april.pipeline import AprilRun
+    from binpick.april.run_folder import AprilRunFolder
     from binpick.april.perception import PERCEPTION_FILE, load_perception, perception_path, save_perception, train_perception
     from binpick.rl.evaluate import evaluate_policy
 
     out = Path(out)
     if not out.exists():
         shutil.copytree(run_dir, out, ignore=shutil.ignore_patterns("rl"))
-    run = AprilRun.resume(out)
+    run = AprilRunFolder.resume(out)
     sim_rows = read_json_object(Path(run_dir) / "results.json", "APRiL results")
     rl_metrics = read_json_object(Path(run.stages["policy"]["semantic_run"]) / "metrics.json", "state policy metrics",
                                   {"sim_episodes": int})

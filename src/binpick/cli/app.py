@@ -12,7 +12,7 @@ from rich.console import Console
 
 from binpick.core.errors import ConfigError
 from binpick.core.files import atomic_write, check_output_file, ensure_dir, parse_yaml
-from binpick.terminal import RichCallback
+from binpick.cli.terminal import RichCallback
 
 app = typer.Typer(help="Learned bin picking: simulated worlds, RL, APRiL and repeated object detection.",
                   no_args_is_help=True, pretty_exceptions_enable=False, add_completion=True)

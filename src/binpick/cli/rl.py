@@ -64,7 +64,7 @@ def rl_distributed(
 ) -> None:
     """A small RL run with its simulators on Ray (thesis §6.1); a simulator that dies is restarted and the run
     goes on. A whole RL YAML runs the same way: binpick train CONFIG --address ... [--workers N]."""
-    from binpick.cluster import check_ray_address, probe_ray_address
+    from binpick.core.cluster import check_ray_address, probe_ray_address
     from binpick.core.config import check_choice, check_range, from_dict
     from binpick.envs import resolve_env_id
     from binpick.rl.config import RLConfig, never_learns

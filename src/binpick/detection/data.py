@@ -20,7 +20,7 @@ import numpy as np
 import torch
 from PIL import Image
 
-from binpick.depth import read_depth
+from binpick.core.depth import read_depth
 from binpick.detection.augment import (  # noqa: F401  (moved there; imported from here too)
     augment,
     camera_effects,

@@ -29,7 +29,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from binpick.core.data_parallel import ALONE, Group
-from binpick.metrics import roc_auc
+from binpick.core.metrics import roc_auc
 
 WINDOW = 0.31  # the window's side as a share of the image's side (about 13 cm of binpick's default bin)
 CROP = 64  # the window resampled to CROP x CROP pixels

@@ -10,7 +10,7 @@ import numpy as np
 import torch
 from PIL import Image
 
-from binpick.depth import read_depth
+from binpick.core.depth import read_depth
 from binpick.detection.data import crop_resize, query_photo, read_image, to_tensor
 from binpick.detection.depth import depth_input
 from binpick.detection.model import DetectorNetwork

@@ -286,7 +286,7 @@ def scores(probabilities: np.ndarray, labels: np.ndarray, threshold: float = 0.5
     positive, negative = probabilities[labels == 1], probabilities[labels == 0]
     if not len(positive) or not len(negative):
         return {}
-    from binpick.metrics import roc_auc
+    from binpick.core.metrics import roc_auc
 
     auc = roc_auc(labels, probabilities)  # the Mann-Whitney statistic, ties counted half, as grasp quality's
     bins = np.minimum((probabilities * 10).astype(int), 9)

@@ -26,8 +26,8 @@ from binpick.core.config import check_range, load_run_config, to_dict
 from binpick.core.data_parallel import ALONE, Group
 from binpick.core.errors import ConfigError, InputFileError
 from binpick.core.files import atomic_write_text, inside, read_json
-from binpick.metrics import calibration_error, fit_platt, roc_auc
-from binpick.depth import read_depth
+from binpick.core.metrics import calibration_error, fit_platt, roc_auc
+from binpick.core.depth import read_depth
 from binpick.grasping.camera import PinholeCamera
 from binpick.grasping.candidates import Surface, describe, instance_surface
 from binpick.grasping.frame import DepthFrame

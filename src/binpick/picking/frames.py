@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from binpick.core.errors import InputFileError
-from binpick.depth import read_depth
+from binpick.core.depth import read_depth
 from binpick.picking.camera_info import CameraInfo, read_camera_info
 from binpick.picking.picker import check_frame
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from binpick.depth import depth_problem
+from binpick.core.depth import depth_problem
 from binpick.core.errors import ConfigError, InputFileError
 from binpick.grasping import PinholeCamera
 from binpick.picking.camera_info import CameraInfo

@@ -333,7 +333,7 @@ class DataGeneration:
         """Worlds as Ray tasks (this machine's private cluster, or one at ``address``): each task
         returns its scenes' files, which only this process writes, so a task lost with its machine
         is retried by Ray and a killed run resumes exactly as with local processes."""
-        from binpick.cluster import start_ray
+        from binpick.core.cluster import start_ray
 
         config = self.config
         owns = start_ray(None if config.address == "local" else config.address, config.workers)
@@ -381,7 +381,7 @@ def product_photos(config: GenerateConfig, product, world: int | None = None):
     from binpick.sim.photos import random_photo_style, shop_photo
 
     if product.photo is not None:
-        from binpick.sim.products import read_photo
+        from binpick.sim.own_products import read_photo
 
         yield f"photos/{product.name}.png", read_photo(product.photo)
     else:

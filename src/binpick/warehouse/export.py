@@ -16,7 +16,7 @@ import numpy as np
 from binpick.core.errors import ConfigError, OutputPathError
 from binpick.core.files import atomic_write, atomic_write_text, ensure_dir
 from binpick.grasping import PinholeCamera
-from binpick.depth import depth_millimetres
+from binpick.core.depth import depth_millimetres
 from binpick.picking.camera_info import CameraInfo, write_camera_info
 
 FILES = ("rgb.png", "depth.png", "camera.yaml", "photo.png", "truth.json")

@@ -7,7 +7,8 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from binpick.core.errors import ConfigError
-from binpick.sim.products import ProductLibrary, default_library, load_products
+from binpick.sim.own_products import load_products
+from binpick.sim.products import ProductLibrary, default_library
 
 FORMAT = "binpick-bins-1"
 
@@ -92,7 +93,7 @@ class GenerateConfig:
             raise ConfigError("robot: panda works in binpick's own cell (the default domain, a level tote): the arm's "
                               f"collision model does not follow domain {self.domain!r} or sensor {self.sensor!r}'s tote")
         if self.address not in (None, "local"):
-            from binpick.cluster import check_ray_address
+            from binpick.core.cluster import check_ray_address
 
             check_ray_address(self.address)
         from binpick.warehouse.policies import check_policies

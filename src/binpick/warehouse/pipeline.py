@@ -29,7 +29,7 @@ from binpick.sim.bin_scene import BinWorld, Scene
 from binpick.sim.mjcf import CameraSpec
 from binpick.sim.products import ProductLibrary, product_dimensions
 from binpick.grasping import DepthFrame, GraspChoice, GraspPlanner, GraspPolicyName, PinholeCamera
-from binpick.depth import as_camera_depth
+from binpick.core.depth import as_camera_depth
 from binpick.picking import GraspPlan, Picker, Plans
 from binpick.picking.plans import cup_pixels, jaw_pixels
 from binpick.detection.photos import photo_mask

@@ -2,7 +2,7 @@
 ROS multimaster): the pool under A3C's rollout workers (:mod:`binpick.integrations.ray.a3c`) and the RL
 simulators of :mod:`binpick.integrations.ray.envs`.
 
-Locally :func:`binpick.cluster.start_ray` starts a private cluster on 127.0.0.1; an address (``HOST:6379``,
+Locally :func:`binpick.core.cluster.start_ray` starts a private cluster on 127.0.0.1; an address (``HOST:6379``,
 ``ray://...``) joins a cluster started with ``ray start --head`` (docs/guide/cluster.md).
 """
 
@@ -11,7 +11,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from binpick.cluster import start_ray
+from binpick.core.cluster import start_ray
 
 
 def raise_if_it_never_started(error: Exception, what: str) -> None:

@@ -86,7 +86,7 @@ def train_on_ray(run_dir: Path, job: str, workers: int, address: str | None = No
     from ray.train import FailureConfig, RunConfig, ScalingConfig
     from ray.train.torch import TorchConfig, TorchTrainer
 
-    from binpick.cluster import start_ray
+    from binpick.core.cluster import start_ray
 
     if workers < 1:
         raise ConfigError(f"--workers must be at least 1, got {workers}")
