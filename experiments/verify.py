@@ -109,7 +109,7 @@ def scored_pairs(data: Path, verifiers: dict, limit: int | None) -> tuple[dict, 
 
 def threshold_of(verifier) -> float:
     """The threshold the picker uses with these weights: their calibrated one, else the picker's default."""
-    from binpick.picking.picker import THRESHOLDS
+    from binpick.picking.product_check import THRESHOLDS
 
     return float(verifier.meta.get("threshold", THRESHOLDS["learnt"]))
 

@@ -14,7 +14,7 @@ from binpick.core.errors import InputFileError
 from binpick.grasping import GraspPlanner, PinholeCamera
 from binpick.picking import CameraInfo, Picker, read_camera_info, write_camera_info
 from binpick.picking.camera_info import matrix_to_quaternion, quaternion_to_matrix
-from binpick.picking.picker import grasp_orientation
+from binpick.picking.plans import grasp_orientation
 
 K = np.array([[400.0, 0.0, 99.5], [0.0, 400.0, 99.5], [0.0, 0.0, 1.0]])
 DOWN = np.array([[1.0, 0, 0, 0.1], [0, -1.0, 0, 0.0], [0, 0, -1.0, 0.8], [0, 0, 0, 1.0]])  # 0.8 m up, looking down

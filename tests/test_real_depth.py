@@ -180,7 +180,7 @@ def test_depth_at_a_lower_resolution_of_the_same_aspect_is_resampled_and_the_sam
     from binpick.picking.frames import read_frame, read_photo
     from binpick.samples import SAMPLE_FRAME
 
-    from binpick.picking.picker import register_depth
+    from binpick.picking.inputs import register_depth
 
     coarse = np.arange(12, dtype=np.float32).reshape(3, 4)  # each reading covers its 2x2 block at the colour's size
     assert np.array_equal(register_depth(coarse, (6, 8)), np.repeat(np.repeat(coarse, 2, axis=0), 2, axis=1))
@@ -300,7 +300,7 @@ def _squares_frame(squares, size: int = 200):
 
 def test_a_pointed_instance_pushed_far_is_found_by_its_colours_and_two_look_alikes_are_never_guessed():
     from binpick.picking.colour import colour_histogram
-    from binpick.picking.picker import found_by_colour, instance_pixels, matched_in_place, middle_of
+    from binpick.picking.find_again import found_by_colour, instance_pixels, matched_in_place, middle_of
 
     green, dark_green, red = (20, 170, 30), (15, 120, 25), (200, 30, 30)
     box = np.array([40.0, 40.0, 30.0, 30.0])

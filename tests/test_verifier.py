@@ -106,7 +106,7 @@ def test_the_verifier_trains_on_randomised_bins_calibrates_and_resumes(tmp_path)
 def test_the_picker_refuses_an_unknown_check_and_mismatched_photo_masks():
     from binpick.grasping import GraspPlanner
     from binpick.picking import Picker
-    from binpick.picking.picker import as_photos
+    from binpick.picking.inputs import as_photos
 
     with pytest.raises(ConfigError, match="verifier must be one of"):
         Picker(None, GraspPlanner("analytic"), verifier="hunch")

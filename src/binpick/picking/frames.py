@@ -11,7 +11,7 @@ import numpy as np
 from binpick.core.errors import InputFileError
 from binpick.core.depth import read_depth
 from binpick.picking.camera_info import CameraInfo, read_camera_info
-from binpick.picking.picker import check_frame
+from binpick.picking.inputs import check_frame
 
 
 def read_colour(path: str | Path, what: str = "colour image") -> np.ndarray:
