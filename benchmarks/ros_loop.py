@@ -520,7 +520,8 @@ def main() -> None:
     from binpick.core.depth import depth_millimetres
     from binpick.warehouse.export import cut_out
     from binpick.warehouse.grasping import Reason
-    from binpick.warehouse.pipeline import OrderResult, PickPipeline
+    from binpick.warehouse.orders import OrderResult
+    from binpick.warehouse.pipeline import PickPipeline
 
     products = [p for p in args.products.split(",") if p]
     goals = [g for g in args.goal.split(",") if g]

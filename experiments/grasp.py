@@ -229,7 +229,7 @@ def top1(bins: int, sensor_name: str = "perfect") -> dict:
     from binpick.sim.mjcf import CameraSpec
     from binpick.sim.sensor import load_sensor
     from binpick.core.depth import as_camera_depth
-    from binpick.warehouse.pipeline import plan_grasp
+    from binpick.warehouse.grasping import plan_grasp
 
     sensor = load_sensor(sensor_name)
     library = default_library()

@@ -77,7 +77,8 @@ def main() -> None:
     from binpick.detection.train import load_detector
     from binpick.grasping import GraspPlanner
     from binpick.sim import default_library
-    from binpick.warehouse.pipeline import PickPipeline, fulfil
+    from binpick.warehouse.orders import fulfil
+    from binpick.warehouse.pipeline import PickPipeline
 
     torch.set_num_threads(2)
     if args.cell is not None:  # a bad cell file, or one for another arm: one line before hours of orders
@@ -188,7 +189,8 @@ def shape_of(category: str) -> str:
 def per_product_rows(model, library, policy: str, gripper: str, seen: list[str], held_out: list[str], orders: int, out: Path) -> dict:
     """``orders`` orders of every product with ``gripper``: placed share per product (the weakest product's figure)."""
     from binpick.grasping import GraspPlanner
-    from binpick.warehouse.pipeline import PickPipeline, fulfil
+    from binpick.warehouse.orders import fulfil
+    from binpick.warehouse.pipeline import PickPipeline
 
     pipeline = PickPipeline(model, library, grasp=GraspPlanner.load(policy, hand=gripper), gripper=gripper)
     rows = {}
@@ -208,7 +210,8 @@ def cell_rows(model, library, policy: str, path: Path, seen: list[str], held_out
     point); the widest jaw grasp it executed beside the widest its jaws take."""
     from binpick.cell import Cell
     from binpick.grasping import GraspPlanner
-    from binpick.warehouse.pipeline import PickPipeline, fulfil
+    from binpick.warehouse.orders import fulfil
+    from binpick.warehouse.pipeline import PickPipeline
 
     cell = Cell.load(path)
     planner = GraspPlanner.load(policy, hand=cell.tools, gripper=cell.jaws, cup=cell.cup)
@@ -290,7 +293,8 @@ def arm_rows(args) -> None:
     from binpick.detection.train import load_detector
     from binpick.sim import default_library
     from binpick.sim.robot_arm import arm_model
-    from binpick.warehouse.pipeline import PickPipeline, fulfil
+    from binpick.warehouse.orders import fulfil
+    from binpick.warehouse.pipeline import PickPipeline
 
     path = _common.RESULTS / "pick.json"
     result = json.loads(path.read_text()) if path.is_file() else {}

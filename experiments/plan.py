@@ -86,7 +86,7 @@ def file_orders(domain: str, orders: int, sensor: str = "perfect") -> dict:
     from binpick.warehouse.export import cut_out, export_frame
     from binpick.warehouse.grasping import Reason
     from binpick.sim.products import product_dimensions
-    from binpick.warehouse.pipeline import OrderResult, summarise
+    from binpick.warehouse.orders import OrderResult, summarise
     from PIL import Image
 
     pipeline = pipeline_for(domain, sensor)
@@ -152,7 +152,7 @@ def file_orders(domain: str, orders: int, sensor: str = "perfect") -> dict:
 def sim_orders(domain: str, orders: int, sensor: str, **options) -> dict:
     """Orders through the simulator pipeline alone (no files): the order path's variants side by side
     (product check, photos, copies from the surest match) on the same bins as ``files``."""
-    from binpick.warehouse.pipeline import summarise
+    from binpick.warehouse.orders import summarise
 
     pipeline = pipeline_for(domain, sensor, **options)
     products = products_for(domain, pipeline)
@@ -176,7 +176,7 @@ def single_copy(orders: int, sensor: str) -> dict:
     was the pointed instance; pointed or nothing: the orders in which nothing else was lifted."""
     from binpick.core.errors import BinpickError
     from binpick.warehouse.grasping import Reason
-    from binpick.warehouse.pipeline import OrderResult, summarise
+    from binpick.warehouse.orders import OrderResult, summarise
 
     pipeline = pipeline_for("default", sensor, copies=(1, 1))
     products = products_for("default", pipeline)

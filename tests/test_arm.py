@@ -215,7 +215,8 @@ def test_one_order_is_picked_and_placed_by_the_arm(tmp_path, robot):
     from binpick.detection.model import DetectorNetwork, ModelSpec
     from binpick.sim import default_library
     from binpick.sim.mjcf import CameraSpec
-    from binpick.warehouse.pipeline import PickPipeline, fulfil
+    from binpick.warehouse.orders import fulfil
+    from binpick.warehouse.pipeline import PickPipeline
 
     detector = DetectorNetwork(ModelSpec(query="photo"), 128).eval()
     pipeline = PickPipeline(detector, default_library(procedural=0, shapes=0), grasp="analytic", oracle=True, max_attempts=2,
@@ -240,7 +241,8 @@ def test_the_arm_picks_with_its_suction_cup(tmp_path):
     from binpick.sim import default_library
     from binpick.sim.mjcf import CameraSpec
     from binpick.warehouse.grasping import Reason
-    from binpick.warehouse.pipeline import PickPipeline, fulfil
+    from binpick.warehouse.orders import fulfil
+    from binpick.warehouse.pipeline import PickPipeline
 
     detector = DetectorNetwork(ModelSpec(query="photo"), 128).eval()
     pipeline = PickPipeline(detector, default_library(procedural=0, shapes=0), grasp="learnt", oracle=True, max_attempts=3,

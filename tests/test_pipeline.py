@@ -20,7 +20,8 @@ from binpick.sim.mjcf import FLOOR_TOP, CameraSpec
 from binpick.sim.order_tote import (ORDER_FLOOR_TOP, ORDER_HALF, ORDER_TOTE, RELEASE_HEIGHT, in_order_tote, order_tote_xml,
                                      release_height)
 from binpick.warehouse.grasping import Reason, execute_pick, grasp_point, pixel_to_world
-from binpick.warehouse.pipeline import PickPipeline, summarise
+from binpick.warehouse.orders import summarise
+from binpick.warehouse.pipeline import PickPipeline
 
 CLI = [sys.executable, "-c", "from binpick.cli import main; main()"]
 
@@ -141,7 +142,7 @@ def test_the_colour_check_tells_the_ordered_product_from_another_colour():
 
 def test_an_order_that_lifts_another_product_says_so_in_results_the_table_and_the_report():
     from binpick.core.depth import as_camera_depth
-    from binpick.warehouse.pipeline import OrderResult, results_json
+    from binpick.warehouse.orders import OrderResult, results_json
     from binpick.warehouse.report import order_outcome, order_section
 
     detector = DetectorNetwork(ModelSpec(query="photo"), 128).eval()
@@ -271,7 +272,7 @@ def test_grasps_worth_trying_go_before_hopeless_ones_and_a_push_only_when_none_i
 
     from binpick.picking.plans import GraspPlan
     from binpick.picking.picker import Picker
-    from binpick.warehouse.pipeline import OrderResult
+    from binpick.warehouse.orders import OrderResult
 
     picker = SimpleNamespace(grasp=SimpleNamespace(policy=GraspPlanner("analytic").policy))
     picker.hopeless = lambda plan: Picker.hopeless(picker, plan)

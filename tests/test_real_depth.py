@@ -220,7 +220,8 @@ def test_the_pipeline_picks_the_pointed_instance_and_nothing_else():
     from binpick.sim import default_library
     from binpick.sim.mjcf import CameraSpec
     from binpick.warehouse.grasping import Reason
-    from binpick.warehouse.pipeline import OrderResult, PickPipeline
+    from binpick.warehouse.orders import OrderResult
+    from binpick.warehouse.pipeline import PickPipeline
 
     library = default_library(procedural=0, shapes=0)
     pipeline = PickPipeline(Detector.load(PICKING).network, library, copies=(1, 1), distractors=(2, 2),

@@ -336,10 +336,10 @@ def _fulfil(pipeline, products: list[str], orders: int, seed: int, run_dir: Path
             summary = _fulfil(pipeline, products, orders, seed, run_dir)
         console.print(f"3D recording: {run_dir / 'orders.rrd'} (rerun {run_dir / 'orders.rrd'})", soft_wrap=True)
         return summary
-    from binpick.warehouse.pipeline import fulfil
+    from binpick.warehouse.orders import fulfil
 
     table = Table(title=f"{orders} order{'s' if orders > 1 else ''}")
-    from binpick.warehouse.pipeline import results_json
+    from binpick.warehouse.orders import results_json
     from binpick.warehouse.report import COLUMNS, order_outcome
 
     for column in COLUMNS:

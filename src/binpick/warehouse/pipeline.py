@@ -13,86 +13,30 @@ seed. What happened is reported per order, with a reason when it failed.
 
 from __future__ import annotations
 
-import json
 import time
-from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from binpick.detection.model import DetectorNetwork
 from binpick.core.errors import ConfigError
-from binpick.core.files import atomic_write, atomic_write_text, ensure_dir
 from binpick.sim.bin_scene import BinWorld, Scene
 from binpick.sim.mjcf import CameraSpec
 from binpick.sim.products import ProductLibrary, product_dimensions
-from binpick.grasping import DepthFrame, GraspChoice, GraspPlanner, GraspPolicyName, PinholeCamera
+from binpick.grasping import GraspPlanner, GraspPolicyName, PinholeCamera
 from binpick.core.depth import as_camera_depth
 from binpick.picking import GraspPlan, Picker, Plans
-from binpick.picking.plans import cup_pixels, jaw_pixels
 from binpick.detection.photos import photo_mask
 from binpick.sim.order_tote import order_tote_xml
 from binpick.sim.gripper import TRIAL_TIMESTEP
-from binpick.warehouse.grasping import (Reason, execute_arm_pick, execute_arm_push, execute_pick, execute_push, fixed_tips,
-                                        grasp_point, half_height)
+from binpick.warehouse.order_pictures import write_order_pictures
+from binpick.warehouse.orders import Attempt, OrderResult
+from binpick.warehouse.grasping import (Reason, execute_arm_pick, execute_arm_push, execute_pick, execute_push,
+                                        fixed_policy_tips, legacy_view)
 
 GIF_SIZE = 240
 MAX_PUSHES = 1  # pushes per pointed pick, to free an instance no grasp fits well (binpick.grasping.push)
 ROBOTS = ("floating", "panda", "ur5e")  # what executes the picks: the floating gripper, or an arm (binpick.arm)
-
-
-@dataclass
-class Attempt:
-    box: list[float]
-    score: float
-    same_product: float | None  # the product check's score (None: not checked)
-    grasp_point: list[float]  # the tool's point, world xyz: the fingertips' midpoint, or the cup's lip
-    outcome: Reason
-    lifted_product: str | None
-    yaw: float = 0.0  # the jaws' closing direction, radians about z
-    width: float | None = None  # the instance's width across the jaws (m)
-    quality: float | None = None  # the grasp policy's score of the chosen candidate
-    rejected: dict[str, int] = field(default_factory=dict)  # other candidates: reason -> count
-    motion_s: dict[str, float] = field(default_factory=dict)  # the arm's segments, simulated robot seconds (empty: floating gripper)
-    planning_ms: float | None = None  # the arm's motion planning (IK and timing)
-    collisions: list[list[str]] = field(default_factory=list)  # the arm touching the table or a tote: [arm part, fixed part, segment]
-    grasp_error_mm: float | None = None  # the arm's gripper from the planned grasp when the fingers closed
-    tool: str | None = None  # the tool the grasp used: jaws or suction (None: no grasp)
-    why: str | None = None  # a failed suction grasp in the vacuum's words: why it did not seal, or that it let go
-
-
-@dataclass
-class OrderResult:
-    order: int
-    product: str
-    seed: int
-    success: bool  # the ordered product ended in the order tote
-    reason: Reason
-    seen: bool | None = None  # the detector's training set had this product (None: unknown)
-    attempts: list[Attempt] = field(default_factory=list)
-    detections: int = 0
-    seconds: float = 0.0
-    gif: str | None = None
-    overlay: str | None = None
-    depth: str | None = None  # the depth picture beside the overlay
-    timing_ms: dict[str, float] = field(default_factory=dict)  # the planner's stages (depth, detect, check, grasp) and the simulator's
-    robot: str = "floating"  # what executed the picks: the floating gripper or an arm
-    gripper: str = "jaws"  # the hand's tools: jaws, suction or both
-    found_again: list = field(default_factory=list)  # a pointed pick's instance after each failed grasp: its box in the new frame (None: not found)
-    looked_again: int = 0  # new frames taken after failed grasps (each planned anew)
-    pushes: list = field(default_factory=list)  # pushes that freed the pointed instance before a grasp: {start, end, yaw, moved (m)}
-
-    @property
-    def robot_seconds(self) -> float:
-        """The arm's motion time over the order's grasps (simulated robot seconds; 0 for the floating gripper)."""
-        return round(sum(sum(a.motion_s.values()) for a in self.attempts), 3)
-
-    @property
-    def grasps(self) -> int:
-        """Grasps executed (detections without a feasible grasp were skipped at no cost)."""
-        return sum(a.outcome is not Reason.NO_GRASP for a in self.attempts)
 
 
 class PickPipeline:
@@ -272,8 +216,9 @@ class PickPipeline:
                 self.recording.frame(order, product_id, scene.rgb, as_camera_depth(scene.depth), PinholeCamera.from_record(scene.camera),
                                      plans, str(result.reason), result.attempts)
             if out is not None:
-                result.gif, result.overlay, result.depth = self._write_pictures(out, order, product_id, scene, plans.boxes,
-                                                                                plans.scores, frames, result.attempts)
+                result.gif, result.overlay, result.depth = write_order_pictures(
+                    out, f"order_{order:03d}_{product_id.replace('/', '_')}", scene, plans.boxes, plans.scores, frames, result.attempts,
+                    self.photo(product_id), self.picker.candidate_threshold, self.grasp.gripper.opening)
         finally:
             if overview is not None:
                 overview.close()
@@ -436,165 +381,3 @@ class PickPipeline:
         mine = sorted((i for i in scene.instances if i.product_id == product_id and i.visible_fraction >= 0.5),
                       key=lambda i: -i.visible_fraction)
         return np.array([i.bbox for i in mine], dtype=float).reshape(-1, 4), np.array([i.visible_fraction for i in mine])
-
-    def _write_pictures(self, out: Path, order: int, product_id: str, scene: Scene, boxes, scores, frames,
-                        attempts: list[Attempt]) -> tuple[str, str, str]:
-        from PIL import Image
-
-        from binpick.viz.detection import captioned, depth_picture, draw_cups, draw_jaws, overlay
-
-        name = f"order_{order:03d}_{product_id.replace('/', '_')}"
-        picture = overlay(scene.rgb, boxes, scores, None, self.photo(product_id), min_score=self.picker.candidate_threshold)
-        picture = draw_cups(draw_jaws(picture, self.jaws(scene, attempts)), self.cups(scene, attempts))
-        atomic_write(out / f"{name}.png", lambda handle: Image.fromarray(picture).save(handle, format="PNG"))
-        depth = depth_picture(as_camera_depth(scene.depth))
-        atomic_write(out / f"{name}_depth.png", lambda handle: Image.fromarray(depth).save(handle, format="PNG"))
-        kept = [f for i, f in enumerate(frames) if i % 2 == 0 or i == len(frames) - 1 or f[1] != frames[i - 1][1]]
-        images = [Image.fromarray(captioned(image, text)) for image, text in kept]
-        atomic_write(out / f"{name}.gif", lambda handle: images[0].save(handle, format="GIF", save_all=True,
-                                                                          append_images=images[1:], duration=[80] * (len(images) - 1) + [1500],
-                                                                          loop=0))
-        return f"{name}.gif", f"{name}.png", f"{name}_depth.png"
-
-    def jaws(self, scene: Scene, attempts: list[Attempt]) -> list:
-        """Each jaw grasp tried, as its open fingers' pixels: the jaw lines of the order's picture."""
-        camera, opening = PinholeCamera.from_record(scene.camera), self.grasp.gripper.opening
-        tried = (a for a in attempts if a.outcome is not Reason.NO_GRASP)
-        return [(*jaw_pixels(camera, attempt.grasp_point, attempt.yaw, opening), attempt.outcome is Reason.PLACED, str(number))
-                for number, attempt in enumerate(tried, start=1) if attempt.tool != "suction"]
-
-    def cups(self, scene: Scene, attempts: list[Attempt]) -> list:
-        """Each suction grasp tried, as its cup's lip in pixels: the circles of the order's picture."""
-        camera = PinholeCamera.from_record(scene.camera)
-        tried = (a for a in attempts if a.outcome is not Reason.NO_GRASP)
-        return [(*cup_pixels(camera, attempt.grasp_point), attempt.outcome is Reason.PLACED, str(number))
-                for number, attempt in enumerate(tried, start=1) if attempt.tool == "suction"]
-
-
-def plan_grasp(planner: GraspPlanner, frame: DepthFrame, box, scene: Scene, overhead: CameraSpec) -> tuple[GraspChoice, np.ndarray | None]:
-    """The planner's grasp for a detection and its fingertips' position (world xyz). The fixed policy
-    keeps the grasp point and depth it had before the planner existed, so its rows stay comparable,
-    where that grasp point can be had (perfect depth from a camera straight above the tote)."""
-    choice = planner.choose(frame, box)
-    if choice.chosen is None:
-        return choice, None
-    if planner.policy is GraspPolicyName.FIXED and legacy_view(scene):
-        return choice, fixed_policy_tips(box, scene.depth, overhead)
-    return choice, choice.chosen.position
-
-
-def legacy_view(scene: Scene) -> bool:
-    """Perfect depth from a camera straight above the tote: what the fixed policy's own grasp point
-    (:func:`fixed_policy_tips`) was made for. Elsewhere it takes its candidate's fingertips."""
-    pose = np.asarray(scene.camera.get("camera_to_world", np.eye(4)), dtype=float)
-    return not scene.sensor and bool(pose[2, 2] < -0.9999)
-
-
-def fixed_policy_tips(box, depth: np.ndarray, overhead: CameraSpec) -> np.ndarray:
-    """The fixed policy's fingertips: the grasp point and depth it had before the planner existed
-    (from the overhead camera), so its rows stay comparable."""
-    point = grasp_point(box, depth, overhead)
-    return fixed_tips(point, half_height(box, point, overhead))
-
-
-def fulfil(pipeline: PickPipeline, products: list[str], orders: int, seed: int, out: Path,
-           on_order: Callable[[OrderResult], None] | None = None, title: str = "binpick orders") -> tuple[dict[str, Any], list[OrderResult]]:
-    """Run ``orders`` orders, products taken in turn, order k in a bin seeded ``seed + k``. results.json
-    and report.html in ``out`` are rewritten after every order, so a crash loses only the order in
-    progress. Returns the summary (with placed/orders per product) and the per-order results."""
-    from binpick.warehouse.report import write_report
-
-    if not products:
-        raise ConfigError("no product to order: give product ids or categories, e.g. robosuite/milk or can")
-    ensure_dir(out, "order results folder")
-    results: list[OrderResult] = []
-    started = time.perf_counter()
-
-    def write() -> dict[str, Any]:
-        summary = summarise(results, time.perf_counter() - started)
-        atomic_write_text(out / "results.json", json.dumps({"summary": summary, "orders": results_json(results)}, indent=2))
-        write_report(out, summary, results_json(results), title=title)
-        return summary
-
-    for order in range(orders):
-        results.append(pipeline.run_order(products[order % len(products)], order, seed + order, out=out))
-        write()
-        if on_order is not None:
-            on_order(results[-1])
-    return write(), results
-
-
-def summarise(results: list[OrderResult], wall_seconds: float) -> dict[str, Any]:
-    """Pick success rate; right-product rate: of all grasps that lifted something, the share that
-    lifted the ordered product (a wrong one would go to the customer); picks per minute."""
-    lifted = [a.lifted_product == r.product for r in results for a in r.attempts if a.lifted_product is not None]
-    reasons: dict[str, int] = {}
-    placed: dict[str, list[int]] = {}
-    for r in results:
-        reasons[r.reason] = reasons.get(r.reason, 0) + 1
-        placed.setdefault(r.product, [0, 0])
-        placed[r.product][0] += int(r.success)
-        placed[r.product][1] += 1
-    by_product = {product: f"{done}/{total}" for product, (done, total) in sorted(placed.items())}
-    summary = {"orders": len(results), "pick_success": round(sum(r.success for r in results) / max(1, len(results)), 4),
-            "right_product": round(sum(lifted) / len(lifted), 4) if lifted else None, "lifts": len(lifted),
-            "picks_per_min": round(60 * sum(r.success for r in results) / max(wall_seconds, 1e-9), 2),
-            "orders_per_min": round(60 * len(results) / max(wall_seconds, 1e-9), 2),
-            "attempts_per_order": round(float(np.mean([r.grasps for r in results])), 2) if results else 0.0,
-            "reasons": reasons, "by_product": by_product, "wall_s": round(wall_seconds, 1),
-            "by_tool": tool_summary(results)}
-    arm = arm_summary(results)
-    return summary | ({"arm": arm} if arm else {})
-
-
-def tool_summary(results: list[OrderResult]) -> dict[str, dict[str, Any]]:
-    """Per tool: grasps executed with it, how many placed the ordered product, and its success rate
-    (a grasp that placed another product counts as a failure)."""
-    tools: dict[str, list[int]] = {}
-    for r in results:
-        for a in r.attempts:
-            if a.outcome is Reason.NO_GRASP or a.tool is None:
-                continue
-            counts = tools.setdefault(a.tool, [0, 0])
-            counts[0] += 1
-            counts[1] += int(a.outcome is Reason.PLACED and a.lifted_product == r.product)
-    return {tool: {"grasps": n, "placed": k, "success": round(k / n, 4)} for tool, (n, k) in sorted(tools.items())}
-
-
-def arm_summary(results: list[OrderResult]) -> dict[str, Any] | None:
-    """An arm's figures over the orders (None for the floating gripper): cycle time per placed pick
-    (simulated robot seconds, every segment from home back to home; ``_all``: every executed grasp,
-    misses, which go home from the lift, included), picks per hour of robot time
-    (placed orders over all motion, failed grasps included), the same with the planner's wall time
-    added (perception and motion planning on this machine, the arm waiting), contacts with the table
-    or totes, and the grasps dropped because the arm could not take them."""
-    picks = [a for r in results for a in r.attempts if a.motion_s]
-    if not picks:
-        return None
-    from binpick.arm import REACH_REASONS
-
-    cycles = [sum(a.motion_s.values()) for a in picks]
-    placed_cycles = [sum(a.motion_s.values()) for a in picks if a.outcome is Reason.PLACED]
-    errors = [a.grasp_error_mm for a in picks if a.grasp_error_mm is not None]
-    robot_seconds = float(sum(cycles))
-    placed = sum(r.success for r in results)
-    thinking = sum(sum(v for k, v in r.timing_ms.items() if k == "total") / 1000 + sum((a.planning_ms or 0) for a in r.attempts) / 1000
-                   for r in results)
-    segments = sorted({name for a in picks for name in a.motion_s})
-    dropped = {reason: sum(a.rejected.get(reason, 0) for r in results for a in r.attempts) for reason in REACH_REASONS}
-    per_100 = 100 / max(1, len(results))
-    return {"robot": results[0].robot, "picks": len(picks), "cycle_s_median": round(float(np.median(placed_cycles)), 3) if placed_cycles else None,
-            "cycle_s_median_all": round(float(np.median(cycles)), 3), "cycle_s_mean_all": round(float(np.mean(cycles)), 3),
-            "robot_seconds": round(robot_seconds, 2), "picks_per_hour": round(3600 * placed / robot_seconds, 1),
-            "picks_per_hour_with_planning": round(3600 * placed / (robot_seconds + thinking), 1),
-            "segment_s_median": {name: round(float(np.median([a.motion_s[name] for a in picks if name in a.motion_s])), 3) for name in segments},
-            "planning_ms_median": round(float(np.median([a.planning_ms for a in picks if a.planning_ms is not None])), 1),
-            "grasp_error_mm_median": round(float(np.median(errors)), 2) if errors else None,
-            "grasp_error_mm_max": round(float(np.max(errors)), 2) if errors else None,
-            "collisions": sum(len(a.collisions) for a in picks), "picks_with_collisions": sum(bool(a.collisions) for a in picks),
-            "dropped_for_reach": dropped, "dropped_for_reach_per_100_orders": round(sum(dropped.values()) * per_100, 1),
-            "ik_failures_per_100_orders": round(dropped["no IK solution"] * per_100, 1)}
-
-
-def results_json(results: list[OrderResult]) -> list[dict[str, Any]]:
-    return [asdict(r) | ({"robot_seconds": r.robot_seconds} if r.robot != "floating" else {}) for r in results]
