@@ -23,7 +23,8 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), os.pardir, "experimen
 
 import _common  # noqa: E402
 
-from binpick.warehouse.dataset import GenerateConfig, build_library, generate_world, prepare_output, world_plan  # noqa: E402
+from binpick.warehouse.dataset import generate_world, prepare_output, world_plan  # noqa: E402
+from binpick.warehouse.generation import GenerateConfig, build_library  # noqa: E402
 
 
 def scenes_per_second(scenes: int, size: int, domain: str = "default") -> tuple[float, int]:

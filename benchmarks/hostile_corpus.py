@@ -197,7 +197,7 @@ def make_corpus(root: Path) -> dict[str, str]:
     (data / "scenes").mkdir(parents=True)
     (data / "images").mkdir()
     (data / "depth").mkdir()
-    from binpick.warehouse.dataset import GenerateConfig
+    from binpick.warehouse.generation import GenerateConfig
 
     settings = GenerateConfig(out=str(data), scenes=2, workers=1, image_size=64)
     (data / "dataset.json").write_text(json.dumps({"format": "binpick-bins-1", "config": settings.comparable(),

@@ -45,7 +45,8 @@ DEFAULTS = {"scenes": 120, "epochs": 20, "a3c_steps": 20000, "fault_epochs": 4} 
 def make_data(scenes: int) -> None:
     global DATA
     from binpick.core.config import from_dict
-    from binpick.warehouse.dataset import DataGeneration, GenerateConfig
+    from binpick.warehouse.dataset import DataGeneration
+    from binpick.warehouse.generation import GenerateConfig
 
     DATA = DATA.with_name(f"{DATA.name}_{scenes}")
     if (DATA / "dataset.json").is_file() and len(list((DATA / "scenes").glob("*.json"))) >= scenes:

@@ -30,7 +30,8 @@ CONFIG = _common.ROOT / "configs" / "detection" / "rod_warehouse.yaml"
 
 def make_data(scenes: int) -> None:
     from binpick.core.config import from_dict
-    from binpick.warehouse.dataset import DataGeneration, GenerateConfig
+    from binpick.warehouse.dataset import DataGeneration
+    from binpick.warehouse.generation import GenerateConfig
 
     config = from_dict(GenerateConfig, {"out": str(DATA), "scenes": scenes, "policies": [], "workers": 2, "image_size": 256,
                                         "split_rule": "random", "val_fraction": 0.15, "scenes_per_world": 8}, where="benchmark")

@@ -20,7 +20,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import _common  # noqa: E402
 import numpy as np  # noqa: E402
 
-from binpick.warehouse.dataset import dataset_stats, load_records, open_dataset  # noqa: E402
+from binpick.warehouse.coco import dataset_stats, load_records, open_dataset  # noqa: E402
 
 IMAGES = _common.ROOT / "docs" / "img"
 

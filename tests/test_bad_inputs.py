@@ -163,7 +163,7 @@ def world(tmp_path_factory) -> dict[str, str]:
     paths["bins_latin1"] = not_utf8
 
     # a data set that already holds more scenes than asked for (as `data generate` would have left it)
-    from binpick.warehouse.dataset import GenerateConfig
+    from binpick.warehouse.generation import GenerateConfig
 
     full = root / "bins_24"
     (full / "scenes").mkdir(parents=True)

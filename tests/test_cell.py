@@ -140,7 +140,8 @@ def test_a_ur5e_cell_is_simulated_with_its_arm_and_another_arm_asked_for_is_one_
 
 def test_grasp_trials_are_made_and_judged_with_the_cell_files_hand(tmp_path):
     from binpick.core.errors import ConfigError
-    from binpick.warehouse.dataset import DataGeneration, GenerateConfig, world_sim
+    from binpick.warehouse.dataset import DataGeneration, world_sim
+    from binpick.warehouse.generation import GenerateConfig
 
     config = GenerateConfig(out=str(tmp_path / "trials"), scenes=1, policies=[], grasp_trials=3, workers=1, image_size=96,
                             copies=(2, 2), distractors=(0, 0), targets=["procedural_box"], scenes_per_world=1, val_fraction=0.0,

@@ -14,7 +14,8 @@ import torch.nn.functional as F
 
 from binpick.core.errors import ConfigError
 from binpick.sim.domain import DomainConfig, draw_camera, load_domain
-from binpick.warehouse.dataset import GenerateConfig, generate
+from binpick.warehouse.dataset import generate
+from binpick.warehouse.generation import GenerateConfig
 
 
 def _random(tmp_path, name: str, **changes) -> GenerateConfig:

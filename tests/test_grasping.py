@@ -13,7 +13,7 @@ from PIL import Image
 from binpick.core.errors import ConfigError, InputFileError
 from binpick.grasping import DepthFrame, GraspPlanner, JawGripper, PinholeCamera, grasp_candidates
 from binpick.core.depth import read_depth
-from binpick.grasping.candidates import instance_surface, watershed_labels
+from binpick.grasping.instance import instance_surface, watershed_labels
 from binpick.grasping.quality import GraspQuality, height_map
 from binpick.grasping.training import roc_auc
 
@@ -169,7 +169,8 @@ def test_the_default_gripper_matches_the_simulated_one():
 
 def test_grasp_trials_and_planned_pickability_are_recorded_and_the_quality_model_trains_and_resumes_on_them(tmp_path):
     from binpick.grasping.training import QualityTrainConfig, QualityTrainer, load_trials
-    from binpick.warehouse.dataset import DataGeneration, GenerateConfig
+    from binpick.warehouse.dataset import DataGeneration
+    from binpick.warehouse.generation import GenerateConfig
 
     data = tmp_path / "trials"
     DataGeneration.new(GenerateConfig(out=str(data), scenes=4, policies=["analytic"], grasp_trials=2, workers=1, image_size=128,

@@ -131,7 +131,8 @@ def test_two_workers_take_the_local_grasp_quality_run_s_steps_and_a_killed_worke
     resumes from that checkpoint, and the run ends as the single local process's uninterrupted run does
     (every epoch evaluated once, the same validation AUCs)."""
     from binpick.grasping.training import QualityTrainConfig, QualityTrainer
-    from binpick.warehouse.dataset import DataGeneration, GenerateConfig
+    from binpick.warehouse.dataset import DataGeneration
+    from binpick.warehouse.generation import GenerateConfig
 
     data = tmp_path / "trials"
     DataGeneration.new(GenerateConfig(out=str(data), scenes=4, policies=["analytic"], grasp_trials=3, workers=1, image_size=128,

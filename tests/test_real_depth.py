@@ -197,7 +197,8 @@ def test_data_generate_with_the_realistic_sensor_records_it_and_resumes_only_wit
     import json
 
     from binpick.core.depth import read_depth
-    from binpick.warehouse.dataset import DataGeneration, GenerateConfig
+    from binpick.warehouse.dataset import DataGeneration
+    from binpick.warehouse.generation import GenerateConfig
 
     settings = dict(out=str(tmp_path / "bins"), scenes=2, policies=[], workers=1, image_size=96, copies=(2, 2), distractors=(1, 1),
                     targets=["can"], scenes_per_world=1, val_fraction=0.5)

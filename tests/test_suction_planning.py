@@ -7,7 +7,7 @@ import pytest
 
 from binpick.core.errors import ConfigError
 from binpick.grasping import GraspPlanner
-from binpick.grasping.candidates import instance_surface
+from binpick.grasping.instance import instance_surface
 from binpick.grasping.suction import analytic_probability, describe_suction, moment_ratio, suction_candidates
 from binpick.grippers import SuctionCup
 from binpick.picking import Picker
@@ -91,7 +91,7 @@ def test_a_thin_u_shaped_object_is_grasped_on_itself_not_on_the_background_insid
     box = box_of(camera(), -0.05, 0.05, -0.065, 0.05, 0.015)
     surface = instance_surface(frame, box)
     assert surface is not None
-    from binpick.grasping.candidates import on_instance
+    from binpick.grasping.instance import on_instance
 
     assert not on_instance(frame, surface, surface.centre[None])[0]  # its centre is background
     for hand in ("jaws", "both"):
@@ -103,7 +103,8 @@ def test_a_thin_u_shaped_object_is_grasped_on_itself_not_on_the_background_insid
 def test_suction_trials_are_recorded_and_a_calibrated_suction_model_trains_on_them(tmp_path):
     from binpick.grasping.suction_quality import SuctionQuality
     from binpick.grasping.training import QualityTrainConfig, QualityTrainer, load_trials
-    from binpick.warehouse.dataset import DataGeneration, GenerateConfig
+    from binpick.warehouse.dataset import DataGeneration
+    from binpick.warehouse.generation import GenerateConfig
 
     data = tmp_path / "trials"
     DataGeneration.new(GenerateConfig(out=str(data), scenes=2, policies=[], grasp_trials=3, workers=1, image_size=128, gripper="suction",

@@ -72,7 +72,8 @@ def pickability_setup(tmp: Path):
 
 
 def grasp_quality_setup(tmp: Path):
-    from binpick.warehouse.dataset import DataGeneration, GenerateConfig
+    from binpick.warehouse.dataset import DataGeneration
+    from binpick.warehouse.generation import GenerateConfig
 
     data = tmp / "trials"
     DataGeneration.new(GenerateConfig(out=str(data), scenes=4, policies=[], grasp_trials=2, workers=1, image_size=128,

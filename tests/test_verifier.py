@@ -85,7 +85,8 @@ def test_a_repainted_look_alike_takes_the_photos_colours_on_its_own_shape_only()
 def test_the_verifier_trains_on_randomised_bins_calibrates_and_resumes(tmp_path):
     from binpick.detection.verifier import ProductVerifier
     from binpick.detection.verifier_training import VerifierTrainConfig, train_verifier
-    from binpick.warehouse.dataset import GenerateConfig, generate
+    from binpick.warehouse.dataset import generate
+    from binpick.warehouse.generation import GenerateConfig
 
     data = tmp_path / "bins"
     generate(GenerateConfig(out=str(data), scenes=4, policies=[], workers=1, image_size=128, copies=(2, 3), distractors=(1, 2),

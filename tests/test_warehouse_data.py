@@ -17,7 +17,9 @@ from binpick.sim.bin_scene import BinWorld
 from binpick.sim.gripper import TopDownGrasp
 from binpick.sim.mjcf import CameraSpec
 from binpick.sim.products import mesh_extent
-from binpick.warehouse.dataset import GenerateConfig, finalise, generate
+from binpick.warehouse.coco import finalise
+from binpick.warehouse.dataset import generate
+from binpick.warehouse.generation import GenerateConfig
 
 CLI = [sys.executable, "-c", "from binpick.cli import main; main()"]
 CUBE = """o cube
@@ -101,7 +103,7 @@ def test_trial_grasps_pick_a_small_box_and_fail_on_one_wider_than_the_jaws():
 
 
 def test_labelling_trials_run_without_the_drop_guards_as_the_pipeline_does():
-    from binpick.warehouse.dataset import label_pickability
+    from binpick.warehouse.labels import label_pickability
 
     product = Product("test/small", "test", shape="box", size=(0.02, 0.02, 0.02), mass=0.1)
     world = BinWorld(product, [], max_copies=2, camera=CameraSpec(size=64), gripper=True)

@@ -55,7 +55,8 @@ def data_generate(
 ) -> None:
     """Generate bin scenes (resumes after a kill), shop photos, COCO files and a data-set card."""
     from binpick.core.config import from_dict
-    from binpick.warehouse.dataset import DataGeneration, GenerateConfig
+    from binpick.warehouse.dataset import DataGeneration
+    from binpick.warehouse.generation import GenerateConfig
 
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {str(out)!r} is a file, not a data-set folder")
@@ -86,7 +87,7 @@ def data_show(
 ) -> None:
     """Draw a scene's boxes: green pickable, red unpickable, blue the query, grey other products."""
     from binpick.viz.bins import labelled_scene
-    from binpick.warehouse.dataset import read_scene
+    from binpick.warehouse.coco import read_scene
 
     path = check_png_path(output_folder(out) / f"scene_{scene:06d}.png")
     record, policies = read_scene(data, scene)
@@ -120,7 +121,7 @@ def data_export(
 def data_stats(data: Annotated[Path, typer.Argument(help="Data-set folder")]) -> None:
     """Counts: instances per image, pickable fraction per policy and category, policy disagreement.
     Reads the scene files only: nothing in the data set is written."""
-    from binpick.warehouse.dataset import dataset_stats, load_records, open_dataset
+    from binpick.warehouse.coco import dataset_stats, load_records, open_dataset
 
     manifest = open_dataset(data)
     _print_stats(dataset_stats(load_records(data), manifest["config"]["policies"]), data)

@@ -25,7 +25,8 @@ import numpy as np
 
 from binpick.core.config import did_you_mean
 from binpick.core.errors import ConfigError
-from binpick.grasping.candidates import YAWS, GraspCandidate, JawGripper, Surface, grasp_candidates, instance_surface
+from binpick.grasping.candidates import GraspCandidate, JawGripper, YAWS, grasp_candidates
+from binpick.grasping.instance import Surface, instance_surface
 from binpick.grasping.frame import DepthFrame
 from binpick.grippers import SuctionCup, tools_of
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from binpick.grasping.candidates import Surface
+from binpick.grasping.instance import Surface
 from binpick.grasping.frame import DepthFrame
 
 PUSH_DISTANCE = 0.05  # m the closed fingertips slide the instance

@@ -16,7 +16,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from binpick.grasping.candidates import GraspCandidate, JawGripper, surface_heights
+from binpick.grasping.candidates import GraspCandidate, JawGripper
+from binpick.grasping.instance import surface_heights
 from binpick.grasping.frame import DepthFrame
 
 FORMAT = "binpick-grasp-quality-1"

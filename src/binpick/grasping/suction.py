@@ -21,7 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from binpick.grasping.candidates import BLOCK_TOLERANCE, GraspCandidate, Surface, finger_heights, points_on_instance, surface_heights
+from binpick.grasping.candidates import BLOCK_TOLERANCE, GraspCandidate, finger_heights
+from binpick.grasping.instance import Surface, points_on_instance, surface_heights
 from binpick.grasping.frame import DepthFrame
 from binpick.grippers import Jaws, SuctionCup, ring_offsets, seal_geometries
 

@@ -15,7 +15,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from binpick.grasping.candidates import GraspCandidate, surface_heights
+from binpick.grasping.candidates import GraspCandidate
+from binpick.grasping.instance import surface_heights
 from binpick.grasping.frame import DepthFrame
 from binpick.grasping.quality import map_settings
 from binpick.grasping.suction import FEATURES

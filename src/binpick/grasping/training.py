@@ -29,7 +29,8 @@ from binpick.core.files import atomic_write_text, inside, read_json
 from binpick.core.metrics import calibration_error, fit_platt, roc_auc
 from binpick.core.depth import read_depth
 from binpick.grasping.camera import PinholeCamera
-from binpick.grasping.candidates import Surface, describe, instance_surface
+from binpick.grasping.candidates import describe
+from binpick.grasping.instance import Surface, instance_surface
 from binpick.grasping.frame import DepthFrame
 from binpick.grasping.quality import FEATURES, GraspQuality, GraspQualityNet, MapSpec, grasp_features, height_map
 from binpick.grippers import TOOLS

@@ -39,7 +39,7 @@ def instance_pixels(frame: DepthFrame, box, surface=None) -> np.ndarray:
     (``surface``, found here when not given), so that its colours are not mixed with the floor or a
     wall beside it (near a tote's wall the floor stands above the table the support is read from); the
     box's pixels above the support where depth shows no instance."""
-    from binpick.grasping.candidates import instance_surface
+    from binpick.grasping.instance import instance_surface
 
     surface = instance_surface(frame, box) if surface is None else surface
     if surface is None or surface.mask is None or not surface.mask.any():
@@ -54,7 +54,7 @@ def instance_pixels(frame: DepthFrame, box, surface=None) -> np.ndarray:
 def instance_similarity(histogram: np.ndarray, rgb: np.ndarray, frame: DepthFrame, box) -> float:
     """Histogram intersection in [0, 1] between ``histogram`` and the colours of the instance in
     ``box`` (:func:`instance_pixels`); 0 where depth shows nothing standing there."""
-    from binpick.grasping.candidates import instance_surface
+    from binpick.grasping.instance import instance_surface
 
     surface = instance_surface(frame, box)  # once: it is both the presence test and the pixels
     if surface is None:

@@ -30,33 +30,9 @@ from binpick.core.errors import ConfigError
 from binpick.core.files import atomic_write_json
 from binpick.core.runs import SILENT, RunCallback
 from binpick.sim.products import ProductLibrary
-from binpick.warehouse.coco import (  # noqa: F401  (their home before the split)
-    _ANNOTATION,
-    _RECORD,
-    card,
-    dataset_stats,
-    finalise,
-    load_records,
-    open_dataset,
-    read_record,
-    read_scene,
-    to_coco,
-)
-from binpick.warehouse.generation import (  # noqa: F401
-    FORMAT,
-    GenerateConfig,
-    build_library,
-    target_products,
-)
-from binpick.warehouse.labels import (  # noqa: F401
-    TRIAL_OFFSET,
-    TRIAL_VISIBLE,
-    grasp_outcomes,
-    label_offsets,
-    label_pickability,
-    record_grasp_trials,
-    trial_ready,
-)
+from binpick.warehouse.coco import finalise, open_dataset
+from binpick.warehouse.generation import FORMAT, GenerateConfig, build_library, target_products
+from binpick.warehouse.labels import label_pickability, record_grasp_trials
 
 
 def prepare_output(config: GenerateConfig, library: ProductLibrary) -> Path:

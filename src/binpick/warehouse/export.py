@@ -52,7 +52,7 @@ def export_dataset_scene(data: Path, index: int, out: Path, library=None) -> Pat
     """Scene ``index`` of a generated data set in the files a real camera gives. The shop photo is
     the data set's own (randomised products) or rendered from the product library."""
     from binpick.detection.data import read_image
-    from binpick.warehouse.dataset import read_scene
+    from binpick.warehouse.coco import read_scene
 
     record, _ = read_scene(Path(data), index)
     camera = record.get("camera")

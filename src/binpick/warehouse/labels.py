@@ -81,7 +81,7 @@ def record_grasp_trials(sim, scene, record: dict[str, Any], trials: int, rng: np
     pipeline's speed. ``jaws`` and ``cup``: the hand's geometry (a cell file's; default binpick's own),
     which the candidates are judged with and the simulated hand has."""
     from binpick.grasping import DepthFrame, JawGripper, PinholeCamera, grasp_candidates
-    from binpick.grasping.candidates import instance_surface
+    from binpick.grasping.instance import instance_surface
     from binpick.grasping.suction import analytic_probability, suction_candidates
     from binpick.grippers import tools_of
     from binpick.sim.gripper import lift_test, trial_timestep
