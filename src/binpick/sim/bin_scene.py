@@ -9,18 +9,17 @@ and creating a renderer cost more than a whole scene). Everything is determinist
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import mujoco
 import numpy as np
 
 from binpick.sim.domain import DomainConfig
-from binpick.sim.mjcf import (BIN_HALF, BIN_WALL, FLOOR_TOP, CameraSpec, product_assets, product_body, random_world_xml,
-                              scene_xml)
+from binpick.sim.mjcf import BIN_HALF, FLOOR_TOP, CameraSpec, product_assets, product_body, scene_xml
 from binpick.sim.products import Product
+from binpick.sim.randomised_world import PARK_X, RandomisedWorld
 from binpick.sim.sensor import SensorConfig, sense, tote_tilt
 
-PARK_X = 3.0  # unused slots wait here, on the table, out of view
 SETTLE_SECONDS = 1.2
 STILL_SECONDS = 3.0  # the longest a picking look waits for the bin to come to rest
 STILL_SPEED, STILL_TURN = 0.005, 0.3  # m/s and rad/s: a product slower than both is at rest
@@ -55,7 +54,7 @@ class Scene:
     sensor: dict = field(default_factory=dict)  # what the depth sensor drew for this scene (empty: perfect depth)
 
 
-class BinWorld:
+class BinWorld(RandomisedWorld):
     """One compiled model: ``target`` × ``max_copies`` slots + one slot per distractor product."""
 
     def __init__(self, target: Product, distractors: list[Product], max_copies: int = 8,
@@ -75,34 +74,12 @@ class BinWorld:
         self.domain = domain if domain is not None and domain.randomise else None
         self.half = BIN_HALF
         self.slots: list[Product] = [target] * max_copies + self.distractors
-        rng = np.random.default_rng(seed)
         self._seed, self.clutter = seed, []
         products = {target.id: target, **{d.id: d for d in self.distractors}}
         prefixes = {pid: f"p{i}" for i, pid in enumerate(products)}
-        assets = "".join(product_assets(p, prefixes[p.id]) for p in products.values())
-        bodies = "".join(product_body(p, f"slot{i}", self._parked(i), (1, 0, 0, 0), prefixes[p.id])
-                         for i, p in enumerate(self.slots))
-        lighting = {}
-        if randomise_lighting:
-            direction = np.array([rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5), -1.0])
-            lighting = dict(light_dir=direction, light_diffuse=[rng.uniform(0.4, 0.9)] * 3,
-                            table_rgba=(*rng.uniform(0.3, 0.8, 3), 1.0), bin_rgba=(*rng.uniform(0.1, 0.7, 3), 1.0))
         gripper = "jaws" if gripper is True else gripper or None
-        if gripper:
-            from binpick.sim.gripper import floating_hand
-
-            from binpick.grippers import Jaws, SuctionCup
-
-            hand_body, hand_extra = floating_hand(gripper, len(self.slots), jaws or Jaws(), cup or SuctionCup())
-            extra_worldbody, extra = extra_worldbody + hand_body, extra + hand_extra
-        elif robot is not None and getattr(robot, "gripper", "jaws") != "jaws":
-            from binpick.sim.hand import suction_welds
-
-            extra += suction_welds(len(self.slots))
-        if self.domain is not None:
-            self.xml = self._random_world(assets, bodies, extra_worldbody, extra, rng)
-        else:
-            self.xml = scene_xml(assets, bodies, camera, extra_worldbody, extra, tote_tilt=self.tote_tilt, **lighting)
+        self.xml = self._world_xml(products, prefixes, extra_worldbody, extra, randomise_lighting, gripper, robot, jaws, cup,
+                                   np.random.default_rng(seed))
         if robot is None:
             self.model = mujoco.MjModel.from_xml_string(self.xml)
         else:
@@ -111,18 +88,7 @@ class BinWorld:
             self.model = spec.compile()
         self.data = mujoco.MjData(self.model)
         self.arm = robot.bind(self.model) if robot is not None else None
-        self.body_ids = [self.model.body(f"slot{i}").id for i in range(len(self.slots))]
-        self.qpos_adr = [self.model.jnt_qposadr[self.model.body_jntadr[b]] for b in self.body_ids]
-        self.dof_adr = [self.model.jnt_dofadr[self.model.body_jntadr[b]] for b in self.body_ids]
-        # each product's bounding sphere: its geom's centre (a mesh may sit far off the body origin,
-        # like pybullet's teddy) and radius; drops are placed by it
-        geoms = [int(np.flatnonzero(self.model.geom_bodyid == b)[0]) for b in self.body_ids]
-        self.offset = [self.model.geom_pos[g].copy() for g in geoms]
-        self.radius = [float(self.model.geom_rbound[g]) for g in geoms]
-        # geom id -> slot (or -1): segmentation gives geom ids
-        self.geom_slot = np.full(self.model.ngeom + 1, -1, dtype=np.int16)
-        for slot, body in enumerate(self.body_ids):
-            self.geom_slot[np.flatnonzero(self.model.geom_bodyid == body)] = slot
+        self._index_slots()
         self.camera_id = self.model.camera("overhead").id
         self.guards = [g for g in range(self.model.ngeom) if (self.model.geom(g).name or "").startswith("bin_guard")]
         self.gripper = None
@@ -144,70 +110,47 @@ class BinWorld:
         self._alpha = self.model.geom_rgba[:, 3].copy()
         self._matid = self.model.geom_matid.copy()
 
-    # ------------------------------------------------------------------ domain randomisation
-    def _random_world(self, assets: str, bodies: str, extra_worldbody: str, extra: str, rng: np.random.Generator) -> str:
-        """Per-world draws: tote size and walls, number of lights, clutter objects beside the tote."""
-        from binpick.sim.domain import integer, uniform
-        from binpick.sim.products import random_primitive
+    def _world_xml(self, products: dict[str, Product], prefixes: dict[str, str], extra_worldbody: str, extra: str,
+                   randomise_lighting: bool, gripper: str | None, robot, jaws, cup, rng: np.random.Generator) -> str:
+        """The world's MJCF: the products' assets, a body per slot (parked), the floating hand or an arm's
+        suction welds, binpick's look or a randomised world."""
+        assets = "".join(product_assets(p, prefixes[p.id]) for p in products.values())
+        bodies = "".join(product_body(p, f"slot{i}", self._parked(i), (1, 0, 0, 0), prefixes[p.id])
+                         for i, p in enumerate(self.slots))
+        lighting = {}
+        if randomise_lighting:
+            direction = np.array([rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5), -1.0])
+            lighting = dict(light_dir=direction, light_diffuse=[rng.uniform(0.4, 0.9)] * 3,
+                            table_rgba=(*rng.uniform(0.3, 0.8, 3), 1.0), bin_rgba=(*rng.uniform(0.1, 0.7, 3), 1.0))
+        if gripper:
+            from binpick.sim.gripper import floating_hand
 
-        domain = self.domain
-        self.half = (uniform(rng, domain.tote_half_x), uniform(rng, domain.tote_half_y))
-        self.wall_height = uniform(rng, domain.wall_height)
-        self.lights = integer(rng, domain.lights)
-        self.clutter = [replace(random_primitive(f"clutter{i}", rng), pattern=(int(rng.integers(2**31)), domain.textures))
-                        for i in range(domain.clutter[1])]
-        for i, item in enumerate(self.clutter):
-            assets += product_assets(item, f"c{i}")
-            bodies += product_body(item, f"clutter{i}", (PARK_X, -0.5 - 0.25 * i, 0.1), (1, 0, 0, 0), f"c{i}")
-        return random_world_xml(assets, bodies, self.camera.size, self.half, self.wall_height, max(self.lights, 1),
-                                extra_worldbody, extra, self.tote_tilt)
+            from binpick.grippers import Jaws, SuctionCup
 
-    def _fill_textures(self, products: dict[str, Product], prefixes: dict[str, str]) -> None:
-        from binpick.sim.domain import fill_texture, pattern
+            hand_body, hand_extra = floating_hand(gripper, len(self.slots), jaws or Jaws(), cup or SuctionCup())
+            extra_worldbody, extra = extra_worldbody + hand_body, extra + hand_extra
+        elif robot is not None and getattr(robot, "gripper", "jaws") != "jaws":
+            from binpick.sim.hand import suction_welds
 
-        rng = np.random.default_rng(self._seed)
-        pool = self.domain.textures
-        fill_texture(self.model, self.model.texture("table_tex").id, pattern(rng, pool))
-        fill_texture(self.model, self.model.texture("tote_tex").id, pattern(rng, pool))
-        named = [(prefixes[p.id], p) for p in products.values()] + [(f"c{i}", c) for i, c in enumerate(self.clutter)]
-        for prefix, product in named:
-            if product.pattern is not None:
-                fill_texture(self.model, self.model.texture(f"{prefix}_tex").id, pattern(np.random.default_rng(product.pattern[0]), pool))
-        self._materials = {name: self.model.material(name).id for name in ("table", "bin")}
-        self._product_materials = [self.model.material(f"{prefixes[p.id]}_mat").id for p in products.values()
-                                   if p.pattern is not None or p.texture is not None or p.shape is not None]
-        self._base_rgba = self.model.mat_rgba.copy()
+            extra += suction_welds(len(self.slots))
+        if self.domain is not None:
+            return self._random_world(assets, bodies, extra_worldbody, extra, rng)
+        return scene_xml(assets, bodies, self.camera, extra_worldbody, extra, tote_tilt=self.tote_tilt, **lighting)
 
-    def _randomise_scene(self, rng: np.random.Generator):
-        """Per-scene draws: camera, lights, colour tints, clutter positions. Returns the camera."""
-        from binpick.sim.domain import apply_camera, draw_camera, draw_lights, uniform
-
-        domain = self.domain
-        draw = draw_camera(domain, rng, self.camera.size, FLOOR_TOP)
-        apply_camera(self.model, self.camera_id, draw)
-        draw_lights(domain, rng, self.model, self.lights)
-        rgba = self._base_rgba.copy()
-        for name in ("table", "bin"):
-            rgba[self._materials[name], :3] *= rng.uniform(0.6, 1.15, 3)
-        jitter = uniform(rng, domain.product_colour)
-        for material in self._product_materials:
-            rgba[material, :3] *= 1 + rng.uniform(-1, 1, 3) * jitter
-        self.model.mat_rgba[:] = np.clip(rgba, 0, 1)
-        shown = int(rng.integers(domain.clutter[0], domain.clutter[1] + 1))
-        hx, hy = self.half
-        for i in range(len(self.clutter)):
-            joint = self.model.body(f"clutter{i}").jntadr[0]
-            adr = self.model.jnt_qposadr[joint]
-            if i < shown:  # on the table, beside the tote, where a wide view may see it
-                side = rng.integers(4)
-                along = rng.uniform(-1, 1) * (hx if side < 2 else hy)
-                out = rng.uniform(0.06, 0.2) + (hy if side < 2 else hx) + BIN_WALL
-                x, y = (along, out if side == 0 else -out) if side < 2 else (out if side == 2 else -out, along)
-                self.data.qpos[adr:adr + 3] = (x, y, float(self.model.geom_rbound[self.model.body(f"clutter{i}").geomadr[0]]))
-            else:
-                self.data.qpos[adr:adr + 3] = (PARK_X, -0.5 - 0.25 * i, 0.1)
-        mujoco.mj_forward(self.model, self.data)
-        return draw
+    def _index_slots(self) -> None:
+        """Each slot's body, joint addresses, bounding sphere and geoms (segmentation gives geom ids)."""
+        self.body_ids = [self.model.body(f"slot{i}").id for i in range(len(self.slots))]
+        self.qpos_adr = [self.model.jnt_qposadr[self.model.body_jntadr[b]] for b in self.body_ids]
+        self.dof_adr = [self.model.jnt_dofadr[self.model.body_jntadr[b]] for b in self.body_ids]
+        # each product's bounding sphere: its geom's centre (a mesh may sit far off the body origin,
+        # like pybullet's teddy) and radius; drops are placed by it
+        geoms = [int(np.flatnonzero(self.model.geom_bodyid == b)[0]) for b in self.body_ids]
+        self.offset = [self.model.geom_pos[g].copy() for g in geoms]
+        self.radius = [float(self.model.geom_rbound[g]) for g in geoms]
+        # geom id -> slot (or -1): segmentation gives geom ids
+        self.geom_slot = np.full(self.model.ngeom + 1, -1, dtype=np.int16)
+        for slot, body in enumerate(self.body_ids):
+            self.geom_slot[np.flatnonzero(self.model.geom_bodyid == body)] = slot
 
     def camera_record(self, draw=None) -> dict:
         """Intrinsics and extrinsics of the scene's camera, recorded beside its annotations."""
