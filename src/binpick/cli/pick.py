@@ -198,8 +198,6 @@ def plan(
     rerun: RerunOption = False,
 ) -> None:
     """Plan grasps from one real RGB-D frame: no simulator. Prints the best grasp; writes plan.json and overlay.png."""
-    import numpy as np
-
     from binpick.core.config import check_range
     from binpick.core.files import atomic_write_text
     from binpick.detection.predict import parse_box
@@ -211,15 +209,7 @@ def plan(
     if the_cell is not None:
         the_cell.check_arm(robot)  # before any output folder is made
     gripper = the_cell.tools if the_cell is not None else gripper
-    if sample:
-        from binpick.samples import SAMPLE_FRAME
-
-        rgb, depth, camera = rgb or SAMPLE_FRAME / "rgb.png", depth or SAMPLE_FRAME / "depth.png", camera or SAMPLE_FRAME / "camera.yaml"
-        photo = photo if photo or query_box is not None else [SAMPLE_FRAME / "photo.png"]
-    if rgb is None or depth is None or camera is None:
-        raise ConfigError("give the frame's --rgb, --depth and --camera (or --sample for the frame that ships with binpick)")
-    if (not photo) == (query_box is None):
-        raise ConfigError("give exactly one of --photo (the product's shop photo; repeatable) or --query-box x,y,w,h")
+    rgb, depth, camera, photo = _frame_files(rgb, depth, camera, photo, query_box, sample)
     box = parse_box(query_box) if query_box is not None else None
     dimensions = parse_dimensions(product_size, "--product-size") if product_size is not None else None
     colour, metres, info = read_frame(rgb, depth, camera, parse_flange_pose(flange_pose))
@@ -248,14 +238,42 @@ def plan(
               "grasp_policy": picker.grasp.policy.value, "robot": robot, "gripper": gripper, **plans.to_json()}
     atomic_write_text(plan_path, json.dumps(result, indent=1))
     if rerun:
-        from binpick.picking.inputs import register_depth
-        from binpick.viz.recording import OrderRecording
-
-        seen, depth_seen = info.rectify(colour, register_depth(metres, colour.shape[:2]))  # as the picker saw the frame
-        with OrderRecording(folder / "plan.rrd") as recording:
-            recording.frame(0, str(photo[0].name if photo else f"query box {query_box}"), seen, depth_seen, info.camera, plans)
+        _record_plan(folder / "plan.rrd", colour, metres, info, plans, str(photo[0].name if photo else f"query box {query_box}"))
     save_png(plans.plot(colour, info.camera, picker.grasp.gripper.opening, query, box), overlay, "--out")
     check_stroke(plans, picker.grasp)  # (after plan.json and the overlay are written: they show why)
+    _say_plans(plans, folder, plan_path, overlay)
+
+
+def _frame_files(rgb: Path | None, depth: Path | None, camera: Path | None, photo: list[Path] | None, query_box: str | None,
+                 sample: bool) -> tuple[Path, Path, Path, list[Path] | None]:
+    """The frame's files (the sample frame's where ``--sample`` leaves them out) and the photos; one line
+    when one is missing or both a photo and a query box are given."""
+    if sample:
+        from binpick.samples import SAMPLE_FRAME
+
+        rgb, depth, camera = rgb or SAMPLE_FRAME / "rgb.png", depth or SAMPLE_FRAME / "depth.png", camera or SAMPLE_FRAME / "camera.yaml"
+        photo = photo if photo or query_box is not None else [SAMPLE_FRAME / "photo.png"]
+    if rgb is None or depth is None or camera is None:
+        raise ConfigError("give the frame's --rgb, --depth and --camera (or --sample for the frame that ships with binpick)")
+    if (not photo) == (query_box is None):
+        raise ConfigError("give exactly one of --photo (the product's shop photo; repeatable) or --query-box x,y,w,h")
+    return rgb, depth, camera, photo
+
+
+def _record_plan(path: Path, colour, metres, info, plans, label: str) -> None:
+    """The frame as the picker saw it and its plans, as a Rerun recording."""
+    from binpick.picking.inputs import register_depth
+    from binpick.viz.recording import OrderRecording
+
+    seen, depth_seen = info.rectify(colour, register_depth(metres, colour.shape[:2]))
+    with OrderRecording(path) as recording:
+        recording.frame(0, label, seen, depth_seen, info.camera, plans)
+
+
+def _say_plans(plans, folder: Path, plan_path: Path, overlay: Path) -> None:
+    """The plan in one line: the best grasp and where the files are, or why there is none."""
+    import numpy as np
+
     best = plans.grasps[0] if plans.grasps else None
     if best is None:
         reasons: dict[str, int] = {}
