@@ -58,6 +58,51 @@ def stamp_seconds(header) -> float:
     return header.stamp.sec + 1e-9 * header.stamp.nanosec
 
 
+def subscribe_camera(node, guard: Guard, frames, topics: tuple[str, str, str], camera_to_base: np.ndarray, base_frame: str) -> None:
+    """The camera's colour, depth and camera_info topics into ``frames`` (matched by stamp); a message
+    that cannot be read is dropped with its reason by ``guard``."""
+    import sensor_msgs.msg
+    from rclpy.qos import qos_profile_sensor_data
+
+    colour, depth, info = topics
+
+    def on_info(message) -> None:
+        frames.add_info(stamp_seconds(message.header), CameraInfo.from_ros(
+            message.k, message.d, message.width, message.height, camera_to_base, message.distortion_model or "plumb_bob", base_frame))
+
+    node.create_subscription(sensor_msgs.msg.Image, colour, guard.frames(colour, lambda m: frames.add_colour(
+        stamp_seconds(m.header), colour_of(m.encoding, pixels(m)))), qos_profile_sensor_data)
+    node.create_subscription(sensor_msgs.msg.Image, depth, guard.frames(depth, lambda m: frames.add_depth(
+        stamp_seconds(m.header), depth_of(m.encoding, pixels(m)))), qos_profile_sensor_data)
+    node.create_subscription(sensor_msgs.msg.CameraInfo, info, guard.frames(info, on_info), qos_profile_sensor_data)
+
+
+def report_drops(node, guard: Guard, namespace: str) -> None:
+    """Camera messages refused (``dropped``) and failed on inside (``errors``), published twice a second
+    when the counts change."""
+    import std_msgs.msg
+
+    dropped = node.create_publisher(std_msgs.msg.String, f"{namespace}/dropped", RELIABLE_DEPTH)
+    errors = node.create_publisher(std_msgs.msg.String, f"{namespace}/errors", RELIABLE_DEPTH)
+
+    def publish() -> None:
+        counts = guard.report()
+        if counts is not None:
+            dropped.publish(std_msgs.msg.String(data=counts[0]))
+            errors.publish(std_msgs.msg.String(data=counts[1]))
+
+    node.create_timer(0.5, publish)
+
+
+def answer_json(request_id: str, stamp: float, plans, opening: float) -> str:
+    """A goal's answer: its grasps (tool, pose, scores, width) in the base frame, the jaws' opening and
+    every plan."""
+    grasps = [{"tool": p.tool, "position": p.position, "orientation": p.orientation, "score": p.score, "quality": p.quality,
+               "width": p.width} for p in plans.grasps]
+    return json.dumps({"id": request_id, "status": "succeeded", "text": "", "frame": plans.frame, "stamp": stamp,
+                       "grasps": grasps, "opening": opening, "plans": plans.to_json()})
+
+
 def make_node(requests: PlanRequests, camera_to_base: np.ndarray, base_frame: str, namespace: str = "/binpick/plan_pick",
               colour: str = "/camera/color/image_raw", depth: str = "/camera/aligned_depth_to_color/image_raw",
               info: str = "/camera/color/camera_info", camera_frame: str = "binpick_camera_optical_frame"):
@@ -69,7 +114,7 @@ def make_node(requests: PlanRequests, camera_to_base: np.ndarray, base_frame: st
     import sensor_msgs.msg
     import std_msgs.msg
     import visualization_msgs.msg
-    from rclpy.qos import DurabilityPolicy, QoSProfile, qos_profile_sensor_data
+    from rclpy.qos import DurabilityPolicy, QoSProfile
 
     namespace = namespace.rstrip("/")
     node = rclpy.node.Node("binpick_pick_planner")
@@ -77,43 +122,23 @@ def make_node(requests: PlanRequests, camera_to_base: np.ndarray, base_frame: st
     guard = Guard(node.get_logger().warning)
     node.binpick_guard = guard  # what was dropped, for whoever runs the node
 
-    def on_info(message) -> None:
-        frames.add_info(stamp_seconds(message.header), CameraInfo.from_ros(
-            message.k, message.d, message.width, message.height, camera_to_base, message.distortion_model or "plumb_bob", base_frame))
-
-    node.create_subscription(sensor_msgs.msg.Image, colour, guard.frames(colour, lambda m: frames.add_colour(
-        stamp_seconds(m.header), colour_of(m.encoding, pixels(m)))), qos_profile_sensor_data)
-    node.create_subscription(sensor_msgs.msg.Image, depth, guard.frames(depth, lambda m: frames.add_depth(
-        stamp_seconds(m.header), depth_of(m.encoding, pixels(m)))), qos_profile_sensor_data)
-    node.create_subscription(sensor_msgs.msg.CameraInfo, info, guard.frames(info, on_info), qos_profile_sensor_data)
+    subscribe_camera(node, guard, frames, (colour, depth, info), camera_to_base, base_frame)
     results = node.create_publisher(std_msgs.msg.String, f"{namespace}/result", RELIABLE_DEPTH)
     poses = node.create_publisher(geometry_msgs.msg.PoseArray, f"{namespace}/grasps", RELIABLE_DEPTH)
     overlay = node.create_publisher(sensor_msgs.msg.Image, f"{namespace}/overlay", 1)
-    dropped = node.create_publisher(std_msgs.msg.String, f"{namespace}/dropped", RELIABLE_DEPTH)
-    errors = node.create_publisher(std_msgs.msg.String, f"{namespace}/errors", RELIABLE_DEPTH)
     latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)  # late subscribers get the last one
     markers = node.create_publisher(visualization_msgs.msg.MarkerArray, f"{namespace}/markers", latched)
     camera_pose = node.create_publisher(geometry_msgs.msg.TransformStamped, f"{namespace}/camera_pose", latched)
     if camera_frame:  # "": the camera's driver or your own calibration publishes it
         camera_pose.publish(transform_stamped(camera_frame_pose(camera_to_base, base_frame, camera_frame), node.get_clock().now().to_msg()))
-
-    def report_drops() -> None:  # camera messages refused (dropped) and failed on inside (errors), twice a second when it changes
-        counts = guard.report()
-        if counts is not None:
-            dropped.publish(std_msgs.msg.String(data=counts[0]))
-            errors.publish(std_msgs.msg.String(data=counts[1]))
-
-    node.create_timer(0.5, report_drops)
+    report_drops(node, guard, namespace)
 
     def aborted(request_id: str, error: BaseException) -> None:
         results.publish(std_msgs.msg.String(data=json.dumps({"id": request_id, "status": "aborted", "text": describe(error)})))
 
     def answer(goal: Goal) -> None:
         frame, plans = requests.plan(goal.product_id, goal.photo, goal.max_grasps, goal.size, goal.query_box, goal.copies_only)
-        grasps = [{"tool": p.tool, "position": p.position, "orientation": p.orientation, "score": p.score, "quality": p.quality,
-                   "width": p.width} for p in plans.grasps]
-        answer_text = json.dumps({"id": goal.id, "status": "succeeded", "text": "", "frame": plans.frame, "stamp": frame.stamp,
-                                  "grasps": grasps, "opening": float(requests.picker.grasp.gripper.opening), "plans": plans.to_json()})
+        answer_text = answer_json(goal.id, frame.stamp, plans, float(requests.picker.grasp.gripper.opening))
         stamp = builtin_interfaces.msg.Time(sec=int(frame.stamp), nanosec=int(1e9 * (frame.stamp % 1)))
         array_message = pose_array(plans.grasps, plans.frame, stamp)
         results.publish(std_msgs.msg.String(data=answer_text))  # built in full first: a goal is answered once
