@@ -74,7 +74,7 @@ def ours(pid: int) -> bool:
 
 
 def timed(mode: str, job, threads: int) -> tuple[dict, float]:
-    from binpick import jobs
+    from binpick.core import jobs
 
     started = time.perf_counter()
     if mode == "local":
@@ -120,9 +120,10 @@ def grasp_quality(epochs: int) -> dict:
 
 
 def a3c_config(steps: int, workers: int):
-    from binpick.rl.config import load_rl_config
+    from binpick.rl.config import RLConfig
+    from binpick.core.config import load_config
 
-    return load_rl_config(RL_CONFIG, {"total_timesteps": steps, "checkpoint_every": steps // 2, "a3c.workers": workers,
+    return load_config(RLConfig, RL_CONFIG, {"total_timesteps": steps, "checkpoint_every": steps // 2, "a3c.workers": workers,
                                       "a3c.pretrain_pictures": 0, "eval.every": steps // 2, "eval.episodes": 3,
                                       "name": f"a3c_ray_{workers}"})
 
@@ -168,7 +169,7 @@ def rollout_fault(steps: int, uninterrupted: dict) -> dict:
 
 
 def detector_fault(epochs: int) -> dict:
-    from binpick import jobs
+    from binpick.core import jobs
 
     if not (DETECTOR_DATA / "annotations_train.json").is_file():
         sys.exit(f"{DETECTOR_DATA} is missing: python benchmarks/ray_train_scaling.py makes it")
@@ -176,7 +177,7 @@ def detector_fault(epochs: int) -> dict:
                  "data.targets": "all", "train.epochs": epochs, "train.eval_every": 1, "train.workers": 0, "train.threads": 1}
 
     def run(name: str, kill: bool) -> tuple[dict, list[int]]:
-        job = jobs.new_job(DETECT_CONFIG, RUNS, {**overrides, "name": name})
+        job = jobs.open_job(DETECT_CONFIG, runs=RUNS, overrides={**overrides, "name": name})
         killed: list[int] = []
 
         def killer() -> None:

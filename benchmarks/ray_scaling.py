@@ -31,9 +31,9 @@ RUNS = _common.ROOT / "runs" / "ray_gp_her"
 
 
 def config_for(path: str, steps: int, seed: int = 0):
-    from binpick import jobs
+    from binpick.core import jobs
 
-    return jobs.load_as("rl", path, {"total_timesteps": steps, "eval.stop_after_successes": 0, "seed": seed})
+    return jobs.load_job_config(path, {"total_timesteps": steps, "eval.stop_after_successes": 0, "seed": seed}, task="rl")[1]
 
 
 def learn_apart(path: str, steps: int, seed: int, workers: int, kill_at: int | None = None) -> dict:

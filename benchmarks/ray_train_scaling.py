@@ -39,13 +39,13 @@ def make_data(scenes: int) -> None:
 
 
 def train(mode: str, epochs: int) -> dict:
-    from binpick import jobs
+    from binpick.core import jobs
     from binpick.integrations.ray.training import train_on_ray
 
     overrides = {"data.train": str(DATA / "annotations_train.json"), "data.val": str(DATA / "annotations_val.json"),
                  "data.targets": "all", "train.epochs": epochs, "train.eval_every": epochs, "train.workers": 0,
                  "train.threads": 2, "name": f"rod_ray_{mode}"}
-    job = jobs.new_job(CONFIG, _common.ROOT / "runs" / "ray_scaling", overrides)
+    job = jobs.open_job(CONFIG, runs=_common.ROOT / "runs" / "ray_scaling", overrides=overrides)
     started = time.perf_counter()
     if mode == "local":
         metrics = job.run()

@@ -20,7 +20,8 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import _common  # noqa: E402
 
-from binpick.april import AprilRun, load_april_config  # noqa: E402
+from binpick.april import AprilConfig, AprilRun  # noqa: E402
+from binpick.core.config import load_config  # noqa: E402
 from binpick.cli.terminal import RichCallback  # noqa: E402
 
 CONFIGS = {
@@ -259,7 +260,7 @@ def shared_state_run(results: dict, env: str, name: str, config) -> str | None:
     if not stages_file.is_file():  # the row came from a run folder this machine does not have
         return None
     stages = json.loads(stages_file.read_text())
-    source_config = load_april_config(_common.ROOT / source["config"])
+    source_config = load_config(AprilConfig, _common.ROOT / source["config"])
     if source_config.policy.rl_config != config.policy.rl_config or "policy" not in stages:
         return None
     return stages["policy"]["semantic_run"]
@@ -338,7 +339,7 @@ def main() -> None:
                                                                 "success": result.success_rate, "sim_episodes": 0}})
             continue
         config_file, overrides = _common.recipe(name)
-        config = load_april_config(config_file, overrides)
+        config = load_config(AprilConfig, config_file, overrides)
         env = config.env.split("/")[1].removesuffix("-v0")
         existing = sorted((_common.ROOT / args.runs / config.name).glob("*/stages.json"))
         if existing and not args.fresh:

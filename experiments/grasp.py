@@ -400,7 +400,8 @@ def pickability(heads_given: list[str] | None = None) -> None:
     import torch
     import yaml
 
-    from binpick.detection.config import load_detect_config
+    from binpick.detection.config import DetectConfig
+    from binpick.core.config import load_config
     from binpick.detection.train import DetectorTrainer
     from binpick.cli.terminal import RichCallback
 
@@ -417,7 +418,7 @@ def pickability(heads_given: list[str] | None = None) -> None:
             run_dir = folder
         else:
             trainer = DetectorTrainer.resume(folder) if folder is not None else DetectorTrainer.new(
-                load_detect_config(_common.recipe(name)[0]), RUNS)
+                load_config(DetectConfig, _common.recipe(name)[0]), RUNS)
             with RichCallback() as callback:
                 trainer.run(callback)
             run_dir = trainer.run_dir

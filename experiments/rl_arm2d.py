@@ -30,7 +30,8 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import _common  # noqa: E402
 
 from binpick.envs import make  # noqa: E402
-from binpick.rl.config import RLConfig, load_rl_config  # noqa: E402
+from binpick.rl.config import RLConfig  # noqa: E402
+from binpick.core.config import load_config  # noqa: E402
 from binpick.rl.evaluate import evaluate_policy, random_policy  # noqa: E402
 from binpick.rl.train import load_policy, make_env as make_run_env, trainer_for  # noqa: E402
 from binpick.core.config import load_run_config  # noqa: E402
@@ -184,7 +185,7 @@ def main() -> None:
             env.close()
         else:
             config_path, area = RUNS[key]
-            base = load_rl_config(_common.ROOT / config_path)
+            base = load_config(RLConfig, _common.ROOT / config_path)
             overrides = {"total_timesteps": int(base.total_timesteps * args.steps_scale),
                          "curriculum.stages": [{**asdict(stage), "ramp_steps": int(stage.ramp_steps * args.steps_scale),
                                                 "hold_steps": int(stage.hold_steps * args.steps_scale)}
@@ -194,7 +195,7 @@ def main() -> None:
                 if not (single_goal / "config.yaml").is_file():
                     sys.exit("the curriculum starts from the single-goal A3C run: run --only a3c first")
                 overrides["init_from"] = str(single_goal)
-            config = load_rl_config(_common.ROOT / config_path, overrides)
+            config = load_config(RLConfig, _common.ROOT / config_path, overrides)
             wrap_env = None
             if key in READ_STATE:
                 from binpick.april.arm2d import ReadStateOffPixels

@@ -21,7 +21,8 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import _common  # noqa: E402
 
-from binpick.rl.config import load_rl_config  # noqa: E402
+from binpick.rl.config import RLConfig  # noqa: E402
+from binpick.core.config import load_config  # noqa: E402
 from binpick.rl.train import Trainer  # noqa: E402
 from binpick.cli.terminal import RichCallback  # noqa: E402
 
@@ -32,7 +33,7 @@ GOAL = (0.1, 0.05, 0.05)  # the single goal of Table 3.3, metres from the grippe
 def run(name: str, steps: int, seed: int, **changes) -> dict:
     # the tables need the whole run (e.g. iterations to < 5 actions): no early stop
     overrides = {"name": name, "total_timesteps": steps, "seed": seed, "eval.stop_after_successes": 0}
-    config = load_rl_config(_common.ROOT / BASE, overrides | {key.replace("__", "."): value for key, value in changes.items()})
+    config = load_config(RLConfig, _common.ROOT / BASE, overrides | {key.replace("__", "."): value for key, value in changes.items()})
     trainer = Trainer.new(config, _common.ROOT / "runs" / "bench")
     with RichCallback() as callback:
         metrics = trainer.run(callback)

@@ -24,7 +24,8 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import _common  # noqa: E402
 import numpy as np  # noqa: E402
 
-from binpick.rl.config import load_rl_config  # noqa: E402
+from binpick.rl.config import RLConfig  # noqa: E402
+from binpick.core.config import load_config  # noqa: E402
 from binpick.rl.train import Trainer  # noqa: E402
 from binpick.cli.terminal import RichCallback  # noqa: E402
 
@@ -201,7 +202,7 @@ def main() -> None:
         runs = []
         for seed in args.seeds:
             steps = args.sb3_steps if label == "sb3_sac_her" else args.binpick_steps
-            config = load_rl_config(_common.ROOT / config_path, {"seed": seed, "total_timesteps": steps})
+            config = load_config(RLConfig, _common.ROOT / config_path, {"seed": seed, "total_timesteps": steps})
             trainer = Trainer.new(config, _common.ROOT / "runs" / "bench")
             with RichCallback() as callback:
                 metrics = trainer.run(callback)

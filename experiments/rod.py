@@ -42,7 +42,8 @@ def finished(folder: Path | None) -> bool:
 
 
 def train(runs: Path, only: list[str] | None) -> None:
-    from binpick.detection.config import load_detect_config
+    from binpick.detection.config import DetectConfig
+    from binpick.core.config import load_config
     from binpick.detection.train import DetectorTrainer
     from binpick.cli.terminal import RichCallback
 
@@ -54,7 +55,7 @@ def train(runs: Path, only: list[str] | None) -> None:
         if folder is not None:
             trainer = DetectorTrainer.resume(folder)
         else:
-            trainer = DetectorTrainer.new(load_detect_config(_common.recipe(name)[0]), runs)
+            trainer = DetectorTrainer.new(load_config(DetectConfig, _common.recipe(name)[0]), runs)
         print(f"{name}: training in {trainer.run_dir} from epoch {trainer.epoch}", flush=True)
         with RichCallback() as callback:
             metrics = trainer.run(callback)
@@ -78,7 +79,8 @@ FINETUNE_FROM = {"rod_photo": "finetune_rod"}
 def stage_trainers(stage: str, runs: Path, overrides: dict, init: dict[str, Path] | None = None,
                    rows: list[str] | None = None) -> list:
     """One trainer per row for ``stage`` (pretrain | finetune), resumed where its run folder exists."""
-    from binpick.detection.config import load_detect_config
+    from binpick.detection.config import DetectConfig
+    from binpick.core.config import load_config
     from binpick.detection.train import DetectorTrainer
 
     trainers = []
@@ -97,7 +99,7 @@ def stage_trainers(stage: str, runs: Path, overrides: dict, init: dict[str, Path
         settings = {**overrides, **changes, "name": name}
         if init is not None:
             settings["train.init_from"] = str(init[row])
-        trainers.append(DetectorTrainer.new(load_detect_config(config_file, settings), runs))
+        trainers.append(DetectorTrainer.new(load_config(DetectConfig, config_file, settings), runs))
     return trainers
 
 

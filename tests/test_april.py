@@ -122,7 +122,8 @@ def test_april_pipeline_runs_resumes_and_deploys_from_pixels(tmp_path):
 
 def _latent_policy_widened_from_the_shared_state_policy(first_run, tmp_path):
     """m < n (Eq 4.9): the state policy of an earlier run, widened for the free latents and fine-tuned."""
-    from binpick.april import AprilRun, Policy, load_april_config
+    from binpick.april import AprilConfig, AprilRun, Policy
+    from binpick.core.config import load_config
 
     state_run = json.loads((first_run / "stages.json").read_text())["policy"]["semantic_run"]
     config = tmp_path / "latent.yaml"
@@ -130,7 +131,7 @@ def _latent_policy_widened_from_the_shared_state_policy(first_run, tmp_path):
                       .replace("finetune_steps", f"state_run: {state_run}, finetune_steps")
                       .replace("eval:", "refine: {episodes: 2, epochs: 1}\neval:")
                       .replace("image: grey", "image: grey\nenv_kwargs: {views: [workspace, side]}"))
-    run = AprilRun.new(load_april_config(config), tmp_path / "runs")
+    run = AprilRun.new(load_config(AprilConfig, config), tmp_path / "runs")
     rows = run.run()["rows"]
     # two cameras: the perception reads both views, stacked as channels, and the row says so
     assert list(rows) == ["pixels_vae_n8_m6_w1_refined_two_views"] and not (run.run_dir / "rl").exists()
@@ -146,13 +147,14 @@ def _latent_policy_widened_from_the_shared_state_policy(first_run, tmp_path):
 
 def _latent_policy_distilled_from_the_state_policy(state_run, tmp_path):
     """policy.finetune distill (DAgger): the state policy labels the images the student visits."""
-    from binpick.april import AprilRun, load_april_config
+    from binpick.april import AprilConfig, AprilRun
+    from binpick.core.config import load_config
 
     config = tmp_path / "distill.yaml"
     config.write_text(APRIL.format(kind="ae", n=8, m=6, mode="latent", rl=tmp_path / "rl.yaml")
                       .replace("finetune_steps: 60", f"state_run: {state_run}, finetune: distill, finetune_steps: 90, "
                                                      "distill_every: 30, distill_gradient_steps: 40"))
-    run = AprilRun.new(load_april_config(config), tmp_path / "runs")
+    run = AprilRun.new(load_config(AprilConfig, config), tmp_path / "runs")
     rows = run.run()["rows"]
     assert list(rows) == ["pixels_ae_n8_m6_w1_distilled"]
     assert run.stages["finetune"]["labels"] == 90 and run.stages["finetune"]["finetune"] == "distill"
@@ -194,7 +196,8 @@ def test_bad_april_input_is_one_clear_line(tmp_path):
 def test_state_policy_config_is_checked_before_any_stage(tmp_path):
     """A state policy for another world, or one that reads privileged state where pixels must stand in
     for it, is one line before collection starts (no stage runs)."""
-    from binpick.april import AprilRun, load_april_config
+    from binpick.april import AprilConfig, AprilRun
+    from binpick.core.config import load_config
 
     obstacle_rl = RL.replace("env: FetchReach", "env: binpick/FetchReachObstacle-v0")
     (tmp_path / "rl.yaml").write_text(obstacle_rl)
@@ -214,11 +217,11 @@ def test_state_policy_config_is_checked_before_any_stage(tmp_path):
         config = tmp_path / "detour.yaml"
         config.write_text(APRIL.format(kind="ae", n=8, m=6, mode="latent", rl=tmp_path / "rl.yaml")
                           .replace("finetune_steps: 60", "pretrain: false, teacher: detour, finetune: distill"))
-        load_april_config(config)
+        load_config(AprilConfig, config)
     for number, (text, message) in enumerate(cases):
         config = tmp_path / f"april{number}.yaml"
         config.write_text(text)
-        run = AprilRun.new(load_april_config(config), tmp_path / "runs")
+        run = AprilRun.new(load_config(AprilConfig, config), tmp_path / "runs")
         with pytest.raises(ConfigError, match=re.escape(message)):
             run.run()
         assert run.stages == {}, "nothing ran"
@@ -226,13 +229,14 @@ def test_state_policy_config_is_checked_before_any_stage(tmp_path):
 
 def _distilled_obstacle_run(tmp_path, rl: str, policy: str) -> tuple:
     """A tiny latent n = 8, m = 6 FetchReachObstacle run distilled from a teacher; (run, its rows)."""
-    from binpick.april import AprilRun, load_april_config
+    from binpick.april import AprilConfig, AprilRun
+    from binpick.core.config import load_config
 
     config = tmp_path / "distill.yaml"
     config.write_text(APRIL.replace("env: FetchReach", "env: binpick/FetchReachObstacle-v0")
                       .format(kind="ae", n=8, m=6, mode="latent", rl=tmp_path / rl)
                       .replace("finetune_steps: 60", f"finetune: distill, {policy}"))
-    run = AprilRun.new(load_april_config(config), tmp_path / "runs")
+    run = AprilRun.new(load_config(AprilConfig, config), tmp_path / "runs")
     return run, run.run()["rows"]
 
 
@@ -268,16 +272,17 @@ def test_teachers_that_know_the_box_label_the_students_images(tmp_path):
 
 def test_row_names_say_what_differs_from_the_thesis_set_up(tmp_path):
     """Rows of another world, schedule or teacher never overwrite the thesis-protocol rows."""
-    from binpick.april import AprilRun, load_april_config
+    from binpick.april import AprilConfig, AprilRun
+    from binpick.core.config import load_config
     from binpick.april.evaluate import row_names
     configs = Path(__file__).resolve().parents[1] / "configs" / "april"
 
     def rows(name: str) -> dict:
         seeded = re.fullmatch(r"(.+)_seed(\d+)", name)  # a seed is an override of its config, not a file of its own
         if seeded:
-            return row_names(AprilRun(load_april_config(configs / f"{seeded.group(1)}.yaml",
+            return row_names(AprilRun(load_config(AprilConfig, configs / f"{seeded.group(1)}.yaml",
                                                         {"seed": int(seeded.group(2)), "name": name}), tmp_path))
-        return row_names(AprilRun(load_april_config(configs / f"{name}.yaml"), tmp_path))
+        return row_names(AprilRun(load_config(AprilConfig, configs / f"{name}.yaml"), tmp_path))
 
     assert rows("april_obstacle_n6_m6") == {"state": "ground_truth", "pixels": "pixels_ae_n6_m6_w1"}
     assert rows("april_obstacle_on_path_n6_m6_goals") == {"state": "ground_truth_on_path",
@@ -462,13 +467,14 @@ def test_shifted_domain_changes_the_images_but_not_the_physics():
 
 
 def test_collect_can_redraw_the_goal_so_perception_sees_many(tmp_path):
-    from binpick.april import AprilRun, load_april_config
+    from binpick.april import AprilConfig, AprilRun
+    from binpick.core.config import load_config
 
     (tmp_path / "rl.yaml").write_text(RL)
     config = tmp_path / "april.yaml"
     config.write_text(APRIL.format(kind="ae", n=6, m=6, mode="semantic", rl=tmp_path / "rl.yaml")
                       .replace("episodes: 2}", "episodes: 2, goal_every: 1}", 1).replace("image: grey", "image: rgb"))
-    run = AprilRun.new(load_april_config(config), tmp_path / "runs")
+    run = AprilRun.new(load_config(AprilConfig, config), tmp_path / "runs")
     run.stage_collect(SILENT)
     data = np.load(run.run_dir / "data" / "random.npz")
     goals = np.unique(data["states"][:, 3:].round(5), axis=0)
@@ -477,4 +483,4 @@ def test_collect_can_redraw_the_goal_so_perception_sees_many(tmp_path):
     red = (data["images"][..., 0] > 150) & (data["images"][..., 1] < 60)
     assert red.any(axis=(1, 2)).mean() > 0.5 and len({tuple(np.argwhere(r).mean(0).round()) for r in red[:20] if r.any()}) > 5
     with pytest.raises(ConfigError, match="collect.goal_every"):  # Reacher's target is a body, not drawn
-        load_april_config(config, {"env": "Reacher"})
+        load_config(AprilConfig, config, {"env": "Reacher"})

@@ -13,7 +13,8 @@ from conftest import binpick_here
 
 from binpick.detection.backbone import build_backbone
 from binpick.detection.baselines import histogram_matches, template_matches
-from binpick.detection.config import load_detect_config
+from binpick.detection.config import DetectConfig
+from binpick.core.config import load_config
 from binpick.detection.data import RepeatedInstances, TaskDataset, collate
 from binpick.detection.evaluate import coco_ap, copy_scores, first_choices
 from binpick.detection.losses import LossWeights, assign, gaussian_targets, rod_loss
@@ -239,7 +240,7 @@ data: {{train: {path}, val: {path}, targets: all, image_size: 64}}
 train: {{init_from: {tmp_path / 'start.safetensors'}}}
 """)
     own = sorted(c["name"] for c in json.loads(path.read_text())["categories"])
-    assert learnt_products(load_detect_config(config)) == sorted(own + ["acme/soap"])
+    assert learnt_products(load_config(DetectConfig, config)) == sorted(own + ["acme/soap"])
 
 
 def test_train_and_val_files_that_share_generated_scenes_are_refused(tmp_path):
@@ -284,7 +285,7 @@ def test_training_learns_the_toy_set_resumes_and_predicts(tmp_path):
 data: {{train: {path}, val: {path}, targets: all, image_size: 128, augment: false}}
 train: {{epochs: 2, batch_size: 4, lr: 0.002, warmup_steps: 4, eval_every: 2, workers: 0, threads: 1, fast_cpu: false}}
 """)
-    trainer = DetectorTrainer.new(load_detect_config(config), tmp_path / "runs")
+    trainer = DetectorTrainer.new(load_config(DetectConfig, config), tmp_path / "runs")
     trainer.run()
     assert (trainer.run_dir / "model.safetensors").is_file() and trainer.epoch == 2
     # resume: same run folder, more epochs, continues from epoch 2's checkpoint
@@ -450,7 +451,7 @@ def test_the_learning_rate_anneals_by_max_minutes_when_that_comes_first(tmp_path
 data: {{train: {path}, val: {path}, targets: all, image_size: 64, augment: false}}
 train: {{epochs: 1000, batch_size: 2, lr: 0.002, warmup_steps: 2, max_minutes: 10, workers: 0}}
 """)
-    trainer = DetectorTrainer.new(load_detect_config(config), tmp_path / "runs")
+    trainer = DetectorTrainer.new(load_config(DetectConfig, config), tmp_path / "runs")
     trainer.step = 10  # after the warm-up, early in the planned epochs
     trainer.note_time(0.0)
     assert trainer.learning_rate() == pytest.approx(0.002, rel=1e-3)
@@ -484,7 +485,7 @@ model: {{depth: true}}
 train: {{epochs: 1, batch_size: 4, lr: 0.002, warmup_steps: 2, eval_every: 1, workers: 0, threads: 1,
          init_from: {tmp_path / "colour.safetensors"}}}
 """)
-    trainer = DetectorTrainer.new(load_detect_config(config), tmp_path / "runs")
+    trainer = DetectorTrainer.new(load_config(DetectConfig, config), tmp_path / "runs")
     batch = collate([trainer.val_set[0], trainer.val_set[1]])
     trainer.model.eval()
     with torch.no_grad():
@@ -512,7 +513,7 @@ def test_rehearsal_mixes_fresh_tasks_of_a_second_set_into_each_epoch(tmp_path):
 data: {{train: {main}, val: {main}, targets: all, image_size: 64, rehearse: {other}, rehearse_per_epoch: 4}}
 """
     config.write_text(body)
-    train, _ = make_datasets(load_detect_config(config))
+    train, _ = make_datasets(load_config(DetectConfig, config))
     assert len(train) == len(train.main) + 4 and train.source is train.main.source
     drawn = []
     for epoch in (0, 1, 0):
@@ -524,7 +525,7 @@ data: {{train: {main}, val: {main}, targets: all, image_size: 64, rehearse: {oth
     assert len(collate([train[0], train[len(train) - 1]])["targets"]) == 2
     config.write_text(body.replace("rehearse_per_epoch: 4", "rehearse_per_epoch: 0"))
     with pytest.raises(ConfigError, match="data.rehearse and data.rehearse_per_epoch go together"):
-        load_detect_config(config)
+        load_config(DetectConfig, config)
 
 
 def test_a_run_killed_within_an_epoch_resumes_from_its_last_checkpoint_there_to_the_same_weights(tmp_path, monkeypatch):
@@ -536,7 +537,7 @@ train: {{epochs: 2, batch_size: 2, lr: 0.002, warmup_steps: 2, eval_every: 2, wo
          checkpoint_minutes: 0.000001}}
 """)
     torch.manual_seed(0)
-    whole = DetectorTrainer.new(load_detect_config(config), tmp_path / "whole")
+    whole = DetectorTrainer.new(load_config(DetectConfig, config), tmp_path / "whole")
     whole.run()
     assert whole.step == 4  # 2 batches an epoch, 2 epochs
 
@@ -551,7 +552,7 @@ train: {{epochs: 2, batch_size: 2, lr: 0.002, warmup_steps: 2, eval_every: 2, wo
         real(self, batch, sums)
 
     torch.manual_seed(0)
-    killed = DetectorTrainer.new(load_detect_config(config), tmp_path / "killed")
+    killed = DetectorTrainer.new(load_config(DetectConfig, config), tmp_path / "killed")
     monkeypatch.setattr(DetectorTrainer, "train_step", dies_at_the_second)
     with pytest.raises(Killed):
         killed.run()

@@ -28,7 +28,7 @@ def test_gp_her_from_an_rl_yaml_on_ray_simulators_ends_as_a_run_without_the_faul
 
     import yaml
 
-    from binpick import jobs
+    from binpick.core import jobs
     from binpick.core.config import from_dict
     from binpick.integrations.ray.envs import RayVecEnv
     from binpick.rl.config import RLConfig
@@ -112,7 +112,7 @@ def test_a3c_from_an_rl_yaml_on_ray_actors_ends_as_a_run_without_the_fault(tmp_p
     with or without a rollout worker killed mid-run."""
     import yaml
 
-    from binpick import jobs
+    from binpick.core import jobs
     from binpick.integrations.ray.a3c import learn_on_ray
     from binpick.rl.a3c_train import A3CTrainer
     from binpick.rl.config import RLConfig

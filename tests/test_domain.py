@@ -143,7 +143,8 @@ def test_batched_loss_assigns_what_the_per_image_rule_assigns():
 def test_joint_training_feeds_every_detector_the_same_batches_and_keeps_the_best(tmp_path):
     from synthetic_coco import make_coco
 
-    from binpick.detection.config import load_detect_config
+    from binpick.detection.config import DetectConfig
+    from binpick.core.config import load_config
     from binpick.detection.joint import JointTraining
     from binpick.detection.train import DetectorTrainer
 
@@ -154,7 +155,7 @@ data: {{train: {path}, val: {path}, targets: all, image_size: 64, train_sizes: [
 train: {{epochs: 2, batch_size: 4, warmup_steps: 2, eval_every: 1, workers: 0, threads: 1, keep_best: true}}
 """)
     seen: dict[str, list] = {"a": [], "b": []}
-    trainers = [DetectorTrainer.new(load_detect_config(config, {"name": name, **extra}), tmp_path / "runs")
+    trainers = [DetectorTrainer.new(load_config(DetectConfig, config, {"name": name, **extra}), tmp_path / "runs")
                 for name, extra in (("a", {}), ("b", {"loss.heatmap": 0.0}))]
     for trainer in trainers:
         original = trainer.train_step
@@ -168,6 +169,6 @@ train: {{epochs: 2, batch_size: 4, warmup_steps: 2, eval_every: 1, workers: 0, t
     assert metrics["a"]["steps"] == metrics["b"]["steps"] == 4
     for trainer in trainers:
         assert (trainer.run_dir / "best.safetensors").is_file() and (trainer.run_dir / "model.safetensors").is_file()
-    other = load_detect_config(config, {"name": "c", "data.image_size": 96})
+    other = load_config(DetectConfig, config, {"name": "c", "data.image_size": 96})
     with pytest.raises(ConfigError, match="same data section"):
         JointTraining([trainers[0], DetectorTrainer.new(other, tmp_path / "runs")])

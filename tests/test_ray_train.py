@@ -22,7 +22,7 @@ from binpick.core.files import read_json
 from binpick.detection.config import DetectConfig
 from binpick.detection.train import WEIGHTS_FILE, DetectorTrainer
 from binpick.integrations.ray.training import train_on_ray
-from binpick.jobs import KINDS
+from binpick.core.jobs import KINDS
 
 DETECT, PICKABILITY, QUALITY = (KINDS[task].job for task in ("detect", "pickability", "grasp_quality"))
 
@@ -194,7 +194,7 @@ def test_the_private_cluster_listens_on_loopback_only(ray_cluster):
 
 
 def test_ray_options_are_checked_before_a_run_folder_is_made(tmp_path):
-    from binpick import jobs
+    from binpick.core import jobs
 
     with pytest.raises(ConfigError, match="--workers goes with --address"):
         jobs.check_ray_job(jobs.KINDS["detect"], None, 2)

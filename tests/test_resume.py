@@ -156,13 +156,14 @@ DETECT_HARNESS = """
 import os, signal, sys
 from pathlib import Path
 from binpick.detection import train
-from binpick.detection.config import load_detect_config
+from binpick.detection.config import DetectConfig
+from binpick.core.config import load_config
 
 def die():
     os.kill(os.getpid(), signal.SIGKILL)
 
 {killer}
-trainer = train.DetectorTrainer.new(load_detect_config(sys.argv[1]), Path(sys.argv[2]))
+trainer = train.DetectorTrainer.new(load_config(DetectConfig, sys.argv[1]), Path(sys.argv[2]))
 trainer.run()
 """
 

@@ -97,10 +97,11 @@ def test_cli_config_errors_are_one_line(tmp_path):
 
 
 def test_shipped_configs_load():
-    from binpick.rl.config import load_rl_config
+    from binpick.rl.config import RLConfig
+    from binpick.core.config import load_config
 
     for path in Path(__file__).parents[1].glob("configs/rl/rl_*.yaml"):
-        load_rl_config(path)
+        load_config(RLConfig, path)
 
 
 def test_dqn_on_arm2d_images_trains_and_evaluates(tmp_path):

@@ -17,7 +17,7 @@ import yaml
 from conftest import binpick_here
 from synthetic_coco import make_coco
 
-from binpick import jobs
+from binpick.core import jobs
 from binpick.core.errors import ConfigError
 
 CLI = [sys.executable, "-c", "from binpick.cli import main; main()"]
@@ -147,6 +147,8 @@ def test_binpick_train_runs_each_job_and_resumes_it_after_ctrl_c_to_the_same_end
     stopped_at = jobs.progress(run)
     assert stopped_at is None or stopped_at < target, f"{task} had finished ({stopped_at}) before Ctrl-C"
     assert jobs.job_kind_of_run(run).task == task
+    if task != "data":  # a run folder names its job (a data set its manifest)
+        assert yaml.safe_load((run / "config.yaml").read_text())["task"] == task
     resumed = binpick_here(["train", "--resume", run], cwd=tmp_path, env={"COLUMNS": "400"})
     assert resumed.returncode == 0, resumed.stderr[-3000:]
     assert f"resuming {run} ({task})" in resumed.stdout.replace("\n", "")  # (folded at 80 columns)
@@ -221,7 +223,7 @@ def test_binpick_train_in_python_takes_overrides_as_keywords(tmp_path):
     assert metrics["epochs"] == 2
     (run,) = (tmp_path / "runs" / "tiny_detect").iterdir()
     assert jobs.progress(run) == 2 and binpick.Detector.load(run).network is not None
-    with pytest.raises(ConfigError, match="keeps its own config"):
+    with pytest.raises(ConfigError, match="a resumed run keeps its config.yaml"):
         binpick.train(resume=run, train__epochs=3)
 
 

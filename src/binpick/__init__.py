@@ -19,7 +19,7 @@ __all__ = ["ENV_IDS", "Detector", "Picker", "Policy", "TrainedPolicy", "make", "
 
 # The deployable objects and the one training entry point, imported when first used (importing binpick
 # stays light: no torch until a detector or a trainer is asked for).
-_LAZY = {"train": "binpick.jobs", "Detector": "binpick.detection", "Picker": "binpick.picking",
+_LAZY = {"train": "binpick.core.jobs", "Detector": "binpick.detection", "Picker": "binpick.picking",
          "Policy": "binpick.april", "TrainedPolicy": "binpick.rl.train"}
 
 

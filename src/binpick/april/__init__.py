@@ -1,7 +1,7 @@
 """APRiL (thesis ch. 4): train the policy on state, deploy it on pixels."""
 
-from binpick.april.config import AprilConfig, load_april_config
+from binpick.april.config import AprilConfig
 from binpick.april.pipeline import AprilRun
 from binpick.april.policy import Policy
 
-__all__ = ["AprilConfig", "AprilRun", "Policy", "load_april_config"]
+__all__ = ["AprilConfig", "AprilRun", "Policy"]

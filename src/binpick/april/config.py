@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from binpick.core.config import check_choice, check_range, load_config
+from binpick.core.config import check_choice, check_range
 from binpick.core.errors import ConfigError
 from binpick.april.perception.autoencoder import PerceptionConfig
 
@@ -193,7 +193,3 @@ class AprilConfig:
         """The observation cameras (``env_kwargs.views``; the Fetch envs' default is the workspace view)."""
         views = self.env_kwargs.get("views", ["workspace"])
         return [views] if isinstance(views, str) else list(views)
-
-
-def load_april_config(path: str | Path, overrides: dict | None = None) -> AprilConfig:
-    return load_config(AprilConfig, path, overrides)

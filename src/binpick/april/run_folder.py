@@ -18,7 +18,7 @@ from binpick.april.config import AprilConfig
 from binpick.core.config import from_dict, load_run_config, load_yaml, to_dict
 from binpick.core.errors import ConfigError, InputFileError
 from binpick.core.files import atomic_write_json, atomic_write_text, read_json_object
-from binpick.core.runs import new_run_dir
+from binpick.core.runs import new_run
 
 STAGES = ("collect", "perception", "policy", "refine", "finetune", "evaluate")
 CAMERA_KWARGS = ("views", "image", "image_size")  # how the world is seen, not what it is
@@ -27,6 +27,8 @@ RL_CONFIG_FILE = "rl_config.yaml"  # the state policy's RL config, carried in th
 
 class AprilRunFolder:
     """A run folder holding ``config.yaml``, ``rl_config.yaml``, ``stages.json`` and every stage's outputs."""
+
+    TASK = "april"  # its kind of job (binpick.core.jobs)
 
     def __init__(self, config: AprilConfig, run_dir: Path) -> None:
         self.config, self.run_dir = config, Path(run_dir)
@@ -40,7 +42,7 @@ class AprilRunFolder:
 
     @classmethod
     def new(cls, config: AprilConfig, runs_root: Path = Path("runs")):
-        run = cls(config, new_run_dir(runs_root, config.name, yaml.safe_dump(to_dict(config), sort_keys=False)))
+        run = cls(config, new_run(runs_root, config, cls.TASK))
         run.carry_rl_config()
         return run
 
@@ -52,6 +54,7 @@ class AprilRunFolder:
         if not (run_dir / "config.yaml").is_file():
             raise ConfigError(f"{str(run_dir)!r} is not an APRiL run folder (no config.yaml)")
         data = load_yaml(run_dir / "config.yaml")
+        data.pop("task", None)
         carried = run_dir / RL_CONFIG_FILE
         if carried.is_file() and isinstance(data.get("policy"), dict):
             data["policy"]["rl_config"] = str(carried)
@@ -75,16 +78,18 @@ class AprilRunFolder:
     def rl_settings(self):
         """The RL config of ``policy.rl_config``: a resumed run's is the copy its folder carries
         (``rl_config.yaml``, see :meth:`resume`), so a deployed run reads no file of the repository."""
-        from binpick.rl.config import load_rl_config
+        from binpick.rl.config import RLConfig
+        from binpick.core.config import load_config
 
-        return load_rl_config(self.config.policy.rl_config)
+        return load_config(RLConfig, self.config.policy.rl_config)
 
     def carry_rl_config(self) -> None:
         """Copy ``policy.rl_config`` (validated) into the run folder, where it exists."""
-        from binpick.rl.config import load_rl_config
+        from binpick.rl.config import RLConfig
+        from binpick.core.config import load_config
 
         if Path(self.config.policy.rl_config).is_file():
-            settings = load_rl_config(self.config.policy.rl_config)
+            settings = load_config(RLConfig, self.config.policy.rl_config)
             atomic_write_text(self.run_dir / RL_CONFIG_FILE, yaml.safe_dump(to_dict(settings), sort_keys=False))
 
     def state_policy_settings(self):

@@ -154,26 +154,15 @@ ConfigSetOption = Annotated[list[str] | None, typer.Option("--set", metavar="KEY
                                                                         "before validation (repeatable), e.g. --set train.epochs=2")]
 
 
-def start_or_resume(job_class, config: Path | None, resume: Path | None, runs: Path, load, overrides: dict,
-                    where=lambda job: ""):
-    """The one way every training command starts: a new run from ``config`` (YAML + ``--set``
-    overrides, validated once by ``load``) or ``--resume`` of a run folder (its own saved config);
+def start_or_resume(task: str, config: Path | None, resume: Path | None, runs: Path, overrides: dict, where=lambda job: ""):
+    """A per-task command's job (:func:`binpick.core.jobs.open_job`): a new run of ``task`` from
+    ``config`` (YAML + ``--set`` overrides, validated once) or ``--resume`` of one of its run folders;
     ``where(job)`` says how far a resumed run had come."""
-    if (config is None) == (resume is None):
-        raise ConfigError("give either a CONFIG file to start a run or --resume RUN_DIR to continue one")
-    if resume is not None:
-        if not (resume / "config.yaml").is_file():
-            raise ConfigError(f"{str(resume)!r} is not a run folder (no config.yaml)")
-        if overrides:
-            raise ConfigError("--set and other overrides apply to new runs; a resumed run keeps its config.yaml")
-        job = job_class.resume(resume)
-        console.print(f"resuming {resume}{where(job)}")
-        return job
-    job = job_class.new(load(config, overrides), runs)
-    console.print(f"run folder: {job.run_dir}")
+    from binpick.core.jobs import open_job
+
+    job = open_job(config, resume, task=task, runs=runs, overrides=overrides)
+    console.print(f"resuming {resume}{where(job)}" if resume is not None else f"run folder: {job.run_dir}")
     return job
-
-
 
 
 def fmt_metric(value) -> str:

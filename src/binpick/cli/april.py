@@ -31,9 +31,7 @@ def april_run(
     settings: ConfigSetOption = None,
 ) -> None:
     """The whole pipeline: collect -> perception -> policy -> evaluate (resumable per stage)."""
-    from binpick.april import AprilRun, load_april_config
-
-    run = start_or_resume(AprilRun, config, resume, runs, load_april_config, parse_settings(settings),
+    run = start_or_resume("april", config, resume, runs, parse_settings(settings),
                           where=lambda job: f" (done: {', '.join(job.stages) or 'nothing yet'})")
     with job_progress(run.run_dir, f"binpick april run --resume {run.run_dir}") as callback:
         result = run.run(callback)

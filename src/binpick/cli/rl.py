@@ -35,13 +35,11 @@ def rl_train(
     settings: ConfigSetOption = None,
 ) -> None:
     """Train a run: checkpoints, TensorBoard, metrics.json and curves.png in runs/<name>/<time>/."""
-    from binpick.rl.config import load_rl_config, never_learns
-    from binpick.rl.train import RLRun
+    from binpick.rl.config import never_learns
 
     flags = {"total_timesteps": steps, "seed": seed, "init_from": None if init_from is None else str(init_from)}
     overrides = parse_settings(settings) | {k: v for k, v in flags.items() if v is not None}
-    trainer = start_or_resume(RLRun, config, resume, runs, load_rl_config, overrides,
-                              where=lambda job: f" at {job.steps_done} simulator steps")
+    trainer = start_or_resume("rl", config, resume, runs, overrides, where=lambda job: f" at {job.steps_done} simulator steps")
     warn(never_learns(trainer.config))
     with job_progress(trainer.run_dir, f"binpick rl train --resume {trainer.run_dir}") as callback:
         metrics = trainer.run(callback)

@@ -8,8 +8,7 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from binpick.cli.app import ConfigSetOption, app, console, job_progress, parse_settings
-from binpick.core.errors import ConfigError
+from binpick.cli.app import ConfigSetOption, app, console, job_progress, parse_settings, start_or_resume
 
 
 @app.command("train")
@@ -27,7 +26,7 @@ def train(
 ) -> None:
     """Train what CONFIG describes, or continue a run with --resume: checkpoints, TensorBoard and metrics.json
     in runs/<name>/<time>/; Ctrl-C or a crash loses at most the work since the last checkpoint."""
-    from binpick import jobs
+    from binpick.core import jobs
 
     if list_tasks:
         table = Table(title="binpick train: tasks")
@@ -37,20 +36,12 @@ def train(
             table.add_row(task, what, ", ".join(keys))
         console.print(table)
         return
-    if (config is None) == (resume is None):
-        raise ConfigError("give either a CONFIG file to start a run or --resume RUN_DIR to continue one")
+    job = jobs.open_job(config, resume, runs=runs, overrides=parse_settings(settings), address=address, workers=workers)
+    kind = jobs.kind_of_job(job)
     if resume is not None:
-        if settings:
-            raise ConfigError("--set applies to new runs; a resumed run keeps its config.yaml")
-        kind = jobs.job_kind_of_run(resume)
-        jobs.check_ray_job(kind, address, workers, jobs.run_config(resume, kind))
-        job = kind.job_class().resume(resume)
         done = jobs.progress(resume)
         console.print(f"resuming {resume} ({kind.task}){'' if done is None else f' at {done} {kind.steps_key}'}")
     else:
-        kind, settings_ = jobs.load_job_config(config, parse_settings(settings))
-        jobs.check_ray_job(kind, address, workers, settings_)
-        job = kind.job_class().new(settings_, runs)
         console.print(f"{kind.task}: {job.run_dir}")
     again = f"binpick train --resume {job.run_dir}" + (f" --address {address} --workers {workers}" if address else "")
     with job_progress(job.run_dir, again) as callback:
@@ -63,22 +54,11 @@ def run_task(task: str, config: Path | None, resume: Path | None, runs: Path, se
              before_run=None) -> tuple[object, dict]:
     """What every per-task training command does: a new run of ``task`` from ``config`` (+ ``--set``), or
     ``--resume`` of one of its runs, then the job with progress bars; returns the job and its metrics."""
-    from binpick import jobs
+    from binpick.core import jobs
 
-    if (config is None) == (resume is None):
-        raise ConfigError("give either a CONFIG file to start a run or --resume RUN_DIR to continue one")
     kind = jobs.KINDS[task]
-    if resume is not None:
-        if settings:
-            raise ConfigError("--set and other overrides apply to new runs; a resumed run keeps its config.yaml")
-        if not (resume / "config.yaml").is_file():
-            raise ConfigError(f"{str(resume)!r} is not a run folder (no config.yaml)")
-        job = kind.job_class().resume(resume)
-        done = jobs.progress(resume)
-        console.print(f"resuming {resume}{'' if done is None else f' at {done} {kind.steps_key}'}")
-    else:
-        job = kind.job_class().new(jobs.load_as(task, config, parse_settings(settings)), runs)
-        console.print(f"run folder: {job.run_dir}")
+    job = start_or_resume(task, config, resume, runs, parse_settings(settings),
+                          where=lambda job: "" if (done := jobs.progress(resume)) is None else f" at {done} {kind.steps_key}")
     if before_run is not None:
         before_run(job)
     with job_progress(job.run_dir, f"binpick train --resume {job.run_dir}") as callback:

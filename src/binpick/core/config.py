@@ -246,4 +246,6 @@ def ranges_dict(instance: Any) -> dict[str, Any]:
 def load_run_config(cls: type[T], run_dir: str | Path) -> T:
     """The validated config a run folder was started with (``run_dir/config.yaml``)."""
     path = Path(run_dir) / "config.yaml"
-    return from_dict(cls, load_yaml(path), where=str(path))
+    data = load_yaml(path)
+    data.pop("task", None)  # which job the run is (binpick.core.jobs), not one of its settings
+    return from_dict(cls, data, where=str(path))

@@ -27,6 +27,9 @@ from typing import Any, Protocol
 from contextlib import contextmanager
 from pathlib import Path
 
+import yaml
+
+from binpick.core.config import to_dict
 from binpick.core.errors import ConfigError, InputFileError
 from binpick.core.files import atomic_write_text, ensure_dir, fsync_dir, read_text
 
@@ -77,6 +80,12 @@ def check_run_name(name: str) -> str:
         raise ConfigError(f"name {str(name)[:80]!r} must be a plain folder name (letters, digits, _ . + -, up to 128): "
                           "a run's folder is made inside the runs folder, never elsewhere")
     return name
+
+
+def new_run(runs_root: str | Path, config: Any, task: str) -> Path:
+    """A new run folder for a job's validated ``config`` (a dataclass with a ``name``), its
+    ``config.yaml`` the config with the job's ``task`` first: everything to re-run or resume it."""
+    return new_run_dir(Path(runs_root), config.name, yaml.safe_dump({"task": task, **to_dict(config)}, sort_keys=False))
 
 
 def new_run_dir(runs_root: Path, name: str, config_yaml: str) -> Path:

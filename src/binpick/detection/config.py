@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 
-from binpick.core.config import check_range, load_config
+from binpick.core.config import check_range
 from binpick.detection.losses import LossWeights
 from binpick.detection.model import ModelSpec
 from binpick.core.errors import ConfigError
@@ -111,7 +110,3 @@ class DetectConfig:
 
     def __post_init__(self) -> None:
         self.model.spec()
-
-
-def load_detect_config(path: str | Path, overrides: dict | None = None) -> DetectConfig:
-    return load_config(DetectConfig, path, overrides)

@@ -174,10 +174,9 @@ class Detector:
     def train(cls, config: str | Path, runs: str | Path = "runs", callback: RunCallback = SILENT, **overrides: Any) -> Detector:
         """Train a new run from a YAML config; ``overrides`` are ``--set`` keys with ``.`` written as
         ``__`` (``train__epochs=2``) or plain top-level keys. Returns the trained detector."""
-        from binpick.detection.config import load_detect_config
-        from binpick.detection.train import WEIGHTS_FILE, DetectorTrainer, load_detector
+        from binpick.core.jobs import dotted, open_job
+        from binpick.detection.train import WEIGHTS_FILE, load_detector
 
-        settings = {key.replace("__", "."): value for key, value in overrides.items()}
-        trainer = DetectorTrainer.new(load_detect_config(config, settings), Path(runs))
+        trainer = open_job(config, task="detect", runs=runs, overrides=dotted(overrides))
         metrics = trainer.run(callback)
         return cls(load_detector(trainer.run_dir / WEIGHTS_FILE), trainer.run_dir, metrics)

@@ -22,14 +22,14 @@ from typing import Any
 import torch
 
 from binpick.core import tensorfile
-from binpick.core.config import check_range, load_run_config, to_dict
+from binpick.core.config import check_range, load_run_config
 from binpick.core.data_parallel import ALONE, Group
 from binpick.detection.data import RepeatedInstances, TaskDataset, check_disjoint
 from binpick.detection.model import DetectorNetwork
 from binpick.detection.pickability import PickabilityHead, head_auc, join_windows, labelled_windows, train_epoch
 from binpick.core.errors import ConfigError
 from binpick.core.files import atomic_write_text
-from binpick.core.runs import SILENT, RunCallback, commit_checkpoint, latest_checkpoint, new_run_dir
+from binpick.core.runs import SILENT, RunCallback, commit_checkpoint, latest_checkpoint, new_run
 
 CHECKPOINT_FORMAT = "binpick-pickability-checkpoint-1"
 WINDOWS_FORMAT = "binpick-pickability-windows-2"
@@ -100,6 +100,8 @@ class _Schedule:
 class PickabilityTrainer:
     """One training run of a detector's pickability head (see the module docstring)."""
 
+    TASK = "pickability"  # its kind of job (binpick.core.jobs)
+
     def __init__(self, config: PickabilityConfig, run_dir: Path) -> None:
         from binpick.detection.detector import Detector
 
@@ -166,14 +168,13 @@ class PickabilityTrainer:
 
     @classmethod
     def new(cls, config: PickabilityConfig, runs: Path = Path("runs")) -> PickabilityTrainer:
-        import yaml
 
         for file in [*config.train, config.val]:
             if not Path(file).is_file():
                 raise ConfigError(f"annotations file {file!r} does not exist (binpick data generate makes them)")
         if config.init and not Path(config.init).exists():
             raise ConfigError(f"init: {config.init!r} does not exist (a detector file, a run folder or a folder of runs)")
-        return cls(config, new_run_dir(Path(runs), config.name, yaml.safe_dump(to_dict(config), sort_keys=False)))
+        return cls(config, new_run(Path(runs), config, cls.TASK))
 
     @classmethod
     def resume(cls, run_dir: Path) -> PickabilityTrainer:

@@ -252,6 +252,8 @@ class RecurrentRun:
     """The recurrent detector's training as a job (:class:`binpick.core.runs.Job`): its folder is the config's
     ``out`` (the weights, ``metrics.json``, the checkpoint and the config it was started with)."""
 
+    TASK = "recurrent"  # its kind of job (binpick.core.jobs)
+
     def __init__(self, config: RecurrentTrainConfig) -> None:
         self.config, self.run_dir = config, Path(config.out)
 
@@ -262,7 +264,7 @@ class RecurrentRun:
 
         from binpick.core.files import atomic_write_text, ensure_dir
 
-        atomic_write_text(ensure_dir(Path(config.out)) / "config.yaml", yaml.safe_dump(json.loads(json.dumps(asdict(config))),
+        atomic_write_text(ensure_dir(Path(config.out)) / "config.yaml", yaml.safe_dump({"task": cls.TASK, **json.loads(json.dumps(asdict(config)))},
                                                                                      sort_keys=False))
         return cls(config)
 

@@ -14,7 +14,6 @@ from typing import Any, Callable
 
 import numpy as np
 import torch
-import yaml
 
 from binpick.core import tensorfile
 from binpick.core.config import load_run_config, to_dict
@@ -50,7 +49,7 @@ from binpick.core.runs import (
     Task,
     commit_checkpoint,
     latest_checkpoint,
-    new_run_dir,
+    new_run,
 )
 
 
@@ -170,6 +169,8 @@ class DetectorTrainer:
     """``DetectorTrainer.new(config, runs).run()`` trains a new run; ``DetectorTrainer.resume(RUN)``
     continues one from its latest checkpoint (see :class:`binpick.core.runs.Job`)."""
 
+    TASK = "detect"  # its kind of job (binpick.core.jobs)
+
     def __init__(self, config: DetectConfig, resume: Path | None = None, runs: Path = Path("runs")) -> None:
         self.config = config
         torch.manual_seed(config.train.seed)
@@ -198,7 +199,7 @@ class DetectorTrainer:
         if config.train.fast_cpu or self.device.type == "cuda":
             self.model.to(memory_format=torch.channels_last)
         self.best = max((h["ap50"] for h in self.history if h.get("ap50") is not None), default=None)
-        self.run_dir = resume if resume is not None else new_run_dir(Path(runs), config.name, yaml.safe_dump(to_dict(config), sort_keys=False))
+        self.run_dir = resume if resume is not None else new_run(Path(runs), config, self.TASK)
 
     @classmethod
     def new(cls, config: DetectConfig, runs: Path = Path("runs")) -> DetectorTrainer:

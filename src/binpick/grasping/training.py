@@ -22,7 +22,7 @@ import torch
 from torch import nn
 
 from binpick.core import tensorfile
-from binpick.core.config import check_range, load_run_config, to_dict
+from binpick.core.config import check_range, load_run_config
 from binpick.core.data_parallel import ALONE, Group
 from binpick.core.errors import ConfigError, InputFileError
 from binpick.core.files import atomic_write_text, inside, read_json
@@ -34,7 +34,7 @@ from binpick.grasping.instance import Surface, instance_surface
 from binpick.grasping.frame import DepthFrame
 from binpick.grasping.quality import FEATURES, GraspQuality, GraspQualityNet, MapSpec, grasp_features, height_map
 from binpick.grippers import TOOLS
-from binpick.core.runs import SILENT, RunCallback, commit_checkpoint, latest_checkpoint, new_run_dir
+from binpick.core.runs import SILENT, RunCallback, commit_checkpoint, latest_checkpoint, new_run
 
 CHECKPOINT_FORMAT = "binpick-grasp-quality-checkpoint-1"
 
@@ -180,6 +180,8 @@ def logits_of(model, maps: np.ndarray, features: np.ndarray) -> np.ndarray:
 class QualityTrainer:
     """One training run of the grasp-quality network (see the module docstring)."""
 
+    TASK = "grasp_quality"  # its kind of job (binpick.core.jobs)
+
     def __init__(self, config: QualityTrainConfig, run_dir: Path) -> None:
         self.config, self.run_dir = config, Path(run_dir)
         torch.manual_seed(config.seed)
@@ -210,14 +212,13 @@ class QualityTrainer:
 
     @classmethod
     def new(cls, config: QualityTrainConfig, runs: Path = Path("runs")) -> QualityTrainer:
-        import yaml
 
         for data in config.data_sets:
             if not (Path(data) / "scenes").is_dir():
                 raise ConfigError(f"data {data!r} is not a data set folder (binpick data generate --grasp-trials N)")
         if config.init_from is not None and not Path(config.init_from).is_file():
             raise ConfigError(f"init_from {config.init_from!r} is not a weights file")
-        return cls(config, new_run_dir(Path(runs), config.name, yaml.safe_dump(to_dict(config), sort_keys=False)))
+        return cls(config, new_run(Path(runs), config, cls.TASK))
 
     @classmethod
     def resume(cls, run_dir: Path) -> QualityTrainer:

@@ -20,15 +20,14 @@ import gymnasium as gym
 import numpy as np
 import torch
 import torch.multiprocessing as mp
-import yaml
 from torch.utils.tensorboard import SummaryWriter
 
 from binpick.core import tensorfile
-from binpick.core.config import load_run_config, to_dict
+from binpick.core.config import load_run_config
 from binpick.core.errors import ConfigError, InputFileError, WorkerError
 from binpick.core.files import atomic_write_json, read_json_object, require_fields
 from binpick.rl.a3c import A3CWorker, ActorCritic, SharedAdam, apply_gradients
-from binpick.core.runs import SILENT, RunCallback, Task, commit_checkpoint, latest_checkpoint, new_run_dir, removed_on_error
+from binpick.core.runs import SILENT, RunCallback, Task, commit_checkpoint, latest_checkpoint, new_run, removed_on_error
 from binpick.rl.config import RLConfig
 from binpick.rl.curriculum import CurriculumProgress
 from binpick.rl.evaluate import evaluate_policy
@@ -187,6 +186,8 @@ class TrainingLog:
 class A3CTrainer:
     """Owns a run folder for an A3C run; ``run()`` trains to ``total_timesteps`` and can resume."""
 
+    TASK = "rl"  # its kind of job (binpick.core.jobs)
+
     def __init__(self, config: RLConfig, run_dir: Path, wrap_env: EnvWrapper | None = None) -> None:
         self.config, self.run_dir, self.wrap_env = config, Path(run_dir), wrap_env
         self.ckpt_dir = self.run_dir / "checkpoints"
@@ -213,7 +214,7 @@ class A3CTrainer:
         curriculum schedule and the budget count the single-goal steps too.
         """
         source = None if config.init_from is None else _source_checkpoint(config)
-        with removed_on_error(new_run_dir(runs_root, config.name, yaml.safe_dump(to_dict(config), sort_keys=False))) as run_dir:
+        with removed_on_error(new_run(runs_root, config, cls.TASK)) as run_dir:
             trainer = cls(config, run_dir, wrap_env)
             if source is not None:
                 trainer.load_checkpoint(source)

@@ -7,10 +7,9 @@ and ranges, and says which key is wrong in one line.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Literal
 
-from binpick.core.config import check_bool, check_choice, check_range, check_vector, load_config
+from binpick.core.config import check_bool, check_choice, check_range, check_vector
 from binpick.core.errors import ConfigError
 
 ALGORITHMS = ("sac", "sb3_sac_her", "a3c", "dqn")
@@ -401,7 +400,3 @@ def never_learns(config: RLConfig) -> str | None:
         return (f"total_timesteps {config.total_timesteps} ends before learning starts (after {starts} simulator steps): "
                 "the policy will not learn")
     return None
-
-
-def load_rl_config(path: str | Path, overrides: dict | None = None) -> RLConfig:
-    return load_config(RLConfig, path, overrides)

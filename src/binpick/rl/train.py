@@ -15,12 +15,11 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import torch
-import yaml
 from stable_baselines3 import DQN, SAC, HerReplayBuffer
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 
-from binpick.core.config import load_run_config, to_dict
+from binpick.core.config import load_run_config
 from binpick.core.errors import ConfigError, InputFileError
 from binpick.core.files import (
     atomic_write,
@@ -36,7 +35,7 @@ from binpick.core.runs import (
     Task,
     commit_checkpoint,
     latest_checkpoint,
-    new_run_dir,
+    new_run,
     removed_on_error,
 )
 from binpick.envs import make
@@ -237,6 +236,8 @@ class ReportProgress(BaseCallback):
 class Trainer:
     """Owns a run folder; ``run()`` trains to ``total_timesteps``, resuming from the latest checkpoint."""
 
+    TASK = "rl"  # its kind of job (binpick.core.jobs)
+
     def __init__(self, config: RLConfig, run_dir: Path) -> None:
         self.config, self.run_dir = config, Path(run_dir)
         self.ckpt_dir = self.run_dir / "checkpoints"
@@ -281,7 +282,7 @@ class Trainer:
     # ------------------------------------------------------------------ construction
     @classmethod
     def new(cls, config: RLConfig, runs_root: Path = Path("runs")) -> Trainer:
-        with removed_on_error(new_run_dir(runs_root, config.name, yaml.safe_dump(to_dict(config), sort_keys=False))) as run_dir:
+        with removed_on_error(new_run(runs_root, config, cls.TASK)) as run_dir:
             return cls(config, run_dir)
 
     @classmethod
@@ -453,6 +454,8 @@ POLICY_FILE = "policy.safetensors"
 class RLRun:
     """An RL run as one job (:class:`binpick.core.runs.Job`), whatever its algorithm: A3C trains with worker
     processes (:class:`~binpick.rl.a3c_train.A3CTrainer`), SAC / SB3 SAC+HER / DQN with :class:`Trainer`."""
+
+    TASK = "rl"  # its kind of job (binpick.core.jobs)
 
     @staticmethod
     def new(config: RLConfig, runs: Path = Path("runs")):

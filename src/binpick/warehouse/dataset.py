@@ -252,6 +252,8 @@ class DataGeneration:
     products and the output folder, ``DataGeneration.resume(folder)`` continues a killed run with the
     settings it was started with, ``run(callback)`` makes the missing scenes, photos and COCO files."""
 
+    TASK = "data"  # its kind of job (binpick.core.jobs)
+
     def __init__(self, config: GenerateConfig) -> None:
         self.config = config
         self.library = build_library(config)

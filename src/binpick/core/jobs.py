@@ -1,10 +1,14 @@
-"""Every trainable thing as one kind of job, picked by the ``task:`` key of its config.
+"""Every trainable thing as one kind of job, picked by the ``task:`` key of its config: the registry and
+the one path every training entry point takes.
 
-``binpick train CONFIG`` and :func:`train` read the config's ``task`` (``rl``, ``april``, ``detect``,
-``recurrent``, ``pickability``, ``grasp_quality``, ``data``), validate the rest once as that task's config dataclass
-(with ``--set`` overrides applied first) and run the job: ``Job.new(config, runs)``, or
-``Job.resume(run_dir)`` for a run folder, then ``job.run(callback) -> metrics``. A run folder says
-which job it belongs to by what it holds, so ``--resume`` needs no task.
+A :class:`JobKind` declares its task name, its config dataclass and job class (entry points,
+``"module:Name"``, imported when first needed, as Gymnasium's registry names its envs: the core
+imports nothing above it), the key of ``metrics.json`` that counts its progress, and how it runs on
+a Ray cluster. :func:`open_job` is what ``binpick train``, the per-task commands (``binpick rl
+train``, ``detect train``, ``april run`` ...), :func:`binpick.train` and ``Detector.train`` all
+call: a new run from a config file (YAML, then overrides, validated once as the task's dataclass),
+or a run folder resumed with its own config. :func:`run_job` runs it here or on Ray. Every run
+folder records its ``task`` in its ``config.yaml``, so ``--resume`` needs no task.
 """
 
 from __future__ import annotations
@@ -32,6 +36,7 @@ class JobKind:
     config: str  # "module:ConfigClass"
     job: str  # "module:JobClass" (new / resume / run)
     steps_key: str  # the key of metrics.json that counts its progress (steps, epochs, scenes)
+    ray: str | None = None  # on a cluster: "train" (data-parallel Ray Train workers), "rl" (rollout or simulator actors)
 
     def config_class(self) -> type:
         return _attribute(self.config)
@@ -42,21 +47,28 @@ class JobKind:
 
 KINDS: dict[str, JobKind] = {kind.task: kind for kind in [
     JobKind("rl", "reinforcement learning (SAC/DQN with GP + HER, A3C)", "binpick.rl.config:RLConfig",
-            "binpick.rl.train:RLRun", "sim_steps"),
+            "binpick.rl.train:RLRun", "sim_steps", ray="rl"),
     JobKind("april", "APRiL: perception on the state, policy on the state, deployed on pixels",
             "binpick.april.config:AprilConfig", "binpick.april.pipeline:AprilRun", "policy_sim_steps"),
     JobKind("detect", "repeated object detection (ROD, TDID)", "binpick.detection.config:DetectConfig",
-            "binpick.detection.train:DetectorTrainer", "epochs"),
+            "binpick.detection.train:DetectorTrainer", "epochs", ray="train"),
     JobKind("recurrent", "the recurrent repeated-object detector (the thesis's rejected first design)",
             "binpick.detection.recurrent_training:RecurrentTrainConfig", "binpick.detection.recurrent_training:RecurrentRun",
             "images_seen"),
     JobKind("pickability", "the pickability head on detections", "binpick.detection.pickability_training:PickabilityConfig",
-            "binpick.detection.pickability_training:PickabilityTrainer", "epochs"),
+            "binpick.detection.pickability_training:PickabilityTrainer", "epochs", ray="train"),
     JobKind("grasp_quality", "the grasp-quality model on grasp trials", "binpick.grasping.training:QualityTrainConfig",
-            "binpick.grasping.training:QualityTrainer", "epochs"),
+            "binpick.grasping.training:QualityTrainer", "epochs", ray="train"),
     JobKind("data", "a warehouse bin data set (scenes, labels, COCO)", "binpick.warehouse.generation:GenerateConfig",
             "binpick.warehouse.dataset:DataGeneration", "scenes"),
 ]}
+
+
+RAY_RUNNERS = {  # how a job runs on Ray, by its kind's ``ray`` (and an rl job's algorithm)
+    "train": "binpick.integrations.ray.training:train_on_ray",
+    "a3c": "binpick.integrations.ray.a3c:learn_on_ray",
+    "sac": "binpick.integrations.ray.envs:RayVecEnv",
+}
 
 
 def _attribute(spec: str):
@@ -75,24 +87,18 @@ def kind_of(task: Any, where: str) -> JobKind:
     raise ConfigError(f"{where}: task {task!r} is not a job{hint}; known: {', '.join(KINDS)}")
 
 
-def load_job_config(path: str | Path, overrides: dict[str, Any] | None = None) -> tuple[JobKind, Any]:
+def load_job_config(path: str | Path, overrides: dict[str, Any] | None = None, task: str | None = None) -> tuple[JobKind, Any]:
     """The job kind and its validated config: ``task`` from the file (or an override), the rest
-    validated once as that kind's config dataclass, overrides applied before validation."""
-    path = Path(path)
-    data = apply_overrides(load_yaml(path), overrides)
-    kind = kind_of(data.pop(TASK_KEY, None), path.name)
-    return kind, from_dict(kind.config_class(), data, where=path.name)
-
-
-def load_as(task: str, path: str | Path, overrides: dict[str, Any] | None = None) -> Any:
-    """A config file validated as ``task``'s config (what the per-task commands take): its own ``task:``,
-    where it has one, must agree."""
+    validated once as that kind's config dataclass, overrides applied before validation. ``task``
+    given (a per-task command): the file is that task's config, and its own ``task:``, where it has
+    one, must agree."""
     path = Path(path)
     data = apply_overrides(load_yaml(path), overrides)
     given = data.pop(TASK_KEY, task)
-    if given != task:
+    if task is not None and given != task:
         raise ConfigError(f"{path.name} is a {given!r} config; this command trains {task!r} (binpick train runs any)")
-    return from_dict(KINDS[task].config_class(), data, where=path.name)
+    kind = kind_of(given, path.name)
+    return kind, from_dict(kind.config_class(), data, where=path.name)
 
 
 def job_kind_of_run(run_dir: str | Path) -> JobKind:
@@ -106,7 +112,8 @@ def job_kind_of_run(run_dir: str | Path) -> JobKind:
     if not (run_dir / "config.yaml").is_file():
         raise ConfigError(f"{str(run_dir)!r} is not a run folder (no config.yaml, stages.json or dataset.json)")
     data = load_yaml(run_dir / "config.yaml")
-    data.pop(TASK_KEY, None)
+    if data.get(TASK_KEY) is not None:  # every run folder records it; runs from before guess below
+        return kind_of(data[TASK_KEY], str(run_dir / "config.yaml"))
     fits = []
     for kind in KINDS.values():
         if kind.task == "data":
@@ -131,15 +138,32 @@ def run_config(run_dir: str | Path, kind: JobKind) -> Any:
     return load_run_config(kind.config_class(), Path(run_dir))
 
 
-def new_job(config: str | Path, runs: str | Path = "runs", overrides: dict[str, Any] | None = None):
-    """A new run of the job a config file describes (its folder is made under ``runs``)."""
-    kind, settings = load_job_config(config, overrides)
+def open_job(config: str | Path | None = None, resume: str | Path | None = None, *, task: str | None = None,
+             runs: str | Path = "runs", overrides: dict[str, Any] | None = None, address: str | None = None, workers: int = 1):
+    """The one way every training entry point starts a job: a new run of what ``config`` describes
+    (``task``: what the caller trains; None: the file's ``task:`` says), its folder under ``runs``, or
+    the run in ``resume`` continued with the config it was started with. Refused in one line, before
+    any folder is made: both or neither given, overrides on a resumed run, a folder that is no run (or
+    another task's), a job or cluster address Ray cannot take (:func:`check_ray_job`)."""
+    if (config is None) == (resume is None):
+        raise ConfigError("give either a CONFIG file to start a run or --resume RUN_DIR to continue one")
+    if resume is not None:
+        if overrides:
+            raise ConfigError("--set and other overrides apply to new runs; a resumed run keeps its config.yaml")
+        kind = job_kind_of_run(resume)
+        if task is not None and kind.task != task:
+            raise ConfigError(f"{str(resume)!r} is a {kind.task} run; this command continues {task} runs (binpick train --resume any)")
+        check_ray_job(kind, address, workers, run_config(resume, kind))
+        return kind.job_class().resume(Path(resume))
+    kind, settings = load_job_config(config, overrides, task)
+    check_ray_job(kind, address, workers, settings)
     return kind.job_class().new(settings, Path(runs))
 
 
-def resume_job(run_dir: str | Path):
-    """A run folder's job, continued with the config it was started with."""
-    return job_kind_of_run(run_dir).job_class().resume(Path(run_dir))
+def kind_of_job(job) -> JobKind:
+    """The kind of a job object: the task its class declares (``TASK``), else what its run folder holds."""
+    task = getattr(type(job), "TASK", None)
+    return KINDS[task] if task in KINDS else job_kind_of_run(job.run_dir)
 
 
 def progress(run_dir: str | Path) -> int | None:
@@ -160,8 +184,7 @@ def progress(run_dir: str | Path) -> int | None:
     return int(value) if isinstance(value, (int, float)) else None
 
 
-ON_RAY_TRAIN = ("detect", "pickability", "grasp_quality")  # data-parallel on Ray Train workers (address=...)
-ON_RAY = (*ON_RAY_TRAIN, "rl")  # rl: A3C's rollout workers, or SAC's (GP + HER) simulators, as Ray actors
+ON_RAY = tuple(task for task, kind in KINDS.items() if kind.ray)  # the jobs --address takes
 
 
 def check_ray_job(kind: JobKind, address: str | None, workers: int, config: Any = None) -> None:
@@ -191,44 +214,37 @@ def check_ray_job(kind: JobKind, address: str | None, workers: int, config: Any 
 
 def run_job(job, callback: RunCallback = SILENT, address: str | None = None, workers: int = 1, threads: int = 1) -> dict[str, Any]:
     """Run ``job`` here, or with ``address`` (``local``: a private cluster on this machine; ``auto``,
-    ``HOST:PORT``, ``ray://HOST:PORT``) on Ray, with the same run folder, checkpoints and resume as here:
-    trainers data-parallel on ``workers`` Ray Train workers of ``threads`` CPU threads each; A3C with its
-    ``a3c.workers`` as actors; the sac learner (GP + HER) here, fed by ``workers`` simulator actors."""
-    kind = job_kind_of_run(job.run_dir)
+    ``HOST:PORT``, ``ray://HOST:PORT``) on Ray as its kind declares, with the same run folder,
+    checkpoints and resume as here: trainers data-parallel on ``workers`` Ray Train workers of
+    ``threads`` CPU threads each; A3C with its ``a3c.workers`` as actors; the sac learner (GP + HER)
+    here, fed by ``workers`` simulator actors."""
+    kind = kind_of_job(job)
     check_ray_job(kind, address, workers, getattr(job, "config", None))
     if address is None:
         return job.run(callback)
-    if kind.task == "rl" and job.config.algorithm == "a3c":
-        from binpick.integrations.ray.a3c import learn_on_ray
-
+    runner = kind.ray if kind.ray == "train" else job.config.algorithm  # an rl job runs on Ray by its algorithm
+    if runner == "a3c":
         callback.message(f"training {job.run_dir} on Ray: {job.config.a3c.workers} rollout worker(s) as actors")
-        return job.run(callback, learn=learn_on_ray(address))
-    if kind.task == "rl":
-        from binpick.integrations.ray.envs import RayVecEnv
-
+        return job.run(callback, learn=_attribute(RAY_RUNNERS["a3c"])(address))
+    if runner == "sac":
         callback.message(f"training {job.run_dir} on Ray: {workers} simulator(s) as actors, the learner here")
-        return job.run(callback, envs=RayVecEnv(job.config, workers, None if address == "local" else address, job.env))
-    from binpick.integrations.ray.training import train_on_ray
-
+        return job.run(callback, envs=_attribute(RAY_RUNNERS["sac"])(job.config, workers, None if address == "local" else address, job.env))
     callback.message(f"training {job.run_dir} on Ray: {workers} worker(s) of {threads} thread(s)")
-    return train_on_ray(job.run_dir, kind.job, workers, address, threads)
+    return _attribute(RAY_RUNNERS["train"])(job.run_dir, kind.job, workers, address, threads)
 
 
 def train(config: str | Path | None = None, *, resume: str | Path | None = None, runs: str | Path = "runs",
           callback: RunCallback = SILENT, address: str | None = None, workers: int = 1, **overrides: Any) -> dict[str, Any]:
     """Train whatever ``config`` describes (``task:`` picks the job), or continue ``resume``'s run;
-    keyword overrides use ``SECTION__KEY`` for ``SECTION.KEY`` (``train__epochs=2``). With
-    ``address``, on a Ray cluster (:func:`run_job`). Returns the job's metrics."""
-    if (config is None) == (resume is None):
-        raise ConfigError("give either a config file to start a run or resume=RUN_DIR to continue one")
-    if resume is not None:
-        if overrides:
-            raise ConfigError("overrides apply to new runs; a resumed run keeps its own config")
-        return run_job(resume_job(resume), callback, address, workers)
-    dotted = {key.replace("__", "."): value for key, value in overrides.items()}
-    kind, settings = load_job_config(config, dotted)
-    check_ray_job(kind, address, workers, settings)  # before a run folder is made
-    return run_job(kind.job_class().new(settings, Path(runs)), callback, address, workers)
+    keyword overrides use ``SECTION__KEY`` for ``SECTION.KEY`` (``train__epochs=2``, :func:`dotted`).
+    With ``address``, on a Ray cluster (:func:`run_job`). Returns the job's metrics."""
+    job = open_job(config, resume, runs=runs, overrides=dotted(overrides), address=address, workers=workers)
+    return run_job(job, callback, address, workers)
+
+
+def dotted(overrides: dict[str, Any]) -> dict[str, Any]:
+    """Python keyword overrides (``train__epochs=2``) as the ``--set`` keys they stand for (``train.epochs``)."""
+    return {key.replace("__", "."): value for key, value in overrides.items()}
 
 
 def describe() -> list[tuple[str, str, list[str]]]:
