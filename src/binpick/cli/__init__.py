@@ -8,7 +8,7 @@ import sys
 
 import typer
 
-from binpick.cli import april, checks, data, detect, envs, pick, rl, ros, train  # noqa: F401  (each registers its commands)
+from binpick.cli import april, checks, data, detect, envs, pick, plan, rl, ros, train  # noqa: F401  (each registers its commands)
 from binpick.cli.app import DEFAULT_POLICY, app, print_error, progress
 from binpick.core.errors import BinpickError, ConfigError
 
