@@ -28,6 +28,7 @@ from binpick.detection.data import RepeatedInstances, TaskDataset, check_disjoin
 from binpick.detection.model import DetectorNetwork
 from binpick.detection.pickability import PickabilityHead, head_auc, join_windows, labelled_windows, train_epoch
 from binpick.core.errors import ConfigError
+from binpick.core.epochs import EpochTrainer
 from binpick.core.files import atomic_write_text
 from binpick.core.runs import SILENT, RunCallback, commit_checkpoint, latest_checkpoint, new_run
 
@@ -97,7 +98,7 @@ class _Schedule:
         self._apply()
 
 
-class PickabilityTrainer:
+class PickabilityTrainer(EpochTrainer):
     """One training run of a detector's pickability head (see the module docstring)."""
 
     TASK = "pickability"  # its kind of job (binpick.core.jobs)
@@ -120,7 +121,7 @@ class PickabilityTrainer:
         self.network.pickability = PickabilityHead(config.depth, config.width, config.query, config.factorised)
         self.head = self.network.pickability
         self.optimiser = torch.optim.AdamW(self.head.parameters(), lr=config.lr, weight_decay=config.weight_decay)
-        self.epoch, self.best_auc, self.history = 0, -1.0, []
+        self.epoch, self.best, self.history = 0, -1.0, []
         self.group = ALONE  # data-parallel training (distribute()): this process's place among others
         checkpoint = latest_checkpoint(self.run_dir / "checkpoints")
         if checkpoint is None and config.init:
@@ -129,7 +130,7 @@ class PickabilityTrainer:
             _, meta, state = tensorfile.load(checkpoint / "state.safetensors", CHECKPOINT_FORMAT, "pickability checkpoint")
             self.head.load_state_dict(state["head"])
             self.optimiser.load_state_dict(state["optimiser"])
-            self.epoch, self.best_auc, self.history = int(meta["epoch"]), float(meta["best_auc"]), list(meta["history"])
+            self.epoch, self.best, self.history = int(meta["epoch"]), float(meta["best_auc"]), list(meta["history"])
 
     def _start_from(self, weights: str) -> None:
         """The head of another detector as the starting point (the same kind and width): a file, a
@@ -232,8 +233,6 @@ class PickabilityTrainer:
 
     # ------------------------------------------------------------------ the loop
     def run(self, callback: RunCallback = SILENT) -> dict[str, Any]:
-        from torch.utils.tensorboard import SummaryWriter
-
         config = self.config
         torch.set_num_threads(config.threads)
         group = self.group
@@ -255,30 +254,9 @@ class PickabilityTrainer:
         callback.message(f"{len(labels)} training windows ({labels.mean().item():.0%} pickable), "
                          f"{len(windows['val_labels'])} val windows")
         per_epoch = max(1, len(labels) // config.batch_size)
-        schedule = _Schedule(self.optimiser, config, per_epoch, self.epoch * per_epoch)
-        writer = SummaryWriter(str(self.run_dir / "tb")) if group.lead else None
-        try:
-            with callback.task(f"pickability head ({len(labels)} windows)", config.epochs, self.epoch) as task:
-                while self.epoch < config.epochs:
-                    generator = torch.Generator().manual_seed(config.seed * 10_007 + self.epoch)
-                    loss = train_epoch(self.head, self.optimiser, schedule, split("train"), generator, config.batch_size,
-                                       group=group)
-                    self.epoch += 1
-                    if not group.lead:  # rank 0 evaluates and writes; the others go on to the next epoch
-                        continue
-                    auc = head_auc(self.head, split("val"))
-                    row = {"epoch": self.epoch, "loss": loss, "val_auc": round(auc, 4)}
-                    self.history.append(row)
-                    writer.add_scalar("train/loss", loss, self.epoch)
-                    writer.add_scalar("val/roc_auc", auc, self.epoch)
-                    if auc > self.best_auc:
-                        self.best_auc = auc
-                        self._save(self.run_dir / "best.safetensors")
-                    self._checkpoint()
-                    task.update(self.epoch, status=f"loss {loss:.3f} val AUC {auc:.3f}")
-        finally:
-            if writer is not None:
-                writer.close()
+        self.schedule = _Schedule(self.optimiser, config, per_epoch, self.epoch * per_epoch)
+        self.train_split, self.val_split = split("train"), split("val")
+        self.run_epochs(callback, f"pickability head ({len(labels)} windows)", config.epochs)
         if not group.lead:
             return {}
         best = self.run_dir / "best.safetensors"
@@ -288,7 +266,7 @@ class PickabilityTrainer:
             copy.replace(self.run_dir / "model.safetensors")
         else:
             self._save(self.run_dir / "model.safetensors")
-        metrics = {"name": config.name, "epochs": self.epoch, "best_val_auc": round(self.best_auc, 4), "history": self.history}
+        metrics = {"name": config.name, "epochs": self.epoch, "best_val_auc": round(self.best, 4), "history": self.history}
         atomic_write_text(self.run_dir / "metrics.json", json.dumps(metrics, indent=2))
         return metrics
 
@@ -298,13 +276,24 @@ class PickabilityTrainer:
         extra = dict(self.detector_meta)
         extra["pickability"] = {"detector": str(self.config.detector), "train": self.config.train, "val": self.config.val,
                                 "targets": self.config.targets, "query": self.config.query, "proposals": self.config.proposals,
-                                "distractors": self.config.distractors, "factorised": self.config.factorised, "init": self.config.init, "epoch": self.epoch, "val_auc": round(self.best_auc, 4),
+                                "distractors": self.config.distractors, "factorised": self.config.factorised, "init": self.config.init, "epoch": self.epoch, "val_auc": round(self.best, 4),
                                 "train_windows": getattr(self, "train_windows", None)}
         self.head.eval()
         save_detector(self.network, path, extra, half=True)
 
-    def _checkpoint(self) -> None:
+    def train_epoch(self) -> dict[str, Any]:
+        generator = torch.Generator().manual_seed(self.config.seed * 10_007 + self.epoch)
+        return {"loss": train_epoch(self.head, self.optimiser, self.schedule, self.train_split, generator, self.config.batch_size,
+                                    group=self.group)}
+
+    def evaluate(self) -> dict[str, Any]:
+        return {"val_auc": head_auc(self.head, self.val_split)}
+
+    def save_best(self, row: dict[str, Any]) -> None:
+        self._save(self.run_dir / "best.safetensors")
+
+    def checkpoint(self) -> None:
         state = {"head": self.head.state_dict(), "optimiser": self.optimiser.state_dict()}
-        meta = {"epoch": self.epoch, "best_auc": self.best_auc, "history": self.history}
+        meta = {"epoch": self.epoch, "best_auc": self.best, "history": self.history}
         commit_checkpoint(self.run_dir / "checkpoints", self.epoch,
                           lambda folder: tensorfile.save(folder / "state.safetensors", CHECKPOINT_FORMAT, meta=meta, state=state))

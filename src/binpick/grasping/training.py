@@ -28,6 +28,7 @@ from binpick.core.errors import ConfigError, InputFileError
 from binpick.core.files import atomic_write_text, inside, read_json
 from binpick.core.metrics import calibration_error, fit_platt, roc_auc
 from binpick.core.depth import read_depth
+from binpick.core.epochs import EpochTrainer
 from binpick.grasping.camera import PinholeCamera
 from binpick.grasping.candidates import describe
 from binpick.grasping.instance import Surface, instance_surface
@@ -177,7 +178,7 @@ def logits_of(model, maps: np.ndarray, features: np.ndarray) -> np.ndarray:
         return model.net(torch.from_numpy(maps)[:, None], torch.from_numpy(features)).numpy()
 
 
-class QualityTrainer:
+class QualityTrainer(EpochTrainer):
     """One training run of the grasp-quality network (see the module docstring)."""
 
     TASK = "grasp_quality"  # its kind of job (binpick.core.jobs)
@@ -187,7 +188,7 @@ class QualityTrainer:
         torch.manual_seed(config.seed)
         self.quality = new_model(config.tool, config.width)
         self.optimizer = torch.optim.AdamW(self.quality.net.parameters(), lr=config.lr, weight_decay=config.weight_decay)
-        self.epoch, self.best_auc, self.history = 0, -1.0, []
+        self.epoch, self.best, self.history = 0, -1.0, []
         self.group = ALONE  # data-parallel training (distribute()): this process's place among others
         if config.init_from is not None:
             start = load_model(config.tool, Path(config.init_from))
@@ -199,7 +200,7 @@ class QualityTrainer:
             _, meta, state = tensorfile.load(checkpoint / "state.safetensors", CHECKPOINT_FORMAT, "grasp-quality checkpoint")
             self.quality.net.load_state_dict(state["net"])
             self.optimizer.load_state_dict(state["optimizer"])
-            self.epoch, self.best_auc, self.history = int(meta["epoch"]), float(meta["best_auc"]), list(meta["history"])
+            self.epoch, self.best, self.history = int(meta["epoch"]), float(meta["best_auc"]), list(meta["history"])
 
     def distribute(self) -> QualityTrainer:
         """Train as one process of a data-parallel group (:mod:`binpick.core.data_parallel`; Ray Train
@@ -225,8 +226,6 @@ class QualityTrainer:
         return cls(load_run_config(QualityTrainConfig, run_dir), Path(run_dir))
 
     def run(self, callback: RunCallback = SILENT) -> dict[str, Any]:
-        from torch.utils.tensorboard import SummaryWriter
-
         config = self.config
         torch.set_num_threads(config.threads)
         callback.message(f"reading {config.tool} trials from {', '.join(config.data_sets)}")
@@ -236,56 +235,10 @@ class QualityTrainer:
                               f"too few (more scenes, or a larger --grasp-trials)")
         positive = float(train.labels.mean())
         weight = torch.tensor((1 - positive) / max(positive, 1e-3) if config.balance else 1.0)
-        loss_fn = nn.BCEWithLogitsLoss(pos_weight=weight)
-        group = self.group
-        writer = SummaryWriter(str(self.run_dir / "tb")) if group.lead else None
-        maps, features, labels = torch.from_numpy(train.maps), torch.from_numpy(train.features), torch.from_numpy(train.labels)
-        try:
-            with callback.task(f"{config.tool} quality ({len(train)} trials)", config.epochs, self.epoch) as task:
-                while self.epoch < config.epochs:
-                    # each epoch's shuffle and flips from its own seed: a run resumed at any epoch goes on
-                    # exactly as the uninterrupted run (one generator for the whole run would restart there)
-                    rng = np.random.default_rng([config.seed, self.epoch])
-                    net = self.quality.net.train()
-                    order = torch.from_numpy(rng.permutation(len(train)))
-                    losses = []
-                    for start in range(0, len(order) - config.batch_size + 1, config.batch_size):
-                        batch = group.part(order[start:start + config.batch_size])
-                        x = maps[batch][:, None]
-                        # the jaws are symmetric: a grasp mirrored along or across them is the same grasp;
-                        # a round cup sees the same surface turned or mirrored
-                        if rng.random() < 0.5:
-                            x = x.flip(3)
-                        if rng.random() < 0.5:
-                            x = x.flip(2)
-                        if config.tool == "suction":
-                            x = torch.rot90(x, int(rng.integers(4)), dims=(2, 3))
-                        loss = loss_fn(net(x, features[batch]), labels[batch])
-                        self.optimizer.zero_grad()
-                        loss.backward()
-                        group.average_gradients(net.parameters())
-                        self.optimizer.step()
-                        losses.append(loss.item())
-                    self.epoch += 1
-                    if not group.lead:  # rank 0 evaluates and writes; the others go on to the next epoch
-                        continue
-                    self.quality.net.eval()
-                    scores = logits_of(self.quality, val.maps, val.features)
-                    auc = roc_auc(val.labels, scores)
-                    row = {"epoch": self.epoch, "loss": float(np.mean(losses)), "val_auc": auc}
-                    self.history.append(row)
-                    writer.add_scalar("train/loss", row["loss"], self.epoch)
-                    if auc is not None:
-                        writer.add_scalar("val/roc_auc", auc, self.epoch)
-                    if (auc if auc is not None else -0.5) > self.best_auc:  # one class in val: keep the first epoch's
-                        self.best_auc = auc if auc is not None else -0.5
-                        self.quality.save(self.run_dir / "best.safetensors", {"val_auc": auc, "epoch": self.epoch})
-                    self._checkpoint()
-                    task.update(self.epoch, status=f"loss {row['loss']:.3f} val AUC {auc if auc is None else round(auc, 3)}")
-        finally:
-            if writer is not None:
-                writer.close()
-        if not group.lead:
+        self.loss_fn, self.val = nn.BCEWithLogitsLoss(pos_weight=weight), val
+        self.train_set = torch.from_numpy(train.maps), torch.from_numpy(train.features), torch.from_numpy(train.labels)
+        self.run_epochs(callback, f"{config.tool} quality ({len(train)} trials)", config.epochs)
+        if not self.group.lead:
             return {}
         best = load_model(config.tool, self.run_dir / "best.safetensors")
         calibration = calibrate(best, val)
@@ -293,14 +246,49 @@ class QualityTrainer:
         best.save(self.run_dir / "model.safetensors", {"data": config.data_sets, "train_trials": len(train), "tool": config.tool,
                                                        "train_success_rate": round(positive, 4)})
         metrics = {"name": config.name, "tool": config.tool, "epochs": self.epoch,
-                   "best_val_auc": self.best_auc if self.best_auc >= 0 else None, "calibration": calibration,
+                   "best_val_auc": self.best if self.best >= 0 else None, "calibration": calibration,
                    "history": self.history}
         atomic_write_text(self.run_dir / "metrics.json", json.dumps(metrics, indent=2))
         return metrics
 
-    def _checkpoint(self) -> None:  # noqa: D401
+    def train_epoch(self) -> dict[str, Any]:
+        config, group = self.config, self.group
+        maps, features, labels = self.train_set
+        # each epoch's shuffle and flips from its own seed: a run resumed at any epoch goes on
+        # exactly as the uninterrupted run (one generator for the whole run would restart there)
+        rng = np.random.default_rng([config.seed, self.epoch])
+        net = self.quality.net.train()
+        order = torch.from_numpy(rng.permutation(len(labels)))
+        losses = []
+        for start in range(0, len(order) - config.batch_size + 1, config.batch_size):
+            batch = group.part(order[start:start + config.batch_size])
+            x = maps[batch][:, None]
+            # the jaws are symmetric: a grasp mirrored along or across them is the same grasp;
+            # a round cup sees the same surface turned or mirrored
+            if rng.random() < 0.5:
+                x = x.flip(3)
+            if rng.random() < 0.5:
+                x = x.flip(2)
+            if config.tool == "suction":
+                x = torch.rot90(x, int(rng.integers(4)), dims=(2, 3))
+            loss = self.loss_fn(net(x, features[batch]), labels[batch])
+            self.optimizer.zero_grad()
+            loss.backward()
+            group.average_gradients(net.parameters())
+            self.optimizer.step()
+            losses.append(loss.item())
+        return {"loss": float(np.mean(losses))}
+
+    def evaluate(self) -> dict[str, Any]:
+        self.quality.net.eval()
+        return {"val_auc": roc_auc(self.val.labels, logits_of(self.quality, self.val.maps, self.val.features))}
+
+    def save_best(self, row: dict[str, Any]) -> None:
+        self.quality.save(self.run_dir / "best.safetensors", {"val_auc": row["val_auc"], "epoch": self.epoch})
+
+    def checkpoint(self) -> None:
         state = {"net": self.quality.net.state_dict(), "optimizer": self.optimizer.state_dict()}
-        meta = {"epoch": self.epoch, "best_auc": self.best_auc, "history": self.history}
+        meta = {"epoch": self.epoch, "best_auc": self.best, "history": self.history}
         commit_checkpoint(self.run_dir / "checkpoints", self.epoch,
                           lambda folder: tensorfile.save(folder / "state.safetensors", CHECKPOINT_FORMAT, meta=meta, state=state))
 
