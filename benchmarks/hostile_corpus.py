@@ -179,7 +179,7 @@ def make_corpus(root: Path) -> dict[str, str]:
     # detector weights whose metadata asks for too much
     from binpick.core import tensorfile
     from binpick.detection.model import DetectorNetwork, ModelSpec
-    from binpick.detection.train import FORMAT, save_detector
+    from binpick.detection.weights_file import FORMAT, save_detector
 
     save_detector(DetectorNetwork(ModelSpec(), 64), root / "detector.safetensors")
     paths["weights"] = root / "detector.safetensors"

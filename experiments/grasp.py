@@ -426,7 +426,8 @@ def pickability(heads_given: list[str] | None = None) -> None:
     from rod import collect_on, keep  # the detector benchmark's evaluation (pycocotools, same tasks)
 
     from binpick.detection.evaluate import copy_scores, first_choices, summarise
-    from binpick.detection.train import detector_detect, load_detector
+    from binpick.detection.train import detector_detect
+    from binpick.detection.weights_file import load_detector
     from binpick.grasping.training import roc_auc
 
     def measured(model, split: str) -> dict:

@@ -74,7 +74,7 @@ def main() -> None:
     import torch
 
     from binpick.cli import DEFAULT_POLICY
-    from binpick.detection.train import load_detector
+    from binpick.detection.weights_file import load_detector
     from binpick.grasping import GraspPlanner
     from binpick.sim import default_library
     from binpick.warehouse.orders import fulfil
@@ -290,7 +290,7 @@ def arm_key(robot: str) -> str:
 def arm_rows(args) -> None:
     """The seen and held-out orders with the arm, beside the floating gripper's rows already in results/pick.json."""
     from binpick.cli import DEFAULT_POLICY
-    from binpick.detection.train import load_detector
+    from binpick.detection.weights_file import load_detector
     from binpick.sim import default_library
     from binpick.sim.robot_arm import arm_model
     from binpick.warehouse.orders import fulfil

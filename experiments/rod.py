@@ -241,7 +241,8 @@ def report(runs: Path) -> None:
 
     from binpick.detection.baselines import histogram_detect, template_detect
     from binpick.detection.model import DetectorNetwork, ModelSpec
-    from binpick.detection.train import detector_detect, load_detector
+    from binpick.detection.train import detector_detect
+    from binpick.detection.weights_file import load_detector
     from binpick.viz.detection import plot_ap_by_scale, plot_pr_curves
 
     torch.set_num_threads(2)
@@ -424,7 +425,7 @@ def collect_on(detect, data: Path, split: str, targets: str, size: int, only: li
     batches hold height maps (for detectors that read depth)."""
     from binpick.detection.data import RepeatedInstances, TaskDataset
     from binpick.detection.evaluate import collect
-    from binpick.detection.train import loader
+    from binpick.detection.training_data import loader
 
     dataset = TaskDataset(RepeatedInstances(data / f"annotations_{split}.json", targets=targets, only_categories=only), size, query,
                           frame_photos=framed, depth=depth)
@@ -448,7 +449,8 @@ def report_generalisation(runs: Path) -> None:
 
     from binpick.detection.baselines import histogram_detect, template_detect
     from binpick.detection.model import DetectorNetwork, ModelSpec
-    from binpick.detection.train import detector_detect, load_detector
+    from binpick.detection.train import detector_detect
+    from binpick.detection.weights_file import load_detector
     torch.set_num_threads(2)
     folders = {name: run_folder(runs, name) for name in
                [f"{stage}_{row}" for stage in ("pretrain", "finetune") for row in VARIANTS]}

@@ -44,7 +44,8 @@ def scores_on(network, annotations: Path) -> dict:
     from binpick.detection.evaluate import coco_ap, collect, copy_scores, summarise
     from binpick.detection.ops import box_iou
     from binpick.core.metrics import roc_auc
-    from binpick.detection.train import detector_detect, loader
+    from binpick.detection.train import detector_detect
+    from binpick.detection.training_data import loader
 
     source = RepeatedInstances(annotations, targets=P1)
     dataset = TaskDataset(source, network.image_size, network.spec.query, network.query_size, depth=network.spec.reads_depth)

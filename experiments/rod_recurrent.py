@@ -74,7 +74,7 @@ def report(pretrained_path: Path, finetuned_path: Path) -> None:
     import torch
 
     from binpick.detection.recurrent_training import load_recurrent, recurrent_detect
-    from binpick.detection.train import load_detector
+    from binpick.detection.weights_file import load_detector
 
     torch.set_num_threads(2)
     pretrained, finetuned = load_recurrent(pretrained_path), load_recurrent(finetuned_path)

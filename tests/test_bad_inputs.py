@@ -80,7 +80,7 @@ def world(tmp_path_factory) -> dict[str, str]:
     # detector weights: a good tiny one and damaged ones
     from binpick.core import tensorfile
     from binpick.detection.model import DetectorNetwork, ModelSpec
-    from binpick.detection.train import FORMAT, save_detector
+    from binpick.detection.weights_file import FORMAT, save_detector
 
     weights = root / "detector.safetensors"
     save_detector(DetectorNetwork(ModelSpec(), 64), weights)

@@ -21,7 +21,9 @@ from binpick.detection.losses import LossWeights, assign, gaussian_targets, rod_
 from binpick.detection.model import DetectorNetwork, ModelSpec
 from binpick.detection.ops import box_iou, generalized_box_iou, nms
 from binpick.detection.rod import RODModule
-from binpick.detection.train import DetectorTrainer, evaluate_model, kmeans_anchors, load_detector, save_detector
+from binpick.detection.train import DetectorTrainer, evaluate_model
+from binpick.detection.training_data import kmeans_anchors
+from binpick.detection.weights_file import load_detector, save_detector
 from binpick.core.errors import ConfigError, InputFileError
 from synthetic_coco import make_coco
 
@@ -230,7 +232,7 @@ def test_template_matching_finds_an_exact_copy():
 
 
 def test_weights_list_the_products_of_the_runs_they_started_from(tmp_path):
-    from binpick.detection.train import learnt_products
+    from binpick.detection.training_data import learnt_products
 
     path = make_coco(tmp_path / "toy", images=2)
     save_detector(DetectorNetwork(ModelSpec(), 64), tmp_path / "start.safetensors", {"trained_products": ["acme/soap"]})
@@ -505,7 +507,7 @@ train: {{epochs: 1, batch_size: 4, lr: 0.002, warmup_steps: 2, eval_every: 1, wo
 
 
 def test_rehearsal_mixes_fresh_tasks_of_a_second_set_into_each_epoch(tmp_path):
-    from binpick.detection.train import make_datasets
+    from binpick.detection.training_data import make_datasets
 
     main, other = make_coco(tmp_path / "main", images=6, seed=1), make_coco(tmp_path / "other", images=12, seed=2)
     config = tmp_path / "rod.yaml"

@@ -13,7 +13,7 @@ from binpick.detection.detector import Detector
 from binpick.detection.model import DetectorNetwork, ModelSpec
 from binpick.detection.pickability import CROP, WINDOW, PickabilityHead, head_auc, query_crops, roi_windows, train_epoch
 from binpick.detection.pickability_training import PickabilityConfig, PickabilityTrainer
-from binpick.detection.train import save_detector
+from binpick.detection.weights_file import save_detector
 from binpick.core.errors import ConfigError
 from binpick.core.metrics import roc_auc
 from synthetic_coco import make_coco

@@ -12,7 +12,7 @@ import numpy as np
 from conftest import binpick_here
 
 from binpick.detection.model import DetectorNetwork, ModelSpec
-from binpick.detection.train import save_detector
+from binpick.detection.weights_file import save_detector
 from binpick.sim import default_library
 from binpick.sim.bin_scene import BinWorld
 from binpick.grasping import DepthFrame, GraspPlanner, PinholeCamera

@@ -20,7 +20,8 @@ from binpick.core.config import from_dict
 from binpick.core.errors import ConfigError
 from binpick.core.files import read_json
 from binpick.detection.config import DetectConfig
-from binpick.detection.train import WEIGHTS_FILE, DetectorTrainer
+from binpick.detection.train import DetectorTrainer
+from binpick.detection.weights_file import WEIGHTS_FILE
 from binpick.integrations.ray.training import train_on_ray
 from binpick.core.jobs import KINDS
 
@@ -111,7 +112,7 @@ def test_one_ray_worker_trains_exactly_the_local_pickability_head(tmp_path, ray_
 
     from binpick.detection.model import DetectorNetwork, ModelSpec
     from binpick.detection.pickability_training import PickabilityConfig, PickabilityTrainer
-    from binpick.detection.train import save_detector
+    from binpick.detection.weights_file import save_detector
 
     train = make_coco(tmp_path / "train", images=16, seed=3, pickable=True, depth=True, pickable_rule="small")
     val = make_coco(tmp_path / "val", images=6, seed=4, pickable=True, depth=True, pickable_rule="small")

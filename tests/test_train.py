@@ -60,7 +60,7 @@ def pickability_setup(tmp: Path):
     import torch
 
     from binpick.detection.model import DetectorNetwork, ModelSpec
-    from binpick.detection.train import save_detector
+    from binpick.detection.weights_file import save_detector
 
     train = make_coco(tmp / "train", images=24, seed=3, pickable=True, depth=True, pickable_rule="small")
     val = make_coco(tmp / "val", images=8, seed=4, pickable=True, depth=True, pickable_rule="small")

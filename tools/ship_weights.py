@@ -20,7 +20,7 @@ from pathlib import Path
 
 from binpick.core.config import load_run_config
 from binpick.detection.config import DetectConfig
-from binpick.detection.train import learnt_products
+from binpick.detection.training_data import learnt_products
 from binpick.detection.weights_file import load_detector, read_detector_file, save_detector, weights_path
 
 ROOT = Path(__file__).resolve().parents[1]

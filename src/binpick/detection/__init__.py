@@ -8,7 +8,8 @@
 from binpick.detection.detector import Detector, shipped_weights
 from binpick.detection.model import DetectorNetwork, ModelSpec
 from binpick.detection.predict import Prediction, predict
-from binpick.detection.train import DetectorTrainer, load_detector, save_detector
+from binpick.detection.train import DetectorTrainer
+from binpick.detection.weights_file import load_detector, save_detector
 
 __all__ = ["Detector", "DetectorNetwork", "DetectorTrainer", "ModelSpec", "Prediction", "load_detector", "predict",
            "save_detector", "shipped_weights"]

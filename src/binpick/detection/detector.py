@@ -64,7 +64,7 @@ class Detector:
         """A shipped name, a ``.safetensors`` (or older ``.pt``) file, or a run folder. ``pickability=False``
         leaves out a pickability head the weights hold (binpick.detection.pickability): the detector's
         own ranking, from colour alone. ``runtime="onnx"``: predict through ONNX Runtime (:meth:`using`)."""
-        from binpick.detection.train import load_detector
+        from binpick.detection.weights_file import load_detector
 
         path = Path(weights)
         if not path.exists() and str(weights).removesuffix(".safetensors") in SHIPPED:
@@ -175,7 +175,7 @@ class Detector:
         """Train a new run from a YAML config; ``overrides`` are ``--set`` keys with ``.`` written as
         ``__`` (``train__epochs=2``) or plain top-level keys. Returns the trained detector."""
         from binpick.core.jobs import dotted, open_job
-        from binpick.detection.train import WEIGHTS_FILE, load_detector
+        from binpick.detection.weights_file import WEIGHTS_FILE, load_detector
 
         trainer = open_job(config, task="detect", runs=runs, overrides=dotted(overrides))
         metrics = trainer.run(callback)

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from binpick.detection.train import DetectorTrainer, loader
+from binpick.detection.train import DetectorTrainer
+from binpick.detection.training_data import loader
 from binpick.core.errors import ConfigError
 from binpick.core.runs import SILENT, RunCallback
 

@@ -271,7 +271,7 @@ class PickabilityTrainer(EpochTrainer):
         return metrics
 
     def _save(self, path: Path) -> None:
-        from binpick.detection.train import save_detector
+        from binpick.detection.weights_file import save_detector
 
         extra = dict(self.detector_meta)
         extra["pickability"] = {"detector": str(self.config.detector), "train": self.config.train, "val": self.config.val,

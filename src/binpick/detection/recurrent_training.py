@@ -143,7 +143,7 @@ def datasets(config: RecurrentTrainConfig):
 
 def evaluate_recurrent(model: RecurrentDetector, dataset, tasks: int | None = None, callback: RunCallback = SILENT) -> dict[str, Any]:
     from binpick.detection.evaluate import collect, summarise
-    from binpick.detection.train import loader
+    from binpick.detection.training_data import loader
 
     if tasks is not None and tasks < len(dataset):
         dataset = torch.utils.data.Subset(dataset, range(tasks))
