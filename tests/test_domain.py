@@ -84,7 +84,10 @@ def test_randomised_bins_record_the_camera_that_rendered_them_and_resume(tmp_pat
 def test_ray_scene_workers_make_the_same_data_set_as_local_processes(tmp_path):
     os.environ.setdefault("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")
     generate(_random(tmp_path, "local"))
-    generate(_random(tmp_path, "ray", address="local", workers=1))
+    from binpick.core.jobs import run_job
+    from binpick.warehouse.dataset import DataGeneration
+
+    run_job(DataGeneration.new(_random(tmp_path, "ray", workers=1)), address="local")  # as `binpick train data.yaml --address local`
     local = json.loads((tmp_path / "local" / "annotations.json").read_text())
     ray = json.loads((tmp_path / "ray" / "annotations.json").read_text())
     assert [a["bbox"] for a in ray["annotations"]] == [a["bbox"] for a in local["annotations"]]

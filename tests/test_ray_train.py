@@ -199,8 +199,10 @@ def test_ray_options_are_checked_before_a_run_folder_is_made(tmp_path):
 
     with pytest.raises(ConfigError, match="--workers goes with --address"):
         jobs.check_ray_job(jobs.KINDS["detect"], None, 2)
-    with pytest.raises(ConfigError, match="data job trains here"):
-        jobs.check_ray_job(jobs.KINDS["data"], "local", 1)
+    with pytest.raises(ConfigError, match="workers setting"):  # a data set's Ray tasks come from its own config
+        jobs.check_ray_job(jobs.KINDS["data"], "local", 2)
+    with pytest.raises(ConfigError, match="rl, detect, pickability, grasp_quality, data"):  # what --address takes, named
+        jobs.check_ray_job(jobs.KINDS["april"], "local", 1)
     with pytest.raises(ConfigError, match="a3c.workers"):  # A3C's rollout workers come from its own config
         jobs.check_ray_job(jobs.KINDS["rl"], "local", 2)
     with pytest.raises(ConfigError, match="HOST:PORT"):

@@ -20,7 +20,8 @@ def train(
     settings: ConfigSetOption = None,
     list_tasks: Annotated[bool, typer.Option("--list", help="List the tasks and their config keys, then exit")] = False,
     address: Annotated[str | None, typer.Option(help="Train on a Ray cluster (detect, pickability, grasp_quality; rl "
-                                                     "with a3c or sac): local (one on this machine), auto, HOST:PORT or ray://HOST:PORT")] = None,
+                                                     "with a3c or sac; a data set's worlds as tasks): local (one on this "
+                                                     "machine), auto, HOST:PORT or ray://HOST:PORT")] = None,
     workers: Annotated[int, typer.Option(help="With --address: Ray Train workers (data-parallel), or the "
                                                     "simulators feeding an RL sac learner; A3C's rollout workers are its a3c.workers")] = 1,
 ) -> None:

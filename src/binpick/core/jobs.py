@@ -36,7 +36,8 @@ class JobKind:
     config: str  # "module:ConfigClass"
     job: str  # "module:JobClass" (new / resume / run)
     steps_key: str  # the key of metrics.json that counts its progress (steps, epochs, scenes)
-    ray: str | None = None  # on a cluster: "train" (data-parallel Ray Train workers), "rl" (rollout or simulator actors)
+    ray: str | None = None  # on a cluster: "train" (data-parallel Ray Train workers), "rl" (rollout or simulator actors),
+    # "tasks" (a data set's worlds as Ray tasks)
 
     def config_class(self) -> type:
         return _attribute(self.config)
@@ -60,7 +61,7 @@ KINDS: dict[str, JobKind] = {kind.task: kind for kind in [
     JobKind("grasp_quality", "the grasp-quality model on grasp trials", "binpick.grasping.training:QualityTrainConfig",
             "binpick.grasping.training:QualityTrainer", "epochs", ray="train"),
     JobKind("data", "a warehouse bin data set (scenes, labels, COCO)", "binpick.warehouse.generation:GenerateConfig",
-            "binpick.warehouse.dataset:DataGeneration", "scenes"),
+            "binpick.warehouse.dataset:DataGeneration", "scenes", ray="tasks"),
 ]}
 
 
@@ -206,6 +207,8 @@ def check_ray_job(kind: JobKind, address: str | None, workers: int, config: Any 
                               f"this rl job ({algorithm}) trains here (without --address)")
         if algorithm == "a3c" and workers != 1:
             raise ConfigError("an A3C run's rollout workers are its a3c.workers, on Ray as here: --set a3c.workers=N instead of --workers")
+    if kind.ray == "tasks" and workers != 1:
+        raise ConfigError("a data set's scene workers are its workers setting, on Ray as here: --set workers=N instead of --workers")
     if address != "local":
         from binpick.core.cluster import check_ray_address
 
@@ -217,12 +220,15 @@ def run_job(job, callback: RunCallback = SILENT, address: str | None = None, wor
     ``HOST:PORT``, ``ray://HOST:PORT``) on Ray as its kind declares, with the same run folder,
     checkpoints and resume as here: trainers data-parallel on ``workers`` Ray Train workers of
     ``threads`` CPU threads each; A3C with its ``a3c.workers`` as actors; the sac learner (GP + HER)
-    here, fed by ``workers`` simulator actors."""
+    here, fed by ``workers`` simulator actors; a data set's worlds as Ray tasks (its ``workers`` at a time)."""
     kind = kind_of_job(job)
     check_ray_job(kind, address, workers, getattr(job, "config", None))
     if address is None:
         return job.run(callback)
-    runner = kind.ray if kind.ray == "train" else job.config.algorithm  # an rl job runs on Ray by its algorithm
+    runner = job.config.algorithm if kind.ray == "rl" else kind.ray  # an rl job runs on Ray by its algorithm
+    if runner == "tasks":
+        callback.message(f"generating {job.run_dir} on Ray: {job.config.workers} world(s) at a time as tasks")
+        return job.run(callback, address=address)
     if runner == "a3c":
         callback.message(f"training {job.run_dir} on Ray: {job.config.a3c.workers} rollout worker(s) as actors")
         return job.run(callback, learn=_attribute(RAY_RUNNERS["a3c"])(address))

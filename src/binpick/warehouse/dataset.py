@@ -21,6 +21,7 @@ product category used for zero-shot splits. Each annotation carries ``visible_fr
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -279,7 +280,12 @@ class DataGeneration:
                                    "workers": workers or GenerateConfig.workers})
         return cls(config)
 
-    def run(self, callback: RunCallback = SILENT) -> dict[str, Any]:
+    def run(self, callback: RunCallback = SILENT, address: str | None = None) -> dict[str, Any]:
+        """Generate the missing scenes (here, or with ``address`` on a Ray cluster: ``local``, ``auto``,
+        ``HOST:PORT``, as every job takes it; the config's own ``address`` otherwise), then the photos
+        and the COCO files."""
+        if address is not None:
+            self.config = replace(self.config, address=address)
         config, out = self.config, self.run_dir
         worlds = range(-(-config.scenes // config.scenes_per_world))
         with callback.task("scenes", config.scenes, min(self.done, config.scenes)) as task:
