@@ -71,8 +71,7 @@ def main() -> None:
 
     from PIL import Image
 
-    from binpick.sim.photos import contact_sheet
-    from binpick.viz.bins import plot_policies_side_by_side
+    from _figures import contact_sheet, plot_policies_side_by_side
 
     IMAGES.mkdir(parents=True, exist_ok=True)
     if policies:

@@ -229,7 +229,6 @@ def top1(bins: int, sensor_name: str = "perfect") -> dict:
     from binpick.sim.mjcf import CameraSpec
     from binpick.sim.sensor import load_sensor
     from binpick.core.depth import as_camera_depth
-    from binpick.warehouse.grasping import plan_grasp
 
     sensor = load_sensor(sensor_name)
     library = default_library()
@@ -528,3 +527,18 @@ def main() -> None:
 
 if __name__ == "__main__":
     main()
+
+
+def plan_grasp(planner, frame, box, scene, overhead):
+    """The planner's grasp for a detection and its fingertips' position (world xyz). The fixed policy
+    keeps the grasp point and depth it had before the planner existed, so its rows stay comparable,
+    where that grasp point can be had (perfect depth from a camera straight above the tote)."""
+    from binpick.grasping import GraspPolicyName
+    from binpick.warehouse.grasping import fixed_policy_tips, legacy_view
+
+    choice = planner.choose(frame, box)
+    if choice.chosen is None:
+        return choice, None
+    if planner.policy is GraspPolicyName.FIXED and legacy_view(scene):
+        return choice, fixed_policy_tips(box, scene.depth, overhead)
+    return choice, choice.chosen.position

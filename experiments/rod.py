@@ -243,7 +243,8 @@ def report(runs: Path) -> None:
     from binpick.detection.model import DetectorNetwork, ModelSpec
     from binpick.detection.train import detector_detect
     from binpick.detection.weights_file import load_detector
-    from binpick.viz.detection import plot_ap_by_scale, plot_pr_curves
+    from _figures import plot_ap_by_scale
+    from binpick.viz.detection import plot_pr_curves
 
     torch.set_num_threads(2)
     models = {}
@@ -317,7 +318,8 @@ def examples(models: dict, path: Path) -> None:
 
     from binpick.detection.data import read_image
     from binpick.detection.predict import predict
-    from binpick.viz.detection import heatmap_image, overlay
+    from _figures import heatmap_image
+    from binpick.viz.detection import overlay
 
     coco = json.loads((DATA / "annotations_val.json").read_text())
     by_id = {a["id"]: a for a in coco["annotations"]}
@@ -988,7 +990,7 @@ def plot_curves(folders: dict[str, Path | None]) -> dict[str, list[dict]]:
     drawn after the images its pre-training saw. Returns each run's history."""
     import json
 
-    from binpick.viz.detection import plot_learning_curves
+    from _figures import plot_learning_curves
 
     histories = {name: json.loads((folder / "metrics.json").read_text())["history"]
                  for name, folder in folders.items() if folder is not None and (folder / "metrics.json").is_file()}

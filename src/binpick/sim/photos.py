@@ -230,14 +230,3 @@ def _fill_patterns(model, product: Product, style: PhotoStyle) -> None:
         fill_texture(model, model.texture("p_tex").id, pattern(np.random.default_rng(product.pattern[0]), product.pattern[1]))
     if style.background_seed is not None:
         fill_texture(model, model.texture("studio_tex").id, pattern(np.random.default_rng(style.background_seed), "train"))
-
-
-def contact_sheet(photos: dict[str, np.ndarray], columns: int = 8) -> np.ndarray:
-    """Tile photos (same size) row by row, for docs."""
-    images = [image[..., :3] for image in photos.values()]
-    rows = -(-len(images) // columns)
-    h, w, _ = images[0].shape
-    sheet = np.full((rows * h, columns * w, 3), 255, np.uint8)
-    for i, image in enumerate(images):
-        sheet[(i // columns) * h:(i // columns + 1) * h, (i % columns) * w:(i % columns + 1) * w] = image
-    return sheet

@@ -40,25 +40,3 @@ def labelled_scene(data_dir: Path, record: dict, policy: str | None) -> np.ndarr
             kind = "pickable" if a["pickable"][policy] else "unpickable"
         boxes.append((a["bbox"], kind))
     return draw_boxes(image, boxes)
-
-
-def plot_policies_side_by_side(data_dir: Path, record: dict, policies: list[str], path: Path) -> None:
-    """One panel per grasp policy (Fig 5.13 style) and a legend."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.patches import Patch
-
-    fig, axes = plt.subplots(1, len(policies), figsize=(4.2 * len(policies), 4.6))
-    for axis, policy in zip(np.atleast_1d(axes), policies):
-        axis.imshow(labelled_scene(data_dir, record, policy))
-        axis.set_title(f"policy {policy}: jaws along the robot's {policy}-axis")
-        axis.axis("off")
-    legend = [Patch(edgecolor=np.array(c) / 255, facecolor="none", label=k) for k, c in COLOURS.items()]
-    fig.legend(handles=legend, loc="lower center", ncol=4, frameon=False)
-    fig.suptitle(f"scene {record['index']}: {record['target']} (pickability by trial grasps)")
-    fig.tight_layout(rect=(0, 0.05, 1, 1))
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)

@@ -158,15 +158,6 @@ def depth_picture(depth: np.ndarray) -> np.ndarray:
     return np.asarray(picture)
 
 
-def heatmap_image(heatmap: np.ndarray, size: int) -> np.ndarray:
-    """A max heatmap (values in [-1, 1]) as an RGB image of ``size`` pixels (Fig 6.11's bottom row)."""
-    import matplotlib
-    from PIL import Image
-
-    colours = matplotlib.colormaps["magma"](np.clip((heatmap + 1) / 2, 0, 1))[..., :3]
-    return np.asarray(Image.fromarray((colours * 255).astype(np.uint8)).resize((size, size), Image.NEAREST))
-
-
 def plot_pr_curves(curves: dict[str, dict], path: Path, title: str) -> None:
     """Precision against recall at IoU 0.5, one line per model (``{name: {recall, precision, ap50}}``)."""
     import matplotlib
@@ -182,10 +173,10 @@ def plot_pr_curves(curves: dict[str, dict], path: Path, title: str) -> None:
     axis.set_ylabel("precision")
     axis.set_xlim(0, 1)
     axis.set_ylim(0, 1.02)
-    _finish(fig, axis, path, title)
+    finish_plot(fig, axis, path, title)
 
 
-def _finish(fig, axis, path: Path, title: str) -> None:
+def finish_plot(fig, axis, path: Path, title: str) -> None:
     """Title, legend and grid; then the PNG, written where asked."""
     import matplotlib.pyplot as plt
 
@@ -196,48 +187,3 @@ def _finish(fig, axis, path: Path, title: str) -> None:
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
     plt.close(fig)
-
-
-def plot_ap_by_scale(results: dict[str, dict[str, float | None]], path: Path, title: str) -> None:
-    """AP50 per object-scale bin, one line per layout (Fig 5.12)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axis = plt.subplots(figsize=(6.0, 4.2))
-    for name, by_scale in results.items():
-        labels = list(by_scale)
-        values = [np.nan if by_scale[k] is None else by_scale[k] for k in labels]
-        axis.plot(range(len(labels)), values, marker="o", label=name)
-        axis.set_xticks(range(len(labels)), labels)
-    axis.set_xlabel("object scale: sqrt(box area) / image side")
-    axis.set_ylabel("AP50")
-    axis.set_ylim(0, 1)
-    axis.set_title(title)
-    axis.legend()
-    axis.grid(alpha=0.3)
-    fig.tight_layout()
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
-def plot_learning_curves(histories: dict[str, list[dict]], path: Path, title: str) -> None:
-    """Val AP50 against training images seen, one line per run (``{name: metrics['history']}``);
-    a fine-tuning run continues from the images its pre-training saw when named ``A -> B``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axis = plt.subplots(figsize=(6.4, 4.2))
-    for name, history in histories.items():
-        points = [(h.get("images_seen", h["step"]), h["ap50"]) for h in history if h.get("ap50") is not None]
-        if points:
-            xs, ys = zip(*points)
-            axis.plot(xs, ys, marker="o", markersize=3, label=name)
-    axis.set_xlabel("training images seen")
-    axis.set_ylabel("val AP50")
-    axis.set_ylim(0, 1)
-    _finish(fig, axis, path, title)

@@ -11,7 +11,6 @@ from enum import StrEnum
 import mujoco
 import numpy as np
 
-from binpick.grasping import DepthFrame, GraspChoice, GraspPlanner, GraspPolicyName
 from binpick.sim.bin_scene import Scene
 from binpick.sim.gripper import LIFT_SUCCESS, PARK, SUCTION_PRESS, TRIAL_TIMESTEP
 from binpick.sim.mjcf import FLOOR_TOP, CameraSpec
@@ -322,18 +321,6 @@ def arm_lift_test(world, planner, slot: int, tips, yaw: float, tool: str = "jaws
     finally:
         world.arm.hand.reset(data)
         model.opt.timestep = settle_timestep
-
-
-def plan_grasp(planner: GraspPlanner, frame: DepthFrame, box, scene: Scene, overhead: CameraSpec) -> tuple[GraspChoice, np.ndarray | None]:
-    """The planner's grasp for a detection and its fingertips' position (world xyz). The fixed policy
-    keeps the grasp point and depth it had before the planner existed, so its rows stay comparable,
-    where that grasp point can be had (perfect depth from a camera straight above the tote)."""
-    choice = planner.choose(frame, box)
-    if choice.chosen is None:
-        return choice, None
-    if planner.policy is GraspPolicyName.FIXED and legacy_view(scene):
-        return choice, fixed_policy_tips(box, scene.depth, overhead)
-    return choice, choice.chosen.position
 
 
 def legacy_view(scene: Scene) -> bool:
