@@ -63,8 +63,7 @@ class RecurrentTrainConfig:
     train: str  # COCO annotations (binpick's or anyone's with shop photos not needed: crop queries)
     val: str
     targets: str = "all"  # all | pickable:<policy>
-    out: str = "runs/rod_recurrent"  # where a direct train_recurrent() call writes (a job's run folder replaces it)
-    name: str = "rod_recurrent"  # the run's folder under --runs: runs/<name>/<time>
+    out: str = "runs/rod_recurrent"
     image_size: int = 320
     images: int = 16480  # the budget: images seen
     batch_size: int = 16
@@ -260,14 +259,7 @@ class RecurrentRun:
 
     @classmethod
     def new(cls, config: RecurrentTrainConfig, runs: Path | None = None) -> RecurrentRun:
-        """A new run folder ``runs/<name>/<time>`` as every job's (its ``config.yaml`` with the task);
-        without ``runs`` (a direct call), the config's ``out``, where a run with another config is refused."""
-        from dataclasses import replace
-
-        from binpick.core.runs import new_run
-
-        if runs is not None:
-            return cls(replace(config, out=str(new_run(runs, config, cls.TASK))))
+        """``runs`` is not used: the run goes to ``config.out``, and a run there with another config is refused."""
         import yaml
 
         from binpick.core.files import atomic_write_text, ensure_dir
