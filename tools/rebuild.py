@@ -139,7 +139,7 @@ def runs_under(folder: Path) -> set[Path]:
 
 def finished(run: Path) -> bool:
     """A trainer's run that wrote its final weights or metrics; a data set with every scene written."""
-    from binpick import jobs
+    from binpick.core import jobs
     from binpick.core.files import read_json
 
     if (run / "dataset.json").is_file():

@@ -48,6 +48,10 @@ class EpochTrainer:
         """Commit the whole state (model, optimiser, ``epoch``, ``best``, ``history``) atomically."""
         raise NotImplementedError
 
+    def recorded(self, row: dict[str, Any]) -> dict[str, Any]:
+        """An epoch's row as the history keeps it (the best epoch is chosen on the row itself)."""
+        return row
+
     def status(self, row: dict[str, Any]) -> str:
         """The progress bar's line after an epoch."""
         value = row.get(self.metric)
@@ -68,7 +72,7 @@ class EpochTrainer:
                     if not lead:  # rank 0 evaluates and writes; the others go on to the next epoch
                         continue
                     row = {"epoch": self.epoch, **trained, **self.evaluate()}
-                    self.history.append(row)
+                    self.history.append(self.recorded(row))
                     for key, tag in self.scalars.items():
                         if row.get(key) is not None:
                             writer.add_scalar(tag, row[key], self.epoch)

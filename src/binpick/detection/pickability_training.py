@@ -292,6 +292,9 @@ class PickabilityTrainer(EpochTrainer):
     def save_best(self, row: dict[str, Any]) -> None:
         self._save(self.run_dir / "best.safetensors")
 
+    def recorded(self, row: dict[str, Any]) -> dict[str, Any]:
+        return row | {"val_auc": round(row["val_auc"], 4)}
+
     def checkpoint(self) -> None:
         state = {"head": self.head.state_dict(), "optimiser": self.optimiser.state_dict()}
         meta = {"epoch": self.epoch, "best_auc": self.best, "history": self.history}

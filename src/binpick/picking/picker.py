@@ -227,8 +227,8 @@ class Picker:
             ranked.sort(key=lambda c: -c[1] * (c[2] if c[2] is not None else 1.0))
             if self.agreement is not None and photos and query_box is None and hasattr(self.learnt_verifier(), "pairwise"):
                 tick_agree = time.perf_counter()  # copies agree with each other, a look-alike with few
-                ranked = rank_by_support(ranked, lambda found_boxes: self.verifier.pairwise(rgb, depth, found_boxes, windows=windows),
-                                         self.agreement)
+                shared = {} if windows is None else {"windows": windows}  # a verifier of one's own may not take them
+                ranked = rank_by_support(ranked, lambda boxes_: self.verifier.pairwise(rgb, depth, boxes_, **shared), self.agreement)
                 timing["agree"] = 1000 * (time.perf_counter() - tick_agree)
         tick = time.perf_counter()
         plans: list[GraspPlan] = []
@@ -308,7 +308,8 @@ class Picker:
 
     def frame_windows(self, rgb: np.ndarray, depth: np.ndarray, photos):
         """The learnt product check's windows of this frame (read once per plan; None without one)."""
-        return frame_windows(self.verifier if self.verifier in (None, "colour") else self.learnt_verifier(), rgb, depth, photos)
+        learnt = bool(photos) and self.verifier not in (None, "colour")  # a query box, or no learnt check: nothing to read
+        return frame_windows(self.learnt_verifier(), rgb, depth, photos) if learnt else None
 
     def product_scores(self, rgb: np.ndarray, depth: np.ndarray, frame: DepthFrame, boxes: np.ndarray,
                        photos: list[tuple[np.ndarray, np.ndarray | None]], query_box, windows=None) -> list[float | None]:
