@@ -55,7 +55,7 @@ def data_generate(
 ) -> None:
     """Generate bin scenes (resumes after a kill), shop photos, COCO files and a data-set card."""
     from binpick.core.config import from_dict
-    from binpick.warehouse.dataset import DataGeneration
+    from binpick.core.jobs import open_job, run_job
     from binpick.warehouse.generation import GenerateConfig
 
     if out.exists() and not out.is_dir():
@@ -64,13 +64,12 @@ def data_generate(
              "grasp_trials": grasp_trials,
              "image_size": size, "copies": list(parse_pair(copies, "copies")), "distractors": list(parse_pair(distractors, "distractors")),
              "held_out_categories": [c for c in held_out.split(",") if c], "randomise": randomise, "domain": domain, "sensor": sensor,
-             "address": address,
              "targets": [t for t in targets.split(",") if t], "products": str(products) if products else None,
              "only_products": only_products, "val_fraction": val_fraction, "scenes_per_world": scenes_per_world, "photo_views": photo_views,
              "robot": robot, "gripper": gripper, "cell": str(cell) if cell else None, "seed": seed}
     config = from_dict(GenerateConfig, flags | parse_settings(settings), where="data generate")  # validated once
     with job_progress(out, f"binpick data generate --out {out} (the same options), or binpick train --resume {out}") as callback:
-        stats = DataGeneration.new(config).run(callback)
+        stats = run_job(open_job(settings=config, task="data", address=address), callback, address)
     _print_stats(stats, out)
     empty = [split for split in ("train", "val") if not stats["splits"].get(split)]
     if empty:

@@ -64,9 +64,9 @@ def rl_distributed(
     goes on. A whole RL YAML runs the same way: binpick train CONFIG --address ... [--workers N]."""
     from binpick.core.cluster import check_ray_address, probe_ray_address
     from binpick.core.config import check_choice, check_range, from_dict
+    from binpick.core.jobs import open_job, run_job
     from binpick.envs import resolve_env_id
     from binpick.rl.config import RLConfig, never_learns
-    from binpick.rl.train import trainer_for
 
     check_choice("algorithm", algorithm, ("sac", "a3c"))
     check_range("workers", workers, 1, 4096, integer=True)
@@ -81,17 +81,10 @@ def rl_distributed(
                     "total_timesteps": steps, "seed": seed, "a3c": {"workers": workers}}
     config = from_dict(RLConfig, settings, where="rl distributed")
     warn(never_learns(config))
-    trainer = trainer_for(config, ensure_dir(out, "--out"))
-    with progress() as callback:
-        if algorithm == "sac":
-            from binpick.integrations.ray.envs import RayVecEnv
-
-            metrics = trainer.run(callback, envs=RayVecEnv(config, workers, None if address == "local" else address,
-                                                           trainer.env))
-        else:
-            from binpick.integrations.ray.a3c import learn_on_ray
-
-            metrics = trainer.run(callback, learn=learn_on_ray(address))
+    simulators = workers if algorithm == "sac" else 1  # A3C's rollout workers are its a3c.workers
+    trainer = open_job(settings=config, task="rl", runs=ensure_dir(out, "--out"), address=address or "local", workers=simulators)
+    with progress() as callback:  # as `binpick train CONFIG --address ... --workers N`
+        metrics = run_job(trainer, callback, address or "local", simulators)
     restarts = metrics.get("worker_restarts", 0)
     console.print(f"{metrics['sim_steps']} simulator steps in {metrics['wall_seconds']} s ({restarts} simulator restart(s)); "
                   f"final success {metrics['final_success']:.0%}, {metrics['final_avg_actions']:.1f} actions; wrote {trainer.run_dir}")

@@ -140,12 +140,20 @@ def run_config(run_dir: str | Path, kind: JobKind) -> Any:
 
 
 def open_job(config: str | Path | None = None, resume: str | Path | None = None, *, task: str | None = None,
-             runs: str | Path = "runs", overrides: dict[str, Any] | None = None, address: str | None = None, workers: int = 1):
+             runs: str | Path = "runs", overrides: dict[str, Any] | None = None, address: str | None = None, workers: int = 1,
+             settings: Any = None):
     """The one way every training entry point starts a job: a new run of what ``config`` describes
     (``task``: what the caller trains; None: the file's ``task:`` says), its folder under ``runs``, or
-    the run in ``resume`` continued with the config it was started with. Refused in one line, before
-    any folder is made: both or neither given, overrides on a resumed run, a folder that is no run (or
+    the run in ``resume`` continued with the config it was started with; ``settings``: a config already
+    validated (a command that builds it from its own options, with ``task``). Refused in one line, before
+    any folder is made: not exactly one of them, overrides on a resumed run, a folder that is no run (or
     another task's), a job or cluster address Ray cannot take (:func:`check_ray_job`)."""
+    if settings is not None:
+        if config is not None or resume is not None or task not in KINDS:
+            raise ConfigError("give a validated config (settings) with its task, and no config file or --resume")
+        kind = KINDS[task]
+        check_ray_job(kind, address, workers, settings)
+        return kind.job_class().new(settings, Path(runs))
     if (config is None) == (resume is None):
         raise ConfigError("give either a CONFIG file to start a run or --resume RUN_DIR to continue one")
     if resume is not None:
