@@ -26,11 +26,11 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 import binpick  # noqa: E402
-from binpick.rl.agents import GoalSAC  # noqa: E402
-from binpick.rl.dynamics import GPDynamics  # noqa: E402
-from binpick.rl.imagination import imagine_episodes  # noqa: E402
-from binpick.rl.replay import EpisodeReplayBuffer  # noqa: E402
-from binpick.rl.wrappers import SemanticState  # noqa: E402
+from binpick.rl.gp_her.agents import GoalSAC  # noqa: E402
+from binpick.rl.gp_her.dynamics import GPDynamics  # noqa: E402
+from binpick.rl.gp_her.imagination import imagine_episodes  # noqa: E402
+from binpick.rl.common.replay import EpisodeReplayBuffer  # noqa: E402
+from binpick.rl.common.wrappers import SemanticState  # noqa: E402
 
 DIRECTIONS = np.array([[1, 0], [-1, 0], [0, 1], [0, -1]], float)  # the requested moves of Fig 3.9
 

@@ -247,7 +247,7 @@ def policy_run(folder: Path) -> None:
     import torch
 
     from binpick.core import tensorfile
-    from binpick.rl.persistence import POLICY_FORMAT
+    from binpick.rl.common.persistence import POLICY_FORMAT
 
     checkpoint = folder / "checkpoints" / "ckpt-000000100"
     checkpoint.mkdir(parents=True, exist_ok=True)

@@ -130,7 +130,7 @@ def a3c_config(steps: int, workers: int):
 
 def a3c_run(steps: int, workers: int, on_ray: bool, on_update=None) -> dict:
     from binpick.integrations.ray.a3c import learn_on_ray
-    from binpick.rl.a3c_train import A3CTrainer
+    from binpick.rl.a3c.train import A3CTrainer
 
     trainer = A3CTrainer.new(a3c_config(steps, workers), RUNS)
     metrics = trainer.run(learn=learn_on_ray("local", on_update) if on_ray else None)

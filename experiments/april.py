@@ -269,7 +269,7 @@ def shared_state_run(results: dict, env: str, name: str, config) -> str | None:
 def recheck(run: AprilRun, rows: dict, episodes: int, seed: int = 30_000) -> dict:
     """The pixels row's deployment (as `binpick april eval RUN --episodes N --seed 30000`) on fresh episodes."""
     from binpick.april.evaluate import deployment_env, row_names
-    from binpick.rl.evaluate import evaluate_policy
+    from binpick.rl.common.evaluate import evaluate_policy
 
     env, policy, _ = deployment_env(run, "pixels")
     result = evaluate_policy(policy, env, episodes=episodes, seed=seed)
@@ -322,7 +322,7 @@ def main() -> None:
     for name in [] if args.report_only else args.only:
         if name == "reacher_random":  # Table 4.2's first row: the random policy, no learning at all
             from binpick.envs import make
-            from binpick.rl.evaluate import evaluate_policy, random_policy
+            from binpick.rl.common.evaluate import evaluate_policy, random_policy
 
             env = make("binpick/Reacher-v0")
             result = evaluate_policy(random_policy(env, 0), env, episodes=1000, seed=20_000)  # successes are rare (~1%)
@@ -330,9 +330,9 @@ def main() -> None:
                                                    "success": result.success_rate, "sim_episodes": 0}})
             continue
         if name == "pickandplace_heuristic":  # Table 4.5's first row: the scripted policy (ours, §4.5.3)
-            from binpick.rl.heuristic import PickAndPlaceHeuristic
+            from binpick.rl.common.heuristic import PickAndPlaceHeuristic
             from binpick.envs import make
-            from binpick.rl.evaluate import evaluate_policy
+            from binpick.rl.common.evaluate import evaluate_policy
 
             result = evaluate_policy(PickAndPlaceHeuristic(), make("binpick/FetchPickAndPlace-v0"), episodes=100, seed=20_000)
             results = merge("FetchPickAndPlace", {"heuristic": {"avg_actions": result.mean_length, "std": result.std_length,

@@ -20,7 +20,7 @@ import _common  # noqa: E402
 from rich.progress import Progress  # noqa: E402
 
 import binpick  # noqa: E402
-from binpick.rl.evaluate import evaluate_policy, random_policy  # noqa: E402
+from binpick.rl.common.evaluate import evaluate_policy, random_policy  # noqa: E402
 
 CASES = [
     # env id, kwargs, thesis mean, thesis std, where in the thesis, share of --episodes

@@ -32,7 +32,7 @@ import _common  # noqa: E402
 from binpick.envs import make  # noqa: E402
 from binpick.rl.config import RLConfig  # noqa: E402
 from binpick.core.config import load_config  # noqa: E402
-from binpick.rl.evaluate import evaluate_policy, random_policy  # noqa: E402
+from binpick.rl.common.evaluate import evaluate_policy, random_policy  # noqa: E402
 from binpick.rl.train import load_policy, make_env as make_run_env, trainer_for  # noqa: E402
 from binpick.core.config import load_run_config  # noqa: E402
 from binpick.cli.terminal import RichCallback  # noqa: E402

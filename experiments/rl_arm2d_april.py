@@ -60,7 +60,7 @@ def main() -> None:
     args = parser.parse_args()
     from binpick.april.arm2d import PixelsAsArm2DState
     from binpick.envs import make
-    from binpick.rl.evaluate import evaluate_policy
+    from binpick.rl.common.evaluate import evaluate_policy
 
     model, info = perception(args.images, args.epochs, args.retrain)
     print("keypoints held out:", {k: round(v, 4) for k, v in info["held_out"].items()}, flush=True)

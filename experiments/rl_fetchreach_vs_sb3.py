@@ -49,7 +49,7 @@ def run_tqc_her_zoo(seed: int, steps: int) -> dict:
 
     from binpick.envs import make
     from binpick.core.files import atomic_write_json
-    from binpick.rl.evaluate import evaluate_policy
+    from binpick.rl.common.evaluate import evaluate_policy
 
     env = VecNormalize(DummyVecEnv([lambda: TimeFeatureWrapper(make("binpick/FetchReach-v0"))]), gamma=0.95)
     model = TQC("MultiInputPolicy", env, learning_rate=1e-3, buffer_size=1_000_000, batch_size=256, gamma=0.95,

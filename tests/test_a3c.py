@@ -13,7 +13,7 @@ import torch
 from conftest import binpick_here
 from gymnasium import spaces
 
-from binpick.rl.a3c import A3CWorker, ActorCritic, SharedAdam, apply_gradients
+from binpick.rl.a3c.networks import A3CWorker, ActorCritic, SharedAdam, apply_gradients
 from binpick.rl.config import CurriculumConfig, CurriculumStage
 
 
@@ -104,7 +104,7 @@ def _check_init_from(source, tmp_path):
 
     from binpick.core.config import from_dict
     from binpick.core.errors import ConfigError
-    from binpick.rl.a3c_train import read_a3c_checkpoint
+    from binpick.rl.a3c.train import read_a3c_checkpoint
     from binpick.core.runs import latest_checkpoint
     from binpick.rl.config import RLConfig
     from binpick.rl.train import trainer_for
@@ -159,7 +159,7 @@ def test_curriculum_widens_only_once_the_agent_has_re_converged():
     import pytest
 
     from binpick.core.errors import ConfigError
-    from binpick.rl.curriculum import CurriculumProgress
+    from binpick.rl.common.curriculum import CurriculumProgress
 
     schedule = CurriculumConfig([CurriculumStage(0.0, 0, 100), CurriculumStage(0.5, 100, 50), CurriculumStage(1.0, 100)],
                                 advance="converged", window=5, tolerance=0.1)
@@ -192,7 +192,7 @@ def test_curriculum_widens_only_once_the_agent_has_re_converged():
 def test_keypoints_read_where_a_feature_fires_anywhere_in_the_picture():
     """SpatialSoftmax gives a channel's peak position in [-1, 1] wherever the peak is: what the
     curriculum needs (a goal learnt in one place is found in every place)."""
-    from binpick.rl.a3c import SpatialSoftmax
+    from binpick.rl.a3c.networks import SpatialSoftmax
 
     maps = torch.zeros(2, 1, 32, 32)
     maps[0, 0, 4, 27] = 50.0  # row 4, column 27
@@ -212,7 +212,7 @@ def test_a3c_encoder_is_saved_with_the_weights_and_a_mismatch_is_one_line(tmp_pa
 
     from binpick.core.config import from_dict
     from binpick.core.errors import ConfigError
-    from binpick.rl.a3c_train import load_a3c_policy
+    from binpick.rl.a3c.train import load_a3c_policy
     from binpick.rl.config import RLConfig
     from binpick.rl.train import trainer_for
     from binpick.core.runs import latest_checkpoint
@@ -315,7 +315,7 @@ def test_state_encoder_runs_on_arm2d_state_and_mismatched_configs_are_one_line(t
 
     from binpick.core.config import from_dict
     from binpick.core.errors import ConfigError
-    from binpick.rl.a3c_train import load_a3c_policy
+    from binpick.rl.a3c.train import load_a3c_policy
     from binpick.rl.config import RLConfig
     from binpick.rl.train import trainer_for
     from binpick.core.runs import latest_checkpoint
@@ -378,7 +378,7 @@ def test_state_estimate_bottleneck_acts_on_the_read_state_and_is_saved_with_the_
 
     from binpick.core.config import from_dict
     from binpick.core.errors import ConfigError
-    from binpick.rl.a3c_train import load_a3c_policy
+    from binpick.rl.a3c.train import load_a3c_policy
     from binpick.rl.config import RLConfig
     from binpick.rl.train import trainer_for
     from binpick.core.runs import latest_checkpoint
@@ -435,7 +435,7 @@ def test_state_noise_perturbs_each_step_reproducibly_and_only_state_vectors():
     reset; the env underneath (goal, start) is the same as without it."""
     from binpick.core.config import from_dict
     from binpick.core.errors import ConfigError
-    from binpick.rl.a3c_train import make_env
+    from binpick.rl.a3c.train import make_env
     from binpick.rl.config import RLConfig
 
     settings = {"name": "noisy", "env": "binpick/Arm2D-v0", "env_kwargs": {"goal_conditioned": True, "image": None},
@@ -457,7 +457,7 @@ def test_pretraining_pictures_can_end_like_successful_episodes():
     """a3c.pretrain_near_goal: that fraction of the pictures has the goal next to the tip, where random poses
     seldom put it; the rest stay random poses with goals anywhere."""
     from binpick.envs import make
-    from binpick.rl.a3c_pretrain import render_states
+    from binpick.rl.a3c.pretrain import render_states
 
     def distances(near_goal):
         _, states = render_states(lambda: make("Arm2D", image_size=16), "state_continuous", 200, 0, near_goal)
@@ -523,7 +523,7 @@ def test_reading_errors_add_a_row_of_the_table_seeded_and_untied_from_the_pose()
 
     from binpick.envs import make
     from binpick.core.errors import ConfigError
-    from binpick.rl.wrappers import ReadingErrors
+    from binpick.rl.common.wrappers import ReadingErrors
 
     table = np.random.default_rng(0).normal(0.0, 0.05, (40, 12))
     base = FlattenObservation(make("binpick/Arm2D-v0", goal_conditioned=True, image=None))
@@ -552,7 +552,7 @@ def test_hidden_layers_deepen_the_heads_network_and_are_saved_with_the_weights(t
 
     from binpick.core.config import from_dict
     from binpick.core.errors import ConfigError
-    from binpick.rl.a3c_train import load_a3c_policy
+    from binpick.rl.a3c.train import load_a3c_policy
     from binpick.rl.config import RLConfig
     from binpick.rl.train import trainer_for
     from binpick.core.runs import latest_checkpoint
@@ -610,7 +610,7 @@ def test_a_run_whose_workers_fail_is_an_error_not_a_finished_run(tmp_path):
 
     from binpick.core.config import from_dict
     from binpick.core.errors import WorkerError
-    from binpick.rl.a3c_train import A3CTrainer
+    from binpick.rl.a3c.train import A3CTrainer
     from binpick.rl.config import RLConfig
 
     settings = yaml.safe_load(A3C_RUN.format(steps=200)) | {"a3c": {"workers": 1, "n_steps": 5}}

@@ -19,7 +19,7 @@ from binpick.envs import make
 from binpick.core.errors import ConfigError
 from binpick.core.files import read_npz
 from binpick.core.runs import SILENT
-from binpick.rl.wrappers import SemanticState
+from binpick.rl.common.wrappers import SemanticState
 
 
 RL = """
@@ -310,8 +310,8 @@ def test_row_names_say_what_differs_from_the_thesis_set_up(tmp_path):
 
 
 def test_scripted_pick_and_place_heuristic_completes_the_task():
-    from binpick.rl.heuristic import PickAndPlaceHeuristic
-    from binpick.rl.evaluate import evaluate_policy
+    from binpick.rl.common.heuristic import PickAndPlaceHeuristic
+    from binpick.rl.common.evaluate import evaluate_policy
 
     result = evaluate_policy(PickAndPlaceHeuristic(), make("FetchPickAndPlace"), episodes=6, seed=0)
     assert result.success_rate >= 0.8 and result.mean_length < 60, (result.success_rate, result.mean_length)
@@ -336,8 +336,8 @@ sac: {batch_size: 64, net_arch: [64, 64]}
 demonstrations: {episodes: 4, bc_steps: 1000, noise: 0.0}
 eval: {every: 1000, episodes: 1}
 """))
-    from binpick.rl.heuristic import PickAndPlaceHeuristic
-    from binpick.rl.demonstrations import collect_demonstrations
+    from binpick.rl.common.heuristic import PickAndPlaceHeuristic
+    from binpick.rl.common.demonstrations import collect_demonstrations
 
     trainer = trainer_for(config, tmp_path)
     episodes, _ = collect_demonstrations(trainer.env, PickAndPlaceHeuristic(), 4, seed=config.seed + 500_000)
@@ -368,7 +368,7 @@ def test_cloning_fits_sigma_goes_on_during_rl_and_survives_a_resume(tmp_path):
 
     from binpick.core.config import from_dict
     from binpick.rl.config import RLConfig
-    from binpick.rl.demonstrations import cloning_loss
+    from binpick.rl.common.demonstrations import cloning_loss
     from binpick.rl.train import Trainer, trainer_for
 
     config = from_dict(RLConfig, yaml.safe_load("""

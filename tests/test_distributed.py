@@ -114,7 +114,7 @@ def test_a3c_from_an_rl_yaml_on_ray_actors_ends_as_a_run_without_the_fault(tmp_p
 
     from binpick.core import jobs
     from binpick.integrations.ray.a3c import learn_on_ray
-    from binpick.rl.a3c_train import A3CTrainer
+    from binpick.rl.a3c.train import A3CTrainer
     from binpick.rl.config import RLConfig
     from binpick.core.config import from_dict
 

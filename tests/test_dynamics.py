@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from binpick.rl.dynamics import GPDynamics
-from binpick.rl.imagination import imagine_episodes
+from binpick.rl.gp_her.dynamics import GPDynamics
+from binpick.rl.gp_her.imagination import imagine_episodes
 
 
 def toy_transitions(n: int, seed: int = 0):

@@ -8,7 +8,7 @@ import pytest
 from gymnasium import spaces
 
 import binpick
-from binpick.rl.evaluate import evaluate_policy, random_policy
+from binpick.rl.common.evaluate import evaluate_policy, random_policy
 
 
 class Countdown(gym.Env):

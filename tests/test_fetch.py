@@ -34,7 +34,7 @@ def test_obstacle_is_placed_at_random_and_never_covers_the_goal(make_env):
 
 def _blocks_the_straight_line(observation, unwrapped) -> bool:
     """Does the box come within 2 cm of the straight line from the gripper to the goal?"""
-    from binpick.rl.heuristic import box_clearance
+    from binpick.rl.common.heuristic import box_clearance
 
     return box_clearance(observation["achieved_goal"], observation["desired_goal"], unwrapped.obstacle_position,
                          unwrapped.obstacle_half_size) < 0.02
@@ -59,9 +59,9 @@ def test_obstacle_on_path_puts_the_box_in_the_way(make_env):
 def test_a_teacher_that_knows_the_box_goes_round_it(make_env):
     """ObstacleDetour (APRiL's scripted teacher) reaches goals behind the box that driving straight
     at them does not, from the privileged state alone."""
-    from binpick.rl.evaluate import evaluate_policy
-    from binpick.rl.heuristic import ObstacleDetour, ReachController
-    from binpick.rl.wrappers import SemanticState
+    from binpick.rl.common.evaluate import evaluate_policy
+    from binpick.rl.common.heuristic import ObstacleDetour, ReachController
+    from binpick.rl.common.wrappers import SemanticState
 
     env = SemanticState(make_env("binpick/FetchReachObstacle-v0", obstacle_half_size=0.03, obstacle_on_path=1.0),
                         privileged=["obstacle_position"])
@@ -74,7 +74,7 @@ def test_privileged_state_shows_the_teacher_where_the_box_is(make_env, tmp_path)
     from binpick.core.config import load_config
     from binpick.core.errors import ConfigError
     from binpick.rl.config import RLConfig
-    from binpick.rl.wrappers import SemanticState
+    from binpick.rl.common.wrappers import SemanticState
 
     env = SemanticState(make_env("binpick/FetchReachObstacle-v0"), privileged=["obstacle_position"])
     observation, _ = env.reset(seed=3)
@@ -202,7 +202,7 @@ def test_gripper_opening_puts_the_fingers_into_the_semantic_state(make_env, tmp_
     from binpick.core.config import load_config
     from binpick.core.errors import ConfigError
     from binpick.rl.config import RLConfig
-    from binpick.rl.wrappers import SemanticState
+    from binpick.rl.common.wrappers import SemanticState
 
     env = SemanticState(make_env("binpick/FetchPickAndPlace-v0"), gripper=True, opening=True)
     observation, _ = env.reset(seed=0)

@@ -352,7 +352,7 @@ def test_the_hostile_benchmark_counts_one_error_line_as_a_refusal_and_warnings_b
 def test_a_saved_policy_whose_observation_space_no_policy_reads_is_one_line(tmp_path, shape, fragment):
     from binpick.core import tensorfile
     from binpick.core.errors import InputFileError
-    from binpick.rl.persistence import POLICY_FORMAT, load_saved_policy
+    from binpick.rl.common.persistence import POLICY_FORMAT, load_saved_policy
 
     path = tmp_path / "policy.safetensors"
     tensorfile.save(path, POLICY_FORMAT, tensors={"policy.x": __import__("torch").zeros(1)},

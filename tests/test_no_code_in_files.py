@@ -220,9 +220,9 @@ def test_python_loaders_refuse_crafted_files(tmp_path):
     from binpick.core.depth import read_depth
     from binpick.grasping.quality import GraspQuality
     from binpick.april.perception import load_perception
-    from binpick.rl.a3c_train import load_a3c_policy
-    from binpick.rl.dynamics import GPDynamics
-    from binpick.rl.persistence import load_saved_policy
+    from binpick.rl.a3c.train import load_a3c_policy
+    from binpick.rl.gp_her.dynamics import GPDynamics
+    from binpick.rl.common.persistence import load_saved_policy
 
     marker = tmp_path / "CODE_RAN"
     evil = torch_payload(tmp_path / "evil.pt", marker)

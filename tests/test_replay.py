@@ -7,7 +7,7 @@ import pytest
 from gymnasium import spaces
 
 from binpick.core.errors import ConfigError
-from binpick.rl.replay import Episode, EpisodeReplayBuffer
+from binpick.rl.common.replay import Episode, EpisodeReplayBuffer
 
 TOL = 0.05
 
@@ -110,7 +110,7 @@ def test_bad_settings_name_the_parameter(kwargs, fragment):
 
 
 def test_saved_state_keeps_only_used_slots_and_round_trips(tmp_path):
-    from binpick.rl.persistence import load_replay, save_replay
+    from binpick.rl.common.persistence import load_replay, save_replay
 
     buffer = make_buffer(capacity_episodes=100_000, her_additions=1)
     for length in (3, 5, 7):
@@ -128,7 +128,7 @@ def test_saved_state_keeps_only_used_slots_and_round_trips(tmp_path):
 
 def test_saved_state_refuses_a_buffer_of_other_settings(tmp_path):
     from binpick.core.errors import InputFileError
-    from binpick.rl.persistence import load_replay, save_replay
+    from binpick.rl.common.persistence import load_replay, save_replay
 
     buffer = make_buffer(capacity_episodes=50, her_additions=1)
     buffer.add_episode(line_episode(3))

@@ -212,7 +212,7 @@ A3C_HARNESS = """
 import os, signal, sys
 from pathlib import Path
 from binpick.core.config import from_dict, load_yaml
-from binpick.rl.a3c_train import A3CTrainer
+from binpick.rl.a3c.train import A3CTrainer
 from binpick.rl.config import RLConfig
 
 def die():

@@ -194,7 +194,7 @@ def test_actor_noise_reaches_the_actor_and_never_the_critic():
 def test_actor_noise_leaves_privileged_state_and_moves_the_gripper_alone():
     import torch
 
-    from binpick.rl.agents import GoalSAC
+    from binpick.rl.gp_her.agents import GoalSAC
 
     model = GoalSAC.__new__(GoalSAC)  # actor_view needs nothing else of the model
     model.perturb_actor_inputs(([0.02, 0.01, 0.0], 0.0, 0.0), gripper=3)  # per axis: x, y, z

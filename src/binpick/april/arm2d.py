@@ -170,7 +170,7 @@ class PixelsAsArm2DState(gym.ObservationWrapper):
 
 @dataclass(frozen=True)
 class ReadStateOffPixels:
-    """An A3C ``wrap_env`` (binpick.rl.a3c_train): Arm2D's pictures in, the state its frozen keypoint network
+    """An A3C ``wrap_env`` (binpick.rl.a3c.train): Arm2D's pictures in, the state its frozen keypoint network
     (weights at ``path``) reads off them out, so a state learner trains acting on pixels -- APRiL's split
     inside RL (through it, and through A3C's own coarser reading, the state learner learns Arm2D's
     single goal at its pace from the true state; the `a3c_reading_error` note (docs/notes.md)). A path, not a network, so

@@ -81,7 +81,7 @@ class PolicyConfig:
     # features learn what the teacher's actions depend on rather than only what reconstruction needs
     distill_encoder: bool = False
     # who labels the images in distill: the trained "state_policy", or "detour", a scripted teacher
-    # that knows where FetchReachObstacle's box is (binpick.rl.heuristic.ObstacleDetour)
+    # that knows where FetchReachObstacle's box is (binpick.rl.common.heuristic.ObstacleDetour)
     teacher: str = "state_policy"
 
     def __post_init__(self) -> None:

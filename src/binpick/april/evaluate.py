@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from binpick.april.observations import EncodedObservation, GoalRecorder, PixelsAsSemantic
-from binpick.rl.evaluate import evaluate_policy
+from binpick.rl.common.evaluate import evaluate_policy
 from binpick.core.runs import SILENT, RunCallback
 
 if TYPE_CHECKING:
@@ -20,14 +20,14 @@ def deployment_env(run: AprilRunFolder, runtime_input: str):
     from binpick.april.finetune import with_action_scale
     from binpick.april.perception import load_perception, perception_path
     from binpick.rl.train import load_policy
-    from binpick.rl.wrappers import SemanticState
+    from binpick.rl.common.wrappers import SemanticState
 
     mode = run.config.policy.mode
     scale = run.rl_settings.min_action_scale
     if runtime_input == "state":  # the state policy on the simulator's s̄ (and its privileged state, if any)
         base = GoalRecorder(run.make_env(image=False))
         if run.config.policy.teacher == "detour":
-            from binpick.rl.heuristic import ObstacleDetour
+            from binpick.rl.common.heuristic import ObstacleDetour
 
             policy = ObstacleDetour(base.unwrapped.obstacle_half_size)
         else:
@@ -49,7 +49,7 @@ def load_latent_policy(run_dir: Path):
     """The SAC policy on φ_enc(I) of a latent-mode run, rebuilt from ``policy_latent.safetensors``."""
     from binpick.april.finetune import LATENT_POLICY_FILE
     from binpick.core.errors import ConfigError
-    from binpick.rl.persistence import load_saved_policy
+    from binpick.rl.common.persistence import load_saved_policy
 
     path = Path(run_dir) / LATENT_POLICY_FILE
     if not path.is_file():

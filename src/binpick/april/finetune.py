@@ -20,10 +20,10 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from binpick.april.observations import EncodedObservation, semantic_state
 from binpick.core.files import atomic_write_bytes, atomic_write_json
-from binpick.rl.demonstrations import cloning_loss
-from binpick.rl.persistence import SavedPolicy, save_policy
-from binpick.rl.heuristic import ObstacleDetour
-from binpick.rl.wrappers import MinActionScale, privileged_values, semantic_inputs
+from binpick.rl.common.demonstrations import cloning_loss
+from binpick.rl.common.persistence import SavedPolicy, save_policy
+from binpick.rl.common.heuristic import ObstacleDetour
+from binpick.rl.common.wrappers import MinActionScale, privileged_values, semantic_inputs
 from binpick.core.runs import SILENT, RunCallback, Task
 
 LATENT_POLICY_FILE = "policy_latent.safetensors"  # SAC on φ_enc(I): weights + spaces, no pickle

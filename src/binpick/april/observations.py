@@ -14,7 +14,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from binpick.rl.wrappers import gripper_dims, semantic_part
+from binpick.rl.common.wrappers import gripper_dims, semantic_part
 
 
 def semantic_state(observation: dict, gripper: bool = False, opening: bool = False) -> np.ndarray:

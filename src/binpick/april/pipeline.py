@@ -53,7 +53,7 @@ class AprilRun(AprilRunFolder):
         env = self.make_env()
         env.action_space.seed(collect.seed)
         if collect.policy == "heuristic":
-            from binpick.rl.heuristic import PickAndPlaceHeuristic
+            from binpick.rl.common.heuristic import PickAndPlaceHeuristic
 
             heuristic = PickAndPlaceHeuristic(noise=collect.noise, seed=collect.seed)
             act = lambda: heuristic(env.unwrapped._get_obs())  # noqa: E731
@@ -150,7 +150,7 @@ class AprilRun(AprilRunFolder):
         from binpick.april.finetune import with_action_scale
         from binpick.april.perception import PERCEPTION_FILE, load_perception, perception_path, save_perception, train_perception
         from binpick.rl.train import load_policy
-        from binpick.rl.wrappers import privileged_values, semantic_inputs
+        from binpick.rl.common.wrappers import privileged_values, semantic_inputs
 
         refine = self.config.refine
         if not refine.episodes:

@@ -76,7 +76,7 @@ class Policy:
         return self._scaled(np.asarray(action))
 
     def _scaled(self, action: np.ndarray) -> np.ndarray:
-        from binpick.rl.wrappers import scale_up_small_action
+        from binpick.rl.common.wrappers import scale_up_small_action
 
         if not self.min_action_scale:
             return action

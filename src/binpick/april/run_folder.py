@@ -63,7 +63,7 @@ class AprilRunFolder:
     @property
     def gripper(self) -> bool:
         """Pick and place: s̄ also holds the gripper position (thesis Table 4.5: m = 9)."""
-        from binpick.rl.wrappers import needs_gripper
+        from binpick.rl.common.wrappers import needs_gripper
 
         return needs_gripper(self.config.env)
 

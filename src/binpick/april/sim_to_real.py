@@ -76,7 +76,7 @@ def transfer(run_dir: Path, out: Path, real_episodes: int = 25, eval_episodes: i
     from binpick.april.observations import semantic_state
     from binpick.april.run_folder import AprilRunFolder
     from binpick.april.perception import PERCEPTION_FILE, load_perception, perception_path, save_perception, train_perception
-    from binpick.rl.evaluate import evaluate_policy
+    from binpick.rl.common.evaluate import evaluate_policy
 
     out = Path(out)
     if not out.exists():

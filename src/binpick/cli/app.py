@@ -198,7 +198,7 @@ def product_library(products_file: Path | None):
 
 def evaluate_with_progress(env, policy, label: str, episodes: int, seed: int) -> None:
     """Seeded evaluation episodes with a progress bar; prints the summary and closes the env."""
-    from binpick.rl.evaluate import evaluate_policy
+    from binpick.rl.common.evaluate import evaluate_policy
 
     try:
         with progress() as callback, callback.task(label, episodes) as task:

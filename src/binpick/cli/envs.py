@@ -87,7 +87,7 @@ def envs_rollout(
     """Run a policy and print the thesis's metric: average episode length ± std and success rate."""
     from binpick.core.config import check_choice, check_range
     from binpick.envs import make
-    from binpick.rl.evaluate import evaluate_policy, random_policy
+    from binpick.rl.common.evaluate import evaluate_policy, random_policy
 
     check_choice("policy", policy, POLICIES)
     check_range("episodes", episodes, 1, None, integer=True)
@@ -113,7 +113,7 @@ def tour(
     """Render every env and roll a random policy in each: a quick check that simulation and rendering work."""
     from binpick.core.config import check_range
     from binpick.envs import ENV_IDS, make
-    from binpick.rl.evaluate import evaluate_policy, random_policy
+    from binpick.rl.common.evaluate import evaluate_policy, random_policy
 
     check_range("episodes", episodes, 1, 10_000, integer=True)
     run_dir = ensure_dir(out / time.strftime("%Y%m%d-%H%M%S"), "--out")

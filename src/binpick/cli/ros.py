@@ -120,8 +120,8 @@ def ros_bench(
     import gymnasium as gym
     import numpy as np
 
-    from binpick.rl.evaluate import evaluate_policy
-    from binpick.rl.heuristic import ReachController
+    from binpick.rl.common.evaluate import evaluate_policy
+    from binpick.rl.common.heuristic import ReachController
 
     env = gym.make("binpick/Ros-v0", namespace=namespace, timeout=timeout)
     result = evaluate_policy(ReachController(env.action_space.shape[0]), env, episodes=episodes, seed=0)

@@ -7,7 +7,7 @@ and evaluation of any policy::
     print(evaluate_policy(policy, env, episodes=20).summary())
 """
 
-from binpick.rl.evaluate import EvalResult, evaluate_policy, random_policy
+from binpick.rl.common.evaluate import EvalResult, evaluate_policy, random_policy
 
 __all__ = ["EvalResult", "TrainedPolicy", "evaluate_policy", "random_policy"]
 

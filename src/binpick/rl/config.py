@@ -100,7 +100,7 @@ class A3CConfig:
     value_coef: float = 0.5
     max_grad_norm: float = 40.0
     reward_scale: float = 0.01  # keeps value targets in [-1, 0] for the -1-per-step reward
-    encoder: str = "flatten"  # "keypoints": expected positions of feature maps (goals anywhere; see rl/a3c.py);
+    encoder: str = "flatten"  # "keypoints": expected positions of feature maps (goals anywhere; see rl/a3c/networks.py);
     # "state": an MLP on the env's vector observation (a goal env's dict is flattened): perception taken away
     state_weight: float = 0.0  # > 0: auxiliary loss, the features also regress the env's info[state_key]
     state_key: str = "state"  # which info entry; Arm2D's "state_continuous" has cos/sin for the joint angles
@@ -111,7 +111,7 @@ class A3CConfig:
     policy_input: str = "features"  # "state_estimate": policy and value read an MLP on the state head's output
     detach_perception: bool = False  # True: the RL losses stop at what the heads read; only the state loss trains the trunk
     state_noise: float = 0.0  # encoder "state": Gaussian noise (std) on every component, each step, as a reading's error
-    hidden_layers: int = 1  # 256-unit layers between the trunk (or the state estimate) and the heads; see rl/a3c.py
+    hidden_layers: int = 1  # 256-unit layers between the trunk (or the state estimate) and the heads; see rl/a3c/networks.py
 
     def __post_init__(self) -> None:
         check_choice("a3c.encoder", self.encoder, ["flatten", "keypoints", "state"])
@@ -242,7 +242,7 @@ class CurriculumConfig:
     is the thesis's rule: a stage's area is held (at least ``hold_steps``) until the training
     episodes have re-converged there, i.e. the mean length of the last ``window`` episodes is within
     ``tolerance`` of the ``window`` before; then the next stage ramps in
-    (:class:`binpick.rl.curriculum.CurriculumProgress`).
+    (:class:`binpick.rl.common.curriculum.CurriculumProgress`).
     """
 
     stages: list[CurriculumStage] = field(default_factory=list)

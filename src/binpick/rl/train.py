@@ -39,12 +39,12 @@ from binpick.core.runs import (
     removed_on_error,
 )
 from binpick.envs import make
-from binpick.rl.agents import GoalSAC, GPImagination
+from binpick.rl.gp_her.agents import GoalSAC, GPImagination
 from binpick.rl.config import RLConfig
-from binpick.rl.curriculum import CurriculumProgress, GoalAreaCurriculum
-from binpick.rl.dynamics import GPDynamics
-from binpick.rl.evaluate import evaluate_policy
-from binpick.rl.persistence import (
+from binpick.rl.common.curriculum import CurriculumProgress, GoalAreaCurriculum
+from binpick.rl.gp_her.dynamics import GPDynamics
+from binpick.rl.common.evaluate import evaluate_policy
+from binpick.rl.common.persistence import (
     copy_algorithm,
     load_algorithm,
     load_replay,
@@ -53,8 +53,8 @@ from binpick.rl.persistence import (
     save_policy,
     save_replay,
 )
-from binpick.rl.replay import EpisodeReplayBuffer
-from binpick.rl.wrappers import (
+from binpick.rl.common.replay import EpisodeReplayBuffer
+from binpick.rl.common.wrappers import (
     MinActionScale,
     SemanticState,
     gripper_dims,
@@ -68,7 +68,7 @@ def next_multiple(steps: int, every: int) -> int:
 
 
 def _no_wrap_env(config: RLConfig, wrap_env) -> None:
-    """``wrap_env`` reaches only A3C's envs (binpick.rl.a3c_train.make_env); anywhere else it is a mistake."""
+    """``wrap_env`` reaches only A3C's envs (binpick.rl.a3c.train.make_env); anywhere else it is a mistake."""
     if wrap_env is not None:
         raise ConfigError(f"wrap_env is an A3C option; this run is {config.algorithm}")
 
@@ -77,7 +77,7 @@ def make_env(config: RLConfig, wrap_env=None) -> gym.Env:
     """The env exactly as the run trains on it (semantic state, minimum action scale; A3C's flattened state,
     after A3C's ``wrap_env`` if the run was made with one)."""
     if config.algorithm == "a3c":
-        from binpick.rl.a3c_train import make_env as make_a3c_env
+        from binpick.rl.a3c.train import make_env as make_a3c_env
 
         return make_a3c_env(config, wrap_env)
     _no_wrap_env(config, wrap_env)
@@ -295,7 +295,7 @@ class Trainer:
 
     # ------------------------------------------------------------------ checkpoints
     def save_checkpoint(self) -> Path:
-        """Everything a resume needs, in files that hold no code (see :mod:`binpick.rl.persistence`)."""
+        """Everything a resume needs, in files that hold no code (see :mod:`binpick.rl.common.persistence`)."""
         if self._started is not None:  # wall time carries over resumes
             self.metrics.wall_seconds = time.perf_counter() - self._started
         self._count_restarts()
@@ -347,7 +347,7 @@ class Trainer:
 
     def _restore_demonstrations(self, path: Path) -> None:
         """Pick and place keeps cloning its demonstrations while SAC learns (§4.5.3): they resume too."""
-        from binpick.rl.demonstrations import DemonstrationSet
+        from binpick.rl.common.demonstrations import DemonstrationSet
 
         demos = self.config.demonstrations
         try:
@@ -359,13 +359,13 @@ class Trainer:
     # ------------------------------------------------------------------ training
     def learn_from_demonstrations(self) -> None:
         """Thesis §4.5.3: heuristic episodes into the replay, then behaviour cloning of the actor."""
-        from binpick.rl.demonstrations import (
+        from binpick.rl.common.demonstrations import (
             DemonstrationSet,
             add_demonstrations,
             behaviour_clone,
             collect_demonstrations,
         )
-        from binpick.rl.heuristic import PickAndPlaceHeuristic
+        from binpick.rl.common.heuristic import PickAndPlaceHeuristic
 
         demos = self.config.demonstrations
         expert = PickAndPlaceHeuristic(noise=demos.noise, seed=self.config.seed)
@@ -453,7 +453,7 @@ POLICY_FILE = "policy.safetensors"
 
 class RLRun:
     """An RL run as one job (:class:`binpick.core.runs.Job`), whatever its algorithm: A3C trains with worker
-    processes (:class:`~binpick.rl.a3c_train.A3CTrainer`), SAC / SB3 SAC+HER / DQN with :class:`Trainer`."""
+    processes (:class:`~binpick.rl.a3c.train.A3CTrainer`), SAC / SB3 SAC+HER / DQN with :class:`Trainer`."""
 
     TASK = "rl"  # its kind of job (binpick.core.jobs)
 
@@ -469,11 +469,11 @@ class RLRun:
 def trainer_for(config: RLConfig | None = None, runs_root: Path = Path("runs"), resume: Path | None = None,
                 wrap_env=None):
     """A new trainer for ``config``, or the one that continues run folder ``resume`` (A3C or SB3-based);
-    ``wrap_env`` is A3C's (binpick.rl.a3c_train.make_env)."""
+    ``wrap_env`` is A3C's (binpick.rl.a3c.train.make_env)."""
     if resume is not None:
         config = load_run_config(RLConfig, resume)
     if config.algorithm == "a3c":
-        from binpick.rl.a3c_train import A3CTrainer as trainer_class
+        from binpick.rl.a3c.train import A3CTrainer as trainer_class
         return (trainer_class.new(config, runs_root, wrap_env) if resume is None
                 else trainer_class.resume(Path(resume), wrap_env))
     _no_wrap_env(config, wrap_env)
@@ -495,7 +495,7 @@ def load_policy(run_dir: Path, env_id: str | None = None):
     if checkpoint is None:
         raise ConfigError(f"run {run_dir} has no checkpoint yet")
     if config.algorithm == "a3c":
-        from binpick.rl.a3c_train import load_a3c_policy
+        from binpick.rl.a3c.train import load_a3c_policy
 
         return load_a3c_policy(checkpoint), config
     if not (checkpoint / POLICY_FILE).is_file():

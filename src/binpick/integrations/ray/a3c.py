@@ -1,8 +1,8 @@
 """A3C with its workers as Ray actors (thesis §3.1.2 over §6.1's distributed simulators), from the same
 RL config and into the same run folder as a local run (``binpick train CONFIG --address ...``).
 
-Each actor owns a simulator and an :class:`~binpick.rl.a3c.A3CWorker` built as a local worker is
-(:func:`binpick.rl.a3c_train.make_worker`: encoder, state head, policy input, layers, reward scale):
+Each actor owns a simulator and an :class:`~binpick.rl.a3c.networks.A3CWorker` built as a local worker is
+(:func:`binpick.rl.a3c.train.make_worker`: encoder, state head, policy input, layers, reward scale):
 given the global weights and the curriculum's goal area it plays up to ``n_steps`` and returns
 gradients (Eq 3.5-3.7). The learner on the driver applies whichever gradients arrive first and hands
 out step budgets so that no rollout crosses the next evaluation, checkpoint or the end: evaluations
@@ -10,7 +10,7 @@ fall on exact multiples of ``eval.every`` and the run ends at exactly ``total_ti
 dies is restarted by Ray (its process seeded anew); the steps of its lost rollout are handed out
 again, so the run's steps and evaluations are those of a run without the fault. Curriculum,
 TensorBoard, evaluations, checkpoints and outputs are the local trainer's own
-(:meth:`binpick.rl.a3c_train.A3CTrainer.take`); ``--resume`` continues either way.
+(:meth:`binpick.rl.a3c.train.A3CTrainer.take`); ``--resume`` continues either way.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ class A3CActor:
         import ray
         import torch
 
-        from binpick.rl.a3c_train import make_worker
+        from binpick.rl.a3c.train import make_worker
 
         torch.set_num_threads(1)
         # a process Ray started again after a death plays other episodes than the one it replaces
@@ -48,7 +48,7 @@ class A3CActor:
 
     def gradients(self, weights, area: float, max_steps: int) -> tuple[list, int, tuple]:
         """Gradients of a rollout of at most ``max_steps`` in goal area ``area`` (from the next episode)."""
-        from binpick.rl.a3c_train import rollout_record, set_goal_area
+        from binpick.rl.a3c.train import rollout_record, set_goal_area
 
         self.area = set_goal_area(self.worker, area, self.area)
         gradients, stats = self.worker.compute_gradients(weights, max_steps)
@@ -56,7 +56,7 @@ class A3CActor:
 
 
 def learn_on_ray(address: str | None = None, on_update: Callable[[Any, RestartingActors], None] | None = None):
-    """The ``learn`` of :meth:`A3CTrainer.run <binpick.rl.a3c_train.A3CTrainer.run>` that plays the run's
+    """The ``learn`` of :meth:`A3CTrainer.run <binpick.rl.a3c.train.A3CTrainer.run>` that plays the run's
     ``a3c.workers`` rollouts on Ray actors (``address`` None or ``local``: a private cluster on this
     machine, 127.0.0.1 only). ``on_update(trainer, actors)`` runs after every applied rollout."""
 
@@ -69,7 +69,7 @@ def learn_on_ray(address: str | None = None, on_update: Callable[[Any, Restartin
 def _learn(trainer, task, address: str | None, on_update) -> None:
     import ray
 
-    from binpick.rl.a3c import apply_gradients
+    from binpick.rl.a3c.networks import apply_gradients
 
     config = trainer.config
     total, n_steps = config.total_timesteps, config.a3c.n_steps

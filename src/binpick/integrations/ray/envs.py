@@ -26,7 +26,7 @@ from stable_baselines3.common.vec_env.util import dict_to_obs, obs_space_info
 
 from binpick.core.errors import WorkerError
 from binpick.integrations.ray.actors import RestartingActors, raise_if_it_never_started
-from binpick.rl.replay import LOST  # info key: the episode ended because its simulator's process died
+from binpick.rl.common.replay import LOST  # info key: the episode ended because its simulator's process died
 
 FAILING_S = 120.0  # an actor that cannot be started again for this long fails the run
 WAIT_S = 600.0  # a vector step (or a call) that no simulator answers for this long fails the run

@@ -15,7 +15,7 @@ import numpy as np
 import torch
 from stable_baselines3 import SAC
 
-from binpick.rl.replay import Episode, EpisodeReplayBuffer
+from binpick.rl.common.replay import Episode, EpisodeReplayBuffer
 
 
 def collect_demonstrations(env: gym.Env, expert: Callable[[dict], np.ndarray], episodes: int,

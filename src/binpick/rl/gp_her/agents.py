@@ -19,10 +19,10 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from binpick.core.config import check_range
 from binpick.rl.config import GPConfig
-from binpick.rl.dynamics import GPDynamics
-from binpick.rl.imagination import imagine_episodes
-from binpick.rl.demonstrations import DemonstrationSet, cloning_loss
-from binpick.rl.replay import Episode, EpisodeReplayBuffer
+from binpick.rl.gp_her.dynamics import GPDynamics
+from binpick.rl.gp_her.imagination import imagine_episodes
+from binpick.rl.common.demonstrations import DemonstrationSet, cloning_loss
+from binpick.rl.common.replay import Episode, EpisodeReplayBuffer
 
 
 class GoalSAC(SAC):
@@ -51,7 +51,7 @@ class GoalSAC(SAC):
         """Train the actor on s̄ plus Gaussian noise of std ``noise`` = (gripper, achieved, goal), each a
         number or one per axis, in metres (see :class:`binpick.rl.config.ActorNoiseConfig`); the critic
         keeps reading the true s̄. ``gripper``: how many numbers before the achieved goal describe the
-        hand (:func:`binpick.rl.wrappers.gripper_dims`: 3, its position, noised; a 4th, the fingers'
+        hand (:func:`binpick.rl.common.wrappers.gripper_dims`: 3, its position, noised; a 4th, the fingers'
         opening, is left as it is)."""
         self.actor_noise = tuple(torch.as_tensor(v, dtype=torch.float32) for v in noise)
         self.noisy_gripper = int(gripper)

@@ -3,7 +3,7 @@ run folder, checkpoints and outputs as :mod:`binpick.rl.train`.
 
 The main process owns the global network (in shared memory), the shared Adam, a shared step
 counter and the current goal area; it drains finished-episode statistics from a queue, evaluates,
-checkpoints atomically and plots. Workers run :class:`~binpick.rl.a3c.A3CWorker` in a loop.
+checkpoints atomically and plots. Workers run :class:`~binpick.rl.a3c.networks.A3CWorker` in a loop.
 """
 
 from __future__ import annotations
@@ -26,11 +26,11 @@ from binpick.core import tensorfile
 from binpick.core.config import load_run_config
 from binpick.core.errors import ConfigError, InputFileError, WorkerError
 from binpick.core.files import atomic_write_json, read_json_object, require_fields
-from binpick.rl.a3c import A3CWorker, ActorCritic, SharedAdam, apply_gradients
+from binpick.rl.a3c.networks import A3CWorker, ActorCritic, SharedAdam, apply_gradients
 from binpick.core.runs import SILENT, RunCallback, Task, commit_checkpoint, latest_checkpoint, new_run, removed_on_error
 from binpick.rl.config import RLConfig
-from binpick.rl.curriculum import CurriculumProgress
-from binpick.rl.evaluate import evaluate_policy
+from binpick.rl.common.curriculum import CurriculumProgress
+from binpick.rl.common.evaluate import evaluate_policy
 
 EnvWrapper = Callable[[gym.Env], gym.Env]
 FORMAT = "binpick-a3c-checkpoint-1"
@@ -62,7 +62,7 @@ def make_env(config: RLConfig, wrap_env: EnvWrapper | None = None) -> gym.Env:
     from gymnasium.wrappers import FlattenObservation
 
     from binpick.envs import make
-    from binpick.rl.wrappers import GaussianObservationNoise
+    from binpick.rl.common.wrappers import GaussianObservationNoise
 
     env = make(config.env, **config.env_kwargs)
     if wrap_env is not None:
@@ -308,8 +308,8 @@ class A3CTrainer:
         return self.write_outputs()
 
     def _pretrain(self, callback: RunCallback) -> None:
-        """Perception first (:mod:`binpick.rl.a3c_pretrain`); checkpointed, so a resumed run does not redo it."""
-        from binpick.rl.a3c_pretrain import pretrain_perception
+        """Perception first (:mod:`binpick.rl.a3c.pretrain`); checkpointed, so a resumed run does not redo it."""
+        from binpick.rl.a3c.pretrain import pretrain_perception
 
         a3c = self.config.a3c
         started = time.perf_counter()

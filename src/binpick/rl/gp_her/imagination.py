@@ -12,8 +12,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from binpick.rl.dynamics import GPDynamics
-from binpick.rl.replay import Episode
+from binpick.rl.gp_her.dynamics import GPDynamics
+from binpick.rl.common.replay import Episode
 
 BatchPolicy = Callable[[dict[str, np.ndarray]], np.ndarray]
 

@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 from binpick.core.errors import ConfigError
-from binpick.rl.a3c import ActorCritic
+from binpick.rl.a3c.networks import ActorCritic
 from binpick.core.runs import Task
 
 

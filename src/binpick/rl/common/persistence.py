@@ -90,7 +90,7 @@ def save_replay(buffer: Any, folder: Path) -> None:
     """``replay.npz`` (the stored transitions) and ``replay.json`` (counters, random state)."""
     from stable_baselines3 import HerReplayBuffer
 
-    from binpick.rl.replay import EpisodeReplayBuffer
+    from binpick.rl.common.replay import EpisodeReplayBuffer
 
     if isinstance(buffer, EpisodeReplayBuffer):
         arrays, counters = buffer.state_arrays()
@@ -114,7 +114,7 @@ def load_replay(buffer: Any, folder: Path) -> None:
     """Refill ``buffer`` (built from the run's config) from :func:`save_replay`'s files."""
     from stable_baselines3 import HerReplayBuffer
 
-    from binpick.rl.replay import EpisodeReplayBuffer
+    from binpick.rl.common.replay import EpisodeReplayBuffer
 
     where = f"replay state {str(folder / 'replay.json')!r}"
     info = read_json_object(folder / "replay.json", "replay state", {"format": str, "kind": str, "counters": dict})
