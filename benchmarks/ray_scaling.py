@@ -90,7 +90,7 @@ def throughput(config, workers: int, seconds: float) -> float:
     """Simulator steps per second, random actions (``workers`` 0: one local env)."""
     import numpy as np
 
-    from binpick.rl.train import make_env
+    from binpick.rl.envs import make_env
 
     local = make_env(config)
     if workers:

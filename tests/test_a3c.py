@@ -14,7 +14,7 @@ from conftest import binpick_here
 from gymnasium import spaces
 
 from binpick.rl.a3c.networks import A3CWorker, ActorCritic, SharedAdam, apply_gradients
-from binpick.rl.config import CurriculumConfig, CurriculumStage
+from binpick.rl.config.common import CurriculumConfig, CurriculumStage
 
 
 class OneRightAction(gym.Env):
@@ -104,7 +104,7 @@ def _check_init_from(source, tmp_path):
 
     from binpick.core.config import from_dict
     from binpick.core.errors import ConfigError
-    from binpick.rl.a3c.train import read_a3c_checkpoint
+    from binpick.rl.a3c.policy import read_a3c_checkpoint
     from binpick.core.runs import latest_checkpoint
     from binpick.rl.config import RLConfig
     from binpick.rl.train import trainer_for
@@ -212,7 +212,7 @@ def test_a3c_encoder_is_saved_with_the_weights_and_a_mismatch_is_one_line(tmp_pa
 
     from binpick.core.config import from_dict
     from binpick.core.errors import ConfigError
-    from binpick.rl.a3c.train import load_a3c_policy
+    from binpick.rl.a3c.policy import load_a3c_policy
     from binpick.rl.config import RLConfig
     from binpick.rl.train import trainer_for
     from binpick.core.runs import latest_checkpoint
@@ -315,7 +315,7 @@ def test_state_encoder_runs_on_arm2d_state_and_mismatched_configs_are_one_line(t
 
     from binpick.core.config import from_dict
     from binpick.core.errors import ConfigError
-    from binpick.rl.a3c.train import load_a3c_policy
+    from binpick.rl.a3c.policy import load_a3c_policy
     from binpick.rl.config import RLConfig
     from binpick.rl.train import trainer_for
     from binpick.core.runs import latest_checkpoint
@@ -328,7 +328,7 @@ def test_state_encoder_runs_on_arm2d_state_and_mismatched_configs_are_one_line(t
     assert trainer.observation_shape == (12,) and metrics["sim_steps"] >= 40  # cos, sin, end point, achieved, desired
     policy = load_a3c_policy(latest_checkpoint(trainer.run_dir / "checkpoints"))
     assert policy.model.encoder == "state" and 0 <= policy(np.zeros(12)) < 6
-    from binpick.rl.train import make_env  # what `binpick rl eval` plays the run on: the same flattened state
+    from binpick.rl.envs import make_env  # what `binpick rl eval` plays the run on: the same flattened state
 
     env = make_env(trainer.config)
     assert env.observation_space.shape == (12,) and 0 <= policy(env.reset(seed=0)[0]) < 6
@@ -378,7 +378,7 @@ def test_state_estimate_bottleneck_acts_on_the_read_state_and_is_saved_with_the_
 
     from binpick.core.config import from_dict
     from binpick.core.errors import ConfigError
-    from binpick.rl.a3c.train import load_a3c_policy
+    from binpick.rl.a3c.policy import load_a3c_policy
     from binpick.rl.config import RLConfig
     from binpick.rl.train import trainer_for
     from binpick.core.runs import latest_checkpoint
@@ -435,7 +435,7 @@ def test_state_noise_perturbs_each_step_reproducibly_and_only_state_vectors():
     reset; the env underneath (goal, start) is the same as without it."""
     from binpick.core.config import from_dict
     from binpick.core.errors import ConfigError
-    from binpick.rl.a3c.train import make_env
+    from binpick.rl.a3c.envs import make_a3c_env as make_env
     from binpick.rl.config import RLConfig
 
     settings = {"name": "noisy", "env": "binpick/Arm2D-v0", "env_kwargs": {"goal_conditioned": True, "image": None},
@@ -552,7 +552,7 @@ def test_hidden_layers_deepen_the_heads_network_and_are_saved_with_the_weights(t
 
     from binpick.core.config import from_dict
     from binpick.core.errors import ConfigError
-    from binpick.rl.a3c.train import load_a3c_policy
+    from binpick.rl.a3c.policy import load_a3c_policy
     from binpick.rl.config import RLConfig
     from binpick.rl.train import trainer_for
     from binpick.core.runs import latest_checkpoint

@@ -74,7 +74,7 @@ def test_widened_policy_acts_like_the_state_policy_before_fine_tuning():
 
 
 def test_april_pipeline_runs_resumes_and_deploys_from_pixels(tmp_path):
-    from binpick.april import Policy
+    from binpick import Policy
 
     (tmp_path / "rl.yaml").write_text(RL)
     config = tmp_path / "april.yaml"
@@ -110,7 +110,8 @@ def test_april_pipeline_runs_resumes_and_deploys_from_pixels(tmp_path):
     policy = Policy.load(run)
     env = make("FetchReach", image="grey", image_size=64)
     observation, _ = env.reset(seed=0)
-    action = policy.predict(observation["image"])
+    action, state = policy.predict(observation["image"], deterministic=True)  # SB3's shape, as every trained policy
+    assert state is None and policy.action_space.shape == (4,) and policy.observation_space.contains(observation["image"])
     assert action.shape == (4,) and np.abs(action[:3]).max() >= 0.4 - 1e-6  # min action scale applies
     with pytest.raises(ConfigError, match="images of shape"):
         policy.predict(np.zeros((64, 64, 3), np.uint8))
@@ -122,7 +123,8 @@ def test_april_pipeline_runs_resumes_and_deploys_from_pixels(tmp_path):
 
 def _latent_policy_widened_from_the_shared_state_policy(first_run, tmp_path):
     """m < n (Eq 4.9): the state policy of an earlier run, widened for the free latents and fine-tuned."""
-    from binpick.april import AprilConfig, AprilRun, Policy
+    from binpick import Policy
+    from binpick.april import AprilConfig, AprilRun
     from binpick.core.config import load_config
 
     state_run = json.loads((first_run / "stages.json").read_text())["policy"]["semantic_run"]
@@ -142,6 +144,9 @@ def _latent_policy_widened_from_the_shared_state_policy(first_run, tmp_path):
     assert run.stages["refine"]["sim_episodes"] == 2 and (run.run_dir / "data" / "policy.npz").is_file()
     assert rows["pixels_vae_n8_m6_w1_refined_two_views"]["sim_episodes"] == 2 + 2 + run.sim_episodes["state_policy"] + run.stages["finetune"]["sim_episodes"]
     assert Policy.load(run.run_dir).model.observation_space.shape == (8,)
+    state_policy = Policy.load(state_run)  # the RL run it widened: loaded and asked the same way
+    action, state = state_policy.predict(state_policy.observation_space.sample(), deterministic=True)
+    assert state is None and action.shape == (4,) and state_policy.action_space.contains(action.astype(np.float32))
     _latent_policy_distilled_from_the_state_policy(state_run, tmp_path)
 
 
@@ -164,7 +169,7 @@ def _latent_policy_distilled_from_the_state_policy(state_run, tmp_path):
     from binpick.april.finetune import distill_from_state_policy
     from binpick.april.observations import EncodedObservation
     from binpick.april.perception import load_perception, perception_path
-    from binpick.rl.train import load_policy
+    from binpick.rl.policy import load_policy
 
     perception = load_perception(perception_path(run.run_dir))
     env = EncodedObservation(run.make_env(), perception.encode, 8, 6)

@@ -62,7 +62,8 @@ def test_a3c_trains_a_state_learner_on_the_state_read_off_pixels(tmp_path):
     from binpick.april.arm2d import Arm2DKeypoints, ReadStateOffPixels
     from binpick.core.config import from_dict
     from binpick.core.errors import ConfigError
-    from binpick.rl.a3c.train import A3CTrainer, make_env
+    from binpick.rl.a3c.train import A3CTrainer
+    from binpick.rl.a3c.envs import make_a3c_env as make_env
     from binpick.rl.config import RLConfig
 
     torch.manual_seed(0)

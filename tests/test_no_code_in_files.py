@@ -213,14 +213,14 @@ def test_resume_never_opens_planted_pickles(trained_run, tmp_path):
 
 def test_python_loaders_refuse_crafted_files(tmp_path):
     from binpick.core import tensorfile
-    from binpick.april import Policy
+    from binpick import Policy
     from binpick.detection import load_detector
     from binpick.core.errors import BinpickError
     from binpick.core.files import read_npz
     from binpick.core.depth import read_depth
     from binpick.grasping.quality import GraspQuality
     from binpick.april.perception import load_perception
-    from binpick.rl.a3c.train import load_a3c_policy
+    from binpick.rl.a3c.policy import load_a3c_policy
     from binpick.rl.gp_her.dynamics import GPDynamics
     from binpick.rl.common.persistence import load_saved_policy
 

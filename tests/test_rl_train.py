@@ -157,7 +157,8 @@ def test_actor_noise_reaches_the_actor_and_never_the_critic():
     import numpy as np
     import torch
 
-    from binpick.rl.train import build_model, make_env
+    from binpick.rl.train import build_model
+    from binpick.rl.envs import make_env
 
     config = from_dict(RLConfig, {"env": "FetchReach", "total_timesteps": 400, "gp": {"enabled": False},
                                   "replay": {"capacity_episodes": 300, "start_fraction": 0.01},

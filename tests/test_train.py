@@ -289,3 +289,18 @@ def test_ctrl_c_to_a_data_set_made_by_worker_processes_stops_them_all_at_once(tm
                               ready, group=True)
     assert time.monotonic() - started < 120 and "continue with: binpick data generate" in " ".join(stderr.split())
     assert 1 <= jobs.progress(run) < 40
+
+
+def test_policy_load_reads_what_a_run_folder_holds_and_refuses_a_run_without_a_policy(tmp_path):
+    from binpick import Policy
+
+    assert {task for task, kind in jobs.KINDS.items() if kind.policy} == {"rl", "april"}
+    detector_run = tmp_path / "detector"
+    detector_run.mkdir()
+    (detector_run / "config.yaml").write_text("task: detect\nname: d\n")
+    with pytest.raises(ConfigError, match=r"is a detect run, which has no policy to load \(runs that do: rl, april\)"):
+        Policy.load(detector_run)
+    with pytest.raises(ConfigError, match="neither a run folder nor a policy file"):
+        Policy.load(tmp_path / "missing")
+    with pytest.raises(ConfigError, match="has no env to load"):
+        Policy.make_env(detector_run)

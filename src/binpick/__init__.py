@@ -15,12 +15,12 @@ os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
 from binpick.envs import ENV_IDS, make  # noqa: E402  (registers the envs)
 
 __version__ = "0.2.0"
-__all__ = ["ENV_IDS", "Detector", "Picker", "Policy", "TrainedPolicy", "make", "train", "__version__"]
+__all__ = ["ENV_IDS", "Detector", "Picker", "Policy", "make", "train", "__version__"]
 
 # The deployable objects and the one training entry point, imported when first used (importing binpick
 # stays light: no torch until a detector or a trainer is asked for).
 _LAZY = {"train": "binpick.core.jobs", "Detector": "binpick.detection", "Picker": "binpick.picking",
-         "Policy": "binpick.april", "TrainedPolicy": "binpick.rl.train"}
+         "Policy": "binpick.core.policy"}
 
 
 def __getattr__(name: str):

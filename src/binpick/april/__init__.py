@@ -2,6 +2,6 @@
 
 from binpick.april.config import AprilConfig
 from binpick.april.pipeline import AprilRun
-from binpick.april.policy import Policy
+from binpick.april.policy import AprilPolicy
 
-__all__ = ["AprilConfig", "AprilRun", "Policy"]
+__all__ = ["AprilConfig", "AprilRun", "AprilPolicy"]

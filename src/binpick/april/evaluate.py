@@ -19,7 +19,7 @@ def deployment_env(run: AprilRunFolder, runtime_input: str):
     """The env and policy exactly as deployed: ``state`` (ground truth, semantic modes) or ``pixels``."""
     from binpick.april.finetune import with_action_scale
     from binpick.april.perception import load_perception, perception_path
-    from binpick.rl.train import load_policy
+    from binpick.rl.policy import load_policy
     from binpick.rl.common.wrappers import SemanticState
 
     mode = run.config.policy.mode

@@ -108,7 +108,7 @@ def latent_sac(run: AprilRunFolder, env, rl_settings, tensorboard_log: str | Non
 def finetune_latent_policy(run: AprilRunFolder, semantic_run: str | None, callback: RunCallback = SILENT) -> dict[str, Any]:
     """Train (or fine-tune) SAC on encoded images; saves ``policy_latent.safetensors`` in the run folder."""
     from binpick.april.perception import load_perception, perception_path
-    from binpick.rl.train import load_policy
+    from binpick.rl.policy import load_policy
 
     torch.set_num_threads(1)  # small networks, one env: a second thread only competes with other jobs
     config, policy = run.config, run.config.policy

@@ -149,7 +149,7 @@ class AprilRun(AprilRunFolder):
         on random + policy images; ``rounds`` times. Runs before any latent fine-tuning reads φ_enc."""
         from binpick.april.finetune import with_action_scale
         from binpick.april.perception import PERCEPTION_FILE, load_perception, perception_path, save_perception, train_perception
-        from binpick.rl.train import load_policy
+        from binpick.rl.policy import load_policy
         from binpick.rl.common.wrappers import privileged_values, semantic_inputs
 
         refine = self.config.refine

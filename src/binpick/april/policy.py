@@ -1,7 +1,8 @@
-"""A deployed APRiL policy: load it with one call, feed it a camera image, get an action.
+"""A deployed APRiL policy: load it with one call, feed it a camera image, get an action, as every
+trained policy of binpick (:class:`binpick.Policy`)::
 
     policy = Policy.load("runs/april_fetchreach/20261122-050000")
-    action = policy.predict(image)        # image: (H, W, C) uint8, as the env's camera gives it
+    action, _ = policy.predict(image, deterministic=True)   # image: (H, W, C) uint8, as the env's camera gives it
 """
 
 from __future__ import annotations
@@ -11,9 +12,10 @@ from pathlib import Path
 import numpy as np
 
 from binpick.core.errors import ConfigError
+from binpick.core.policy import Policy
 
 
-class Policy:
+class AprilPolicy(Policy):
     """Perception encoder + policy, as one object (thesis Fig 4.2, blue arrows)."""
 
     def __init__(self, run_dir: Path) -> None:
@@ -28,7 +30,7 @@ class Policy:
         self.perception = load_perception(perception_path(run.run_dir))
         self.min_action_scale = run.rl_settings.min_action_scale
         if self.mode == "semantic":
-            from binpick.rl.train import load_policy
+            from binpick.rl.policy import load_policy
 
             self.model, _ = load_policy(Path(run.stages["policy"]["semantic_run"]))
             spaces = self.model.observation_space
@@ -48,9 +50,16 @@ class Policy:
                                   f"takes {needed}")
         self.image_shape = self.perception.image_shape
 
-    @classmethod
-    def load(cls, run_dir: str | Path) -> Policy:
-        return cls(Path(run_dir))
+    @property
+    def observation_space(self):
+        """What it reads: camera images."""
+        from gymnasium import spaces
+
+        return spaces.Box(0, 255, self.image_shape, np.uint8)
+
+    @property
+    def action_space(self):
+        return self.model.action_space
 
     def encode(self, image: np.ndarray) -> np.ndarray:
         """φ_enc(I) for one image (the conditioned part in the semantic state's units)."""
@@ -59,21 +68,23 @@ class Policy:
             raise ConfigError(f"image must be uint8 (H, W, C) with values 0-255, got dtype {image.dtype}")
         return self.perception.encode(image)[0]
 
-    def predict(self, image: np.ndarray, state: np.ndarray | None = None) -> np.ndarray:
-        """The action for a camera image; ``state`` (s̄) only for the ground-truth-plus-latent baseline."""
+    def predict(self, image: np.ndarray, state=None, episode_start=None, deterministic: bool = False, *,
+                semantic_state: np.ndarray | None = None) -> tuple[np.ndarray, None]:
+        """``(action, None)`` for a camera image (SB3's shape: ``state`` is a recurrent policy's memory, which
+        this one has none of); ``semantic_state`` (s̄) only for the ground-truth-plus-latent baseline."""
         from binpick.april.observations import semantic_observation
 
         latent = self.encode(image)
         if self.mode == "semantic":
             observation = semantic_observation(latent, self.model.observation_space["achieved_goal"].shape[0])
         elif self.mode == "state_plus_latent":
-            if state is None:
-                raise ConfigError("this policy also needs the ground-truth semantic state: predict(image, state=...)")
-            observation = np.concatenate([np.asarray(state, np.float32), latent[self.perception.config.conditioned:]])
+            if semantic_state is None:
+                raise ConfigError("this policy also needs the ground-truth semantic state: predict(image, semantic_state=...)")
+            observation = np.concatenate([np.asarray(semantic_state, np.float32), latent[self.perception.config.conditioned:]])
         else:
             observation = latent.astype(np.float32)
-        action, _ = self.model.predict(observation, deterministic=True)
-        return self._scaled(np.asarray(action))
+        action, _ = self.model.predict(observation, deterministic=deterministic)
+        return self._scaled(np.asarray(action)), None
 
     def _scaled(self, action: np.ndarray) -> np.ndarray:
         from binpick.rl.common.wrappers import scale_up_small_action
@@ -81,3 +92,15 @@ class Policy:
         if not self.min_action_scale:
             return action
         return scale_up_small_action(action, self.model.action_space.high, self.min_action_scale)
+
+
+def load_april_policy(run_dir: Path, env_id: str | None = None) -> AprilPolicy:
+    """An APRiL run's deployed policy, for :meth:`binpick.core.policy.Policy.load`; ``env_id``: refuse a run
+    of another env."""
+    policy = AprilPolicy(Path(run_dir))
+    if env_id is not None:
+        from binpick.envs import resolve_env_id
+
+        if resolve_env_id(env_id) != resolve_env_id(policy.run.config.env):
+            raise ConfigError(f"APRiL run {run_dir} was trained on {policy.run.config.env}, not {resolve_env_id(env_id)}")
+    return policy

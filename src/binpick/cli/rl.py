@@ -99,7 +99,8 @@ def rl_eval(
 ) -> None:
     """Evaluate a run's latest checkpoint: average actions ± std and success rate."""
     from binpick.core.config import check_range
-    from binpick.rl.train import load_policy, make_env
+    from binpick.rl.policy import load_policy
+    from binpick.rl.envs import make_env
 
     check_range("episodes", episodes, 1, 1_000_000, integer=True)
     model, config = load_policy(run, env_id)

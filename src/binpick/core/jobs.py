@@ -36,21 +36,25 @@ class JobKind:
     config: str  # "module:ConfigClass"
     job: str  # "module:JobClass" (new / resume / run)
     steps_key: str  # the key of metrics.json that counts its progress (steps, epochs, scenes)
+    policy: str | None = None  # "module:function" (run folder, env id or None) -> binpick.core.policy.Policy
+    env: str | None = None  # "module:function" (run folder) -> the env its policy acts in
     ray: str | None = None  # on a cluster: "train" (data-parallel Ray Train workers), "rl" (rollout or simulator actors),
     # "tasks" (a data set's worlds as Ray tasks)
 
     def config_class(self) -> type:
-        return _attribute(self.config)
+        return load_entry_point(self.config)
 
     def job_class(self) -> type:
-        return _attribute(self.job)
+        return load_entry_point(self.job)
 
 
 KINDS: dict[str, JobKind] = {kind.task: kind for kind in [
     JobKind("rl", "reinforcement learning (SAC/DQN with GP + HER, A3C)", "binpick.rl.config:RLConfig",
-            "binpick.rl.train:RLRun", "sim_steps", ray="rl"),
+            "binpick.rl.train:RLRun", "sim_steps", policy="binpick.rl.policy:load_run_policy",
+            env="binpick.rl.policy:make_run_env", ray="rl"),
     JobKind("april", "APRiL: perception on the state, policy on the state, deployed on pixels",
-            "binpick.april.config:AprilConfig", "binpick.april.pipeline:AprilRun", "policy_sim_steps"),
+            "binpick.april.config:AprilConfig", "binpick.april.pipeline:AprilRun", "policy_sim_steps",
+            policy="binpick.april.policy:load_april_policy"),
     JobKind("detect", "repeated object detection (ROD, TDID)", "binpick.detection.config:DetectConfig",
             "binpick.detection.train:DetectorTrainer", "epochs", ray="train"),
     JobKind("recurrent", "the recurrent repeated-object detector (the thesis's rejected first design)",
@@ -72,7 +76,8 @@ RAY_RUNNERS = {  # how a job runs on Ray, by its kind's ``ray`` (and an rl job's
 }
 
 
-def _attribute(spec: str):
+def load_entry_point(spec: str):
+    """What ``"module:name"`` names, imported now (the registry names what lies above the core this way)."""
     module, _, name = spec.partition(":")
     return getattr(importlib.import_module(module), name)
 
@@ -239,12 +244,12 @@ def run_job(job, callback: RunCallback = SILENT, address: str | None = None, wor
         return job.run(callback, address=address)
     if runner == "a3c":
         callback.message(f"training {job.run_dir} on Ray: {job.config.a3c.workers} rollout worker(s) as actors")
-        return job.run(callback, learn=_attribute(RAY_RUNNERS["a3c"])(address))
+        return job.run(callback, learn=load_entry_point(RAY_RUNNERS["a3c"])(address))
     if runner == "sac":
         callback.message(f"training {job.run_dir} on Ray: {workers} simulator(s) as actors, the learner here")
-        return job.run(callback, envs=_attribute(RAY_RUNNERS["sac"])(job.config, workers, None if address == "local" else address, job.env))
+        return job.run(callback, envs=load_entry_point(RAY_RUNNERS["sac"])(job.config, workers, None if address == "local" else address, job.env))
     callback.message(f"training {job.run_dir} on Ray: {workers} worker(s) of {threads} thread(s)")
-    return _attribute(RAY_RUNNERS["train"])(job.run_dir, kind.job, workers, address, threads)
+    return load_entry_point(RAY_RUNNERS["train"])(job.run_dir, kind.job, workers, address, threads)
 
 
 def train(config: str | Path | None = None, *, resume: str | Path | None = None, runs: str | Path = "runs",

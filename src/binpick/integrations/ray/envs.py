@@ -3,7 +3,7 @@ simulators feeding one learner), so the SB3-based learners (SAC with GP imaginat
 their own ``learn()`` loop, callbacks, checkpoints and run folder.
 
 Each :class:`EnvActor` owns the env exactly as a local run trains on it
-(:func:`binpick.rl.train.make_env` under SB3's ``Monitor``) and resets itself when an episode ends, as
+(:func:`binpick.rl.envs.make_env` under SB3's ``Monitor``) and resets itself when an episode ends, as
 ``DummyVecEnv`` does, so one vector step is one round trip to every actor, in parallel. An actor whose
 process dies (a crash, a killed process, a lost machine) is restarted by Ray: the episode it was playing
 ends there as truncated with ``episode_lost`` in its info (the replay drops it; no step is invented), the
@@ -41,7 +41,7 @@ class EnvActor:
         import torch
         from stable_baselines3.common.monitor import Monitor
 
-        from binpick.rl.train import make_env
+        from binpick.rl.envs import make_env
 
         torch.set_num_threads(1)  # one core per simulator
         self.env = Monitor(make_env(config))  # episode lengths in the info, as SB3 wraps a local env

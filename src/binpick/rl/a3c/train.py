@@ -16,7 +16,6 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-import gymnasium as gym
 import numpy as np
 import torch
 import torch.multiprocessing as mp
@@ -24,81 +23,15 @@ from torch.utils.tensorboard import SummaryWriter
 
 from binpick.core import tensorfile
 from binpick.core.config import load_run_config
-from binpick.core.errors import ConfigError, InputFileError, WorkerError
+from binpick.core.errors import ConfigError, WorkerError
 from binpick.core.files import atomic_write_json, read_json_object, require_fields
+from binpick.rl.a3c.envs import EnvWrapper, make_a3c_env, semantic_state_size
 from binpick.rl.a3c.networks import A3CWorker, ActorCritic, SharedAdam, apply_gradients
+from binpick.rl.a3c.policy import A3C_FILE, FORMAT, SampledPolicy, read_a3c_checkpoint
 from binpick.core.runs import SILENT, RunCallback, Task, commit_checkpoint, latest_checkpoint, new_run, removed_on_error
 from binpick.rl.config import RLConfig
 from binpick.rl.common.curriculum import CurriculumProgress
 from binpick.rl.common.evaluate import evaluate_policy
-
-EnvWrapper = Callable[[gym.Env], gym.Env]
-FORMAT = "binpick-a3c-checkpoint-1"
-A3C_FILE = "a3c.safetensors"
-
-
-class _SampledPolicy:
-    """The actor as a policy: called, it samples its distribution as A3C acted in training; ``predict``
-    is greedy when asked to be (:func:`evaluate_policy` asks unless ``deterministic=False``)."""
-
-    def __init__(self, model: ActorCritic, deterministic: bool = False) -> None:
-        self.model, self.deterministic = model, deterministic
-
-    def __call__(self, observation: np.ndarray) -> int:
-        return self.model.act(observation, deterministic=self.deterministic)
-
-    def predict(self, observation: np.ndarray, state=None, episode_start=None, deterministic: bool = False):
-        """SB3's shape: ``(action, state)``. A3C acts by sampling unless ``deterministic``."""
-        return self.model.act(observation, deterministic=deterministic or self.deterministic), None
-
-
-def make_env(config: RLConfig, wrap_env: EnvWrapper | None = None) -> gym.Env:
-    """The run's env; for ``a3c.encoder: state`` a goal env's dict observation is flattened into one vector.
-
-    ``wrap_env`` (env -> env) is applied first: e.g. a frozen perception that turns the pictures into the
-    state vector a state learner reads (binpick.april.arm2d.ReadStateOffPixels). It must pickle, as the
-    workers are spawned processes."""
-    from gymnasium import spaces
-    from gymnasium.wrappers import FlattenObservation
-
-    from binpick.envs import make
-    from binpick.rl.common.wrappers import GaussianObservationNoise
-
-    env = make(config.env, **config.env_kwargs)
-    if wrap_env is not None:
-        env = wrap_env(env)
-    space = env.observation_space
-    if config.a3c.encoder == "state":
-        parts = space.spaces if isinstance(space, spaces.Dict) else {"observation": space}
-        not_vectors = [key for key, part in parts.items() if len(part.shape or ()) != 1]
-        if not_vectors:
-            env.close()
-            raise ConfigError(f"a3c.encoder 'state' needs vector observations; {config.env}'s {not_vectors} are not "
-                              f"(for Arm2D set env_kwargs: {{goal_conditioned: true, image: null}})")
-        if isinstance(space, spaces.Dict):
-            env = FlattenObservation(env)
-        if config.a3c.state_noise:
-            env = GaussianObservationNoise(env, config.a3c.state_noise)
-    elif len(space.shape or ()) != 3:
-        env.close()
-        raise ConfigError(f"a3c.encoder {config.a3c.encoder!r} needs image observations; {config.env} gives "
-                          f"{type(space).__name__} (use a3c.encoder: state for vector observations)")
-    return env
-
-
-def _state_size(config: RLConfig, wrap_env: EnvWrapper | None = None) -> int:
-    """Length of the env's semantic state (info[a3c.state_key]) when the auxiliary state loss is on, else 0."""
-    if config.a3c.state_weight == 0:
-        return 0
-    env = make_env(config, wrap_env)
-    try:
-        state = env.reset(seed=0)[1].get(config.a3c.state_key)
-    finally:
-        env.close()
-    if state is None:
-        raise ConfigError(f"a3c.state_weight needs an env that returns its semantic state in info[{config.a3c.state_key!r}] "
-                          f"(a3c.state_key); {config.env} does not")
-    return int(np.asarray(state).size)
 
 
 def make_worker(config: RLConfig, rank: int, state_size: int, wrap_env: EnvWrapper | None = None, start_step: int = 0,
@@ -106,8 +39,8 @@ def make_worker(config: RLConfig, rank: int, state_size: int, wrap_env: EnvWrapp
     """One A3C worker of the run (its simulator and its copy of the network), seeded by its rank, the
     step it starts at and how often its process was started again, so no two play the same episodes."""
     a3c = config.a3c
-    env_shape = make_env(config, wrap_env).observation_space.shape
-    return A3CWorker(lambda: make_env(config, wrap_env), env_shape, 6,
+    env_shape = make_a3c_env(config, wrap_env).observation_space.shape
+    return A3CWorker(lambda: make_a3c_env(config, wrap_env), env_shape, 6,
                      seed=config.seed * 1000 + rank * 7919 + start_step + restarts * 1_000_003,
                      n_steps=a3c.n_steps, gamma=a3c.gamma, entropy_beta=a3c.entropy_beta,
                      value_coef=a3c.value_coef, max_grad_norm=a3c.max_grad_norm, reward_scale=a3c.reward_scale,
@@ -191,12 +124,12 @@ class A3CTrainer:
     def __init__(self, config: RLConfig, run_dir: Path, wrap_env: EnvWrapper | None = None) -> None:
         self.config, self.run_dir, self.wrap_env = config, Path(run_dir), wrap_env
         self.ckpt_dir = self.run_dir / "checkpoints"
-        env = make_env(config, wrap_env)
+        env = make_a3c_env(config, wrap_env)
         self.observation_shape = env.observation_space.shape
         self.base_area = float(env.unwrapped.goal_area)
         env.close()
         torch.manual_seed(config.seed)
-        self.state_size = _state_size(config, wrap_env)
+        self.state_size = semantic_state_size(config, wrap_env)
         self.model = ActorCritic(self.observation_shape, 6, self.config.a3c.encoder, self.state_size, self.config.a3c.policy_input,
                                  self.config.a3c.detach_perception, self.config.a3c.hidden_layers)
         self.model.share_memory()
@@ -283,9 +216,9 @@ class A3CTrainer:
 
     # ------------------------------------------------------------------ evaluation
     def evaluate(self, area: float) -> dict[str, float]:
-        env = make_env(self.config, self.wrap_env)
+        env = make_a3c_env(self.config, self.wrap_env)
         env.unwrapped.set_goal_area(area)
-        result = evaluate_policy(_SampledPolicy(self.model), env, episodes=self.config.eval.episodes,
+        result = evaluate_policy(SampledPolicy(self.model), env, episodes=self.config.eval.episodes,
                                  seed=self.config.eval.seed)
         env.close()
         return {"sim_steps": self.steps, "goal_area": area, "success_rate": result.success_rate,
@@ -314,7 +247,7 @@ class A3CTrainer:
         a3c = self.config.a3c
         started = time.perf_counter()
         with callback.task(f"{self.config.name}: perception", a3c.pretrain_epochs) as task:
-            result = pretrain_perception(self.model, lambda: make_env(self.config, self.wrap_env), a3c.state_key, a3c.pretrain_pictures,
+            result = pretrain_perception(self.model, lambda: make_a3c_env(self.config, self.wrap_env), a3c.state_key, a3c.pretrain_pictures,
                                          a3c.pretrain_epochs, a3c.pretrain_learning_rate, self.config.seed + 777_777, task,
                                          near_goal=a3c.pretrain_near_goal)
         self.metrics["pretrain"] = asdict(result) | {"wall_seconds": round(time.perf_counter() - started, 1)}
@@ -414,35 +347,3 @@ class A3CTrainer:
         return data
 
 
-def read_a3c_checkpoint(checkpoint: Path) -> tuple[dict[str, Any], dict[str, Any]]:
-    """``(state, meta)`` of a checkpoint folder: ``a3c.safetensors``, or an older run's ``a3c.pt`` read
-    as plain tensors only. Damage is one line naming the file."""
-    checkpoint = Path(checkpoint)
-    legacy = checkpoint / "a3c.pt"
-    if legacy.is_file() and not (checkpoint / A3C_FILE).is_file():
-        state = meta = tensorfile.load_legacy_torch(legacy, "A3C checkpoint")
-        path = legacy
-        if not isinstance(state, dict):
-            raise InputFileError(f"A3C checkpoint {str(legacy)!r} is damaged: not a mapping")
-    else:
-        path = checkpoint / A3C_FILE
-        _, meta, state = tensorfile.load(path, FORMAT, "A3C checkpoint")
-        state = state or {}
-    where = f"A3C checkpoint {str(path)!r}"
-    require_fields(meta, {"observation_shape": (list, tuple)}, where)
-    require_fields(state, {"model": dict, "optimizer": dict}, where)
-    return state, meta
-
-
-def load_a3c_policy(checkpoint: Path) -> _SampledPolicy:
-    """A trained A3C actor as a policy (samples its action distribution, as it acted in training)."""
-    state, meta = read_a3c_checkpoint(checkpoint)
-    try:
-        model = ActorCritic(tuple(int(v) for v in meta["observation_shape"]), 6, str(meta.get("encoder", "flatten")),
-                            int(meta.get("state_size", 0)), str(meta.get("policy_input", "features")),
-                            hidden_layers=int(meta.get("hidden_layers", 1)))
-        model.load_state_dict(state["model"])
-    except (TypeError, ValueError, RuntimeError) as error:
-        raise InputFileError(f"A3C checkpoint {checkpoint} is damaged ({str(error).splitlines()[0][:120]})") from None
-    model.eval()
-    return _SampledPolicy(model)

@@ -1,6 +1,6 @@
 """The goal-area curriculum of thesis §3.2 (Fig 3.4): where the goal area stands, and an SB3 callback.
 
-The schedule is :class:`binpick.rl.config.CurriculumConfig`. With ``advance: steps`` the area is a
+The schedule is :class:`binpick.rl.config.common.CurriculumConfig`. With ``advance: steps`` the area is a
 function of the simulator step (ramps and holds). With ``advance: converged`` it depends on how
 training goes — the thesis widens the area only once the agent has re-converged at the current one
 — so :class:`CurriculumProgress` keeps that state, and the run's checkpoints keep it too. A3C's
@@ -15,7 +15,7 @@ import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
 from binpick.core.errors import InputFileError
-from binpick.rl.config import CurriculumConfig
+from binpick.rl.config.common import CurriculumConfig
 
 
 class CurriculumProgress:

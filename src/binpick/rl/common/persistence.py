@@ -26,6 +26,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.policies import BasePolicy
 
 from binpick.core import tensorfile
+from binpick.core.policy import Policy
 from binpick.envs.spaces import build_space, describe_space
 from binpick.core.errors import InputFileError
 from binpick.core.files import atomic_write, atomic_write_json, read_json_object, read_npz, require_fields
@@ -33,6 +34,8 @@ from binpick.core.files import atomic_write, atomic_write_json, read_json_object
 ALGORITHM_FORMAT = "binpick-sb3-algorithm-1"
 POLICY_FORMAT = "binpick-sb3-policy-1"
 REPLAY_FORMAT = "binpick-replay-1"
+ALGORITHM_FILE = "algorithm.safetensors"  # in a checkpoint folder: the learner, to resume it
+POLICY_FILE = "policy.safetensors"  # the policy network alone, to deploy it
 COUNTERS = ("num_timesteps", "_n_updates", "_episode_num", "_n_calls")
 
 
@@ -174,7 +177,7 @@ def _policy_family(model: BaseAlgorithm) -> tuple[str, str]:
 
 
 @dataclass
-class SavedPolicy:
+class SavedPolicy(Policy):
     """A deployed policy rebuilt from ``policy.safetensors``: SB3's ``predict`` without the algorithm."""
 
     policy: BasePolicy

@@ -25,7 +25,7 @@ from stable_baselines3.common.type_aliases import DictReplayBufferSamples
 
 from binpick.core.config import check_range
 from binpick.core.errors import ConfigError
-from binpick.rl.config import ReplayConfig
+from binpick.rl.config.common import ReplayConfig
 
 RewardFn = Callable[[np.ndarray, np.ndarray, Any], np.ndarray]
 KEYS = ("observation", "achieved_goal", "desired_goal")

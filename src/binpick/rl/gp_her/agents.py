@@ -18,7 +18,7 @@ from stable_baselines3.common.utils import polyak_update
 from stable_baselines3.common.callbacks import BaseCallback
 
 from binpick.core.config import check_range
-from binpick.rl.config import GPConfig
+from binpick.rl.config.gp_her import GPConfig
 from binpick.rl.gp_her.dynamics import GPDynamics
 from binpick.rl.gp_her.imagination import imagine_episodes
 from binpick.rl.common.demonstrations import DemonstrationSet, cloning_loss
@@ -49,7 +49,7 @@ class GoalSAC(SAC):
 
     def perturb_actor_inputs(self, noise, gripper: int) -> None:
         """Train the actor on s̄ plus Gaussian noise of std ``noise`` = (gripper, achieved, goal), each a
-        number or one per axis, in metres (see :class:`binpick.rl.config.ActorNoiseConfig`); the critic
+        number or one per axis, in metres (see :class:`binpick.rl.config.gp_her.ActorNoiseConfig`); the critic
         keeps reading the true s̄. ``gripper``: how many numbers before the achieved goal describe the
         hand (:func:`binpick.rl.common.wrappers.gripper_dims`: 3, its position, noised; a 4th, the fingers'
         opening, is left as it is)."""

@@ -22,7 +22,7 @@ import torch
 
 from binpick.core import tensorfile
 from binpick.core.config import check_range
-from binpick.rl.config import GPConfig
+from binpick.rl.config.gp_her import GPConfig
 from binpick.core.errors import InputFileError
 from binpick.core.files import require_fields
 

@@ -1,0 +1,34 @@
+"""The SAC learners of a run: binpick's goal-conditioned SAC on the episode replay with HER (and GP
+imagination when ``gp.enabled``), or SB3's SAC + HerReplayBuffer, the peer it is measured against."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+from stable_baselines3 import SAC, HerReplayBuffer
+
+from binpick.rl.common.replay import EpisodeReplayBuffer
+from binpick.rl.config import RLConfig
+from binpick.rl.gp_her.agents import GoalSAC
+
+
+def build_sac(config: RLConfig, env: gym.Env, tensorboard: str | None, envs=None) -> SAC:
+    """The run's SAC on ``env``, or on ``envs`` (a ``VecEnv`` of N simulators of it): ``sac.gradient_steps``
+    are per simulator step, as in a local run, so one vector step of N simulators is followed by N times as many."""
+    sac = config.sac
+    simulators = envs.num_envs if envs is not None else 1
+    common = dict(learning_rate=sac.learning_rate, batch_size=sac.batch_size, gamma=sac.gamma, tau=sac.tau,
+                  gradient_steps=sac.gradient_steps * simulators, learning_starts=sac.learning_starts, ent_coef=sac.ent_coef,
+                  seed=config.seed,
+                  policy_kwargs={"net_arch": list(sac.net_arch)}, tensorboard_log=tensorboard, device="cpu")
+    if config.algorithm == "sb3_sac_her":
+        return SAC("MultiInputPolicy", env, replay_buffer_class=HerReplayBuffer,
+                   replay_buffer_kwargs={"n_sampled_goal": config.replay.future_k, "goal_selection_strategy": "future"},
+                   **common)
+    replay = dict(compute_reward=env.unwrapped.compute_reward, max_episode_steps=env.spec.max_episode_steps,
+                  capacity_episodes=config.replay.capacity_episodes, her_additions=config.replay.her_additions,
+                  start_fraction=config.replay.start_fraction, her_min_motion=config.replay.her_min_motion,
+                  seed=config.seed)
+    if config.gp.enabled:
+        common["learning_starts"] = config.gp.warmup_episodes * env.spec.max_episode_steps
+    return GoalSAC("MultiInputPolicy", env if envs is None else envs, replay_buffer_class=EpisodeReplayBuffer,
+                   replay_buffer_kwargs=replay, **common)
