@@ -153,6 +153,52 @@ def evaluate_recurrent(model: RecurrentDetector, dataset, tasks: int | None = No
     return summarise(found, model.image_size)
 
 
+def _new_model(config: RecurrentTrainConfig) -> RecurrentDetector:
+    """The run's network, from ``init_from``'s weights when it names a run of the same network."""
+    model = RecurrentDetector(config.model.spec(), config.image_size)
+    if config.init_from:
+        start = load_recurrent(config.init_from)
+        if start.spec != model.spec:
+            raise ConfigError(f"init_from {config.init_from!r} is another network ({start.spec}); this run's model section asks for {model.spec}")
+        model.load_state_dict(start.state_dict())
+    return model
+
+
+def _restore(checkpoint: Path, comparable: dict[str, Any], parts: dict[str, Any]) -> tuple[list[dict[str, float]], int]:
+    """Model, optimiser and schedule from a checkpoint of the same configuration: ``(history, step)``."""
+    from binpick.core import tensorfile
+    from binpick.core.errors import InputFileError
+
+    _, meta, state = tensorfile.load(checkpoint, FORMAT_CHECKPOINT, "recurrent checkpoint")
+    if meta.get("config") != json.loads(json.dumps(comparable)):
+        raise ConfigError(f"{checkpoint} was written by another configuration; give another out or delete it")
+    where = f"recurrent checkpoint {str(checkpoint)!r}"
+    tensorfile.restore(parts, state or {}, where)
+    try:
+        return list(meta["history"]), int(meta["step"])
+    except (KeyError, TypeError, ValueError):
+        raise InputFileError(f"{where} is damaged: no step or history in its metadata") from None
+
+
+def _train_step(model: RecurrentDetector, optimiser, batch: dict[str, Any], config: RecurrentTrainConfig, progress: float,
+                weights) -> tuple[int, dict[str, torch.Tensor]]:
+    """One gradient step on a batch, rolled out for as many steps as the curriculum allows at ``progress``
+    (the share of the budget done): ``(steps, losses)``."""
+    steps = config.model.max_steps if progress >= config.stop_from else \
+        min(config.model.max_steps, config.first_steps + int((config.model.max_steps - config.first_steps) * progress / max(config.stop_from, 1e-9)))
+    # no step beyond the batch's most copies and one to learn to stop: the roll-out is the cost
+    steps = min(steps, 1 + max(len(t) for t in batch["targets"]))
+    model.train()
+    out = model(batch["image"], batch["query_box"], steps)
+    losses = recurrent_loss(model, out, batch["targets"], batch["other_products"], weights,
+                            use_stop=progress >= config.stop_from, use_repetition=progress >= config.repetition_from)
+    optimiser.zero_grad()
+    losses["total"].backward()
+    torch.nn.utils.clip_grad_norm_(model.parameters(), 10.0)
+    optimiser.step()
+    return steps, losses
+
+
 def train_recurrent(config: RecurrentTrainConfig, callback: RunCallback = SILENT) -> dict[str, Any]:
     """Train (or resume) to the image budget; save ``<out>/recurrent.safetensors`` and ``metrics.json``."""
     from binpick.core import tensorfile
@@ -163,12 +209,7 @@ def train_recurrent(config: RecurrentTrainConfig, callback: RunCallback = SILENT
     train_set, val_set = datasets(config)
     out = Path(config.out)
     out.mkdir(parents=True, exist_ok=True)
-    model = RecurrentDetector(config.model.spec(), config.image_size)
-    if config.init_from:
-        start = load_recurrent(config.init_from)
-        if start.spec != model.spec:
-            raise ConfigError(f"init_from {config.init_from!r} is another network ({start.spec}); this run's model section asks for {model.spec}")
-        model.load_state_dict(start.state_dict())
+    model = _new_model(config)
     optimiser = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=1e-4)
     total_steps = max(1, config.images // config.batch_size)
     schedule = torch.optim.lr_scheduler.OneCycleLR(optimiser, config.lr, total_steps=total_steps, pct_start=0.05)
@@ -178,17 +219,7 @@ def train_recurrent(config: RecurrentTrainConfig, callback: RunCallback = SILENT
     # what the weights depend on (not threads, checkpointing or scoring) must match to resume
     comparable = {k: v for k, v in asdict(config).items() if k not in ("threads", "checkpoint_every", "val_tasks", "out")}
     if checkpoint.is_file():
-        _, meta, state = tensorfile.load(checkpoint, FORMAT_CHECKPOINT, "recurrent checkpoint")
-        if meta.get("config") != json.loads(json.dumps(comparable)):
-            raise ConfigError(f"{checkpoint} was written by another configuration; give another out or delete it")
-        where = f"recurrent checkpoint {str(checkpoint)!r}"
-        tensorfile.restore({"model": model, "optimiser": optimiser, "schedule": schedule}, state or {}, where)
-        try:
-            history, step = list(meta["history"]), int(meta["step"])
-        except (KeyError, TypeError, ValueError):
-            from binpick.core.errors import InputFileError
-
-            raise InputFileError(f"{where} is damaged: no step or history in its metadata") from None
+        history, step = _restore(checkpoint, comparable, {"model": model, "optimiser": optimiser, "schedule": schedule})
 
     def save_checkpoint() -> None:
         tensorfile.save(checkpoint, FORMAT_CHECKPOINT, meta={"config": comparable, "step": step, "history": history},
@@ -210,19 +241,7 @@ def train_recurrent(config: RecurrentTrainConfig, callback: RunCallback = SILENT
             for batch in batches:
                 if step >= total_steps:
                     break
-                progress = step / total_steps
-                steps = config.model.max_steps if progress >= config.stop_from else \
-                    min(config.model.max_steps, config.first_steps + int((config.model.max_steps - config.first_steps) * progress / max(config.stop_from, 1e-9)))
-                # no step beyond the batch's most copies and one to learn to stop: the roll-out is the cost
-                steps = min(steps, 1 + max(len(t) for t in batch["targets"]))
-                model.train()
-                out_ = model(batch["image"], batch["query_box"], steps)
-                losses = recurrent_loss(model, out_, batch["targets"], batch["other_products"], weights,
-                                        use_stop=progress >= config.stop_from, use_repetition=progress >= config.repetition_from)
-                optimiser.zero_grad()
-                losses["total"].backward()
-                torch.nn.utils.clip_grad_norm_(model.parameters(), 10.0)
-                optimiser.step()
+                steps, losses = _train_step(model, optimiser, batch, config, step / total_steps, weights)
                 schedule.step()
                 step += 1
                 count += 1
