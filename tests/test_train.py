@@ -83,6 +83,18 @@ def grasp_quality_setup(tmp: Path):
     return config, 8, checkpointed
 
 
+def product_check_setup(tmp: Path):
+    from binpick.warehouse.dataset import generate
+    from binpick.warehouse.generation import GenerateConfig
+
+    data = tmp / "bins"
+    generate(GenerateConfig(out=str(data), scenes=4, policies=[], workers=1, image_size=128, copies=(2, 3), distractors=(1, 2),
+                            domain="random", scenes_per_world=1, val_fraction=0.5, photo_views=2, seed=3))
+    config = {"task": "product_check", "name": "tiny_check", "data": str(data), "epochs": 8, "batch_size": 8, "width": 8,
+              "threads": 1}
+    return config, 8, lambda run, stdout=(): (run / "verifier_checkpoint.safetensors").is_file()
+
+
 def data_setup(tmp: Path):
     config = {"task": "data", "out": str(tmp / "bins"), "scenes": 6, "scenes_per_world": 1, "workers": 1, "image_size": 64,
               "policies": [], "copies": [2, 3], "distractors": [0, 1], "val_fraction": 0.34}
@@ -90,7 +102,7 @@ def data_setup(tmp: Path):
 
 
 SETUPS = {"rl": rl_setup, "april": april_setup, "detect": detect_setup, "pickability": pickability_setup,
-          "grasp_quality": grasp_quality_setup, "data": data_setup}
+          "grasp_quality": grasp_quality_setup, "product_check": product_check_setup, "data": data_setup}
 
 
 def run_folder(config: dict, runs: Path) -> Path | None:
@@ -187,7 +199,8 @@ CELLS = sorted((Path(__file__).resolve().parents[1] / "configs" / "cells").glob(
 def test_every_config_in_the_repository_loads_as_its_job(path):
     kind, _ = jobs.load_job_config(path)
     assert path.parent.name == {"rl": "rl", "april": "april", "detect": "detection", "recurrent": "detection",
-                                "pickability": "detection", "grasp_quality": "grasping", "data": "data"}[kind.task]
+                                "pickability": "detection", "product_check": "detection", "grasp_quality": "grasping",
+                                "data": "data"}[kind.task]
 
 
 @pytest.mark.parametrize("path", CELLS, ids=[p.stem for p in CELLS])

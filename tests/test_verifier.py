@@ -62,7 +62,7 @@ def test_the_verifier_scores_every_box_and_takes_the_best_over_several_photos(tm
 
 def test_a_repainted_look_alike_takes_the_photos_colours_on_its_own_shape_only():
     from binpick.detection.verifier import STORED
-    from binpick.detection.verifier_training import repainted
+    from binpick.detection.verifier_pairs import repainted
 
     window = np.zeros((STORED, STORED, 4), np.uint8)
     window[..., :3] = (40, 90, 200)  # a blue tote floor
