@@ -463,6 +463,25 @@ train: {{epochs: 1000, batch_size: 2, lr: 0.002, warmup_steps: 2, max_minutes: 1
     assert trainer.learning_rate() == pytest.approx(0.002 * 0.05, rel=1e-3)
 
 
+def test_early_stopping_ends_after_patience_evaluations_without_a_better_ap50_and_keeps_the_best(tmp_path, monkeypatch):
+    from binpick.detection import train as detector_training
+
+    path = make_coco(tmp_path / "toy", images=4, seed=1)
+    config = tmp_path / "rod.yaml"
+    config.write_text(f"""name: toy
+data: {{train: {path}, val: {path}, targets: all, image_size: 64, augment: false}}
+train: {{epochs: 20, batch_size: 2, warmup_steps: 1, eval_every: 2, patience: 2, keep_best: true, workers: 0, threads: 1}}
+""")
+    ap50 = iter([0.2, 0.5, 0.4, 0.5, 0.3, 0.9])  # evaluated at epochs 2, 4, 6, 8: best at 4, then two not better
+    monkeypatch.setattr(detector_training, "evaluate_model", lambda *a, **k: dict.fromkeys(
+        ("map", "ap50_all", "ap50_unpickable"), 0.0) | {"ap50": next(ap50)})
+    trainer = DetectorTrainer.new(load_config(DetectConfig, config), tmp_path / "runs")
+    metrics = trainer.run()
+    assert metrics["epochs"] == 8 and [row.get("ap50") for row in metrics["history"]] == [None, 0.2, None, 0.5, None, 0.4, None, 0.5]
+    assert trainer.best == 0.5 and (trainer.run_dir / "best.safetensors").is_file()
+    assert "ap50" not in metrics["history"][0]  # an epoch not evaluated reports no AP at all
+
+
 def test_a_depth_reading_detector_starts_as_its_colour_weights_and_learns_from_depth(tmp_path):
     from binpick.detection.predict import predict
 

@@ -7,7 +7,10 @@ whole state is committed to a checkpoint; the loop does the rest in one place: t
 per-epoch history, TensorBoard scalars, the best epoch, and the rule that in a data-parallel group
 (:mod:`binpick.core.data_parallel`) every rank trains and rank 0 alone evaluates and writes. A run
 resumed from its last checkpoint (``epoch``, ``best``, ``history`` restored by the trainer) goes on
-at the next epoch, so an interrupted run ends where the uninterrupted one does.
+at the next epoch, so an interrupted run ends where the uninterrupted one does. A trainer may also
+count its progress finer than epochs (:meth:`~EpochTrainer.progress`; ``self.task`` is the bar while an
+epoch trains), evaluate only some epochs (:meth:`~EpochTrainer.evaluate` returns nothing on the others)
+and stop early (:meth:`~EpochTrainer.stop_after`, decided on rank 0 and followed by every rank).
 """
 
 from __future__ import annotations
@@ -52,36 +55,58 @@ class EpochTrainer:
         """An epoch's row as the history keeps it (the best epoch is chosen on the row itself)."""
         return row
 
+    def stop_after(self, row: dict[str, Any] | None) -> bool:
+        """Whether training ends after the epoch ``row`` describes (None on ranks other than 0): early
+        stopping, a time limit. Rank 0's answer is every rank's."""
+        return False
+
+    def progress(self, epochs: int) -> tuple[int, int]:
+        """The progress bar's ``(total, done)``: epochs, unless the trainer counts finer (steps)."""
+        return epochs, self.epoch
+
     def status(self, row: dict[str, Any]) -> str:
         """The progress bar's line after an epoch."""
         value = row.get(self.metric)
         return f"loss {row['loss']:.3f} {self.label} {value if value is None else round(value, 3)}"
 
-    def run_epochs(self, callback: RunCallback, title: str, epochs: int) -> None:
-        """Train from ``epoch`` to ``epochs``; on rank 0 each epoch is evaluated, logged to TensorBoard,
-        kept if best, checkpointed."""
+    def open_writer(self) -> None:
+        """TensorBoard on rank 0 (``self.writer``; None on the others) before the first epoch."""
         from torch.utils.tensorboard import SummaryWriter
 
-        lead = self.group.lead
-        writer = SummaryWriter(str(self.run_dir / "tb")) if lead else None
+        self.writer = SummaryWriter(str(self.run_dir / "tb")) if self.group.lead else None
+        self.task = None
+
+    def end_epoch(self, trained: dict[str, Any]) -> bool:
+        """After an epoch's training (``trained``: its figures): on rank 0 the epoch is evaluated, recorded,
+        logged to TensorBoard, kept if best and checkpointed; True when every rank stops here."""
+        self.epoch += 1
+        row = None
+        if self.group.lead:  # rank 0 evaluates and writes; the others go on to the next epoch
+            row = {"epoch": self.epoch, **trained, **self.evaluate()}
+            self.history.append(self.recorded(row))
+            for key, tag in self.scalars.items():
+                if row.get(key) is not None:
+                    self.writer.add_scalar(tag, row[key], self.epoch)
+            value = row.get(self.metric)
+            if (value if value is not None else self.unset) > self.best:
+                self.best = value if value is not None else self.unset
+                self.save_best(row)
+            self.checkpoint()
+            if self.task is not None:
+                self.task.update(self.progress(self._epochs)[1], status=self.status(row))
+        return self.group.agree(self.stop_after(row))
+
+    def run_epochs(self, callback: RunCallback, title: str, epochs: int) -> None:
+        """Train from ``epoch`` to ``epochs`` (or until :meth:`stop_after` says so), one progress bar."""
+        self.open_writer()
+        self._epochs = epochs
         try:
-            with callback.task(title, epochs, self.epoch) as task:
+            total, done = self.progress(epochs)
+            with callback.task(title, total, done) as task:
+                self.task = task
                 while self.epoch < epochs:
-                    trained = self.train_epoch()
-                    self.epoch += 1
-                    if not lead:  # rank 0 evaluates and writes; the others go on to the next epoch
-                        continue
-                    row = {"epoch": self.epoch, **trained, **self.evaluate()}
-                    self.history.append(self.recorded(row))
-                    for key, tag in self.scalars.items():
-                        if row.get(key) is not None:
-                            writer.add_scalar(tag, row[key], self.epoch)
-                    value = row.get(self.metric)
-                    if (value if value is not None else self.unset) > self.best:
-                        self.best = value if value is not None else self.unset
-                        self.save_best(row)
-                    self.checkpoint()
-                    task.update(self.epoch, status=self.status(row))
+                    if self.end_epoch(self.train_epoch()):
+                        break
         finally:
-            if writer is not None:
-                writer.close()
+            if self.writer is not None:
+                self.writer.close()

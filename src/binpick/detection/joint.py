@@ -42,7 +42,7 @@ class JointTraining:
         config = first.config
         active = list(self.trainers)
         for trainer in active:
-            trainer.open_log()
+            trainer.open_writer()
         started = time.monotonic()
         try:
             with callback.task("joint training", first.total_steps, first.step) as task:
@@ -57,13 +57,13 @@ class JointTraining:
                             trainer.note_time(time.monotonic() - started)
                             trainer.train_step(batch, sums[id(trainer)])
                         task.update(first.step, status=f"epoch {epoch + 1}/{config.train.epochs} " +
-                                    " ".join(f"{t.config.name}{t.status}" for t in active))
+                                    " ".join(f"{t.config.name}{t.status_text}" for t in active))
                         if first.out_of_time(time.monotonic() - started):
                             break
-                    elapsed = time.monotonic() - started
-                    active = [t for t in active if not t.end_epoch(sums[id(t)], elapsed)]
+                    active = [t for t in active if not t.end_epoch(t.epoch_figures(sums[id(t)]))]
                     first = active[0] if active else first
         finally:
             for trainer in self.trainers:
-                trainer.writer.close()
+                if trainer.writer is not None:
+                    trainer.writer.close()
         return {trainer.config.name: trainer.finish() for trainer in self.trainers}

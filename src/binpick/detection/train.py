@@ -9,6 +9,7 @@ loses minutes; a resumed epoch trains on the batches it had not reached),
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 from typing import Any, Callable
 
@@ -18,6 +19,7 @@ import torch
 from binpick.core import tensorfile
 from binpick.core.config import load_run_config, to_dict
 from binpick.core.data_parallel import ALONE, Group
+from binpick.core.epochs import EpochTrainer
 from binpick.detection.config import DetectConfig
 from binpick.detection.data import TaskDataset, collate
 from binpick.detection.evaluate import collect, summarise
@@ -30,7 +32,6 @@ from binpick.core.files import atomic_write_json, require_fields
 from binpick.core.runs import (
     SILENT,
     RunCallback,
-    Task,
     commit_checkpoint,
     latest_checkpoint,
     new_run,
@@ -53,11 +54,16 @@ def evaluate_model(model: DetectorNetwork, dataset: TaskDataset, batch_size: int
     return summarise(collect(detector_detect(model), batches, progress), dataset.size)
 
 
-class DetectorTrainer:
+class DetectorTrainer(EpochTrainer):
     """``DetectorTrainer.new(config, runs).run()`` trains a new run; ``DetectorTrainer.resume(RUN)``
-    continues one from its latest checkpoint (see :class:`binpick.core.runs.Job`)."""
+    continues one from its latest checkpoint (see :class:`binpick.core.runs.Job`). The epoch loop is the
+    one every supervised job shares (:class:`~binpick.core.epochs.EpochTrainer`); the detector adds
+    checkpoints within an epoch, a time budget, evaluation every ``eval_every`` epochs and early stopping."""
 
     TASK = "detect"  # its kind of job (binpick.core.jobs)
+    metric = "ap50"
+    unset = float("-inf")  # an epoch not evaluated, or with no AP50, is never the best
+    scalars = {key: f"val/{key}" for key in ("ap50", "map", "ap50_all", "ap50_unpickable")}
 
     def __init__(self, config: DetectConfig, resume: Path | None = None, runs: Path = Path("runs")) -> None:
         self.config = config
@@ -86,7 +92,7 @@ class DetectorTrainer:
         self.optimizer.load_state_dict(self.optimizer.state_dict())  # moves optimiser state to the model's device
         if config.train.fast_cpu or self.device.type == "cuda":
             self.model.to(memory_format=torch.channels_last)
-        self.best = max((h["ap50"] for h in self.history if h.get("ap50") is not None), default=None)
+        self.best = max((h["ap50"] for h in self.history if h.get("ap50") is not None), default=-1.0)
         self.run_dir = resume if resume is not None else new_run(Path(runs), config, self.TASK)
 
     @classmethod
@@ -208,48 +214,75 @@ class DetectorTrainer:
         return train.lr * (0.05 + 0.95 * 0.5 * (1 + np.cos(np.pi * progress)))
 
     def run(self, callback: RunCallback = SILENT) -> dict[str, Any]:
-        with callback.task(self.config.name, self.total_steps, self.step) as task:
-            metrics = self._train(task)
+        self.run_epochs(callback, self.config.name, self.config.train.epochs)
+        metrics = self.finish() if self.group.lead else {}
         callback.message(f"wrote {self.run_dir / WEIGHTS_FILE}")
         return metrics
 
-    def _train(self, task: Task) -> dict[str, Any]:
-        import time
+    def open_writer(self) -> None:
+        super().open_writer()
+        self.status_text, self.stale, self.improved = "", 0, False
+        self.started = self.saved = time.monotonic()  # the time budget counts from here
 
-        config = self.config
-        self.open_log()
-        started = time.monotonic()
-        try:
-            saved = time.monotonic()
-            while self.epoch < config.train.epochs:
-                self.train_set.set_epoch(self.epoch)
-                self.model.train()
-                sums, batches = dict(self.resumed_sums), self.resumed_batches  # a checkpoint within the epoch: its sums
-                self.resumed_sums, self.resumed_batches = {}, 0
-                for batch in self._loader(skip=batches):
-                    self.note_time(time.monotonic() - started)
-                    self.train_step(batch, sums)
-                    batches += 1
-                    task.update(self.step, status=f"epoch {self.epoch + 1}/{config.train.epochs} loss "
-                                                  f"{sums['total'] / batches:.3f} {self.status}")
-                    if self.group.agree(self.out_of_time(time.monotonic() - started)):
-                        break  # the epoch ends here: evaluate, keep the best, checkpoint
-                    minutes = config.train.checkpoint_minutes
-                    if minutes > 0 and time.monotonic() - saved > 60 * minutes and self.group.lead:
-                        self._checkpoint(batches, sums)  # within the epoch: a kill loses minutes, not the epoch
-                        saved = time.monotonic()
-                if self.group.agree(self.end_epoch(sums, time.monotonic() - started)):
-                    break
-        finally:
-            if self.writer is not None:
-                self.writer.close()
-        return self.finish() if self.group.lead else {}
+    def progress(self, epochs: int) -> tuple[int, int]:
+        return self.total_steps, self.step
 
-    def open_log(self) -> None:
-        from torch.utils.tensorboard import SummaryWriter
+    def train_epoch(self) -> dict[str, Any]:
+        """The epoch's batches (those a checkpoint within it had not reached), with checkpoints every
+        ``checkpoint_minutes`` and an end as soon as the time budget is spent."""
+        train = self.config.train
+        self.train_set.set_epoch(self.epoch)
+        self.model.train()
+        sums, batches = dict(self.resumed_sums), self.resumed_batches  # a checkpoint within the epoch: its sums
+        self.resumed_sums, self.resumed_batches = {}, 0
+        for batch in self._loader(skip=batches):
+            self.note_time(time.monotonic() - self.started)
+            self.train_step(batch, sums)
+            batches += 1
+            self.task.update(self.step, status=f"epoch {self.epoch + 1}/{train.epochs} loss {sums['total'] / batches:.3f} "
+                                               f"{self.status_text}")
+            if self.group.agree(self.out_of_time(time.monotonic() - self.started)):
+                break  # the epoch ends here: evaluate, keep the best, checkpoint
+            if train.checkpoint_minutes > 0 and time.monotonic() - self.saved > 60 * train.checkpoint_minutes and self.group.lead:
+                self._checkpoint(batches, sums)  # within the epoch: a kill loses minutes, not the epoch
+                self.saved = time.monotonic()
+        return self.epoch_figures(sums)
 
-        self.writer = SummaryWriter(str(self.run_dir / "tb")) if self.group.lead else None
-        self.status, self.stale = "", 0
+    def epoch_figures(self, sums: dict[str, float]) -> dict[str, Any]:
+        """An epoch's row before evaluation: steps, images and the mean of each loss."""
+        return {"step": self.step, "images_seen": self.step * self.config.train.batch_size,
+                **{f"loss_{k}": v / self.steps_per_epoch for k, v in sums.items()}}
+
+    def evaluate(self) -> dict[str, Any]:
+        """Val AP every ``eval_every`` epochs, at the last and when the time budget is spent; nothing otherwise."""
+        train = self.config.train
+        self.improved, self.spent = False, self.out_of_time(time.monotonic() - self.started)
+        if not (self.epoch % train.eval_every == 0 or self.epoch == train.epochs or self.spent):
+            return {}
+        metrics = evaluate_model(self.model, self.val_set, train.batch_size)
+        return {k: metrics[k] for k in ("ap50", "map", "ap50_all", "ap50_unpickable")}
+
+    def save_best(self, row: dict[str, Any]) -> None:
+        self.stale, self.improved = 0, True
+        if self.config.train.keep_best:
+            self._save(self.run_dir / "best.safetensors")
+
+    def checkpoint(self) -> None:
+        self._checkpoint()
+
+    def status(self, row: dict[str, Any]) -> str:
+        if row.get("ap50") is not None:
+            self.status_text = f"· val AP50 {row['ap50']:.3f} (best {self.best:.3f})"
+        return f"epoch {self.epoch}/{self.config.train.epochs} {self.status_text}"
+
+    def stop_after(self, row: dict[str, Any] | None) -> bool:
+        """Out of time, or no better val AP50 for ``patience`` evaluations (early stopping)."""
+        if row is None:  # another rank: rank 0 decides
+            return self.out_of_time(time.monotonic() - self.started)
+        if "ap50" in row and not self.improved:
+            self.stale += 1
+        patience = self.config.train.patience
+        return self.spent or bool(patience and self.stale >= patience)
 
     def train_step(self, batch: dict, sums: dict[str, float]) -> None:
         """One optimiser step on ``batch`` (as the loader gives it); losses add into ``sums``."""
@@ -276,35 +309,6 @@ class DetectorTrainer:
     def note_time(self, elapsed: float) -> None:
         limit = self.config.train.max_minutes
         self.time_used = elapsed / (60 * limit) if limit > 0 else 0.0
-
-    def end_epoch(self, sums: dict[str, float], elapsed: float) -> bool:
-        """Evaluate (every ``eval_every`` epochs, and last), keep the best weights, checkpoint.
-        Returns True when training should stop: out of time, or no better val AP50 for
-        ``patience`` evaluations (early stopping)."""
-        config = self.config
-        self.epoch += 1
-        out_of_time = self.out_of_time(elapsed)
-        if not self.group.lead:  # rank 0 evaluates and writes; the others wait for it (agree) and follow
-            return out_of_time
-        record = {"epoch": self.epoch, "step": self.step, "images_seen": self.step * config.train.batch_size,
-                  **{f"loss_{k}": v / self.steps_per_epoch for k, v in sums.items()}}
-        if self.epoch % config.train.eval_every == 0 or self.epoch == config.train.epochs or out_of_time:
-            metrics = evaluate_model(self.model, self.val_set, config.train.batch_size)
-            record |= {k: metrics[k] for k in ("ap50", "map", "ap50_all", "ap50_unpickable")}
-            for key in ("ap50", "map", "ap50_all", "ap50_unpickable"):
-                if metrics[key] is not None:
-                    self.writer.add_scalar(f"val/{key}", metrics[key], self.epoch)
-            if record["ap50"] is not None and (self.best is None or record["ap50"] > self.best):
-                self.best, self.stale = record["ap50"], 0
-                if config.train.keep_best:
-                    self._save(self.run_dir / "best.safetensors")
-            else:
-                self.stale += 1
-        self.history.append(record)
-        self._checkpoint()
-        if record.get("ap50") is not None:
-            self.status = f"· val AP50 {record['ap50']:.3f} (best {self.best:.3f})"
-        return out_of_time or bool(config.train.patience and self.stale >= config.train.patience)
 
     def finish(self) -> dict[str, Any]:
         """The final weights (the best val AP50's with ``keep_best``) and ``metrics.json``."""
