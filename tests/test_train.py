@@ -317,3 +317,21 @@ def test_policy_load_reads_what_a_run_folder_holds_and_refuses_a_run_without_a_p
         Policy.load(tmp_path / "missing")
     with pytest.raises(ConfigError, match="has no env to load"):
         Policy.make_env(detector_run)
+
+
+def test_a_job_whose_config_names_no_folder_makes_one_under_runs(tmp_path):
+    from binpick.detection.recurrent_training import RecurrentTrainConfig
+    from binpick.warehouse.dataset import open_dataset
+
+    runs = tmp_path / "elsewhere"
+    path = _write(tmp_path, {"task": "data", "scenes": 2, "scenes_per_world": 1, "workers": 1, "image_size": 64, "policies": [],
+                             "copies": [2, 2], "distractors": [0, 0], "val_fraction": 0.5})
+    result = binpick_here(["train", path, "--runs", runs], cwd=tmp_path)
+    assert result.returncode == 0, result.stderr[-2000:]
+    (data,) = (runs / "data").iterdir()
+    assert open_dataset(data)["scenes"] == 2 and jobs.job_kind_of_run(data).task == "data"
+    recurrent = jobs.open_job(settings=RecurrentTrainConfig(train="a.json", val="b.json"), task="recurrent", runs=runs)
+    assert recurrent.run_dir.parent == runs / "rod_recurrent" and jobs.job_kind_of_run(recurrent.run_dir).task == "recurrent"
+    pinned = jobs.open_job(settings=RecurrentTrainConfig(train="a.json", val="b.json", out=str(tmp_path / "pinned")),
+                           task="recurrent", runs=runs)
+    assert pinned.run_dir == tmp_path / "pinned"  # a config that names its folder (a chain's next step reads it) keeps it

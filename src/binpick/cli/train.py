@@ -16,7 +16,7 @@ def train(
     config: Annotated[Path | None, typer.Argument(help="YAML config with a task: key (rl, april, detect, pickability, "
                                                        "grasp_quality, data); see configs/")] = None,
     resume: Annotated[Path | None, typer.Option(help="Run folder (or data-set folder) to continue")] = None,
-    runs: Annotated[Path, typer.Option(help="Where new run folders go (a data set goes to its config's out)")] = Path("runs"),
+    runs: Annotated[Path, typer.Option(help="Where new run folders go (a config that names an out folder goes there)")] = Path("runs"),
     settings: ConfigSetOption = None,
     list_tasks: Annotated[bool, typer.Option("--list", help="List the tasks and their config keys, then exit")] = False,
     address: Annotated[str | None, typer.Option(help="Train on a Ray cluster (detect, pickability, grasp_quality; rl "

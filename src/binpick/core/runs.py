@@ -91,17 +91,24 @@ def new_run(runs_root: str | Path, config: Any, task: str) -> Path:
 def new_run_dir(runs_root: Path, name: str, config_yaml: str) -> Path:
     """``runs_root/name/<YYYYmmdd-HHMMSS>[-k]/`` holding ``config.yaml``: everything to re-run it."""
     check_run_name(name)
+    run_dir = new_folder(Path(runs_root) / name)
+    atomic_write_text(run_dir / "config.yaml", config_yaml)
+    return run_dir
+
+
+def new_folder(parent: Path) -> Path:
+    """A new empty folder ``parent/<YYYYmmdd-HHMMSS>[-k]/`` (never one that exists: two runs started in the
+    same second get their own)."""
     stamp = time.strftime("%Y%m%d-%H%M%S")
-    base = ensure_dir(Path(runs_root) / name, "runs folder")
+    base = ensure_dir(Path(parent), "runs folder")
     for attempt in range(1000):
-        run_dir = base / (stamp if attempt == 0 else f"{stamp}-{attempt}")
+        folder = base / (stamp if attempt == 0 else f"{stamp}-{attempt}")
         try:
-            run_dir.mkdir()
+            folder.mkdir()
         except FileExistsError:
             continue
-        atomic_write_text(run_dir / "config.yaml", config_yaml)
-        return run_dir
-    raise RuntimeError(f"could not create a new run folder under {base}")
+        return folder
+    raise RuntimeError(f"could not create a new folder under {base}")
 
 
 @contextmanager

@@ -63,7 +63,8 @@ class RecurrentTrainConfig:
     train: str  # COCO annotations (binpick's or anyone's with shop photos not needed: crop queries)
     val: str
     targets: str = "all"  # all | pickable:<policy>
-    out: str = "runs/rod_recurrent"
+    name: str = "rod_recurrent"  # the run folder's name under --runs
+    out: str | None = None  # None: a new run folder under --runs; a path pins the folder (a chain's next step names it)
     image_size: int = 320
     images: int = 16480  # the budget: images seen
     batch_size: int = 16
@@ -207,6 +208,8 @@ def train_recurrent(config: RecurrentTrainConfig, callback: RunCallback = SILENT
     torch.manual_seed(config.seed)
     torch.set_num_threads(config.threads)
     train_set, val_set = datasets(config)
+    if config.out is None:
+        raise ConfigError("train_recurrent writes to config.out: give one (binpick train makes a run folder instead)")
     out = Path(config.out)
     out.mkdir(parents=True, exist_ok=True)
     model = _new_model(config)
@@ -268,8 +271,9 @@ def train_recurrent(config: RecurrentTrainConfig, callback: RunCallback = SILENT
 
 
 class RecurrentRun:
-    """The recurrent detector's training as a job (:class:`binpick.core.runs.Job`): its folder is the config's
-    ``out`` (the weights, ``metrics.json``, the checkpoint and the config it was started with)."""
+    """The recurrent detector's training as a job (:class:`binpick.core.runs.Job`): a new run folder under
+    ``runs`` (or the config's ``out``, where it pins one) holding the weights, ``metrics.json``, the
+    checkpoint and the config it was started with."""
 
     TASK = "recurrent"  # its kind of job (binpick.core.jobs)
 
@@ -277,12 +281,18 @@ class RecurrentRun:
         self.config, self.run_dir = config, Path(config.out)
 
     @classmethod
-    def new(cls, config: RecurrentTrainConfig, runs: Path | None = None) -> RecurrentRun:
-        """``runs`` is not used: the run goes to ``config.out``, and a run there with another config is refused."""
+    def new(cls, config: RecurrentTrainConfig, runs: Path = Path("runs")) -> RecurrentRun:
+        """A new run folder under ``runs/<name>/``; a config whose ``out`` names a folder goes there (a run
+        there with another config is refused when it resumes)."""
+        from dataclasses import replace
+
         import yaml
 
         from binpick.core.files import atomic_write_text, ensure_dir
+        from binpick.core.runs import new_run
 
+        if config.out is None:
+            return cls(replace(config, out=str(new_run(Path(runs), config, cls.TASK))))
         atomic_write_text(ensure_dir(Path(config.out)) / "config.yaml", yaml.safe_dump({"task": cls.TASK, **json.loads(json.dumps(asdict(config)))},
                                                                                      sort_keys=False))
         return cls(config)

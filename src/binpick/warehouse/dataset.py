@@ -29,7 +29,7 @@ import numpy as np
 
 from binpick.core.errors import ConfigError
 from binpick.core.files import atomic_write_json
-from binpick.core.runs import SILENT, RunCallback
+from binpick.core.runs import SILENT, RunCallback, new_folder
 from binpick.sim.products import ProductLibrary
 from binpick.warehouse.coco import finalise, open_dataset
 from binpick.warehouse.generation import FORMAT, GenerateConfig, build_library, target_products
@@ -266,8 +266,11 @@ class DataGeneration:
         self.done = done
 
     @classmethod
-    def new(cls, config: GenerateConfig, runs: Path | None = None) -> DataGeneration:
-        """The data set goes to ``config.out`` (``runs`` is not used: a data set is its own folder)."""
+    def new(cls, config: GenerateConfig, runs: Path = Path("runs")) -> DataGeneration:
+        """The data set goes to ``config.out``, the folder other configs read it from by name; a config
+        without one makes a new folder under ``runs`` (``runs/data/<time>``)."""
+        if not config.out:
+            config = replace(config, out=str(new_folder(Path(runs) / "data")))
         return cls(config)
 
     @classmethod

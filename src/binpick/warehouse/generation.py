@@ -15,7 +15,7 @@ FORMAT = "binpick-bins-1"
 
 @dataclass(frozen=True)
 class GenerateConfig:
-    out: str
+    out: str = ""  # the data set's folder; empty: a new folder under --runs (runs/data/<time>)
     scenes: int = 100
     policies: list[str] = field(default_factory=lambda: ["x", "y"])  # empty: no labels
     grasp_trials: int = 0  # per visible instance: random grasp candidates from depth, executed (grasp-quality data)
