@@ -33,8 +33,8 @@ from binpick.envs import make  # noqa: E402
 from binpick.rl.config import RLConfig  # noqa: E402
 from binpick.core.config import load_config  # noqa: E402
 from binpick.rl.common.evaluate import evaluate_policy, random_policy  # noqa: E402
-from binpick.rl.policy import load_policy
-from binpick.rl.envs import make_env as make_run_env
+from binpick.rl.policy import load_policy  # noqa: E402
+from binpick.rl.envs import make_env as make_run_env  # noqa: E402
 from binpick.rl.train import trainer_for  # noqa: E402
 from binpick.core.config import load_run_config  # noqa: E402
 from binpick.cli.terminal import RichCallback  # noqa: E402

@@ -332,6 +332,11 @@ def test_state_encoder_runs_on_arm2d_state_and_mismatched_configs_are_one_line(t
 
     env = make_env(trainer.config)
     assert env.observation_space.shape == (12,) and 0 <= policy(env.reset(seed=0)[0]) < 6
+    from binpick import Policy  # the same actor through the one loader every trained policy has
+
+    loaded = Policy.load(trainer.run_dir)
+    action, state = loaded.predict(env.reset(seed=0)[0], deterministic=True)
+    assert state is None and loaded.action_space.contains(int(action)) and loaded.observation_space.shape == (12,)
     with pytest.raises(ConfigError, match="a3c.encoder 'state' learns from Arm2D's state vector"):
         from_dict(RLConfig, settings | {"a3c": {"encoder": "state"}})
     with pytest.raises(ConfigError, match="image encoders need"):

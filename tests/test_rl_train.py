@@ -205,3 +205,15 @@ def test_actor_noise_leaves_privileged_state_and_moves_the_gripper_alone():
     assert 0.018 < float(spread[0]) < 0.022 and 0.009 < float(spread[1]) < 0.011 and float(spread[2]) == 0.0
     assert torch.count_nonzero(view["observation"][:, 3:]) == 0 and torch.count_nonzero(view["achieved_goal"]) == 0
     assert torch.count_nonzero(batch["observation"]) == 0, "the replay's own batch is left as it was"
+
+
+def test_every_algorithm_a_config_may_name_is_declared_once_with_parts_that_import():
+    from binpick.rl import config
+    from binpick.rl.algorithms import ALGORITHMS
+
+    assert set(ALGORITHMS) == set(config.ALGORITHMS)
+    for algorithm in ALGORITHMS.values():
+        parts = ["trainer", "env", "policy"] + (["learner"] if algorithm.learner else [])
+        assert all(callable(algorithm.load(part)) for part in parts), algorithm.name
+    assert [name for name, a in ALGORITHMS.items() if a.simulators_on_ray] == ["sac"]
+    assert [name for name, a in ALGORITHMS.items() if not a.keeps_replay] == ["dqn"]

@@ -322,6 +322,7 @@ def test_policy_load_reads_what_a_run_folder_holds_and_refuses_a_run_without_a_p
 def test_a_job_whose_config_names_no_folder_makes_one_under_runs(tmp_path):
     from binpick.detection.recurrent_training import RecurrentTrainConfig
     from binpick.warehouse.dataset import open_dataset
+    from binpick.warehouse.generation import GenerateConfig
 
     runs = tmp_path / "elsewhere"
     path = _write(tmp_path, {"task": "data", "scenes": 2, "scenes_per_world": 1, "workers": 1, "image_size": 64, "policies": [],
@@ -335,3 +336,7 @@ def test_a_job_whose_config_names_no_folder_makes_one_under_runs(tmp_path):
     pinned = jobs.open_job(settings=RecurrentTrainConfig(train="a.json", val="b.json", out=str(tmp_path / "pinned")),
                            task="recurrent", runs=runs)
     assert pinned.run_dir == tmp_path / "pinned"  # a config that names its folder (a chain's next step reads it) keeps it
+    assert jobs.job_kind_of_run(pinned.run_dir).task == "recurrent"  # and --resume finds what it holds
+    with pytest.raises(ConfigError, match="products file .missing.yaml. does not exist"):
+        jobs.open_job(settings=GenerateConfig(scenes=1, workers=1, products="missing.yaml"), task="data", runs=runs)
+    assert len(list((runs / "data").iterdir())) == 1  # a data set that could not start leaves no folder

@@ -13,8 +13,9 @@ from binpick.cli.app import ConfigSetOption, app, console, job_progress, parse_s
 
 @app.command("train")
 def train(
-    config: Annotated[Path | None, typer.Argument(help="YAML config with a task: key (rl, april, detect, pickability, "
-                                                       "grasp_quality, data); see configs/")] = None,
+    config: Annotated[Path | None, typer.Argument(help="YAML config with a task: key (rl, april, detect, recurrent, "
+                                                       "pickability, product_check, grasp_quality, data); see configs/ "
+                                                       "and binpick train --list")] = None,
     resume: Annotated[Path | None, typer.Option(help="Run folder (or data-set folder) to continue")] = None,
     runs: Annotated[Path, typer.Option(help="Where new run folders go (a config that names an out folder goes there)")] = Path("runs"),
     settings: ConfigSetOption = None,

@@ -92,8 +92,9 @@ class EpochTrainer:
                 self.best = value if value is not None else self.unset
                 self.save_best(row)
             self.checkpoint()
-            if self.task is not None:
-                self.task.update(self.progress(self._epochs)[1], status=self.status(row))
+            status = self.status(row)
+            if self.task is not None:  # (a trainer driven by another loop, as in joint training, has none)
+                self.task.update(self.progress(self._epochs)[1], status=status)
         return self.group.agree(self.stop_after(row))
 
     def run_epochs(self, callback: RunCallback, title: str, epochs: int) -> None:

@@ -88,6 +88,14 @@ def new_run(runs_root: str | Path, config: Any, task: str) -> Path:
     return new_run_dir(Path(runs_root), config.name, yaml.safe_dump({"task": task, **to_dict(config)}, sort_keys=False))
 
 
+def pinned_run(folder: str | Path, config: Any, task: str) -> Path:
+    """A run folder a config names itself (its ``out``), with the same ``config.yaml`` as :func:`new_run`
+    writes; a run already there resumes when its settings agree (each job checks them)."""
+    folder = ensure_dir(Path(folder), "out")
+    atomic_write_text(folder / "config.yaml", yaml.safe_dump({"task": task, **to_dict(config)}, sort_keys=False))
+    return folder
+
+
 def new_run_dir(runs_root: Path, name: str, config_yaml: str) -> Path:
     """``runs_root/name/<YYYYmmdd-HHMMSS>[-k]/`` holding ``config.yaml``: everything to re-run it."""
     check_run_name(name)

@@ -41,9 +41,9 @@ class JointTraining:
         first = self.trainers[0]
         config = first.config
         active = list(self.trainers)
-        for trainer in active:
-            trainer.open_writer()
         started = time.monotonic()
+        for trainer in active:
+            trainer.open_writer(started)  # one time budget for all rows
         try:
             with callback.task("joint training", first.total_steps, first.step) as task:
                 while active and first.epoch < config.train.epochs:
@@ -60,7 +60,12 @@ class JointTraining:
                                     " ".join(f"{t.config.name}{t.status_text}" for t in active))
                         if first.out_of_time(time.monotonic() - started):
                             break
+                    ended = time.monotonic()  # every row judges the time budget at the same moment
+                    for trainer in active:
+                        trainer.epoch_ended = ended
                     active = [t for t in active if not t.end_epoch(t.epoch_figures(sums[id(t)]))]
+                    for trainer in self.trainers:
+                        trainer.epoch_ended = None
                     first = active[0] if active else first
         finally:
             for trainer in self.trainers:

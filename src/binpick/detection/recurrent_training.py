@@ -220,7 +220,7 @@ def train_recurrent(config: RecurrentTrainConfig, callback: RunCallback = SILENT
     step = 0
     checkpoint = out / CHECKPOINT
     # what the weights depend on (not threads, checkpointing or scoring) must match to resume
-    comparable = {k: v for k, v in asdict(config).items() if k not in ("threads", "checkpoint_every", "val_tasks", "out")}
+    comparable = {k: v for k, v in asdict(config).items() if k not in ("threads", "checkpoint_every", "val_tasks", "out", "name")}
     if checkpoint.is_file():
         history, step = _restore(checkpoint, comparable, {"model": model, "optimiser": optimiser, "schedule": schedule})
 
@@ -286,15 +286,11 @@ class RecurrentRun:
         there with another config is refused when it resumes)."""
         from dataclasses import replace
 
-        import yaml
-
-        from binpick.core.files import atomic_write_text, ensure_dir
-        from binpick.core.runs import new_run
+        from binpick.core.runs import new_run, pinned_run
 
         if config.out is None:
             return cls(replace(config, out=str(new_run(Path(runs), config, cls.TASK))))
-        atomic_write_text(ensure_dir(Path(config.out)) / "config.yaml", yaml.safe_dump({"task": cls.TASK, **json.loads(json.dumps(asdict(config)))},
-                                                                                     sort_keys=False))
+        pinned_run(config.out, config, cls.TASK)
         return cls(config)
 
     @classmethod

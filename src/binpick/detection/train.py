@@ -219,10 +219,16 @@ class DetectorTrainer(EpochTrainer):
         callback.message(f"wrote {self.run_dir / WEIGHTS_FILE}")
         return metrics
 
-    def open_writer(self) -> None:
+    def open_writer(self, started: float | None = None) -> None:
+        """TensorBoard, and the clock of the time budget (``started``: a loop that drives several trainers
+        gives them one start)."""
         super().open_writer()
-        self.status_text, self.stale, self.improved = "", 0, False
-        self.started = self.saved = time.monotonic()  # the time budget counts from here
+        self.status_text, self.stale, self.improved, self.epoch_ended = "", 0, False, None
+        self.started = self.saved = started if started is not None else time.monotonic()
+
+    def elapsed(self) -> float:
+        """Seconds of the time budget used: at the epoch's end when a joint loop fixed it for all its rows."""
+        return (self.epoch_ended if self.epoch_ended is not None else time.monotonic()) - self.started
 
     def progress(self, epochs: int) -> tuple[int, int]:
         return self.total_steps, self.step
@@ -256,7 +262,7 @@ class DetectorTrainer(EpochTrainer):
     def evaluate(self) -> dict[str, Any]:
         """Val AP every ``eval_every`` epochs, at the last and when the time budget is spent; nothing otherwise."""
         train = self.config.train
-        self.improved, self.spent = False, self.out_of_time(time.monotonic() - self.started)
+        self.improved, self.spent = False, self.out_of_time(self.elapsed())
         if not (self.epoch % train.eval_every == 0 or self.epoch == train.epochs or self.spent):
             return {}
         metrics = evaluate_model(self.model, self.val_set, train.batch_size)
@@ -278,7 +284,7 @@ class DetectorTrainer(EpochTrainer):
     def stop_after(self, row: dict[str, Any] | None) -> bool:
         """Out of time, or no better val AP50 for ``patience`` evaluations (early stopping)."""
         if row is None:  # another rank: rank 0 decides
-            return self.out_of_time(time.monotonic() - self.started)
+            return self.out_of_time(self.elapsed())
         if "ap50" in row and not self.improved:
             self.stale += 1
         patience = self.config.train.patience

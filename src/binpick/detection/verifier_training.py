@@ -29,7 +29,7 @@ from binpick.core.files import atomic_write_text
 from binpick.detection.verifier import ProductVerifier, VerifierNet
 from binpick.detection.verifier_pairs import batch, collect, fixed_pairs
 from binpick.core.errors import ConfigError
-from binpick.core.runs import SILENT, RunCallback, new_run
+from binpick.core.runs import SILENT, RunCallback, new_run, pinned_run
 
 CHECKPOINT = "verifier_checkpoint.safetensors"
 
@@ -38,7 +38,7 @@ CHECKPOINT = "verifier_checkpoint.safetensors"
 class VerifierTrainConfig:
     data: str  # a binpick data set (``binpick data generate``), best with --domain random --photo-views N
     name: str = "product_check"  # the run folder's name under --runs (binpick train)
-    out: str = "runs/verifier"  # where train_verifier writes (experiments/verify.py train --out)
+    out: str | None = None  # None: a new run folder under --runs; a path pins the folder (experiments/verify.py train --out)
     scenes: int = 8000  # train scenes read (the first ones); val scenes: every val-split scene among the first ``scenes``
     epochs: int = 8
     batch_size: int = 128
@@ -122,6 +122,8 @@ class VerifierTrainer(EpochTrainer):
     def new(cls, config: VerifierTrainConfig, runs: Path = Path("runs")) -> VerifierTrainer:
         if not (Path(config.data) / "scenes").is_dir():
             raise ConfigError(f"data {config.data!r} is not a data set folder (binpick data generate --domain random --photo-views N)")
+        if config.out is not None:
+            return cls(config, pinned_run(config.out, config, cls.TASK))
         return cls(config, new_run(Path(runs), config, cls.TASK))
 
     @classmethod
@@ -206,7 +208,9 @@ def _comparable(config: dict[str, Any]) -> dict[str, Any]:
 
 def train_verifier(config: VerifierTrainConfig, callback: RunCallback = SILENT) -> dict[str, Any]:
     """Train (or resume) in ``config.out``, calibrate, save ``product_verifier.safetensors`` and its metrics
-    (``binpick train`` with ``task: product_check`` makes a run folder instead)."""
+    (``binpick train`` with ``task: product_check`` and no ``out`` makes a run folder instead)."""
+    if config.out is None:
+        raise ConfigError("train_verifier writes to config.out: give one (binpick train makes a run folder instead)")
     return VerifierTrainer(config, Path(config.out)).run(callback)
 
 

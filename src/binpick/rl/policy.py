@@ -12,7 +12,7 @@ from binpick.core.config import load_run_config
 from binpick.core.errors import ConfigError, InputFileError
 from binpick.core.policy import Policy
 from binpick.core.runs import latest_checkpoint
-from binpick.rl.a3c.policy import load_a3c_policy
+from binpick.rl.algorithms import ALGORITHMS
 from binpick.rl.common.persistence import POLICY_FILE, load_saved_policy
 from binpick.rl.config import RLConfig
 from binpick.rl.envs import make_env
@@ -33,12 +33,15 @@ def load_policy(run_dir: Path, env_id: str | None = None) -> tuple[Policy, RLCon
     checkpoint = latest_checkpoint(run_dir / "checkpoints")
     if checkpoint is None:
         raise ConfigError(f"run {run_dir} has no checkpoint yet")
-    if config.algorithm == "a3c":
-        return load_a3c_policy(checkpoint), config
+    return ALGORITHMS[config.algorithm].load("policy")(checkpoint), config
+
+
+def load_sb3_policy(checkpoint: Path) -> Policy:
+    """The policy network an SB3-based run saved in a checkpoint folder (``policy.safetensors``)."""
     if not (checkpoint / POLICY_FILE).is_file():
-        raise InputFileError(f"run {run_dir} has no {POLICY_FILE} in its latest checkpoint (older runs saved SB3 zips, "
+        raise InputFileError(f"checkpoint {checkpoint} has no {POLICY_FILE} (older runs saved SB3 zips, "
                              "which binpick no longer loads because they can run code)")
-    return load_saved_policy(checkpoint / POLICY_FILE), config
+    return load_saved_policy(checkpoint / POLICY_FILE)
 
 
 def load_run_policy(run_dir: Path, env_id: str | None = None) -> Policy:

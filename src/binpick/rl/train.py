@@ -39,6 +39,7 @@ from binpick.rl.gp_her.agents import GPImagination
 from binpick.rl.config import RLConfig
 from binpick.rl.common.curriculum import CurriculumProgress, GoalAreaCurriculum
 from binpick.rl.gp_her.dynamics import GPDynamics
+from binpick.rl.algorithms import ALGORITHMS
 from binpick.rl.callbacks import Checkpoint, Evaluate, Metrics, ReportProgress, stopped_early
 from binpick.rl.common.persistence import (
     ALGORITHM_FILE,
@@ -51,19 +52,16 @@ from binpick.rl.common.persistence import (
     save_replay,
 )
 from binpick.rl.common.wrappers import gripper_dims, needs_gripper
-from binpick.rl.dqn.model import build_dqn
 from binpick.rl.envs import make_env, no_wrap_env
-from binpick.rl.gp_her.model import build_sac
 
 
 def build_model(config: RLConfig, env: gym.Env, tensorboard: str | None, envs=None) -> BaseAlgorithm:
     """The run's learner on ``env`` (the run's env; its reward and episode length for the replay), or on
     ``envs``, a ``VecEnv`` of several simulators of it (Ray actors), which only the GP + HER SAC takes."""
-    if envs is not None and config.algorithm != "sac":
+    algorithm = ALGORITHMS[config.algorithm]
+    if envs is not None and not algorithm.simulators_on_ray:
         raise ConfigError(f"several simulators feed the sac learner (GP + HER) only; this run is {config.algorithm}")
-    if config.algorithm == "dqn":
-        return build_dqn(config, env, tensorboard)
-    return build_sac(config, env, tensorboard, envs)
+    return algorithm.load("learner")(config, env, tensorboard, envs)
 
 
 class Trainer:
@@ -114,14 +112,16 @@ class Trainer:
 
     # ------------------------------------------------------------------ construction
     @classmethod
-    def new(cls, config: RLConfig, runs_root: Path = Path("runs")) -> Trainer:
+    def new(cls, config: RLConfig, runs_root: Path = Path("runs"), wrap_env=None) -> Trainer:
+        no_wrap_env(config, wrap_env)
         with removed_on_error(new_run(runs_root, config, cls.TASK)) as run_dir:
             return cls(config, run_dir)
 
     @classmethod
-    def resume(cls, run_dir: Path) -> Trainer:
+    def resume(cls, run_dir: Path, wrap_env=None) -> Trainer:
         run_dir = Path(run_dir)
         config = load_run_config(RLConfig, run_dir)
+        no_wrap_env(config, wrap_env)
         trainer = cls(config, run_dir)
         trainer.load_checkpoint()
         return trainer
@@ -136,7 +136,7 @@ class Trainer:
         def write(folder: Path) -> None:
             save_algorithm(self.model, folder / ALGORITHM_FILE)
             save_policy(self.model, folder / POLICY_FILE, algorithm=self.config.algorithm, env=self.config.env)
-            if self.config.algorithm != "dqn":  # an image replay is GBs: a resumed DQN refills its replay
+            if ALGORITHMS[self.config.algorithm].keeps_replay:  # an image replay is GBs: a resumed DQN refills its own
                 save_replay(self.model.replay_buffer, folder)
             demonstrations = getattr(self.model, "demonstrations", None)
             if demonstrations is not None:
@@ -160,7 +160,7 @@ class Trainer:
         where = f"RL checkpoint state {str(checkpoint / 'state.json')!r}"
         state = read_json_object(checkpoint / "state.json", "RL checkpoint state", {"metrics": dict, "num_timesteps": int})
         load_algorithm(self.model, checkpoint / ALGORITHM_FILE)
-        if self.config.algorithm != "dqn":
+        if ALGORITHMS[self.config.algorithm].keeps_replay:
             load_replay(self.model.replay_buffer, checkpoint)
         try:
             self.metrics = Metrics(**state["metrics"])
@@ -301,11 +301,7 @@ def trainer_for(config: RLConfig | None = None, runs_root: Path = Path("runs"), 
     ``wrap_env`` is A3C's (binpick.rl.a3c.envs.make_a3c_env)."""
     if resume is not None:
         config = load_run_config(RLConfig, resume)
-    if config.algorithm == "a3c":
-        from binpick.rl.a3c.train import A3CTrainer as trainer_class
-        return (trainer_class.new(config, runs_root, wrap_env) if resume is None
-                else trainer_class.resume(Path(resume), wrap_env))
-    no_wrap_env(config, wrap_env)
-    return Trainer.new(config, runs_root) if resume is None else Trainer.resume(Path(resume))
+    trainer = ALGORITHMS[config.algorithm].load("trainer")
+    return trainer.new(config, runs_root, wrap_env) if resume is None else trainer.resume(Path(resume), wrap_env)
 
 

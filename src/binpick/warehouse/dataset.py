@@ -29,7 +29,7 @@ import numpy as np
 
 from binpick.core.errors import ConfigError
 from binpick.core.files import atomic_write_json
-from binpick.core.runs import SILENT, RunCallback, new_folder
+from binpick.core.runs import SILENT, RunCallback, new_folder, removed_on_error
 from binpick.sim.products import ProductLibrary
 from binpick.warehouse.coco import finalise, open_dataset
 from binpick.warehouse.generation import FORMAT, GenerateConfig, build_library, target_products
@@ -269,9 +269,10 @@ class DataGeneration:
     def new(cls, config: GenerateConfig, runs: Path = Path("runs")) -> DataGeneration:
         """The data set goes to ``config.out``, the folder other configs read it from by name; a config
         without one makes a new folder under ``runs`` (``runs/data/<time>``)."""
-        if not config.out:
-            config = replace(config, out=str(new_folder(Path(runs) / "data")))
-        return cls(config)
+        if config.out:
+            return cls(config)
+        with removed_on_error(new_folder(Path(runs) / "data")) as folder:  # a bad config leaves no empty folder
+            return cls(replace(config, out=str(folder)))
 
     @classmethod
     def resume(cls, run_dir: Path, workers: int | None = None) -> DataGeneration:

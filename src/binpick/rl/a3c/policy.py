@@ -16,14 +16,19 @@ from binpick.rl.a3c.networks import ActorCritic
 
 FORMAT = "binpick-a3c-checkpoint-1"
 A3C_FILE = "a3c.safetensors"
+ACTIONS = 6  # Arm2D's: each of three joints turned by ±π/8
 
 
 class SampledPolicy(Policy):
     """The actor as a policy: called, it samples its distribution as A3C acted in training; ``predict``
     is greedy when asked to be (:func:`evaluate_policy` asks unless ``deterministic=False``)."""
 
-    def __init__(self, model: ActorCritic, deterministic: bool = False) -> None:
+    def __init__(self, model: ActorCritic, deterministic: bool = False, observation_shape: tuple[int, ...] | None = None) -> None:
+        from gymnasium import spaces
+
         self.model, self.deterministic = model, deterministic
+        self.action_space = spaces.Discrete(ACTIONS)
+        self.observation_space = None if observation_shape is None else spaces.Box(-np.inf, np.inf, observation_shape, np.float32)
 
     def __call__(self, observation: np.ndarray) -> int:
         return self.model.act(observation, deterministic=self.deterministic)
@@ -57,11 +62,11 @@ def load_a3c_policy(checkpoint: Path) -> SampledPolicy:
     """A trained A3C actor as a policy (samples its action distribution, as it acted in training)."""
     state, meta = read_a3c_checkpoint(checkpoint)
     try:
-        model = ActorCritic(tuple(int(v) for v in meta["observation_shape"]), 6, str(meta.get("encoder", "flatten")),
+        model = ActorCritic(tuple(int(v) for v in meta["observation_shape"]), ACTIONS, str(meta.get("encoder", "flatten")),
                             int(meta.get("state_size", 0)), str(meta.get("policy_input", "features")),
                             hidden_layers=int(meta.get("hidden_layers", 1)))
         model.load_state_dict(state["model"])
     except (TypeError, ValueError, RuntimeError) as error:
         raise InputFileError(f"A3C checkpoint {checkpoint} is damaged ({str(error).splitlines()[0][:120]})") from None
     model.eval()
-    return SampledPolicy(model)
+    return SampledPolicy(model, observation_shape=tuple(int(v) for v in meta["observation_shape"]))

@@ -18,7 +18,7 @@ from binpick.rl.config.common import CurriculumConfig, EvalConfig, ReplayConfig
 from binpick.rl.config.dqn import DQNConfig
 from binpick.rl.config.gp_her import ActorNoiseConfig, DemonstrationConfig, GPConfig, SACConfig
 
-ALGORITHMS = ("sac", "sb3_sac_her", "a3c", "dqn")
+ALGORITHMS = ("sac", "sb3_sac_her", "a3c", "dqn")  # each declared in binpick.rl.algorithms
 MAX_SEED = 2**32 - 1  # NumPy's legacy seeding (used by SB3) takes 32-bit seeds
 
 

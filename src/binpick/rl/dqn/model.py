@@ -8,8 +8,8 @@ from stable_baselines3 import DQN
 from binpick.rl.config import RLConfig
 
 
-def build_dqn(config: RLConfig, env: gym.Env, tensorboard: str | None) -> DQN:
-    """The DQN learner on Arm2D's pictures (SB3's NatureCNN)."""
+def build_dqn(config: RLConfig, env: gym.Env, tensorboard: str | None, envs=None) -> DQN:
+    """The DQN learner on Arm2D's pictures (SB3's NatureCNN); one simulator (``envs`` is not taken)."""
     dqn = config.dqn
     return DQN("CnnPolicy", env, buffer_size=dqn.buffer_size, target_update_interval=dqn.target_update_interval,
                learning_rate=dqn.learning_rate, batch_size=dqn.batch_size, gamma=dqn.gamma,
