@@ -51,8 +51,8 @@ class EpochTrainer:
         """Commit the whole state (model, optimiser, ``epoch``, ``best``, ``history``) atomically."""
         raise NotImplementedError
 
-    def recorded(self, row: dict[str, Any]) -> dict[str, Any]:
-        """An epoch's row as the history keeps it (the best epoch is chosen on the row itself)."""
+    def recorded(self, row: dict[str, Any]) -> dict[str, Any] | None:
+        """An epoch's row as the history keeps it (the best epoch is chosen on the row itself); None: none."""
         return row
 
     def stop_after(self, row: dict[str, Any] | None) -> bool:
@@ -83,7 +83,9 @@ class EpochTrainer:
         row = None
         if self.group.lead:  # rank 0 evaluates and writes; the others go on to the next epoch
             row = {"epoch": self.epoch, **trained, **self.evaluate()}
-            self.history.append(self.recorded(row))
+            recorded = self.recorded(row)
+            if recorded is not None:  # (a trainer that keeps finer rows of its own records none per epoch)
+                self.history.append(recorded)
             for key, tag in self.scalars.items():
                 if row.get(key) is not None:
                     self.writer.add_scalar(tag, row[key], self.epoch)

@@ -17,7 +17,12 @@ from typing import Any
 
 import torch
 
+from binpick.core import tensorfile
 from binpick.core.config import check_range
+from binpick.core.data_parallel import ALONE
+from binpick.core.epochs import EpochTrainer
+from binpick.core.files import atomic_write_text
+from binpick.detection.data import collate
 from binpick.detection.recurrent import LossWeights, RecurrentDetector, RecurrentSpec, recurrent_loss
 from binpick.core.errors import ConfigError
 from binpick.core.runs import SILENT, RunCallback
@@ -102,8 +107,6 @@ class RecurrentTrainConfig:
 
 def load_recurrent(path: str | Path) -> RecurrentDetector:
     """A trained recurrent detector from its weights file (or a run folder holding one)."""
-    from binpick.core import tensorfile
-
     path = Path(path)
     if path.is_dir():
         path = path / WEIGHTS
@@ -119,8 +122,6 @@ def load_recurrent(path: str | Path) -> RecurrentDetector:
 
 
 def save_recurrent(model: RecurrentDetector, path: Path, meta: dict[str, Any]) -> None:
-    from binpick.core import tensorfile
-
     spec = asdict(model.spec)
     tensorfile.save(path, FORMAT_WEIGHTS, tensors=model.state_dict(),
                     meta={**meta, "spec": {**spec, "hidden": list(spec["hidden"])}, "image_size": model.image_size})
@@ -167,7 +168,6 @@ def _new_model(config: RecurrentTrainConfig) -> RecurrentDetector:
 
 def _restore(checkpoint: Path, comparable: dict[str, Any], parts: dict[str, Any]) -> tuple[list[dict[str, float]], int]:
     """Model, optimiser and schedule from a checkpoint of the same configuration: ``(history, step)``."""
-    from binpick.core import tensorfile
     from binpick.core.errors import InputFileError
 
     _, meta, state = tensorfile.load(checkpoint, FORMAT_CHECKPOINT, "recurrent checkpoint")
@@ -200,74 +200,110 @@ def _train_step(model: RecurrentDetector, optimiser, batch: dict[str, Any], conf
     return steps, losses
 
 
+class RecurrentTrainer(EpochTrainer):
+    """Training to the image budget on the epoch loop every supervised job shares: an epoch is the rest of
+    its batches (each epoch's order from the seed, so a resumed run skips what it saw), a row of the history
+    and a checkpoint every ``checkpoint_every`` steps within it; the val set is scored once, at the end
+    (the roll-out is what costs)."""
+
+    unset = float("-inf")  # no epoch is judged: nothing picks a best
+
+    def __init__(self, config: RecurrentTrainConfig, run_dir: Path) -> None:
+        torch.manual_seed(config.seed)
+        torch.set_num_threads(config.threads)
+        self.config, self.run_dir, self.group = config, Path(run_dir), ALONE
+        self.train_set, self.val_set = datasets(config)
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        self.model = _new_model(config)
+        self.optimiser = torch.optim.AdamW(self.model.parameters(), lr=config.lr, weight_decay=1e-4)
+        self.total_steps = max(1, config.images // config.batch_size)
+        self.schedule = torch.optim.lr_scheduler.OneCycleLR(self.optimiser, config.lr, total_steps=self.total_steps, pct_start=0.05)
+        self.steps_per_epoch = len(self.train_set) // config.batch_size  # whole batches only: every step sees batch_size images
+        if self.steps_per_epoch == 0:
+            raise ConfigError(f"batch_size {config.batch_size} is larger than the {len(self.train_set)} training tasks in {config.train}")
+        # what the weights depend on (not threads, checkpointing, scoring, the folder or its name) must match to resume
+        self.comparable = {k: v for k, v in asdict(config).items() if k not in ("threads", "checkpoint_every", "val_tasks", "out", "name")}
+        self.history, self.step, self.best = [], 0, self.unset
+        if (self.run_dir / CHECKPOINT).is_file():
+            self.history, self.step = _restore(self.run_dir / CHECKPOINT, self.comparable,
+                                               {"model": self.model, "optimiser": self.optimiser, "schedule": self.schedule})
+        self.epoch = self.step // self.steps_per_epoch
+        self.callback = SILENT
+
+    def run(self, callback: RunCallback = SILENT) -> dict[str, Any]:
+        config, self.callback = self.config, callback
+        self.sums, self.count, self.started = {}, 0, time.perf_counter()
+        self.run_epochs(callback, "recurrent: images", -(-self.total_steps // self.steps_per_epoch))
+        images = self.step * config.batch_size
+        val = evaluate_recurrent(self.model, self.val_set, config.val_tasks, callback)
+        metrics = {"val": {k: v for k, v in val.items() if k not in ("pr", "ap50_by_scale", "gt_by_scale")},
+                   "images_seen": images, "history": self.history}
+        save_recurrent(self.model, self.run_dir / WEIGHTS, {"trained_on": config.train, "targets": config.targets,
+                                                             "images_seen": images, "val_ap50": val["ap50"]})
+        atomic_write_text(self.run_dir / "metrics.json", json.dumps(metrics, indent=2))
+        return metrics
+
+    def progress(self, epochs: int) -> tuple[int, int]:
+        return self.total_steps * self.config.batch_size, self.step * self.config.batch_size
+
+    def train_epoch(self) -> dict[str, Any]:
+        config = self.config
+        offset = self.step - self.epoch * self.steps_per_epoch  # batches of this epoch a resumed run already saw
+        self.train_set.set_epoch(self.epoch)
+        order = torch.randperm(len(self.train_set), generator=torch.Generator().manual_seed(config.seed + self.epoch)).tolist()
+        batches = torch.utils.data.DataLoader(torch.utils.data.Subset(self.train_set, order[offset * config.batch_size:]),
+                                              batch_size=config.batch_size, shuffle=False, drop_last=True, collate_fn=collate)
+        weights = config.loss.weights()
+        for batch in batches:
+            if self.step >= self.total_steps:
+                break
+            steps, losses = _train_step(self.model, self.optimiser, batch, config, self.step / self.total_steps, weights)
+            self.schedule.step()
+            self.step += 1
+            self.count += 1
+            for key, value in losses.items():
+                self.sums[key] = self.sums.get(key, 0.0) + float(value.detach())
+            self.task.update(self.step * config.batch_size)
+            if self.step % config.checkpoint_every == 0 or self.step == self.total_steps:
+                self._record(steps)
+        return {}
+
+    def _record(self, steps: int) -> None:
+        """A row of the history (mean losses since the last row), TensorBoard, a checkpoint."""
+        row = {"images_seen": self.step * self.config.batch_size, "steps": steps,
+               **{key: round(value / self.count, 4) for key, value in self.sums.items()},
+               "seconds": round(time.perf_counter() - self.started, 1)}
+        self.history.append(row)
+        for key, value in self.sums.items():
+            self.writer.add_scalar(f"loss/{key}", value / self.count, self.step)
+        self.sums, self.count, self.started = {}, 0, time.perf_counter()
+        self.checkpoint()
+        self.callback.message(json.dumps(row))
+
+    def evaluate(self) -> dict[str, Any]:
+        return {}
+
+    def recorded(self, row: dict[str, Any]) -> dict[str, Any] | None:
+        return None  # the history holds a row per checkpoint, not per epoch
+
+    def status(self, row: dict[str, Any]) -> str:
+        return f"epoch {self.epoch}"
+
+    def save_best(self, row: dict[str, Any]) -> None:
+        """Nothing: the model at the end of the budget is the one saved."""
+
+    def checkpoint(self) -> None:
+        tensorfile.save(self.run_dir / CHECKPOINT, FORMAT_CHECKPOINT,
+                        meta={"config": self.comparable, "step": self.step, "history": self.history},
+                        state={"model": self.model.state_dict(), "optimiser": self.optimiser.state_dict(),
+                               "schedule": self.schedule.state_dict()})
+
+
 def train_recurrent(config: RecurrentTrainConfig, callback: RunCallback = SILENT) -> dict[str, Any]:
     """Train (or resume) to the image budget; save ``<out>/recurrent.safetensors`` and ``metrics.json``."""
-    from binpick.core import tensorfile
-    from binpick.detection.data import collate
-
-    torch.manual_seed(config.seed)
-    torch.set_num_threads(config.threads)
-    train_set, val_set = datasets(config)
     if config.out is None:
         raise ConfigError("train_recurrent writes to config.out: give one (binpick train makes a run folder instead)")
-    out = Path(config.out)
-    out.mkdir(parents=True, exist_ok=True)
-    model = _new_model(config)
-    optimiser = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=1e-4)
-    total_steps = max(1, config.images // config.batch_size)
-    schedule = torch.optim.lr_scheduler.OneCycleLR(optimiser, config.lr, total_steps=total_steps, pct_start=0.05)
-    history: list[dict[str, float]] = []
-    step = 0
-    checkpoint = out / CHECKPOINT
-    # what the weights depend on (not threads, checkpointing or scoring) must match to resume
-    comparable = {k: v for k, v in asdict(config).items() if k not in ("threads", "checkpoint_every", "val_tasks", "out", "name")}
-    if checkpoint.is_file():
-        history, step = _restore(checkpoint, comparable, {"model": model, "optimiser": optimiser, "schedule": schedule})
-
-    def save_checkpoint() -> None:
-        tensorfile.save(checkpoint, FORMAT_CHECKPOINT, meta={"config": comparable, "step": step, "history": history},
-                        state={"model": model.state_dict(), "optimiser": optimiser.state_dict(), "schedule": schedule.state_dict()})
-
-    weights = config.loss.weights()
-    steps_per_epoch = len(train_set) // config.batch_size  # whole batches only, so every step sees batch_size images
-    if steps_per_epoch == 0:
-        raise ConfigError(f"batch_size {config.batch_size} is larger than the {len(train_set)} training tasks in {config.train}")
-    started, sums, count = time.perf_counter(), {}, 0
-    with callback.task("recurrent: images", total_steps * config.batch_size, done=step * config.batch_size) as task:
-        while step < total_steps:
-            epoch, offset = divmod(step, steps_per_epoch)
-            train_set.set_epoch(epoch)
-            # each epoch's order comes from the seed, so a resumed run skips the batches it saw
-            order = torch.randperm(len(train_set), generator=torch.Generator().manual_seed(config.seed + epoch)).tolist()
-            batches = torch.utils.data.DataLoader(torch.utils.data.Subset(train_set, order[offset * config.batch_size:]),
-                                                  batch_size=config.batch_size, shuffle=False, drop_last=True, collate_fn=collate)
-            for batch in batches:
-                if step >= total_steps:
-                    break
-                steps, losses = _train_step(model, optimiser, batch, config, step / total_steps, weights)
-                schedule.step()
-                step += 1
-                count += 1
-                for key, value in losses.items():
-                    sums[key] = sums.get(key, 0.0) + float(value.detach())
-                task.update(advance=config.batch_size)
-                if step % config.checkpoint_every == 0 or step == total_steps:
-                    row = {"images_seen": step * config.batch_size, "steps": steps,
-                           **{key: round(value / count, 4) for key, value in sums.items()},
-                           "seconds": round(time.perf_counter() - started, 1)}
-                    history.append(row)
-                    sums, count, started = {}, 0, time.perf_counter()
-                    save_checkpoint()
-                    callback.message(json.dumps(row))
-    val = evaluate_recurrent(model, val_set, config.val_tasks, callback)
-    metrics = {"val": {k: v for k, v in val.items() if k not in ("pr", "ap50_by_scale", "gt_by_scale")},
-               "images_seen": step * config.batch_size, "history": history}
-    save_recurrent(model, out / WEIGHTS, {"trained_on": config.train, "targets": config.targets, "images_seen": step * config.batch_size,
-                                          "val_ap50": val["ap50"]})
-    from binpick.core.files import atomic_write_text
-
-    atomic_write_text(out / "metrics.json", json.dumps(metrics, indent=2))
-    return metrics
+    return RecurrentTrainer(config, Path(config.out)).run(callback)
 
 
 class RecurrentRun:
