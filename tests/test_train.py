@@ -340,3 +340,12 @@ def test_a_job_whose_config_names_no_folder_makes_one_under_runs(tmp_path):
     with pytest.raises(ConfigError, match="products file .missing.yaml. does not exist"):
         jobs.open_job(settings=GenerateConfig(scenes=1, workers=1, products="missing.yaml"), task="data", runs=runs)
     assert len(list((runs / "data").iterdir())) == 1  # a data set that could not start leaves no folder
+
+
+def test_the_old_policy_class_name_says_where_it_went():
+    import binpick
+    import binpick.rl
+
+    for module in (binpick, binpick.rl):
+        with pytest.raises(AttributeError, match="is now binpick.Policy"):
+            module.TrainedPolicy  # noqa: B018

@@ -28,4 +28,7 @@ def __getattr__(name: str):
         import importlib
 
         return getattr(importlib.import_module(_LAZY[name]), name)
+    if name == "TrainedPolicy":  # renamed: one class loads every trained policy
+        raise AttributeError("binpick.TrainedPolicy is now binpick.Policy: Policy.load(run).predict(obs) -> (action, state), "
+                             "for RL runs of any algorithm and APRiL runs alike")
     raise AttributeError(f"module 'binpick' has no attribute {name!r}")

@@ -13,3 +13,9 @@ with its config section; :mod:`binpick.rl.train` runs any of them. Any trained p
 from binpick.rl.common.evaluate import EvalResult, evaluate_policy, random_policy
 
 __all__ = ["EvalResult", "evaluate_policy", "random_policy"]
+
+
+def __getattr__(name: str):
+    if name == "TrainedPolicy":  # renamed: one class loads every trained policy
+        raise AttributeError("binpick.rl.TrainedPolicy is now binpick.Policy: Policy.load(run).predict(obs) -> (action, state)")
+    raise AttributeError(f"module 'binpick.rl' has no attribute {name!r}")
