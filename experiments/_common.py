@@ -138,12 +138,15 @@ def training_scalars(run: Path, *tags: str, optional: tuple[str, ...] = ()) -> d
 ROW_SKIP = ("benchmark", "machine", "provenance", "provenance_by_row")
 
 
-def write_result(name: str, payload: dict, measured: set[str] | frozenset[str] = frozenset()) -> Path:
+def write_result(name: str, payload: dict, measured: set[str] | frozenset[str] = frozenset(),
+                 merged: dict[str, set[str]] | None = None) -> Path:
     """results/NAME.json: the payload, the machine and this run's provenance; and per top-level row
     (``provenance_by_row``) the provenance of the run that measured it: this run's for the rows it
     changed and the rows it names as ``measured`` (measured again, perhaps to the same figures), the
     earlier one for rows it kept as they were, so a row measured on older code than its neighbours
-    says so."""
+    says so. ``merged``: rows that join this run's sub-rows to an earlier run's (each hand's rows of
+    ``by_gripper``): their provenance goes per sub-row (``by_gripper.jaws``), this run's for the
+    sub-rows it names, the earlier one for the others."""
     from binpick.core.files import atomic_write_text
 
     path = RESULTS / f"{name}.json"
@@ -162,6 +165,12 @@ def write_result(name: str, payload: dict, measured: set[str] | frozenset[str] =
             continue
         kept = key not in measured and key in previous and json.dumps(previous[key], sort_keys=True) == json.dumps(value, sort_keys=True)
         by_row[key] = earlier.get(key, {"commit": None, "note": "measured before results recorded provenance"}) if kept else now
+    for key, subs in (merged or {}).items():
+        if isinstance(payload.get(key), dict):
+            before = by_row.pop(key)
+            for sub in payload[key]:
+                dotted = f"{key}.{sub}"
+                by_row[dotted] = now if sub in subs else earlier.get(dotted, earlier.get(key, before))
     body = {key: value for key, value in payload.items() if key not in ROW_SKIP}
     return atomic_write_text(path, json.dumps({"benchmark": name, "machine": machine(), **body, "provenance": now,
                                                "provenance_by_row": by_row}, indent=2) + "\n")

@@ -133,7 +133,9 @@ def main() -> None:
         print(group, json.dumps({k: summary[k] for k in ("orders", "pick_success", "right_product", "picks_per_min", "reasons")}),
               flush=True)
     result["by_gripper"] = {args.gripper: {g: result[g] for g in ("seen", "held_out") if g in result}}
+    hands_measured = {args.gripper} if any(group in ("seen", "held_out") for group, *_ in groups) else set()
     if args.tool_rows:
+        hands_measured |= {"jaws", "suction", "both"}
         for gripper in [g for g in ("jaws", "suction", "both") if g != args.gripper]:
             planner = GraspPlanner.load(policy, hand=gripper)
             for group, products in (("seen", seen), ("held_out", held_out)):
@@ -146,9 +148,11 @@ def main() -> None:
                 print(gripper, group, json.dumps({k: summary[k] for k in ("orders", "pick_success", "right_product", "reasons")}), flush=True)
     elif "by_gripper" in previous:  # the other hands' rows stay until they are run again
         result["by_gripper"] = {**previous["by_gripper"], **result["by_gripper"]}
+    cells_measured: set[str] = set()
     if args.cell is not None:
-        result["by_cell"] = {**(previous.get("by_cell") or {}), **cell_rows(model, library, policy, args.cell, seen, held_out, args.orders, args.out,
-                                                                                       args.robot)}
+        measured_cells = cell_rows(model, library, policy, args.cell, seen, held_out, args.orders, args.out, args.robot)
+        cells_measured = set(measured_cells)
+        result["by_cell"] = {**(previous.get("by_cell") or {}), **measured_cells}
     elif "by_cell" in previous:
         result["by_cell"] = previous["by_cell"]
     if args.per_product:
@@ -173,7 +177,8 @@ def main() -> None:
                                "held_out.right_product": 0.98, "by_product.min_pick_success": 0.90},
                    "peak_rss_mib": _common.peak_rss_mib(),
                    "load_average": round(os.getloadavg()[0], 2)})
-    _common.write_result("pick", result)
+    # each hand's rows and each cell's say which run measured them (a run may keep the others' from an earlier one)
+    _common.write_result("pick", result, merged={"by_gripper": hands_measured, "by_cell": cells_measured})
     _common.write_section_of("pick", section, "pick.json")
 
 

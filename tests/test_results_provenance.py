@@ -29,6 +29,26 @@ def test_rows_a_run_changed_carry_its_provenance_and_kept_rows_keep_theirs(tmp_p
     assert json.loads((tmp_path / "x.json").read_text())["provenance_by_row"] == {"old": {"commit": "ccc"}, "new": {"commit": "ddd"}}
 
 
+def test_a_row_merged_from_two_runs_says_which_run_measured_each_sub_row(tmp_path, monkeypatch):
+    """pick.py without --tool-rows measures the default hand and keeps the other hands' rows: those keep
+    the provenance of the run that measured them, even though the row as a whole changed."""
+    import _common
+
+    monkeypatch.setattr(_common, "RESULTS", tmp_path)
+    monkeypatch.setattr(_common, "provenance", lambda: {"commit": "aaa"})
+    _common.write_result("x", {"by_gripper": {"both": 1, "jaws": 2, "suction": 3}})
+    monkeypatch.setattr(_common, "provenance", lambda: {"commit": "bbb"})
+    _common.write_result("x", {"by_gripper": {"both": 9, "jaws": 2, "suction": 3}}, merged={"by_gripper": {"both"}})
+    rows = json.loads((tmp_path / "x.json").read_text())["provenance_by_row"]
+    assert rows == {"by_gripper.both": {"commit": "bbb"}, "by_gripper.jaws": {"commit": "aaa"}, "by_gripper.suction": {"commit": "aaa"}}
+    monkeypatch.setattr(_common, "provenance", lambda: {"commit": "ccc"})
+    _common.write_result("x", {"by_gripper": {"both": 9, "jaws": 5, "suction": 3}}, merged={"by_gripper": {"jaws"}})
+    rows = json.loads((tmp_path / "x.json").read_text())["provenance_by_row"]
+    assert rows == {"by_gripper.both": {"commit": "bbb"}, "by_gripper.jaws": {"commit": "ccc"}, "by_gripper.suction": {"commit": "aaa"}}
+    line = _common.provenance_line({"provenance_by_row": rows}, "x.json")
+    assert "`by_gripper.jaws`" in line and "`by_gripper.both`" in line
+
+
 def test_the_command_recorded_is_the_script_s_own_when_it_runs_binpick_in_process(monkeypatch):
     """A benchmark that runs binpick's CLI in its own process (the hostile-input one) rewrites sys.argv;
     the row still names the command that measured it."""

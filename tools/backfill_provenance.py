@@ -26,7 +26,9 @@ ROW_INFERRED = "the file's last writer; the row may be older"
 
 
 def rows_without(result: dict) -> list[str]:
-    return [key for key in result if key not in SKIP and key not in (result.get("provenance_by_row") or {})]
+    """Top-level rows with no provenance of their own or of their sub-rows (``row.sub``)."""
+    named = result.get("provenance_by_row") or {}
+    return [key for key in result if key not in SKIP and key not in named and not any(k.startswith(f"{key}.") for k in named)]
 
 
 def missing() -> list[Path]:
