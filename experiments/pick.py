@@ -159,12 +159,7 @@ def main() -> None:
         result["by_product"] = per_product_rows(model, library, policy, args.gripper, seen, held_out, args.per_product, args.out)
     elif "by_product" in previous:
         result["by_product"] = previous["by_product"]
-    executed = executed_orders(result.get("by_gripper") or {})
-    if executed:
-        result["by_category"] = category_rows(library, executed)
-        result["calibration"] = calibration_rows(executed)
-    else:  # the rows' orders are not on this machine (another clone measured them): their figures stay as they were
-        result.update({key: previous[key] for key in ("by_category", "calibration") if key in previous})
+    result.update(pooled_rows(library, result.get("by_gripper") or {}, previous))
     # a kept arm row keeps the floating-gripper rows it was measured beside (the same code): the arm's run
     # (--robot panda) writes both anew
     pipeline = PickPipeline(model, library, grasp=planners[policy])  # the settings every row shares
@@ -236,6 +231,16 @@ def cell_rows(model, library, policy: str, path: Path, seen: list[str], held_out
                        "widest_jaw_grasp": round(max(widths), 4) if widths else None, **summary}
         print(name, group, json.dumps({k: summary[k] for k in ("orders", "pick_success", "right_product", "reasons")}), flush=True)
     return {name: rows}
+
+
+def pooled_rows(library, by_gripper: dict, previous: dict) -> dict:
+    """``by_category`` and ``calibration``, which pool every hand's orders: made again when all the hands'
+    orders are on this machine, else kept as they were (another clone or another run measured some of
+    them), rather than made from a part of them."""
+    executed = executed_orders(by_gripper)
+    if executed and set(executed) >= set(by_gripper):
+        return {"by_category": category_rows(library, executed), "calibration": calibration_rows(executed)}
+    return {key: previous[key] for key in ("by_category", "calibration") if key in previous}
 
 
 def executed_orders(rows: dict) -> dict[str, list[dict]]:

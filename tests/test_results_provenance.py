@@ -80,3 +80,20 @@ def test_a_stage_keeps_a_row_another_stage_made_after_it_started(tmp_path, monke
     monkeypatch.setattr(_common, "RESULTS", tmp_path)
     (tmp_path / "plan.json").write_text(json.dumps({"sim_orders": {"b": 2}}))  # made by a stage that ended meanwhile
     assert plan.changes_onto_latest({}, {"sim_orders": {"a": 1}}) == {"sim_orders": {"b": 2, "a": 1}}
+
+
+def test_rows_pooling_every_hand_s_orders_are_kept_when_only_some_hands_orders_are_here(tmp_path):
+    """A run with the default hand only (a fresh clone, no --tool-rows) must not remake by_category and
+    calibration from that hand's orders alone: they pool every hand's."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("pick_experiment", Path(__file__).resolve().parents[1] / "experiments" / "pick.py")
+    pick = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(pick)
+    (tmp_path / "both_seen").mkdir()
+    (tmp_path / "both_seen" / "results.json").write_text(json.dumps({"orders": [{"product": "robosuite/can"}]}))
+    by_gripper = {"both": {"seen": {"folder": str(tmp_path / "both_seen")}},
+                  "jaws": {"seen": {"folder": str(tmp_path / "elsewhere")}}}
+    previous = {"by_category": {"boxes": {"jaws": 1}}, "calibration": {"jaws": 2}}
+    assert pick.pooled_rows(None, by_gripper, previous) == previous
+    assert pick.executed_orders(by_gripper) == {"both": [{"product": "robosuite/can"}]}
