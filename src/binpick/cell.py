@@ -120,11 +120,15 @@ def _numbers(data, ranges: dict[str, tuple[float, float]], where: str) -> dict[s
     return values
 
 
-def load_cell(path: str | Path | None) -> Cell | None:
-    """The cell file at ``path`` (None: no cell given)."""
+def load_cell(path: str | Path | None, robot: str | None = None) -> Cell | None:
+    """The cell file at ``path`` (None: no cell given); with ``robot``, checked to fit that arm
+    (:meth:`Cell.check_arm`) before anything else is made."""
     if path is None:
         return None
     try:
-        return Cell.load(path)
+        cell = Cell.load(path)
     except ConfigError as error:
         raise InputFileError(str(error)) from None
+    if robot is not None:
+        cell.check_arm(robot)
+    return cell

@@ -132,11 +132,11 @@ CellOption = Annotated[Path | None, typer.Option(help="Your cell file (YAML): th
                                                        "configs/cells/). Replaces --gripper")]
 
 
-def load_cell(path: Path | None):
-    """The --cell file (None: none given); a mistake in it is one line."""
+def load_cell(path: Path | None, robot: str | None = None):
+    """The --cell file (None: none given), checked against ``robot``'s arm; a mistake in it is one line."""
     from binpick.cell import load_cell as load
 
-    return load(path)
+    return load(path, robot)
 
 
 PlanRobotOption = Annotated[str, typer.Option(callback=_check_robot, help="floating: any grasp goes; panda or ur5e: only grasps the "

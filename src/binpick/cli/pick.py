@@ -58,9 +58,7 @@ def pick(
     from binpick.warehouse.pipeline import PickPipeline
 
     check_range("orders", orders, 1, 100_000, integer=True)
-    the_cell = load_cell(cell)
-    if the_cell is not None:
-        the_cell.check_arm(robot)  # another arm than the file's, or a tool point the arm's hand cannot have: one line, now
+    the_cell = load_cell(cell, robot)  # another arm than the file's, or a tool point the arm's hand cannot have: one line, now
     if the_cell is not None:  # its hand: the tools, the jaws' stroke and fingers, the cup (the simulator builds the same)
         gripper = the_cell.tools
         planner = GraspPlanner.load(grasp, grasp_weights, hand=gripper, gripper=the_cell.jaws, cup=the_cell.cup)

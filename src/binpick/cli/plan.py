@@ -69,9 +69,7 @@ def plan(
     from binpick.picking.frames import read_frame, read_photo
 
     check_range("--max-grasps", max_grasps, 1, 100, integer=True)
-    the_cell = load_cell(cell)
-    if the_cell is not None:
-        the_cell.check_arm(robot)  # before any output folder is made
+    the_cell = load_cell(cell, robot)  # checked against the arm before any output folder is made
     gripper = the_cell.tools if the_cell is not None else gripper
     rgb, depth, camera, photo = _frame_files(rgb, depth, camera, photo, query_box, sample)
     box = parse_box(query_box) if query_box is not None else None

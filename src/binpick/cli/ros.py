@@ -202,9 +202,7 @@ def _pick_node_setup(settings: dict):
     if settings["camera_frame"] == frame:
         raise ConfigError(f"the camera's tf frame {frame!r} is the base frame camera.yaml places it in: give --camera-frame "
                           "(or camera_frame in the parameter file) a frame of its own")
-    cell = load_cell(settings["cell"])
-    if cell is not None:
-        cell.check_arm(settings["robot"])
+    cell = load_cell(settings["cell"], settings["robot"])
     gripper = cell.tools if cell is not None else settings["gripper"]
     reach = None
     if settings["robot"] != "floating":  # grasps the arm cannot take are rejected in the result, with the reason

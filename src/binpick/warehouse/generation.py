@@ -66,8 +66,7 @@ class GenerateConfig:
         if self.cell is not None:
             from binpick.cell import load_cell
 
-            cell = load_cell(self.cell)  # a bad file: one line, now
-            cell.check_arm(self.robot)
+            cell = load_cell(self.cell, self.robot)  # a bad file, or one another arm cannot carry: one line, now
             if self.gripper not in ("jaws", cell.tools):  # jaws is the default: the file's tools replace it
                 raise ConfigError(f"gripper {self.gripper!r} and cell {self.cell!r} (tools {cell.tools}) disagree: give one of them")
             object.__setattr__(self, "gripper", cell.tools)
