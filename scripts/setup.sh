@@ -66,5 +66,8 @@ if [ "${BINPICK_ROS2:-1}" != 0 ]; then
     echo "warning: the ROS 2 wheels did not install; the ROS 2 node and its tests are unavailable" >&2
   fi
 fi
+# binpick's own modules compiled now, as pip compiles what it installs: an interpreter that may not write
+# bytecode (PYTHONDONTWRITEBYTECODE) would compile them again in every process and worker it starts
+"$VENV/bin/python" -m compileall -q -j 0 src >/dev/null || echo "warning: binpick's modules did not compile ahead" >&2
 touch "$VENV/.binpick-installed"
 echo "== ready: $VENV/bin/binpick"

@@ -60,16 +60,54 @@ def ray_cluster():
     ray.shutdown()
 
 
-# The longest tests start first, so that with several test processes (make test) none waits at the end
-# for a long test another picked up late.
-LONG_FIRST = ("test_readme.py::test_every_readme_block_runs_on_tiny_settings",
-              "test_readme.py::test_each_standalone_readme_command_runs_on_tiny_settings",
-              "test_ray_train.py::test_two_workers_take_the_local_grasp_quality_run_s_steps_and_a_killed_worker_is_replaced",
-              "test_ray_train.py::test_one_ray_worker_trains_exactly_the_local_pickability_head",
-              "test_april.py::test_april_pipeline_runs_resumes_and_deploys_from_pixels",
-              "test_distributed.py::test_a_killed_driver_resumes_on_ray_with_the_steps_and_evaluations_of_an_uninterrupted_run",
-              "test_ray_train.py::test_two_ray_workers_share_the_local_detector_run_s_steps",
-              "test_a3c.py::test_a3c_run_with_curriculum_resumes_and_evaluates")
+# The longest tests (CPU seconds measured on a 2-core machine, Ray's processes included) start first, dealt
+# among the test processes. pytest-xdist's work stealing first splits the collection into one contiguous
+# block per test process and later steals from the ends of the blocks: long tests sorted to the front of
+# the collection would all land in the first block and run one after another in one process.
+LONG = {"test_readme.py::test_every_readme_block_runs_on_tiny_settings": 140,
+        "test_ray_train.py::test_two_workers_take_the_local_grasp_quality_run_s_steps_and_a_killed_worker_is_replaced": 60,
+        "test_distributed.py::test_gp_her_from_an_rl_yaml_on_ray_simulators_ends_as_a_run_without_the_fault": 50,
+        "test_distributed.py::test_a_killed_driver_resumes_on_ray_with_the_steps_and_evaluations_of_an_uninterrupted_run": 40,
+        "test_april.py::test_april_pipeline_runs_resumes_and_deploys_from_pixels": 40,
+        "test_a3c.py::test_a3c_run_with_curriculum_resumes_and_evaluates": 35,
+        "test_readme.py::test_each_standalone_readme_command_runs_on_tiny_settings": 15,
+        "test_arm.py::test_the_arm_picks_with_its_suction_cup": 28,
+        "test_resume.py::test_a3c_run_killed_at_a_boundary_resumes_with_every_evaluation_once": 14,
+        "test_detection.py::test_training_learns_the_toy_set_resumes_and_predicts": 27,
+        "test_ray_train.py::test_two_ray_workers_share_the_local_detector_run_s_steps": 25,
+        "test_distributed.py::test_a3c_from_an_rl_yaml_on_ray_actors_ends_as_a_run_without_the_fault": 20,
+        "test_ray_train.py::test_one_ray_worker_trains_exactly_the_local_pickability_head": 20}
+
+
+def block_sizes(count: int, processes: int) -> list[int]:
+    """The sizes of the blocks pytest-xdist's work stealing hands its test processes at the start."""
+    sizes: list[int] = []
+    for remaining in range(processes, 0, -1):
+        sizes.append((count - sum(sizes)) // remaining)
+    return sizes
+
+
+def long_test_weight(item) -> float:
+    return LONG.get(item.nodeid.split("/")[-1].split("[")[0], 0)  # [params]: each parameter weighs as the test
+
+
+def deal_long_tests_first(items: list, processes: int) -> list:
+    """``items`` reordered so that each test process's first block starts with its share of the long
+    tests (longest first, each to the least loaded block), the rest in collection order after them."""
+    long = sorted((item for item in items if long_test_weight(item)), key=long_test_weight, reverse=True)
+    rest = [item for item in items if not long_test_weight(item)]
+    blocks: list[list] = [[] for _ in range(processes)]
+    loads = [0.0] * processes
+    for item in long:
+        index = loads.index(min(loads))
+        blocks[index].append(item)
+        loads[index] += long_test_weight(item)
+    ordered = []
+    for block, size in zip(blocks, block_sizes(len(items), processes)):
+        fill = max(0, size - len(block))
+        ordered += block + rest[:fill]
+        rest = rest[fill:]
+    return ordered + rest
 
 
 @pytest.fixture(autouse=True)
@@ -84,8 +122,8 @@ def _one_torch_thread_per_worker():
 
 
 def pytest_collection_modifyitems(config, items):
-    rank = {name: index for index, name in enumerate(LONG_FIRST)}
-    items.sort(key=lambda item: rank.get(item.nodeid.split("/")[-1].split("[")[0], len(rank)))  # [params]: the test's rank
+    processes = int(getattr(config, "workerinput", {}).get("workercount", 1))
+    items[:] = deal_long_tests_first(items, processes)
 
 
 ON_CI = os.environ.get("CI", "").lower() in ("true", "1", "yes")

@@ -301,7 +301,9 @@ class DataGeneration:
             else:
                 import multiprocessing
 
-                context = multiprocessing.get_context("spawn")  # MuJoCo/EGL contexts do not survive fork
+                from binpick.core.processes import worker_context
+
+                context = worker_context(__name__)  # MuJoCo/EGL contexts do not survive a fork of this process
                 # workers ignore Ctrl-C (it reaches the whole process group): this process stops them
                 with context.Pool(config.workers, initializer=_ignore_ctrl_c) as pool:
                     results = pool.imap_unordered(_generate_world_job, [(config, w, out) for w in worlds])

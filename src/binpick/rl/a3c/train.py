@@ -18,13 +18,13 @@ from typing import Any
 
 import numpy as np
 import torch
-import torch.multiprocessing as mp
 from torch.utils.tensorboard import SummaryWriter
 
 from binpick.core import tensorfile
 from binpick.core.config import load_run_config
 from binpick.core.errors import ConfigError, WorkerError
 from binpick.core.files import atomic_write_json, read_json_object, require_fields
+from binpick.core.processes import worker_context
 from binpick.rl.a3c.envs import EnvWrapper, make_a3c_env, semantic_state_size
 from binpick.rl.a3c.networks import A3CWorker, ActorCritic, SharedAdam, apply_gradients
 from binpick.rl.a3c.policy import A3C_FILE, FORMAT, SampledPolicy, read_a3c_checkpoint
@@ -255,7 +255,7 @@ class A3CTrainer:
 
     def _train(self, task: Task) -> None:
         """Worker processes until ``total_timesteps``, evaluating and checkpointing on the way."""
-        context = mp.get_context("spawn")
+        context = worker_context(__name__)  # this process's simulators and threads must not be forked
         counter = context.Value("l", self.steps)
         goal_area = context.Value("d", self.goal_area(self.steps))
         stats_queue = context.Queue()
