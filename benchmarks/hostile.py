@@ -149,9 +149,7 @@ def ros_hostile(version: int) -> dict:
             "good_goal_after": "placed" if summary["placed"] == summary["orders"] else "not placed",
             "node_alive": hostile["node_alive_at_end"], "tracebacks_in_node_log": hostile["tracebacks_in_node_log"],
             "camera_warnings_in_node_log": hostile["camera_warnings_in_node_log"],
-            "camera_messages_dropped": hostile["camera_messages_dropped"], "camera_internal_errors": hostile.get("camera_internal_errors", 0),
-            # best-effort messages lost on the way and sent again (the node never saw them): not refusals, not errors
-            "camera_messages_resent": hostile.get("camera_messages_resent", 0), "interfaces": summary["interfaces"],
+            "camera_messages_dropped": hostile["camera_messages_dropped"], "camera_internal_errors": hostile.get("camera_internal_errors", 0), "interfaces": summary["interfaces"],
             "node_log_tail": ran.stderr.strip().splitlines()[-3:]}
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 
@@ -474,10 +475,10 @@ def test_pretraining_pictures_can_end_like_successful_episodes():
     assert 0.2 < (distances(0.5) < 0.15).float().mean() < 0.45
 
 
-def test_workers_stop_when_the_trainer_is_killed(tmp_path):
+@pytest.mark.parametrize("spawned", ["0", "1"], ids=["forkserver", "spawn"])
+def test_workers_stop_when_the_trainer_is_killed(tmp_path, spawned):
     """A SIGKILLed trainer cannot stop its daemon workers; they must notice and exit, not keep two cores busy
-    training weights nobody will save."""
-    import os
+    training weights nobody will save (workers forked from the forkserver, and spawned ones)."""
     import signal
     import time
 
@@ -486,32 +487,63 @@ def test_workers_stop_when_the_trainer_is_killed(tmp_path):
     from pathlib import Path
 
     command = [str(Path(sys.executable).parent / "binpick"), "rl", "train", str(config), "--runs", str(tmp_path / "runs")]
-    trainer = subprocess.Popen(command,
+    trainer = subprocess.Popen(command, env={**os.environ, "BINPICK_SPAWN_WORKERS": spawned},
                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    workers: list[int] = []
     try:
-        children, deadline = [], time.monotonic() + 120
-        while time.monotonic() < deadline and len(children) < 2:  # the resource tracker and the two workers
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and len(workers) < 2:  # the two workers
             time.sleep(1)
-            children = [int(pid) for pid in open(f"/proc/{trainer.pid}/task/{trainer.pid}/children").read().split()]
-        assert len(children) >= 2, children
+            workers = _worker_pids(trainer.pid)
+        assert len(workers) >= 2, workers
         time.sleep(5)  # the workers are training
+        assert all(_running(pid) for pid in workers), workers
         os.kill(trainer.pid, signal.SIGKILL)
         trainer.wait()
         deadline = time.monotonic() + 60
-        while time.monotonic() < deadline and any(os.path.exists(f"/proc/{pid}") and "Z" not in _process_state(pid)
-                                                  for pid in children):
+        while time.monotonic() < deadline and any(_running(pid) for pid in workers):
             time.sleep(1)
-        alive = [pid for pid in children if os.path.exists(f"/proc/{pid}") and "Z" not in _process_state(pid)
-                 and "spawn_main" in open(f"/proc/{pid}/cmdline").read() and "resource_tracker" not in open(f"/proc/{pid}/cmdline").read()]
+        alive = [pid for pid in workers if _running(pid)]
         assert not alive, f"workers {alive} outlived their trainer"
     finally:
         if trainer.poll() is None:
             trainer.kill()
-        for pid in children if "children" in locals() else []:
+        for pid in workers:
             try:
                 os.kill(pid, signal.SIGKILL)
             except ProcessLookupError:
                 pass
+
+
+def _children(pid: int) -> list[int]:
+    try:
+        return [int(child) for child in open(f"/proc/{pid}/task/{pid}/children").read().split()]
+    except OSError:
+        return []
+
+
+def _command(pid: int) -> str:
+    try:
+        return open(f"/proc/{pid}/cmdline").read()
+    except OSError:
+        return ""
+
+
+def _worker_pids(trainer: int) -> list[int]:
+    """The trainer's worker processes: its spawned children, or the children of its forkserver (the
+    resource tracker and the forkserver itself are not workers)."""
+    pids = []
+    for child in _children(trainer):
+        command = _command(child)
+        if "multiprocessing.forkserver" in command:
+            pids += _children(child)
+        elif "spawn_main" in command and "resource_tracker" not in command:
+            pids.append(child)
+    return pids
+
+
+def _running(pid: int) -> bool:
+    return os.path.exists(f"/proc/{pid}") and "Z" not in _process_state(pid)
 
 
 def _process_state(pid: int) -> str:
