@@ -8,12 +8,12 @@ from __future__ import annotations
 import os
 import signal
 import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
 
 import pytest
+import cli_zygote
 from synthetic_coco import make_coco
 
 from binpick.core.config import from_dict
@@ -27,7 +27,6 @@ from binpick.core.jobs import KINDS
 
 DETECT, PICKABILITY, QUALITY = (KINDS[task].job for task in ("detect", "pickability", "grasp_quality"))
 
-CLI = [sys.executable, "-c", "from binpick.cli import main; main()"]
 
 
 def tiny_config(tmp: Path, epochs: int) -> DetectConfig:
@@ -182,7 +181,13 @@ def test_the_private_cluster_listens_on_loopback_only(ray_cluster):
     def pid() -> int:
         return os.getpid()
 
+    @ray.remote
+    def environment() -> tuple[str | None, str | None]:
+        return os.environ.get("GLOO_SOCKET_IFNAME"), os.environ.get("MUJOCO_GL")
+
     workers = set(ray.get([pid.remote() for _ in range(4)]))
+    # the workers train with gloo on the loopback interface and render headless; this process's own environment is as it was
+    assert ray.get(environment.remote()) == ("lo", os.environ.get("MUJOCO_GL", "egl")) and "GLOO_SOCKET_IFNAME" not in os.environ
     assert {node["NodeManagerAddress"] for node in ray.nodes()} == {"127.0.0.1"}
     ours = _descendants(os.getpid())
     assert workers <= ours
@@ -209,7 +214,7 @@ def test_ray_options_are_checked_before_a_run_folder_is_made(tmp_path):
         jobs.check_ray_job(jobs.KINDS["detect"], "not an address", 2)
     config = tmp_path / "rl.yaml"
     config.write_text("task: rl\nname: x\nenv: FetchReach\nalgorithm: sb3_sac_her\n")  # sac and a3c run on Ray
-    result = subprocess.run([*CLI, "train", str(config), "--address", "local", "--runs", str(tmp_path / "runs")],
+    result = cli_zygote.run(["train", str(config), "--address", "local", "--runs", str(tmp_path / "runs")],
                             capture_output=True, text=True, timeout=120)
     assert result.returncode != 0 and "rl job (sb3_sac_her) trains here" in result.stderr and "Traceback" not in result.stderr
     assert not (tmp_path / "runs").exists()
