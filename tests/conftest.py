@@ -9,6 +9,7 @@ from pathlib import Path
 os.environ.setdefault("MUJOCO_GL", "egl")
 if os.environ.get("PYTEST_XDIST_WORKER"):  # several test processes (make test): one thread each, or
     os.environ.setdefault("OMP_NUM_THREADS", "1")  # torch's threads of two processes fight over 2 cores
+    os.environ.setdefault("LP_NUM_THREADS", "0")  # and so do Mesa's software renderer's (EGL): render in the caller's thread
 # Ray Train's controller looks at its workers every 2 s by default: each tiny run here would wait up to
 # that long at every start, end and restart (the Ray processes a test starts inherit this)
 os.environ.setdefault("RAY_TRAIN_HEALTH_CHECK_INTERVAL_S", "0.2")
