@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import cli_zygote
 import yaml
 from PIL import Image
 
@@ -466,7 +467,7 @@ def test_an_absent_ros_master_is_one_line_within_the_timeout(args, tmp_path):
         pytest.skip(ros_missing())
     uri = _free_uri()
     started = time.monotonic()
-    result = subprocess.run([sys.executable, "-c", "from binpick.cli import main; main()", *[a.format(uri=uri) for a in args]],
+    result = cli_zygote.run([*[a.format(uri=uri) for a in args]],
                             capture_output=True, text=True, timeout=60, cwd=tmp_path,
                             env={**os.environ, "ROS_HOME": str(tmp_path), "ROS_LOG_DIR": str(tmp_path)})
     assert time.monotonic() - started < 30, "must give up near --timeout, not hang"
@@ -498,7 +499,7 @@ def test_ros_master_stops_its_child_on_sigterm(tmp_path):
     if ros_missing():
         pytest.skip(ros_missing())
     port = free_port()
-    process = subprocess.Popen([sys.executable, "-c", "from binpick.cli import main; main()", "ros", "master", "--port", str(port)],
+    process = cli_zygote.popen(["ros", "master", "--port", str(port)],
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
     try:
         deadline = time.monotonic() + 30
@@ -526,7 +527,7 @@ def test_ros_master_stops_its_child_on_sigterm(tmp_path):
 
 def test_an_unreachable_ray_address_is_one_line_quickly(tmp_path):
     started = time.monotonic()
-    result = subprocess.run([sys.executable, "-c", "from binpick.cli import main; main()", "rl", "distributed",
+    result = cli_zygote.run(["rl", "distributed",
                              "--address", f"127.0.0.1:{free_port()}", "--steps", "1000", "--out", str(tmp_path)],
                             capture_output=True, text=True, timeout=120, cwd=tmp_path)
     assert result.returncode == 2 and "Traceback" not in result.stderr, result.stderr[-800:]

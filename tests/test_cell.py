@@ -4,18 +4,16 @@ open, the simulator builds the same hand, and a stroke no candidate fits is one 
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+import cli_zygote
 
 from binpick.cell import Cell, load_cell
 from binpick.core.errors import InputFileError
 
 ROOT = Path(__file__).resolve().parents[1]
-CLI = [sys.executable, "-c", "from binpick.cli import main; main()"]
 FRANKA = ROOT / "configs" / "cells" / "franka_hand.yaml"
 
 
@@ -66,12 +64,12 @@ def test_an_8_cm_cell_plans_nothing_wider_and_the_simulator_builds_its_hand():
 def test_a_stroke_below_every_candidate_is_one_line_not_a_plan(tmp_path):
     narrow = tmp_path / "narrow.yaml"
     narrow.write_text("gripper: {tools: jaws, jaws: {stroke: 0.012, margin: 0.002}}\narm: {model: none}\n")  # 12 mm, not 12 cm
-    run = subprocess.run([*CLI, "plan", "--sample", "--cell", str(narrow), "--grasp", "analytic", "--out", str(tmp_path / "out")],
+    run = cli_zygote.run(["plan", "--sample", "--cell", str(narrow), "--grasp", "analytic", "--out", str(tmp_path / "out")],
                          capture_output=True, text=True, timeout=240)
     assert run.returncode == 2, run.stdout[-1500:] + run.stderr[-1500:]
     errors = [line for line in run.stderr.strip().splitlines() if not line.startswith("warning:")]  # (the sample's depth is half size)
     assert len(errors) == 1 and "wider than the jaws take (1.0 cm" in errors[0]
-    ok = subprocess.run([*CLI, "plan", "--sample", "--cell", str(FRANKA), "--grasp", "analytic", "--out", str(tmp_path / "ok")],
+    ok = cli_zygote.run(["plan", "--sample", "--cell", str(FRANKA), "--grasp", "analytic", "--out", str(tmp_path / "ok")],
                         capture_output=True, text=True, timeout=240)
     assert ok.returncode == 0, ok.stdout[-1500:] + ok.stderr[-1500:]
     plans = json.loads((tmp_path / "ok" / "plan.json").read_text())

@@ -5,9 +5,9 @@ from __future__ import annotations
 import json
 import os
 import subprocess
-import sys
 
 import pytest
+import cli_zygote
 from PIL import Image
 from typer.testing import CliRunner
 
@@ -19,8 +19,8 @@ runner = CliRunner()
 
 def run_cli(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
     """The real console entry point in a fresh process, as a shell user would run it."""
-    return subprocess.run(
-        [sys.executable, "-c", "from binpick.cli import main; main()", *args],
+    return cli_zygote.run(
+        [*args],
         capture_output=True, text=True, timeout=120, env={**os.environ, **(env or {})},
     )
 

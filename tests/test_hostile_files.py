@@ -9,18 +9,16 @@ import json
 import os
 import resource
 import signal
-import subprocess
-import sys
 import time
 from pathlib import Path
 
 import pytest
+import cli_zygote
 
 from conftest import run_cli
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLE = ROOT / "src" / "binpick" / "samples" / "bin_frame"
-CLI = [sys.executable, "-c", "from binpick.cli import main; main()"]
 
 
 def corpus_module():
@@ -75,7 +73,7 @@ def _full_disk() -> None:
     ["detect", "predict", str(SAMPLE / "rgb.png"), "--weights", str(ROOT / "src" / "binpick" / "detection" / "weights" / "rod_tiny_320.safetensors"), "--query-box", "393,279,93,59", "--out", "{tmp}/p"],
 ], ids=["plan", "predict"])
 def test_a_full_disk_is_one_line_and_leaves_no_half_file(args, tmp_path):
-    ran = subprocess.run([*CLI, *[a.format(tmp=tmp_path) for a in args]], capture_output=True, text=True, timeout=100,
+    ran = cli_zygote.run([*[a.format(tmp=tmp_path) for a in args]], capture_output=True, text=True, timeout=100,
                          preexec_fn=_full_disk, cwd=tmp_path)
     lines = [line for line in ran.stderr.splitlines() if line.startswith("error:")]
     assert ran.returncode == 2 and "Traceback" not in ran.stderr and len(lines) == 1, ran.stderr[-800:]
@@ -95,7 +93,7 @@ def test_a_peer_that_never_answers_answers_garbage_or_stalls_ends_in_one_line_wi
     config.write_text(CORPUS.TINY_RL_YAML)
     with CORPUS.peer(kind) as port:
         started = time.monotonic()
-        ran = subprocess.run([*CLI, *[a.format(port=port, tmp=tmp_path, config=config) for a in args]], capture_output=True,
+        ran = cli_zygote.run([*[a.format(port=port, tmp=tmp_path, config=config) for a in args]], capture_output=True,
                              text=True, timeout=100, cwd=tmp_path,
                              env=os.environ | {"ROS_HOME": str(tmp_path), "ROS_LOG_DIR": str(tmp_path / "log")})
         took = time.monotonic() - started

@@ -4,11 +4,10 @@ and an order run end to end with its pictures."""
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 import mujoco
 import numpy as np
+import cli_zygote
 from conftest import binpick_here
 
 from binpick.detection.model import DetectorNetwork, ModelSpec
@@ -23,7 +22,6 @@ from binpick.warehouse.grasping import Reason, execute_pick, grasp_point, pixel_
 from binpick.warehouse.orders import summarise
 from binpick.warehouse.pipeline import PickPipeline
 
-CLI = [sys.executable, "-c", "from binpick.cli import main; main()"]
 
 
 def test_pixel_to_world_inverts_the_overhead_camera():
@@ -91,7 +89,7 @@ def test_the_oracle_locates_the_ordered_product_from_the_simulator(tmp_path):
 
 def test_the_demo_fulfils_an_order_with_the_shipped_detector(tmp_path):
     run_dir = tmp_path / "demo"
-    ran = subprocess.run(CLI + ["demo", "--orders", "1", "--out", str(run_dir)], capture_output=True, text=True)  # the user's process
+    ran = cli_zygote.run(["demo", "--orders", "1", "--out", str(run_dir)], capture_output=True, text=True)  # the user's process
     assert ran.returncode == 0, ran.stderr
     written = json.loads((run_dir / "results.json").read_text())
     (order,) = written["orders"]

@@ -5,18 +5,16 @@ grasp and the outcome."""
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
+import cli_zygote
 
 pytest.importorskip("rerun")
 from rerun.chunk import RrdReader  # noqa: E402
 
 from binpick.viz.recording import read_entities  # noqa: E402
 
-CLI = [sys.executable, "-c", "from binpick.cli import main; main()"]
 PER_ORDER = {"/world/camera/image/rgb": "Image", "/world/camera/image/depth": "DepthImage", "/world/bin/points": "Points3D",
              "/world/camera/image/detections": "Boxes2D", "/world/grasps/candidates": "Points3D", "/world/gripper": "Transform3D",
              "/world/outcome": "TextDocument", "/world/camera": "Transform3D", "/world/camera/image": "Pinhole"}
@@ -37,7 +35,7 @@ def values(path, entity: str, component: str) -> dict[int, list]:
 
 
 def test_demo_rerun_records_each_order_in_3d(tmp_path):
-    ran = subprocess.run([*CLI, "demo", "--orders", "2", "--rerun", "--out", str(tmp_path)], capture_output=True, text=True, timeout=600)
+    ran = cli_zygote.run(["demo", "--orders", "2", "--rerun", "--out", str(tmp_path)], capture_output=True, text=True, timeout=600)
     assert ran.returncode == 0, ran.stderr[-2000:]
     path = tmp_path / "orders.rrd"
     assert f"3D recording: {path}" in " ".join(ran.stdout.split())
@@ -59,7 +57,7 @@ def test_demo_rerun_records_each_order_in_3d(tmp_path):
 
 
 def test_plan_rerun_records_the_frame_it_planned_on(tmp_path):
-    ran = subprocess.run([*CLI, "plan", "--sample", "--out", str(tmp_path), "--rerun"], capture_output=True, text=True, timeout=300)
+    ran = cli_zygote.run(["plan", "--sample", "--out", str(tmp_path), "--rerun"], capture_output=True, text=True, timeout=300)
     assert ran.returncode == 0, ran.stderr
     plan = json.loads((tmp_path / "plan.json").read_text())
     boxes = values(tmp_path / "plan.rrd", "/world/camera/image/detections", "Boxes2D:half_sizes")[0]

@@ -6,11 +6,11 @@ import json
 import os
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import pytest
+import cli_zygote
 from conftest import binpick_here
 
 from binpick.core.config import from_dict
@@ -37,7 +37,7 @@ def cli(*args: str) -> subprocess.CompletedProcess:
 def test_killed_run_resumes_from_its_last_checkpoint(tmp_path):
     config = tmp_path / "tiny.yaml"
     config.write_text(TINY.format(steps=900))
-    process = subprocess.Popen([sys.executable, "-c", "from binpick.cli import main; main()", "rl", "train",
+    process = cli_zygote.popen(["rl", "train",
                                 str(config), "--runs", str(tmp_path / "runs")],
                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.time() + 240

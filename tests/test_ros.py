@@ -9,11 +9,11 @@ import subprocess
 import sys
 
 import pytest
+import cli_zygote
 
 from binpick.integrations.ros1 import ros_missing
 
 pytestmark = pytest.mark.skipif(ros_missing() is not None, reason=ros_missing() or "")
-CLI = [sys.executable, "-c", "from binpick.cli import main; main()"]
 
 
 def test_action_messages_round_trip():
@@ -32,17 +32,17 @@ def test_fetch_reach_episodes_through_the_bridge_and_a_missing_server_is_one_lin
     from binpick.integrations.ros1.master import RosMaster
 
     with RosMaster() as master:
-        server = subprocess.Popen(CLI + ["ros", "serve", "binpick/FetchReach-v0", "--namespace", "/test/reach", "--master", master.uri],
+        server = cli_zygote.popen(["ros", "serve", "binpick/FetchReach-v0", "--namespace", "/test/reach", "--master", master.uri],
                                   env=master.environment, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         try:
-            bench = subprocess.run(CLI + ["ros", "bench", "--namespace", "/test/reach", "--episodes", "3", "--master", master.uri,
+            bench = cli_zygote.run(["ros", "bench", "--namespace", "/test/reach", "--episodes", "3", "--master", master.uri,
                                           "--timeout", "60"], env=master.environment, capture_output=True, text=True, timeout=240)
             assert bench.returncode == 0, bench.stderr
             summary = json.loads(bench.stdout.strip().splitlines()[-1])
             assert summary["success_rate"] == 1.0 and summary["mean_length"] < 10  # the P-controller reaches every goal
             assert summary["round_trips"] == 3 + round(3 * summary["mean_length"]) and summary["median_ms"] > 0  # resets + steps
             assert "Got a transition callback" not in bench.stderr
-            missing = subprocess.run(CLI + ["ros", "bench", "--namespace", "/nobody/here", "--master", master.uri, "--timeout", "1"],
+            missing = cli_zygote.run(["ros", "bench", "--namespace", "/nobody/here", "--master", master.uri, "--timeout", "1"],
                                      env=master.environment, capture_output=True, text=True, timeout=120)
             assert missing.returncode == 2 and "no binpick env server at /nobody/here" in missing.stderr
             assert "Traceback" not in missing.stderr

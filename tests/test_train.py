@@ -1,26 +1,25 @@
 """`binpick train CONFIG` trains every kind of job, and a run stopped by Ctrl-C (SIGINT) continues with
 `binpick train --resume RUN` to the same final count an uninterrupted run reaches: RL and APRiL's policy
 to their simulator steps, the detector, pickability and grasp-quality trainers to their epochs, a data
-set to its scenes. Each run is a real CLI process, interrupted once its first checkpoint is on disk."""
+set to its scenes. Each run is a real CLI process (forked by cli_zygote), interrupted once its first checkpoint is on disk."""
 
 from __future__ import annotations
 
 import os
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import pytest
 import yaml
+import cli_zygote
 from conftest import binpick_here
 from synthetic_coco import make_coco
 
 from binpick.core import jobs
 from binpick.core.errors import ConfigError
 
-CLI = [sys.executable, "-c", "from binpick.cli import main; main()"]
 TINY_SAC = {"env": "FetchReach", "algorithm": "sac", "min_action_scale": 0.4, "checkpoint_every": 50,
             "replay": {"capacity_episodes": 100, "her_additions": 1, "start_fraction": 0.01},
             "gp": {"enabled": True, "warmup_episodes": 2, "refit_every": 100, "imagined_per_real": 1, "batch_episodes": 8,
@@ -115,19 +114,13 @@ def run_folder(config: dict, runs: Path) -> Path | None:
 ENVIRONMENT = {**os.environ, "OMP_NUM_THREADS": "1", "COLUMNS": "400"}
 
 
-def _foreground_ctrl_c() -> None:
-    """In the child: Ctrl-C as in a terminal's foreground job. A suite started in the background (``make
-    test &``) ignores SIGINT, children inherit that, and binpick leaves an ignored SIGINT ignored."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
-
-
 def interrupted(argv: list[str], cwd: Path, find_run, ready, group: bool = False) -> tuple[Path, str]:
-    """Start ``argv``, send SIGINT once ``ready(run_folder, stdout_lines)`` holds; it must end with exit
+    """Start ``binpick ARGV``, send SIGINT once ``ready(run_folder, stdout_lines)`` holds; it must end with exit
     code 130. Returns the run folder and its stderr."""
     import threading
 
-    process = subprocess.Popen(argv, cwd=cwd, env=ENVIRONMENT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                               start_new_session=group, preexec_fn=_foreground_ctrl_c)
+    process = cli_zygote.popen(argv, cwd=cwd, env=ENVIRONMENT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               start_new_session=group, ctrl_c=True)
     lines: list[str] = []
     reader = threading.Thread(target=lambda: lines.extend(iter(process.stdout.readline, "")), daemon=True)
     reader.start()
@@ -137,7 +130,7 @@ def interrupted(argv: list[str], cwd: Path, find_run, ready, group: bool = False
         if run is not None and ready(run, list(lines)):
             break
         time.sleep(0.02)
-    assert process.poll() is None, f"{argv[3:5]} ended before it could be interrupted:\n{process.stderr.read()[-2000:]}"
+    assert process.poll() is None, f"{argv[:2]} ended before it could be interrupted:\n{process.stderr.read()[-2000:]}"
     if group:  # as a terminal's Ctrl-C: every process of the job (worker processes too) gets it
         os.killpg(process.pid, signal.SIGINT)
     else:
@@ -154,7 +147,7 @@ def test_binpick_train_runs_each_job_and_resumes_it_after_ctrl_c_to_the_same_end
     config, target, ready = SETUPS[task](tmp_path)
     path, runs = tmp_path / f"{task}.yaml", tmp_path / "runs"
     path.write_text(yaml.safe_dump(config))
-    run, stderr = interrupted([*CLI, "train", str(path), "--runs", str(runs)], tmp_path, lambda: run_folder(config, runs), ready)
+    run, stderr = interrupted(["train", str(path), "--runs", str(runs)], tmp_path, lambda: run_folder(config, runs), ready)
     assert "continue with: binpick train --resume" in stderr and str(run) in " ".join(stderr.split()), stderr[-2000:]
     stopped_at = jobs.progress(run)
     assert stopped_at is None or stopped_at < target, f"{task} had finished ({stopped_at}) before Ctrl-C"
@@ -275,7 +268,7 @@ def test_ctrl_c_on_a_training_verb_keeps_its_work_and_prints_the_command_that_fi
         runs = sorted((tmp_path / "runs").glob("*/*")) if out is None else ([out] if (out / "dataset.json").is_file() else [])
         return runs[-1] if runs else None
 
-    run, stderr = interrupted([*CLI, *argv], tmp_path, find, ready)
+    run, stderr = interrupted(argv, tmp_path, find, ready)
     message = " ".join(stderr.split())
     assert "continue with: binpick" in message, message
     command = message.split("continue with: ", 1)[1].split(" (the same options)")[0].split(", or ")[0].split()
@@ -298,7 +291,7 @@ def test_ctrl_c_to_a_data_set_made_by_worker_processes_stops_them_all_at_once(tm
     argv[argv.index("--workers") + 1] = "2"
     argv[argv.index("--scenes") + 1] = "40"
     started = time.monotonic()
-    run, stderr = interrupted([*CLI, *argv], tmp_path, lambda: tmp_path / "bins" if (tmp_path / "bins" / "dataset.json").is_file() else None,
+    run, stderr = interrupted(argv, tmp_path, lambda: tmp_path / "bins" if (tmp_path / "bins" / "dataset.json").is_file() else None,
                               ready, group=True)
     assert time.monotonic() - started < 120 and "continue with: binpick data generate" in " ".join(stderr.split())
     assert 1 <= jobs.progress(run) < 40

@@ -4,12 +4,11 @@ trial grasps that label pickability, a resumable COCO writer and its CLI."""
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+import cli_zygote
 
 from binpick.core.errors import ConfigError, InputFileError
 from binpick.sim import Product, default_library, load_products
@@ -21,7 +20,6 @@ from binpick.warehouse.coco import finalise
 from binpick.warehouse.dataset import generate
 from binpick.warehouse.generation import GenerateConfig
 
-CLI = [sys.executable, "-c", "from binpick.cli import main; main()"]
 CUBE = """o cube
 v -1 -1 -1\nv 1 -1 -1\nv 1 1 -1\nv -1 1 -1\nv -1 -1 1\nv 1 -1 1\nv 1 1 1\nv -1 1 1
 f 1 3 2\nf 1 4 3\nf 5 6 7\nf 5 7 8\nf 1 2 6\nf 1 6 5\nf 2 3 7\nf 2 7 6\nf 3 4 8\nf 3 8 7\nf 4 1 5\nf 4 5 8
@@ -216,7 +214,7 @@ def test_labels_and_zero_shot_split(tmp_path, monkeypatch):
 
 def test_data_cli_generates_shows_and_reports_bad_input_in_one_line(tmp_path):
     out = tmp_path / "bins"
-    run = lambda *args: subprocess.run([*CLI, "data", *args], capture_output=True, text=True, timeout=300)  # noqa: E731
+    run = lambda *args: cli_zygote.run(["data", *args], capture_output=True, text=True, timeout=300)  # noqa: E731
     result = run("generate", "--out", str(out), "--scenes", "2", "--policies", "", "--workers", "1", "--size", "64")
     assert result.returncode == 0, result.stderr
     assert "instances per image" in result.stdout
