@@ -38,7 +38,7 @@ PRELOAD = ("numpy", "torch", "torch.nn", "torch.utils.tensorboard", "cv2", "PIL.
 # Variables that may differ between the server and a run: nothing preloaded reads them at import time
 READ_AT_CALL_TIME = ("COLUMNS", "LINES", "TERM", "NO_COLOR", "FORCE_COLOR", "PYTEST_CURRENT_TEST", "ROS_HOME", "ROS_LOG_DIR",
                      "ROS_MASTER_URI", "ROS_IP", "ROS_HOSTNAME", "BINPICK_SPAWN_WORKERS",
-                     "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "KMP_DUPLICATE_LIB_OK")
+                     "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "KMP_DUPLICATE_LIB_OK", "XDG_CACHE_HOME")
 
 
 # --- the server ------------------------------------------------------------------------------------------

@@ -154,15 +154,14 @@ def test_a_killed_driver_resumes_on_ray_with_the_steps_and_evaluations_of_an_uni
     evaluation once, at the steps an uninterrupted run has."""
     import json
     import subprocess
-    import sys
     import time
 
+    import cli_zygote
     import yaml
 
-    cli = [sys.executable, "-c", "from binpick.cli import main; main()"]
     path = tmp_path / "a3c.yaml"
     path.write_text(yaml.safe_dump({**A3C, "total_timesteps": 600, "checkpoint_every": 200, "eval": {"every": 200, "episodes": 1}}))
-    driver = subprocess.Popen([*cli, "train", str(path), "--address", "local", "--runs", str(tmp_path / "runs")],
+    driver = cli_zygote.popen(["train", str(path), "--address", "local", "--runs", str(tmp_path / "runs")],
                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
     deadline = time.monotonic() + 240
     latest = None
@@ -177,7 +176,7 @@ def test_a_killed_driver_resumes_on_ray_with_the_steps_and_evaluations_of_an_uni
     driver.wait(timeout=30)
     run = latest.parents[1]
     assert not (run / "metrics.json").exists()  # it did not finish
-    resumed = subprocess.run([*cli, "train", "--resume", str(run), "--address", "local"], capture_output=True, text=True, timeout=300)
+    resumed = cli_zygote.run(["train", "--resume", str(run), "--address", "local"], capture_output=True, text=True, timeout=300)
     assert resumed.returncode == 0, resumed.stderr[-2000:]
     metrics = json.loads((run / "metrics.json").read_text())
     assert metrics["sim_steps"] == 600 and [e["sim_steps"] for e in metrics["evaluations"]] == [200, 400, 600]

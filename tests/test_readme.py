@@ -22,6 +22,7 @@ import sys
 import time
 from pathlib import Path
 
+import cli_zygote
 import pytest
 import yaml
 from conftest import binpick_here
@@ -267,16 +268,17 @@ def run_block(language: str, text: str, folder: Path, environment: dict, only: s
                 assert result.returncode == 0, f"README command failed: {command}\n{result.stderr[-3000:]}"
                 ran.append(f"{time.perf_counter() - started:5.1f} s  {command}")
                 continue
-            if words[0] == "binpick":
-                words = [sys.executable, "-c", "from binpick.cli import main; main()", *words[1:]]
-            elif words[0] == "python":  # the reader's python is the one binpick is installed in
+            if words[0] == "python":  # the reader's python is the one binpick is installed in
                 words = [sys.executable, *words[1:]]
+            # binpick in a process of its own: forked from the test's CLI server, as a fresh process has it
+            popen, run = (cli_zygote.popen, cli_zygote.run) if words[0] == "binpick" else (subprocess.Popen, subprocess.run)
+            words = words[1:] if words[0] == "binpick" else words
             if command.endswith("&"):
-                background.append(subprocess.Popen(words, cwd=folder, env=environment, stdout=subprocess.DEVNULL,
-                                                   stderr=subprocess.DEVNULL, start_new_session=True))
+                background.append(popen(words, cwd=folder, env=environment, stdout=subprocess.DEVNULL,
+                                        stderr=subprocess.DEVNULL, start_new_session=True))
                 time.sleep(0.5)
                 continue
-            result = subprocess.run(words, capture_output=True, text=True, cwd=folder, timeout=600, env=environment)
+            result = run(words, capture_output=True, text=True, cwd=folder, timeout=600, env=environment)
             assert result.returncode == 0, f"README command failed: {command}\n{result.stderr[-3000:]}"
             ran.append(f"{time.perf_counter() - started:5.1f} s  {command}")
     finally:
