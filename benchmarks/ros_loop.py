@@ -470,9 +470,14 @@ def run_hostile(ros, version: int, rgb, K, stamp: float, timeout: float) -> dict
         # before the node's callback saw them. A message the node never counts stays uncounted (never sent again,
         # so that no count can stand for another message's)
         ros.publish_raw(topic, fields, stamp + 1000 + index)  # stamped away from the good frames: never matched with them
-        deadline = time.monotonic() + 5.0  # the node reports what it dropped twice a second, later when starved
+        # the node reports what it dropped twice a second, much later when starved: the next message waits for this
+        # one's count (sent while this one still waits in the node's one-message queue, it would replace it)
+        deadline = time.monotonic() + 30.0
         while counted() <= index and time.monotonic() < deadline:
             time.sleep(0.05)
+    deadline = time.monotonic() + 30.0  # the last count may come late too
+    while counted() < len(camera) and time.monotonic() < deadline:
+        time.sleep(0.05)
     camera_dropped, camera_errors = on_camera(ros.dropped), on_camera(ros.errors)
     goals = []
     for name, fields in hostile_goals(version, width, height):
