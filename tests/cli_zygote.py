@@ -19,6 +19,7 @@ import-time state.
 from __future__ import annotations
 
 import atexit
+import contextlib
 import json
 import os
 import select
@@ -43,11 +44,25 @@ READ_AT_CALL_TIME = ("COLUMNS", "LINES", "TERM", "NO_COLOR", "FORCE_COLOR", "PYT
 
 # --- the server ------------------------------------------------------------------------------------------
 
-def serve(listener: socket.socket, parent: int) -> dict | None:
-    """Fork a child for each request; answer each request's connection with the child's pid, then its exit
-    status. Returns (only in a child) the request the child is to run; returns None when the test process
-    that started the server is gone."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # a Ctrl-C to the test run is the test process's to handle
+def _receive(connection: socket.socket) -> tuple[dict, list[int]]:
+    """One request: an 8-byte length, the JSON (env and argv), the three stream fds with its first bytes."""
+    data, fds, _, _ = socket.recv_fds(connection, 1 << 16, 3)
+    if len(data) < 8 or len(fds) != 3:
+        raise OSError("a short request")
+    size = int(data[:8])
+    data = data[8:]
+    while len(data) < size:
+        more = connection.recv(size - len(data))
+        if not more:
+            raise OSError("a short request")
+        data += more
+    return json.loads(data), fds
+
+
+def serve(listener: socket.socket, parent: int) -> tuple[dict, socket.socket] | None:
+    """Fork a child for each request; once the child has exited, answer the request's connection with its
+    exit status (the child itself sends its pid first, when it is ready for signals). Returns, only in a
+    child, its request and connection; returns None when the test process that started the server is gone."""
     wake_read, wake_write = os.pipe()  # a child's end wakes the loop (SIGCHLD through Python's wakeup fd)
     os.set_blocking(wake_write, False)
     signal.set_wakeup_fd(wake_write)
@@ -59,30 +74,32 @@ def serve(listener: socket.socket, parent: int) -> dict | None:
             os.read(wake_read, 4096)
         if listener in ready:
             connection, _ = listener.accept()
-            message, fds, _, _ = socket.recv_fds(connection, 1 << 20, 3)
-            request = json.loads(message)
-            pid = os.fork()
+            fds: list[int] = []
+            try:  # a bad or broken request costs its own run only, never the server
+                request, fds = _receive(connection)
+                pid = os.fork()
+            except (OSError, ValueError):
+                for fd in fds:
+                    os.close(fd)
+                connection.close()
+                continue
             if pid == 0:
                 signal.set_wakeup_fd(-1)
                 signal.signal(signal.SIGCHLD, signal.SIG_DFL)
-                os.close(wake_read)
-                os.close(wake_write)
+                for fd in (wake_read, wake_write):
+                    os.close(fd)
                 listener.close()
-                connection.close()
                 for other in waiting.values():
                     other.close()
                 request["fds"] = fds
-                return request
+                return request, connection
             for fd in fds:
                 os.close(fd)
-            connection.sendall(f"{pid}\n".encode())
             waiting[pid] = connection
-        while waiting:
-            pid, status = os.waitpid(-1, os.WNOHANG)
-            if pid == 0:
-                break
-            connection = waiting.pop(pid, None)
-            if connection is not None:
+        for pid in list(waiting):  # (only the requests' children: nothing else of this process is reaped)
+            done, status = os.waitpid(pid, os.WNOHANG)
+            if done:
+                connection = waiting.pop(pid)
                 try:
                     connection.sendall(f"{os.waitstatus_to_exitcode(status)}\n".encode())
                 except OSError:
@@ -91,9 +108,9 @@ def serve(listener: socket.socket, parent: int) -> dict | None:
     return None
 
 
-def become(request: dict) -> None:
+def become(request: dict, connection: socket.socket) -> None:
     """In the fork: take the request's streams, folder, environment, signals and argv, as a fresh
-    ``python -c`` would have them."""
+    ``python -c`` would have them; then tell the caller this process's pid."""
     if request["new_session"]:
         os.setsid()
     for target, fd in zip((0, 1, 2), request["fds"]):
@@ -102,24 +119,37 @@ def become(request: dict) -> None:
     os.chdir(request["cwd"])
     os.environ.clear()
     os.environ.update(request["env"])
+    for name, value in request["preloaded_environment"].items():  # what the preloaded imports set, as they would have
+        if value is None:
+            os.environ.pop(name, None)
+        else:
+            os.environ[name] = value
     signal.signal(signal.SIGINT, signal.SIG_IGN if request["sigint_ignored"] else signal.default_int_handler)
     sys.argv = ["-c", *request["args"]]
     sys.path[:] = ["", *(p for p in sys.path if p and p != os.path.dirname(os.path.abspath(__file__)))]
+    sys.stdout.reconfigure(line_buffering=os.isatty(1))  # as an interpreter started on these streams has it
+    connection.sendall(f"{os.getpid()}\n".encode())
+    connection.close()
 
 
 def server_main(path: str) -> None:
     import importlib
 
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # a Ctrl-C to the test run is the test process's to handle
+    before = dict(os.environ)
     for name in PRELOAD:
         importlib.import_module(name)
+    # (the only thread besides this one is OpenBLAS's pool, started by numpy's import: it stops and restarts
+    # its threads around a fork itself; torch's and Mesa's pools start on first use, in the forks)
+    changed = {k: os.environ.get(k) for k in set(before) | set(os.environ) if before.get(k) != os.environ.get(k)}
     listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
     listener.bind(path)
     listener.listen(64)
-    print("ready", flush=True)
-    request = serve(listener, os.getppid())
-    if request is None:
+    print("ready " + json.dumps(changed), flush=True)
+    served = serve(listener, os.getppid())
+    if served is None:
         os._exit(0)
-    become(request)
+    become(*served)
     from binpick.cli import main
 
     main()
@@ -136,11 +166,14 @@ class _Server:
         self.env = dict(os.environ)
         code = f"import sys; sys.path.insert(0, {os.path.dirname(os.path.abspath(__file__))!r}); " \
                f"import cli_zygote; cli_zygote.server_main({self.path!r})"
+        # in this process's group: a Ctrl-C to the test run reaches the forks as it would plain subprocesses
         self.process = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                                        env=self.env, start_new_session=True)
-        line = self.process.stdout.readline()
-        if line.strip() != b"ready":
+                                        env=self.env)
+        line = self.process.stdout.readline().decode()
+        if not line.startswith("ready "):
+            self.process.kill()
             raise RuntimeError(f"the CLI server did not start (exit code {self.process.wait()})")
+        self.preloaded_environment: dict[str, str | None] = json.loads(line[6:])  # what its imports set (cv2: LD_LIBRARY_PATH)
         atexit.register(self.stop)
 
     def stop(self) -> None:
@@ -154,8 +187,13 @@ class _Server:
             pass
 
     def differing(self, env: dict[str, str]) -> set[str]:
-        """The variables ``env`` has otherwise than this server, beside those read at call time."""
-        return {k for k in set(env) | set(self.env) if env.get(k) != self.env.get(k)} - set(READ_AT_CALL_TIME)
+        """The variables ``env`` has otherwise than this server (as the preloaded imports left it), beside those
+        read at call time."""
+        def theirs(name: str) -> str | None:
+            return self.preloaded_environment[name] if name in self.preloaded_environment else self.env.get(name)
+
+        return {k for k in set(env) | set(self.env) | set(self.preloaded_environment)
+                if env.get(k) != self.env.get(k) and env.get(k) != theirs(k)} - set(READ_AT_CALL_TIME)
 
     def serves(self, env: dict[str, str]) -> bool:
         return self.process.poll() is None and not self.differing(env)
@@ -192,28 +230,45 @@ class ForkedCLI:
 
     def __init__(self, args, *, cwd=None, env=None, stdin=None, stdout=None, stderr=None, text=False,
                  start_new_session=False, ctrl_c=False, server: _Server) -> None:
+        if stdin == subprocess.PIPE:
+            raise ValueError("a forked CLI takes no input pipe")
         self.args = [*CLI, *map(str, args)]
-        fd_in, _ = _stream(stdin if stdin is not None else subprocess.DEVNULL, 0)
-        fd_out, self._out = _stream(stdout, 1)
-        fd_err, self._err = _stream(stderr, 2)
-        if fd_err == -1:
-            fd_err = os.dup(fd_out)
-        request = {"args": [str(a) for a in args], "cwd": os.fspath(cwd or os.getcwd()), "env": dict(env or os.environ),
-                   "new_session": start_new_session,
-                   "sigint_ignored": not ctrl_c and signal.getsignal(signal.SIGINT) == signal.SIG_IGN}
-        self._connection = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        self.returncode: int | None = None
+        self.stdout = self.stderr = None
+        request = {"args": [str(a) for a in args], "cwd": os.path.abspath(os.fspath(cwd or os.getcwd())),
+                   "env": dict(env or os.environ), "new_session": start_new_session,
+                   "sigint_ignored": not ctrl_c and signal.getsignal(signal.SIGINT) == signal.SIG_IGN,
+                   "preloaded_environment": server.preloaded_environment}
+        fds: list[int] = []
+        readers: list[int | None] = []
         try:
+            for spec, default in ((stdin, 0), (stdout, 1), (stderr, 2)):
+                fd, reader = _stream(spec, default)
+                fds.append(os.dup(fds[1]) if fd == -1 else fd)
+                readers.append(reader)
+            self._connection = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
             self._connection.connect(server.path)
-            socket.send_fds(self._connection, [json.dumps(request).encode()], [fd_in, fd_out, fd_err])
+            message = json.dumps(request).encode()
+            socket.send_fds(self._connection, [b"%08d" % len(message) + message[:4096]], fds)
+            self._connection.sendall(message[4096:])
+        except BaseException:
+            for fd in readers:
+                if fd is not None:
+                    os.close(fd)
+            raise
         finally:
-            for fd in (fd_in, fd_out, fd_err):
+            for fd in fds:
                 os.close(fd)
         self._answer = self._connection.makefile("rb")
-        self.pid = int(self._answer.readline())
-        mode = {"encoding": "utf-8", "errors": "replace"} if text else {}
-        self.stdout = open(self._out, "r" + ("" if text else "b"), **mode) if self._out is not None else None
-        self.stderr = open(self._err, "r" + ("" if text else "b"), **mode) if self._err is not None else None
-        self.returncode: int | None = None
+        line = self._answer.readline()  # the fork's own pid, sent once it has taken its signals and session
+        if not line.strip():
+            raise RuntimeError("the CLI server did not start the process (it died or refused the request)")
+        self.pid = int(line)
+        mode = {"encoding": "utf-8"} if text else {}
+        if readers[1] is not None:
+            self.stdout = open(readers[1], "r" + ("" if text else "b"), **mode)
+        if readers[2] is not None:
+            self.stderr = open(readers[2], "r" + ("" if text else "b"), **mode)
 
     def poll(self) -> int | None:
         if self.returncode is None and select.select([self._connection], [], [], 0)[0]:
@@ -222,8 +277,11 @@ class ForkedCLI:
 
     def _read_status(self) -> None:
         line = self._answer.readline()
-        self.returncode = int(line) if line.strip() else -signal.SIGKILL  # the server itself was killed
+        self._answer.close()
         self._connection.close()
+        if not line.strip():
+            raise RuntimeError(f"the CLI server died while {self.args[3:5]} ran (pid {self.pid})")
+        self.returncode = int(line)
 
     def wait(self, timeout: float | None = None) -> int:
         if self.returncode is None:
@@ -233,8 +291,9 @@ class ForkedCLI:
         return self.returncode
 
     def send_signal(self, sig: int) -> None:
-        if self.returncode is None:
-            os.kill(self.pid, sig)
+        if self.poll() is None:  # (an ended process's pid may already be another's)
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(self.pid, sig)
 
     def terminate(self) -> None:
         self.send_signal(signal.SIGTERM)
@@ -243,22 +302,31 @@ class ForkedCLI:
         self.send_signal(signal.SIGKILL)
 
     def communicate(self, timeout: float | None = None) -> tuple:
-        """Both streams read to their end (each by a thread, as Popen does), then the exit status."""
-        results: dict[str, object] = {}
-        readers = [threading.Thread(target=lambda n=name, s=stream: results.__setitem__(n, s.read()), daemon=True)
-                   for name, stream in (("out", self.stdout), ("err", self.stderr)) if stream is not None]
-        for reader in readers:
-            reader.start()
+        """Both streams read to their end in this thread (as Popen does), then the exit status."""
+        import selectors
+
         deadline = None if timeout is None else time.monotonic() + timeout
-        for reader in readers:
-            reader.join(None if deadline is None else max(0.0, deadline - time.monotonic()))
-            if reader.is_alive():
-                raise subprocess.TimeoutExpired(self.args, timeout)
+        chunks = {stream: [] for stream in (self.stdout, self.stderr) if stream is not None and not stream.closed}
+        with selectors.DefaultSelector() as selector:
+            for stream in chunks:
+                selector.register(stream.fileno(), selectors.EVENT_READ, stream)
+            while selector.get_map():
+                left = None if deadline is None else deadline - time.monotonic()
+                if left is not None and left <= 0:
+                    raise subprocess.TimeoutExpired(self.args, timeout)
+                for key, _ in selector.select(left):
+                    data = os.read(key.fd, 1 << 16)
+                    if data:
+                        chunks[key.data].append(data)
+                    else:
+                        selector.unregister(key.fd)
         self.wait(None if deadline is None else max(0.0, deadline - time.monotonic()))
-        for stream in (self.stdout, self.stderr):
-            if stream is not None:
-                stream.close()
-        return results.get("out"), results.get("err")
+        results = {}
+        for stream, parts in chunks.items():
+            data = b"".join(parts)
+            results[stream] = data.decode(stream.encoding) if hasattr(stream, "encoding") else data
+            stream.close()
+        return results.get(self.stdout), results.get(self.stderr)
 
     def __enter__(self):
         return self
