@@ -111,7 +111,9 @@ def run_folder(config: dict, runs: Path) -> Path | None:
     return found[-1] if found else None
 
 
-ENVIRONMENT = {**os.environ, "OMP_NUM_THREADS": "1", "COLUMNS": "400"}
+def environment() -> dict[str, str]:
+    """This test process's environment as it is now (imports made by earlier tests may have changed it)."""
+    return {**os.environ, "OMP_NUM_THREADS": "1", "COLUMNS": "400"}
 
 
 def interrupted(argv: list[str], cwd: Path, find_run, ready, group: bool = False) -> tuple[Path, str]:
@@ -119,7 +121,7 @@ def interrupted(argv: list[str], cwd: Path, find_run, ready, group: bool = False
     code 130. Returns the run folder and its stderr."""
     import threading
 
-    process = cli_zygote.popen(argv, cwd=cwd, env=ENVIRONMENT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    process = cli_zygote.popen(argv, cwd=cwd, env=environment(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                start_new_session=group, ctrl_c=True)
     lines: list[str] = []
     reader = threading.Thread(target=lambda: lines.extend(iter(process.stdout.readline, "")), daemon=True)
