@@ -13,6 +13,9 @@ if os.environ.get("PYTEST_XDIST_WORKER"):  # several test processes (make test):
 # Ray Train's controller looks at its workers every 2 s by default: each tiny run here would wait up to
 # that long at every start, end and restart (the Ray processes a test starts inherit this)
 os.environ.setdefault("RAY_TRAIN_HEALTH_CHECK_INTERVAL_S", "0.2")
+# Ray lowers its workers' priority (niceness 15): beside two busy test processes a Ray test's workers got almost no
+# CPU, so the test (and its cluster, and its controller's checks) lasted minutes for seconds of work
+os.environ.setdefault("RAY_worker_niceness", "0")
 
 import pytest  # noqa: E402
 
