@@ -18,6 +18,7 @@ from binpick.sim.domain import DomainConfig
 from binpick.sim.mjcf import BIN_HALF, FLOOR_TOP, CameraSpec, product_assets, product_body, scene_xml
 from binpick.sim.products import Product
 from binpick.sim.randomised_world import PARK_X, RandomisedWorld
+from binpick.sim.rendering import renderer
 from binpick.sim.sensor import SensorConfig, sense, tote_tilt
 
 SETTLE_SECONDS = 1.2
@@ -102,8 +103,8 @@ class BinWorld(RandomisedWorld):
             self.arm.bind_hand(self.model, self.body_ids)
         if self.domain is not None:  # generated textures go in before a renderer uploads them
             self._fill_textures(products, prefixes)
-        self.renderer = mujoco.Renderer(self.model, camera.size, camera.size)
-        self.small = mujoco.Renderer(self.model, min(AMODAL_SIZE, camera.size), min(AMODAL_SIZE, camera.size))
+        self.renderer = renderer(self.model, camera.size, camera.size)  # (on this thread's shared OpenGL context)
+        self.small = renderer(self.model, min(AMODAL_SIZE, camera.size), min(AMODAL_SIZE, camera.size))
         from binpick.sim.camera import close_at_exit
 
         close_at_exit(self)

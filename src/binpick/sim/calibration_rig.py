@@ -11,6 +11,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from binpick.sim.rendering import renderer
+
 CV_FROM_MUJOCO = np.diag([1.0, -1.0, -1.0])  # a MuJoCo camera looks along its -z with y up; OpenCV's along +z, y down
 
 
@@ -46,7 +48,7 @@ class CalibrationRig:
             Image.fromarray(np.asarray(picture, dtype=np.uint8)).convert("RGB").save(path)
             self.model = mujoco.MjModel.from_xml_string(self._xml(path, fovy))
         self.data = mujoco.MjData(self.model)
-        self.renderer = mujoco.Renderer(self.model, height, width)
+        self.renderer = renderer(self.model, height, width)
 
     def _xml(self, picture: Path, fovy: float) -> str:
         w, h = self.board_size

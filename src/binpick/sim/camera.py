@@ -70,14 +70,17 @@ class CameraPose:
 class MujocoCamera:
     """Renders RGB or grey frames of a MuJoCo model from a fixed free-camera pose.
 
-    Each instance owns its GL context and makes it current before drawing, so several cameras
-    (image observations, ``render()``) coexist in one process; gymnasium's own viewer did not.
+    Each instance owns its renderer (on its thread's shared GL context under EGL,
+    :mod:`binpick.sim.rendering`), made current before drawing, so several cameras (image
+    observations, ``render()``) coexist in one process; gymnasium's own viewer did not.
     """
 
     def __init__(
         self, model, size: int | tuple[int, int], mode: str, pose: CameraPose, multisample: bool = True
     ) -> None:
         mujoco = import_mujoco()
+        from binpick.sim.rendering import renderer
+
         width, height = (size, size) if isinstance(size, int) else size
         self.mode = mode
         visual = model.vis.global_
@@ -91,7 +94,7 @@ class MujocoCamera:
         hook, sys.unraisablehook = sys.unraisablehook, lambda _: None
         try:  # mujoco's half-built GL context prints a traceback when freed: free it here, quietly
             try:
-                self._renderer = mujoco.Renderer(model, height=height, width=width)
+                self._renderer = renderer(model, height=height, width=width)
             except Exception as error:  # mujoco raises several types when no GL context can be made
                 failure = rendering_error(error)
             gc.collect()

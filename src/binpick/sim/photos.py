@@ -19,6 +19,7 @@ import numpy as np
 
 from binpick.sim.mjcf import product_assets, product_geom
 from binpick.sim.products import RANDOM_ID_PREFIX, Product
+from binpick.sim.rendering import renderer as shared_renderer
 
 
 @dataclass(frozen=True)
@@ -201,7 +202,7 @@ def _render_photo(product: Product, size: int, with_mask: bool, style: PhotoStyl
     mujoco.mj_forward(model, data)
     centre, half = world_box()
     extent = float(np.linalg.norm(half))
-    renderer = mujoco.Renderer(model, size, size)
+    renderer = shared_renderer(model, size, size)
     try:
         camera = mujoco.MjvCamera()
         camera.lookat[:] = centre

@@ -179,10 +179,10 @@ class PickPipeline:
         frames: list[np.ndarray] = []
         overview = None
         try:
-            import mujoco
+            from binpick.sim.rendering import renderer
 
             side = min(GIF_SIZE, self.camera.size)  # the model's framebuffer is the camera's size
-            overview = mujoco.Renderer(world.model, side, side)
+            overview = renderer(world.model, side, side)
             camera_id = world.model.camera("overview").id
 
             caption = ["the bin"]
