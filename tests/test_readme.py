@@ -112,8 +112,8 @@ TINY_RL = {"total_timesteps": 150, "checkpoint_every": 75, "eval.every": 150, "e
            "replay.capacity_episodes": 100, "sac.batch_size": 16, "sac.net_arch": "[8,8]"}
 # (regular expression, replacement) on each command: smaller numbers, then shorter training
 TINY: list[tuple[str, str]] = [
-    (r"--scenes 20000\b", "--scenes 8"),  # randomised: 8 worlds of 1 below, one of them val
-    (r"--scenes-per-world 16\b", "--scenes-per-world 1"),
+    (r"--scenes 20000\b", "--scenes 6"),  # randomised: 3 worlds of 2 below, one of them val (the anchors need the boxes of 4 scenes)
+    (r"--scenes-per-world 16\b", "--scenes-per-world 2"),  # (each randomised world costs more than its scenes)
     (r"--scenes 120\b", "--scenes 4"),
     (r"--scenes 6000\b", "--scenes 8 --scenes-per-world 4"),  # the larger fine-tuning set: two worlds
     (r"--scenes 2000\b", "--scenes 6 --scenes-per-world 2"),  # 3 worlds of 2: one each for val, test and train (split_rule=random)
