@@ -23,6 +23,7 @@ import mujoco
 
 _THREAD = threading.local()
 _MADE: weakref.WeakSet = weakref.WeakSet()  # every shared context of this process, freed at exit while EGL still runs
+_FREED_AT_EXIT = False  # _free_all registered (once, after the first context: see shared_context)
 
 
 def renderer(model: mujoco.MjModel, height: int = 240, width: int = 320) -> mujoco.Renderer:
@@ -40,8 +41,10 @@ def shared_context():
 
         context = gl_context.GLContext(1, 1)  # (EGL: the size is not used; MuJoCo renders into its own framebuffer)
         _THREAD.context, _THREAD.pid = context, os.getpid()
-        if not _MADE:  # after MuJoCo's own exit handler (which ends EGL), so this one runs before it
+        global _FREED_AT_EXIT
+        if not _FREED_AT_EXIT:  # registered after MuJoCo's own exit handler (which ends EGL), so it runs before it
             atexit.register(_free_all)
+            _FREED_AT_EXIT = True
         _MADE.add(context)
     return context
 
